@@ -1,0 +1,467 @@
+//! vlsync configuration: typed sections, defaults, strict validation.
+//!
+//! Unknown keys are errors; every out-of-range value is an error that names the
+//! key, the value and the allowed range. The shipped `config/vlsync.toml`
+//! documents every key and holds exactly the defaults of [`Config::default`].
+//!
+//! ```
+//! let cfg = vlsync_config::Config::from_toml_str("[estimator]\nwindow_s = 8.0\n", "inline").unwrap();
+//! assert_eq!(cfg.estimator.window_s, 8.0);
+//! let err = vlsync_config::Config::from_toml_str("[estimator]\nwindow_s = -1.0\n", "inline").unwrap_err();
+//! assert!(err.to_string().contains("estimator.window_s"));
+//! ```
+#![forbid(unsafe_code)]
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::Path;
+
+/// A configuration error: where, and what was wrong.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigError {
+    /// The file (or other source) the configuration came from.
+    pub source_name: String,
+    /// What was wrong, naming the key.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "config {}: {}", self.source_name, self.message)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// The estimator (correlator, gating, tracker).
+    pub estimator: EstimatorConfig,
+    /// The daemon process (core, priority, budget, state file).
+    pub daemon: DaemonConfig,
+    /// iceoryx2 service naming.
+    pub services: ServicesConfig,
+}
+
+/// Estimator parameters. Times in seconds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EstimatorConfig {
+    /// Rate of the common resampling grid, Hz.
+    pub grid_hz: f64,
+    /// Correlation window length, seconds.
+    pub window_s: f64,
+    /// Hop between estimates, seconds (also the block length of the incremental sums).
+    pub hop_s: f64,
+    /// Half-width of the acquisition lag search, seconds.
+    pub max_lag_s: f64,
+    /// Centre of the acquisition lag search (prior offset), seconds.
+    pub lag_center_s: f64,
+    /// Half-width of the tracking search around the predicted offset, seconds.
+    pub track_range_s: f64,
+    /// Short window used to detect offset steps, seconds.
+    pub step_window_s: f64,
+    /// A gap between consecutive samples of one stream longer than this breaks the window.
+    pub max_gap_s: f64,
+    /// A timestamp jump (forward, or backward by more than `max_gap_s`) larger than this resets that stream.
+    pub reset_jump_s: f64,
+    /// Low-pass cut-off applied identically to both resampled signals, Hz.
+    pub lowpass_hz: f64,
+    /// High-pass cut-off applied identically to both resampled signals, Hz.
+    pub highpass_hz: f64,
+    /// Samples with |value| above this are rejected.
+    pub max_abs_value: f64,
+    /// Minimum normalised correlation at the peak for a measurement.
+    pub min_peak_score: f64,
+    /// Minimum main-to-second peak ratio during acquisition.
+    pub min_peak_ratio: f64,
+    /// Minimum window variance of each signal relative to its recent typical motion variance.
+    pub min_motion_ratio: f64,
+    /// Consecutive consistent acquisition measurements needed to lock.
+    pub acquire_confirm: u32,
+    /// Scale applied to the peak-sharpness measurement noise.
+    pub measurement_noise_scale: f64,
+    /// Random-walk intensity of the offset, s/sqrt(s).
+    pub offset_process_noise: f64,
+    /// Random-walk intensity of the drift, (s/s)/sqrt(s).
+    pub drift_process_noise: f64,
+    /// Prior standard deviation of the drift at lock, s/s.
+    pub initial_drift_std: f64,
+    /// Innovation gate, in standard deviations.
+    pub gate_sigma: f64,
+    /// Consecutive consistent step-window outliers that declare an offset step.
+    pub step_confirm: u32,
+    /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
+    pub lost_std_s: f64,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            grid_hz: 100.0,
+            window_s: 6.0,
+            hop_s: 0.5,
+            max_lag_s: 0.5,
+            lag_center_s: 0.0,
+            track_range_s: 0.08,
+            step_window_s: 2.0,
+            max_gap_s: 0.75,
+            reset_jump_s: 5.0,
+            lowpass_hz: 2.0,
+            highpass_hz: 0.1,
+            max_abs_value: 1e6,
+            min_peak_score: 0.4,
+            min_peak_ratio: 1.3,
+            min_motion_ratio: 0.05,
+            acquire_confirm: 2,
+            measurement_noise_scale: 1.0,
+            offset_process_noise: 2e-4,
+            drift_process_noise: 2e-6,
+            initial_drift_std: 2e-4,
+            gate_sigma: 3.0,
+            step_confirm: 2,
+            lost_std_s: 0.05,
+        }
+    }
+}
+
+/// Daemon process settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaemonConfig {
+    /// CPU core the real-time thread is pinned to; negative: no pinning.
+    pub core: i64,
+    /// SCHED_FIFO priority of the real-time thread (1-99); 0 keeps the normal scheduler.
+    pub fifo_priority: i64,
+    /// Lock the process memory (mlockall) when allowed.
+    pub lock_memory: bool,
+    /// Processing budget per sample, microseconds.
+    pub latency_budget_us: f64,
+    /// Status publication period, seconds.
+    pub status_period_s: f64,
+    /// Where the last good estimate is saved; empty: no persistence.
+    pub state_file: String,
+    /// A saved state older than this is ignored at start, seconds.
+    pub state_max_age_s: f64,
+}
+
+impl Default for DaemonConfig {
+    fn default() -> Self {
+        Self {
+            core: 1,
+            fifo_priority: 0,
+            lock_memory: false,
+            latency_budget_us: 200.0,
+            status_period_s: 1.0,
+            state_file: String::new(),
+            state_max_age_s: 3600.0,
+        }
+    }
+}
+
+/// iceoryx2 service naming.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServicesConfig {
+    /// Service name prefix, one robot per prefix: `<prefix>/cam/signature`, ...
+    pub prefix: String,
+    /// Buffered samples per subscriber.
+    pub subscriber_buffer: i64,
+}
+
+impl Default for ServicesConfig {
+    fn default() -> Self {
+        Self {
+            prefix: "vlsync/robot".to_string(),
+            subscriber_buffer: 256,
+        }
+    }
+}
+
+struct Checker<'a> {
+    source: &'a str,
+}
+
+impl Checker<'_> {
+    fn err(&self, message: String) -> ConfigError {
+        ConfigError {
+            source_name: self.source.to_string(),
+            message,
+        }
+    }
+
+    fn range(&self, key: &str, v: f64, min: f64, max: f64) -> Result<(), ConfigError> {
+        if v.is_finite() && v >= min && v <= max {
+            Ok(())
+        } else {
+            Err(self.err(format!(
+                "`{key}` = {v} is out of range: allowed {min} ..= {max}"
+            )))
+        }
+    }
+
+    fn int_range(&self, key: &str, v: i64, min: i64, max: i64) -> Result<(), ConfigError> {
+        if v >= min && v <= max {
+            Ok(())
+        } else {
+            Err(self.err(format!(
+                "`{key}` = {v} is out of range: allowed {min} ..= {max}"
+            )))
+        }
+    }
+
+    fn rule(&self, ok: bool, msg: impl FnOnce() -> String) -> Result<(), ConfigError> {
+        if ok {
+            Ok(())
+        } else {
+            Err(self.err(msg()))
+        }
+    }
+}
+
+impl EstimatorConfig {
+    /// Checks every value; the error names the key, value and allowed range.
+    pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
+        let c = Checker { source };
+        let k = |n: &str| format!("estimator.{n}");
+        c.range(&k("grid_hz"), self.grid_hz, 10.0, 2000.0)?;
+        c.range(&k("window_s"), self.window_s, 1.0, 120.0)?;
+        c.range(&k("hop_s"), self.hop_s, 0.05, 10.0)?;
+        c.range(&k("max_lag_s"), self.max_lag_s, 0.01, 2.0)?;
+        c.range(&k("lag_center_s"), self.lag_center_s, -1e6, 1e6)?;
+        c.range(&k("track_range_s"), self.track_range_s, 0.005, 2.0)?;
+        c.range(&k("step_window_s"), self.step_window_s, 0.5, 120.0)?;
+        c.range(&k("max_gap_s"), self.max_gap_s, 0.01, 60.0)?;
+        c.range(&k("reset_jump_s"), self.reset_jump_s, 0.1, 1e6)?;
+        c.range(&k("lowpass_hz"), self.lowpass_hz, 0.05, 500.0)?;
+        c.range(&k("highpass_hz"), self.highpass_hz, 0.0, 100.0)?;
+        c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, 1e300)?;
+        c.range(&k("min_peak_score"), self.min_peak_score, 0.0, 1.0)?;
+        c.range(&k("min_peak_ratio"), self.min_peak_ratio, 1.0, 100.0)?;
+        c.range(&k("min_motion_ratio"), self.min_motion_ratio, 0.0, 1.0)?;
+        c.int_range(&k("acquire_confirm"), self.acquire_confirm.into(), 1, 100)?;
+        c.range(
+            &k("measurement_noise_scale"),
+            self.measurement_noise_scale,
+            1e-3,
+            1e3,
+        )?;
+        c.range(
+            &k("offset_process_noise"),
+            self.offset_process_noise,
+            0.0,
+            1.0,
+        )?;
+        c.range(&k("drift_process_noise"), self.drift_process_noise, 0.0, 1.0)?;
+        c.range(&k("initial_drift_std"), self.initial_drift_std, 1e-9, 0.1)?;
+        c.range(&k("gate_sigma"), self.gate_sigma, 1.0, 100.0)?;
+        c.int_range(&k("step_confirm"), self.step_confirm.into(), 1, 100)?;
+        c.range(&k("lost_std_s"), self.lost_std_s, 1e-4, 10.0)?;
+        c.rule(self.hop_s <= self.window_s, || {
+            format!(
+                "`estimator.hop_s` = {} must not exceed `estimator.window_s` = {}",
+                self.hop_s, self.window_s
+            )
+        })?;
+        c.rule(self.step_window_s <= self.window_s, || {
+            format!(
+                "`estimator.step_window_s` = {} must not exceed `estimator.window_s` = {}",
+                self.step_window_s, self.window_s
+            )
+        })?;
+        c.rule(self.hop_s * self.grid_hz >= 1.0, || {
+            format!(
+                "`estimator.hop_s` = {} is shorter than one grid step (1/`estimator.grid_hz` = {} s)",
+                self.hop_s,
+                1.0 / self.grid_hz
+            )
+        })?;
+        c.rule(self.lowpass_hz < self.grid_hz / 2.0, || {
+            format!(
+                "`estimator.lowpass_hz` = {} must be below half of `estimator.grid_hz` ({})",
+                self.lowpass_hz,
+                self.grid_hz / 2.0
+            )
+        })?;
+        c.rule(self.highpass_hz < self.lowpass_hz, || {
+            format!(
+                "`estimator.highpass_hz` = {} must be below `estimator.lowpass_hz` = {}",
+                self.highpass_hz, self.lowpass_hz
+            )
+        })?;
+        c.rule(self.track_range_s <= self.max_lag_s, || {
+            format!(
+                "`estimator.track_range_s` = {} must not exceed `estimator.max_lag_s` = {}",
+                self.track_range_s, self.max_lag_s
+            )
+        })?;
+        Ok(())
+    }
+}
+
+impl DaemonConfig {
+    /// Checks every value.
+    pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
+        let c = Checker { source };
+        c.int_range("daemon.core", self.core, -1, 1023)?;
+        c.int_range("daemon.fifo_priority", self.fifo_priority, 0, 99)?;
+        c.range(
+            "daemon.latency_budget_us",
+            self.latency_budget_us,
+            1.0,
+            1e6,
+        )?;
+        c.range("daemon.status_period_s", self.status_period_s, 0.05, 3600.0)?;
+        c.range("daemon.state_max_age_s", self.state_max_age_s, 0.0, 1e9)?;
+        Ok(())
+    }
+}
+
+impl ServicesConfig {
+    /// Checks every value. The prefix must be non-empty, at most 200 bytes, and use
+    /// only ASCII letters, digits, `_`, `-`, `.` and `/` (no leading/trailing `/`, no `//`).
+    pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
+        let c = Checker { source };
+        let p = &self.prefix;
+        let chars_ok = p
+            .chars()
+            .all(|ch| ch.is_ascii_alphanumeric() || "_-./".contains(ch));
+        c.rule(
+            !p.is_empty()
+                && p.len() <= 200
+                && chars_ok
+                && !p.starts_with('/')
+                && !p.ends_with('/')
+                && !p.contains("//"),
+            || {
+                format!(
+                    "`services.prefix` = {p:?} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`"
+                )
+            },
+        )?;
+        c.int_range(
+            "services.subscriber_buffer",
+            self.subscriber_buffer,
+            1,
+            65536,
+        )?;
+        Ok(())
+    }
+}
+
+impl Config {
+    /// Parses and validates TOML text; `source_name` names it in errors.
+    pub fn from_toml_str(text: &str, source_name: &str) -> Result<Self, ConfigError> {
+        let cfg: Config = toml::from_str(text).map_err(|e| ConfigError {
+            source_name: source_name.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        cfg.validate(source_name)?;
+        Ok(cfg)
+    }
+
+    /// Reads, parses and validates a TOML file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            source_name: name.clone(),
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::from_toml_str(&text, &name)
+    }
+
+    /// Validates every section.
+    pub fn validate(&self, source_name: &str) -> Result<(), ConfigError> {
+        self.estimator.validate(source_name)?;
+        self.daemon.validate(source_name)?;
+        self.services.validate(source_name)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const SHIPPED: &str = include_str!("../vlsync.toml");
+
+    #[test]
+    fn defaults_are_valid() {
+        Config::default().validate("default").unwrap();
+    }
+
+    #[test]
+    fn shipped_file_parses_and_equals_defaults() {
+        let cfg = Config::from_toml_str(SHIPPED, "config/vlsync.toml").unwrap();
+        assert_eq!(cfg, Config::default());
+    }
+
+    #[test]
+    fn shipped_file_documents_every_key() {
+        // every key serialised from the defaults appears, uncommented, in the shipped file
+        let text = toml::to_string(&Config::default()).unwrap();
+        for line in text.lines() {
+            if let Some((key, _)) = line.split_once(" = ") {
+                let found = SHIPPED
+                    .lines()
+                    .any(|l| l.trim_start().starts_with(&format!("{key} =")));
+                assert!(found, "key `{key}` is not in config/vlsync.toml");
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_key_is_an_error_naming_it() {
+        let e = Config::from_toml_str("[estimator]\nwindow = 3.0\n", "x.toml").unwrap_err();
+        assert!(e.to_string().contains("window"), "{e}");
+        assert!(e.to_string().contains("x.toml"), "{e}");
+        let e = Config::from_toml_str("[nope]\n", "x.toml").unwrap_err();
+        assert!(e.to_string().contains("nope"), "{e}");
+    }
+
+    #[test]
+    fn out_of_range_names_key_value_and_range() {
+        let e = Config::from_toml_str("[estimator]\nmax_lag_s = 5.0\n", "x.toml").unwrap_err();
+        let s = e.to_string();
+        assert!(s.contains("estimator.max_lag_s"), "{s}");
+        assert!(s.contains('5'), "{s}");
+        assert!(s.contains("0.01 ..= 2"), "{s}");
+    }
+
+    #[test]
+    fn wrong_type_is_an_error() {
+        let e = Config::from_toml_str("[daemon]\ncore = \"one\"\n", "x.toml").unwrap_err();
+        assert!(e.to_string().contains("core"), "{e}");
+    }
+
+    #[test]
+    fn cross_field_rules() {
+        let e =
+            Config::from_toml_str("[estimator]\nhop_s = 8.0\nwindow_s = 4.0\n", "x").unwrap_err();
+        assert!(e.to_string().contains("hop_s"), "{e}");
+        let e = Config::from_toml_str("[services]\nprefix = \"/a//b\"\n", "x").unwrap_err();
+        assert!(e.to_string().contains("services.prefix"), "{e}");
+    }
+
+    proptest! {
+        // The parser never panics on arbitrary text, and what it accepts validates.
+        #[test]
+        fn parser_never_panics(text in "\\PC{0,200}") {
+            if let Ok(cfg) = Config::from_toml_str(&text, "fuzz") {
+                prop_assert!(cfg.validate("fuzz").is_ok());
+            }
+        }
+
+        #[test]
+        fn window_values_accepted_iff_in_range(w in -10.0f64..200.0) {
+            let text = format!("[estimator]\nwindow_s = {w:?}\n");
+            let r = Config::from_toml_str(&text, "p");
+            // the default step window (2 s) is the binding lower limit
+            let in_range = (2.0..=120.0).contains(&w);
+            prop_assert_eq!(r.is_ok(), in_range, "w={}", w);
+        }
+    }
+}

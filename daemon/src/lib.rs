@@ -1,0 +1,2 @@
+//! vlsyncd library.
+#![forbid(unsafe_code)]
