@@ -1,0 +1,2 @@
+//! See Cargo.toml description.
+#![forbid(unsafe_code)]
