@@ -31,6 +31,9 @@
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
+#[cfg(feature = "wire")]
+pub mod wire;
+
 /// A timestamp or duration in integer nanoseconds.
 pub type Nanos = i64;
 
