@@ -1,2 +1,714 @@
-//! See Cargo.toml description.
-#![forbid(unsafe_code)]
+//! iceoryx2 services of vlsync: service names, ports with one consistent QoS,
+//! and the client API.
+//!
+//! # Services (one robot per prefix)
+//!
+//! | name                        | pattern            | payload | who publishes / notifies |
+//! |-----------------------------|--------------------|---------|--------------------------|
+//! | `<prefix>/cam/signature`    | publish-subscribe  | [`SignatureSample`] | `vlsync-cam` |
+//! | `<prefix>/lidar/signature`  | publish-subscribe  | [`SignatureSample`] | `vlsync-lidar` |
+//! | `<prefix>/signature/ready`  | event (id 0 cam, 1 lidar) | — | both drivers, after each sample |
+//! | `<prefix>/offset`           | publish-subscribe + event | [`OffsetEstimate`] | `vlsyncd` |
+//! | `<prefix>/status`           | publish-subscribe + event | [`Status`] | `vlsyncd` |
+//!
+//! The daemon blocks on ONE listener of `<prefix>/signature/ready`, so it sleeps
+//! until a driver publishes (no polling, no WaitSet: the 0.10 WaitSet allocates on
+//! every wake-up, a single listener does not).
+//!
+//! # QoS
+//!
+//! Services are opened with no requirements and, only when they do not exist yet,
+//! created with [`Qos`] (see [`open_or_create_pubsub`]): a driver or client started
+//! before the daemon creates exactly what the daemon would, and a daemon started
+//! with a larger `services.subscriber_buffer` than the service was created with
+//! gets the service's maximum (the clamp is reported by [`SubscriberBuffer`]).
+//! Every service allows several publishers and nodes, so a restarted process can
+//! attach while the dead one's ports are still being reclaimed; safe overflow is
+//! on (a slow subscriber loses the oldest sample, never blocks a publisher), and
+//! the lost samples show up as sequence gaps in the daemon's status.
+#![deny(unsafe_code)]
+
+pub mod rt;
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
+use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use std::fmt;
+use std::time::{Duration, Instant};
+use vlsync_common::wire::{OffsetEstimate, SignatureSample, Status, WireError};
+use vlsync_common::{camera_to_lidar_ns, Estimate, Nanos, Stream};
+
+pub use iceoryx2;
+pub use vlsync_common::wire;
+
+/// The iceoryx2 service variant used everywhere (inter-process).
+pub type Svc = ipc::Service;
+/// A node of [`Svc`].
+pub type IpcNode = Node<Svc>;
+
+/// What went wrong, and where.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IpcError {
+    /// What was being done (names the service or port).
+    pub context: String,
+    /// The underlying error.
+    pub message: String,
+}
+
+impl IpcError {
+    /// Builds an error from a context and any displayable cause.
+    pub fn new(context: impl Into<String>, cause: impl fmt::Display) -> Self {
+        Self {
+            context: context.into(),
+            message: cause.to_string(),
+        }
+    }
+}
+
+impl fmt::Display for IpcError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.context, self.message)
+    }
+}
+
+impl std::error::Error for IpcError {}
+
+/// Event id a driver notifies on `<prefix>/signature/ready`.
+pub fn stream_event_id(stream: Stream) -> EventId {
+    EventId::new(match stream {
+        Stream::Cam => 0,
+        Stream::Lidar => 1,
+    })
+}
+
+/// Index of a stream in per-stream arrays (0 cam, 1 lidar).
+pub fn stream_index(stream: Stream) -> usize {
+    match stream {
+        Stream::Cam => 0,
+        Stream::Lidar => 1,
+    }
+}
+
+/// The service names under one prefix.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceNames {
+    /// The prefix, as validated.
+    pub prefix: String,
+}
+
+impl ServiceNames {
+    /// Validates the prefix with the same rule as `services.prefix` in the configuration.
+    pub fn new(prefix: &str) -> Result<Self, IpcError> {
+        let cfg = vlsync_config::ServicesConfig {
+            prefix: prefix.to_string(),
+            ..Default::default()
+        };
+        cfg.validate("--prefix")
+            .map_err(|e| IpcError::new("service prefix", e))?;
+        Ok(Self {
+            prefix: prefix.to_string(),
+        })
+    }
+
+    /// `<prefix>/<cam|lidar>/signature`
+    pub fn signature(&self, stream: Stream) -> String {
+        format!("{}/{}/signature", self.prefix, stream.name())
+    }
+
+    /// `<prefix>/signature/ready`: event service the drivers notify.
+    pub fn signature_ready(&self) -> String {
+        format!("{}/signature/ready", self.prefix)
+    }
+
+    /// `<prefix>/offset` (publish-subscribe and event).
+    pub fn offset(&self) -> String {
+        format!("{}/offset", self.prefix)
+    }
+
+    /// `<prefix>/status` (publish-subscribe and event).
+    pub fn status(&self) -> String {
+        format!("{}/status", self.prefix)
+    }
+}
+
+/// Service-level quality of service used when a service is created.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Qos {
+    /// Samples a late subscriber receives on connection.
+    pub history: usize,
+    /// Maximum buffer a subscriber may request.
+    pub max_buffer: usize,
+    /// Publishers at once (a restarted driver, a test publisher, the dead port not yet reclaimed).
+    pub max_publishers: usize,
+    /// Subscribers at once.
+    pub max_subscribers: usize,
+    /// Nodes at once.
+    pub max_nodes: usize,
+}
+
+impl Qos {
+    /// Signature streams: no history (stale samples are useless after a restart).
+    pub fn signature(subscriber_buffer: usize) -> Self {
+        Self {
+            history: 0,
+            max_buffer: subscriber_buffer.max(DEFAULT_SIGNATURE_BUFFER),
+            max_publishers: 4,
+            max_subscribers: 4,
+            max_nodes: 16,
+        }
+    }
+
+    /// Offset and status: the last sample is delivered to late subscribers.
+    pub fn latest() -> Self {
+        Self {
+            history: 1,
+            max_buffer: 16,
+            max_publishers: 2,
+            max_subscribers: 16,
+            max_nodes: 32,
+        }
+    }
+}
+
+/// Default `services.subscriber_buffer`, and the minimum signature service buffer.
+pub const DEFAULT_SIGNATURE_BUFFER: usize = 256;
+
+/// Creates a node named `name`. iceoryx2 is configured (its defaults) to remove
+/// the resources of dead nodes whenever a node is created, so a process
+/// restarted after a crash cleans up behind its predecessor; [`cleanup_dead_nodes`]
+/// does it explicitly and reports the count.
+pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError> {
+    let node_name = NodeName::new(name)
+        .map_err(|e| IpcError::new(format!("node name {name:?}"), format!("{e:?}")))?;
+    let mode = if handle_signals {
+        SignalHandlingMode::HandleTerminationRequests
+    } else {
+        SignalHandlingMode::Disabled
+    };
+    NodeBuilder::new()
+        .name(&node_name)
+        .signal_handling_mode(mode)
+        .create::<Svc>()
+        .map_err(|e| IpcError::new(format!("create iceoryx2 node {name:?}"), format!("{e:?}")))
+}
+
+/// Removes the resources of every dead iceoryx2 node (crashed processes) and
+/// returns `(cleaned, failed)`.
+pub fn cleanup_dead_nodes(node: &IpcNode) -> (u64, u64) {
+    let s = node.try_cleanup_dead_nodes();
+    (s.cleanups, s.failed_cleanups)
+}
+
+/// True when SIGINT or SIGTERM arrived (iceoryx2's handler, installed by a node
+/// created with `handle_signals`).
+pub fn termination_requested() -> bool {
+    iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
+}
+
+/// Now on `CLOCK_MONOTONIC`, ns (the clock of every `publish_ns` field).
+pub fn monotonic_ns() -> Nanos {
+    use iceoryx2_bb_posix::clock::{ClockType, Time};
+    match Time::now_with_clock(ClockType::Monotonic) {
+        Ok(t) => {
+            let d = t.as_duration();
+            (d.as_secs() as i64)
+                .saturating_mul(1_000_000_000)
+                .saturating_add(i64::from(d.subsec_nanos()))
+        }
+        // CLOCK_MONOTONIC cannot fail on Linux; 0 marks "unknown" for latency purposes.
+        Err(_) => 0,
+    }
+}
+
+fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name)
+        .map_err(|e| IpcError::new(format!("service name {name:?}"), format!("{e:?}")))
+}
+
+const OPEN_ATTEMPTS: u32 = 50;
+const OPEN_RETRY: Duration = Duration::from_millis(20);
+
+/// Opens publish-subscribe service `name` for payload `T` without constraints,
+/// or creates it with `qos` when it does not exist. Retries transient states
+/// (being created or torn down by another process) for up to 1 s.
+pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
+    node: &IpcNode,
+    name: &str,
+    qos: Qos,
+) -> Result<PubSubFactory<Svc, T, ()>, IpcError> {
+    let sn = service_name(name)?;
+    let mut last = String::new();
+    for _ in 0..OPEN_ATTEMPTS {
+        match node.service_builder(&sn).publish_subscribe::<T>().open() {
+            Ok(s) => return Ok(s),
+            Err(PublishSubscribeOpenError::DoesNotExist) => {
+                match node
+                    .service_builder(&sn)
+                    .publish_subscribe::<T>()
+                    .history_size(qos.history)
+                    .subscriber_max_buffer_size(qos.max_buffer)
+                    .max_publishers(qos.max_publishers)
+                    .max_subscribers(qos.max_subscribers)
+                    .max_nodes(qos.max_nodes)
+                    .enable_safe_overflow(true)
+                    .create()
+                {
+                    Ok(s) => return Ok(s),
+                    Err(e) => last = format!("create failed: {e:?}"),
+                }
+            }
+            Err(
+                e @ (PublishSubscribeOpenError::IsMarkedForDestruction
+                | PublishSubscribeOpenError::HangsInCreation
+                | PublishSubscribeOpenError::InternalFailure
+                | PublishSubscribeOpenError::ServiceInCorruptedState),
+            ) => last = format!("open failed: {e:?}"),
+            Err(e) => return Err(IpcError::new(
+                format!("open service {name:?}"),
+                format!(
+                    "{e:?} (another process uses it with a different payload type or settings?)"
+                ),
+            )),
+        }
+        std::thread::sleep(OPEN_RETRY);
+    }
+    Err(IpcError::new(format!("open service {name:?}"), last))
+}
+
+/// Opens or creates event service `name` (default QoS, more nodes for restarts).
+pub fn open_or_create_event(node: &IpcNode, name: &str) -> Result<EventFactory<Svc>, IpcError> {
+    let sn = service_name(name)?;
+    let mut last = String::new();
+    for _ in 0..OPEN_ATTEMPTS {
+        match node.service_builder(&sn).event().open() {
+            Ok(s) => return Ok(s),
+            Err(EventOpenError::DoesNotExist) => match node
+                .service_builder(&sn)
+                .event()
+                .max_nodes(48)
+                .max_notifiers(16)
+                .max_listeners(16)
+                .create()
+            {
+                Ok(s) => return Ok(s),
+                Err(e) => last = format!("create failed: {e:?}"),
+            },
+            Err(e) => last = format!("open failed: {e:?}"),
+        }
+        std::thread::sleep(OPEN_RETRY);
+    }
+    Err(IpcError::new(format!("open event service {name:?}"), last))
+}
+
+/// The subscriber buffer actually granted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SubscriberBuffer {
+    /// What was asked for.
+    pub requested: usize,
+    /// What the service allows (`min(requested, service maximum)`).
+    pub granted: usize,
+}
+
+/// A subscriber of `factory` with `buffer` samples (clamped to the service maximum).
+pub fn subscriber<T: std::fmt::Debug + ZeroCopySend>(
+    factory: &PubSubFactory<Svc, T, ()>,
+    buffer: usize,
+    what: &str,
+) -> Result<(Subscriber<Svc, T, ()>, SubscriberBuffer), IpcError> {
+    let max = factory.static_config().subscriber_max_buffer_size();
+    let granted = buffer.clamp(1, max.max(1));
+    let sub = factory
+        .subscriber_builder()
+        .buffer_size(granted)
+        .create()
+        .map_err(|e| IpcError::new(format!("create subscriber on {what}"), format!("{e:?}")))?;
+    Ok((
+        sub,
+        SubscriberBuffer {
+            requested: buffer,
+            granted,
+        },
+    ))
+}
+
+/// A publisher of `factory` that never blocks (a missing or slow subscriber
+/// loses samples; the publisher goes on).
+pub fn publisher<T: std::fmt::Debug + ZeroCopySend>(
+    factory: &PubSubFactory<Svc, T, ()>,
+    what: &str,
+) -> Result<Publisher<Svc, T, ()>, IpcError> {
+    factory
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::DiscardData)
+        .create()
+        .map_err(|e| IpcError::new(format!("create publisher on {what}"), format!("{e:?}")))
+}
+
+/// A notifier on event service `factory`.
+pub fn notifier(factory: &EventFactory<Svc>, what: &str) -> Result<Notifier<Svc>, IpcError> {
+    factory
+        .notifier_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create notifier on {what}"), format!("{e:?}")))
+}
+
+/// A listener on event service `factory`.
+pub fn listener(factory: &EventFactory<Svc>, what: &str) -> Result<Listener<Svc>, IpcError> {
+    factory
+        .listener_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create listener on {what}"), format!("{e:?}")))
+}
+
+/// Publishes one signature stream: the driver side.
+pub struct SignaturePublisher {
+    stream: Stream,
+    publisher: Publisher<Svc, SignatureSample, ()>,
+    notifier: Notifier<Svc>,
+    next_seq: u64,
+    _services: (PubSubFactory<Svc, SignatureSample, ()>, EventFactory<Svc>),
+}
+
+impl SignaturePublisher {
+    /// Opens `<prefix>/<stream>/signature` and `<prefix>/signature/ready`.
+    pub fn open(node: &IpcNode, names: &ServiceNames, stream: Stream) -> Result<Self, IpcError> {
+        let name = names.signature(stream);
+        let svc = open_or_create_pubsub::<SignatureSample>(
+            node,
+            &name,
+            Qos::signature(DEFAULT_SIGNATURE_BUFFER),
+        )?;
+        let ev = open_or_create_event(node, &names.signature_ready())?;
+        let publisher = publisher(&svc, &name)?;
+        let notifier = notifier(&ev, &names.signature_ready())?;
+        Ok(Self {
+            stream,
+            publisher,
+            notifier,
+            next_seq: 0,
+            _services: (svc, ev),
+        })
+    }
+
+    /// Publishes one sample stamped with the next sequence number and now
+    /// (`CLOCK_MONOTONIC`), then wakes the daemon. The first sample carries
+    /// [`vlsync_common::wire::FLAG_FIRST`]. Returns the sequence number used.
+    pub fn publish(&mut self, t_ns: Nanos, value: f64) -> Result<u64, IpcError> {
+        let seq = self.next_seq;
+        let mut s = SignatureSample::new(t_ns, value, seq, monotonic_ns());
+        if seq == 0 {
+            s.flags |= vlsync_common::wire::FLAG_FIRST;
+        }
+        self.publish_raw(s)?;
+        self.next_seq += 1;
+        Ok(seq)
+    }
+
+    /// Publishes a payload exactly as given (tests use it to send hostile samples).
+    pub fn publish_raw(&self, s: SignatureSample) -> Result<(), IpcError> {
+        let what = || format!("publish {} signature", self.stream);
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
+        sample
+            .write_payload(s)
+            .send()
+            .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
+        self.notifier
+            .notify_with_custom_event_id(stream_event_id(self.stream))
+            .map_err(|e| IpcError::new(format!("notify {}", what()), format!("{e:?}")))?;
+        Ok(())
+    }
+}
+
+/// Subscribes to the daemon's estimates: the client API.
+///
+/// ```no_run
+/// let mut c = vlsync_ipc::OffsetClient::open("vlsync/robot").unwrap();
+/// if let Some(e) = c.wait_next(std::time::Duration::from_secs(1)).unwrap() {
+///     println!("offset {} s", e.offset_s);
+/// }
+/// let t_lidar = c.camera_to_lidar(1_000_000_000);
+/// ```
+pub struct OffsetClient {
+    subscriber: Subscriber<Svc, OffsetEstimate, ()>,
+    listener: Listener<Svc>,
+    latest: Option<Estimate>,
+    latest_publish_ns: Nanos,
+    invalid: u64,
+    _services: (PubSubFactory<Svc, OffsetEstimate, ()>, EventFactory<Svc>),
+    _node: IpcNode,
+}
+
+impl OffsetClient {
+    /// Opens `<prefix>/offset` with its own node (signals not handled: the
+    /// application owns SIGINT/SIGTERM).
+    pub fn open(prefix: &str) -> Result<Self, IpcError> {
+        let names = ServiceNames::new(prefix)?;
+        let node = create_node("vlsync-client", false)?;
+        let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest())?;
+        let ev = open_or_create_event(&node, &names.offset())?;
+        let (subscriber, _) = subscriber(&svc, 16, &names.offset())?;
+        let listener = listener(&ev, &names.offset())?;
+        let mut c = Self {
+            subscriber,
+            listener,
+            latest: None,
+            latest_publish_ns: 0,
+            invalid: 0,
+            _services: (svc, ev),
+            _node: node,
+        };
+        c.drain()?;
+        Ok(c)
+    }
+
+    /// Takes every pending estimate; returns whether a new valid one arrived.
+    /// Invalid payloads are skipped and counted ([`OffsetClient::invalid_count`]).
+    fn drain(&mut self) -> Result<bool, IpcError> {
+        let mut got = false;
+        loop {
+            let s = self
+                .subscriber
+                .receive()
+                .map_err(|e| IpcError::new("receive on offset service", format!("{e:?}")))?;
+            let Some(s) = s else { break };
+            let w: OffsetEstimate = *s.payload();
+            match Estimate::try_from(&w) {
+                Ok(e) => {
+                    self.latest = Some(e);
+                    self.latest_publish_ns = w.publish_ns;
+                    got = true;
+                }
+                Err(_) => self.invalid += 1,
+            }
+        }
+        Ok(got)
+    }
+
+    /// The most recent estimate received (after draining what is pending).
+    pub fn latest(&mut self) -> Option<Estimate> {
+        // a receive error keeps the last good estimate
+        let _ = self.drain();
+        self.latest
+    }
+
+    /// `CLOCK_MONOTONIC` time at which the daemon published [`OffsetClient::latest`].
+    pub fn latest_publish_ns(&self) -> Nanos {
+        self.latest_publish_ns
+    }
+
+    /// Payloads refused by validation so far.
+    pub fn invalid_count(&self) -> u64 {
+        self.invalid
+    }
+
+    /// Converts a camera timestamp to the LiDAR time base with the latest estimate,
+    /// extrapolated with its drift; returns the LiDAR time and the standard
+    /// deviation (s) of the offset used. `None` before the first estimate.
+    pub fn camera_to_lidar(&mut self, t_cam_ns: Nanos) -> Option<(Nanos, f64)> {
+        let e = self.latest()?;
+        // the offset is a function of LiDAR time; t_cam is within |offset| of it
+        let approx_lidar = camera_to_lidar_ns(t_cam_ns, e.offset_s);
+        let off = e.offset_at(approx_lidar);
+        Some((
+            camera_to_lidar_ns(t_cam_ns, off),
+            e.offset_std_at(approx_lidar),
+        ))
+    }
+
+    /// Waits up to `timeout` for the next estimate; sleeps on the offset event.
+    /// `Ok(None)` on timeout.
+    pub fn wait_next(&mut self, timeout: Duration) -> Result<Option<Estimate>, IpcError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if self.drain()? {
+                return Ok(self.latest);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Ok(None);
+            }
+            match self.listener.timed_wait(|_| {}, deadline - now) {
+                Ok(_) => {}
+                Err(e) => {
+                    // a signal interrupted the wait: let the caller decide
+                    if termination_requested() {
+                        return Ok(None);
+                    }
+                    return Err(IpcError::new("wait on offset event", format!("{e:?}")));
+                }
+            }
+        }
+    }
+}
+
+/// Subscribes to the daemon's status.
+pub struct StatusClient {
+    subscriber: Subscriber<Svc, Status, ()>,
+    latest: Option<Status>,
+    _service: PubSubFactory<Svc, Status, ()>,
+    _node: IpcNode,
+}
+
+impl StatusClient {
+    /// Opens `<prefix>/status`.
+    pub fn open(prefix: &str) -> Result<Self, IpcError> {
+        let names = ServiceNames::new(prefix)?;
+        let node = create_node("vlsync-status-client", false)?;
+        let svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())?;
+        let (subscriber, _) = subscriber(&svc, 16, &names.status())?;
+        Ok(Self {
+            subscriber,
+            latest: None,
+            _service: svc,
+            _node: node,
+        })
+    }
+
+    /// The most recent valid status; invalid payloads are skipped.
+    pub fn latest(&mut self) -> Result<Option<Status>, WireErrorOrIpc> {
+        let mut last_err = None;
+        loop {
+            let s = self.subscriber.receive().map_err(|e| {
+                WireErrorOrIpc::Ipc(IpcError::new("receive on status service", format!("{e:?}")))
+            })?;
+            let Some(s) = s else { break };
+            let st: Status = *s.payload();
+            match st.validate() {
+                Ok(()) => self.latest = Some(st),
+                Err(e) => last_err = Some(e),
+            }
+        }
+        match (self.latest, last_err) {
+            (None, Some(e)) => Err(WireErrorOrIpc::Wire(e)),
+            (l, _) => Ok(l),
+        }
+    }
+}
+
+/// An IPC failure or an invalid payload.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WireErrorOrIpc {
+    /// Transport failure.
+    Ipc(IpcError),
+    /// The payload failed validation.
+    Wire(WireError),
+}
+
+impl fmt::Display for WireErrorOrIpc {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            WireErrorOrIpc::Ipc(e) => e.fmt(f),
+            WireErrorOrIpc::Wire(e) => write!(f, "invalid status payload: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for WireErrorOrIpc {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unique_prefix(tag: &str) -> String {
+        format!("vlsync-test/{tag}-{}", std::process::id())
+    }
+
+    #[test]
+    fn names_follow_the_prefix() {
+        let n = ServiceNames::new("a/b").unwrap();
+        assert_eq!(n.signature(Stream::Cam), "a/b/cam/signature");
+        assert_eq!(n.signature(Stream::Lidar), "a/b/lidar/signature");
+        assert_eq!(n.offset(), "a/b/offset");
+        assert_eq!(n.status(), "a/b/status");
+        assert_eq!(n.signature_ready(), "a/b/signature/ready");
+        let e = ServiceNames::new("/bad").unwrap_err();
+        assert!(e.to_string().contains("services.prefix"), "{e}");
+    }
+
+    #[test]
+    fn signature_roundtrip_and_wakeup() {
+        let names = ServiceNames::new(&unique_prefix("sig")).unwrap();
+        let node = create_node("test", false).unwrap();
+        let mut p = SignaturePublisher::open(&node, &names, Stream::Lidar).unwrap();
+        let svc = open_or_create_pubsub::<SignatureSample>(
+            &node,
+            &names.signature(Stream::Lidar),
+            Qos::signature(1024),
+        )
+        .unwrap();
+        // opening never constrains: the service keeps what its creator set
+        assert_eq!(
+            svc.static_config().subscriber_max_buffer_size(),
+            DEFAULT_SIGNATURE_BUFFER
+        );
+        let (sub, buf) = subscriber(&svc, 1024, "lidar").unwrap();
+        assert_eq!(buf.granted, DEFAULT_SIGNATURE_BUFFER);
+        let ev = open_or_create_event(&node, &names.signature_ready()).unwrap();
+        let l = listener(&ev, "ready").unwrap();
+        assert_eq!(p.publish(5, 1.5).unwrap(), 0);
+        assert_eq!(p.publish(6, 2.5).unwrap(), 1);
+        let mut ids = vec![];
+        l.timed_wait(|a| ids.push(a.id.as_value()), Duration::from_secs(1))
+            .unwrap();
+        assert_eq!(ids, vec![1]);
+        let a = *sub.receive().unwrap().unwrap().payload();
+        assert!(a.is_first());
+        assert_eq!((a.t_ns, a.value, a.seq), (5, 1.5, 0));
+        let b = *sub.receive().unwrap().unwrap().payload();
+        assert!(!b.is_first());
+        assert_eq!((b.t_ns, b.seq), (6, 1));
+        assert!(b.publish_ns >= a.publish_ns && a.publish_ns > 0);
+    }
+
+    #[test]
+    fn offset_client_sees_estimates_and_refuses_garbage() {
+        let names = ServiceNames::new(&unique_prefix("off")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let ev = open_or_create_event(&node, &names.offset()).unwrap();
+        let publ = publisher(&svc, "offset").unwrap();
+        let noti = notifier(&ev, "offset").unwrap();
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        assert!(c.latest().is_none());
+        assert!(c.camera_to_lidar(0).is_none());
+        let e = Estimate {
+            seq: 3,
+            t_ref_ns: 10_000_000_000,
+            offset_s: 0.02,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 0.0,
+            state: vlsync_common::EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Positive,
+            peak_score: 0.8,
+            peak_ratio: 2.0,
+            measured_offset_s: 0.02,
+        };
+        let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
+        bad.state = 77;
+        publ.send_copy(bad).unwrap();
+        publ.send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
+            .unwrap();
+        noti.notify().unwrap();
+        let got = c.wait_next(Duration::from_secs(1)).unwrap().unwrap();
+        assert_eq!(got.seq, 3);
+        assert_eq!(c.invalid_count(), 1);
+        let (t, std) = c.camera_to_lidar(5_000_000_000).unwrap();
+        assert_eq!(t, 5_020_000_000);
+        assert!((std - 0.001).abs() < 1e-12);
+        // nothing more: times out
+        let t0 = Instant::now();
+        assert!(c.wait_next(Duration::from_millis(100)).unwrap().is_none());
+        assert!(t0.elapsed() >= Duration::from_millis(90));
+    }
+}

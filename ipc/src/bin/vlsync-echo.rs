@@ -1,0 +1,119 @@
+//! `vlsync-echo`: prints the daemon's offset estimates as they arrive, one
+//! readable line each, or one JSON object per line with `--json`.
+#![forbid(unsafe_code)]
+
+use clap::Parser;
+use std::io::Write;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use vlsync_common::Estimate;
+
+#[derive(Parser)]
+#[command(
+    name = "vlsync-echo",
+    version,
+    about = "Print vlsync offset estimates as they arrive"
+)]
+struct Args {
+    /// Service prefix (`services.prefix` of the daemon).
+    #[arg(long, default_value = "vlsync/robot")]
+    prefix: String,
+    /// One JSON object per line instead of readable text.
+    #[arg(long)]
+    json: bool,
+    /// Exit after this many estimates (0: run until Ctrl-C).
+    #[arg(long, default_value_t = 0)]
+    count: u64,
+    /// Exit after this many seconds (0: no limit).
+    #[arg(long, default_value_t = 0.0)]
+    duration: f64,
+}
+
+fn json_f64(v: f64) -> serde_json::Value {
+    // JSON has no NaN/inf: print them as strings so nothing is lost
+    if v.is_finite() {
+        serde_json::json!(v)
+    } else {
+        serde_json::json!(v.to_string())
+    }
+}
+
+fn line(e: &Estimate, json: bool) -> String {
+    if json {
+        serde_json::json!({
+            "seq": e.seq,
+            "t_ref_ns": e.t_ref_ns,
+            "offset_s": json_f64(e.offset_s),
+            "drift": json_f64(e.drift),
+            "offset_std_s": json_f64(e.offset_std_s),
+            "drift_std": json_f64(e.drift_std),
+            "state": e.state.name(),
+            "polarity": e.polarity.name(),
+            "peak_score": json_f64(e.peak_score),
+            "peak_ratio": json_f64(e.peak_ratio),
+            "measured_offset_s": json_f64(e.measured_offset_s),
+        })
+        .to_string()
+    } else {
+        format!(
+            "#{:<6} t_ref {:>14.3} s  offset {:>+10.3} ms ± {:>7.3} ms  drift {:>+9.2} ppm  {:<9} {:<8} score {:.2}",
+            e.seq,
+            e.t_ref_ns as f64 * 1e-9,
+            e.offset_s * 1e3,
+            e.offset_std_s * 1e3,
+            e.drift * 1e6,
+            e.state.name(),
+            e.polarity.name(),
+            e.peak_score
+        )
+    }
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    if !(args.duration.is_finite() && args.duration >= 0.0) {
+        eprintln!("vlsync-echo: error: --duration must be a finite number >= 0");
+        return ExitCode::from(2);
+    }
+    // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the loop cleanly
+    let _signals = match vlsync_ipc::create_node("vlsync-echo", true) {
+        Ok(n) => n,
+        Err(e) => {
+            eprintln!("vlsync-echo: error: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    let mut client = match vlsync_ipc::OffsetClient::open(&args.prefix) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("vlsync-echo: error: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    let start = Instant::now();
+    let mut n = 0u64;
+    let mut out = std::io::stdout().lock();
+    while !vlsync_ipc::termination_requested() {
+        if args.duration > 0.0 && start.elapsed().as_secs_f64() >= args.duration {
+            break;
+        }
+        match client.wait_next(Duration::from_millis(200)) {
+            Ok(Some(e)) => {
+                if writeln!(out, "{}", line(&e, args.json)).is_err() {
+                    return ExitCode::SUCCESS; // stdout closed (e.g. piped into head)
+                }
+                let _ = out.flush();
+                n += 1;
+                if args.count > 0 && n >= args.count {
+                    break;
+                }
+            }
+            Ok(None) => {}
+            Err(e) => {
+                eprintln!("vlsync-echo: error: {e}");
+                return ExitCode::from(1);
+            }
+        }
+    }
+    ExitCode::SUCCESS
+}

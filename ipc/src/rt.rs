@@ -1,0 +1,122 @@
+//! Real-time settings of the calling thread/process: core pinning, SCHED_FIFO,
+//! mlockall. Each returns what the system refused, so a daemon without
+//! privileges starts anyway and says what it could not get.
+//!
+//! This is the one module of vlsync with `unsafe`: `sched_setscheduler` has no
+//! safe wrapper in the crates the workspace uses.
+#![allow(unsafe_code)]
+
+use std::fmt;
+
+/// A real-time setting the system refused.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RtRefused {
+    /// The setting (e.g. `daemon.core = 7`).
+    pub setting: String,
+    /// Why.
+    pub reason: String,
+}
+
+impl fmt::Display for RtRefused {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "could not apply {}: {}", self.setting, self.reason)
+    }
+}
+
+/// Pins the calling thread to CPU `core`.
+pub fn pin_current_thread(core: usize) -> Result<(), RtRefused> {
+    let setting = format!("daemon.core = {core}");
+    let ids = core_affinity::get_core_ids().unwrap_or_default();
+    let Some(id) = ids.iter().find(|c| c.id == core) else {
+        let avail: Vec<String> = ids.iter().map(|c| c.id.to_string()).collect();
+        return Err(RtRefused {
+            setting,
+            reason: format!(
+                "core {core} does not exist or is not allowed for this process (available: [{}])",
+                avail.join(", ")
+            ),
+        });
+    };
+    if core_affinity::set_for_current(*id) {
+        Ok(())
+    } else {
+        Err(RtRefused {
+            setting,
+            reason: "sched_setaffinity failed".to_string(),
+        })
+    }
+}
+
+/// Switches the calling thread to SCHED_FIFO at `priority` (1..=99).
+pub fn set_current_thread_fifo(priority: i32) -> Result<(), RtRefused> {
+    let setting = format!("daemon.fifo_priority = {priority}");
+    if !(1..=99).contains(&priority) {
+        return Err(RtRefused {
+            setting,
+            reason: "priority must be within 1..=99".to_string(),
+        });
+    }
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: pid 0 designates the calling thread; `param` is a valid, initialised
+    // sched_param that outlives the call, and the kernel only reads it.
+    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        let err = std::io::Error::last_os_error();
+        let hint = if err.raw_os_error() == Some(libc::EPERM) {
+            " (needs CAP_SYS_NICE or an RLIMIT_RTPRIO >= the priority)"
+        } else {
+            ""
+        };
+        Err(RtRefused {
+            setting,
+            reason: format!("sched_setscheduler: {err}{hint}"),
+        })
+    }
+}
+
+/// Locks all current and future pages of the process in RAM.
+pub fn lock_all_memory() -> Result<(), RtRefused> {
+    // SAFETY: mlockall takes only flags and touches no memory of ours.
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(RtRefused {
+            setting: "daemon.lock_memory = true".to_string(),
+            reason: format!(
+                "mlockall: {} (needs CAP_IPC_LOCK or a large enough RLIMIT_MEMLOCK)",
+                std::io::Error::last_os_error()
+            ),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_core_is_reported_not_fatal() {
+        let e = pin_current_thread(100_000).unwrap_err();
+        assert!(e.to_string().contains("daemon.core = 100000"), "{e}");
+        assert!(e.reason.contains("available"), "{e}");
+    }
+
+    #[test]
+    fn fifo_out_of_range_is_refused() {
+        assert!(set_current_thread_fifo(0).is_err());
+        assert!(set_current_thread_fifo(100).is_err());
+    }
+
+    #[test]
+    fn pinning_to_core_zero_works() {
+        // core 0 exists on every machine this runs on
+        std::thread::spawn(|| pin_current_thread(0).unwrap())
+            .join()
+            .unwrap();
+    }
+}
