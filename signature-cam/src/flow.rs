@@ -1,0 +1,901 @@
+//! Pyramidal Lucas-Kanade sparse optical flow on a regular grid of points in a ROI.
+//!
+//! Each frame, a fixed grid of `grid_cols x grid_rows` points inside the ROI is
+//! tracked from the previous frame to the current one (points are not carried
+//! over: the grid is the same every frame, which is what a per-frame motion
+//! signature needs). Points whose window has a weak gradient in some direction
+//! (Shi-Tomasi minimum eigenvalue of the structure tensor below
+//! [`FlowConfig::min_eigen`]) are skipped.
+//!
+//! Only the ROI plus a margin of [`FlowConfig::margin_px`] pixels on each side
+//! is converted and pyramided: points whose motion takes them outside that
+//! crop are dropped, so the margin must exceed the largest flow expected
+//! (default 32 px, about what a 3-level, 9x9 pyramid can track anyway).
+//!
+//! All buffers are allocated for the first frame of a given size and reused
+//! (the previous and current pyramids are swapped), so steady-state processing
+//! allocates nothing.
+//!
+//! ```
+//! use vlsync_signature_cam::flow::{FlowConfig, PyrLk};
+//! use vlsync_signature_cam::image::GrayFrame;
+//! let (w, h) = (160, 120);
+//! // a smooth texture, shifted right by 1.5 px in the second frame
+//! let tex = |x: f32, y: f32| 128.0 + 60.0 * ((0.31 * x).sin() * (0.23 * y).cos() + (0.17 * (x + y)).sin());
+//! let make = |dx: f32| -> Vec<f32> {
+//!     (0..w * h).map(|i| tex((i % w) as f32 - dx, (i / w) as f32)).collect()
+//! };
+//! let a = GrayFrame::owned_f32(w, h, make(0.0)).unwrap();
+//! let b = GrayFrame::owned_f32(w, h, make(1.5)).unwrap();
+//! let mut lk = PyrLk::new(FlowConfig::default()).unwrap();
+//! assert!(lk.push(&a).unwrap().is_none()); // first frame: nothing to compare
+//! let stats = lk.push(&b).unwrap().unwrap();
+//! assert!(!stats.low_texture);
+//! for v in lk.vectors() {
+//!     assert!((v.dx - 1.5).abs() < 0.1 && v.dy.abs() < 0.1, "{v:?}");
+//! }
+//! ```
+
+use crate::image::{GrayFrame, Pixel};
+use crate::Error;
+use serde::{Deserialize, Serialize};
+
+/// Region of interest as fractions of the frame width and height (`0 <= x0 < x1 <= 1`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Roi {
+    /// Left edge, fraction of width.
+    pub x0: f32,
+    /// Right edge, fraction of width.
+    pub x1: f32,
+    /// Top edge, fraction of height.
+    pub y0: f32,
+    /// Bottom edge, fraction of height.
+    pub y1: f32,
+}
+
+impl Default for Roi {
+    /// The lower-middle part of the image, where the floor is: x 25-75 %, y 55-95 %.
+    fn default() -> Self {
+        Self {
+            x0: 0.25,
+            x1: 0.75,
+            y0: 0.55,
+            y1: 0.95,
+        }
+    }
+}
+
+/// Configuration of [`PyrLk`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FlowConfig {
+    /// Region where the grid points are placed.
+    pub roi: Roi,
+    /// Grid points across the ROI (default 16).
+    pub grid_cols: usize,
+    /// Grid points down the ROI (default 8).
+    pub grid_rows: usize,
+    /// Pyramid levels including full resolution, 1..=6 (default 3).
+    pub levels: usize,
+    /// Side of the square LK window in pixels, odd, 3..=31 (default 9).
+    pub window: usize,
+    /// Maximum Gauss-Newton iterations per level (default 10).
+    pub max_iterations: usize,
+    /// Stop iterating when the update is below this many pixels (default 0.01).
+    pub epsilon_px: f32,
+    /// Shi-Tomasi threshold: minimum eigenvalue of the structure tensor divided by
+    /// the window area, in (gray levels / px)^2 on the 0..=255 scale (default 5.0).
+    pub min_eigen: f32,
+    /// Fewer tracked points than this flags the frame as low-texture (default 16).
+    pub min_points: usize,
+    /// Pixels around the ROI included in the pyramid (default 32).
+    pub margin_px: usize,
+}
+
+impl Default for FlowConfig {
+    fn default() -> Self {
+        Self {
+            roi: Roi::default(),
+            grid_cols: 16,
+            grid_rows: 8,
+            levels: 3,
+            window: 9,
+            max_iterations: 10,
+            epsilon_px: 0.01,
+            min_eigen: 5.0,
+            min_points: 16,
+            margin_px: 32,
+        }
+    }
+}
+
+fn invalid(field: &'static str, reason: impl Into<String>) -> Error {
+    Error::InvalidConfig {
+        field,
+        reason: reason.into(),
+    }
+}
+
+impl FlowConfig {
+    /// Checks every field's range.
+    pub fn validate(&self) -> Result<(), Error> {
+        let r = &self.roi;
+        for (field, v) in [
+            ("flow.roi.x0", r.x0),
+            ("flow.roi.x1", r.x1),
+            ("flow.roi.y0", r.y0),
+            ("flow.roi.y1", r.y1),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(invalid(field, format!("{v} is outside 0..=1")));
+            }
+        }
+        if r.x0 >= r.x1 {
+            return Err(invalid("flow.roi.x1", format!("{} <= x0 = {}", r.x1, r.x0)));
+        }
+        if r.y0 >= r.y1 {
+            return Err(invalid("flow.roi.y1", format!("{} <= y0 = {}", r.y1, r.y0)));
+        }
+        if !(1..=64).contains(&self.grid_cols) {
+            return Err(invalid("flow.grid_cols", "must be 1..=64"));
+        }
+        if !(1..=64).contains(&self.grid_rows) {
+            return Err(invalid("flow.grid_rows", "must be 1..=64"));
+        }
+        if !(1..=6).contains(&self.levels) {
+            return Err(invalid("flow.levels", "must be 1..=6"));
+        }
+        if !(3..=31).contains(&self.window) || self.window.is_multiple_of(2) {
+            return Err(invalid("flow.window", "must be odd and 3..=31"));
+        }
+        if !(1..=100).contains(&self.max_iterations) {
+            return Err(invalid("flow.max_iterations", "must be 1..=100"));
+        }
+        if !(self.epsilon_px.is_finite() && self.epsilon_px >= 0.0) {
+            return Err(invalid("flow.epsilon_px", "must be finite and >= 0"));
+        }
+        if !(self.min_eigen.is_finite() && self.min_eigen >= 0.0) {
+            return Err(invalid("flow.min_eigen", "must be finite and >= 0"));
+        }
+        if self.min_points > self.grid_cols * self.grid_rows {
+            return Err(invalid(
+                "flow.min_points",
+                format!(
+                    "{} exceeds the {} grid points",
+                    self.min_points,
+                    self.grid_cols * self.grid_rows
+                ),
+            ));
+        }
+        if self.margin_px > 4096 {
+            return Err(invalid("flow.margin_px", "must be <= 4096"));
+        }
+        Ok(())
+    }
+}
+
+/// The flow of one grid point between the previous and the current frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlowVector {
+    /// Point position in the previous frame, full-frame pixel coordinates.
+    pub x: f32,
+    /// Point position in the previous frame, full-frame pixel coordinates.
+    pub y: f32,
+    /// Displacement to the current frame, pixels (+x right).
+    pub dx: f32,
+    /// Displacement to the current frame, pixels (+y down).
+    pub dy: f32,
+}
+
+/// Counts of one flow computation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FlowStats {
+    /// Grid points.
+    pub points: usize,
+    /// Points that passed the Shi-Tomasi threshold.
+    pub textured: usize,
+    /// Points tracked successfully (the length of [`PyrLk::vectors`]).
+    pub tracked: usize,
+    /// `tracked < min_points`.
+    pub low_texture: bool,
+}
+
+/// One pyramid level: a row-major `f32` image.
+#[derive(Debug, Default, Clone)]
+struct Level {
+    w: usize,
+    h: usize,
+    data: Vec<f32>,
+}
+
+/// Frame-size dependent layout, computed on the first frame of a size.
+#[derive(Debug, Clone)]
+struct Geometry {
+    frame_w: usize,
+    frame_h: usize,
+    crop_x: usize,
+    crop_y: usize,
+    /// (w, h) of each level.
+    dims: Vec<(usize, usize)>,
+    /// Grid points in crop coordinates.
+    points: Vec<(f32, f32)>,
+}
+
+/// Pyramidal Lucas-Kanade tracker with reusable buffers.
+#[derive(Debug, Clone)]
+pub struct PyrLk {
+    cfg: FlowConfig,
+    geom: Option<Geometry>,
+    prev: Vec<Level>,
+    cur: Vec<Level>,
+    has_prev: bool,
+    tmp: Vec<f32>,
+    vectors: Vec<FlowVector>,
+    // level-0 template (kept across the coarse levels) and a scratch template
+    t0: Template,
+    tl: Template,
+    patch: Vec<f32>,
+    warped: Vec<f32>,
+}
+
+#[derive(Debug, Clone, Default)]
+struct Template {
+    val: Vec<f32>,
+    gx: Vec<f32>,
+    gy: Vec<f32>,
+    gxx: f32,
+    gxy: f32,
+    gyy: f32,
+}
+
+impl PyrLk {
+    /// A tracker; fails on an invalid configuration.
+    pub fn new(cfg: FlowConfig) -> Result<Self, Error> {
+        cfg.validate()?;
+        let n = cfg.window * cfg.window;
+        let pn = (cfg.window + 2) * (cfg.window + 2);
+        let tpl = || Template {
+            val: vec![0.0; n],
+            gx: vec![0.0; n],
+            gy: vec![0.0; n],
+            ..Template::default()
+        };
+        Ok(Self {
+            cfg,
+            geom: None,
+            prev: Vec::new(),
+            cur: Vec::new(),
+            has_prev: false,
+            tmp: Vec::new(),
+            vectors: Vec::with_capacity(cfg.grid_cols * cfg.grid_rows),
+            t0: tpl(),
+            tl: tpl(),
+            patch: vec![0.0; pn],
+            warped: vec![0.0; n],
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &FlowConfig {
+        &self.cfg
+    }
+
+    /// Forgets the previous frame: the next [`PyrLk::push`] starts a new pair.
+    pub fn reset(&mut self) {
+        self.has_prev = false;
+        self.vectors.clear();
+    }
+
+    /// The frame size the buffers are laid out for, if any.
+    pub fn frame_size(&self) -> Option<(usize, usize)> {
+        self.geom.as_ref().map(|g| (g.frame_w, g.frame_h))
+    }
+
+    /// Flow vectors of the last successful [`PyrLk::push`] (tracked points only).
+    pub fn vectors(&self) -> &[FlowVector] {
+        &self.vectors
+    }
+
+    /// Loads a frame. Returns the flow statistics from the previous frame to this
+    /// one, or `None` when there is no previous frame (first frame, after
+    /// [`PyrLk::reset`], or after a change of frame size). On error the previous
+    /// frame is forgotten.
+    pub fn push<T: Pixel>(&mut self, frame: &GrayFrame<'_, T>) -> Result<Option<FlowStats>, Error> {
+        let (w, h) = (frame.width(), frame.height());
+        if self.frame_size() != Some((w, h)) {
+            self.has_prev = false;
+            self.geom = None;
+            let g = self.layout(w, h)?;
+            let alloc = |dims: &[(usize, usize)]| {
+                dims.iter()
+                    .map(|&(w, h)| Level {
+                        w,
+                        h,
+                        data: vec![0.0; w * h],
+                    })
+                    .collect::<Vec<_>>()
+            };
+            self.prev = alloc(&g.dims);
+            self.cur = alloc(&g.dims);
+            let (w0, h0) = g.dims[0];
+            self.tmp = vec![0.0; w0.div_ceil(2) * h0];
+            self.geom = Some(g);
+        }
+        self.build_pyramid(frame);
+        let stats = if self.has_prev {
+            Some(self.track())
+        } else {
+            self.vectors.clear();
+            None
+        };
+        std::mem::swap(&mut self.prev, &mut self.cur);
+        self.has_prev = true;
+        Ok(stats)
+    }
+
+    /// Computes the layout for a `w x h` frame, or says why it is too small.
+    fn layout(&self, w: usize, h: usize) -> Result<Geometry, Error> {
+        crate::image::pixel_count(w, h)?;
+        let c = &self.cfg;
+        let span = |lo: f32, hi: f32, n: usize| {
+            let a = ((lo as f64) * n as f64).floor() as usize;
+            let b = (((hi as f64) * n as f64).ceil() as usize).min(n);
+            (a.min(n), b)
+        };
+        let (x0, x1) = span(c.roi.x0, c.roi.x1, w);
+        let (y0, y1) = span(c.roi.y0, c.roi.y1, h);
+        if x1 <= x0 || y1 <= y0 {
+            return Err(Error::FrameTooSmall {
+                width: w,
+                height: h,
+                reason: "the ROI covers no pixel".into(),
+            });
+        }
+        let cx0 = x0.saturating_sub(c.margin_px);
+        let cy0 = y0.saturating_sub(c.margin_px);
+        let cx1 = x1.saturating_add(c.margin_px).min(w);
+        let cy1 = y1.saturating_add(c.margin_px).min(h);
+        let mut dims = Vec::with_capacity(c.levels);
+        let (mut lw, mut lh) = (cx1 - cx0, cy1 - cy0);
+        let need = c.window + 2;
+        for level in 0..c.levels {
+            if lw < need || lh < need {
+                return Err(Error::FrameTooSmall {
+                    width: w,
+                    height: h,
+                    reason: format!(
+                        "ROI plus margin is {}x{} px, pyramid level {level} would be {lw}x{lh}, \
+                         below the {need}x{need} needed by a {}x{} window",
+                        cx1 - cx0,
+                        cy1 - cy0,
+                        c.window,
+                        c.window
+                    ),
+                });
+            }
+            dims.push((lw, lh));
+            lw = lw.div_ceil(2);
+            lh = lh.div_ceil(2);
+        }
+        let mut points = Vec::with_capacity(c.grid_cols * c.grid_rows);
+        for j in 0..c.grid_rows {
+            let py = y0 + ((2 * j + 1) * (y1 - y0)) / (2 * c.grid_rows);
+            for i in 0..c.grid_cols {
+                let px = x0 + ((2 * i + 1) * (x1 - x0)) / (2 * c.grid_cols);
+                points.push(((px - cx0) as f32, (py - cy0) as f32));
+            }
+        }
+        Ok(Geometry {
+            frame_w: w,
+            frame_h: h,
+            crop_x: cx0,
+            crop_y: cy0,
+            dims,
+            points,
+        })
+    }
+
+    /// Fills `self.cur` with the pyramid of the crop of `frame`.
+    fn build_pyramid<T: Pixel>(&mut self, frame: &GrayFrame<'_, T>) {
+        let Some(g) = &self.geom else { return };
+        let fw = frame.width();
+        let src = frame.pixels();
+        let l0 = &mut self.cur[0];
+        for (y, dst) in l0.data.chunks_exact_mut(l0.w).enumerate() {
+            let start = (g.crop_y + y) * fw + g.crop_x;
+            for (d, s) in dst.iter_mut().zip(&src[start..start + l0.w]) {
+                *d = s.to_f32();
+            }
+        }
+        for l in 1..self.cur.len() {
+            let (lower, upper) = self.cur.split_at_mut(l);
+            pyr_down(&lower[l - 1], &mut upper[0], &mut self.tmp);
+        }
+    }
+
+    /// Tracks every grid point from `self.prev` to `self.cur`.
+    fn track(&mut self) -> FlowStats {
+        self.vectors.clear();
+        let Some(g) = &self.geom else {
+            return FlowStats {
+                points: 0,
+                textured: 0,
+                tracked: 0,
+                low_texture: true,
+            };
+        };
+        let c = self.cfg;
+        let r = (c.window / 2) as f32;
+        let n = (c.window * c.window) as f32;
+        let mut textured = 0;
+        for &(px, py) in &g.points {
+            // level-0 template first: the texture test decides whether to track at all
+            make_template(
+                &self.prev[0],
+                px,
+                py,
+                c.window,
+                &mut self.patch,
+                &mut self.t0,
+            );
+            if min_eigen(&self.t0) / n < c.min_eigen {
+                continue;
+            }
+            textured += 1;
+            let mut gx = 0.0f32;
+            let mut gy = 0.0f32;
+            let mut ok = true;
+            for l in (0..c.levels).rev() {
+                let s = 1.0 / (1u32 << l) as f32;
+                let (lx, ly) = (px * s, py * s);
+                let tpl = if l == 0 {
+                    &self.t0
+                } else {
+                    make_template(
+                        &self.prev[l],
+                        lx,
+                        ly,
+                        c.window,
+                        &mut self.patch,
+                        &mut self.tl,
+                    );
+                    &self.tl
+                };
+                match solve_level(
+                    tpl,
+                    &self.cur[l],
+                    lx + gx,
+                    ly + gy,
+                    r,
+                    c.max_iterations,
+                    c.epsilon_px,
+                    &mut self.warped,
+                ) {
+                    Some((dx, dy)) => {
+                        gx += dx;
+                        gy += dy;
+                        if l > 0 {
+                            gx *= 2.0;
+                            gy *= 2.0;
+                        }
+                    }
+                    None => {
+                        ok = false;
+                        break;
+                    }
+                }
+            }
+            let (w0, h0) = g.dims[0];
+            let (qx, qy) = (px + gx, py + gy);
+            if ok && qx >= 0.0 && qy >= 0.0 && qx <= (w0 - 1) as f32 && qy <= (h0 - 1) as f32 {
+                self.vectors.push(FlowVector {
+                    x: px + g.crop_x as f32,
+                    y: py + g.crop_y as f32,
+                    dx: gx,
+                    dy: gy,
+                });
+            }
+        }
+        let tracked = self.vectors.len();
+        FlowStats {
+            points: g.points.len(),
+            textured,
+            tracked,
+            low_texture: tracked < c.min_points,
+        }
+    }
+}
+
+/// Smallest eigenvalue of the template's structure tensor.
+fn min_eigen(t: &Template) -> f32 {
+    let tr = t.gxx + t.gyy;
+    let d = ((t.gxx - t.gyy) * (t.gxx - t.gyy) + 4.0 * t.gxy * t.gxy).sqrt();
+    0.5 * (tr - d)
+}
+
+/// Samples a `side x side` patch of `lv` whose top-left sample is at `(sx, sy)`,
+/// bilinearly, with edge replication outside the image.
+fn sample(lv: &Level, sx: f32, sy: f32, side: usize, out: &mut [f32]) {
+    let fx0 = sx.floor();
+    let fy0 = sy.floor();
+    let (ax, ay) = (sx - fx0, sy - fy0);
+    let (w00, w10, w01, w11) = (
+        (1.0 - ax) * (1.0 - ay),
+        ax * (1.0 - ay),
+        (1.0 - ax) * ay,
+        ax * ay,
+    );
+    let (w, h) = (lv.w, lv.h);
+    let inside = fx0 >= 0.0
+        && fy0 >= 0.0
+        && fx0 + (side as f32) < w as f32
+        && fy0 + (side as f32) < h as f32;
+    if inside {
+        let (ix, iy) = (fx0 as usize, fy0 as usize);
+        for (j, o) in out.chunks_exact_mut(side).take(side).enumerate() {
+            let a = (iy + j) * w + ix;
+            let r0 = &lv.data[a..a + side + 1];
+            let r1 = &lv.data[a + w..a + w + side + 1];
+            for i in 0..side {
+                o[i] = w00 * r0[i] + w10 * r0[i + 1] + w01 * r1[i] + w11 * r1[i + 1];
+            }
+        }
+    } else {
+        // slow path near or past the border: clamp every tap (no NaN: inputs are finite
+        // because positions are checked before sampling)
+        let cl = |v: f32, n: usize| -> usize { v.clamp(0.0, (n - 1) as f32) as usize };
+        for j in 0..side {
+            let y = fy0 + j as f32;
+            let (y0, y1) = (cl(y, h), cl(y + 1.0, h));
+            for i in 0..side {
+                let x = fx0 + i as f32;
+                let (x0, x1) = (cl(x, w), cl(x + 1.0, w));
+                out[j * side + i] = w00 * lv.data[y0 * w + x0]
+                    + w10 * lv.data[y0 * w + x1]
+                    + w01 * lv.data[y1 * w + x0]
+                    + w11 * lv.data[y1 * w + x1];
+            }
+        }
+    }
+}
+
+/// Template values and gradients (central differences) of the `win x win` window
+/// centred at `(cx, cy)`, plus its structure tensor.
+fn make_template(lv: &Level, cx: f32, cy: f32, win: usize, patch: &mut [f32], t: &mut Template) {
+    let r = (win / 2) as f32;
+    let pw = win + 2;
+    sample(lv, cx - r - 1.0, cy - r - 1.0, pw, patch);
+    let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+    for j in 0..win {
+        let row = (j + 1) * pw;
+        for i in 0..win {
+            let k = row + i + 1;
+            let gx = 0.5 * (patch[k + 1] - patch[k - 1]);
+            let gy = 0.5 * (patch[k + pw] - patch[k - pw]);
+            let o = j * win + i;
+            t.val[o] = patch[k];
+            t.gx[o] = gx;
+            t.gy[o] = gy;
+            gxx += gx * gx;
+            gxy += gx * gy;
+            gyy += gy * gy;
+        }
+    }
+    t.gxx = gxx;
+    t.gxy = gxy;
+    t.gyy = gyy;
+}
+
+/// Gauss-Newton iterations of one level, starting at `(x, y)` in `cur`.
+/// Returns the refinement `(dx, dy)`, or `None` when the system is singular or
+/// the point leaves the level.
+#[allow(clippy::too_many_arguments)]
+fn solve_level(
+    t: &Template,
+    cur: &Level,
+    x: f32,
+    y: f32,
+    r: f32,
+    iters: usize,
+    eps: f32,
+    warped: &mut [f32],
+) -> Option<(f32, f32)> {
+    let det = t.gxx * t.gyy - t.gxy * t.gxy;
+    let n = t.val.len() as f32;
+    // singular or nearly so (relative to the gradient energy per pixel)
+    if det.is_nan() || det <= 1e-6 * n * n {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let side = t.val.len().isqrt();
+    let (mut dx, mut dy) = (0.0f32, 0.0f32);
+    for _ in 0..iters {
+        let (qx, qy) = (x + dx, y + dy);
+        if !(qx > -r && qy > -r && qx < cur.w as f32 - 1.0 + r && qy < cur.h as f32 - 1.0 + r) {
+            return None;
+        }
+        sample(cur, qx - r, qy - r, side, warped);
+        let (mut bx, mut by) = (0.0f32, 0.0f32);
+        for (((&tv, &gx), &gy), &iv) in t.val.iter().zip(&t.gx).zip(&t.gy).zip(warped.iter()) {
+            let e = tv - iv;
+            bx += gx * e;
+            by += gy * e;
+        }
+        let ux = inv * (t.gyy * bx - t.gxy * by);
+        let uy = inv * (t.gxx * by - t.gxy * bx);
+        dx += ux;
+        dy += uy;
+        if ux * ux + uy * uy < eps * eps {
+            break;
+        }
+    }
+    if dx.is_finite() && dy.is_finite() {
+        Some((dx, dy))
+    } else {
+        None
+    }
+}
+
+/// Gaussian `[1 4 6 4 1] / 16` blur and 2x decimation, edge-replicated;
+/// `dst` is `ceil(w/2) x ceil(h/2)`. `tmp` holds at least `ceil(w/2) * h`.
+fn pyr_down(src: &Level, dst: &mut Level, tmp: &mut [f32]) {
+    let (w, h) = (src.w, src.h);
+    let (dw, dh) = (dst.w, dst.h);
+    // horizontal pass: h rows of dw samples
+    for y in 0..h {
+        let s = &src.data[y * w..(y + 1) * w];
+        let t = &mut tmp[y * dw..(y + 1) * dw];
+        let at = |i: isize| s[i.clamp(0, w as isize - 1) as usize];
+        for (x, o) in t.iter_mut().enumerate() {
+            let c = 2 * x;
+            *o = if c >= 2 && c + 2 < w {
+                s[c - 2] + 4.0 * (s[c - 1] + s[c + 1]) + 6.0 * s[c] + s[c + 2]
+            } else {
+                let c = c as isize;
+                at(c - 2) + 4.0 * (at(c - 1) + at(c + 1)) + 6.0 * at(c) + at(c + 2)
+            };
+        }
+    }
+    // vertical pass: rows clamped, inner loop vectorises
+    let row = |y: isize| {
+        let y = y.clamp(0, h as isize - 1) as usize;
+        &tmp[y * dw..(y + 1) * dw]
+    };
+    for y in 0..dh {
+        let c = 2 * y as isize;
+        let (r0, r1, r2, r3, r4) = (row(c - 2), row(c - 1), row(c), row(c + 1), row(c + 2));
+        let o = &mut dst.data[y * dw..(y + 1) * dw];
+        for x in 0..dw {
+            o[x] = (r0[x] + 4.0 * (r1[x] + r3[x]) + 6.0 * r2[x] + r4[x]) * (1.0 / 256.0);
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A smooth, non-periodic texture (sum of sinusoids with wavelengths of 6-40 px).
+    pub(crate) fn texture(x: f32, y: f32) -> f32 {
+        let mut v = 128.0;
+        let waves: [(f32, f32, f32, f32); 6] = [
+            (0.31, 0.05, 0.0, 25.0),
+            (-0.12, 0.27, 1.0, 25.0),
+            (0.21, 0.33, 2.0, 20.0),
+            (0.07, -0.19, 0.5, 20.0),
+            (0.55, 0.40, 1.5, 12.0),
+            (-0.45, 0.61, 2.5, 12.0),
+        ];
+        for (kx, ky, ph, a) in waves {
+            v += a * (kx * x + ky * y + ph).sin();
+        }
+        v
+    }
+
+    /// A frame whose content at pixel p is `texture(map(p))`.
+    pub(crate) fn frame(
+        w: usize,
+        h: usize,
+        map: impl Fn(f32, f32) -> (f32, f32),
+    ) -> GrayFrame<'static, f32> {
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = map((i % w) as f32, (i / w) as f32);
+                texture(x, y)
+            })
+            .collect();
+        GrayFrame::owned_f32(w, h, data).unwrap()
+    }
+
+    fn flow_of(
+        cfg: FlowConfig,
+        a: &GrayFrame<f32>,
+        b: &GrayFrame<f32>,
+    ) -> (FlowStats, Vec<FlowVector>) {
+        let mut lk = PyrLk::new(cfg).unwrap();
+        assert!(lk.push(a).unwrap().is_none());
+        let s = lk.push(b).unwrap().unwrap();
+        (s, lk.vectors().to_vec())
+    }
+
+    #[test]
+    fn subpixel_shifts_are_accurate() {
+        let (w, h) = (320, 240);
+        let a = frame(w, h, |x, y| (x, y));
+        for (sx, sy) in [(0.3, 0.0), (1.7, -0.6), (4.2, 2.9), (-3.3, 7.1)] {
+            let b = frame(w, h, |x, y| (x - sx, y - sy));
+            let (s, v) = flow_of(FlowConfig::default(), &a, &b);
+            assert_eq!(s.tracked, s.points, "shift ({sx}, {sy}): {s:?}");
+            let mut worst = 0.0f32;
+            for p in &v {
+                worst = worst.max((p.dx - sx).hypot(p.dy - sy));
+            }
+            eprintln!("shift ({sx}, {sy}): worst error {worst:.4} px");
+            assert!(worst < 0.1, "shift ({sx}, {sy}): worst error {worst} px");
+        }
+    }
+
+    #[test]
+    fn zoom_gives_radial_flow() {
+        let (w, h) = (320, 240);
+        let (cx, cy) = (160.0, 170.0);
+        let k = 1.03f32;
+        let a = frame(w, h, |x, y| (x, y));
+        // the second frame is the first magnified by k about (cx, cy)
+        let b = frame(w, h, |x, y| (cx + (x - cx) / k, cy + (y - cy) / k));
+        let (s, v) = flow_of(FlowConfig::default(), &a, &b);
+        assert!(s.tracked > s.points * 9 / 10, "{s:?}");
+        // a 3 % zoom deforms a 9x9 window by up to 0.12 px (and the 4x larger
+        // coarse-level windows more), which the translation model cannot follow:
+        // individual points are allowed 0.15 px, the mean error must stay small
+        let (mut worst, mut sum) = (0.0f32, 0.0f32);
+        for p in &v {
+            let (ex, ey) = ((k - 1.0) * (p.x - cx), (k - 1.0) * (p.y - cy));
+            let err = (p.dx - ex).hypot(p.dy - ey);
+            assert!(err < 0.15, "{p:?}: expected ({ex}, {ey}), error {err}");
+            worst = worst.max(err);
+            sum += err;
+        }
+        let mean = sum / v.len() as f32;
+        eprintln!("zoom 3 %: mean error {mean:.4} px, worst {worst:.4} px");
+        assert!(mean < 0.06, "mean error {mean}");
+    }
+
+    #[test]
+    fn flat_frame_is_low_texture() {
+        let (w, h) = (200, 150);
+        let a = GrayFrame::owned(w, h, vec![100u8; w * h]).unwrap();
+        let mut lk = PyrLk::new(FlowConfig::default()).unwrap();
+        lk.push(&a).unwrap();
+        let s = lk.push(&a).unwrap().unwrap();
+        assert_eq!(s.textured, 0);
+        assert_eq!(s.tracked, 0);
+        assert!(s.low_texture);
+        assert!(lk.vectors().is_empty());
+    }
+
+    #[test]
+    fn size_change_restarts_and_reset_forgets() {
+        let a = frame(200, 150, |x, y| (x, y));
+        let b = frame(210, 150, |x, y| (x, y));
+        let mut lk = PyrLk::new(FlowConfig::default()).unwrap();
+        assert!(lk.push(&a).unwrap().is_none());
+        assert!(lk.push(&a).unwrap().is_some());
+        assert!(lk.push(&b).unwrap().is_none());
+        assert_eq!(lk.frame_size(), Some((210, 150)));
+        lk.reset();
+        assert!(lk.push(&b).unwrap().is_none());
+    }
+
+    #[test]
+    fn tiny_frames_are_errors_not_panics() {
+        let mut lk = PyrLk::new(FlowConfig::default()).unwrap();
+        for (w, h) in [(1, 1), (2, 3), (10, 10), (40, 30), (5000, 1)] {
+            let f = GrayFrame::owned(w, h, vec![7u8; w * h]).unwrap();
+            let e = lk.push(&f).unwrap_err();
+            assert!(matches!(e, Error::FrameTooSmall { .. }), "{w}x{h}: {e}");
+        }
+        // after an error the next good frame starts afresh
+        let a = frame(200, 150, |x, y| (x, y));
+        assert!(lk.push(&a).unwrap().is_none());
+    }
+
+    #[test]
+    fn config_validation_names_the_field() {
+        let bad = [
+            FlowConfig {
+                window: 8,
+                ..FlowConfig::default()
+            },
+            FlowConfig {
+                levels: 0,
+                ..FlowConfig::default()
+            },
+            FlowConfig {
+                roi: Roi {
+                    x0: 0.5,
+                    x1: 0.4,
+                    y0: 0.0,
+                    y1: 1.0,
+                },
+                ..FlowConfig::default()
+            },
+            FlowConfig {
+                min_eigen: f32::NAN,
+                ..FlowConfig::default()
+            },
+            FlowConfig {
+                min_points: 1000,
+                ..FlowConfig::default()
+            },
+        ];
+        for (cfg, field) in bad.iter().zip([
+            "flow.window",
+            "flow.levels",
+            "flow.roi.x1",
+            "flow.min_eigen",
+            "flow.min_points",
+        ]) {
+            match PyrLk::new(*cfg) {
+                Err(Error::InvalidConfig { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{field}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn pyr_down_preserves_constant_and_mean() {
+        let src = Level {
+            w: 7,
+            h: 5,
+            data: vec![3.0; 35],
+        };
+        let mut dst = Level {
+            w: 4,
+            h: 3,
+            data: vec![0.0; 12],
+        };
+        let mut tmp = vec![0.0; 4 * 5];
+        pyr_down(&src, &mut dst, &mut tmp);
+        assert!(dst.data.iter().all(|&v| (v - 3.0).abs() < 1e-6));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        /// Any frame content and (small) size: no panic, finite flow.
+        #[test]
+        fn arbitrary_frames_never_panic(
+            w in 1usize..120, h in 1usize..120, seed in any::<u64>(), levels in 1usize..5,
+        ) {
+            let mut s = seed | 1;
+            let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; (s >> 56) as u8 };
+            let a: Vec<u8> = (0..w * h).map(|_| next()).collect();
+            let b: Vec<u8> = (0..w * h).map(|_| next()).collect();
+            let cfg = FlowConfig { levels, margin_px: 8, min_points: 0, ..FlowConfig::default() };
+            let mut lk = PyrLk::new(cfg).unwrap();
+            let fa = GrayFrame::owned(w, h, a).unwrap();
+            let fb = GrayFrame::owned(w, h, b).unwrap();
+            if lk.push(&fa).is_ok() {
+                let st = lk.push(&fb).unwrap().unwrap();
+                prop_assert!(st.tracked <= st.textured && st.textured <= st.points);
+                for v in lk.vectors() {
+                    prop_assert!(v.dx.is_finite() && v.dy.is_finite());
+                }
+            }
+        }
+
+        /// Uniform subpixel shifts in range are recovered to 0.1 px.
+        #[test]
+        fn random_shifts(sx in -6.0f32..6.0, sy in -6.0f32..6.0) {
+            let a = frame(240, 180, |x, y| (x, y));
+            let b = frame(240, 180, |x, y| (x - sx, y - sy));
+            let (s, v) = flow_of(FlowConfig::default(), &a, &b);
+            prop_assert!(s.tracked >= s.points * 9 / 10);
+            for p in &v {
+                prop_assert!((p.dx - sx).hypot(p.dy - sy) < 0.1, "{:?}", p);
+            }
+        }
+    }
+}

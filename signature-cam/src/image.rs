@@ -1,0 +1,420 @@
+//! Grayscale frames and conversion of raw camera buffers (RGB, RGBA, YUYV) to gray.
+//!
+//! A [`GrayFrame`] is a `width x height` row-major array of `u8` or `f32` pixels,
+//! borrowed from a caller's buffer or owned. Pixel values are on the 0..=255 gray
+//! scale for both pixel types (the flow thresholds assume that scale).
+//!
+//! ```
+//! use vlsync_signature_cam::image::{GrayFrame, PixelFormat, RawFrame};
+//! // 2x1 YUYV: Y0 U Y1 V
+//! let yuyv = [10u8, 128, 200, 128];
+//! let gray = RawFrame::new(&yuyv, 2, 1, PixelFormat::Yuyv).to_gray().unwrap();
+//! assert_eq!(gray.pixels(), &[10, 200]);
+//! let view = GrayFrame::borrowed(2, 1, gray.pixels()).unwrap();
+//! assert_eq!(view.get(1, 0), Some(200));
+//! ```
+
+use crate::Error;
+use std::borrow::Cow;
+
+/// A gray pixel type: `u8` or `f32`, on the 0..=255 scale.
+pub trait Pixel: Copy + Send + Sync + 'static {
+    /// The value as `f32`.
+    fn to_f32(self) -> f32;
+}
+
+impl Pixel for u8 {
+    #[inline]
+    fn to_f32(self) -> f32 {
+        f32::from(self)
+    }
+}
+
+impl Pixel for f32 {
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self
+    }
+}
+
+/// A grayscale frame, row-major, no padding between rows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GrayFrame<'a, T: Pixel> {
+    width: usize,
+    height: usize,
+    data: Cow<'a, [T]>,
+}
+
+/// Checks `width * height` without overflow and rejects empty frames.
+pub(crate) fn pixel_count(width: usize, height: usize) -> Result<usize, Error> {
+    if width == 0 || height == 0 {
+        return Err(Error::BadDimensions {
+            width,
+            height,
+            reason: "width and height must be positive",
+        });
+    }
+    width.checked_mul(height).ok_or(Error::BadDimensions {
+        width,
+        height,
+        reason: "width * height overflows",
+    })
+}
+
+impl<'a, T: Pixel> GrayFrame<'a, T> {
+    /// Wraps pixel data; `data.len()` must be exactly `width * height`.
+    pub fn new(width: usize, height: usize, data: impl Into<Cow<'a, [T]>>) -> Result<Self, Error> {
+        let data = data.into();
+        let n = pixel_count(width, height)?;
+        if data.len() != n {
+            return Err(Error::BufferSize {
+                what: format!("gray {width}x{height}"),
+                expected: n,
+                actual: data.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// Borrows a caller's buffer (no copy).
+    pub fn borrowed(width: usize, height: usize, data: &'a [T]) -> Result<Self, Error> {
+        Self::new(width, height, data)
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// All pixels, row-major.
+    pub fn pixels(&self) -> &[T] {
+        &self.data
+    }
+
+    /// One row, `None` past the last.
+    pub fn row(&self, y: usize) -> Option<&[T]> {
+        if y >= self.height {
+            return None;
+        }
+        self.data.get(y * self.width..(y + 1) * self.width)
+    }
+
+    /// The pixel at `(x, y)`, `None` outside the frame.
+    pub fn get(&self, x: usize, y: usize) -> Option<T> {
+        if x >= self.width || y >= self.height {
+            return None;
+        }
+        self.data.get(y * self.width + x).copied()
+    }
+
+    /// A borrowed view of this frame.
+    pub fn view(&self) -> GrayFrame<'_, T> {
+        GrayFrame {
+            width: self.width,
+            height: self.height,
+            data: Cow::Borrowed(&self.data),
+        }
+    }
+
+    /// An owned copy (no copy if already owned).
+    pub fn into_owned(self) -> GrayFrame<'static, T> {
+        GrayFrame {
+            width: self.width,
+            height: self.height,
+            data: Cow::Owned(self.data.into_owned()),
+        }
+    }
+}
+
+impl GrayFrame<'static, u8> {
+    /// Takes ownership of a buffer; `data.len()` must be `width * height`.
+    pub fn owned(width: usize, height: usize, data: Vec<u8>) -> Result<Self, Error> {
+        Self::new(width, height, data)
+    }
+}
+
+impl GrayFrame<'static, f32> {
+    /// Takes ownership of an `f32` buffer; `data.len()` must be `width * height`.
+    pub fn owned_f32(width: usize, height: usize, data: Vec<f32>) -> Result<Self, Error> {
+        Self::new(width, height, data)
+    }
+}
+
+/// Layout of a raw camera buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    /// 8-bit gray, 1 byte per pixel.
+    Gray8,
+    /// 8-bit R, G, B: 3 bytes per pixel.
+    Rgb8,
+    /// 8-bit B, G, R: 3 bytes per pixel.
+    Bgr8,
+    /// 8-bit R, G, B, A: 4 bytes per pixel.
+    Rgba8,
+    /// Packed YUV 4:2:2, `Y0 U Y1 V` (V4L2 `YUYV`): 2 bytes per pixel, even width.
+    Yuyv,
+}
+
+impl PixelFormat {
+    /// Bytes per pixel (YUYV: 2, averaged over a pixel pair).
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            PixelFormat::Gray8 => 1,
+            PixelFormat::Yuyv => 2,
+            PixelFormat::Rgb8 | PixelFormat::Bgr8 => 3,
+            PixelFormat::Rgba8 => 4,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            PixelFormat::Gray8 => "GRAY8",
+            PixelFormat::Rgb8 => "RGB8",
+            PixelFormat::Bgr8 => "BGR8",
+            PixelFormat::Rgba8 => "RGBA8",
+            PixelFormat::Yuyv => "YUYV",
+        }
+    }
+}
+
+/// A raw camera buffer: bytes, geometry, layout and row stride.
+#[derive(Debug, Clone, Copy)]
+pub struct RawFrame<'a> {
+    /// The bytes.
+    pub data: &'a [u8],
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Bytes from one row to the next (V4L2 `bytesperline`); at least `width * bpp`.
+    pub stride: usize,
+    /// Layout.
+    pub format: PixelFormat,
+}
+
+/// BT.601 luma with 8-bit fixed-point weights (77, 150, 29) / 256.
+#[inline]
+fn luma(r: u8, g: u8, b: u8) -> u8 {
+    ((77 * u32::from(r) + 150 * u32::from(g) + 29 * u32::from(b) + 128) >> 8) as u8
+}
+
+impl<'a> RawFrame<'a> {
+    /// A tightly packed buffer (stride = `width * bytes_per_pixel`, saturating).
+    pub fn new(data: &'a [u8], width: usize, height: usize, format: PixelFormat) -> Self {
+        Self {
+            data,
+            width,
+            height,
+            stride: width.saturating_mul(format.bytes_per_pixel()),
+            format,
+        }
+    }
+
+    /// Sets the row stride in bytes.
+    pub fn with_stride(mut self, stride: usize) -> Self {
+        self.stride = stride;
+        self
+    }
+
+    /// Checks geometry against the buffer; returns the number of gray pixels.
+    fn check(&self) -> Result<usize, Error> {
+        let (w, h) = (self.width, self.height);
+        let n = pixel_count(w, h)?;
+        if self.format == PixelFormat::Yuyv && !w.is_multiple_of(2) {
+            return Err(Error::BadDimensions {
+                width: w,
+                height: h,
+                reason: "YUYV needs an even width",
+            });
+        }
+        let row = w
+            .checked_mul(self.format.bytes_per_pixel())
+            .ok_or(Error::BadDimensions {
+                width: w,
+                height: h,
+                reason: "row size overflows",
+            })?;
+        let what = || format!("{} {w}x{h} (stride {})", self.format.name(), self.stride);
+        if self.stride < row {
+            return Err(Error::BufferSize {
+                what: what(),
+                expected: row,
+                actual: self.stride,
+            });
+        }
+        // the last row needs only `row` bytes, not a full stride
+        let need = (h - 1)
+            .checked_mul(self.stride)
+            .and_then(|v| v.checked_add(row))
+            .ok_or(Error::BadDimensions {
+                width: w,
+                height: h,
+                reason: "buffer size overflows",
+            })?;
+        if self.data.len() < need {
+            return Err(Error::BufferSize {
+                what: what(),
+                expected: need,
+                actual: self.data.len(),
+            });
+        }
+        Ok(n)
+    }
+
+    /// Converts to gray into `out` (resized to `width * height`; reuses its capacity,
+    /// so a steady stream of same-size frames allocates nothing).
+    pub fn to_gray_into(&self, out: &mut Vec<u8>) -> Result<(), Error> {
+        let n = self.check()?;
+        out.resize(n, 0);
+        let w = self.width;
+        let bpp = self.format.bytes_per_pixel();
+        for (y, dst) in out.chunks_exact_mut(w).enumerate() {
+            let start = y * self.stride;
+            let src = &self.data[start..start + w * bpp];
+            match self.format {
+                PixelFormat::Gray8 => dst.copy_from_slice(src),
+                PixelFormat::Rgb8 => {
+                    for (d, s) in dst.iter_mut().zip(src.chunks_exact(3)) {
+                        *d = luma(s[0], s[1], s[2]);
+                    }
+                }
+                PixelFormat::Bgr8 => {
+                    for (d, s) in dst.iter_mut().zip(src.chunks_exact(3)) {
+                        *d = luma(s[2], s[1], s[0]);
+                    }
+                }
+                PixelFormat::Rgba8 => {
+                    for (d, s) in dst.iter_mut().zip(src.chunks_exact(4)) {
+                        *d = luma(s[0], s[1], s[2]);
+                    }
+                }
+                PixelFormat::Yuyv => {
+                    for (d, s) in dst.chunks_exact_mut(2).zip(src.chunks_exact(4)) {
+                        d[0] = s[0];
+                        d[1] = s[2];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Converts to an owned gray frame.
+    pub fn to_gray(&self) -> Result<GrayFrame<'static, u8>, Error> {
+        let mut out = Vec::new();
+        self.to_gray_into(&mut out)?;
+        GrayFrame::owned(self.width, self.height, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn frame_rejects_wrong_length_and_zero_size() {
+        assert!(matches!(
+            GrayFrame::borrowed(3, 2, &[0u8; 5]),
+            Err(Error::BufferSize {
+                expected: 6,
+                actual: 5,
+                ..
+            })
+        ));
+        assert!(matches!(
+            GrayFrame::<u8>::borrowed(0, 2, &[]),
+            Err(Error::BadDimensions { .. })
+        ));
+        assert!(matches!(
+            GrayFrame::<u8>::borrowed(usize::MAX, 2, &[]),
+            Err(Error::BadDimensions { .. })
+        ));
+    }
+
+    #[test]
+    fn accessors() {
+        let f = GrayFrame::owned_f32(2, 2, vec![1.0, 2.0, 3.0, 4.0]).unwrap();
+        assert_eq!(f.row(1), Some(&[3.0f32, 4.0][..]));
+        assert_eq!(f.row(2), None);
+        assert_eq!(f.get(2, 0), None);
+        assert_eq!(f.view().get(1, 1), Some(4.0));
+        assert_eq!(f.into_owned().width(), 2);
+    }
+
+    #[test]
+    fn rgb_variants_agree() {
+        let rgb = [255u8, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255];
+        let bgr = [0u8, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255];
+        let rgba = [255u8, 0, 0, 9, 0, 255, 0, 9, 0, 0, 255, 9, 255, 255, 255, 9];
+        let a = RawFrame::new(&rgb, 4, 1, PixelFormat::Rgb8)
+            .to_gray()
+            .unwrap();
+        let b = RawFrame::new(&bgr, 4, 1, PixelFormat::Bgr8)
+            .to_gray()
+            .unwrap();
+        let c = RawFrame::new(&rgba, 4, 1, PixelFormat::Rgba8)
+            .to_gray()
+            .unwrap();
+        assert_eq!(a.pixels(), &[77, 149, 29, 255]);
+        assert_eq!(a, b);
+        assert_eq!(a, c);
+    }
+
+    #[test]
+    fn stride_is_honoured() {
+        // 2x2 gray with 3 bytes per row, last row unpadded
+        let buf = [1u8, 2, 99, 3, 4];
+        let g = RawFrame::new(&buf, 2, 2, PixelFormat::Gray8)
+            .with_stride(3)
+            .to_gray()
+            .unwrap();
+        assert_eq!(g.pixels(), &[1, 2, 3, 4]);
+        let short = RawFrame::new(&buf, 2, 2, PixelFormat::Gray8).with_stride(1);
+        assert!(matches!(short.to_gray(), Err(Error::BufferSize { .. })));
+    }
+
+    #[test]
+    fn yuyv_errors() {
+        let buf = [0u8; 12];
+        assert!(matches!(
+            RawFrame::new(&buf, 3, 2, PixelFormat::Yuyv).to_gray(),
+            Err(Error::BadDimensions { .. })
+        ));
+        let e = RawFrame::new(&buf, 4, 2, PixelFormat::Yuyv)
+            .to_gray()
+            .unwrap_err();
+        assert!(e.to_string().contains("YUYV 4x2"), "{e}");
+    }
+
+    proptest! {
+        #[test]
+        fn conversion_never_panics(
+            data in proptest::collection::vec(any::<u8>(), 0..200),
+            w in 0usize..20, h in 0usize..20, stride in 0usize..90, f in 0usize..5,
+        ) {
+            let fmt = [PixelFormat::Gray8, PixelFormat::Rgb8, PixelFormat::Bgr8,
+                       PixelFormat::Rgba8, PixelFormat::Yuyv][f];
+            let raw = RawFrame::new(&data, w, h, fmt).with_stride(stride);
+            if let Ok(g) = raw.to_gray() {
+                prop_assert_eq!(g.pixels().len(), w * h);
+            }
+        }
+
+        #[test]
+        fn gray_of_gray_rgb_is_identity(v in proptest::collection::vec(any::<u8>(), 1..64)) {
+            let rgb: Vec<u8> = v.iter().flat_map(|&x| [x, x, x]).collect();
+            let g = RawFrame::new(&rgb, v.len(), 1, PixelFormat::Rgb8).to_gray().unwrap();
+            prop_assert_eq!(g.pixels(), &v[..]);
+        }
+    }
+}

@@ -1,0 +1,431 @@
+//! The per-frame processor: frames and their times in, [`Sample`]s out.
+//!
+//! The flow between frames `k-1` and `k` measures motion over that interval, so
+//! by default a sample is stamped at the **midpoint** `(t[k-1] + t[k]) / 2`
+//! ([`Stamping::Midpoint`]); stamping at `t[k]` ([`Stamping::End`]) biases the
+//! signature late by half a frame interval (16.7 ms at 30 Hz). When the source
+//! gives exposure start and duration ([`FrameTime::Exposure`]), each frame's time
+//! is its mid-exposure instant.
+//!
+//! Values are in **pixels per second**: the reduced flow divided by the frame
+//! interval, so a dropped frame doubles the flow and the interval alike and
+//! leaves the scale unchanged. An interval longer than
+//! [`SignatureConfig::max_gap_ns`] (or a time that does not increase) produces no
+//! sample: the processor restarts from the new frame.
+//!
+//! ```
+//! use vlsync_signature_cam::image::GrayFrame;
+//! use vlsync_signature_cam::signature::{FrameTime, SignatureConfig, SignatureProcessor, Step};
+//! let (w, h) = (160, 120);
+//! let tex = |x: f32, y: f32| 128.0 + 60.0 * ((0.31 * x).sin() * (0.23 * y).cos() + (0.17 * (x + y)).sin());
+//! let make = |dy: f32| -> GrayFrame<'static, f32> {
+//!     GrayFrame::owned_f32(w, h, (0..w * h).map(|i| tex((i % w) as f32, (i / w) as f32 - dy)).collect()).unwrap()
+//! };
+//! let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+//! // 2 px down in 40 ms: 50 px/s, stamped at the midpoint 1.02 s
+//! assert!(matches!(p.process(&make(0.0), FrameTime::Instant(1_000_000_000)).unwrap(), Step::Started(_)));
+//! let Step::Sample(s) = p.process(&make(2.0), FrameTime::Instant(1_040_000_000)).unwrap() else { panic!() };
+//! assert_eq!(s.sample.t_ns, 1_020_000_000);
+//! assert!((s.sample.value - 50.0).abs() < 1.0, "{}", s.sample.value);
+//! ```
+
+use crate::flow::{FlowConfig, FlowStats, PyrLk};
+use crate::image::{GrayFrame, Pixel};
+use crate::reduce::{Reducer, Reduction, DEFAULT_TRIM};
+use crate::Error;
+use serde::{Deserialize, Serialize};
+use vlsync_common::{Nanos, Sample, NANOS_PER_SEC};
+
+/// Where a sample is stamped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stamping {
+    /// `(t[k-1] + t[k]) / 2`: the centre of the interval the flow measures (default).
+    #[default]
+    Midpoint,
+    /// `t[k]`: the later frame. Biased late by half a frame interval; for tests
+    /// and comparisons only.
+    End,
+}
+
+/// When a frame was taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameTime {
+    /// One stamp taken as the frame's instant (e.g. a driver's capture time).
+    Instant(Nanos),
+    /// Exposure start and duration: the frame's instant is mid-exposure.
+    Exposure {
+        /// Start of exposure, ns.
+        start_ns: Nanos,
+        /// Exposure duration, ns (>= 0).
+        duration_ns: Nanos,
+    },
+}
+
+impl FrameTime {
+    /// The frame's instant: the stamp, or `start + duration / 2` (saturating).
+    /// A negative duration is an error.
+    pub fn instant_ns(self) -> Result<Nanos, Error> {
+        match self {
+            FrameTime::Instant(t) => Ok(t),
+            FrameTime::Exposure {
+                start_ns,
+                duration_ns,
+            } => {
+                if duration_ns < 0 {
+                    return Err(Error::BadFrameTime {
+                        reason: format!(
+                            "negative exposure duration {duration_ns} ns (start {start_ns} ns)"
+                        ),
+                    });
+                }
+                Ok(start_ns.saturating_add(duration_ns / 2))
+            }
+        }
+    }
+}
+
+/// Configuration of [`SignatureProcessor`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SignatureConfig {
+    /// Optical flow.
+    pub flow: FlowConfig,
+    /// Flow vectors to scalar (default: trimmed mean magnitude).
+    pub reduction: Reduction,
+    /// Trim fraction at each end for the trimmed means (default 0.1).
+    pub trim: f32,
+    /// Sample stamping (default midpoint).
+    pub stamping: Stamping,
+    /// Longest frame interval a sample may span, ns (default 250 ms).
+    pub max_gap_ns: Nanos,
+}
+
+impl Default for SignatureConfig {
+    fn default() -> Self {
+        Self {
+            flow: FlowConfig::default(),
+            reduction: Reduction::default(),
+            trim: DEFAULT_TRIM,
+            stamping: Stamping::default(),
+            max_gap_ns: 250_000_000,
+        }
+    }
+}
+
+impl SignatureConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), Error> {
+        self.flow.validate()?;
+        Reducer::new(self.reduction, self.trim)?;
+        if self.max_gap_ns <= 0 {
+            return Err(Error::InvalidConfig {
+                field: "max_gap_ns",
+                reason: format!("{} must be positive", self.max_gap_ns),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One camera signature sample with its diagnostics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CamSample {
+    /// The sample: stamp per [`Stamping`], value in pixels per second.
+    /// The value is NaN when no point was tracked (`stats.tracked == 0`).
+    pub sample: Sample,
+    /// Interval between the two frames compared, ns (> 0).
+    pub dt_ns: Nanos,
+    /// The reduced flow over that interval, pixels (NaN when no point was tracked).
+    pub flow_px: f64,
+    /// Point counts; `stats.low_texture` flags too few tracked points.
+    pub stats: FlowStats,
+}
+
+impl CamSample {
+    /// Too few points were tracked for the value to be trusted.
+    pub fn low_texture(&self) -> bool {
+        self.stats.low_texture
+    }
+}
+
+/// Why a frame started a new sequence instead of producing a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StartReason {
+    /// First frame (or first after [`SignatureProcessor::reset`] or an error).
+    First,
+    /// The interval from the previous frame exceeds the configured limit.
+    Gap {
+        /// The interval, ns.
+        dt_ns: Nanos,
+    },
+    /// The frame time is not after the previous one.
+    NotIncreasing {
+        /// The interval, ns (<= 0).
+        dt_ns: Nanos,
+    },
+    /// The frame size differs from the previous frame's.
+    SizeChanged {
+        /// Previous (width, height).
+        from: (usize, usize),
+        /// New (width, height).
+        to: (usize, usize),
+    },
+}
+
+/// The outcome of one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Step {
+    /// A sample for the interval ending at this frame.
+    Sample(CamSample),
+    /// No sample: this frame starts a new sequence.
+    Started(StartReason),
+}
+
+/// Turns a stream of frames into camera signature samples.
+#[derive(Debug, Clone)]
+pub struct SignatureProcessor {
+    cfg: SignatureConfig,
+    lk: PyrLk,
+    reducer: Reducer,
+    prev_t: Option<Nanos>,
+}
+
+impl SignatureProcessor {
+    /// A processor; fails on an invalid configuration.
+    pub fn new(cfg: SignatureConfig) -> Result<Self, Error> {
+        cfg.validate()?;
+        Ok(Self {
+            cfg,
+            lk: PyrLk::new(cfg.flow)?,
+            reducer: Reducer::new(cfg.reduction, cfg.trim)?,
+            prev_t: None,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SignatureConfig {
+        &self.cfg
+    }
+
+    /// The flow tracker (e.g. to read the vectors of the last sample).
+    pub fn flow(&self) -> &PyrLk {
+        &self.lk
+    }
+
+    /// Forgets the previous frame.
+    pub fn reset(&mut self) {
+        self.lk.reset();
+        self.prev_t = None;
+    }
+
+    /// Processes one frame taken at `time`. After the first frame of a given size
+    /// this allocates nothing. On error the processor restarts with the next frame.
+    pub fn process<T: Pixel>(
+        &mut self,
+        frame: &GrayFrame<'_, T>,
+        time: FrameTime,
+    ) -> Result<Step, Error> {
+        let t = match time.instant_ns() {
+            Ok(t) => t,
+            Err(e) => {
+                self.reset();
+                return Err(e);
+            }
+        };
+        let size = (frame.width(), frame.height());
+        let prev_size = self.lk.frame_size();
+        let reason = match self.prev_t {
+            None => Some(StartReason::First),
+            Some(_) if prev_size != Some(size) => Some(StartReason::SizeChanged {
+                from: prev_size.unwrap_or((0, 0)),
+                to: size,
+            }),
+            Some(p) => {
+                let dt = i128::from(t) - i128::from(p);
+                let dt_ns = dt.clamp(i128::from(Nanos::MIN), i128::from(Nanos::MAX)) as Nanos;
+                if dt <= 0 {
+                    Some(StartReason::NotIncreasing { dt_ns })
+                } else if dt > i128::from(self.cfg.max_gap_ns) {
+                    Some(StartReason::Gap { dt_ns })
+                } else {
+                    None
+                }
+            }
+        };
+        if reason.is_some() {
+            self.lk.reset();
+        }
+        let stats = match self.lk.push(frame) {
+            Ok(s) => s,
+            Err(e) => {
+                self.prev_t = None;
+                return Err(e);
+            }
+        };
+        let prev = self.prev_t.replace(t);
+        match (reason, stats, prev) {
+            (None, Some(stats), Some(p)) => {
+                let dt_ns = t - p; // 0 < dt <= max_gap: no overflow
+                let flow_px = self
+                    .reducer
+                    .reduce(self.lk.vectors(), size)
+                    .unwrap_or(f64::NAN);
+                let t_ns = match self.cfg.stamping {
+                    Stamping::Midpoint => p + dt_ns / 2,
+                    Stamping::End => t,
+                };
+                let value = flow_px * NANOS_PER_SEC as f64 / dt_ns as f64;
+                Ok(Step::Sample(CamSample {
+                    sample: Sample::new(t_ns, value),
+                    dt_ns,
+                    flow_px,
+                    stats,
+                }))
+            }
+            (Some(r), _, _) => Ok(Step::Started(r)),
+            // the tracker had no previous frame although we had a time: treat as first
+            _ => Ok(Step::Started(StartReason::First)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flow::tests::frame;
+
+    const MS: Nanos = 1_000_000;
+
+    fn shifted(dy: f32) -> GrayFrame<'static, f32> {
+        frame(200, 150, move |x, y| (x, y - dy))
+    }
+
+    fn sample(step: Step) -> CamSample {
+        match step {
+            Step::Sample(s) => s,
+            other => panic!("expected a sample, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn midpoint_and_end_stamping() {
+        for (stamping, expect) in [
+            (Stamping::Midpoint, 1_016 * MS),
+            (Stamping::End, 1_032 * MS),
+        ] {
+            let cfg = SignatureConfig {
+                stamping,
+                ..SignatureConfig::default()
+            };
+            let mut p = SignatureProcessor::new(cfg).unwrap();
+            p.process(&shifted(0.0), FrameTime::Instant(1_000 * MS))
+                .unwrap();
+            let s = sample(
+                p.process(&shifted(1.0), FrameTime::Instant(1_032 * MS))
+                    .unwrap(),
+            );
+            assert_eq!(s.sample.t_ns, expect);
+            assert_eq!(s.dt_ns, 32 * MS);
+        }
+    }
+
+    #[test]
+    fn exposure_times_are_mid_exposure() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let e = |start_ms: i64, dur_ms: i64| FrameTime::Exposure {
+            start_ns: start_ms * MS,
+            duration_ns: dur_ms * MS,
+        };
+        p.process(&shifted(0.0), e(1_000, 10)).unwrap(); // mid 1005
+        let s = sample(p.process(&shifted(1.0), e(1_030, 20)).unwrap()); // mid 1040
+        assert_eq!(s.dt_ns, 35 * MS);
+        assert_eq!(s.sample.t_ns, 1_022_500_000);
+        assert!(matches!(
+            p.process(&shifted(0.0), e(1_100, -1)),
+            Err(Error::BadFrameTime { .. })
+        ));
+    }
+
+    #[test]
+    fn value_is_pixels_per_second_independent_of_frame_drops() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        // 60 px/s: 2 px per 33.3 ms frame; frame 2 is dropped, so 1->3 spans 4 px
+        let frames = [(0.0, 0), (2.0, 33_333_333), (6.0, 100_000_000)];
+        let mut values = Vec::new();
+        for (dy, t) in frames {
+            if let Step::Sample(s) = p.process(&shifted(dy), FrameTime::Instant(t)).unwrap() {
+                values.push(s.sample.value);
+            }
+        }
+        assert_eq!(values.len(), 2);
+        for v in values {
+            assert!((v - 60.0).abs() < 1.5, "{v}");
+        }
+    }
+
+    #[test]
+    fn gaps_and_time_going_back_restart() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let f = shifted(0.0);
+        assert_eq!(
+            p.process(&f, FrameTime::Instant(0)).unwrap(),
+            Step::Started(StartReason::First)
+        );
+        assert_eq!(
+            p.process(&f, FrameTime::Instant(300 * MS)).unwrap(),
+            Step::Started(StartReason::Gap { dt_ns: 300 * MS })
+        );
+        assert_eq!(
+            p.process(&f, FrameTime::Instant(300 * MS)).unwrap(),
+            Step::Started(StartReason::NotIncreasing { dt_ns: 0 })
+        );
+        let s = sample(p.process(&f, FrameTime::Instant(330 * MS)).unwrap());
+        assert_eq!(s.sample.value, 0.0);
+        let g = frame(180, 150, |x, y| (x, y));
+        assert_eq!(
+            p.process(&g, FrameTime::Instant(360 * MS)).unwrap(),
+            Step::Started(StartReason::SizeChanged {
+                from: (200, 150),
+                to: (180, 150)
+            })
+        );
+        // extreme stamps do not overflow
+        assert!(matches!(
+            p.process(&g, FrameTime::Instant(i64::MIN)).unwrap(),
+            Step::Started(StartReason::NotIncreasing { .. })
+        ));
+        assert!(matches!(
+            p.process(&g, FrameTime::Instant(i64::MAX)).unwrap(),
+            Step::Started(StartReason::Gap { dt_ns: i64::MAX })
+        ));
+    }
+
+    #[test]
+    fn flat_frames_give_flagged_nan() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let f = GrayFrame::owned(200, 150, vec![50u8; 200 * 150]).unwrap();
+        p.process(&f, FrameTime::Instant(0)).unwrap();
+        let s = sample(p.process(&f, FrameTime::Instant(33 * MS)).unwrap());
+        assert!(s.low_texture());
+        assert_eq!(s.stats.tracked, 0);
+        assert!(s.sample.value.is_nan());
+    }
+
+    #[test]
+    fn errors_restart() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let tiny = GrayFrame::owned(4, 4, vec![0u8; 16]).unwrap();
+        assert!(p.process(&tiny, FrameTime::Instant(0)).is_err());
+        assert_eq!(
+            p.process(&shifted(0.0), FrameTime::Instant(MS)).unwrap(),
+            Step::Started(StartReason::First)
+        );
+        let bad = SignatureConfig {
+            max_gap_ns: 0,
+            ..SignatureConfig::default()
+        };
+        assert!(SignatureProcessor::new(bad).is_err());
+    }
+}

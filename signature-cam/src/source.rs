@@ -1,0 +1,352 @@
+//! Frame sources: a directory of PNG/JPEG frames with a timestamps file, and
+//! (behind the `v4l2` feature) a V4L2 camera, see [`crate::v4l2`].
+//!
+//! # The timestamps file `frames.csv`
+//!
+//! One frame per line, in capture order:
+//!
+//! ```text
+//! # comment lines and blank lines are ignored; the header line is optional
+//! file,t_s,exposure_start_s,exposure_s
+//! frame_000000.png,1700000000.000012345
+//! frame_000001.png,1700000000.033345678,1700000000.030000000,0.004
+//! ```
+//!
+//! * `file`: frame file name, relative to the directory of `frames.csv`
+//!   (absolute paths are allowed). PNG or JPEG (format from the content).
+//!   No commas in names; surrounding spaces are trimmed.
+//! * `t_s`: the frame's time in seconds on the camera clock, a plain decimal
+//!   (`-`/`+` sign allowed, no exponent). Up to 9 fraction digits are exact
+//!   (nanoseconds); further digits are rounded.
+//! * `exposure_start_s,exposure_s` (optional, both or neither): start and
+//!   duration of the exposure, seconds. When present the frame's instant is
+//!   mid-exposure (`FrameTime::Exposure`) and `t_s` is only checked for syntax.
+//!
+//! [`DirSource::open`] reads and checks the whole file and that every listed
+//! frame file exists, so a bad line or a missing frame fails before any work;
+//! errors name the file and the line.
+//!
+//! ```
+//! use vlsync_signature_cam::source::parse_seconds;
+//! assert_eq!(parse_seconds("12.5"), Ok(12_500_000_000));
+//! assert_eq!(parse_seconds("-0.000000001"), Ok(-1));
+//! assert!(parse_seconds("1e3").is_err());
+//! ```
+
+use crate::image::GrayFrame;
+use crate::signature::FrameTime;
+use crate::Error;
+use std::path::{Path, PathBuf};
+use vlsync_common::Nanos;
+
+/// A source of gray frames with their times.
+pub trait FrameSource {
+    /// The next frame, `Ok(None)` at the end of the stream. The frame borrows the
+    /// source's buffer until the next call.
+    fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error>;
+}
+
+/// Parses a decimal number of seconds exactly into nanoseconds.
+///
+/// Accepts an optional sign, digits, and an optional `.` with digits (at least one
+/// digit in all). Fraction digits past the ninth round half away from zero.
+pub fn parse_seconds(s: &str) -> Result<Nanos, String> {
+    let t = s.trim();
+    let (neg, body) = match t.as_bytes().first() {
+        Some(b'-') => (true, &t[1..]),
+        Some(b'+') => (false, &t[1..]),
+        _ => (false, t),
+    };
+    let (int, frac) = match body.split_once('.') {
+        Some((i, f)) => (i, f),
+        None => (body, ""),
+    };
+    let digits = |p: &str| p.bytes().all(|b| b.is_ascii_digit());
+    if int.is_empty() && frac.is_empty() || !digits(int) || !digits(frac) {
+        return Err(format!("`{s}` is not a decimal number of seconds"));
+    }
+    let overflow = || format!("`{s}` seconds is out of range");
+    let mut ns: i128 = 0;
+    for b in int.bytes() {
+        ns = ns * 10 + i128::from(b - b'0');
+        if ns > i128::from(i64::MAX) / 1_000_000_000 + 1 {
+            return Err(overflow());
+        }
+    }
+    ns *= 1_000_000_000;
+    let mut scale: i128 = 100_000_000;
+    let fb = frac.as_bytes();
+    for &b in fb.iter().take(9) {
+        ns += i128::from(b - b'0') * scale;
+        scale /= 10;
+    }
+    if fb.len() > 9 && fb[9] >= b'5' {
+        ns += 1;
+    }
+    if neg {
+        ns = -ns;
+    }
+    Nanos::try_from(ns).map_err(|_| overflow())
+}
+
+/// One line of the timestamps file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameEntry {
+    /// Frame file, resolved against the timestamps file's directory.
+    pub path: PathBuf,
+    /// Frame time.
+    pub time: FrameTime,
+    /// 1-based line in the timestamps file.
+    pub line: usize,
+}
+
+/// Parses the text of a timestamps file (see the module docs). `csv` names the
+/// file in errors and is the base for relative frame paths.
+pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error> {
+    let base = csv.parent().unwrap_or(Path::new(""));
+    let mut out = Vec::new();
+    let mut seen_data = false;
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let l = raw.trim();
+        if l.is_empty() || l.starts_with('#') {
+            continue;
+        }
+        let err = |reason: String| Error::Parse {
+            path: csv.to_path_buf(),
+            line,
+            reason,
+        };
+        let fields: Vec<&str> = l.split(',').map(str::trim).collect();
+        if !seen_data && fields[0] == "file" {
+            seen_data = true;
+            continue; // header
+        }
+        seen_data = true;
+        if fields.len() != 2 && fields.len() != 4 {
+            return Err(err(format!(
+                "expected 2 or 4 fields (file,t_s[,exposure_start_s,exposure_s]), found {}",
+                fields.len()
+            )));
+        }
+        if fields[0].is_empty() {
+            return Err(err("empty file name".into()));
+        }
+        let secs = |k: usize, name: &str| {
+            parse_seconds(fields[k]).map_err(|r| err(format!("field {} ({name}): {r}", k + 1)))
+        };
+        let t = secs(1, "t_s")?;
+        let time = if fields.len() == 4 {
+            let start_ns = secs(2, "exposure_start_s")?;
+            let duration_ns = secs(3, "exposure_s")?;
+            if duration_ns < 0 {
+                return Err(err(format!(
+                    "field 4 (exposure_s): negative duration `{}`",
+                    fields[3]
+                )));
+            }
+            FrameTime::Exposure {
+                start_ns,
+                duration_ns,
+            }
+        } else {
+            FrameTime::Instant(t)
+        };
+        out.push(FrameEntry {
+            path: base.join(fields[0]),
+            time,
+            line,
+        });
+    }
+    Ok(out)
+}
+
+/// Frames from a directory of PNG/JPEG files listed in a timestamps file.
+#[derive(Debug)]
+pub struct DirSource {
+    csv: PathBuf,
+    entries: Vec<FrameEntry>,
+    next: usize,
+    buf: Vec<u8>,
+}
+
+impl DirSource {
+    /// Name of the timestamps file inside a frame directory.
+    pub const TIMESTAMPS_FILE: &'static str = "frames.csv";
+
+    /// Opens `dir/frames.csv`.
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self, Error> {
+        Self::from_csv(dir.as_ref().join(Self::TIMESTAMPS_FILE))
+    }
+
+    /// Opens a timestamps file; frame paths are relative to its directory.
+    /// Fails if the file is malformed or any listed frame file is missing.
+    pub fn from_csv(csv: impl AsRef<Path>) -> Result<Self, Error> {
+        let csv = csv.as_ref().to_path_buf();
+        let text = std::fs::read_to_string(&csv).map_err(|source| Error::Io {
+            path: csv.clone(),
+            source,
+        })?;
+        let entries = parse_frames_csv(&text, &csv)?;
+        for e in &entries {
+            if !e.path.is_file() {
+                return Err(Error::MissingFrame {
+                    path: e.path.clone(),
+                    listed_in: csv,
+                    line: e.line,
+                });
+            }
+        }
+        Ok(Self {
+            csv,
+            entries,
+            next: 0,
+            buf: Vec::new(),
+        })
+    }
+
+    /// All frames listed.
+    pub fn entries(&self) -> &[FrameEntry] {
+        &self.entries
+    }
+
+    /// The timestamps file.
+    pub fn csv_path(&self) -> &Path {
+        &self.csv
+    }
+
+    /// Decodes one frame file to gray.
+    fn decode(&mut self, idx: usize) -> Result<(usize, usize), Error> {
+        let e = &self.entries[idx];
+        let decode_err = |reason: String| Error::Decode {
+            path: e.path.clone(),
+            reason,
+        };
+        let reader = ::image::ImageReader::open(&e.path).map_err(|source| {
+            if source.kind() == std::io::ErrorKind::NotFound {
+                Error::MissingFrame {
+                    path: e.path.clone(),
+                    listed_in: self.csv.clone(),
+                    line: e.line,
+                }
+            } else {
+                Error::Io {
+                    path: e.path.clone(),
+                    source,
+                }
+            }
+        })?;
+        let img = reader
+            .with_guessed_format()
+            .map_err(|err| decode_err(err.to_string()))?
+            .decode()
+            .map_err(|err| decode_err(err.to_string()))?;
+        let gray = img.into_luma8();
+        let (w, h) = (gray.width() as usize, gray.height() as usize);
+        self.buf = gray.into_raw();
+        Ok((w, h))
+    }
+}
+
+impl FrameSource for DirSource {
+    fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
+        let idx = self.next;
+        if idx >= self.entries.len() {
+            return Ok(None);
+        }
+        self.next += 1;
+        let (w, h) = self.decode(idx)?;
+        let time = self.entries[idx].time;
+        let frame = GrayFrame::borrowed(w, h, &self.buf).map_err(|e| Error::Decode {
+            path: self.entries[idx].path.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Some((frame, time)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn seconds_parse_exactly() {
+        assert_eq!(
+            parse_seconds("1700000000.123456789"),
+            Ok(1_700_000_000_123_456_789)
+        );
+        assert_eq!(parse_seconds(" 3 "), Ok(3_000_000_000));
+        assert_eq!(parse_seconds(".5"), Ok(500_000_000));
+        assert_eq!(parse_seconds("5."), Ok(5_000_000_000));
+        assert_eq!(parse_seconds("0.0000000015"), Ok(2));
+        assert_eq!(parse_seconds("-0.0000000015"), Ok(-2));
+        assert_eq!(parse_seconds("0.0000000014999"), Ok(1));
+        for bad in [
+            "",
+            ".",
+            "-",
+            "1.2.3",
+            "1e5",
+            "abc",
+            "1,5",
+            "9300000000",
+            "--1",
+            "+-1",
+            "1 2",
+        ] {
+            assert!(parse_seconds(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn csv_lines_and_errors() {
+        let csv = Path::new("/data/run1/frames.csv");
+        let text = "# a comment\n\nfile,t_s\na.png, 1.5\nsub/b.jpg,2.0,1.99,0.004\r\n";
+        let e = parse_frames_csv(text, csv).unwrap();
+        assert_eq!(e.len(), 2);
+        assert_eq!(e[0].path, PathBuf::from("/data/run1/a.png"));
+        assert_eq!(e[0].time, FrameTime::Instant(1_500_000_000));
+        assert_eq!(e[0].line, 4);
+        assert_eq!(
+            e[1].time,
+            FrameTime::Exposure {
+                start_ns: 1_990_000_000,
+                duration_ns: 4_000_000
+            }
+        );
+        let cases = [
+            ("a.png,1.0\nb.png\n", 2, "found 1"),
+            ("a.png,1.0,2.0\n", 1, "found 3"),
+            ("a.png,x\n", 1, "t_s"),
+            ("a.png,1,1,-0.1\n", 1, "negative"),
+            ("a.png,1,x,0.1\n", 1, "exposure_start_s"),
+            (",1\n", 1, "empty file name"),
+            ("a.png,1\nfile,t_s\n", 2, "t_s"),
+        ];
+        for (text, line, what) in cases {
+            let err = parse_frames_csv(text, csv).unwrap_err();
+            let msg = err.to_string();
+            assert!(
+                msg.starts_with(&format!("/data/run1/frames.csv:{line}:")) && msg.contains(what),
+                "{text:?}: {msg}"
+            );
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn seconds_roundtrip(ns in any::<i64>()) {
+            let sign = if ns < 0 { "-" } else { "" };
+            let a = ns.unsigned_abs();
+            let s = format!("{sign}{}.{:09}", a / 1_000_000_000, a % 1_000_000_000);
+            prop_assert_eq!(parse_seconds(&s), Ok(ns));
+        }
+
+        #[test]
+        fn parsers_never_panic(s in "\\PC{0,40}") {
+            let _ = parse_seconds(&s);
+            let _ = parse_frames_csv(&s, Path::new("x/frames.csv"));
+        }
+    }
+}

@@ -1,0 +1,249 @@
+//! V4L2 camera source (Linux), behind the cargo feature `v4l2`.
+//!
+//! The feature pulls the `v4l` crate, whose `v4l2-sys-mit` dependency generates
+//! its bindings with bindgen at build time and so **needs libclang** on the build
+//! machine (Debian: `apt-get install libclang-dev`). Without the feature the type
+//! still exists and [`V4l2Source::open`] returns an error saying so (after
+//! reporting a missing device as `/dev/video0: no such device`).
+//!
+//! Frames are requested as YUYV (the usual format of the Pi camera stack and of
+//! USB cameras); GREY, RGB3 and BGR3 are accepted if the driver insists on one of
+//! them. Each frame is stamped with the driver's buffer timestamp
+//! ([`FrameTime::Instant`]), normally `CLOCK_MONOTONIC`; whether that is the
+//! start of exposure or the end of the frame depends on the driver
+//! (`V4L2_BUF_FLAG_TSTAMP_SRC_*`), so the constant part of that difference shows
+//! up in the estimated offset.
+//!
+//! ```
+//! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
+//! let cfg = V4l2Config { device: "/dev/video-does-not-exist".into(), ..V4l2Config::default() };
+//! let err = V4l2Source::open(&cfg).unwrap_err();
+//! assert_eq!(err.to_string(), "/dev/video-does-not-exist: no such device");
+//! ```
+
+use crate::image::GrayFrame;
+#[cfg(feature = "v4l2")]
+use crate::image::{PixelFormat, RawFrame};
+use crate::signature::FrameTime;
+use crate::source::FrameSource;
+use crate::Error;
+use std::path::PathBuf;
+
+/// What to open and how.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct V4l2Config {
+    /// Device node (default `/dev/video0`).
+    pub device: PathBuf,
+    /// Requested width (default 640); the driver may pick another.
+    pub width: u32,
+    /// Requested height (default 480); the driver may pick another.
+    pub height: u32,
+    /// Driver buffers (default 4).
+    pub buffers: u32,
+}
+
+impl Default for V4l2Config {
+    fn default() -> Self {
+        Self {
+            device: PathBuf::from("/dev/video0"),
+            width: 640,
+            height: 480,
+            buffers: 4,
+        }
+    }
+}
+
+/// A V4L2 capture stream converted to gray.
+pub struct V4l2Source {
+    #[cfg(feature = "v4l2")]
+    inner: imp::Inner,
+    #[cfg(not(feature = "v4l2"))]
+    _never: std::convert::Infallible,
+}
+
+impl std::fmt::Debug for V4l2Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("V4l2Source").finish_non_exhaustive()
+    }
+}
+
+impl V4l2Source {
+    /// Opens and starts the device. A missing device node gives
+    /// [`Error::NoDevice`]; without the `v4l2` feature an existing node gives
+    /// [`Error::Device`] saying support was not built.
+    pub fn open(cfg: &V4l2Config) -> Result<Self, Error> {
+        if !cfg.device.exists() {
+            return Err(Error::NoDevice {
+                path: cfg.device.clone(),
+            });
+        }
+        #[cfg(feature = "v4l2")]
+        {
+            Ok(Self {
+                inner: imp::Inner::open(cfg)?,
+            })
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            Err(Error::Device {
+                path: cfg.device.clone(),
+                reason: "V4L2 support not built: enable the `v4l2` cargo feature \
+                         of vlsync-signature-cam"
+                    .into(),
+            })
+        }
+    }
+
+    /// The frame size delivered, (width, height).
+    pub fn frame_size(&self) -> (usize, usize) {
+        #[cfg(feature = "v4l2")]
+        {
+            (self.inner.width, self.inner.height)
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
+}
+
+impl FrameSource for V4l2Source {
+    fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.next().map(Some)
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
+}
+
+#[cfg(feature = "v4l2")]
+mod imp {
+    use super::*;
+    use v4l::buffer::Type;
+    use v4l::io::mmap::Stream;
+    use v4l::io::traits::CaptureStream;
+    use v4l::video::Capture;
+    use v4l::{Device, FourCC};
+
+    pub(super) struct Inner {
+        path: PathBuf,
+        // the stream keeps its own handle to the device
+        stream: Stream<'static>,
+        _dev: Device,
+        pub(super) width: usize,
+        pub(super) height: usize,
+        stride: usize,
+        format: PixelFormat,
+        gray: Vec<u8>,
+    }
+
+    impl Inner {
+        pub(super) fn open(cfg: &V4l2Config) -> Result<Self, Error> {
+            let path = cfg.device.clone();
+            let dev_err = |what: &str, e: std::io::Error| Error::Device {
+                path: path.clone(),
+                reason: format!("{what}: {e}"),
+            };
+            let dev = Device::with_path(&path).map_err(|e| dev_err("open", e))?;
+            let mut fmt = dev.format().map_err(|e| dev_err("get format", e))?;
+            fmt.width = cfg.width;
+            fmt.height = cfg.height;
+            fmt.fourcc = FourCC::new(b"YUYV");
+            let fmt = dev.set_format(&fmt).map_err(|e| dev_err("set format", e))?;
+            let format = match &fmt.fourcc.repr {
+                b"YUYV" => PixelFormat::Yuyv,
+                b"GREY" => PixelFormat::Gray8,
+                b"RGB3" => PixelFormat::Rgb8,
+                b"BGR3" => PixelFormat::Bgr8,
+                other => {
+                    return Err(Error::Device {
+                        path,
+                        reason: format!(
+                            "unsupported pixel format {} (need YUYV, GREY, RGB3 or BGR3)",
+                            String::from_utf8_lossy(other)
+                        ),
+                    })
+                }
+            };
+            let stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(1))
+                .map_err(|e| dev_err("start mmap stream", e))?;
+            Ok(Self {
+                path,
+                stream,
+                _dev: dev,
+                width: fmt.width as usize,
+                height: fmt.height as usize,
+                stride: fmt.stride as usize,
+                format,
+                gray: Vec::new(),
+            })
+        }
+
+        pub(super) fn next(&mut self) -> Result<(GrayFrame<'_, u8>, FrameTime), Error> {
+            let (buf, meta) = self.stream.next().map_err(|e| Error::Device {
+                path: self.path.clone(),
+                reason: format!("dequeue buffer: {e}"),
+            })?;
+            let used = (meta.bytesused as usize).min(buf.len());
+            let stride = if self.stride == 0 {
+                self.width.saturating_mul(self.format.bytes_per_pixel())
+            } else {
+                self.stride
+            };
+            let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
+                .with_stride(stride);
+            raw.to_gray_into(&mut self.gray)?;
+            let ts = meta.timestamp;
+            let t_ns = (ts.sec as i64)
+                .saturating_mul(1_000_000_000)
+                .saturating_add((ts.usec as i64).saturating_mul(1_000));
+            let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
+            Ok((frame, FrameTime::Instant(t_ns)))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_device_is_named() {
+        let cfg = V4l2Config {
+            device: "/dev/video-vlsync-test-missing".into(),
+            ..V4l2Config::default()
+        };
+        let e = V4l2Source::open(&cfg).unwrap_err();
+        assert!(matches!(e, Error::NoDevice { .. }));
+        assert_eq!(
+            e.to_string(),
+            "/dev/video-vlsync-test-missing: no such device"
+        );
+    }
+
+    #[cfg(not(feature = "v4l2"))]
+    #[test]
+    fn without_feature_an_existing_node_says_so() {
+        // any existing path stands in for a device node
+        let cfg = V4l2Config {
+            device: std::env::temp_dir(),
+            ..V4l2Config::default()
+        };
+        let e = V4l2Source::open(&cfg).unwrap_err();
+        assert!(e.to_string().contains("`v4l2` cargo feature"), "{e}");
+    }
+
+    #[cfg(feature = "v4l2")]
+    #[test]
+    fn a_non_device_is_an_error_not_a_panic() {
+        let cfg = V4l2Config {
+            device: std::env::temp_dir(),
+            ..V4l2Config::default()
+        };
+        assert!(V4l2Source::open(&cfg).is_err());
+    }
+}
