@@ -298,9 +298,9 @@ impl<'a> RawFrame<'a> {
                     }
                 }
                 PixelFormat::Yuyv => {
-                    for (d, s) in dst.chunks_exact_mut(2).zip(src.chunks_exact(4)) {
-                        d[0] = s[0];
-                        d[1] = s[2];
+                    // luma is every other byte
+                    for (d, s) in dst.iter_mut().zip(src.iter().step_by(2)) {
+                        *d = *s;
                     }
                 }
             }

@@ -97,6 +97,11 @@ impl Reducer {
         })
     }
 
+    /// Reserves scratch space for `n` vectors, so reducing up to `n` allocates nothing.
+    pub fn reserve(&mut self, n: usize) {
+        self.scratch.reserve(n);
+    }
+
     /// The reduction.
     pub fn kind(&self) -> Reduction {
         self.kind

@@ -196,10 +196,12 @@ impl SignatureProcessor {
     /// A processor; fails on an invalid configuration.
     pub fn new(cfg: SignatureConfig) -> Result<Self, Error> {
         cfg.validate()?;
+        let mut reducer = Reducer::new(cfg.reduction, cfg.trim)?;
+        reducer.reserve(cfg.flow.grid_cols * cfg.flow.grid_rows);
         Ok(Self {
             cfg,
             lk: PyrLk::new(cfg.flow)?,
-            reducer: Reducer::new(cfg.reduction, cfg.trim)?,
+            reducer,
             prev_t: None,
         })
     }

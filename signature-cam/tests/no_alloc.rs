@@ -1,0 +1,112 @@
+//! Steady-state frame processing allocates nothing: a counting global allocator
+//! (thread-local counts, so the test harness's other threads do not interfere)
+//! watches frames 2..N of a stream of same-size frames.
+//!
+//! This file is its own crate: installing a `#[global_allocator]` needs one
+//! `unsafe impl GlobalAlloc`, which only delegates to the system allocator.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use vlsync_signature_cam::{
+    FrameTime, GrayFrame, PixelFormat, RawFrame, Reduction, SignatureConfig, SignatureProcessor,
+    Step,
+};
+
+thread_local! {
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+struct Counting;
+
+#[allow(unsafe_code)]
+// SAFETY: every method forwards its arguments unchanged to `System`, which upholds
+// the `GlobalAlloc` contract; the counter is a const-initialised thread-local
+// `Cell` without destructor, so touching it never allocates or recurses.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocs() -> u64 {
+    ALLOCS.with(|c| c.get())
+}
+
+/// A 640x480 YUYV frame of a smooth texture shifted by `(sx, sy)`.
+fn yuyv(sx: f32, sy: f32) -> Vec<u8> {
+    let (w, h) = (640usize, 480usize);
+    let mut out = vec![128u8; w * h * 2];
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = (x as f32 - sx, y as f32 - sy);
+            let g = 128.0 + 50.0 * (0.21 * u + 0.07 * v).sin() + 40.0 * (0.13 * v - 0.17 * u).cos();
+            out[(y * w + x) * 2] = g.clamp(0.0, 255.0) as u8;
+        }
+    }
+    out
+}
+
+#[test]
+fn steady_state_processing_allocates_nothing() {
+    let raws: Vec<Vec<u8>> = (0..6)
+        .map(|k| yuyv(1.3 * k as f32, 0.7 * k as f32))
+        .collect();
+    for reduction in [
+        Reduction::MeanMagnitude,
+        Reduction::MedianMagnitude,
+        Reduction::Divergence { focus: [0.5, 0.6] },
+    ] {
+        let cfg = SignatureConfig {
+            reduction,
+            ..SignatureConfig::default()
+        };
+        let mut p = SignatureProcessor::new(cfg).unwrap();
+        let mut gray = Vec::new();
+        let mut samples = 0;
+        let mut after_first = 0;
+        for (k, raw) in raws.iter().enumerate() {
+            let before = allocs();
+            RawFrame::new(raw, 640, 480, PixelFormat::Yuyv)
+                .to_gray_into(&mut gray)
+                .unwrap();
+            let frame = GrayFrame::borrowed(640, 480, &gray).unwrap();
+            let step = p
+                .process(&frame, FrameTime::Instant(k as i64 * 33_000_000))
+                .unwrap();
+            let n = allocs() - before;
+            if k > 0 {
+                after_first += n;
+            } else {
+                assert!(n > 0, "the first frame sets up the buffers");
+            }
+            if let Step::Sample(s) = step {
+                samples += 1;
+                assert!(!s.low_texture(), "{s:?}");
+            }
+        }
+        assert_eq!(samples, raws.len() - 1);
+        assert_eq!(
+            after_first, 0,
+            "{reduction:?}: allocations after the first frame"
+        );
+    }
+}
