@@ -9,6 +9,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod ld06;
 pub mod scan;
 pub mod signature;
 
