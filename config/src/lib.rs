@@ -89,6 +89,9 @@ pub struct EstimatorConfig {
     pub drift_process_noise: f64,
     /// Prior standard deviation of the drift at lock, s/s.
     pub initial_drift_std: f64,
+    /// Random-walk intensity of the offset once no measurement was accepted for a
+    /// whole window (holding), s/sqrt(s): the uncertainty grows honestly while blind.
+    pub hold_process_noise: f64,
     /// Innovation gate, in standard deviations.
     pub gate_sigma: f64,
     /// Consecutive consistent step-window outliers that declare an offset step.
@@ -110,7 +113,7 @@ impl Default for EstimatorConfig {
             max_gap_s: 0.75,
             reset_jump_s: 5.0,
             lowpass_hz: 2.0,
-            highpass_hz: 0.1,
+            highpass_hz: 0.0,
             max_abs_value: 1e6,
             min_peak_score: 0.4,
             min_peak_ratio: 1.3,
@@ -120,6 +123,7 @@ impl Default for EstimatorConfig {
             offset_process_noise: 2e-4,
             drift_process_noise: 2e-6,
             initial_drift_std: 2e-4,
+            hold_process_noise: 3e-3,
             gate_sigma: 3.0,
             step_confirm: 2,
             lost_std_s: 0.05,
@@ -254,8 +258,14 @@ impl EstimatorConfig {
             0.0,
             1.0,
         )?;
-        c.range(&k("drift_process_noise"), self.drift_process_noise, 0.0, 1.0)?;
+        c.range(
+            &k("drift_process_noise"),
+            self.drift_process_noise,
+            0.0,
+            1.0,
+        )?;
         c.range(&k("initial_drift_std"), self.initial_drift_std, 1e-9, 0.1)?;
+        c.range(&k("hold_process_noise"), self.hold_process_noise, 0.0, 1.0)?;
         c.range(&k("gate_sigma"), self.gate_sigma, 1.0, 100.0)?;
         c.int_range(&k("step_confirm"), self.step_confirm.into(), 1, 100)?;
         c.range(&k("lost_std_s"), self.lost_std_s, 1e-4, 10.0)?;
@@ -291,6 +301,14 @@ impl EstimatorConfig {
                 self.highpass_hz, self.lowpass_hz
             )
         })?;
+        let lags = 2.0 * self.max_lag_s * self.grid_hz + 1.0;
+        let blocks = (self.window_s / self.hop_s).ceil() + 1.0;
+        c.rule(lags * blocks <= 4.0e6, || {
+            format!(
+                "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.window_s`/`estimator.hop_s` = {}/{} need {} lag sums: allowed at most 4000000 (about 100 MB)",
+                self.max_lag_s, self.grid_hz, self.window_s, self.hop_s, lags * blocks
+            )
+        })?;
         c.rule(self.track_range_s <= self.max_lag_s, || {
             format!(
                 "`estimator.track_range_s` = {} must not exceed `estimator.max_lag_s` = {}",
@@ -307,12 +325,7 @@ impl DaemonConfig {
         let c = Checker { source };
         c.int_range("daemon.core", self.core, -1, 1023)?;
         c.int_range("daemon.fifo_priority", self.fifo_priority, 0, 99)?;
-        c.range(
-            "daemon.latency_budget_us",
-            self.latency_budget_us,
-            1.0,
-            1e6,
-        )?;
+        c.range("daemon.latency_budget_us", self.latency_budget_us, 1.0, 1e6)?;
         c.range("daemon.status_period_s", self.status_period_s, 0.05, 3600.0)?;
         c.range("daemon.state_max_age_s", self.state_max_age_s, 0.0, 1e9)?;
         Ok(())

@@ -1,2 +1,5 @@
-//! vlsyncd library.
+//! vlsyncd library: the logic behind the `vlsyncd` commands, testable without processes.
 #![forbid(unsafe_code)]
+
+pub mod bench;
+pub mod replay;

@@ -1,1 +1,59 @@
-fn main() {}
+//! `vlsyncd`: the vlsync daemon binary. Thin: argument parsing and exit codes;
+//! the logic lives in the `vlsyncd` library.
+#![forbid(unsafe_code)]
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "vlsyncd",
+    version,
+    about = "Camera-LiDAR time-offset estimator daemon"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run the estimator offline on recorded signature CSV files.
+    Replay {
+        /// Camera signature CSV (`t,value`, t in seconds on the camera clock).
+        #[arg(long)]
+        cam: PathBuf,
+        /// LiDAR signature CSV (`t,value`, t in seconds on the LiDAR clock).
+        #[arg(long)]
+        lidar: PathBuf,
+        /// Output estimates CSV.
+        #[arg(long)]
+        out: PathBuf,
+        /// Configuration file (TOML); defaults are used without it.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Accuracy benchmark: every simulated family over several seeds, against the seed baseline.
+    Bench(vlsyncd::bench::BenchArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.cmd {
+        Cmd::Replay {
+            cam,
+            lidar,
+            out,
+            config,
+        } => vlsyncd::replay::run_cli(&cam, &lidar, &out, config.as_deref()),
+        Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("vlsyncd: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
