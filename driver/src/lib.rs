@@ -1,2 +1,356 @@
-//! See Cargo.toml description.
+//! Driver side of vlsync: a [`Source`] of signature samples, paced in real
+//! time (or as fast as possible) and published on `<prefix>/<stream>/signature`.
+//!
+//! Raw-sensor front-ends slot in later by implementing [`Source`]; today's
+//! sources replay a signature CSV ([`VecSource::from_csv`]) or the live
+//! signature simulator ([`VecSource::from_sim`]).
+//!
+//! # Pacing and restarts
+//!
+//! Sample `k` is published at `start + (t_k - anchor) / speed` on
+//! `CLOCK_MONOTONIC`, where `anchor` is a time both drivers of a pair agree on
+//! (for the simulator: the earlier of the two streams' first stamps, computed
+//! identically by both). Two drivers given the same `--start-at` mono time
+//! therefore publish a consistent pair. A driver restarted with the same
+//! `--start-at` skips the samples whose time already passed before it started,
+//! so it resumes where the run is now instead of replaying history.
+//! Sequence numbers restart at 0 with `FLAG_FIRST`; the daemon does not count
+//! that as lost samples. Publishing never blocks on the daemon: a driver keeps
+//! going while the daemon restarts.
 #![forbid(unsafe_code)]
+
+pub mod cli;
+
+use std::fmt;
+use std::path::Path;
+use std::time::Duration;
+use vlsync_common::{Nanos, Sample, Stream};
+use vlsync_ipc::{monotonic_ns, IpcError, SignaturePublisher};
+
+/// A failure of a source (the file and line, the device, ...).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceError(pub String);
+
+impl fmt::Display for SourceError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for SourceError {}
+
+/// A stream of signature samples on one sensor clock.
+pub trait Source {
+    /// The next sample, `Ok(None)` at the end. May block (a live sensor).
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError>;
+    /// A short description for logs.
+    fn describe(&self) -> String;
+}
+
+/// A source over samples already in memory (CSV replay, simulator).
+#[derive(Debug, Clone)]
+pub struct VecSource {
+    samples: Vec<Sample>,
+    next: usize,
+    what: String,
+}
+
+impl VecSource {
+    /// Wraps samples.
+    pub fn new(samples: Vec<Sample>, what: impl Into<String>) -> Self {
+        Self {
+            samples,
+            next: 0,
+            what: what.into(),
+        }
+    }
+
+    /// Reads a signature CSV (header, then `t,value` rows, t in seconds).
+    /// Errors name the file and line.
+    pub fn from_csv(path: &Path) -> Result<Self, SourceError> {
+        let (samples, _) = vlsync_sim::io::read_signature_csv(path)
+            .map_err(|e| SourceError(format!("signature CSV: {e}")))?;
+        Ok(Self::new(samples, format!("csv {}", path.display())))
+    }
+
+    /// The `stream` half of the simulated run `family`/`seed`/`duration_s`.
+    pub fn from_sim(run: &vlsync_sim::SimRun, stream: Stream) -> Self {
+        let samples = match stream {
+            Stream::Cam => run.cam.clone(),
+            Stream::Lidar => run.lidar.clone(),
+        };
+        Self::new(
+            samples,
+            format!("sim {} seed {} ({stream})", run.family, run.seed),
+        )
+    }
+
+    /// First timestamp, if any.
+    pub fn first_t_ns(&self) -> Option<Nanos> {
+        self.samples.first().map(|s| s.t_ns)
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// True when there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+}
+
+impl Source for VecSource {
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+        let s = self.samples.get(self.next).copied();
+        if s.is_some() {
+            self.next += 1;
+        }
+        Ok(s)
+    }
+
+    fn describe(&self) -> String {
+        self.what.clone()
+    }
+}
+
+/// The pacing anchor of a simulated pair: the earlier first stamp of the two streams.
+pub fn sim_anchor_ns(run: &vlsync_sim::SimRun) -> Nanos {
+    let c = run.cam.first().map_or(0, |s| s.t_ns);
+    let l = run.lidar.first().map_or(0, |s| s.t_ns);
+    c.min(l)
+}
+
+/// How fast to publish.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pacing {
+    /// Real time scaled by `speed` (1.0 = real time, 100.0 = 100x).
+    Scaled {
+        /// Speed factor (> 0).
+        speed: f64,
+        /// Sensor time that maps to the start instant, ns.
+        anchor_ns: Nanos,
+        /// Start instant on `CLOCK_MONOTONIC`, ns; `None`: when the run starts.
+        start_mono_ns: Option<Nanos>,
+    },
+    /// As fast as possible.
+    Fast,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RunSummary {
+    /// Samples published.
+    pub published: u64,
+    /// Samples skipped because their time had passed before the driver started.
+    pub skipped: u64,
+    /// Publish attempts that failed.
+    pub failed: u64,
+    /// True when stopped by a signal (or the stop callback) before the source ended.
+    pub interrupted: bool,
+}
+
+/// A driver failure.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DriverError {
+    /// The source failed.
+    Source(SourceError),
+    /// iceoryx2 failed.
+    Ipc(IpcError),
+    /// Invalid options.
+    Options(String),
+}
+
+impl fmt::Display for DriverError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DriverError::Source(e) => write!(f, "source: {e}"),
+            DriverError::Ipc(e) => write!(f, "ipc: {e}"),
+            DriverError::Options(e) => write!(f, "options: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for DriverError {}
+
+/// Longest single sleep, so a stop request is seen within this.
+const MAX_SLEEP: Duration = Duration::from_millis(50);
+
+/// Publishes every sample of `source` with `pacing` until it ends or `stop()`
+/// returns true. Publish failures are counted, not fatal (the daemon may be
+/// restarting); more than `max_consecutive_failures` in a row is an error.
+pub fn run(
+    source: &mut dyn Source,
+    publisher: &mut SignaturePublisher,
+    pacing: Pacing,
+    stop: &dyn Fn() -> bool,
+) -> Result<RunSummary, DriverError> {
+    const MAX_CONSECUTIVE_FAILURES: u64 = 1000;
+    let started = monotonic_ns();
+    let (speed, anchor, start) = match pacing {
+        Pacing::Scaled {
+            speed,
+            anchor_ns,
+            start_mono_ns,
+        } => {
+            if !(speed.is_finite() && speed > 0.0) {
+                return Err(DriverError::Options(format!(
+                    "speed {speed} must be a finite number > 0"
+                )));
+            }
+            (Some(speed), anchor_ns, start_mono_ns.unwrap_or(started))
+        }
+        Pacing::Fast => (None, 0, started),
+    };
+    let mut sum = RunSummary::default();
+    let mut consecutive = 0u64;
+    while let Some(s) = source.next_sample().map_err(DriverError::Source)? {
+        if stop() {
+            sum.interrupted = true;
+            return Ok(sum);
+        }
+        if let Some(speed) = speed {
+            let due = start.saturating_add(((s.t_ns.saturating_sub(anchor)) as f64 / speed) as i64);
+            if due < started && start < started {
+                // restarted mid-run: this sample belongs to the past
+                sum.skipped += 1;
+                continue;
+            }
+            loop {
+                let now = monotonic_ns();
+                if now >= due {
+                    break;
+                }
+                if stop() {
+                    sum.interrupted = true;
+                    return Ok(sum);
+                }
+                let wait = Duration::from_nanos((due - now) as u64).min(MAX_SLEEP);
+                std::thread::sleep(wait);
+            }
+        }
+        match publisher.publish(s.t_ns, s.value) {
+            Ok(_) => {
+                sum.published += 1;
+                consecutive = 0;
+            }
+            Err(e) => {
+                sum.failed += 1;
+                consecutive += 1;
+                if consecutive > MAX_CONSECUTIVE_FAILURES {
+                    return Err(DriverError::Ipc(e));
+                }
+            }
+        }
+    }
+    Ok(sum)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_common::wire::SignatureSample;
+    use vlsync_ipc::{create_node, open_or_create_pubsub, subscriber, Qos, ServiceNames};
+
+    #[test]
+    fn vec_source_yields_in_order_then_ends() {
+        let mut s = VecSource::new(vec![Sample::new(1, 1.0), Sample::new(2, 2.0)], "t");
+        assert_eq!(s.next_sample().unwrap().unwrap().t_ns, 1);
+        assert_eq!(s.next_sample().unwrap().unwrap().t_ns, 2);
+        assert!(s.next_sample().unwrap().is_none());
+    }
+
+    #[test]
+    fn csv_errors_name_file_and_line() {
+        let dir = std::env::temp_dir().join(format!("vlsync-driver-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("bad.csv");
+        std::fs::write(&p, "t,value\n0.0,1.0\n0.1,oops\n").unwrap();
+        let e = VecSource::from_csv(&p).unwrap_err().to_string();
+        assert!(e.contains("bad.csv") && e.contains(":3"), "{e}");
+        std::fs::write(&p, "t,value\n0.0,1.0\n0.5,2.0\n").unwrap();
+        let s = VecSource::from_csv(&p).unwrap();
+        assert_eq!(s.len(), 2);
+        assert_eq!(s.first_t_ns(), Some(0));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn publish_run(
+        pacing: Pacing,
+        samples: Vec<Sample>,
+        tag: &str,
+    ) -> (RunSummary, Vec<SignatureSample>, Duration) {
+        let names =
+            ServiceNames::new(&format!("vlsync-test/driver-{tag}-{}", std::process::id())).unwrap();
+        let node = create_node("driver-test", false).unwrap();
+        let svc = open_or_create_pubsub::<SignatureSample>(
+            &node,
+            &names.signature(Stream::Cam),
+            Qos::signature(256),
+        )
+        .unwrap();
+        let (sub, _) = subscriber(&svc, 256, "cam").unwrap();
+        let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
+        let mut src = VecSource::new(samples, "test");
+        let t0 = std::time::Instant::now();
+        let sum = run(&mut src, &mut p, pacing, &|| false).unwrap();
+        let el = t0.elapsed();
+        let mut got = vec![];
+        while let Some(s) = sub.receive().unwrap() {
+            got.push(*s.payload());
+        }
+        (sum, got, el)
+    }
+
+    #[test]
+    fn real_time_pacing_follows_the_stamps() {
+        // 11 samples 20 ms apart = 200 ms of sensor time
+        let samples: Vec<Sample> = (0..11)
+            .map(|i| Sample::new(i * 20_000_000, i as f64))
+            .collect();
+        let (sum, got, el) = publish_run(
+            Pacing::Scaled {
+                speed: 1.0,
+                anchor_ns: 0,
+                start_mono_ns: None,
+            },
+            samples.clone(),
+            "rt",
+        );
+        assert_eq!(sum.published, 11);
+        assert!(el >= Duration::from_millis(195), "{el:?}");
+        assert!(el < Duration::from_millis(600), "{el:?}");
+        assert_eq!(got.len(), 11);
+        assert!(got[0].is_first());
+        for (i, g) in got.iter().enumerate() {
+            assert_eq!(g.seq, i as u64);
+            assert_eq!(g.t_ns, samples[i].t_ns);
+        }
+        // publish times are spaced like the stamps
+        let span = got[10].publish_ns - got[0].publish_ns;
+        assert!((195_000_000..400_000_000).contains(&span), "{span}");
+        let (_, _, fast) = publish_run(Pacing::Fast, samples, "fast");
+        assert!(fast < Duration::from_millis(150), "{fast:?}");
+    }
+
+    #[test]
+    fn restart_with_a_past_start_skips_the_past() {
+        let samples: Vec<Sample> = (0..20).map(|i| Sample::new(i * 10_000_000, 0.0)).collect();
+        // the run "started" 100 ms (plus the service set-up time) ago: samples
+        // 0..=9 at least are in the past, the last ones (up to 190 ms) are not
+        let (sum, got, _) = publish_run(
+            Pacing::Scaled {
+                speed: 1.0,
+                anchor_ns: 0,
+                start_mono_ns: Some(monotonic_ns() - 100_000_000),
+            },
+            samples,
+            "skip",
+        );
+        assert!((9..20).contains(&sum.skipped), "{sum:?}");
+        assert_eq!(sum.published + sum.skipped, 20);
+        assert_eq!(got.len() as u64, sum.published);
+        assert_eq!(got[0].seq, 0);
+    }
+}
