@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 pub mod ld06;
+pub mod rplidar;
 pub mod scan;
 pub mod signature;
 
