@@ -1,0 +1,429 @@
+//! CSV files of signature streams and of the truth.
+//!
+//! * Signature CSV: header `t,value`, then one row per sample; `t` in seconds on the
+//!   producing sensor's clock, written with exactly nine decimals (nanoseconds), the
+//!   value in Rust's shortest round-trip notation (so `NaN`/`inf` are written as such).
+//! * Truth CSV: header `t,offset`, `t` in seconds on the LiDAR clock, offset `t_L - t_C`
+//!   in seconds.
+//!
+//! The reader is strict about structure and lenient about values: a malformed row is
+//! an error naming the file, the 1-based line number and what was wrong, while NaN and
+//! infinite *values* are passed through (the estimator rejects and counts them).
+//! Timestamps are parsed exactly from their decimal text, so epoch-sized stamps keep
+//! nanosecond precision.
+//!
+//! ```
+//! use vlsync_common::Sample;
+//! use vlsync_sim::io::{parse_signature_csv, signature_csv_string};
+//! let samples = vec![Sample::new(1_700_000_000_123_456_789, 0.5), Sample::new(1_700_000_000_223_456_789, f64::NAN)];
+//! let text = signature_csv_string(&samples);
+//! assert!(text.starts_with("t,value\n1700000000.123456789,0.5\n"));
+//! let (back, stats) = parse_signature_csv(text.as_bytes(), "inline").unwrap();
+//! assert_eq!(back[0], samples[0]);
+//! assert!(back[1].value.is_nan());
+//! assert_eq!(stats.non_finite_values, 1);
+//! let err = parse_signature_csv(b"t,value\n0.1,1.0\n0.2\n", "cam.csv").unwrap_err();
+//! assert_eq!(err.to_string(), "cam.csv:3: missing column 2 (value)");
+//! ```
+
+use crate::families::Truth;
+use std::fmt;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use vlsync_common::{Nanos, Sample, NANOS_PER_SEC};
+
+/// A CSV error: which file, which line (1-based, when the error is about one line), what.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CsvError {
+    /// The file (or other source name) being read or written.
+    pub path: PathBuf,
+    /// 1-based line number, when the error concerns one line.
+    pub line: Option<usize>,
+    /// What was wrong.
+    pub message: String,
+}
+
+impl fmt::Display for CsvError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            Some(l) => write!(f, "{}:{}: {}", self.path.display(), l, self.message),
+            None => write!(f, "{}: {}", self.path.display(), self.message),
+        }
+    }
+}
+
+impl std::error::Error for CsvError {}
+
+/// What the reader saw besides the samples it returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CsvStats {
+    /// Data rows read (= samples returned).
+    pub rows: usize,
+    /// Blank (empty or whitespace-only) lines skipped.
+    pub blank_lines: usize,
+    /// Rows whose value is NaN or infinite (passed through).
+    pub non_finite_values: usize,
+    /// Rows that had more than two columns (the extra ones are ignored).
+    pub extra_column_rows: usize,
+}
+
+/// Formats nanoseconds as seconds with exactly nine decimals, without rounding error.
+///
+/// ```
+/// assert_eq!(vlsync_sim::io::format_secs(-1_500_000_001), "-1.500000001");
+/// ```
+pub fn format_secs(ns: Nanos) -> String {
+    let v = ns as i128;
+    let sign = if v < 0 { "-" } else { "" };
+    let a = v.unsigned_abs();
+    let per = NANOS_PER_SEC as u128;
+    format!("{}{}.{:09}", sign, a / per, a % per)
+}
+
+/// Parses a time in seconds (decimal text, optionally with an exponent) to nanoseconds.
+/// Plain decimals are converted exactly (rounded half away from zero at the nanosecond);
+/// exponent forms go through `f64`. Errors on non-finite or out-of-range times.
+///
+/// ```
+/// use vlsync_sim::io::parse_secs;
+/// assert_eq!(parse_secs("1700000000.123456789"), Ok(1_700_000_000_123_456_789));
+/// assert_eq!(parse_secs("-0.5"), Ok(-500_000_000));
+/// assert_eq!(parse_secs("2.5e-3"), Ok(2_500_000));
+/// assert!(parse_secs("abc").is_err());
+/// ```
+pub fn parse_secs(text: &str) -> Result<Nanos, String> {
+    let s = text.trim();
+    if let Some(ns) = parse_plain_decimal(s) {
+        return ns;
+    }
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("time `{}` is not a number", clip(s)))?;
+    if !v.is_finite() {
+        return Err(format!("time `{}` is not finite", clip(s)));
+    }
+    let ns = (v * 1e9).round();
+    if ns.abs() >= 9.2e18 {
+        return Err(format!(
+            "time `{}` s is out of the nanosecond range",
+            clip(s)
+        ));
+    }
+    Ok(ns as i64)
+}
+
+/// `None` when `s` is not of the form `[+-]digits[.digits]` / `[+-].digits`.
+fn parse_plain_decimal(s: &str) -> Option<Result<Nanos, String>> {
+    let (neg, body) = match s.as_bytes().first() {
+        Some(b'-') => (true, &s[1..]),
+        Some(b'+') => (false, &s[1..]),
+        _ => (false, s),
+    };
+    let (int_part, frac_part) = match body.find('.') {
+        Some(i) => (&body[..i], &body[i + 1..]),
+        None => (body, ""),
+    };
+    let all_digits = |p: &str| p.bytes().all(|b| b.is_ascii_digit());
+    if (int_part.is_empty() && frac_part.is_empty())
+        || !all_digits(int_part)
+        || !all_digits(frac_part)
+    {
+        return None;
+    }
+    let out_of_range = || {
+        Err(format!(
+            "time `{}` s is out of the nanosecond range",
+            clip(s)
+        ))
+    };
+    let mut secs: i128 = 0;
+    for b in int_part.bytes() {
+        secs = secs * 10 + i128::from(b - b'0');
+        if secs > 10_000_000_000 {
+            return Some(out_of_range());
+        }
+    }
+    let mut frac: i128 = 0;
+    let fb = frac_part.as_bytes();
+    for i in 0..9 {
+        let d = fb.get(i).map_or(0, |b| i128::from(b - b'0'));
+        frac = frac * 10 + d;
+    }
+    if fb.get(9).is_some_and(|&b| b >= b'5') {
+        frac += 1;
+    }
+    let mut ns = secs * i128::from(NANOS_PER_SEC) + frac;
+    if neg {
+        ns = -ns;
+    }
+    Some(i64::try_from(ns).or_else(|_| out_of_range()))
+}
+
+fn clip(s: &str) -> String {
+    if s.chars().count() > 40 {
+        let mut c: String = s.chars().take(40).collect();
+        c.push('…');
+        c
+    } else {
+        s.to_string()
+    }
+}
+
+/// Parses a signature CSV from bytes; `source` names it in errors.
+/// See [the module docs](self) for the format and the error policy.
+pub fn parse_signature_csv(
+    bytes: &[u8],
+    source: &str,
+) -> Result<(Vec<Sample>, CsvStats), CsvError> {
+    let err = |line: Option<usize>, message: String| CsvError {
+        path: PathBuf::from(source),
+        line,
+        message,
+    };
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    if bytes.is_empty() {
+        return Err(err(
+            None,
+            "empty file: expected a header line such as `t,value`".into(),
+        ));
+    }
+    let mut stats = CsvStats::default();
+    let mut out = Vec::new();
+    for (idx, raw) in bytes.split(|&b| b == b'\n').enumerate() {
+        let lineno = idx + 1;
+        let line = std::str::from_utf8(raw).map_err(|e| {
+            err(
+                Some(lineno),
+                format!("invalid UTF-8 at byte {}", e.valid_up_to()),
+            )
+        })?;
+        let line = line.strip_suffix('\r').unwrap_or(line);
+        if idx == 0 {
+            let first = line.split(',').next().unwrap_or("").trim();
+            if first.is_empty() {
+                return Err(err(
+                    Some(1),
+                    "expected a header line such as `t,value`, found an empty line".into(),
+                ));
+            }
+            if first.parse::<f64>().is_ok() {
+                return Err(err(
+                    Some(1),
+                    format!(
+                        "expected a header line such as `t,value`, found data `{}`",
+                        clip(line)
+                    ),
+                ));
+            }
+            continue;
+        }
+        if line.trim().is_empty() {
+            stats.blank_lines += 1;
+            continue;
+        }
+        let mut cols = line.split(',');
+        let t_txt = cols.next().unwrap_or("");
+        if t_txt.trim().is_empty() {
+            return Err(err(Some(lineno), "missing column 1 (t)".into()));
+        }
+        let t_ns =
+            parse_secs(t_txt).map_err(|m| err(Some(lineno), format!("column 1 (t): {m}")))?;
+        let v_txt = match cols.next() {
+            Some(v) if !v.trim().is_empty() => v.trim(),
+            _ => return Err(err(Some(lineno), "missing column 2 (value)".into())),
+        };
+        let value: f64 = v_txt.parse().map_err(|_| {
+            err(
+                Some(lineno),
+                format!("column 2 (value): `{}` is not a number", clip(v_txt)),
+            )
+        })?;
+        if cols.next().is_some() {
+            stats.extra_column_rows += 1;
+        }
+        if !value.is_finite() {
+            stats.non_finite_values += 1;
+        }
+        stats.rows += 1;
+        out.push(Sample::new(t_ns, value));
+    }
+    Ok((out, stats))
+}
+
+/// Reads a signature CSV file (header line, then `t,value` rows; extra columns ignored,
+/// blank lines skipped, NaN/inf values passed through).
+pub fn read_signature_csv(path: impl AsRef<Path>) -> Result<(Vec<Sample>, CsvStats), CsvError> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| CsvError {
+        path: path.to_path_buf(),
+        line: None,
+        message: format!("cannot read: {e}"),
+    })?;
+    parse_signature_csv(&bytes, &path.display().to_string())
+}
+
+/// Renders samples as a signature CSV (header `t,value`).
+pub fn signature_csv_string(samples: &[Sample]) -> String {
+    let mut s = String::with_capacity(24 * samples.len() + 8);
+    s.push_str("t,value\n");
+    for x in samples {
+        let _ = writeln!(s, "{},{}", format_secs(x.t_ns), x.value);
+    }
+    s
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), CsvError> {
+    std::fs::write(path, text).map_err(|e| CsvError {
+        path: path.to_path_buf(),
+        line: None,
+        message: format!("cannot write: {e}"),
+    })
+}
+
+/// Writes a signature CSV file.
+pub fn write_signature_csv(path: impl AsRef<Path>, samples: &[Sample]) -> Result<(), CsvError> {
+    write_file(path.as_ref(), &signature_csv_string(samples))
+}
+
+/// Renders the truth as CSV `t,offset` every `step_ns` from 0 to `truth.end_ns` inclusive
+/// (seconds, LiDAR clock). A non-positive step is replaced by 10 ms.
+pub fn truth_csv_string(truth: &Truth, step_ns: Nanos) -> String {
+    let step = if step_ns > 0 { step_ns } else { 10_000_000 };
+    let mut s = String::from("t,offset\n");
+    let mut t: Nanos = 0;
+    while t <= truth.end_ns {
+        let _ = writeln!(s, "{},{:.9}", format_secs(t), truth.offset_at(t));
+        t = match t.checked_add(step) {
+            Some(n) => n,
+            None => break,
+        };
+    }
+    s
+}
+
+/// Writes the truth CSV (`t,offset`, every 10 ms).
+pub fn write_truth_csv(path: impl AsRef<Path>, truth: &Truth) -> Result<(), CsvError> {
+    write_file(path.as_ref(), &truth_csv_string(truth, 10_000_000))
+}
+
+/// Reads a truth CSV (`t,offset`) as `(t_lidar_ns, offset_s)` pairs, same rules as
+/// [`read_signature_csv`].
+pub fn read_truth_csv(path: impl AsRef<Path>) -> Result<Vec<(Nanos, f64)>, CsvError> {
+    let (s, _) = read_signature_csv(path)?;
+    Ok(s.into_iter().map(|x| (x.t_ns, x.value)).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn errors_name_line_and_problem() {
+        let cases: [(&[u8], &str); 6] = [
+            (
+                b"t,value\n0.1,x\n",
+                "f:2: column 2 (value): `x` is not a number",
+            ),
+            (b"t,value\n\n0.1\n", "f:3: missing column 2 (value)"),
+            (b"t,value\n,1\n", "f:2: missing column 1 (t)"),
+            (
+                b"t,value\nabc,1\n",
+                "f:2: column 1 (t): time `abc` is not a number",
+            ),
+            (
+                b"0.1,1.0\n",
+                "f:1: expected a header line such as `t,value`, found data `0.1,1.0`",
+            ),
+            (
+                b"",
+                "f: empty file: expected a header line such as `t,value`",
+            ),
+        ];
+        for (input, want) in cases {
+            assert_eq!(
+                parse_signature_csv(input, "f").unwrap_err().to_string(),
+                want
+            );
+        }
+        let e = parse_signature_csv(b"t,value\n1,2\n\xff,1\n", "f").unwrap_err();
+        assert_eq!(e.line, Some(3));
+        let e = parse_signature_csv(b"t,value\ninf,1\n", "f").unwrap_err();
+        assert!(e.message.contains("not finite"), "{e}");
+    }
+
+    #[test]
+    fn lenient_parts_are_counted() {
+        let text =
+            b"\xEF\xBB\xBFt,value,extra\r\n0.1,1.5,foo\r\n\r\n  \n0.2, NaN\n0.3,-inf\n0.4,nan\n";
+        let (s, st) = parse_signature_csv(text, "f").unwrap();
+        assert_eq!(s.len(), 4);
+        assert_eq!(s[0], Sample::new(100_000_000, 1.5));
+        assert_eq!(
+            st,
+            CsvStats {
+                rows: 4,
+                blank_lines: 3,
+                non_finite_values: 3,
+                extra_column_rows: 1
+            }
+        );
+        assert!(s[3].value.is_nan());
+    }
+
+    #[test]
+    fn exact_time_parsing() {
+        assert_eq!(parse_secs("0.0000000015"), Ok(2));
+        assert_eq!(parse_secs("-0.0000000015"), Ok(-2));
+        assert_eq!(parse_secs(".5"), Ok(500_000_000));
+        assert_eq!(parse_secs("5."), Ok(5_000_000_000));
+        assert!(parse_secs("99999999999999").is_err());
+        assert!(parse_secs("1e30").is_err());
+        assert!(parse_secs("-").is_err());
+        assert!(parse_secs(".").is_err());
+        assert_eq!(format_secs(0), "0.000000000");
+        assert_eq!(parse_secs(&format_secs(i64::MIN)), Ok(i64::MIN));
+        assert_eq!(parse_secs(&format_secs(i64::MAX)), Ok(i64::MAX));
+    }
+
+    #[test]
+    fn file_roundtrip_and_unwritable_path() {
+        let dir = std::env::temp_dir().join(format!("vlsync-sim-io-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("sig.csv");
+        let samples = vec![Sample::new(-3, 1e-300), Sample::new(5, f64::INFINITY)];
+        write_signature_csv(&p, &samples).unwrap();
+        let (back, _) = read_signature_csv(&p).unwrap();
+        assert_eq!(back, samples);
+        let bad = dir.join("no-such-dir").join("x.csv");
+        let e = write_signature_csv(&bad, &samples).unwrap_err();
+        assert!(e.to_string().contains("no-such-dir"), "{e}");
+        let e = read_signature_csv(&bad).unwrap_err();
+        assert!(e.to_string().contains("cannot read"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    proptest! {
+        #[test]
+        fn reader_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+            let _ = parse_signature_csv(&bytes, "fuzz");
+        }
+
+        #[test]
+        fn reader_never_panics_on_csvish_text(text in "[t,value0-9.eE+\\-naif \r\n]{0,200}") {
+            let _ = parse_signature_csv(text.as_bytes(), "fuzz");
+        }
+
+        #[test]
+        fn written_text_roundtrips(rows in proptest::collection::vec((any::<i64>(), any::<f64>()), 0..50)) {
+            let samples: Vec<Sample> = rows.iter().map(|&(t, v)| Sample::new(t, v)).collect();
+            let (back, st) = parse_signature_csv(signature_csv_string(&samples).as_bytes(), "rt").unwrap();
+            prop_assert_eq!(back.len(), samples.len());
+            prop_assert_eq!(st.rows, samples.len());
+            for (a, b) in back.iter().zip(&samples) {
+                prop_assert_eq!(a.t_ns, b.t_ns);
+                prop_assert!(a.value == b.value || (a.value.is_nan() && b.value.is_nan()));
+            }
+        }
+    }
+}
