@@ -94,6 +94,8 @@ pub struct EstimatorConfig {
     pub hold_process_noise: f64,
     /// Innovation gate, in standard deviations.
     pub gate_sigma: f64,
+    /// Step-window innovation threshold, in standard deviations.
+    pub step_gate_sigma: f64,
     /// Consecutive consistent step-window outliers that declare an offset step.
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
@@ -125,6 +127,7 @@ impl Default for EstimatorConfig {
             initial_drift_std: 2e-4,
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
+            step_gate_sigma: 2.5,
             step_confirm: 2,
             lost_std_s: 0.05,
         }
@@ -267,6 +270,7 @@ impl EstimatorConfig {
         c.range(&k("initial_drift_std"), self.initial_drift_std, 1e-9, 0.1)?;
         c.range(&k("hold_process_noise"), self.hold_process_noise, 0.0, 1.0)?;
         c.range(&k("gate_sigma"), self.gate_sigma, 1.0, 100.0)?;
+        c.range(&k("step_gate_sigma"), self.step_gate_sigma, 1.0, 100.0)?;
         c.int_range(&k("step_confirm"), self.step_confirm.into(), 1, 100)?;
         c.range(&k("lost_std_s"), self.lost_std_s, 1e-4, 10.0)?;
         c.rule(self.hop_s <= self.window_s, || {

@@ -7,7 +7,14 @@ fn main() {
     let seed: u64 = a[2].parse().unwrap();
     let ns: f64 = a.get(3).map(|s| s.parse().unwrap()).unwrap_or(1.0);
     let run = vlsync_sim::families::try_generate_with(fam, seed, None, ns).unwrap();
-    let cfg = EstimatorConfig::default();
+    let cfg: EstimatorConfig = match a.get(4) {
+        Some(p) => {
+            vlsync_config::Config::load(std::path::Path::new(p))
+                .unwrap()
+                .estimator
+        }
+        None => EstimatorConfig::default(),
+    };
     let mut est = Estimator::new(&cfg);
     let (mut i, mut j) = (0, 0);
     let (cam, lidar) = (&run.cam, &run.lidar);

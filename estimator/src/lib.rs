@@ -82,6 +82,12 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
+/// Weight of the newest normalised innovation in its running average.
+const FADING_ALPHA: f64 = 0.3;
+/// |average normalised innovation| above which the filter forgets faster.
+const FADING_THRESHOLD: f64 = 1.0;
+/// Covariance inflation per hop while the innovations stay biased.
+const FADING_FACTOR: f64 = 1.5;
 /// Time constant of the decay of each stream's "typical motion" variance, seconds.
 const MOTION_REF_TAU_S: f64 = 120.0;
 /// Floor of the measurement standard deviation (stamp jitter, interpolation), seconds.
@@ -112,10 +118,12 @@ struct Params {
     q_hold: f64,
     drift0: f64,
     gate: f64,
+    step_gate: f64,
     step_confirm: u32,
     lost_var: f64,
     stall_slots: i64,
     max_lag_s: f64,
+    max_gap_ns: Nanos,
 }
 
 impl Params {
@@ -153,11 +161,13 @@ impl Params {
             q_hold: cl(c.hold_process_noise, 0.0, 1.0),
             drift0: cl(c.initial_drift_std, 1e-9, 0.1),
             gate: cl(c.gate_sigma, 1.0, 100.0),
+            step_gate: cl(c.step_gate_sigma, 1.0, 100.0),
             step_confirm: c.step_confirm.clamp(1, 100),
             lost_var: cl(c.lost_std_s, 1e-4, 10.0).powi(2),
             stall_slots: ((cl(c.max_gap_s, 0.01, 60.0) + 2.0 * max_lag_s + hop_s) * fs).ceil()
                 as i64,
             max_lag_s,
+            max_gap_ns: (cl(c.max_gap_s, 0.01, 60.0) * 1e9) as Nanos,
         }
     }
 }
@@ -236,6 +246,12 @@ pub struct Estimator {
     acq: Streak,
     step: Streak,
     motion_ref: [f64; 2],
+    /// Per stream: the other stream's newest accepted time when this stream's newest
+    /// sample was accepted (tells a silence from a clock step).
+    other_at_last: [Option<Nanos>; 2],
+    /// Exponential average of normalised innovations: a persistent bias means the
+    /// model lags the data (a ramp or step), and the filter then forgets faster.
+    innov_avg: f64,
     last_meas_t: f64,
     degraded: bool,
     queue: Queue,
@@ -292,6 +308,8 @@ impl Estimator {
             acq: Streak::default(),
             step: Streak::default(),
             motion_ref: [0.0; 2],
+            other_at_last: [None; 2],
+            innov_avg: 0.0,
             last_meas_t: f64::NEG_INFINITY,
             degraded: false,
             queue: Queue {
@@ -308,6 +326,7 @@ impl Estimator {
     /// Pushes one sample of `stream`. Rejected samples are counted and never reach the sums.
     pub fn push(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
         let si = idx(stream);
+        let other_now = self.rs[1 - si].last_time();
         let Self { rs, bp, corr, .. } = self;
         let bp_s = &mut bp[si];
         let res = rs[si].push(sample, |k, v| {
@@ -325,16 +344,29 @@ impl Estimator {
             }
         };
         self.stats.accepted[si] += 1;
+        let other_then = std::mem::replace(&mut self.other_at_last[si], other_now);
         match disc {
             Discontinuity::None => {}
             Discontinuity::Gap => {
                 self.stats.gaps[si] += 1;
                 self.break_stream(stream);
             }
-            Discontinuity::Reset(jump) => {
-                self.stats.resets[si] += 1;
+            Discontinuity::Reset(step) => {
+                // the other stream's progress over the same span tells a silence
+                // (both advanced alike) from a step of this stream's clock
+                let elapsed = match (other_now, other_then) {
+                    (Some(a), Some(b)) => a.saturating_sub(b),
+                    _ => 0,
+                };
+                let interval = (self.rs[si].mean_interval_s() * 1e9) as Nanos;
+                let jump = step.saturating_sub(elapsed).saturating_sub(interval);
                 self.break_stream(stream);
-                self.clock_jump(stream, jump);
+                if jump.saturating_abs() as f64 > self.p.max_gap_ns as f64 {
+                    self.stats.resets[si] += 1;
+                    self.clock_jump(stream, jump);
+                } else {
+                    self.stats.gaps[si] += 1;
+                }
             }
         }
         self.run_correlator();
@@ -452,7 +484,11 @@ impl Estimator {
         }
         let hl = self.p.hop_len;
         let target = (k_now - self.p.stall_slots).div_euclid(hl) * hl;
-        let first = (cur + hl - 1).div_euclid(hl) * hl;
+        // the boundary at (or before) the cursor has been emitted already
+        let first = (cur.div_euclid(hl) + 1) * hl;
+        if target < first {
+            return;
+        }
         // at most one queue's worth of blind estimates
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
@@ -629,6 +665,7 @@ impl Estimator {
         self.kf.x[1] = drift;
         self.mode = Mode::Locked;
         self.ever_locked = true;
+        self.innov_avg = 0.0;
         self.polarity = if m.sign > 0.0 {
             Polarity::Positive
         } else {
@@ -695,7 +732,7 @@ impl Estimator {
             match self.measure(Window::Short, lo, hi, sign) {
                 Some(ms) if ms.score >= self.p.min_score => {
                     let nu = ms.z - pred_s;
-                    let thr = self.p.gate * (self.kf.var_at_lag(hs) + ms.var).sqrt();
+                    let thr = self.p.step_gate * (self.kf.var_at_lag(hs) + ms.var).sqrt();
                     if nu.abs() > thr {
                         let same = self.step.count > 0
                             && self.step.sign == nu.signum()
@@ -742,6 +779,15 @@ impl Estimator {
         // filter does not count the same information repeatedly
         let n = self.corr.long().n;
         let overlap = (n / self.p.hop_len as f64).max(1.0);
+        let hph = self.kf.var_at_lag(h);
+        let norm = (m.z - self.kf.offset_at(t - h)) / (hph + m.var).sqrt();
+        if norm.is_finite() && norm.abs() <= self.p.gate {
+            self.innov_avg += FADING_ALPHA * (norm - self.innov_avg);
+            if self.innov_avg.abs() > FADING_THRESHOLD {
+                // fading memory: inflate the covariance so recent data dominate
+                self.kf.p *= FADING_FACTOR;
+            }
+        }
         match self.kf.update(m.z, h, m.var * overlap, m.var, self.p.gate) {
             Update::Accepted => {
                 self.stats.measurements += 1;

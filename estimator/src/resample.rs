@@ -15,7 +15,7 @@ pub enum Discontinuity {
     /// A gap longer than the limit: the segment restarts at this sample.
     Gap,
     /// A timestamp jump larger than the reset limit: the stream restarts.
-    /// Carries the jump beyond one nominal sample interval, ns (signed).
+    /// Carries the raw step from the previous accepted sample, ns (signed).
     Reset(Nanos),
 }
 
@@ -85,13 +85,13 @@ impl Resampler {
         if step < 0 {
             if step.saturating_neg() > self.reset_jump_ns {
                 self.prev = Some(s);
-                return Ok(Discontinuity::Reset(self.jump_beyond_nominal(step)));
+                return Ok(Discontinuity::Reset(step));
             }
             return Err(RejectReason::Backwards);
         }
         if step > self.reset_jump_ns {
             self.prev = Some(s);
-            return Ok(Discontinuity::Reset(self.jump_beyond_nominal(step)));
+            return Ok(Discontinuity::Reset(step));
         }
         self.prev = Some(s);
         if step > self.max_gap_ns {
@@ -115,10 +115,6 @@ impl Resampler {
             k += 1;
         }
         Ok(Discontinuity::None)
-    }
-
-    fn jump_beyond_nominal(&self, step: Nanos) -> Nanos {
-        step.saturating_sub(self.mean_interval_ns.round() as Nanos)
     }
 }
 

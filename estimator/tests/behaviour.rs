@@ -1,0 +1,208 @@
+//! Behaviour of the whole estimator on simulated runs and hostile input.
+
+use proptest::prelude::*;
+use vlsync_common::{EstimatorState, Polarity, RejectReason, Sample, Stream};
+use vlsync_config::EstimatorConfig;
+use vlsync_estimator::Estimator;
+use vlsync_sim::families::{generate, Family, SimRun};
+
+fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, run.cam[i]);
+            i += 1;
+        } else {
+            let _ = est.push(Stream::Lidar, run.lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    out
+}
+
+#[test]
+fn robot_run_locks_with_negative_polarity_and_converges() {
+    let run = generate(Family::Robot, 11, Some(90.0));
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay(&run, &mut est);
+    let last = out.last().unwrap();
+    assert_eq!(last.polarity, Polarity::Negative);
+    assert!(out.iter().any(|e| e.state == EstimatorState::Tracking));
+    // the last 30 s: mean error within a few ms of the truth
+    let tail: Vec<f64> = out
+        .iter()
+        .filter(|e| e.t_ref_ns > last.t_ref_ns - 30_000_000_000)
+        .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+        .collect();
+    let mae = tail.iter().sum::<f64>() / tail.len() as f64;
+    assert!(mae < 0.006, "tail MAE {mae}");
+    // sequence numbers are contiguous
+    assert!(out.windows(2).all(|w| w[1].seq == w[0].seq + 1));
+}
+
+#[test]
+fn bad_samples_are_rejected_counted_and_harmless() {
+    let run = generate(Family::Robot, 5, Some(60.0));
+    let mut clean = Estimator::new(&EstimatorConfig::default());
+    let a = replay(&run, &mut clean);
+    let mut dirty = Estimator::new(&EstimatorConfig::default());
+    let mut out = Vec::new();
+    let mut last_t = [0i64; 2];
+    let (mut i, mut j) = (0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        let (s, x) = if j >= run.lidar.len()
+            || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns)
+        {
+            i += 1;
+            (Stream::Cam, run.cam[i - 1])
+        } else {
+            j += 1;
+            (Stream::Lidar, run.lidar[j - 1])
+        };
+        let si = if s == Stream::Cam { 0 } else { 1 };
+        dirty.push(s, x).unwrap();
+        let n = if si == 0 { i } else { j };
+        if n % 20 == 0 && last_t[si] > 0 {
+            assert_eq!(
+                dirty.push(s, Sample::new(x.t_ns + 1, f64::NAN)),
+                Err(RejectReason::NonFinite)
+            );
+            assert_eq!(
+                dirty.push(s, Sample::new(x.t_ns + 1, 1e12)),
+                Err(RejectReason::TooLarge)
+            );
+            assert_eq!(
+                dirty.push(s, Sample::new(x.t_ns, 0.0)),
+                Err(RejectReason::Repeated)
+            );
+            assert_eq!(
+                dirty.push(s, Sample::new(x.t_ns - 1000, 0.0)),
+                Err(RejectReason::Backwards)
+            );
+        }
+        last_t[si] = x.t_ns;
+        while let Some(e) = dirty.poll() {
+            out.push(e);
+        }
+    }
+    let st = dirty.stats();
+    assert!(st.rejected[0].iter().sum::<u64>() > 10);
+    assert!(st.rejected[1].iter().sum::<u64>() > 10);
+    // identical estimates: rejected samples never reach the sums
+    assert_eq!(a.len(), out.len());
+    for (x, y) in a.iter().zip(&out) {
+        assert_eq!(x.offset_s.to_bits(), y.offset_s.to_bits());
+    }
+}
+
+#[test]
+fn stalled_stream_goes_holding_then_lost_then_reacquires() {
+    let run = generate(Family::Robot, 3, Some(120.0));
+    let cut = (40_000_000_000i64, 100_000_000_000i64); // LiDAR silent for 60 s
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let mut states = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, run.cam[i]);
+            i += 1;
+        } else {
+            let s = run.lidar[j];
+            j += 1;
+            if s.t_ns < cut.0 || s.t_ns > cut.1 {
+                let _ = est.push(Stream::Lidar, s);
+            }
+        }
+        while let Some(e) = est.poll() {
+            states.push((e.t_ref_ns, e.state, e.offset_std_s));
+        }
+    }
+    let during: Vec<_> = states
+        .iter()
+        .filter(|s| s.0 > cut.0 + 5_000_000_000 && s.0 < cut.1)
+        .collect();
+    assert!(
+        !during.is_empty(),
+        "estimates continue while the LiDAR is silent"
+    );
+    assert!(during.iter().all(|s| s.1 != EstimatorState::Tracking));
+    assert!(during.iter().any(|s| s.1 == EstimatorState::Holding));
+    assert!(during.iter().any(|s| s.1 == EstimatorState::Lost));
+    // std grows while blind
+    assert!(during.last().unwrap().2 > during.first().unwrap().2);
+    assert!(
+        states
+            .iter()
+            .any(|s| s.0 > cut.1 && s.1 == EstimatorState::Tracking),
+        "re-acquires"
+    );
+}
+
+#[test]
+fn clock_jump_in_camera_stamps_is_followed() {
+    let run = generate(Family::Robot, 9, Some(120.0));
+    let jump = 30_000_000_000i64; // camera clock steps forward by 30 s at 60 s (an NTP step)
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let mut s = run.cam[i];
+            if s.t_ns > 60_000_000_000 {
+                s.t_ns += jump;
+            }
+            let _ = est.push(Stream::Cam, s);
+            i += 1;
+        } else {
+            let _ = est.push(Stream::Lidar, run.lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    assert_eq!(est.stats().resets[0], 1);
+    let last = out.last().unwrap();
+    let truth = run.truth.offset_at(last.t_ref_ns) - 30.0;
+    assert_eq!(last.state, EstimatorState::Tracking);
+    assert!(
+        (last.offset_s - truth).abs() < 0.01,
+        "{} vs {}",
+        last.offset_s,
+        truth
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+    /// Arbitrary sample sequences never panic, and every estimate is finite.
+    #[test]
+    fn never_panics(samples in proptest::collection::vec((any::<bool>(), any::<i64>(), any::<f64>()), 0..400)) {
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        for (cam, t, v) in samples {
+            let _ = est.push(if cam { Stream::Cam } else { Stream::Lidar }, Sample::new(t, v));
+            while let Some(e) = est.poll() {
+                prop_assert!(e.offset_s.is_finite() && e.offset_std_s.is_finite());
+            }
+        }
+    }
+
+    /// Plausible streams with random rates, offsets and noise: estimates stay finite.
+    #[test]
+    fn random_streams_stay_finite(offset in -0.4f64..0.4, cam_hz in 5.0f64..90.0, lidar_hz in 4.0f64..40.0, seed in 0u64..1000) {
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        let s = |t: f64| (0.9 * t + seed as f64).sin() + (2.3 * t).sin() * 0.5;
+        let mut tc = 0.0; let mut tl = 0.0;
+        while tc < 30.0 || tl < 30.0 {
+            if tc <= tl { let _ = est.push(Stream::Cam, Sample::new((tc * 1e9) as i64, s(tc + offset))); tc += 1.0 / cam_hz; }
+            else { let _ = est.push(Stream::Lidar, Sample::new((tl * 1e9) as i64, s(tl))); tl += 1.0 / lidar_hz; }
+            while let Some(e) = est.poll() {
+                prop_assert!(e.offset_s.is_finite() && e.drift.is_finite() && e.offset_std_s >= 0.0);
+            }
+        }
+    }
+}

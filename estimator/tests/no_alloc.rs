@@ -1,0 +1,82 @@
+//! After construction, pushing samples and polling estimates allocates nothing.
+//! A counting global allocator observes every allocation of this test binary.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use vlsync_common::{Sample, Stream};
+use vlsync_config::EstimatorConfig;
+use vlsync_estimator::Estimator;
+
+struct Counting;
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+static ARMED: AtomicBool = AtomicBool::new(false);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        if ARMED.load(Ordering::SeqCst) {
+            ALLOCS.fetch_add(1, Ordering::SeqCst);
+        }
+        // SAFETY: forwarding the caller's layout to the system allocator unchanged.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: `p` was allocated by `System` with layout `l` (see `alloc`).
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        if ARMED.load(Ordering::SeqCst) {
+            ALLOCS.fetch_add(1, Ordering::SeqCst);
+        }
+        // SAFETY: `p`/`l` come from this allocator, which forwards to `System`.
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn push_and_poll_allocate_nothing() {
+    // a full simulated run with drops, jitter, a gap, load steps and bad samples,
+    // generated before arming so only the estimator is observed
+    let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(90.0));
+    let steps =
+        vlsync_sim::families::generate(vlsync_sim::families::Family::LoadSteps, 3, Some(60.0));
+    for cfg in [EstimatorConfig::default(), {
+        let mut c = EstimatorConfig::default();
+        c.max_lag_s = 2.0;
+        c.window_s = 12.0;
+        c
+    }] {
+        let mut est = Estimator::new(&cfg);
+        let mut n_est = 0usize;
+        ARMED.store(true, Ordering::SeqCst);
+        for r in [&run, &steps] {
+            let (mut i, mut j) = (0, 0);
+            while i < r.cam.len() || j < r.lidar.len() {
+                if j >= r.lidar.len() || (i < r.cam.len() && r.cam[i].t_ns <= r.lidar[j].t_ns) {
+                    let _ = est.push(Stream::Cam, r.cam[i]);
+                    i += 1;
+                } else {
+                    let _ = est.push(Stream::Lidar, r.lidar[j]);
+                    j += 1;
+                }
+                if i % 97 == 0 {
+                    let _ = est.push(Stream::Cam, Sample::new(0, f64::NAN));
+                }
+                while est.poll().is_some() {
+                    n_est += 1;
+                }
+            }
+            // degraded mode switches, too
+            est.set_degraded(true);
+        }
+        ARMED.store(false, Ordering::SeqCst);
+        assert!(n_est > 100, "estimates: {n_est}");
+        assert_eq!(
+            ALLOCS.load(Ordering::SeqCst),
+            0,
+            "allocations on the hot path"
+        );
+    }
+}
