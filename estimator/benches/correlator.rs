@@ -1,1 +1,167 @@
-fn main() {}
+//! Cost of the incremental correlator against a batch recompute of the same window.
+//!
+//! Per estimate (one hop): the incremental path adds `hop` grid samples (O(lags) each)
+//! and combines blocks; the batch paths recompute the whole window's correlation at
+//! every lag, directly (O(window·lags)) or with FFTs (O(n log n)).
+//! `cargo bench -p vlsync-estimator --bench correlator`; the ratio is what matters.
+
+use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
+use rustfft::{num_complex::Complex, FftPlanner};
+use vlsync_estimator::correlator::{Correlator, Step};
+
+struct Setting {
+    name: &'static str,
+    fs: f64,
+    window_s: f64,
+    hop_s: f64,
+    max_lag_s: f64,
+}
+
+const SETTINGS: [Setting; 3] = [
+    Setting {
+        name: "default 6s/±0.5s",
+        fs: 100.0,
+        window_s: 6.0,
+        hop_s: 0.5,
+        max_lag_s: 0.5,
+    },
+    Setting {
+        name: "12s/±1s",
+        fs: 100.0,
+        window_s: 12.0,
+        hop_s: 0.5,
+        max_lag_s: 1.0,
+    },
+    Setting {
+        name: "30s/±2s",
+        fs: 100.0,
+        window_s: 30.0,
+        hop_s: 0.5,
+        max_lag_s: 2.0,
+    },
+];
+
+fn sig(i: i64) -> f64 {
+    let t = i as f64 * 0.01;
+    (0.9 * t).sin() + 0.5 * (2.7 * t).cos() + 0.1 * ((i * 7919) % 101) as f64 / 101.0
+}
+
+/// Direct batch Pearson correlation of the window at every lag.
+fn batch_direct(x: &[f64], y: &[f64], n_lags: usize, out: &mut [f64]) {
+    let n = x.len();
+    let sx: f64 = x.iter().sum();
+    let sxx: f64 = x.iter().map(|v| v * v).sum();
+    for (m, o) in out.iter_mut().enumerate().take(n_lags) {
+        let (mut sy, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+        for k in 0..n {
+            let yv = y[k + m];
+            sy += yv;
+            syy += yv * yv;
+            sxy += x[k] * yv;
+        }
+        let nf = n as f64;
+        *o = (sxy - sx * sy / nf) / ((sxx - sx * sx / nf) * (syy - sy * sy / nf)).sqrt();
+    }
+}
+
+/// FFT batch: cross-correlation by FFT plus prefix sums for the per-lag moments.
+fn batch_fft(x: &[f64], y: &[f64], n_lags: usize, planner: &mut FftPlanner<f64>, out: &mut [f64]) {
+    let n = x.len();
+    let len = (n + y.len()).next_power_of_two();
+    let fft = planner.plan_fft_forward(len);
+    let ifft = planner.plan_fft_inverse(len);
+    let mut a: Vec<Complex<f64>> = (0..len)
+        .map(|i| Complex::new(if i < n { x[i] } else { 0.0 }, 0.0))
+        .collect();
+    let mut b: Vec<Complex<f64>> = (0..len)
+        .map(|i| Complex::new(if i < y.len() { y[i] } else { 0.0 }, 0.0))
+        .collect();
+    fft.process(&mut a);
+    fft.process(&mut b);
+    for (p, q) in a.iter_mut().zip(&b) {
+        *p = p.conj() * q;
+    }
+    ifft.process(&mut a);
+    let mut pre = vec![0.0; y.len() + 1];
+    let mut pre2 = vec![0.0; y.len() + 1];
+    for i in 0..y.len() {
+        pre[i + 1] = pre[i] + y[i];
+        pre2[i + 1] = pre2[i] + y[i] * y[i];
+    }
+    let sx: f64 = x.iter().sum();
+    let sxx: f64 = x.iter().map(|v| v * v).sum();
+    let nf = n as f64;
+    for (m, o) in out.iter_mut().enumerate().take(n_lags) {
+        let sxy = a[m].re / len as f64;
+        let sy = pre[m + n] - pre[m];
+        let syy = pre2[m + n] - pre2[m];
+        *o = (sxy - sx * sy / nf) / ((sxx - sx * sx / nf) * (syy - sy * sy / nf)).sqrt();
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("per_estimate");
+    for s in &SETTINGS {
+        let hop = (s.hop_s * s.fs) as i64;
+        let half = (s.max_lag_s * s.fs) as i64;
+        let n_lags = (2 * half + 1) as usize;
+        let wb = (s.window_s / s.hop_s) as usize;
+        let win = (s.window_s * s.fs) as usize;
+        // incremental: warm a correlator, then measure one hop (hop samples + block combine)
+        let mut corr = Correlator::new(n_lags, -half, hop, wb, 4, 8192);
+        let mut k = 0i64;
+        let mut feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
+            for _ in 0..n {
+                corr.push_cam(*k, sig(*k));
+                corr.push_lidar(*k, sig(*k - 12));
+                *k += 1;
+                while corr.step() != Step::Idle {}
+            }
+        };
+        feed(&mut corr, &mut k, win as i64 + 4 * half);
+        g.bench_function(BenchmarkId::new("incremental", s.name), |b| {
+            b.iter(|| {
+                feed(&mut corr, &mut k, hop);
+                black_box(corr.long().ncc(n_lags / 2))
+            })
+        });
+        let x: Vec<f64> = (0..win as i64).map(|i| sig(i - 12)).collect();
+        let y: Vec<f64> = (0..(win + n_lags) as i64).map(|i| sig(i - half)).collect();
+        let mut out = vec![0.0; n_lags];
+        g.bench_function(BenchmarkId::new("batch_direct", s.name), |b| {
+            b.iter(|| {
+                batch_direct(black_box(&x), black_box(&y), n_lags, &mut out);
+                black_box(out[0])
+            })
+        });
+        let mut planner = FftPlanner::new();
+        g.bench_function(BenchmarkId::new("batch_fft", s.name), |b| {
+            b.iter(|| {
+                batch_fft(black_box(&x), black_box(&y), n_lags, &mut planner, &mut out);
+                black_box(out[0])
+            })
+        });
+    }
+    g.finish();
+    let mut g = c.benchmark_group("per_sample");
+    for s in &SETTINGS {
+        let hop = (s.hop_s * s.fs) as i64;
+        let half = (s.max_lag_s * s.fs) as i64;
+        let n_lags = (2 * half + 1) as usize;
+        let wb = (s.window_s / s.hop_s) as usize;
+        let mut corr = Correlator::new(n_lags, -half, hop, wb, 4, 8192);
+        let mut k = 0i64;
+        g.bench_function(BenchmarkId::new("incremental", s.name), |b| {
+            b.iter(|| {
+                corr.push_cam(k, sig(k));
+                corr.push_lidar(k, sig(k - 12));
+                k += 1;
+                while corr.step() != Step::Idle {}
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

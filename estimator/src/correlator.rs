@@ -21,8 +21,12 @@ pub struct Sums {
     pub sx: f64,
     /// Σx².
     pub sxx: f64,
-    /// Per lag slot, interleaved: Σxy, Σy, Σy².
-    pub lag: Vec<f64>,
+    /// Per lag slot: Σxy.
+    pub xy: Vec<f64>,
+    /// Per lag slot: Σy.
+    pub y: Vec<f64>,
+    /// Per lag slot: Σy².
+    pub yy: Vec<f64>,
     /// First LiDAR grid index covered (valid when n > 0).
     pub first_k: i64,
     /// Last LiDAR grid index covered.
@@ -35,7 +39,9 @@ impl Sums {
             n: 0.0,
             sx: 0.0,
             sxx: 0.0,
-            lag: vec![0.0; 3 * n_lags],
+            xy: vec![0.0; n_lags],
+            y: vec![0.0; n_lags],
+            yy: vec![0.0; n_lags],
             first_k: 0,
             last_k: 0,
         }
@@ -45,15 +51,23 @@ impl Sums {
         self.n = 0.0;
         self.sx = 0.0;
         self.sxx = 0.0;
-        self.lag.iter_mut().for_each(|v| *v = 0.0);
+        self.xy.iter_mut().for_each(|v| *v = 0.0);
+        self.y.iter_mut().for_each(|v| *v = 0.0);
+        self.yy.iter_mut().for_each(|v| *v = 0.0);
     }
 
     fn add(&mut self, o: &Sums, sign: f64) {
         self.n += sign * o.n;
         self.sx += sign * o.sx;
         self.sxx += sign * o.sxx;
-        for (a, b) in self.lag.iter_mut().zip(o.lag.iter()) {
-            *a += sign * b;
+        for (a, b) in [
+            (&mut self.xy, &o.xy),
+            (&mut self.y, &o.y),
+            (&mut self.yy, &o.yy),
+        ] {
+            for (p, q) in a.iter_mut().zip(b.iter()) {
+                *p += sign * q;
+            }
         }
     }
 
@@ -64,11 +78,7 @@ impl Sums {
         if n < 3.0 {
             return 0.0;
         }
-        let (sxy, sy, syy) = (
-            self.lag[3 * slot],
-            self.lag[3 * slot + 1],
-            self.lag[3 * slot + 2],
-        );
+        let (sxy, sy, syy) = (self.xy[slot], self.y[slot], self.yy[slot]);
         let vx = self.sxx - self.sx * self.sx / n;
         let vy = syy - sy * sy / n;
         let d = vx * vy;
@@ -92,16 +102,19 @@ impl Sums {
         if self.n < 2.0 {
             return 0.0;
         }
-        let (sy, syy) = (self.lag[3 * slot + 1], self.lag[3 * slot + 2]);
+        let (sy, syy) = (self.y[slot], self.yy[slot]);
         ((syy - sy * sy / self.n) / self.n).max(0.0)
     }
 }
 
-/// A ring of index-tagged grid values.
+/// A ring of index-tagged grid values. Values are stored twice (at `p` and
+/// `p + cap`) so any span of up to `cap` consecutive indices is one contiguous
+/// slice: the per-lag inner loop then vectorises.
 #[derive(Debug, Clone)]
 struct Ring {
     idx: Vec<i64>,
     val: Vec<f64>,
+    cap: usize,
     mask: usize,
     seg_start: Option<i64>,
     end: i64,
@@ -112,7 +125,8 @@ impl Ring {
         let cap = min_cap.next_power_of_two();
         Self {
             idx: vec![i64::MIN; cap],
-            val: vec![0.0; cap],
+            val: vec![0.0; 2 * cap],
+            cap,
             mask: cap - 1,
             seg_start: None,
             end: i64::MIN,
@@ -126,6 +140,7 @@ impl Ring {
         let s = (k as usize) & self.mask;
         self.idx[s] = k;
         self.val[s] = v;
+        self.val[s + self.cap] = v;
         self.end = k;
     }
 
@@ -137,6 +152,14 @@ impl Ring {
     fn get(&self, k: i64) -> Option<f64> {
         let s = (k as usize) & self.mask;
         (self.idx[s] == k).then(|| self.val[s])
+    }
+
+    /// The values of indices `a..=b` (the caller checked they are present; `b - a < cap`).
+    #[inline]
+    fn span(&self, a: i64, b: i64) -> &[f64] {
+        let s = (a as usize) & self.mask;
+        let n = ((b - a + 1).max(0) as usize).min(self.cap);
+        &self.val[s..s + n]
     }
 }
 
@@ -357,7 +380,12 @@ impl Correlator {
             return Step::Idle;
         }
         // the oldest camera value needed must still be in the ring
-        let (Some(x), Some(_)) = (self.lidar.get(k), self.cam.get(k - m_hi)) else {
+        // the oldest and newest camera values needed must be in the ring (segments are contiguous)
+        let (Some(x), Some(_), Some(_)) = (
+            self.lidar.get(k),
+            self.cam.get(k - m_hi),
+            self.cam.get(k - m_lo),
+        ) else {
             self.skip_to(k + 1);
             return Step::Break;
         };
@@ -369,14 +397,18 @@ impl Correlator {
         self.cur.sx += x;
         self.cur.sxx += x * x;
         let (lo, hi) = self.active;
-        for slot in lo..=hi {
-            let m = self.lag0 + slot as i64;
-            // contiguous segment: every index between k-m_hi and k-m_lo is present
-            let y = self.cam.get(k - m).unwrap_or(0.0);
-            let o = 3 * slot;
-            self.cur.lag[o] += x * y;
-            self.cur.lag[o + 1] += y;
-            self.cur.lag[o + 2] += y * y;
+        // slot s pairs x with camera index k - lag0 - s: the span, read backwards
+        let ys = self.cam.span(k - m_hi, k - m_lo);
+        let cur = &mut self.cur;
+        for (((sxy, sy), syy), &y) in cur.xy[lo..=hi]
+            .iter_mut()
+            .zip(cur.y[lo..=hi].iter_mut())
+            .zip(cur.yy[lo..=hi].iter_mut())
+            .zip(ys.iter().rev())
+        {
+            *sxy += x * y;
+            *sy += y;
+            *syy += y * y;
         }
         self.cursor = Some(k + 1);
         if (k + 1).rem_euclid(self.hop_len) == 0 {
