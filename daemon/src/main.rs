@@ -36,6 +36,8 @@ enum Cmd {
     },
     /// Accuracy benchmark: every simulated family over several seeds, against the seed baseline.
     Bench(vlsyncd::bench::BenchArgs),
+    /// Run the real-time estimator service on the iceoryx2 services (until SIGINT/SIGTERM).
+    Run(vlsyncd::runtime::RunArgs),
 }
 
 fn main() -> ExitCode {
@@ -48,6 +50,7 @@ fn main() -> ExitCode {
             config,
         } => vlsyncd::replay::run_cli(&cam, &lidar, &out, config.as_deref()),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
+        Cmd::Run(args) => vlsyncd::runtime::run_cli(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -186,6 +186,9 @@ pub const DEFAULT_SIGNATURE_BUFFER: usize = 256;
 pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError> {
     let node_name = NodeName::new(name)
         .map_err(|e| IpcError::new(format!("node name {name:?}"), format!("{e:?}")))?;
+    // iceoryx2 logs at Info by default (e.g. "no config file loaded"); keep its
+    // warnings quiet unless IOX2_LOG_LEVEL asks otherwise
+    set_log_level_from_env_or(LogLevel::Error);
     let mode = if handle_signals {
         SignalHandlingMode::HandleTerminationRequests
     } else {
@@ -269,12 +272,14 @@ pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
                 | PublishSubscribeOpenError::InternalFailure
                 | PublishSubscribeOpenError::ServiceInCorruptedState),
             ) => last = format!("open failed: {e:?}"),
-            Err(e) => return Err(IpcError::new(
-                format!("open service {name:?}"),
-                format!(
+            Err(e) => {
+                return Err(IpcError::new(
+                    format!("open service {name:?}"),
+                    format!(
                     "{e:?} (another process uses it with a different payload type or settings?)"
                 ),
-            )),
+                ))
+            }
         }
         std::thread::sleep(OPEN_RETRY);
     }

@@ -1,0 +1,730 @@
+//! `vlsyncd run`: the real-time estimator service.
+//!
+//! Two threads:
+//!
+//! * the **real-time thread** (pinned to `daemon.core`, optionally SCHED_FIFO)
+//!   sleeps on one iceoryx2 listener (`<prefix>/signature/ready`) until a driver
+//!   publishes, drains both signature subscribers, validates every payload
+//!   (shared memory is hostile input), pushes into the [`Estimator`], publishes
+//!   every estimate on `<prefix>/offset` and notifies. After start-up it
+//!   allocates nothing, logs nothing and does no I/O: counters live in fixed
+//!   arrays and [`Histogram`]s, and events go to the other thread over a bounded
+//!   crossbeam channel with `try_send` (a full channel counts a drop);
+//! * the **service thread** (the main thread) logs those events with tracing
+//!   and publishes the [`Status`] snapshots the real-time thread hands it every
+//!   `daemon.status_period_s`.
+//!
+//! Over budget (`daemon.latency_budget_us` for one sample) the estimator is put
+//! in degraded mode (`Estimator::set_degraded(true)`: a narrower search per
+//! sample); it returns to normal after [`DEGRADED_QUIET`] without overrun.
+//!
+//! # One daemon per prefix
+//!
+//! The daemon holds an exclusive `flock` on `/tmp/vlsync/<prefix>.lock` (`/` in
+//! the prefix written as `%`). The kernel drops the lock when the process dies,
+//! even by SIGKILL, so a crash never leaves a stale lock behind and no liveness
+//! guessing (pid files, timeouts) is needed; a second daemon on the same prefix
+//! fails at once naming the lock and the pid holding it.
+//!
+//! # Crash clean-up
+//!
+//! At start the daemon removes the iceoryx2 resources of dead nodes
+//! (`Node::try_cleanup_dead_nodes`; iceoryx2 also does it whenever a node is
+//! created) and reports how many it reclaimed, so a daemon or driver killed
+//! with SIGKILL leaves nothing that blocks a restart.
+#![forbid(unsafe_code)]
+
+pub mod histogram;
+
+use crossbeam::channel::{bounded, Receiver, Sender, TrySendError};
+use histogram::Histogram;
+use std::fs::File;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use vlsync_common::wire::{
+    OffsetEstimate, SignatureSample, Status, REJECT_MALFORMED, REJECT_NAMES,
+};
+use vlsync_common::{Estimate, EstimatorState, Nanos, Stream};
+use vlsync_config::Config;
+use vlsync_estimator::Estimator;
+use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
+use vlsync_ipc::{
+    cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
+    open_or_create_pubsub, publisher, stream_index, subscriber, termination_requested, Qos,
+    ServiceNames,
+};
+
+/// Time without budget overrun after which degraded mode is cleared.
+pub const DEGRADED_QUIET: Duration = Duration::from_secs(5);
+/// Longest sleep of the real-time thread (to notice a stop request and publish status).
+pub const WAKE_PERIOD: Duration = Duration::from_millis(100);
+/// Capacity of the event channel between the threads.
+pub const EVENT_CAPACITY: usize = 1024;
+
+/// Arguments of `vlsyncd run`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct RunArgs {
+    /// Configuration file (TOML); defaults are used without it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Service prefix; overrides `services.prefix` of the configuration.
+    #[arg(long)]
+    pub prefix: Option<String>,
+}
+
+/// What the real-time thread tells the service thread. `Copy`, no heap: sending
+/// one never allocates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RtEvent {
+    /// A sample failed structural validation or was rejected by the estimator.
+    Rejected {
+        /// Stream.
+        stream: Stream,
+        /// Index into [`REJECT_NAMES`].
+        reason: usize,
+        /// Its timestamp.
+        t_ns: Nanos,
+    },
+    /// Samples lost: a sequence gap.
+    Lost {
+        /// Stream.
+        stream: Stream,
+        /// How many.
+        count: u64,
+    },
+    /// A driver (re)started (its first sample arrived).
+    DriverStarted {
+        /// Stream.
+        stream: Stream,
+    },
+    /// The estimator state changed.
+    State {
+        /// Previous state (`None` before the first estimate).
+        from: Option<EstimatorState>,
+        /// New state.
+        to: EstimatorState,
+    },
+    /// An estimate failed validation and was not published.
+    InvalidEstimate {
+        /// Its sequence number.
+        seq: u64,
+    },
+    /// Publishing an estimate failed.
+    PublishFailed {
+        /// Its sequence number.
+        seq: u64,
+    },
+    /// Degraded mode switched.
+    Degraded {
+        /// On or off.
+        on: bool,
+        /// The processing time that switched it on, ns (0 when off).
+        processing_ns: u64,
+    },
+    /// The periodic status snapshot.
+    Status(Status),
+    /// The real-time loop ended because iceoryx2 failed (the text is static).
+    Fatal(&'static str),
+}
+
+/// Counters and histograms of the real-time thread, preallocated.
+pub struct RtCounters {
+    status: Status,
+    processing: Histogram,
+    end_to_end: Histogram,
+    last_seq: [[Option<(UniquePublisherId, u64)>; 4]; 2],
+    events_dropped: u64,
+}
+
+impl RtCounters {
+    fn new() -> Self {
+        Self {
+            status: Status::default(),
+            processing: Histogram::new(),
+            end_to_end: Histogram::new(),
+            last_seq: [[None; 4]; 2],
+            events_dropped: 0,
+        }
+    }
+}
+
+fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
+    match tx.try_send(ev) {
+        Ok(()) => {}
+        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => c.events_dropped += 1,
+    }
+}
+
+/// Tracks the sequence of each publisher of a stream; returns samples lost
+/// before `seq` (0 for the first sample of a publisher or a restart).
+fn sequence_gap(
+    slots: &mut [Option<(UniquePublisherId, u64)>; 4],
+    publisher: UniquePublisherId,
+    seq: u64,
+    first: bool,
+) -> u64 {
+    if let Some(slot) = slots.iter_mut().flatten().find(|(p, _)| *p == publisher) {
+        let last = slot.1;
+        slot.1 = seq;
+        if first || seq <= last {
+            return 0;
+        }
+        return seq - last - 1;
+    }
+    // a new publisher: take a free slot, or replace the one with the oldest sequence
+    let free = slots.iter().position(|s| s.is_none());
+    let idx = free.unwrap_or_else(|| {
+        slots
+            .iter()
+            .enumerate()
+            .min_by_key(|(_, s)| s.map_or(0, |(_, q)| q))
+            .map_or(0, |(i, _)| i)
+    });
+    slots[idx] = Some((publisher, seq));
+    // samples before the first one seen from a publisher that did not just start
+    // were published while no daemon listened: not lost by the daemon
+    0
+}
+
+/// Everything the real-time thread needs, built before its loop starts.
+struct RtSetup {
+    cfg: Config,
+    names: ServiceNames,
+    stop: Arc<AtomicBool>,
+    tx: Sender<RtEvent>,
+    start_ns: Nanos,
+}
+
+/// What the real-time thread reports once, before its loop.
+#[derive(Debug, Clone)]
+pub struct RtReport {
+    /// System refusals of real-time settings (each a readable sentence).
+    pub refused: Vec<String>,
+    /// Real-time settings applied.
+    pub applied: Vec<String>,
+    /// Subscriber buffer requested/granted.
+    pub buffer: (usize, usize),
+}
+
+fn apply_rt_settings(cfg: &Config) -> RtReport {
+    let mut r = RtReport {
+        refused: vec![],
+        applied: vec![],
+        buffer: (0, 0),
+    };
+    if cfg.daemon.core >= 0 {
+        match vlsync_ipc::rt::pin_current_thread(cfg.daemon.core as usize) {
+            Ok(()) => r
+                .applied
+                .push(format!("pinned to core {}", cfg.daemon.core)),
+            Err(e) => r.refused.push(e.to_string()),
+        }
+    }
+    if cfg.daemon.fifo_priority > 0 {
+        match vlsync_ipc::rt::set_current_thread_fifo(cfg.daemon.fifo_priority as i32) {
+            Ok(()) => r
+                .applied
+                .push(format!("SCHED_FIFO priority {}", cfg.daemon.fifo_priority)),
+            Err(e) => r.refused.push(e.to_string()),
+        }
+    }
+    r
+}
+
+/// The real-time thread: set-up, then the loop. Returns a set-up error as text.
+fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>>) {
+    let mut report = apply_rt_settings(&s.cfg);
+    let setup = (|| -> Result<_, vlsync_ipc::IpcError> {
+        let node = create_node("vlsyncd-rt", false)?;
+        let buf = s.cfg.services.subscriber_buffer.max(1) as usize;
+        let mut subs = Vec::with_capacity(2);
+        let mut granted = buf;
+        let mut factories = Vec::with_capacity(2);
+        for stream in [Stream::Cam, Stream::Lidar] {
+            let name = s.names.signature(stream);
+            let f = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(buf))?;
+            let (sub, b) = subscriber(&f, buf, &name)?;
+            granted = granted.min(b.granted);
+            subs.push(sub);
+            factories.push(f);
+        }
+        let ready_ev = open_or_create_event(&node, &s.names.signature_ready())?;
+        let lis = listener(&ready_ev, &s.names.signature_ready())?;
+        let off = open_or_create_pubsub::<OffsetEstimate>(&node, &s.names.offset(), Qos::latest())?;
+        let off_pub = publisher(&off, &s.names.offset())?;
+        let off_ev = open_or_create_event(&node, &s.names.offset())?;
+        let off_not = notifier(&off_ev, &s.names.offset())?;
+        Ok((
+            node, subs, factories, ready_ev, lis, off, off_pub, off_ev, off_not, granted,
+        ))
+    })();
+    let (_node, subs, _factories, _ready_ev, lis, _off, off_pub, _off_ev, off_not, granted) =
+        match setup {
+            Ok(v) => v,
+            Err(e) => {
+                let _ = ready.send(Err(e.to_string()));
+                return;
+            }
+        };
+    report.buffer = (s.cfg.services.subscriber_buffer.max(1) as usize, granted);
+    let mut est = Estimator::new(&s.cfg.estimator);
+    let mut c = RtCounters::new();
+    let budget_ns = (s.cfg.daemon.latency_budget_us * 1e3) as u64;
+    let status_period_ns = (s.cfg.daemon.status_period_s * 1e9) as i64;
+    let quiet_ns = DEGRADED_QUIET.as_nanos() as i64;
+    let mut degraded = false;
+    let mut last_overrun: Nanos = 0;
+    let mut last_state: Option<EstimatorState> = None;
+    let mut next_status = monotonic_ns() + status_period_ns;
+    let _ = ready.send(Ok(report));
+
+    // ---- real-time loop: no allocation, no logging, no I/O below ----
+    while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
+        // sleeps until a driver notifies; a signal or timeout just loops
+        let _ = lis.timed_wait(|_| {}, WAKE_PERIOD);
+        for (i, sub) in subs.iter().enumerate() {
+            let stream = if i == 0 { Stream::Cam } else { Stream::Lidar };
+            loop {
+                let sample = match sub.receive() {
+                    Ok(Some(x)) => x,
+                    Ok(None) => break,
+                    Err(_) => {
+                        emit(
+                            &s.tx,
+                            &mut c,
+                            RtEvent::Fatal("receive on a signature service failed"),
+                        );
+                        break;
+                    }
+                };
+                let t0 = monotonic_ns();
+                let w: SignatureSample = *sample.payload();
+                let pid = sample.header().publisher_id();
+                drop(sample);
+                let si = stream_index(stream);
+                c.status.received[si] += 1;
+                if w.validate().is_err() {
+                    c.status.rejected[si][REJECT_MALFORMED] += 1;
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Rejected {
+                            stream,
+                            reason: REJECT_MALFORMED,
+                            t_ns: w.t_ns,
+                        },
+                    );
+                    continue;
+                }
+                if w.is_first() {
+                    emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
+                }
+                let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
+                if lost > 0 {
+                    c.status.lost[si] += lost;
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Lost {
+                            stream,
+                            count: lost,
+                        },
+                    );
+                }
+                if let Err(r) = est.push(stream, w.sample()) {
+                    c.status.rejected[si][r.index()] += 1;
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Rejected {
+                            stream,
+                            reason: r.index(),
+                            t_ns: w.t_ns,
+                        },
+                    );
+                }
+                while let Some(e) = est.poll() {
+                    publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
+                    if last_state != Some(e.state) {
+                        emit(
+                            &s.tx,
+                            &mut c,
+                            RtEvent::State {
+                                from: last_state,
+                                to: e.state,
+                            },
+                        );
+                        last_state = Some(e.state);
+                        c.status.state = e.state as u8;
+                    }
+                }
+                let t1 = monotonic_ns();
+                let proc_ns = (t1 - t0).max(0) as u64;
+                c.processing.record(proc_ns);
+                // driver publish -> done with the sample (estimate published if one was due);
+                // a hostile or foreign-host publish_ns outside 0..10 s is not a latency
+                let e2e = t1 - w.publish_ns;
+                if w.publish_ns > 0 && (0..10_000_000_000).contains(&e2e) {
+                    c.end_to_end.record(e2e as u64);
+                }
+                if proc_ns > budget_ns {
+                    c.status.budget_overruns += 1;
+                    last_overrun = t1;
+                    if !degraded {
+                        degraded = true;
+                        est.set_degraded(true);
+                        emit(
+                            &s.tx,
+                            &mut c,
+                            RtEvent::Degraded {
+                                on: true,
+                                processing_ns: proc_ns,
+                            },
+                        );
+                    }
+                }
+            }
+        }
+        let now = monotonic_ns();
+        if degraded && now - last_overrun > quiet_ns {
+            degraded = false;
+            est.set_degraded(false);
+            emit(
+                &s.tx,
+                &mut c,
+                RtEvent::Degraded {
+                    on: false,
+                    processing_ns: 0,
+                },
+            );
+        }
+        if now >= next_status {
+            next_status = now + status_period_ns;
+            let st = snapshot(&mut c, degraded, s.start_ns, now);
+            emit(&s.tx, &mut c, RtEvent::Status(st));
+        }
+    }
+    // final status so the last counters are not lost
+    let now = monotonic_ns();
+    let st = snapshot(&mut c, degraded, s.start_ns, now);
+    emit(&s.tx, &mut c, RtEvent::Status(st));
+}
+
+fn snapshot(c: &mut RtCounters, degraded: bool, start_ns: Nanos, now: Nanos) -> Status {
+    c.status.uptime_ns = (now - start_ns).max(0);
+    c.status.publish_ns = now;
+    c.status.processing_ns = c.processing.summary();
+    c.status.end_to_end_ns = c.end_to_end.summary();
+    c.status.latency_count = c.end_to_end.count();
+    c.status.events_dropped = c.events_dropped;
+    c.status.degraded = u8::from(degraded);
+    c.status
+}
+
+fn publish_estimate(
+    e: &Estimate,
+    off_pub: &vlsync_ipc::iceoryx2::port::publisher::Publisher<vlsync_ipc::Svc, OffsetEstimate, ()>,
+    off_not: &vlsync_ipc::iceoryx2::port::notifier::Notifier<vlsync_ipc::Svc>,
+    tx: &Sender<RtEvent>,
+    c: &mut RtCounters,
+) {
+    let w = match OffsetEstimate::from_estimate(e, monotonic_ns()) {
+        Ok(w) => w,
+        Err(_) => {
+            emit(tx, c, RtEvent::InvalidEstimate { seq: e.seq });
+            return;
+        }
+    };
+    let sent = match off_pub.loan_uninit() {
+        Ok(s) => s.write_payload(w).send().is_ok(),
+        Err(_) => false,
+    };
+    if sent {
+        c.status.estimates_published += 1;
+        let _ = off_not.notify();
+    } else {
+        emit(tx, c, RtEvent::PublishFailed { seq: e.seq });
+    }
+}
+
+/// `/tmp/vlsync/<prefix with / as %>.lock`
+pub fn lock_path(prefix: &str) -> PathBuf {
+    Path::new("/tmp/vlsync").join(format!("{}.lock", prefix.replace('/', "%")))
+}
+
+/// Takes the single-instance lock of `prefix`; the returned file holds it until dropped.
+pub fn single_instance_lock(prefix: &str) -> Result<File, String> {
+    let path = lock_path(prefix);
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create lock directory {}: {e}", dir.display()))?;
+    }
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| format!("cannot open lock file {}: {e}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => {
+            f.set_len(0)
+                .and_then(|_| writeln!(f, "{}", std::process::id()))
+                .map_err(|e| format!("cannot write lock file {}: {e}", path.display()))?;
+            Ok(f)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            Err(format!(
+                "another vlsyncd already serves prefix `{prefix}` (lock {} held by pid {})",
+                path.display(),
+                holder.trim()
+            ))
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(format!("cannot lock {}: {e}", path.display())),
+    }
+}
+
+fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
+    match ev {
+        RtEvent::Rejected {
+            stream,
+            reason,
+            t_ns,
+        } => tracing::warn!(
+            "{stream} sample at t={t_ns} ns rejected: {}",
+            REJECT_NAMES.get(*reason).copied().unwrap_or("?")
+        ),
+        RtEvent::Lost { stream, count } => {
+            tracing::warn!("{stream}: {count} sample(s) lost (sequence gap)")
+        }
+        RtEvent::DriverStarted { stream } => tracing::info!("{stream} driver (re)started"),
+        RtEvent::State { from, to } => tracing::info!(
+            "estimator state {} -> {to}",
+            from.map_or("none", |s| s.name())
+        ),
+        RtEvent::InvalidEstimate { seq } => {
+            tracing::error!("estimate #{seq} has an invalid field; not published")
+        }
+        RtEvent::PublishFailed { seq } => tracing::warn!("estimate #{seq} could not be published"),
+        RtEvent::Degraded { on, processing_ns } => {
+            if *on {
+                tracing::warn!(
+                    "processing took {} µs, over budget: estimator degraded (narrower search)",
+                    processing_ns / 1000
+                )
+            } else {
+                tracing::info!("no budget overrun for {DEGRADED_QUIET:?}: degraded mode off")
+            }
+        }
+        RtEvent::Status(st) => status_pub(st),
+        RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
+    }
+}
+
+/// Loads the configuration of `args`.
+pub fn load_config(args: &RunArgs) -> Result<Config, String> {
+    let mut cfg = match &args.config {
+        Some(p) => Config::load(p).map_err(|e| e.to_string())?,
+        None => Config::default(),
+    };
+    if let Some(p) = &args.prefix {
+        cfg.services.prefix = p.clone();
+        cfg.validate("--prefix").map_err(|e| e.to_string())?;
+    }
+    Ok(cfg)
+}
+
+/// `vlsyncd run`: runs until SIGINT/SIGTERM.
+pub fn run_cli(args: &RunArgs) -> Result<(), String> {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .try_init();
+    let cfg = load_config(args)?;
+    run(cfg, Arc::new(AtomicBool::new(false)))
+}
+
+/// Runs the daemon with `cfg` until SIGINT/SIGTERM or `stop` is set.
+pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
+    let start_ns = monotonic_ns();
+    let names = ServiceNames::new(&cfg.services.prefix).map_err(|e| e.to_string())?;
+    let _lock = single_instance_lock(&names.prefix)?;
+    // the first node installs the SIGINT/SIGTERM handler for the process
+    let node = create_node("vlsyncd", true).map_err(|e| e.to_string())?;
+    let (cleaned, failed) = cleanup_dead_nodes(&node);
+    if cleaned > 0 || failed > 0 {
+        tracing::info!(
+            "removed the iceoryx2 resources of {cleaned} dead process(es){}",
+            if failed > 0 {
+                format!(", {failed} could not be removed")
+            } else {
+                String::new()
+            }
+        );
+    }
+    if cfg.daemon.lock_memory {
+        match vlsync_ipc::rt::lock_all_memory() {
+            Ok(()) => tracing::info!("memory locked (mlockall)"),
+            Err(e) => tracing::warn!("{e}; running without"),
+        }
+    }
+    let status_svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())
+        .map_err(|e| e.to_string())?;
+    let status_pub = publisher(&status_svc, &names.status()).map_err(|e| e.to_string())?;
+    let status_ev = open_or_create_event(&node, &names.status()).map_err(|e| e.to_string())?;
+    let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
+
+    let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let setup = RtSetup {
+        cfg: cfg.clone(),
+        names: names.clone(),
+        stop: stop.clone(),
+        tx,
+        start_ns,
+    };
+    let rt = std::thread::Builder::new()
+        .name("vlsync-rt".into())
+        .spawn(move || rt_thread(setup, ready_tx))
+        .map_err(|e| format!("cannot spawn the real-time thread: {e}"))?;
+    let report = match ready_rx.recv() {
+        Ok(Ok(r)) => r,
+        Ok(Err(e)) => {
+            let _ = rt.join();
+            return Err(format!("real-time thread set-up failed: {e}"));
+        }
+        Err(_) => {
+            let _ = rt.join();
+            return Err("the real-time thread ended during set-up".into());
+        }
+    };
+    for a in &report.applied {
+        tracing::info!("real-time thread: {a}");
+    }
+    for r in &report.refused {
+        tracing::warn!("{r}; starting anyway");
+    }
+    if report.buffer.1 < report.buffer.0 {
+        tracing::warn!(
+            "services.subscriber_buffer = {} exceeds what the existing signature services allow; using {}",
+            report.buffer.0,
+            report.buffer.1
+        );
+    }
+    tracing::info!(
+        "serving prefix `{}`: {}, {} -> {} (status on {} every {} s)",
+        names.prefix,
+        names.signature(Stream::Cam),
+        names.signature(Stream::Lidar),
+        names.offset(),
+        names.status(),
+        cfg.daemon.status_period_s
+    );
+
+    let mut publish_status = |st: &Status| {
+        if let Ok(s) = status_pub.loan_uninit() {
+            if s.write_payload(*st).send().is_ok() {
+                let _ = status_not.notify();
+            }
+        }
+        tracing::debug!(
+            "status: received {:?} lost {:?} overruns {} estimates {}",
+            st.received,
+            st.lost,
+            st.budget_overruns,
+            st.estimates_published
+        );
+    };
+    loop {
+        match rx.recv_timeout(WAKE_PERIOD) {
+            Ok(ev) => log_event(&ev, &mut publish_status),
+            Err(crossbeam::channel::RecvTimeoutError::Timeout) => {}
+            Err(crossbeam::channel::RecvTimeoutError::Disconnected) => break,
+        }
+        if termination_requested() {
+            stop.store(true, Ordering::Relaxed);
+        }
+    }
+    let _ = rt.join();
+    // everything the real-time thread sent before it ended has been drained above
+    tracing::info!("stopped");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_common::wire::STATE_NONE;
+    use vlsync_common::RejectReason;
+
+    fn pid(n: u8) -> UniquePublisherId {
+        // distinct ids come from real publishers
+        let names =
+            ServiceNames::new(&format!("vlsync-test/rt-gap-{}-{n}", std::process::id())).unwrap();
+        let node = create_node("gap-test", false).unwrap();
+        let f = open_or_create_pubsub::<SignatureSample>(
+            &node,
+            &names.signature(Stream::Cam),
+            Qos::signature(4),
+        )
+        .unwrap();
+        let p = publisher(&f, "x").unwrap();
+        p.id()
+    }
+
+    #[test]
+    fn sequence_gaps_are_counted_per_publisher() {
+        let (a, b) = (pid(1), pid(2));
+        let mut slots = [None; 4];
+        assert_eq!(sequence_gap(&mut slots, a, 0, true), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 1, false), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 5, false), 3);
+        // a second publisher does not disturb the first one's count
+        assert_eq!(sequence_gap(&mut slots, b, 0, true), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 6, false), 0);
+        // restart of a: sequence back to 0 with FLAG_FIRST is not a gap
+        assert_eq!(sequence_gap(&mut slots, a, 0, true), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 2, false), 1);
+        // a duplicate/backwards sequence is not counted as lost
+        assert_eq!(sequence_gap(&mut slots, a, 1, false), 0);
+    }
+
+    #[test]
+    fn second_lock_on_a_prefix_fails_with_a_clear_message() {
+        let prefix = format!("vlsync-test/lock-{}", std::process::id());
+        let l = single_instance_lock(&prefix).unwrap();
+        let e = single_instance_lock(&prefix).unwrap_err();
+        assert!(e.contains("another vlsyncd") && e.contains(&prefix), "{e}");
+        assert!(e.contains(&std::process::id().to_string()), "{e}");
+        drop(l);
+        single_instance_lock(&prefix).unwrap();
+        assert_eq!(lock_path("a/b"), PathBuf::from("/tmp/vlsync/a%b.lock"));
+    }
+
+    #[test]
+    fn status_snapshot_carries_percentiles() {
+        let mut c = RtCounters::new();
+        for v in [1000u64, 2000, 3000] {
+            c.processing.record(v);
+            c.end_to_end.record(v * 10);
+        }
+        c.events_dropped = 2;
+        let st = snapshot(&mut c, true, 100, 1100);
+        assert_eq!(st.uptime_ns, 1000);
+        assert_eq!(st.processing_ns[2], 3000);
+        assert_eq!(st.latency_count, 3);
+        assert_eq!(st.events_dropped, 2);
+        assert_eq!(st.degraded, 1);
+        assert_eq!(st.state, STATE_NONE);
+        st.validate().unwrap();
+        assert_eq!(RejectReason::ALL.len() + 1, REJECT_NAMES.len());
+    }
+}
