@@ -198,6 +198,8 @@ mod imp {
                 .with_stride(stride);
             raw.to_gray_into(&mut self.gray)?;
             let ts = meta.timestamp;
+            // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
+            #[allow(clippy::unnecessary_cast)]
             let t_ns = (ts.sec as i64)
                 .saturating_mul(1_000_000_000)
                 .saturating_add((ts.usec as i64).saturating_mul(1_000));
