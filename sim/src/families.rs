@@ -1165,7 +1165,11 @@ mod tests {
         assert_eq!(ss.len(), 1);
         let (a, b) = *ss[0];
         assert!((nanos_to_secs(a) - 45.0).abs() < 3.0, "starts at {a}");
-        assert!((30.0..34.0).contains(&nanos_to_secs(b - a)), "lasts {}", b - a);
+        assert!(
+            (30.0..34.0).contains(&nanos_to_secs(b - a)),
+            "lasts {}",
+            b - a
+        );
         for clean in [&run.cam_clean, &run.lidar_clean] {
             let inside: Vec<&CleanPoint> = clean
                 .iter()

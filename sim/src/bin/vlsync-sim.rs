@@ -20,7 +20,7 @@ struct Args {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Duration in seconds (default: 12 for seed, 120 otherwise).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Output directory (created if missing).
     #[arg(long, required_unless_present = "list")]

@@ -1,0 +1,103 @@
+//! End-to-end checks of the `vlsync-sim` binary.
+
+use std::path::PathBuf;
+use std::process::Command;
+use vlsync_sim::{generate, io, Family};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_vlsync-sim"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("vlsync-sim-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn list_names_every_family() {
+    let out = bin().arg("--list").output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(text.lines().count(), Family::ALL.len());
+    for f in Family::ALL {
+        assert!(text.contains(f.name()), "{f} missing from --list");
+    }
+}
+
+#[test]
+fn writes_the_generated_run() {
+    let dir = tmp("write");
+    let out = bin()
+        .args([
+            "--family",
+            "clocks",
+            "--seed",
+            "3",
+            "--duration",
+            "20",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("Cramér-Rao bound"), "{text}");
+    let run = generate(Family::Clocks, 3, Some(20.0));
+    let (cam, _) = io::read_signature_csv(dir.join("cam.csv")).unwrap();
+    let (lidar, _) = io::read_signature_csv(dir.join("lidar.csv")).unwrap();
+    assert_eq!(cam, run.cam);
+    assert_eq!(lidar, run.lidar);
+    let truth = io::read_truth_csv(dir.join("truth.csv")).unwrap();
+    assert_eq!(truth.len(), 2001);
+    assert!(truth
+        .iter()
+        .all(|&(t, o)| (o - run.truth.offset_at(t)).abs() < 1e-9));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn errors_are_clear() {
+    let dir = tmp("err");
+    let out = bin()
+        .args(["--family", "warp", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("unknown family `warp`") && err.contains("rates-60x5"),
+        "{err}"
+    );
+
+    // a file where a directory should be
+    std::fs::create_dir_all(&dir).unwrap();
+    let blocker = dir.join("file");
+    std::fs::write(&blocker, "x").unwrap();
+    let target = blocker.join("sub");
+    let out = bin()
+        .args(["--family", "robot", "--out"])
+        .arg(&target)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains(&target.display().to_string()), "{err}");
+
+    let out = bin()
+        .args(["--family", "robot", "--duration", "-4", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8(out.stderr)
+        .unwrap()
+        .contains("duration -4"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
