@@ -13,6 +13,7 @@ pub mod csv;
 pub mod ld06;
 pub mod rplidar;
 pub mod scan;
+pub mod serial;
 pub mod signature;
 
 pub use scan::{Ray, Rotation, Scan, ScanTiming};

@@ -558,7 +558,7 @@ mod tests {
         };
         let bad = |i: usize| {
             if (86..=94).contains(&i) {
-                if i % 3 == 0 {
+                if i.is_multiple_of(3) {
                     f64::NAN
                 } else {
                     0.0
