@@ -35,10 +35,14 @@ use vlsync_common::{secs_to_nanos, Nanos, Sample};
 pub const CHUNK_S: f64 = 2.4;
 /// Lag half-range of the seed, seconds.
 pub const MAX_OFFSET_S: f64 = 0.5;
+/// Longest grid (samples) the baseline builds; longer overlaps give no estimates
+/// rather than an unbounded allocation (10^8 samples: 38 days at 30 Hz).
+pub const MAX_GRID: usize = 100_000_000;
 
 /// The seed's chunked estimator (bugs fixed, see the [module docs](self)):
 /// `(chunk centre on the LiDAR clock, offset t_L - t_C in seconds)` per chunk.
-/// Returns nothing for empty/non-overlapping inputs or a non-positive `cam_hz`.
+/// Returns nothing for empty/non-overlapping inputs, a non-positive `cam_hz`, or an
+/// overlap longer than [`MAX_GRID`] grid samples.
 pub fn seed_chunked(cam: &[Sample], lidar: &[Sample], cam_hz: f64) -> Vec<(Nanos, f64)> {
     let cam: Vec<Sample> = cam
         .iter()
@@ -61,7 +65,11 @@ pub fn seed_chunked(cam: &[Sample], lidar: &[Sample], cam_hz: f64) -> Vec<(Nanos
         return Vec::new();
     }
     // np.arange(t0, t1, dt)
-    let n = (((t1 - t0) as f64) / dt_ns).ceil() as usize;
+    let n_f = (((t1 - t0) as f64) / dt_ns).ceil();
+    if n_f > MAX_GRID as f64 {
+        return Vec::new();
+    }
+    let n = n_f as usize;
     let grid: Vec<Nanos> = (0..n)
         .map(|i| t0 + (i as f64 * dt_ns).round() as Nanos)
         .collect();
@@ -121,6 +129,19 @@ fn argmax_lag(a: &[f64], b: &[f64], max: i64) -> i64 {
 mod tests {
     use super::*;
     use crate::families::{generate, Family};
+
+    #[test]
+    fn bad_inputs_give_no_estimates() {
+        let a = [Sample::new(0, 1.0), Sample::new(i64::MAX, 2.0)];
+        let b = [
+            Sample::new(i64::MIN, 1.0),
+            Sample::new(i64::MAX - 5, f64::NAN),
+        ];
+        assert!(seed_chunked(&a, &b, 30.0).is_empty());
+        assert!(seed_chunked(&a, &a, f64::NAN).is_empty());
+        assert!(seed_chunked(&a, &a, -30.0).is_empty());
+        assert!(seed_chunked(&a[..1], &a[..1], 30.0).is_empty());
+    }
 
     #[test]
     fn correlation_lag_sign_matches_numpy() {

@@ -20,6 +20,9 @@
 use crate::families::{CleanPoint, SimError, SimRun};
 use vlsync_common::{secs_to_nanos, Nanos};
 
+/// Shortest window accepted by the windowed bound, seconds.
+pub const MIN_WINDOW_S: f64 = 0.1;
+
 /// Bound (standard deviation, seconds) for noise `sigma_cam`/`sigma_lidar` and the
 /// noiseless signature slopes at the samples. Infinite when a stream carries no
 /// information (no samples or all slopes zero); NaN only for NaN inputs.
@@ -42,12 +45,11 @@ pub fn crb_std_s(
     (term(sigma_cam, cam_slopes) + term(sigma_lidar, lidar_slopes)).sqrt()
 }
 
+/// Slopes of the points with `tau` in `[a, b)`; `points` sorted by `tau` (as generated).
 fn slopes_in(points: &[CleanPoint], a: Nanos, b: Nanos) -> Vec<f64> {
-    points
-        .iter()
-        .filter(|p| p.tau_ns >= a && p.tau_ns < b)
-        .map(|p| p.slope)
-        .collect()
+    let i = points.partition_point(|p| p.tau_ns < a);
+    let j = points.partition_point(|p| p.tau_ns < b);
+    points[i..j.max(i)].iter().map(|p| p.slope).collect()
 }
 
 /// Bound over the whole run (constant offset), seconds. Stored in [`SimRun::crb_std_s`].
@@ -59,9 +61,9 @@ pub fn crb_run_std_s(run: &SimRun) -> f64 {
 
 /// Bound of one `window_s`-second window, per window: windows `[k·W/2, k·W/2 + W)` on
 /// the LiDAR clock (50 % overlap) that fit in the run. Windows without motion give
-/// infinity.
+/// infinity. Errors when `window_s` is not in `[MIN_WINDOW_S, run length]`.
 pub fn crb_windows_std_s(run: &SimRun, window_s: f64) -> Result<Vec<(Nanos, f64)>, SimError> {
-    if !(window_s.is_finite() && window_s > 0.0 && window_s <= run.duration_s) {
+    if !(window_s.is_finite() && window_s >= MIN_WINDOW_S && window_s <= run.duration_s) {
         return Err(SimError::InvalidWindow {
             window_s,
             duration_s: run.duration_s,
@@ -136,6 +138,17 @@ mod tests {
         assert!(w.iter().all(|x| x.1 >= run.crb_std_s));
         assert!(crb_window_std_s(&run, 61.0).is_err());
         assert!(crb_window_std_s(&run, f64::NAN).is_err());
+        assert!(crb_window_std_s(&run, 1e-9).is_err());
+        // the sorted lookup agrees with a plain filter
+        let (a, b) = (secs_to_nanos(12.0), secs_to_nanos(18.0));
+        let plain: Vec<f64> = run
+            .lidar_clean
+            .iter()
+            .filter(|p| p.tau_ns >= a && p.tau_ns < b)
+            .map(|p| p.slope)
+            .collect();
+        assert_eq!(slopes_in(&run.lidar_clean, a, b), plain);
+        assert_eq!(plain.len(), 60);
         // a longer run of the same family has a tighter bound
         let long = crate::families::generate(crate::families::Family::Robot, 1, Some(240.0));
         assert!(long.crb_std_s < run.crb_std_s);

@@ -213,7 +213,7 @@ pub enum SimError {
         /// What was asked for.
         noise_scale: f64,
     },
-    /// A window length is not a positive finite number no longer than the run.
+    /// A window length is not a finite number between the minimum and the run length.
     InvalidWindow {
         /// What was asked for.
         window_s: f64,
@@ -235,7 +235,8 @@ impl fmt::Display for SimError {
             ),
             SimError::InvalidWindow { window_s, duration_s } => write!(
                 f,
-                "window {window_s} s is invalid: expected a finite number in (0, {duration_s}] s (the run length)"
+                "window {window_s} s is invalid: expected a finite number in [{}, {duration_s}] s (the run length)",
+                crate::crb::MIN_WINDOW_S
             ),
         }
     }
