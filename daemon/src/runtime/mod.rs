@@ -35,6 +35,7 @@
 #![forbid(unsafe_code)]
 
 pub mod histogram;
+pub mod procs;
 
 use crossbeam::channel::{bounded, Receiver, Sender, TrySendError};
 use histogram::Histogram;

@@ -1,0 +1,202 @@
+//! Child processes of the demo and the latency benchmark: locating the sibling
+//! binaries, stopping them gracefully, and reading their CPU time and memory
+//! from `/proc`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Finds binary `name` next to the running executable (also one directory up,
+/// for test executables living in `target/<profile>/deps`).
+pub fn sibling_binary(name: &str) -> Result<PathBuf, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("cannot locate own executable: {e}"))?;
+    let dir = exe
+        .parent()
+        .ok_or_else(|| format!("executable {} has no directory", exe.display()))?;
+    for d in [Some(dir), dir.parent()].into_iter().flatten() {
+        let p = d.join(name);
+        if p.is_file() {
+            return Ok(p);
+        }
+    }
+    Err(format!(
+        "binary `{name}` not found next to {} (build the workspace binaries: cargo build --bins)",
+        exe.display()
+    ))
+}
+
+/// A child process that is stopped (SIGINT, then SIGKILL after a grace period)
+/// when dropped.
+pub struct Managed {
+    /// Display name.
+    pub name: String,
+    /// The child.
+    pub child: Child,
+}
+
+impl Managed {
+    /// Spawns `program args`, stdout/stderr to `log` (or inherited when `None`).
+    pub fn spawn(
+        name: &str,
+        program: &Path,
+        args: &[String],
+        log: Option<&Path>,
+    ) -> Result<Self, String> {
+        let mut cmd = Command::new(program);
+        cmd.args(args).stdin(Stdio::null());
+        if let Some(log) = log {
+            let f = std::fs::File::create(log)
+                .map_err(|e| format!("cannot create log {}: {e}", log.display()))?;
+            let f2 = f
+                .try_clone()
+                .map_err(|e| format!("cannot duplicate log handle {}: {e}", log.display()))?;
+            cmd.stdout(f).stderr(f2);
+        }
+        let child = cmd
+            .spawn()
+            .map_err(|e| format!("cannot start {name} ({}): {e}", program.display()))?;
+        Ok(Self {
+            name: name.to_string(),
+            child,
+        })
+    }
+
+    /// Process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// True while the process runs.
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+
+    /// Sends `signal` (e.g. "INT", "KILL") with kill(1).
+    pub fn signal(&self, signal: &str) -> Result<(), String> {
+        let st = Command::new("kill")
+            .arg(format!("-{signal}"))
+            .arg(self.pid().to_string())
+            .stderr(Stdio::null())
+            .status()
+            .map_err(|e| format!("cannot run kill: {e}"))?;
+        if st.success() {
+            Ok(())
+        } else {
+            Err(format!("kill -{signal} {} failed", self.pid()))
+        }
+    }
+
+    /// SIGINT, wait up to `grace`, then SIGKILL. Returns true on a clean exit.
+    pub fn stop(&mut self, grace: Duration) -> bool {
+        if !self.running() {
+            return true;
+        }
+        let _ = self.signal("INT");
+        let t0 = Instant::now();
+        while t0.elapsed() < grace {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                return st.success();
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        false
+    }
+}
+
+impl Drop for Managed {
+    fn drop(&mut self) {
+        self.stop(Duration::from_secs(3));
+    }
+}
+
+/// CPU time (user + system) of process `pid`, seconds, from `/proc/<pid>/stat`.
+pub fn cpu_seconds(pid: u32) -> Result<f64, String> {
+    let path = format!("/proc/{pid}/stat");
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{path}: {e}"))?;
+    // the command name (field 2) may contain spaces: parse after the last ')'
+    let rest = text
+        .rfind(')')
+        .map(|i| &text[i + 1..])
+        .ok_or_else(|| format!("{path}: no ')' in {text:?}"))?;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // after ')': state is field 3, so utime (14) and stime (15) are at 11 and 12
+    let get = |i: usize, what: &str| -> Result<f64, String> {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .ok_or_else(|| format!("{path}: cannot read {what}"))
+    };
+    let ticks = get(11, "utime")? + get(12, "stime")?;
+    Ok(ticks / CLOCK_TICKS_PER_SEC)
+}
+
+/// `sysconf(_SC_CLK_TCK)`: 100 on every Linux architecture vlsync targets.
+const CLOCK_TICKS_PER_SEC: f64 = 100.0;
+
+/// Resident memory of `pid`, kB, from `VmRSS` in `/proc/<pid>/status`.
+pub fn rss_kb(pid: u32) -> Result<u64, String> {
+    let path = format!("/proc/{pid}/status");
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{path}: {e}"))?;
+    text.lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .ok_or_else(|| format!("{path}: no VmRSS line"))
+}
+
+/// Names in `/dev/shm` and iceoryx2's directory (`/tmp/iceoryx2`), sorted: what a
+/// clean shutdown must leave as it found it.
+pub fn ipc_resources() -> Vec<String> {
+    let mut out = vec![];
+    for dir in ["/dev/shm", "/tmp/iceoryx2"] {
+        let mut stack = vec![PathBuf::from(dir)];
+        while let Some(d) = stack.pop() {
+            if let Ok(rd) = std::fs::read_dir(&d) {
+                for e in rd.flatten() {
+                    let p = e.path();
+                    if p.is_dir() {
+                        stack.push(p);
+                    } else {
+                        out.push(p.display().to_string());
+                    }
+                }
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn own_cpu_and_rss_are_readable() {
+        let pid = std::process::id();
+        // burn a little CPU so the counter moves
+        let t0 = Instant::now();
+        let mut x = 0u64;
+        while t0.elapsed() < Duration::from_millis(50) {
+            x = x.wrapping_add(1);
+        }
+        assert!(x > 0);
+        assert!(cpu_seconds(pid).unwrap() > 0.0);
+        assert!(rss_kb(pid).unwrap() > 100);
+        assert!(cpu_seconds(u32::MAX).is_err());
+    }
+
+    #[test]
+    fn managed_child_is_stopped_gracefully() {
+        let mut m = Managed::spawn("sleep", Path::new("sleep"), &["30".into()], None).unwrap();
+        assert!(m.running());
+        let t0 = Instant::now();
+        // sleep dies of SIGINT: not a clean exit, but quick
+        m.stop(Duration::from_secs(2));
+        assert!(!m.running());
+        assert!(t0.elapsed() < Duration::from_secs(2));
+        assert!(sibling_binary("definitely-not-a-binary")
+            .unwrap_err()
+            .contains("not found"));
+    }
+}
