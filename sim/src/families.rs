@@ -16,8 +16,8 @@
 //! # Robot profile
 //!
 //! A ground robot drives forward toward a wall: a speed profile `v(t) >= 0` made of
-//! raised-cosine ramps (peak acceleration 0.3-0.45 m/s²), cruises at 0.2-0.6 m/s with a
-//! few percent of floor/controller ripple (0.2-1.5 Hz), stops of 1-4 s and turns
+//! raised-cosine ramps (peak acceleration 0.3-0.45 m/s²), cruises at 0.2-0.6 m/s with
+//! 4 % RMS of floor/controller ripple (0.2-1.5 Hz), stops of 1-4 s and turns
 //! (slow down to 0.05-0.15 m/s, yaw-rate bump of 0.4-1.0 rad/s for 1-3 s). It never
 //! reverses, so the polarity is negative throughout:
 //!
@@ -26,7 +26,29 @@
 //!   (a turn leaks a little rotational flow into the camera only), noise 1.0 px/s,
 //!   i.e. 0.0067 m/s-equivalent: the LiDAR's is the larger one.
 //!
-//! Noise levels do not depend on the sample rates.
+//! Noise levels do not depend on the sample rates. The robot first moves 1-3 s after
+//! the start ([`SimRun::motion_start_ns`]).
+//!
+//! # Families
+//!
+//! | family | rates cam/LiDAR | offset at t=0 | clocks | other |
+//! |---|---|---|---|---|
+//! | `seed` | 30/10 Hz | 0.18 s + 0.012 s/s (camera clock) | exact | article signal, 12 s, noise 0.06, positive polarity |
+//! | `robot` | 30/10 | U[-0.15, 0.30] s | exact | |
+//! | `clocks` | 30/10 | U[-0.3, 0.3] s, ±20-60 ppm | jitter 1 ms cam, 3 ms LiDAR | 5 % drops each, one 1.2-2 s LiDAR gap at 30-70 % of the run |
+//! | `load-steps` | 30/10 | U[0, 0.2] s | exact | ±25 ms steps every U[15, 25] s, cumulative within ±50 ms |
+//! | `standstill` | 30/10 | U[-0.1, 0.2] s | exact | 30 s rest centred in the run (min(30 s, duration/3)) |
+//! | `rates-60x5` | 60/5.5 | U[0, 0.3] s | exact | |
+//! | `rates-15x20` | 15/20 | U[0, 0.3] s | exact | |
+//! | `big-offset` | 30/10 | 0.45 s | exact | |
+//! | `negative-offset` | 30/10 | U[-0.25, -0.15] s | exact | |
+//! | `heavy-noise` | 30/10 | U[-0.2, 0.2] s | exact | noise std = each signature's std |
+//!
+//! For `seed` the camera samples on its own grid `k/30` and sees the event at
+//! `t_C + 0.18 + 0.012 t_C`, as in the article; in our convention that is
+//! `offset(t_L) = (0.18 + 0.012 t_L) / 1.012`. The article's 1-sample Gaussian smoothing
+//! is applied as a continuous 7-tap filter with taps one sample period apart (its
+//! zero-padded edges are not reproduced).
 //!
 //! # Determinism
 //!

@@ -378,4 +378,39 @@ mod tests {
         let lock = |s: &Score| s.time_to_first_lock_s.unwrap();
         assert!((lock(&g) - lock(&b)).abs() < 1e-12 && lock(&b) > lock(&a));
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        #[test]
+        fn statistics_are_ordered_and_bounded(
+            rows in proptest::collection::vec((0u8..4, -0.2f64..0.2, 0.0f64..0.05), 0..80)
+        ) {
+            let run = generate(Family::LoadSteps, 1, Some(60.0));
+            let states = [EstimatorState::Acquiring, EstimatorState::Tracking, EstimatorState::Holding, EstimatorState::Lost];
+            let list: Vec<Estimate> = rows
+                .iter()
+                .enumerate()
+                .map(|(i, &(st, e, sd))| {
+                    let t = 2.0 + i as f64 * 0.5;
+                    est(t, run.truth.offset_at(secs_to_nanos(t)) + e, sd, states[st as usize])
+                })
+                .collect();
+            let s = score_estimates(&list, &run);
+            proptest::prop_assert!(s.n <= s.n_total);
+            if s.n > 0 {
+                proptest::prop_assert!(s.mae_s <= s.max_abs_s + 1e-15 && s.p95_s <= s.max_abs_s);
+                proptest::prop_assert!(s.bias_s.abs() <= s.mae_s + 1e-15);
+                proptest::prop_assert!((0.0..=1.0).contains(&s.share_over_20ms));
+            } else {
+                proptest::prop_assert!(s.mae_s.is_nan());
+            }
+            proptest::prop_assert!((0.0..=1.0).contains(&s.coverage));
+            if let Some(c) = s.consistency_2sigma {
+                proptest::prop_assert!((0.0..=1.0).contains(&c));
+            }
+            let g = Score::aggregate(&[s.clone(), s.clone()]);
+            proptest::prop_assert_eq!(g.n, 2 * s.n);
+            proptest::prop_assert!(g.mae_s == s.mae_s || (g.mae_s.is_nan() && s.mae_s.is_nan()));
+        }
+    }
 }
