@@ -285,10 +285,15 @@ pub fn write_signature_csv(path: impl AsRef<Path>, samples: &[Sample]) -> Result
     write_file(path.as_ref(), &signature_csv_string(samples))
 }
 
+/// Most rows [`truth_csv_string`] writes.
+pub const MAX_TRUTH_ROWS: i64 = 10_000_000;
+
 /// Renders the truth as CSV `t,offset` every `step_ns` from 0 to `truth.end_ns` inclusive
-/// (seconds, LiDAR clock). A non-positive step is replaced by 10 ms.
+/// (seconds, LiDAR clock). A non-positive step is replaced by 10 ms, and the step is
+/// enlarged when it would give more than [`MAX_TRUTH_ROWS`] rows.
 pub fn truth_csv_string(truth: &Truth, step_ns: Nanos) -> String {
     let step = if step_ns > 0 { step_ns } else { 10_000_000 };
+    let step = step.max(truth.end_ns / MAX_TRUTH_ROWS + 1);
     let mut s = String::from("t,offset\n");
     let mut t: Nanos = 0;
     while t <= truth.end_ns {

@@ -26,4 +26,4 @@ pub mod families;
 pub mod io;
 pub mod score;
 
-pub use families::{generate, try_generate, Family, SimRun, Truth};
+pub use families::{generate, try_generate, try_generate_with, Family, SimRun, Truth};
