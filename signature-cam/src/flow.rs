@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 
 /// Region of interest as fractions of the frame width and height (`0 <= x0 < x1 <= 1`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct Roi {
     /// Left edge, fraction of width.
     pub x0: f32,
@@ -447,7 +447,9 @@ impl PyrLk {
                 &mut self.patch,
                 &mut self.t0,
             );
-            if min_eigen(&self.t0) / n < c.min_eigen {
+            let eig = min_eigen(&self.t0) / n;
+            // NaN (non-finite pixels in an f32 frame) counts as no texture
+            if eig.is_nan() || eig < c.min_eigen {
                 continue;
             }
             textured += 1;
@@ -855,6 +857,21 @@ pub(crate) mod tests {
             &noisy(&flat, 2.0, 5, 1.0, 0.0),
         );
         assert!(s.low_texture, "{s:?}");
+    }
+
+    #[test]
+    fn non_finite_pixels_are_not_texture() {
+        let (w, h) = (200, 150);
+        let mut px = frame(w, h, |x, y| (x, y)).pixels().to_vec();
+        for (i, v) in px.iter_mut().enumerate() {
+            if i % 3 == 0 {
+                *v = if i % 2 == 0 { f32::NAN } else { f32::INFINITY };
+            }
+        }
+        let f = GrayFrame::owned_f32(w, h, px).unwrap();
+        let (s, v) = flow_of(FlowConfig::default(), &f, &f);
+        assert_eq!((s.textured, s.tracked), (0, 0), "{s:?}");
+        assert!(v.is_empty());
     }
 
     #[test]

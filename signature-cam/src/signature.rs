@@ -404,6 +404,30 @@ mod tests {
         ));
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(32))]
+        /// Any start time and any interval up to the gap limit: the midpoint (or the
+        /// end) exactly, and the px/s value scales with 1 / interval.
+        #[test]
+        fn stamps_are_exact_for_any_times(
+            t0 in -4_000_000_000_000_000_000i64..4_000_000_000_000_000_000i64,
+            dt in 1i64..=250_000_000,
+            end in proptest::bool::ANY,
+        ) {
+            use std::sync::OnceLock;
+            static FRAMES: OnceLock<(GrayFrame<'static, f32>, GrayFrame<'static, f32>)> = OnceLock::new();
+            let (a, b) = FRAMES.get_or_init(|| (shifted(0.0), shifted(1.0)));
+            let stamping = if end { Stamping::End } else { Stamping::Midpoint };
+            let mut p = SignatureProcessor::new(SignatureConfig { stamping, ..SignatureConfig::default() }).unwrap();
+            p.process(a, FrameTime::Instant(t0)).unwrap();
+            let s = sample(p.process(b, FrameTime::Instant(t0 + dt)).unwrap());
+            let expect = if end { t0 + dt } else { t0 + dt / 2 };
+            proptest::prop_assert_eq!(s.sample.t_ns, expect);
+            proptest::prop_assert!((s.sample.value * dt as f64 / 1e9 - s.flow_px).abs() < 1e-9 * s.flow_px.abs().max(1.0));
+            proptest::prop_assert!((s.flow_px - 1.0).abs() < 0.05);
+        }
+    }
+
     #[test]
     fn flat_frames_give_flagged_nan() {
         let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
