@@ -33,7 +33,10 @@
 //! For every node: `S` and `!S` differ, `C` is 1, `angle_q6 ≤ 360·64`. A node
 //! failing a check is dropped by one byte and the stream is rescanned from the
 //! next byte (as the SDK does), so a corrupted or truncated node costs at
-//! most itself and garbage costs nothing but its own bytes. A response
+//! most itself and garbage costs nothing but its own bytes. The checks are
+//! weak (two bits and a range; there is no checksum), so a start flag is
+//! only honoured when the angle wraps through 0° from the previous node
+//! (drops by more than 180°); [`RplidarStats::false_starts`] counts the others. A response
 //! descriptor anywhere in the stream is recognised (it can never pass as a
 //! node: its byte 1 `0x5A` has C = 0) and restarts scan assembly. Every
 //! failure is counted in [`RplidarStats`]; the latest is kept as an
@@ -60,7 +63,7 @@
 //! assert_eq!(parser.stats().descriptors, 1);
 //! ```
 
-use crate::scan::{cw_degrees_to_bearing, Ray, Rotation, Scan, ScanTiming};
+use crate::scan::{bearing_to_cw_degrees, cw_degrees_to_bearing, Ray, Rotation, Scan, ScanTiming};
 use std::fmt;
 use vlsync_common::Nanos;
 
@@ -234,6 +237,9 @@ pub struct RplidarStats {
     pub descriptor_errors: u64,
     /// Valid nodes dropped because no revolution start had been seen yet.
     pub nodes_before_start: u64,
+    /// Start flags ignored because the angle did not wrap through 0° from
+    /// the previous node (a corrupted or misframed node).
+    pub false_starts: u64,
     /// Scans emitted.
     pub scans: u64,
 }
@@ -455,7 +461,27 @@ impl RplidarParser {
         on_scan: &mut impl FnMut(&Scan),
     ) {
         let angle = node.angle_deg();
-        if node.start {
+        let mut start = node.start;
+        if start && self.scan_start.is_some() {
+            // a real start follows the end of the previous revolution: the
+            // angle wraps through 0 (e.g. 359.5 -> 0.2 deg)
+            if let Some(last) = self.rays.last() {
+                if bearing_to_cw_degrees(last.bearing_rad) - angle <= 180.0 {
+                    self.stats.false_starts += 1;
+                    start = false;
+                }
+            }
+        }
+        if start {
+            if let (Some((_, angle0)), Some(last)) = (self.scan_start, self.rays.last()) {
+                let swept = (bearing_to_cw_degrees(last.bearing_rad) - angle0).rem_euclid(360.0);
+                if swept < 180.0 {
+                    self.stats.false_starts += 1;
+                    start = false;
+                }
+            }
+        }
+        if start {
             let serial_ns = 10e9 / self.cfg.baud.max(1) as f64;
             let paced_ns = 1e9 / self.cfg.sample_rate_hz.max(1) as f64 / NODE_LEN as f64;
             let shift = (bytes_after as f64 * serial_ns.max(paced_ns)).round() as i64;
