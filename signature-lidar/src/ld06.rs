@@ -723,6 +723,15 @@ impl Ld06Encoder {
     /// the point at that clockwise angle in `[0, 360)`. The timestamp is the
     /// device time of the last point ([`StampRef::LastPoint`]).
     pub fn next_packet(&mut self, mut range_mm: impl FnMut(f64) -> u16) -> [u8; PACKET_LEN] {
+        self.next_packet_at(|a, _| range_mm(a))
+    }
+
+    /// Like [`Ld06Encoder::next_packet`], with `range_mm(angle_deg, t_s)`
+    /// also given the device time (seconds, unwrapped) at which the point is measured.
+    pub fn next_packet_at(
+        &mut self,
+        mut range_mm: impl FnMut(f64, f64) -> u16,
+    ) -> [u8; PACKET_LEN] {
         let step = self.speed_dps as f64 / POINT_RATE_HZ as f64;
         let start = self.angle_deg.rem_euclid(360.0);
         let start_cdeg = ((start * 100.0).round() as u32 % 36000) as u16;
@@ -736,8 +745,9 @@ impl Ld06Encoder {
         };
         for i in 0..POINTS_PER_PACKET {
             let a = packet.point_angle_deg(i);
+            let t = self.t_s + i as f64 / POINT_RATE_HZ as f64;
             packet.points[i] = Ld06Point {
-                distance_mm: range_mm(a),
+                distance_mm: range_mm(a, t),
                 intensity: 200,
             };
         }

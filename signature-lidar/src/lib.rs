@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 pub mod csv;
+pub mod encode;
 pub mod ld06;
 pub mod rplidar;
 pub mod scan;
