@@ -95,6 +95,12 @@ pub struct FlowConfig {
     pub min_points: usize,
     /// Pixels around the ROI included in the pyramid (default 32).
     pub margin_px: usize,
+    /// Largest accepted residual after tracking, relative to the window's contrast:
+    /// `|T' - I'| / |T'|` with `T'` the mean-free template and `I'` the
+    /// photometrically matched window. It equals `sqrt(2 (1 - ncc))`: 0.8 (the
+    /// default) accepts a normalised cross-correlation down to 0.68; a good match
+    /// with sensor noise gives ~0.1-0.3, unrelated content ~1.4.
+    pub max_residual: f32,
 }
 
 impl Default for FlowConfig {
@@ -110,6 +116,7 @@ impl Default for FlowConfig {
             min_eigen: 5.0,
             min_points: 16,
             margin_px: 32,
+            max_residual: 0.8,
         }
     }
 }
@@ -171,6 +178,9 @@ impl FlowConfig {
                     self.grid_cols * self.grid_rows
                 ),
             ));
+        }
+        if !(self.max_residual.is_finite() && self.max_residual > 0.0) {
+            return Err(invalid("flow.max_residual", "must be finite and > 0"));
         }
         if self.margin_px > 4096 {
             return Err(invalid("flow.margin_px", "must be <= 4096"));
@@ -456,6 +466,7 @@ impl PyrLk {
             let mut gx = 0.0f32;
             let mut gy = 0.0f32;
             let mut ok = true;
+            let mut residual = 0.0f32;
             for l in (0..c.levels).rev() {
                 let s = 1.0 / (1u32 << l) as f32;
                 let (lx, ly) = (px * s, py * s);
@@ -482,7 +493,8 @@ impl PyrLk {
                     c.epsilon_px,
                     &mut self.warped,
                 ) {
-                    Some((dx, dy)) => {
+                    Some((dx, dy, res)) => {
+                        residual = res;
                         gx += dx;
                         gy += dy;
                         if l > 0 {
@@ -498,7 +510,13 @@ impl PyrLk {
             }
             let (w0, h0) = g.dims[0];
             let (qx, qy) = (px + gx, py + gy);
-            if ok && qx >= 0.0 && qy >= 0.0 && qx <= (w0 - 1) as f32 && qy <= (h0 - 1) as f32 {
+            if ok
+                && residual <= c.max_residual
+                && qx >= 0.0
+                && qy >= 0.0
+                && qx <= (w0 - 1) as f32
+                && qy <= (h0 - 1) as f32
+            {
                 self.vectors.push(FlowVector {
                     x: px + g.crop_x as f32,
                     y: py + g.crop_y as f32,
@@ -609,7 +627,7 @@ fn mean_norm(v: &[f32]) -> (f32, f32) {
 }
 
 /// Gauss-Newton iterations of one level, starting at `(x, y)` in `cur`.
-/// Returns the refinement `(dx, dy)`, or `None` when the system is singular or
+/// Returns the refinement `(dx, dy)` and the relative residual, or `None` when the system is singular or
 /// the point leaves the level.
 #[allow(clippy::too_many_arguments)]
 fn solve_level(
@@ -621,7 +639,7 @@ fn solve_level(
     iters: usize,
     eps: f32,
     warped: &mut [f32],
-) -> Option<(f32, f32)> {
+) -> Option<(f32, f32, f32)> {
     let det = t.gxx * t.gyy - t.gxy * t.gxy;
     let n = t.val.len() as f32;
     // singular or nearly so (relative to the gradient energy per pixel)
@@ -631,6 +649,7 @@ fn solve_level(
     let inv = 1.0 / det;
     let side = t.val.len().isqrt();
     let (mut dx, mut dy) = (0.0f32, 0.0f32);
+    let mut sse = 0.0f32;
     for _ in 0..iters {
         let (qx, qy) = (x + dx, y + dy);
         if !(qx > -r && qy > -r && qx < cur.w as f32 - 1.0 + r && qy < cur.h as f32 - 1.0 + r) {
@@ -646,10 +665,12 @@ fn solve_level(
             1.0
         };
         let (mut bx, mut by) = (0.0f32, 0.0f32);
+        sse = 0.0;
         for (((&tv, &gx), &gy), &iv) in t.val.iter().zip(&t.gx).zip(&t.gy).zip(warped.iter()) {
             let e = (tv - t.mean) - gain * (iv - wm);
             bx += gx * e;
             by += gy * e;
+            sse += e * e;
         }
         let ux = inv * (t.gyy * bx - t.gxy * by);
         let uy = inv * (t.gxx * by - t.gxy * bx);
@@ -659,8 +680,11 @@ fn solve_level(
             break;
         }
     }
+    // residual of the last iteration relative to the template's contrast:
+    // ~0.1 for a good match with sensor noise, ~1.4 for unrelated windows
+    let residual = sse.sqrt() / t.norm.max(1e-6);
     if dx.is_finite() && dy.is_finite() {
-        Some((dx, dy))
+        Some((dx, dy, residual))
     } else {
         None
     }
@@ -872,6 +896,18 @@ pub(crate) mod tests {
         let (s, v) = flow_of(FlowConfig::default(), &f, &f);
         assert_eq!((s.textured, s.tracked), (0, 0), "{s:?}");
         assert!(v.is_empty());
+    }
+
+    #[test]
+    fn unrelated_content_is_rejected() {
+        let (w, h) = (320, 240);
+        let a = frame(w, h, |x, y| (x, y));
+        // white noise: strong gradients, nothing in common with `a`
+        let flat = GrayFrame::owned_f32(w, h, vec![128.0; w * h]).unwrap();
+        let b = noisy(&flat, 40.0, 9, 1.0, 0.0);
+        let (s, _) = flow_of(FlowConfig::default(), &a, &b);
+        assert!(s.tracked < s.points / 4, "{s:?}");
+        assert!(s.low_texture);
     }
 
     #[test]
