@@ -58,7 +58,7 @@ fn bench_signature(c: &mut Criterion) {
             b.iter(|| {
                 // time goes back when the data set wraps: restart the stream
                 let s = &data[k % data.len()];
-                if k % data.len() == 0 {
+                if k.is_multiple_of(data.len()) {
                     p.reset();
                 }
                 let n = p.push_scan(black_box(s), |x| {
