@@ -1,0 +1,240 @@
+//! `vlsync-latency`: latency and cost benchmark of the full path
+//! (driver process -> iceoryx2 -> `vlsyncd run` -> estimate published).
+//!
+//! Phase 1 replays the simulated robot at 100x real time (3000 cam + 1000
+//! LiDAR samples per second; 10,000+ samples) on a fresh daemon and reads the
+//! daemon's own latency histograms and loss counters from the status service.
+//! Phase 2 runs the nominal rates (30 Hz cam + 10 Hz LiDAR) and measures the
+//! daemon's CPU use from `/proc`. Finally the daemon's resident memory.
+//! Prints each figure beside its target and exits non-zero when one is missed
+//! (with `--check`).
+#![forbid(unsafe_code)]
+
+use clap::Parser;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use vlsync_ipc::{create_node, monotonic_ns, termination_requested, StatusClient};
+use vlsyncd::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
+
+#[derive(Parser)]
+#[command(
+    name = "vlsync-latency",
+    version,
+    about = "Latency, loss, CPU and memory of the vlsync path"
+)]
+struct Args {
+    /// Simulated seconds replayed at 100x (300 s = 12,000 samples).
+    #[arg(long, default_value_t = 300.0)]
+    fast_sim_s: f64,
+    /// Speed factor of the fast phase.
+    #[arg(long, default_value_t = 100.0)]
+    speed: f64,
+    /// Wall seconds of the nominal-rate phase.
+    #[arg(long, default_value_t = 20.0)]
+    nominal_s: f64,
+    /// Daemon configuration file (e.g. with `daemon.fifo_priority` set).
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
+    /// Exit with status 1 when a target is missed.
+    #[arg(long)]
+    check: bool,
+}
+
+struct Targets;
+impl Targets {
+    const P99_NS: u64 = 50_000;
+    const CPU_NOMINAL_PCT: f64 = 1.0;
+    const RSS_KB: u64 = 20 * 1024;
+}
+
+fn spawn_drivers(
+    prefix: &str,
+    seed: u64,
+    duration: f64,
+    speed: f64,
+) -> Result<(Managed, Managed), String> {
+    let start_at = monotonic_ns() + 300_000_000;
+    let args = |_: &str| -> Vec<String> {
+        vec![
+            "--prefix".into(),
+            prefix.into(),
+            "--sim".into(),
+            "robot".into(),
+            "--seed".into(),
+            seed.to_string(),
+            "--duration".into(),
+            duration.to_string(),
+            "--speed".into(),
+            speed.to_string(),
+            "--start-at".into(),
+            start_at.to_string(),
+        ]
+    };
+    let null = std::path::Path::new("/dev/null");
+    let cam = Managed::spawn(
+        "vlsync-cam",
+        &sibling_binary("vlsync-cam")?,
+        &args("cam"),
+        Some(null),
+    )?;
+    let lidar = Managed::spawn(
+        "vlsync-lidar",
+        &sibling_binary("vlsync-lidar")?,
+        &args("lidar"),
+        Some(null),
+    )?;
+    Ok((cam, lidar))
+}
+
+fn wait_drivers(cam: &mut Managed, lidar: &mut Managed, limit: Duration) -> Result<(), String> {
+    let t0 = Instant::now();
+    while cam.running() || lidar.running() {
+        if termination_requested() {
+            return Err("interrupted".into());
+        }
+        if t0.elapsed() > limit {
+            return Err(format!("drivers still running after {limit:?}"));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Ok(())
+}
+
+fn latest_status(c: &mut StatusClient) -> Result<vlsync_common::wire::Status, String> {
+    // the daemon publishes every daemon.status_period_s (1 s by default)
+    let t0 = Instant::now();
+    let mut first = None;
+    while t0.elapsed() < Duration::from_secs(3) {
+        if let Some(s) = c.latest().map_err(|e| e.to_string())? {
+            match first {
+                None => first = Some(s.publish_ns),
+                Some(p) if s.publish_ns > p => return Ok(s),
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Err("no fresh status from the daemon within 3 s".into())
+}
+
+fn us(ns: u64) -> String {
+    format!("{:.1} µs", ns as f64 / 1e3)
+}
+
+fn run(a: &Args) -> Result<bool, String> {
+    let _node = create_node("vlsync-latency", true).map_err(|e| e.to_string())?;
+    let prefix = format!("vlsync-latency/{}", std::process::id());
+    let mut dargs = vec!["run".to_string(), "--prefix".into(), prefix.clone()];
+    if let Some(c) = &a.config {
+        dargs.push("--config".into());
+        dargs.push(c.display().to_string());
+    }
+    let mut daemon = Managed::spawn(
+        "vlsyncd",
+        &sibling_binary("vlsyncd")?,
+        &dargs,
+        Some(&std::env::temp_dir().join(format!("vlsync-latency-{}.log", std::process::id()))),
+    )?;
+    let mut status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
+    std::thread::sleep(Duration::from_millis(300));
+    if !daemon.running() {
+        return Err("vlsyncd exited at start".into());
+    }
+
+    // ---- phase 1: 100x ----
+    let cpu0 = cpu_seconds(daemon.pid())?;
+    let t0 = Instant::now();
+    let (mut cam, mut lidar) = spawn_drivers(&prefix, 1, a.fast_sim_s, a.speed)?;
+    wait_drivers(
+        &mut cam,
+        &mut lidar,
+        Duration::from_secs_f64(a.fast_sim_s / a.speed + 20.0),
+    )?;
+    let fast_wall = t0.elapsed().as_secs_f64();
+    let fast_cpu = cpu_seconds(daemon.pid())? - cpu0;
+    let s1 = latest_status(&mut status)?;
+    let received = s1.received[0] + s1.received[1];
+    let lost = s1.lost[0] + s1.lost[1];
+    println!(
+        "phase 1: {}x real time, {received} samples through driver -> daemon -> estimate",
+        a.speed
+    );
+    println!(
+        "  end-to-end (driver publish -> daemon done, estimate published when due): p50 {} p99 {} max {}",
+        us(s1.end_to_end_ns[0]),
+        us(s1.end_to_end_ns[1]),
+        us(s1.end_to_end_ns[2])
+    );
+    println!(
+        "  processing in the daemon: p50 {} p99 {} max {}; {} budget overruns; {} estimates",
+        us(s1.processing_ns[0]),
+        us(s1.processing_ns[1]),
+        us(s1.processing_ns[2]),
+        s1.budget_overruns,
+        s1.estimates_published
+    );
+    println!(
+        "  lost {lost} (cam {} lidar {}), rejected {}; daemon CPU {:.1} % of a core over {:.1} s",
+        s1.lost[0],
+        s1.lost[1],
+        s1.rejected_total(0) + s1.rejected_total(1),
+        100.0 * fast_cpu / fast_wall,
+        fast_wall
+    );
+
+    // ---- phase 2: nominal rates ----
+    let cpu0 = cpu_seconds(daemon.pid())?;
+    let t0 = Instant::now();
+    let (mut cam, mut lidar) = spawn_drivers(&prefix, 2, a.nominal_s, 1.0)?;
+    wait_drivers(
+        &mut cam,
+        &mut lidar,
+        Duration::from_secs_f64(a.nominal_s + 20.0),
+    )?;
+    let nom_wall = t0.elapsed().as_secs_f64();
+    let nom_cpu = cpu_seconds(daemon.pid())? - cpu0;
+    let nom_pct = 100.0 * nom_cpu / nom_wall;
+    let rss = rss_kb(daemon.pid())?;
+    println!(
+        "phase 2: nominal 30 Hz + 10 Hz for {nom_wall:.1} s: daemon CPU {nom_cpu:.3} s = {nom_pct:.2} % of a core"
+    );
+    println!(
+        "daemon resident memory (VmRSS): {:.1} MB",
+        rss as f64 / 1024.0
+    );
+    let clean = daemon.stop(Duration::from_secs(3));
+
+    let checks = [
+        (
+            "p99 end-to-end <= 50 µs",
+            s1.end_to_end_ns[1] <= Targets::P99_NS,
+        ),
+        ("zero lost at 100x", lost == 0),
+        ("10,000+ samples", received >= 10_000),
+        (
+            "CPU < 1 % of a core at nominal",
+            nom_pct < Targets::CPU_NOMINAL_PCT,
+        ),
+        ("RSS <= 20 MB", rss <= Targets::RSS_KB),
+        ("daemon stopped cleanly", clean),
+    ];
+    let mut ok = true;
+    for (what, pass) in checks {
+        println!("  [{}] {what}", if pass { "PASS" } else { "MISS" });
+        ok &= pass;
+    }
+    Ok(ok)
+}
+
+fn main() -> ExitCode {
+    let a = Args::parse();
+    match run(&a) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) if a.check => ExitCode::from(1),
+        Ok(false) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("vlsync-latency: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
