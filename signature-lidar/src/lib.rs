@@ -1,11 +1,39 @@
 //! LiDAR signature for vlsync: the robust rate of change of the distance to a
-//! wall in a narrow bearing window, one [`vlsync_common::Sample`] per rotation.
+//! wall in a narrow bearing window, one [`vlsync_common::Sample`] (m/s) per
+//! rotation, stamped at the midpoint of the two measurements it differences.
 //!
-//! * [`scan`]: rays with per-ray measurement times, scan timing and the
-//!   bearing / rotation conventions.
+//! * [`scan`]: rays with per-ray measurement times, scan timing, and the
+//!   bearing (CCW positive) and rotation-direction conventions.
 //! * [`signature`]: the allocation-free signature processor (median distance
-//!   per window pass, derivative stamped at the midpoint, gap resets, drop
-//!   counters).
+//!   per pass of the beam through the window, median time of the rays used,
+//!   derivative stamped at the midpoint, gap resets, drop counters).
+//! * [`ld06`]: LDROBOT LD06/LD19 packets (CRC-8 0x4D), resynchronising decoder,
+//!   360° scan assembly with per-point times, encoder.
+//! * [`rplidar`]: Slamtec RPLIDAR standard scan (A1/A2/C1): requests,
+//!   resynchronising node parser, scan assembly, encoder.
+//! * [`csv`]: scans as CSV, one row per ray, with exact decimal-second times.
+//! * [`serial`]: opening a serial port and pumping its bytes into a parser.
+//! * [`encode`]: byte-stream encoders for simulators and tests.
+//!
+//! ```
+//! use vlsync_signature_lidar::encode::ld06_stream;
+//! use vlsync_signature_lidar::ld06::{Ld06Clock, Ld06Config, Ld06Parser};
+//! use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor};
+//!
+//! // a wall on the left (bearing +90°) receding at 0.5 m/s, seen by an LD06 at 10 Hz
+//! let bytes = ld06_stream(3600, 0, 1.0, |t, bearing| {
+//!     if (bearing - std::f64::consts::FRAC_PI_2).abs() < 0.3 { 2.0 + 0.5 * t } else { 6.0 }
+//! });
+//! let mut parser = Ld06Parser::new(Ld06Config { clock: Ld06Clock::Device, ..Default::default() });
+//! let mut sig = SignatureProcessor::new(SignatureConfig {
+//!     window_centre_rad: std::f64::consts::FRAC_PI_2,
+//!     ..Default::default()
+//! }).unwrap();
+//! let mut samples = Vec::new();
+//! parser.push(&bytes, 0, |scan| { sig.push_scan(scan, |s| samples.push(s)); });
+//! assert!(samples.len() >= 7);
+//! assert!(samples.iter().all(|s| (s.value - 0.5).abs() < 0.02));
+//! ```
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 

@@ -25,7 +25,10 @@
 //! (typically straight ahead) is therefore measured once per revolution from
 //! the rays at the end of one scan and the start of the next, never averaged
 //! across a whole revolution. [`SignatureProcessor::push_scan`] simply feeds a
-//! scan's rays; one revolution closes one pass.
+//! scan's rays; one revolution closes one pass. When the rotation period is
+//! known (from the scan timing, or [`SignatureProcessor::set_period_hint`]) a
+//! pass also closes once it has lasted 1.5× the window's share of a
+//! revolution, so recordings holding only the window's rays work too.
 //!
 //! # Gaps
 //!
@@ -278,6 +281,8 @@ pub struct SignatureProcessor {
     in_pass: bool,
     pass_partial: bool,
     pass_overflow: bool,
+    pass_start_t: Nanos,
+    period_hint_ns: Nanos,
     last_ray_t: Option<Nanos>,
     prev: Option<Measurement>,
     counters: Counters,
@@ -294,6 +299,8 @@ impl SignatureProcessor {
             in_pass: false,
             pass_partial: false,
             pass_overflow: false,
+            pass_start_t: 0,
+            period_hint_ns: 0,
             last_ray_t: None,
             prev: None,
             counters: Counters::default(),
@@ -333,9 +340,26 @@ impl SignatureProcessor {
             <= self.cfg.window_half_width_rad + 1e-9
     }
 
+    /// Sets the rotation period used to bound the length of a pass (0 = unknown,
+    /// no bound). [`SignatureProcessor::push_scan`] sets it from the scan timing.
+    pub fn set_period_hint(&mut self, period_ns: Nanos) {
+        self.period_hint_ns = period_ns.max(0);
+    }
+
+    /// Longest time a pass can last: the window's share of a revolution,
+    /// plus half of that as slack; 0 when the period is unknown.
+    fn pass_limit_ns(&self) -> Nanos {
+        if self.period_hint_ns <= 0 {
+            return 0;
+        }
+        let frac = self.cfg.window_half_width_rad / std::f64::consts::PI;
+        (1.5 * frac * self.period_hint_ns as f64).ceil() as Nanos
+    }
+
     /// Feeds every ray of `scan`, calling `emit` for each sample produced.
     /// Returns the number of samples produced.
     pub fn push_scan(&mut self, scan: &Scan, mut emit: impl FnMut(Sample)) -> usize {
+        self.set_period_hint(scan.timing().period_ns);
         let mut n = 0;
         for ray in scan.rays() {
             if let Some(s) = self.push_ray(ray) {
@@ -365,11 +389,21 @@ impl SignatureProcessor {
         }
         self.last_ray_t = Some(ray.t_ns);
 
+        // a pass longer than the window's share of a revolution means the
+        // data holds no ray outside the window (e.g. a sector-only recording):
+        // the beam has come round again, so close the pass first
+        let mut closed = None;
+        let limit = self.pass_limit_ns();
+        if self.in_pass && limit > 0 && ray.t_ns.saturating_sub(self.pass_start_t) > limit {
+            closed = self.close_pass();
+        }
+
         if self.in_window(ray.bearing_rad) {
             if !self.in_pass {
                 self.in_pass = true;
                 self.pass_partial = after_gap;
                 self.pass_overflow = false;
+                self.pass_start_t = ray.t_ns;
             }
             if self.usable(ray) {
                 if self.ranges.len() < self.cfg.max_window_rays {
@@ -381,11 +415,11 @@ impl SignatureProcessor {
             } else {
                 self.counters.invalid_returns += 1;
             }
-            None
+            closed
         } else if self.in_pass {
             self.close_pass()
         } else {
-            None
+            closed
         }
     }
 
@@ -632,6 +666,36 @@ mod tests {
         // bearing +90 deg is reached after 3/4 of a clockwise turn
         assert_eq!(out[0].t_ns, 3 * PERIOD / 4 + PERIOD / 2);
         assert!((out[0].value - 10.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn sector_only_scans_still_close_passes() {
+        let cfg = SignatureConfig {
+            window_centre_rad: PI / 2.0,
+            ..Default::default()
+        };
+        let scans: Vec<_> = (0..5)
+            .map(|k| {
+                let rays = (86..=94)
+                    .map(|i| Ray::new((i as f64).to_radians(), 1.0 + 0.1 * k as f64, 0.0, true))
+                    .collect();
+                let timing = ScanTiming {
+                    start_ns: k * PERIOD,
+                    period_ns: PERIOD,
+                    rotation: Rotation::Ccw,
+                    start_bearing_rad: 0.0,
+                };
+                Scan::from_uniform(timing, rays)
+            })
+            .collect();
+        let (out, p) = run(cfg, &scans);
+        // passes close when the next scan's window rays arrive; the first
+        // one began with the stream (partial): 3 distances, 2 samples
+        assert_eq!(p.counters().dropped(DropReason::Partial), 1);
+        assert_eq!(p.counters().measurements, 3, "{:?}", p.counters());
+        assert_eq!(out.len(), 2);
+        assert!((out[0].value - 1.0).abs() < 1e-9);
+        assert_eq!(out[0].t_ns, PERIOD + PERIOD / 4 + PERIOD / 2);
     }
 
     #[test]
