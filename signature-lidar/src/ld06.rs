@@ -944,6 +944,28 @@ mod tests {
         }
 
         #[test]
+        fn device_clock_scans_independent_of_chunking(cuts in proptest::collection::vec(0usize..47 * 120, 0..16)) {
+            let s = stream(120);
+            let cfg = Ld06Config { clock: Ld06Clock::Device, ..Default::default() };
+            let mut whole = Vec::new();
+            let mut p = Ld06Parser::new(cfg);
+            p.push(&s, 0, |sc| whole.push(sc.clone()));
+            p.finish(|sc| whole.push(sc.clone()));
+            let mut cuts = cuts;
+            cuts.sort_unstable();
+            let mut parts = Vec::new();
+            let mut p2 = Ld06Parser::new(cfg);
+            let mut prev = 0;
+            for c in cuts.into_iter().chain(std::iter::once(s.len())) {
+                p2.push(&s[prev..c], 0, |sc| parts.push(sc.clone()));
+                prev = c;
+            }
+            p2.finish(|sc| parts.push(sc.clone()));
+            prop_assert_eq!(whole.len(), 4); // 1152 deg: 3 full turns and a partial one
+            prop_assert_eq!(whole, parts);
+        }
+
+        #[test]
         fn garbage_between_packets_keeps_all_packets(gap in proptest::collection::vec(any::<u8>().prop_filter("no header", |b| *b != HEADER), 0..60)) {
             let s = stream(6);
             let mut v = Vec::new();

@@ -457,7 +457,7 @@ impl SignatureProcessor {
         let distance_m = median_in_place(&mut self.ranges);
         // times are in push order, which is time order
         let (a, b) = (self.times[(n - 1) / 2], self.times[n / 2]);
-        let t_ns = a + (b - a) / 2;
+        let t_ns = midpoint(a, b);
         self.ranges.clear();
         self.times.clear();
         let m = Measurement {
@@ -475,19 +475,25 @@ impl SignatureProcessor {
             self.drop_reason(DropReason::NonIncreasingTime);
             return None;
         }
-        let dt = m.t_ns - prev.t_ns;
+        // saturates for absurd inputs; a saturated interval is a gap
+        let dt = m.t_ns.saturating_sub(prev.t_ns);
         if dt > self.cfg.max_gap_ns {
             self.drop_reason(DropReason::Gap);
             return None;
         }
         let value = (m.distance_m - prev.distance_m) / (dt as f64 / NANOS_PER_SEC as f64);
         let t_ns = match self.cfg.stamping {
-            Stamping::Midpoint => prev.t_ns + dt / 2,
+            Stamping::Midpoint => midpoint(prev.t_ns, m.t_ns),
             Stamping::End => m.t_ns,
         };
         self.counters.samples += 1;
         Some(Sample::new(t_ns, value))
     }
+}
+
+/// `(a + b) / 2` without overflow (rounded towards `a` for odd sums, i.e. down when `a <= b`).
+fn midpoint(a: Nanos, b: Nanos) -> Nanos {
+    ((a as i128 + b as i128).div_euclid(2)) as Nanos
 }
 
 /// Median of a non-empty slice of finite values (reorders the slice);
@@ -754,6 +760,20 @@ mod tests {
             for (b, r, v, dt) in rays {
                 t += dt / 10;
                 if let Some(s) = p.push_ray(&Ray::timed(b, r, 0.0, v, t)) {
+                    prop_assert!(s.value.is_finite());
+                }
+            }
+        }
+
+        #[test]
+        fn extreme_times_never_panic(ts in proptest::collection::vec(any::<i64>(), 0..60), gap in 1i64..i64::MAX) {
+            let mut p = SignatureProcessor::new(SignatureConfig { max_gap_ns: gap, min_valid_rays: 1, ..Default::default() }).unwrap();
+            p.set_period_hint(i64::MAX);
+            let mut sorted = ts;
+            sorted.sort_unstable();
+            for (i, t) in sorted.into_iter().enumerate() {
+                let b = if i % 2 == 0 { 0.0 } else { 2.0 };
+                if let Some(s) = p.push_ray(&Ray::timed(b, 1.0 + i as f64, 0.0, true, t)) {
                     prop_assert!(s.value.is_finite());
                 }
             }
