@@ -1,2 +1,184 @@
-//! See Cargo.toml description.
+//! Helpers of the multi-process integration tests: the workspace binaries
+//! (built once per test run with the same profile as the tests), and a rig
+//! that runs `vlsyncd run` and both drivers on a unique prefix.
 #![forbid(unsafe_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+use vlsync_common::{Estimate, Stream};
+use vlsync_ipc::{monotonic_ns, OffsetClient};
+pub use vlsyncd::runtime::procs::{cpu_seconds, ipc_resources, Managed};
+
+/// `target/<profile>` of the running test executable.
+fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test>-<hash>
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("test executable lives in target/<profile>/deps")
+        .to_path_buf()
+}
+
+/// Path of workspace binary `name`, building every vlsync binary once first.
+pub fn bin(name: &str) -> PathBuf {
+    static BUILT: OnceLock<Result<(), String>> = OnceLock::new();
+    let dir = profile_dir();
+    let built = BUILT.get_or_init(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut cmd = Command::new(cargo);
+        cmd.current_dir(&workspace).args([
+            "build",
+            "--bins",
+            "-p",
+            "vlsyncd",
+            "-p",
+            "vlsync-ipc",
+            "-p",
+            "vlsync-signature-cam",
+            "-p",
+            "vlsync-signature-lidar",
+        ]);
+        if dir.file_name().is_some_and(|n| n == "release") {
+            cmd.arg("--release");
+        }
+        // the binaries must land next to this test's profile directory
+        if let Some(target) = dir.parent() {
+            cmd.env("CARGO_TARGET_DIR", target);
+        }
+        match cmd.status() {
+            Ok(s) if s.success() => Ok(()),
+            Ok(s) => Err(format!("cargo build --bins failed: {s}")),
+            Err(e) => Err(format!("cannot run cargo: {e}")),
+        }
+    });
+    if let Err(e) = built {
+        panic!("{e}");
+    }
+    let p = dir.join(name);
+    assert!(p.is_file(), "binary {} missing after build", p.display());
+    p
+}
+
+/// Daemon + drivers on one prefix, with the simulated truth.
+pub struct Rig {
+    /// Unique prefix.
+    pub prefix: String,
+    /// Simulated family name.
+    pub family: &'static str,
+    /// Seed.
+    pub seed: u64,
+    /// Simulated seconds.
+    pub duration: f64,
+    /// Speed factor.
+    pub speed: f64,
+    /// Common driver start instant (CLOCK_MONOTONIC ns).
+    pub start_at: i64,
+    /// The run the drivers replay.
+    pub sim: vlsync_sim::SimRun,
+    /// Log directory.
+    pub logs: PathBuf,
+}
+
+impl Rig {
+    /// A rig for `family`/`seed`, `duration` simulated seconds at `speed`x.
+    pub fn new(tag: &str, family: &'static str, seed: u64, duration: f64, speed: f64) -> Self {
+        let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
+        let fam: vlsync_sim::Family = family.parse().expect("family");
+        let logs = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&logs).expect("log dir");
+        // build first: the common start instant must lie ahead of the drivers' start
+        bin("vlsyncd");
+        Self {
+            prefix,
+            family,
+            seed,
+            duration,
+            speed,
+            start_at: monotonic_ns() + 1_500_000_000,
+            sim: vlsync_sim::generate(fam, seed, Some(duration)),
+            logs,
+        }
+    }
+
+    /// Starts `vlsyncd run` on the prefix (log file `vlsyncd-<n>.log`).
+    pub fn daemon(&self, n: u32) -> Managed {
+        Managed::spawn(
+            "vlsyncd",
+            &bin("vlsyncd"),
+            &["run".into(), "--prefix".into(), self.prefix.clone()],
+            Some(&self.logs.join(format!("vlsyncd-{n}.log"))),
+        )
+        .expect("spawn vlsyncd")
+    }
+
+    /// Starts the driver of `stream` on the common schedule.
+    pub fn driver(&self, stream: Stream, n: u32) -> Managed {
+        let name = format!("vlsync-{stream}");
+        let args: Vec<String> = vec![
+            "--prefix".into(),
+            self.prefix.clone(),
+            "--sim".into(),
+            self.family.into(),
+            "--seed".into(),
+            self.seed.to_string(),
+            "--duration".into(),
+            self.duration.to_string(),
+            "--speed".into(),
+            self.speed.to_string(),
+            "--start-at".into(),
+            self.start_at.to_string(),
+        ];
+        Managed::spawn(
+            &name,
+            &bin(&name),
+            &args,
+            Some(&self.logs.join(format!("{name}-{n}.log"))),
+        )
+        .expect("spawn driver")
+    }
+
+    /// Simulated time the drivers are at now, ns (sensor clock, approximately).
+    pub fn sim_now_ns(&self) -> i64 {
+        let anchor = self.sim.cam[0].t_ns.min(self.sim.lidar[0].t_ns);
+        anchor + ((monotonic_ns() - self.start_at) as f64 * self.speed) as i64
+    }
+
+    /// Wall time until the drivers finish, from now.
+    pub fn remaining(&self) -> Duration {
+        let end = self.start_at + (self.duration / self.speed * 1e9) as i64;
+        Duration::from_nanos((end - monotonic_ns()).max(0) as u64)
+    }
+
+    /// Contents of a log file, for failure messages.
+    pub fn log(&self, file: &str) -> String {
+        std::fs::read_to_string(self.logs.join(file)).unwrap_or_default()
+    }
+}
+
+/// Collects every estimate arriving within `wall`.
+pub fn collect(client: &mut OffsetClient, wall: Duration) -> Vec<Estimate> {
+    let t0 = Instant::now();
+    let mut out = vec![];
+    while t0.elapsed() < wall {
+        if let Ok(Some(e)) = client.wait_next(Duration::from_millis(100)) {
+            out.push(e);
+        }
+    }
+    out
+}
+
+/// |estimate - truth| of the locked (tracking/holding) estimates, seconds.
+pub fn locked_errors(est: &[Estimate], sim: &vlsync_sim::SimRun) -> Vec<f64> {
+    est.iter()
+        .filter(|e| {
+            matches!(
+                e.state,
+                vlsync_common::EstimatorState::Tracking | vlsync_common::EstimatorState::Holding
+            )
+        })
+        .map(|e| (e.offset_s - sim.truth.offset_at(e.t_ref_ns)).abs())
+        .collect()
+}
