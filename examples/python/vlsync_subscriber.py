@@ -1,0 +1,157 @@
+#!/usr/bin/env python3
+"""Subscribe to the vlsync daemon's offset estimates from Python.
+
+Uses the official iceoryx2 Python package (see requirements.txt; the version
+must equal the Rust side's). `OffsetEstimate` mirrors the `#[repr(C)]` Rust
+type `vlsync_common::wire::OffsetEstimate` field by field and carries the same
+iceoryx2 type name, so iceoryx2 refuses to connect if the layouts diverge.
+
+    python3 vlsync_subscriber.py --prefix vlsync/robot [--count N] [--timeout S] [--json]
+
+Every field read from shared memory is validated (state and polarity codes,
+finite offset/drift/deviations); invalid samples are counted and skipped.
+Exit status: 0 after --count valid estimates (or Ctrl-C), 1 on timeout, 2 on error.
+"""
+
+import argparse
+import ctypes
+import json
+import math
+import sys
+import time
+
+import iceoryx2 as iox2
+
+STATES = {0: "acquiring", 1: "tracking", 2: "holding", 3: "lost"}
+POLARITIES = {0: "unknown", 1: "positive", -1: "negative"}
+
+
+class OffsetEstimate(ctypes.Structure):
+    """Layout of vlsync.OffsetEstimate.v1: 88 bytes, alignment 8."""
+
+    _fields_ = [
+        ("seq", ctypes.c_uint64),  # 0
+        ("t_ref_ns", ctypes.c_int64),  # 8
+        ("offset_s", ctypes.c_double),  # 16
+        ("drift", ctypes.c_double),  # 24
+        ("offset_std_s", ctypes.c_double),  # 32
+        ("drift_std", ctypes.c_double),  # 40
+        ("peak_score", ctypes.c_double),  # 48
+        ("peak_ratio", ctypes.c_double),  # 56
+        ("measured_offset_s", ctypes.c_double),  # 64
+        ("publish_ns", ctypes.c_int64),  # 72
+        ("state", ctypes.c_uint8),  # 80
+        ("polarity", ctypes.c_int8),  # 81
+        ("reserved", ctypes.c_uint8 * 6),  # 82
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        """The iceoryx2 type name, identical to the Rust `#[type_name]`."""
+        return "vlsync.OffsetEstimate.v1"
+
+
+assert ctypes.sizeof(OffsetEstimate) == 88
+assert ctypes.alignment(OffsetEstimate) == 8
+assert OffsetEstimate.state.offset == 80 and OffsetEstimate.publish_ns.offset == 72
+
+
+def validate(e: OffsetEstimate) -> dict:
+    """Returns the estimate as a dict, or raises ValueError naming the bad field."""
+    if e.state not in STATES:
+        raise ValueError(f"unknown state code {e.state}")
+    if e.polarity not in POLARITIES:
+        raise ValueError(f"unknown polarity code {e.polarity}")
+    for name in ("offset_s", "drift", "offset_std_s", "drift_std", "peak_score"):
+        if not math.isfinite(getattr(e, name)):
+            raise ValueError(f"field {name} is not finite")
+    if e.offset_std_s < 0 or e.drift_std < 0:
+        raise ValueError("negative standard deviation")
+    if any(e.reserved):
+        raise ValueError("reserved bytes are not zero")
+    return {
+        "seq": e.seq,
+        "t_ref_ns": e.t_ref_ns,
+        "offset_s": e.offset_s,
+        "drift": e.drift,
+        "offset_std_s": e.offset_std_s,
+        "drift_std": e.drift_std,
+        "state": STATES[e.state],
+        "polarity": POLARITIES[e.polarity],
+        "peak_score": e.peak_score,
+        "publish_ns": e.publish_ns,
+    }
+
+
+def open_service(node, name, attempts=50):
+    """Opens (or creates) the offset services; retries while another process sets them up."""
+    last = None
+    for _ in range(attempts):
+        try:
+            pubsub = (
+                node.service_builder(iox2.ServiceName.new(name))
+                .publish_subscribe(OffsetEstimate)
+                .open_or_create()
+            )
+            event = node.service_builder(iox2.ServiceName.new(name)).event().open_or_create()
+            return pubsub, event
+        except Exception as err:  # iceoryx2 raises typed errors; retry transient ones
+            last = err
+            time.sleep(0.02)
+    raise RuntimeError(f"cannot open service {name!r}: {last!r}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--prefix", default="vlsync/robot")
+    ap.add_argument("--count", type=int, default=0, help="exit after N estimates (0: run until Ctrl-C)")
+    ap.add_argument("--timeout", type=float, default=0.0, help="fail if no estimate for S seconds (0: never)")
+    ap.add_argument("--json", action="store_true", help="one JSON object per line")
+    args = ap.parse_args()
+
+    iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
+    node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+    name = f"{args.prefix}/offset"
+    pubsub, event = open_service(node, name)
+    subscriber = pubsub.subscriber_builder().create()
+    listener = event.listener_builder().create()
+
+    got = invalid = 0
+    last_seen = time.monotonic()
+    try:
+        while args.count == 0 or got < args.count:
+            # sleep until the daemon notifies (or 200 ms pass)
+            listener.timed_wait(iox2.Duration.from_millis(200))
+            while True:
+                sample = subscriber.receive()
+                if sample is None:
+                    break
+                try:
+                    e = validate(sample.payload().contents)
+                except ValueError as err:
+                    invalid += 1
+                    print(f"vlsync_subscriber: skipped invalid estimate: {err}", file=sys.stderr)
+                    continue
+                got += 1
+                last_seen = time.monotonic()
+                if args.json:
+                    print(json.dumps(e), flush=True)
+                else:
+                    print(
+                        f"#{e['seq']:<6} t_ref {e['t_ref_ns'] * 1e-9:12.3f} s  "
+                        f"offset {e['offset_s'] * 1e3:+9.3f} ms ± {e['offset_std_s'] * 1e3:7.3f} ms  "
+                        f"drift {e['drift'] * 1e6:+8.2f} ppm  {e['state']}",
+                        flush=True,
+                    )
+                if args.count and got >= args.count:
+                    break
+            if args.timeout and time.monotonic() - last_seen > args.timeout:
+                print(f"vlsync_subscriber: no estimate on {name} for {args.timeout} s", file=sys.stderr)
+                return 1
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+//! The Python subscriber (official iceoryx2 package) reads the live daemon's
+//! estimates through the same type name and layout as the Rust side.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+use vlsync_common::Stream;
+use vlsync_tests::Rig;
+
+fn python_has_iceoryx2() -> bool {
+    Command::new("python3")
+        .args(["-c", "import iceoryx2"])
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+#[test]
+fn python_subscriber_reads_live_estimates() {
+    if !python_has_iceoryx2() {
+        eprintln!(
+            "SKIPPED python_subscriber_reads_live_estimates: python3 cannot import iceoryx2 \
+             (pip install -r examples/python/requirements.txt)"
+        );
+        return;
+    }
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/vlsync_subscriber.py");
+    let rig = Rig::new("python", "robot", 3, 40.0, 5.0);
+    let mut daemon = rig.daemon(0);
+    let mut cam = rig.driver(Stream::Cam, 0);
+    let mut lidar = rig.driver(Stream::Lidar, 0);
+    let out = Command::new("timeout")
+        .args(["30", "python3"])
+        .arg(&script)
+        .args([
+            "--prefix",
+            &rig.prefix,
+            "--count",
+            "5",
+            "--timeout",
+            "10",
+            "--json",
+        ])
+        .output()
+        .expect("run python3");
+    assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
+    assert!(daemon.stop(Duration::from_secs(3)));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "python subscriber failed ({}):\n{stdout}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 5, "{stdout}");
+    let mut last_seq = None;
+    for l in lines {
+        assert!(
+            l.starts_with('{') && l.contains("\"offset_s\"") && l.contains("\"state\""),
+            "{l}"
+        );
+        let seq: u64 = l
+            .split("\"seq\": ")
+            .nth(1)
+            .and_then(|r| r.split(',').next())
+            .and_then(|n| n.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no seq in {l}"));
+        if let Some(p) = last_seq {
+            assert!(seq > p, "sequence not increasing: {p} then {seq}");
+        }
+        last_seq = Some(seq);
+    }
+}
