@@ -496,6 +496,12 @@ impl Estimator {
             let t_ref = b * self.p.dt_ns - self.group_delay_ns;
             let t = self.rel(t_ref);
             self.blind(t);
+            // a silent sensor (not just a still robot) may come back with another
+            // latency: after two windows without data, re-acquire instead of holding
+            if self.mode == Mode::Locked && t - self.last_meas_t > 2.0 * self.p.window_s {
+                self.mode = Mode::Acquire;
+                self.acq = Streak::default();
+            }
             let st = self.current_state(false);
             self.emit(t_ref, st, None, 0.0, 0.0);
             b += hl;
