@@ -208,10 +208,22 @@ pub fn cleanup_dead_nodes(node: &IpcNode) -> (u64, u64) {
     (s.cleanups, s.failed_cleanups)
 }
 
-/// True when SIGINT or SIGTERM arrived (iceoryx2's handler, installed by a node
-/// created with `handle_signals`).
+/// True once SIGINT or SIGTERM arrived (iceoryx2's handler, installed by a node
+/// created with `handle_signals`), and from then on.
+///
+/// iceoryx2's `SignalHandler::termination_requested` consumes the signal (the
+/// first caller sees it, later ones do not); this wrapper latches it so every
+/// thread and loop of the process sees the request.
 pub fn termination_requested() -> bool {
-    iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
+    static LATCHED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    if LATCHED.load(std::sync::atomic::Ordering::Relaxed) {
+        return true;
+    }
+    let now = iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
+    if now {
+        LATCHED.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+    now
 }
 
 /// Now on `CLOCK_MONOTONIC`, ns (the clock of every `publish_ns` field).
