@@ -144,8 +144,10 @@ pub fn rss_kb(pid: u32) -> Result<u64, String> {
         .ok_or_else(|| format!("{path}: no VmRSS line"))
 }
 
-/// Names in `/dev/shm` and iceoryx2's directory (`/tmp/iceoryx2`), sorted: what a
-/// clean shutdown must leave as it found it.
+/// Files in `/dev/shm` and iceoryx2's directory (`/tmp/iceoryx2`), sorted: what a
+/// clean shutdown must leave as it found it. iceoryx2's global management
+/// segment (`*.global_mgmt`) is left out: iceoryx2 creates it with the first
+/// node on the machine and keeps it by design (it holds no service).
 pub fn ipc_resources() -> Vec<String> {
     let mut out = vec![];
     for dir in ["/dev/shm", "/tmp/iceoryx2"] {
@@ -156,7 +158,7 @@ pub fn ipc_resources() -> Vec<String> {
                     let p = e.path();
                     if p.is_dir() {
                         stack.push(p);
-                    } else {
+                    } else if !p.to_string_lossy().ends_with(".global_mgmt") {
                         out.push(p.display().to_string());
                     }
                 }
