@@ -110,7 +110,7 @@ fn bench(c: &mut Criterion) {
         // incremental: warm a correlator, then measure one hop (hop samples + block combine)
         let mut corr = Correlator::new(n_lags, -half, hop, wb, 4, 8192);
         let mut k = 0i64;
-        let mut feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
+        let feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
             for _ in 0..n {
                 corr.push_cam(*k, sig(*k));
                 corr.push_lidar(*k, sig(*k - 12));

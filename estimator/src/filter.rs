@@ -105,7 +105,7 @@ impl BandPass {
             let mut y = x;
             if let Some(hp) = &mut self.hp {
                 hp.settle(y);
-                y = hp.dc_gain() * y;
+                y *= hp.dc_gain();
             }
             self.lp.settle(y);
         }

@@ -570,11 +570,11 @@ impl Estimator {
         let v = [w.var_y(slot), w.var_x()];
         let decay = (-self.p.hop_s / MOTION_REF_TAU_S).exp();
         let mut ok = true;
-        for i in 0..2 {
+        for (r, &vi) in self.motion_ref.iter_mut().zip(v.iter()) {
             if update_ref {
-                self.motion_ref[i] = (self.motion_ref[i] * decay).max(v[i]);
+                *r = (*r * decay).max(vi);
             }
-            if !(v[i] > 0.0 && v[i] >= self.p.min_motion * self.motion_ref[i]) {
+            if !(vi > 0.0 && vi >= self.p.min_motion * *r) {
                 ok = false;
             }
         }

@@ -39,8 +39,8 @@ pub fn find(sums: &Sums, lo: usize, hi: usize, sign: f64, scratch: &mut [f64]) -
     };
     let mut best: Option<(usize, f64, f64)> = None; // slot, value, sign
     for &sg in signs {
-        for s in lo..=hi {
-            let v = sg * scratch[s];
+        for (s, &r) in scratch.iter().enumerate().take(hi + 1).skip(lo) {
+            let v = sg * r;
             if best.is_none_or(|(_, bv, _)| v > bv) {
                 best = Some((s, v, sg));
             }

@@ -42,12 +42,14 @@ fn push_and_poll_allocate_nothing() {
     let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(90.0));
     let steps =
         vlsync_sim::families::generate(vlsync_sim::families::Family::LoadSteps, 3, Some(60.0));
-    for cfg in [EstimatorConfig::default(), {
-        let mut c = EstimatorConfig::default();
-        c.max_lag_s = 2.0;
-        c.window_s = 12.0;
-        c
-    }] {
+    for cfg in [
+        EstimatorConfig::default(),
+        EstimatorConfig {
+            max_lag_s: 2.0,
+            window_s: 12.0,
+            ..EstimatorConfig::default()
+        },
+    ] {
         let mut est = Estimator::new(&cfg);
         let mut n_est = 0usize;
         ARMED.store(true, Ordering::SeqCst);
