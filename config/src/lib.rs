@@ -127,7 +127,7 @@ impl Default for EstimatorConfig {
             initial_drift_std: 2e-4,
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
-            step_gate_sigma: 2.5,
+            step_gate_sigma: 3.0,
             step_confirm: 2,
             lost_std_s: 0.05,
         }

@@ -305,6 +305,11 @@ impl Correlator {
         self.count
     }
 
+    /// Blocks in the window when it is full.
+    pub fn window_blocks(&self) -> usize {
+        self.window_blocks
+    }
+
     /// Blocks in the short window when it is full.
     pub fn short_blocks(&self) -> usize {
         self.short_blocks

@@ -82,12 +82,8 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
-/// Weight of the newest normalised innovation in its running average.
-const FADING_ALPHA: f64 = 0.3;
-/// |average normalised innovation| above which the filter forgets faster.
-const FADING_THRESHOLD: f64 = 1.0;
-/// Covariance inflation per hop while the innovations stay biased.
-const FADING_FACTOR: f64 = 1.5;
+/// Normalised innovation beyond which a measurement's weight falls (Huber).
+const HUBER_K: f64 = 1.5;
 /// Time constant of the decay of each stream's "typical motion" variance, seconds.
 const MOTION_REF_TAU_S: f64 = 120.0;
 /// Floor of the measurement standard deviation (stamp jitter, interpolation), seconds.
@@ -249,9 +245,6 @@ pub struct Estimator {
     /// Per stream: the other stream's newest accepted time when this stream's newest
     /// sample was accepted (tells a silence from a clock step).
     other_at_last: [Option<Nanos>; 2],
-    /// Exponential average of normalised innovations: a persistent bias means the
-    /// model lags the data (a ramp or step), and the filter then forgets faster.
-    innov_avg: f64,
     last_meas_t: f64,
     degraded: bool,
     queue: Queue,
@@ -309,7 +302,6 @@ impl Estimator {
             step: Streak::default(),
             motion_ref: [0.0; 2],
             other_at_last: [None; 2],
-            innov_avg: 0.0,
             last_meas_t: f64::NEG_INFINITY,
             degraded: false,
             queue: Queue {
@@ -671,7 +663,6 @@ impl Estimator {
         self.kf.x[1] = drift;
         self.mode = Mode::Locked;
         self.ever_locked = true;
-        self.innov_avg = 0.0;
         self.polarity = if m.sign > 0.0 {
             Polarity::Positive
         } else {
@@ -712,7 +703,9 @@ impl Estimator {
         // mode, restrict the work to the tracking range
         let pred_slot = self.kf.x[0] * self.p.fs - self.corr.lag0() as f64;
         let mid = (self.corr.n_lags() / 2) as f64;
-        if (pred_slot - mid).abs() > mid / 2.0 {
+        // re-centre only when the tracking range nears the edge of the lag range:
+        // every re-centre empties the window
+        if (pred_slot - mid).abs() > mid - 2.0 * self.p.track_slots {
             let lag = (self.kf.x[0] * self.p.fs).round() as i64;
             self.corr.set_lag0(lag - self.p.half_lags);
             self.emit(t_ref_ns, EstimatorState::Holding, None, 0.0, 0.0);
@@ -787,14 +780,33 @@ impl Estimator {
         let overlap = (n / self.p.hop_len as f64).max(1.0);
         let hph = self.kf.var_at_lag(h);
         let norm = (m.z - self.kf.offset_at(t - h)) / (hph + m.var).sqrt();
-        if norm.is_finite() && norm.abs() <= self.p.gate {
-            self.innov_avg += FADING_ALPHA * (norm - self.innov_avg);
-            if self.innov_avg.abs() > FADING_THRESHOLD {
-                // fading memory: inflate the covariance so recent data dominate
-                self.kf.p *= FADING_FACTOR;
-            }
+        // one window that knows more than the filter (the window is still growing
+        // after a lock or a step) replaces the filter's offset instead of being fused
+        let growing = self.corr.blocks_in_window() < self.corr.window_blocks();
+        if growing && m.var < self.kf.var_at_lag(h) && norm.abs() <= self.p.gate {
+            self.kf.reset_offset(m.z + self.kf.x[1] * h, m.var);
+            self.stats.measurements += 1;
+            self.last_meas_t = t;
+            self.emit(
+                t_ref_ns,
+                EstimatorState::Tracking,
+                Some(m.z),
+                m.score,
+                m.ratio,
+            );
+            return;
         }
-        match self.kf.update(m.z, h, m.var * overlap, m.var, self.p.gate) {
+        // Huber weighting: a measurement far from the prediction (a signature
+        // mismatch, e.g. rotation seen by the camera only) counts for less
+        let huber = if norm.abs() > HUBER_K {
+            (norm.abs() / HUBER_K).powi(2)
+        } else {
+            1.0
+        };
+        match self
+            .kf
+            .update(m.z, h, m.var * overlap * huber, m.var, self.p.gate)
+        {
             Update::Accepted => {
                 self.stats.measurements += 1;
                 self.last_meas_t = t;
