@@ -221,6 +221,8 @@ pub struct Estimate {
     /// Sequence number, starting at 0, +1 per estimate.
     pub seq: u64,
     /// Reference time on the LiDAR clock (ns): the estimate is the offset at this instant.
+    /// It is the centre of the correlation window, so it lags the newest data by about
+    /// half a window plus the lag range; use [`Estimate::offset_at`] to extrapolate.
     pub t_ref_ns: Nanos,
     /// `t_L - t_C` at `t_ref_ns`, seconds.
     pub offset_s: f64,

@@ -234,6 +234,7 @@ pub struct Estimator {
     corr: Correlator,
     scratch: Vec<f64>,
     group_delay_ns: Nanos,
+    half_window_ns: Nanos,
     mode: Mode,
     ever_locked: bool,
     kf: Tracker,
@@ -293,6 +294,7 @@ impl Estimator {
             corr,
             scratch: vec![0.0; n_lags],
             group_delay_ns,
+            half_window_ns: (p.window_s * 0.5e9) as Nanos,
             mode: Mode::Acquire,
             ever_locked: false,
             kf: Tracker::new(0.0, cfg.lag_center_s, p.max_lag_s.powi(2), p.drift0),
@@ -485,7 +487,8 @@ impl Estimator {
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
         while b <= target {
-            let t_ref = b * self.p.dt_ns - self.group_delay_ns;
+            // blind estimates refer to where a full window's centre would be
+            let t_ref = b * self.p.dt_ns - self.group_delay_ns - self.half_window_ns;
             let t = self.rel(t_ref);
             self.blind(t);
             // a silent sensor (not just a still robot) may come back with another
@@ -605,10 +608,11 @@ impl Estimator {
             let w = self.corr.long();
             (w.first_k, w.last_k, w.n)
         };
-        let dt = self.p.dt_ns;
-        let t_ref_ns = last_k * dt - self.group_delay_ns;
+        // an estimate refers to the centre of its window: the correlation measures
+        // the window's average offset, so no drift extrapolation enters it
+        let t_ref_ns = self.window_centre_ns(first_k, last_k);
         let t = self.rel(t_ref_ns);
-        let h = (last_k - first_k) as f64 * 0.5 * self.p.dt_s;
+        let h = 0.0;
         let motion = self.motion_ok(n >= self.p.min_n);
         if n < self.p.min_n {
             self.blind(t);
@@ -620,6 +624,12 @@ impl Estimator {
             Mode::Acquire => self.hop_acquire(t_ref_ns, t, h, motion),
             Mode::Locked => self.hop_track(t_ref_ns, t, h, motion),
         }
+    }
+
+    /// LiDAR time of the centre of the window covering grid indices `first..=last`,
+    /// corrected for the band-pass delay.
+    fn window_centre_ns(&self, first: i64, last: i64) -> Nanos {
+        (first + last) * self.p.dt_ns / 2 - self.group_delay_ns
     }
 
     fn hop_acquire(&mut self, t_ref_ns: Nanos, t: f64, h: f64, motion: bool) {
@@ -725,7 +735,9 @@ impl Estimator {
         let short_full = self.corr.blocks_in_window() > self.corr.short_blocks();
         if short_full && motion {
             let (s_first, s_last) = (self.corr.short().first_k, self.corr.short().last_k);
-            let hs = (s_last - s_first) as f64 * 0.5 * self.p.dt_s;
+            // the short window's centre is later than the long one's: hs < 0
+            let t_s_ns = self.window_centre_ns(s_first, s_last);
+            let hs = t - self.rel(t_s_ns);
             let pred_s = self.kf.offset_at(t - hs);
             let (lo, hi) = self.track_slots(pred_s);
             match self.measure(Window::Short, lo, hi, sign) {
