@@ -402,18 +402,12 @@ impl Correlator {
         self.cur.sx += x;
         self.cur.sxx += x * x;
         let (lo, hi) = self.active;
-        // slot s pairs x with camera index k - lag0 - s: the span, read backwards
+        // slot s pairs x with camera index k - lag0 - s: the span, read backwards.
+        // Only Σxy needs the pair; Σy and Σy² of a block are sliding sums over the
+        // camera ring, filled in once when the block completes.
         let ys = self.cam.span(k - m_hi, k - m_lo);
-        let cur = &mut self.cur;
-        for (((sxy, sy), syy), &y) in cur.xy[lo..=hi]
-            .iter_mut()
-            .zip(cur.y[lo..=hi].iter_mut())
-            .zip(cur.yy[lo..=hi].iter_mut())
-            .zip(ys.iter().rev())
-        {
+        for (sxy, &y) in self.cur.xy[lo..=hi].iter_mut().zip(ys.iter().rev()) {
             *sxy += x * y;
-            *sy += y;
-            *syy += y * y;
         }
         self.cursor = Some(k + 1);
         if (k + 1).rem_euclid(self.hop_len) == 0 {
@@ -424,7 +418,45 @@ impl Correlator {
         }
     }
 
+    /// Σy and Σy² of the current block for every active slot: for slot `s` the
+    /// camera indices `first_k - lag0 - s ..= last_k - lag0 - s`, a window that
+    /// slides by one index per slot. Returns false if the ring no longer holds them.
+    fn fill_y_sums(&mut self) -> bool {
+        let (lo, hi) = self.active;
+        let (k0, k1) = (self.cur.first_k, self.cur.last_k);
+        let a_hi = k0 - self.lag0 - hi as i64;
+        let b_lo = k1 - self.lag0 - lo as i64;
+        if self.cam.get(a_hi).is_none() || self.cam.get(b_lo).is_none() {
+            return false;
+        }
+        let ys = self.cam.span(a_hi, b_lo);
+        let len = (k1 - k0 + 1) as usize;
+        if ys.len() < len + (hi - lo) {
+            return false;
+        }
+        let (mut sy, mut syy) = (0.0, 0.0);
+        for &y in &ys[..len] {
+            sy += y;
+            syy += y * y;
+        }
+        // slot hi covers ys[0..len]; each lower slot shifts the range up by one
+        for (j, s) in (lo..=hi).rev().enumerate() {
+            if j > 0 {
+                let (out, inn) = (ys[j - 1], ys[j - 1 + len]);
+                sy += inn - out;
+                syy += inn * inn - out * out;
+            }
+            self.cur.y[s] = sy;
+            self.cur.yy[s] = syy;
+        }
+        true
+    }
+
     fn complete_block(&mut self) {
+        if !self.fill_y_sums() {
+            self.reset_window();
+            return;
+        }
         let wb = self.window_blocks;
         if self.count == wb {
             // evict the oldest
