@@ -120,7 +120,7 @@ impl Default for EstimatorConfig {
             min_peak_score: 0.4,
             min_peak_ratio: 1.3,
             min_motion_ratio: 0.05,
-            acquire_confirm: 2,
+            acquire_confirm: 4,
             measurement_noise_scale: 1.0,
             offset_process_noise: 2e-4,
             drift_process_noise: 2e-6,

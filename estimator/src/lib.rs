@@ -82,6 +82,10 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
+/// Consecutive mutually consistent long-window deviations that re-lock the filter on them.
+const OUTLIER_RELOCK: u32 = 4;
+/// Normalised innovation counted as a deviation for the re-lock rule.
+const RELOCK_NORM: f64 = 2.5;
 /// Normalised innovation beyond which a measurement's weight falls (Huber).
 const HUBER_K: f64 = 1.5;
 /// Time constant of the decay of each stream's "typical motion" variance, seconds.
@@ -242,6 +246,10 @@ pub struct Estimator {
     polarity: Polarity,
     acq: Streak,
     step: Streak,
+    /// Consecutive long-window outliers.
+    outl: Streak,
+    /// Consecutive hops with motion but no usable peak near the prediction.
+    blind_moving: usize,
     motion_ref: [f64; 2],
     /// Per stream: the other stream's newest accepted time when this stream's newest
     /// sample was accepted (tells a silence from a clock step).
@@ -302,6 +310,8 @@ impl Estimator {
             polarity: Polarity::Unknown,
             acq: Streak::default(),
             step: Streak::default(),
+            outl: Streak::default(),
+            blind_moving: 0,
             motion_ref: [0.0; 2],
             other_at_last: [None; 2],
             last_meas_t: f64::NEG_INFINITY,
@@ -760,7 +770,10 @@ impl Estimator {
                     if self.step.count >= self.p.step_confirm {
                         let short_blocks = self.corr.short_blocks();
                         self.corr.truncate(short_blocks);
-                        self.kf.reset_offset(ms.z + self.kf.x[1] * hs, ms.var);
+                        // the short window's variance is optimistic; keep the step's own
+                        // size as uncertainty so the long window can still correct it
+                        let var = ms.var.max(0.25 * (ms.z - pred_s).powi(2));
+                        self.kf.reset_offset(ms.z + self.kf.x[1] * hs, var);
                         self.step = Streak::default();
                         self.stats.steps += 1;
                         self.stats.measurements += 1;
@@ -783,9 +796,19 @@ impl Estimator {
         let m = self.measure(Window::Long, lo, hi, sign);
         let Some(m) = m.filter(|m| motion && m.score >= self.p.min_score) else {
             let (sc, ra) = m.map_or((0.0, 0.0), |m| (m.score, m.ratio));
+            // moving, yet no peak near the prediction for two windows: the lock is wrong
+            self.blind_moving = if motion { self.blind_moving + 1 } else { 0 };
+            if self.blind_moving >= 2 * self.corr.window_blocks() {
+                self.blind_moving = 0;
+                self.mode = Mode::Acquire;
+                self.acq = Streak::default();
+                self.emit(t_ref_ns, EstimatorState::Lost, m.map(|m| m.z), sc, ra);
+                return;
+            }
             self.emit(t_ref_ns, EstimatorState::Holding, m.map(|m| m.z), sc, ra);
             return;
         };
+        self.blind_moving = 0;
         // overlapping windows reuse each sample window/hop times: inflate R so the
         // filter does not count the same information repeatedly
         let n = self.corr.long().n;
@@ -807,6 +830,37 @@ impl Estimator {
                 m.ratio,
             );
             return;
+        }
+        // deviations that agree with each other are the truth moving (a step the
+        // short window missed, or a wrong reset): re-lock on them
+        if norm.abs() > RELOCK_NORM {
+            let same = self.outl.count > 0
+                && self.outl.sign == norm.signum()
+                && (m.z - self.outl.z).abs() <= 3.0 * (m.var + self.outl.var).sqrt() + 0.002;
+            self.outl = Streak {
+                count: if same { self.outl.count + 1 } else { 1 },
+                z: m.z,
+                var: m.var,
+                sign: norm.signum(),
+            };
+            if self.outl.count >= OUTLIER_RELOCK {
+                self.outl = Streak::default();
+                let var = m.var.max(0.25 * (m.z - self.kf.offset_at(t - h)).powi(2));
+                self.kf.reset_offset(m.z + self.kf.x[1] * h, var);
+                self.stats.steps += 1;
+                self.stats.measurements += 1;
+                self.last_meas_t = t;
+                self.emit(
+                    t_ref_ns,
+                    EstimatorState::Tracking,
+                    Some(m.z),
+                    m.score,
+                    m.ratio,
+                );
+                return;
+            }
+        } else {
+            self.outl = Streak::default();
         }
         // Huber weighting: a measurement far from the prediction (a signature
         // mismatch, e.g. rotation seen by the camera only) counts for less
@@ -832,6 +886,7 @@ impl Estimator {
             }
             Update::Outlier(_) => {
                 self.stats.outliers += 1;
+
                 self.emit(
                     t_ref_ns,
                     EstimatorState::Holding,
