@@ -124,7 +124,7 @@ impl Default for EstimatorConfig {
             measurement_noise_scale: 1.0,
             offset_process_noise: 2e-4,
             drift_process_noise: 2e-6,
-            initial_drift_std: 2e-4,
+            initial_drift_std: 5e-5,
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
             step_gate_sigma: 3.0,

@@ -250,6 +250,9 @@ pub struct Estimator {
     outl: Streak,
     /// Consecutive hops with motion but no usable peak near the prediction.
     blind_moving: usize,
+    /// Since the last lock or re-lock the filter holds one window's information:
+    /// while that window grows, its newest measurement replaces the offset.
+    superseding: bool,
     motion_ref: [f64; 2],
     /// Per stream: the other stream's newest accepted time when this stream's newest
     /// sample was accepted (tells a silence from a clock step).
@@ -312,6 +315,7 @@ impl Estimator {
             step: Streak::default(),
             outl: Streak::default(),
             blind_moving: 0,
+            superseding: false,
             motion_ref: [0.0; 2],
             other_at_last: [None; 2],
             last_meas_t: f64::NEG_INFINITY,
@@ -683,6 +687,7 @@ impl Estimator {
         self.kf.x[1] = drift;
         self.mode = Mode::Locked;
         self.ever_locked = true;
+        self.superseding = true;
         self.polarity = if m.sign > 0.0 {
             Polarity::Positive
         } else {
@@ -774,6 +779,7 @@ impl Estimator {
                         // size as uncertainty so the long window can still correct it
                         let var = ms.var.max(0.25 * (ms.z - pred_s).powi(2));
                         self.kf.reset_offset(ms.z + self.kf.x[1] * hs, var);
+                        self.superseding = true;
                         self.step = Streak::default();
                         self.stats.steps += 1;
                         self.stats.measurements += 1;
@@ -818,7 +824,8 @@ impl Estimator {
         // one window that knows more than the filter (the window is still growing
         // after a lock or a step) replaces the filter's offset instead of being fused
         let growing = self.corr.blocks_in_window() < self.corr.window_blocks();
-        if growing && m.var < self.kf.var_at_lag(h) && norm.abs() <= self.p.gate {
+        self.superseding &= growing;
+        if self.superseding && m.var < self.kf.var_at_lag(h) && norm.abs() <= self.p.gate {
             self.kf.reset_offset(m.z + self.kf.x[1] * h, m.var);
             self.stats.measurements += 1;
             self.last_meas_t = t;
