@@ -128,7 +128,7 @@ impl Default for EstimatorConfig {
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
             step_gate_sigma: 3.0,
-            step_confirm: 2,
+            step_confirm: 3,
             lost_std_s: 0.05,
         }
     }
