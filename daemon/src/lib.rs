@@ -2,5 +2,6 @@
 #![forbid(unsafe_code)]
 
 pub mod bench;
+pub mod plot;
 pub mod replay;
 pub mod runtime;

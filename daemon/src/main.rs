@@ -33,6 +33,12 @@ enum Cmd {
         /// Configuration file (TOML); defaults are used without it.
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Truth CSV (`t,offset` on the LiDAR clock, as `vlsync-sim` writes): prints the error.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// Write an SVG plot of the estimates (and the truth, when given).
+        #[arg(long)]
+        plot: Option<PathBuf>,
     },
     /// Accuracy benchmark: every simulated family over several seeds, against the seed baseline.
     Bench(vlsyncd::bench::BenchArgs),
@@ -48,7 +54,16 @@ fn main() -> ExitCode {
             lidar,
             out,
             config,
-        } => vlsyncd::replay::run_cli(&cam, &lidar, &out, config.as_deref()),
+            truth,
+            plot,
+        } => vlsyncd::replay::run_cli(&vlsyncd::replay::ReplayArgs {
+            cam: &cam,
+            lidar: &lidar,
+            out: &out,
+            config: config.as_deref(),
+            truth: truth.as_deref(),
+            plot: plot.as_deref(),
+        }),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
         Cmd::Run(args) => vlsyncd::runtime::run_cli(&args),
     };

@@ -3,7 +3,7 @@
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
-use vlsync_common::{nanos_to_secs, Estimate, RejectReason, Sample, Stream};
+use vlsync_common::{nanos_to_secs, Estimate, Nanos, RejectReason, Sample, Stream};
 use vlsync_config::{Config, EstimatorConfig};
 use vlsync_estimator::{Estimator, EstimatorStats};
 
@@ -141,24 +141,97 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
     s
 }
 
+/// Arguments of the `replay` command.
+#[derive(Debug, Clone, Copy)]
+pub struct ReplayArgs<'a> {
+    /// Camera signature CSV.
+    pub cam: &'a Path,
+    /// LiDAR signature CSV.
+    pub lidar: &'a Path,
+    /// Output estimates CSV.
+    pub out: &'a Path,
+    /// Configuration file.
+    pub config: Option<&'a Path>,
+    /// Truth CSV (`t,offset`).
+    pub truth: Option<&'a Path>,
+    /// SVG plot to write.
+    pub plot: Option<&'a Path>,
+}
+
+/// Truth offset at `t`, linearly interpolated (clamped at the ends); `None` when empty.
+pub fn truth_at(truth: &[(Nanos, f64)], t: Nanos) -> Option<f64> {
+    let i = truth.partition_point(|p| p.0 <= t);
+    match (i.checked_sub(1).and_then(|j| truth.get(j)), truth.get(i)) {
+        (Some(a), Some(b)) if b.0 > a.0 => {
+            Some(a.1 + (b.1 - a.1) * (t - a.0) as f64 / (b.0 - a.0) as f64)
+        }
+        (Some(a), _) => Some(a.1),
+        (None, Some(b)) => Some(b.1),
+        (None, None) => None,
+    }
+}
+
+/// Error summary of locked estimates (tracking or holding) against a truth table.
+pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
+    let mut errs: Vec<f64> = ests
+        .iter()
+        .filter(|e| {
+            matches!(
+                e.state,
+                vlsync_common::EstimatorState::Tracking | vlsync_common::EstimatorState::Holding
+            )
+        })
+        .filter_map(|e| truth_at(truth, e.t_ref_ns).map(|o| (e.offset_s - o).abs()))
+        .collect();
+    if errs.is_empty() {
+        return "error vs truth: no locked estimate".to_string();
+    }
+    errs.sort_by(f64::total_cmp);
+    let n = errs.len();
+    format!(
+        "error vs truth over {n} locked estimates: MAE {:.3} ms, p95 {:.3} ms, max {:.3} ms, >20 ms {:.1} %",
+        errs.iter().sum::<f64>() / n as f64 * 1e3,
+        errs[(n * 95 / 100).min(n - 1)] * 1e3,
+        errs[n - 1] * 1e3,
+        errs.iter().filter(|e| **e > 0.020).count() as f64 * 100.0 / n as f64
+    )
+}
+
 /// The `replay` command.
-pub fn run_cli(cam: &Path, lidar: &Path, out: &Path, config: Option<&Path>) -> Result<(), String> {
-    let cfg = match config {
+pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
+    let cfg = match a.config {
         Some(p) => Config::load(p).map_err(|e| e.to_string())?,
         None => Config::default(),
     };
-    let (cam_s, _) = vlsync_sim::io::read_signature_csv(cam).map_err(|e| e.to_string())?;
-    let (lidar_s, _) = vlsync_sim::io::read_signature_csv(lidar).map_err(|e| e.to_string())?;
+    let (cam_s, _) = vlsync_sim::io::read_signature_csv(a.cam).map_err(|e| e.to_string())?;
+    let (lidar_s, _) = vlsync_sim::io::read_signature_csv(a.lidar).map_err(|e| e.to_string())?;
+    let truth = match a.truth {
+        Some(p) => Some(vlsync_sim::io::read_truth_csv(p).map_err(|e| e.to_string())?),
+        None => None,
+    };
     let t0 = std::time::Instant::now();
     let (ests, stats) = run_estimator(&cfg.estimator, &cam_s, &lidar_s);
     let elapsed = t0.elapsed();
-    write_estimates(out, &ests)?;
+    write_estimates(a.out, &ests)?;
     eprint!("{}", summary(&stats, &ests, [cam_s.len(), lidar_s.len()]));
+    if let Some(tr) = &truth {
+        eprintln!("{}", error_summary(&ests, tr));
+    }
+    if let Some(p) = a.plot {
+        let title = format!(
+            "vlsyncd replay: {} + {}",
+            a.cam.display(),
+            a.lidar.display()
+        );
+        let svg = crate::plot::offset_svg(&title, &ests, truth.as_deref(), &[]);
+        std::fs::write(p, svg).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+        eprintln!("wrote plot {}", p.display());
+    }
     eprintln!(
         "estimator time: {:.2} ms for {} samples; wrote {}",
         elapsed.as_secs_f64() * 1e3,
         cam_s.len() + lidar_s.len(),
-        out.display()
+        a.out.display()
     );
     Ok(())
 }

@@ -1,0 +1,273 @@
+//! SVG plots of estimates against the truth: what a person looks at first.
+
+use std::fmt::Write as _;
+use vlsync_common::{nanos_to_secs, Estimate, EstimatorState, Nanos};
+
+const W: f64 = 1000.0;
+const H: f64 = 420.0;
+const L: f64 = 70.0;
+const R: f64 = 20.0;
+const T: f64 = 40.0;
+const B: f64 = 50.0;
+
+fn color(s: EstimatorState) -> &'static str {
+    match s {
+        EstimatorState::Tracking => "#1a7f37",
+        EstimatorState::Holding => "#bf8700",
+        EstimatorState::Acquiring => "#8c959f",
+        EstimatorState::Lost => "#cf222e",
+    }
+}
+
+/// A nice tick step for a range.
+fn tick_step(range: f64) -> f64 {
+    let raw = range / 8.0;
+    let mag = 10f64.powf(raw.abs().max(1e-12).log10().floor());
+    let n = raw / mag;
+    mag * if n < 1.5 {
+        1.0
+    } else if n < 3.5 {
+        2.0
+    } else if n < 7.5 {
+        5.0
+    } else {
+        10.0
+    }
+}
+
+/// Offset (ms) against LiDAR time (s): the estimate with its ±2σ band, the raw
+/// correlation measurements, the truth when known, states as coloured marks, and
+/// optional shaded intervals (e.g. load phases) with labels.
+pub fn offset_svg(
+    title: &str,
+    ests: &[Estimate],
+    truth: Option<&[(Nanos, f64)]>,
+    shaded: &[(Nanos, Nanos, String)],
+) -> String {
+    let locked: Vec<&Estimate> = ests
+        .iter()
+        .filter(|e| e.state != EstimatorState::Acquiring && e.offset_s.is_finite())
+        .collect();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(s, r#"<rect width="{W}" height="{H}" fill="white"/>"#);
+    let _ = writeln!(
+        s,
+        r#"<text x="{L}" y="20" font-size="14">{}</text>"#,
+        xml(title)
+    );
+    if locked.is_empty() {
+        let _ = writeln!(
+            s,
+            r#"<text x="{L}" y="{}">no locked estimate</text></svg>"#,
+            H / 2.0
+        );
+        return s;
+    }
+    let t0 = nanos_to_secs(ests.first().map_or(0, |e| e.t_ref_ns));
+    let t1 = nanos_to_secs(ests.last().map_or(0, |e| e.t_ref_ns)).max(t0 + 1.0);
+    let mut ys: Vec<f64> = locked.iter().map(|e| e.offset_s * 1e3).collect();
+    if let Some(tr) = truth {
+        ys.extend(tr.iter().map(|p| p.1 * 1e3));
+    }
+    ys.sort_by(f64::total_cmp);
+    // robust range: ignore the extreme 1 % so one wild estimate cannot flatten the plot
+    let lo_i = ys.len() / 100;
+    let hi_i = ys.len() - 1 - ys.len() / 100;
+    let (mut y0, mut y1) = (ys[lo_i], ys[hi_i]);
+    let pad = ((y1 - y0) * 0.15).max(5.0);
+    y0 -= pad;
+    y1 += pad;
+    let px = |t: f64| L + (t - t0) / (t1 - t0) * (W - L - R);
+    let py = |y: f64| T + (y1 - y.clamp(y0, y1)) / (y1 - y0) * (H - T - B);
+    for (a, b, label) in shaded {
+        let (xa, xb) = (px(nanos_to_secs(*a)), px(nanos_to_secs(*b)));
+        let _ = writeln!(
+            s,
+            r##"<rect x="{xa:.1}" y="{T}" width="{:.1}" height="{}" fill="#ddf4ff"/><text x="{:.1}" y="{}" fill="#0969da">{}</text>"##,
+            (xb - xa).max(0.5),
+            H - T - B,
+            xa + 2.0,
+            T + 12.0,
+            xml(label)
+        );
+    }
+    // grid and axes
+    let ts = tick_step(t1 - t0);
+    let mut t = (t0 / ts).ceil() * ts;
+    while t <= t1 {
+        let x = px(t);
+        let _ = writeln!(
+            s,
+            r##"<line x1="{x:.1}" y1="{T}" x2="{x:.1}" y2="{}" stroke="#eee"/><text x="{x:.1}" y="{}" text-anchor="middle">{t:.0}</text>"##,
+            H - B,
+            H - B + 16.0
+        );
+        t += ts;
+    }
+    let yst = tick_step(y1 - y0);
+    let mut y = (y0 / yst).ceil() * yst;
+    while y <= y1 {
+        let yy = py(y);
+        let _ = writeln!(
+            s,
+            r##"<line x1="{L}" y1="{yy:.1}" x2="{}" y2="{yy:.1}" stroke="#eee"/><text x="{}" y="{:.1}" text-anchor="end">{y:.1}</text>"##,
+            W - R,
+            L - 6.0,
+            yy + 4.0
+        );
+        y += yst;
+    }
+    let _ = writeln!(
+        s,
+        r#"<text x="{}" y="{}" text-anchor="middle">LiDAR time (s)</text><text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">offset t_L - t_C (ms)</text>"#,
+        (L + W - R) / 2.0,
+        H - 12.0,
+        H / 2.0,
+        H / 2.0
+    );
+    // ±2σ band
+    let mut band = String::new();
+    for e in &locked {
+        let _ = write!(
+            band,
+            "{:.1},{:.1} ",
+            px(nanos_to_secs(e.t_ref_ns)),
+            py((e.offset_s + 2.0 * e.offset_std_s) * 1e3)
+        );
+    }
+    for e in locked.iter().rev() {
+        let _ = write!(
+            band,
+            "{:.1},{:.1} ",
+            px(nanos_to_secs(e.t_ref_ns)),
+            py((e.offset_s - 2.0 * e.offset_std_s) * 1e3)
+        );
+    }
+    let _ = writeln!(
+        s,
+        r##"<polygon points="{band}" fill="#54aeff" fill-opacity="0.25"/>"##
+    );
+    // raw measurements
+    for e in ests.iter().filter(|e| e.measured_offset_s.is_finite()) {
+        let _ = writeln!(
+            s,
+            r##"<circle cx="{:.1}" cy="{:.1}" r="1.5" fill="#999"/>"##,
+            px(nanos_to_secs(e.t_ref_ns)),
+            py(e.measured_offset_s * 1e3)
+        );
+    }
+    if let Some(tr) = truth {
+        let pts: String = tr
+            .iter()
+            .filter(|p| {
+                let t = nanos_to_secs(p.0);
+                t >= t0 && t <= t1
+            })
+            .map(|p| format!("{:.1},{:.1} ", px(nanos_to_secs(p.0)), py(p.1 * 1e3)))
+            .collect();
+        let _ = writeln!(
+            s,
+            r#"<polyline points="{pts}" fill="none" stroke="black" stroke-width="1.5"/>"#
+        );
+    }
+    let pts: String = locked
+        .iter()
+        .map(|e| {
+            format!(
+                "{:.1},{:.1} ",
+                px(nanos_to_secs(e.t_ref_ns)),
+                py(e.offset_s * 1e3)
+            )
+        })
+        .collect();
+    let _ = writeln!(
+        s,
+        r##"<polyline points="{pts}" fill="none" stroke="#0969da" stroke-width="1.5"/>"##
+    );
+    for e in ests {
+        let _ = writeln!(
+            s,
+            r#"<rect x="{:.1}" y="{}" width="2" height="6" fill="{}"/>"#,
+            px(nanos_to_secs(e.t_ref_ns)),
+            H - B + 22.0,
+            color(e.state)
+        );
+    }
+    // legend
+    let lx = W - R - 330.0;
+    let _ = writeln!(
+        s,
+        r##"<g transform="translate({lx},{})"><line x1="0" y1="0" x2="18" y2="0" stroke="#0969da" stroke-width="2"/><text x="22" y="4">estimate ±2σ</text><line x1="105" y1="0" x2="123" y2="0" stroke="black" stroke-width="2"/><text x="127" y="4">truth</text><circle cx="175" cy="0" r="2" fill="#999"/><text x="181" y="4">measured</text><rect x="245" y="-4" width="6" height="8" fill="#1a7f37"/><text x="254" y="4">tracking</text></g>"##,
+        T - 10.0
+    );
+    let _ = writeln!(s, "</svg>");
+    s
+}
+
+fn xml(t: &str) -> String {
+    t.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_common::Polarity;
+
+    fn est(t: f64, o: f64, st: EstimatorState) -> Estimate {
+        Estimate {
+            seq: 0,
+            t_ref_ns: (t * 1e9) as i64,
+            offset_s: o,
+            drift: 0.0,
+            offset_std_s: 0.002,
+            drift_std: 0.0,
+            state: st,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: o + 0.001,
+        }
+    }
+
+    #[test]
+    fn plot_has_every_layer_and_escapes_the_title() {
+        let ests: Vec<Estimate> = (0..50)
+            .map(|i| {
+                est(
+                    i as f64,
+                    0.1,
+                    if i < 3 {
+                        EstimatorState::Acquiring
+                    } else {
+                        EstimatorState::Tracking
+                    },
+                )
+            })
+            .collect();
+        let truth: Vec<(Nanos, f64)> = (0..50).map(|i| (i * 1_000_000_000, 0.1)).collect();
+        let svg = offset_svg(
+            "a<b & c",
+            &ests,
+            Some(&truth),
+            &[(10_000_000_000, 20_000_000_000, "load".into())],
+        );
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert!(svg.contains("a&lt;b &amp; c"));
+        assert!(
+            svg.contains("<polygon") && svg.contains("stroke=\"black\"") && svg.contains(">load<")
+        );
+        assert_eq!(svg.matches("<circle").count(), 50 + 1);
+    }
+
+    #[test]
+    fn empty_input_says_so() {
+        let svg = offset_svg("x", &[], None, &[]);
+        assert!(svg.contains("no locked estimate"));
+    }
+}
