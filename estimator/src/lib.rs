@@ -83,9 +83,9 @@ fn idx(s: Stream) -> usize {
 
 const QUEUE: usize = 64;
 /// Consecutive mutually consistent long-window deviations that re-lock the filter on them.
-const OUTLIER_RELOCK: u32 = 4;
+const OUTLIER_RELOCK: u32 = 8;
 /// Normalised innovation counted as a deviation for the re-lock rule.
-const RELOCK_NORM: f64 = 2.5;
+const RELOCK_NORM: f64 = 2.0;
 /// Normalised innovation beyond which a measurement's weight falls (Huber).
 const HUBER_K: f64 = 1.5;
 /// Time constant of the decay of each stream's "typical motion" variance, seconds.
