@@ -5,3 +5,4 @@ pub mod bench;
 pub mod plot;
 pub mod replay;
 pub mod runtime;
+pub mod state;

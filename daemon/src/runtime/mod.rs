@@ -36,9 +36,21 @@
 //! (`Node::try_cleanup_dead_nodes`; iceoryx2 also does it whenever a node is
 //! created) and reports how many it reclaimed, so a daemon or driver killed
 //! with SIGKILL leaves nothing that blocks a restart.
+//!
+//! # systemd and persistence
+//!
+//! Under systemd ([`notify`]) the service thread sends `READY=1` once the real-time
+//! thread runs, a `STATUS=` line per status period, and pets the watchdog only
+//! while the real-time thread's heartbeat (incremented every loop) moves;
+//! `STOPPING=1` on shutdown. With `daemon.state_file` set ([`crate::state`]) the
+//! service thread saves the last good estimate (handed over as
+//! [`RtEvent::Estimate`]) atomically every few seconds and on shutdown, and a
+//! fresh enough saved estimate is restored into the estimator before the
+//! real-time loop starts.
 #![forbid(unsafe_code)]
 
 pub mod histogram;
+pub mod notify;
 pub mod procs;
 
 use crossbeam::channel::{bounded, Receiver, Sender, TrySendError};
@@ -46,7 +58,7 @@ use histogram::Histogram;
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use vlsync_common::wire::{
@@ -134,6 +146,8 @@ pub enum RtEvent {
     },
     /// The periodic status snapshot.
     Status(Status),
+    /// A published estimate (persisted and shown by the service thread).
+    Estimate(Estimate),
     /// The real-time loop ended because iceoryx2 failed (the text is static).
     Fatal(&'static str),
 }
@@ -204,6 +218,10 @@ struct RtSetup {
     stop: Arc<AtomicBool>,
     tx: Sender<RtEvent>,
     start_ns: Nanos,
+    /// Incremented every loop: the watchdog's proof of progress.
+    heartbeat: Arc<AtomicU64>,
+    /// A saved estimate and its age (s) to start from.
+    restore: Option<(Estimate, f64)>,
 }
 
 /// What the real-time thread reports once, before its loop.
@@ -279,6 +297,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         };
     report.buffer = (s.cfg.services.subscriber_buffer.max(1) as usize, granted);
     let mut est = Estimator::new(&s.cfg.estimator);
+    if let Some((saved, age_s)) = &s.restore {
+        est.restore(saved, *age_s);
+    }
     let mut c = RtCounters::new();
     let budget_ns = (s.cfg.daemon.latency_budget_us * 1e3) as u64;
     let status_period_ns = (s.cfg.daemon.status_period_s * 1e9) as i64;
@@ -291,6 +312,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
 
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
+        s.heartbeat.fetch_add(1, Ordering::Relaxed);
         // sleeps until a driver notifies; a signal or timeout just loops
         let _ = lis.timed_wait(|_| {}, WAKE_PERIOD);
         for (i, sub) in subs.iter().enumerate() {
@@ -356,6 +378,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 }
                 while let Some(e) = est.poll() {
                     publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
+                    emit(&s.tx, &mut c, RtEvent::Estimate(e));
                     if last_state != Some(e.state) {
                         emit(
                             &s.tx,
@@ -529,6 +552,8 @@ fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
             }
         }
         RtEvent::Status(st) => status_pub(st),
+        // persisted and shown by the service loop itself
+        RtEvent::Estimate(_) => {}
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
     }
 }
@@ -590,6 +615,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let status_ev = open_or_create_event(&node, &names.status()).map_err(|e| e.to_string())?;
     let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
 
+    let restore = crate::state::startup_restore(&cfg.daemon);
+    let mut saver = crate::state::Saver::from_config(&cfg.daemon);
+    let heartbeat = Arc::new(AtomicU64::new(0));
+    let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let setup = RtSetup {
@@ -598,6 +627,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         stop: stop.clone(),
         tx,
         start_ns,
+        heartbeat,
+        restore,
     };
     let rt = std::thread::Builder::new()
         .name("vlsync-rt".into())
@@ -636,6 +667,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         names.status(),
         cfg.daemon.status_period_s
     );
+    systemd.ready(&format!(
+        "serving prefix {}, waiting for data",
+        names.prefix
+    ));
 
     let mut publish_status = |st: &Status| {
         if let Ok(s) = status_pub.loan_uninit() {
@@ -653,15 +688,40 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     };
     loop {
         match rx.recv_timeout(WAKE_PERIOD) {
-            Ok(ev) => log_event(&ev, &mut publish_status),
+            Ok(RtEvent::Estimate(e)) => {
+                systemd.on_estimate(&e);
+                if let Some(sv) = saver.as_mut() {
+                    sv.offer(&e);
+                }
+            }
+            Ok(ev) => {
+                if let RtEvent::Status(st) = &ev {
+                    systemd.on_status(st);
+                }
+                log_event(&ev, &mut publish_status)
+            }
             Err(crossbeam::channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam::channel::RecvTimeoutError::Disconnected) => break,
+        }
+        let now = std::time::Instant::now();
+        systemd.tick(now);
+        if let Some(sv) = saver.as_mut() {
+            sv.tick(now);
         }
         if termination_requested() {
             stop.store(true, Ordering::Relaxed);
         }
+        if stop.load(Ordering::Relaxed) {
+            systemd.stopping();
+        }
     }
+    systemd.stopping();
     let _ = rt.join();
+    if let Some(sv) = saver.as_mut() {
+        if sv.flush() {
+            tracing::info!("last good estimate saved to {}", sv.path().display());
+        }
+    }
     // everything the real-time thread sent before it ended has been drained above
     tracing::info!("stopped");
     Ok(())

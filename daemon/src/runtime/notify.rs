@@ -1,0 +1,598 @@
+//! systemd service notifications (the `sd_notify` protocol) without libsystemd.
+//!
+//! systemd passes `NOTIFY_SOCKET` (a filesystem path, or `@name` for a socket in
+//! the abstract namespace) to a `Type=notify` service; the service sends
+//! newline-separated `KEY=VALUE` datagrams to it:
+//!
+//! * `READY=1` once the services are open and the real-time thread runs;
+//! * `STATUS=...` a human line (`systemctl status vlsyncd` shows it);
+//! * `WATCHDOG=1` at half of `WATCHDOG_USEC` (`WatchdogSec=` of the unit), sent by
+//!   the service thread only while the real-time thread shows progress (see
+//!   [`WatchdogGate`]): a stuck real-time loop stops the petting and systemd
+//!   restarts the daemon;
+//! * `STOPPING=1` when shutting down.
+//!
+//! Without `NOTIFY_SOCKET` every call is a no-op. `WATCHDOG_PID`, when set, must
+//! name this process or the watchdog stays off (systemd's rule for processes
+//! that inherited the variables).
+
+use std::ffi::OsStr;
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::net::{SocketAddr, UnixDatagram};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use vlsync_common::wire::Status;
+use vlsync_common::Estimate;
+
+/// The longest `sun_path` of a Unix socket address on Linux (without the NUL).
+const MAX_SOCKET_PATH: usize = 107;
+
+/// Where notifications go; `None` inside when `NOTIFY_SOCKET` is unset.
+#[derive(Debug)]
+pub struct SdNotify {
+    target: Option<(UnixDatagram, SocketAddr, String)>,
+    watchdog: Option<Duration>,
+}
+
+impl SdNotify {
+    /// A notifier that sends nothing (no `NOTIFY_SOCKET`).
+    pub fn disabled() -> Self {
+        Self {
+            target: None,
+            watchdog: None,
+        }
+    }
+
+    /// From the process environment (`NOTIFY_SOCKET`, `WATCHDOG_USEC`,
+    /// `WATCHDOG_PID`). Returns the notifier and the problems found (each a
+    /// sentence naming the variable and its value); a problem disables only the
+    /// part it concerns.
+    pub fn from_env() -> (Self, Vec<String>) {
+        let socket = std::env::var_os("NOTIFY_SOCKET");
+        let usec = std::env::var_os("WATCHDOG_USEC");
+        let pid = std::env::var_os("WATCHDOG_PID");
+        Self::from_values(
+            socket.as_deref(),
+            usec.as_deref(),
+            pid.as_deref(),
+            std::process::id(),
+        )
+    }
+
+    /// Like [`SdNotify::from_env`] with explicit values; `own_pid` is this process.
+    pub fn from_values(
+        socket: Option<&OsStr>,
+        watchdog_usec: Option<&OsStr>,
+        watchdog_pid: Option<&OsStr>,
+        own_pid: u32,
+    ) -> (Self, Vec<String>) {
+        let mut problems = vec![];
+        let target = match socket.filter(|s| !s.is_empty()) {
+            None => None,
+            Some(s) => match connect_target(s) {
+                Ok(t) => Some(t),
+                Err(e) => {
+                    problems.push(e);
+                    None
+                }
+            },
+        };
+        let watchdog = match (target.is_some(), watchdog_usec) {
+            (false, _) | (true, None) => None,
+            (true, Some(usec)) => match watchdog_period(usec, watchdog_pid, own_pid) {
+                Ok(p) => p,
+                Err(e) => {
+                    problems.push(e);
+                    None
+                }
+            },
+        };
+        (Self { target, watchdog }, problems)
+    }
+
+    /// True when notifications are sent somewhere.
+    pub fn enabled(&self) -> bool {
+        self.target.is_some()
+    }
+
+    /// How often to send `WATCHDOG=1`: half of `WATCHDOG_USEC`; `None` when the
+    /// watchdog is off.
+    pub fn watchdog_period(&self) -> Option<Duration> {
+        self.watchdog
+    }
+
+    /// Sends `msg` (one or more `KEY=VALUE` lines). A no-op when disabled.
+    pub fn send(&self, msg: &str) -> Result<(), String> {
+        let Some((sock, addr, shown)) = &self.target else {
+            return Ok(());
+        };
+        match sock.send_to_addr(msg.as_bytes(), addr) {
+            Ok(n) if n == msg.len() => Ok(()),
+            Ok(n) => Err(format!(
+                "notification to NOTIFY_SOCKET {shown} truncated ({n} of {} bytes)",
+                msg.len()
+            )),
+            Err(e) => Err(format!("cannot notify NOTIFY_SOCKET {shown}: {e}")),
+        }
+    }
+
+    /// `READY=1` (with a status line).
+    pub fn ready(&self, status: &str) -> Result<(), String> {
+        self.send(&format!("READY=1\nSTATUS={}", one_line(status)))
+    }
+
+    /// `STATUS=<line>`.
+    pub fn status(&self, status: &str) -> Result<(), String> {
+        self.send(&format!("STATUS={}", one_line(status)))
+    }
+
+    /// `WATCHDOG=1`.
+    pub fn watchdog(&self) -> Result<(), String> {
+        self.send("WATCHDOG=1")
+    }
+
+    /// `STOPPING=1` (with a status line).
+    pub fn stopping(&self, status: &str) -> Result<(), String> {
+        self.send(&format!("STOPPING=1\nSTATUS={}", one_line(status)))
+    }
+}
+
+/// A status text on one line (a newline would start a new assignment).
+fn one_line(s: &str) -> String {
+    s.replace(['\n', '\r'], " ")
+}
+
+fn connect_target(s: &OsStr) -> Result<(UnixDatagram, SocketAddr, String), String> {
+    let shown = s.to_string_lossy().into_owned();
+    let bytes = s.as_bytes();
+    let addr = match bytes.first() {
+        Some(b'@') => abstract_addr(&bytes[1..]).map_err(|e| {
+            format!("NOTIFY_SOCKET={shown:?}: not a usable abstract socket name: {e}")
+        })?,
+        Some(b'/') => {
+            if bytes.len() > MAX_SOCKET_PATH {
+                return Err(format!(
+                    "NOTIFY_SOCKET={shown:?}: path longer than {MAX_SOCKET_PATH} bytes"
+                ));
+            }
+            SocketAddr::from_pathname(std::path::Path::new(s))
+                .map_err(|e| format!("NOTIFY_SOCKET={shown:?}: not a usable socket path: {e}"))?
+        }
+        _ => {
+            return Err(format!(
+                "NOTIFY_SOCKET={shown:?}: neither an absolute path nor an abstract name (@...)"
+            ))
+        }
+    };
+    let sock = UnixDatagram::unbound()
+        .map_err(|e| format!("cannot create a socket for NOTIFY_SOCKET={shown:?}: {e}"))?;
+    Ok((sock, addr, shown))
+}
+
+#[cfg(any(target_os = "linux", target_os = "android"))]
+fn abstract_addr(name: &[u8]) -> std::io::Result<SocketAddr> {
+    #[cfg(target_os = "android")]
+    use std::os::android::net::SocketAddrExt;
+    #[cfg(target_os = "linux")]
+    use std::os::linux::net::SocketAddrExt;
+    SocketAddr::from_abstract_name(name)
+}
+
+#[cfg(not(any(target_os = "linux", target_os = "android")))]
+fn abstract_addr(_name: &[u8]) -> std::io::Result<SocketAddr> {
+    Err(std::io::Error::new(
+        std::io::ErrorKind::Unsupported,
+        "abstract Unix sockets exist only on Linux",
+    ))
+}
+
+fn watchdog_period(
+    usec: &OsStr,
+    pid: Option<&OsStr>,
+    own_pid: u32,
+) -> Result<Option<Duration>, String> {
+    if let Some(pid) = pid.filter(|p| !p.is_empty()) {
+        let text = pid.to_string_lossy();
+        match text.trim().parse::<u32>() {
+            Ok(p) if p == own_pid => {}
+            // the variables were inherited from another process: not ours
+            Ok(_) => return Ok(None),
+            Err(_) => return Err(format!("WATCHDOG_PID={text:?} is not a process id")),
+        }
+    }
+    let text = usec.to_string_lossy();
+    match text.trim().parse::<u64>() {
+        Ok(0) => Err("WATCHDOG_USEC=0: the watchdog interval must be positive".into()),
+        Ok(u) => Ok(Some(Duration::from_micros(u) / 2)),
+        Err(_) => Err(format!(
+            "WATCHDOG_USEC={text:?} is not a number of microseconds"
+        )),
+    }
+}
+
+/// Decides when to pet the watchdog: every `period`, and only if the real-time
+/// thread's heartbeat counter moved within the last `stall_after` (so a stuck
+/// real-time loop lets the watchdog expire).
+#[derive(Debug)]
+pub struct WatchdogGate {
+    period: Duration,
+    stall_after: Duration,
+    next: Instant,
+    last_beat: u64,
+    last_change: Instant,
+    stalled: bool,
+}
+
+/// What [`WatchdogGate::poll`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WatchdogAction {
+    /// Nothing due.
+    Idle,
+    /// Send `WATCHDOG=1`.
+    Pet,
+    /// A pet was due but the real-time thread made no progress for the given time:
+    /// withheld (reported once per stall).
+    Withheld(Duration),
+    /// Still stalled; withheld again.
+    StillWithheld,
+    /// Progress again after a stall; send `WATCHDOG=1`.
+    Resumed,
+}
+
+impl WatchdogGate {
+    /// Pets every `period`; the real-time thread counts as stuck when its
+    /// heartbeat did not move for `max(period, min_stall)` (`min_stall` covers
+    /// the real-time thread's own longest sleep).
+    pub fn new(period: Duration, min_stall: Duration, now: Instant, beat: u64) -> Self {
+        Self {
+            period,
+            stall_after: period.max(min_stall),
+            // the first pet goes out right away: READY=1 has just been sent
+            next: now,
+            last_beat: beat,
+            last_change: now,
+            stalled: false,
+        }
+    }
+
+    /// Call at least a few times per `period` with the current heartbeat.
+    pub fn poll(&mut self, now: Instant, beat: u64) -> WatchdogAction {
+        if beat != self.last_beat {
+            self.last_beat = beat;
+            self.last_change = now;
+        }
+        if now < self.next {
+            return WatchdogAction::Idle;
+        }
+        self.next = now + self.period;
+        let quiet = now.saturating_duration_since(self.last_change);
+        if quiet <= self.stall_after {
+            if std::mem::replace(&mut self.stalled, false) {
+                WatchdogAction::Resumed
+            } else {
+                WatchdogAction::Pet
+            }
+        } else if std::mem::replace(&mut self.stalled, true) {
+            WatchdogAction::StillWithheld
+        } else {
+            WatchdogAction::Withheld(quiet)
+        }
+    }
+
+    /// Time until the next pet is due.
+    pub fn due_in(&self, now: Instant) -> Duration {
+        self.next.saturating_duration_since(now)
+    }
+}
+
+/// The service thread's side of systemd: `READY=1`, the periodic `STATUS=` line,
+/// the gated watchdog and `STOPPING=1`. Problems sending are logged once.
+#[derive(Debug)]
+pub struct Supervisor {
+    sd: SdNotify,
+    gate: Option<WatchdogGate>,
+    heartbeat: Arc<AtomicU64>,
+    last: Option<Estimate>,
+    stopping: bool,
+    send_failed: bool,
+}
+
+impl Supervisor {
+    /// From the environment; `heartbeat` is the counter the real-time thread
+    /// increments every loop. Logs problems with the variables.
+    pub fn from_env(heartbeat: Arc<AtomicU64>) -> Self {
+        let (sd, problems) = SdNotify::from_env();
+        for p in problems {
+            tracing::warn!("systemd notification: {p}");
+        }
+        Self::new(sd, heartbeat)
+    }
+
+    /// With an explicit notifier.
+    pub fn new(sd: SdNotify, heartbeat: Arc<AtomicU64>) -> Self {
+        Self {
+            sd,
+            gate: None,
+            heartbeat,
+            last: None,
+            stopping: false,
+            send_failed: false,
+        }
+    }
+
+    fn check(&mut self, r: Result<(), String>) {
+        match r {
+            Ok(()) => self.send_failed = false,
+            Err(e) => {
+                if !std::mem::replace(&mut self.send_failed, true) {
+                    tracing::warn!("{e}");
+                }
+            }
+        }
+    }
+
+    /// `READY=1`: the services are open and the real-time thread runs. Starts the watchdog.
+    pub fn ready(&mut self, what: &str) {
+        if !self.sd.enabled() {
+            return;
+        }
+        let r = self.sd.ready(what);
+        self.check(r);
+        if let Some(period) = self.sd.watchdog_period() {
+            tracing::info!(
+                "systemd watchdog: petting every {period:?} while the real-time thread runs"
+            );
+            self.gate = Some(WatchdogGate::new(
+                period,
+                3 * super::WAKE_PERIOD,
+                Instant::now(),
+                self.heartbeat.load(Ordering::Relaxed),
+            ));
+        }
+        self.tick(Instant::now());
+    }
+
+    /// Remembers the newest estimate for the status line.
+    pub fn on_estimate(&mut self, e: &Estimate) {
+        self.last = Some(*e);
+    }
+
+    /// Sends the status line for a status snapshot.
+    pub fn on_status(&mut self, st: &Status) {
+        if self.sd.enabled() && !self.stopping {
+            let r = self.sd.status(&status_line(st, self.last.as_ref()));
+            self.check(r);
+        }
+    }
+
+    /// Pets the watchdog when due and the real-time thread shows progress.
+    pub fn tick(&mut self, now: Instant) {
+        let Some(gate) = self.gate.as_mut() else {
+            return;
+        };
+        if self.stopping {
+            return;
+        }
+        match gate.poll(now, self.heartbeat.load(Ordering::Relaxed)) {
+            WatchdogAction::Idle | WatchdogAction::StillWithheld => {}
+            WatchdogAction::Pet => {
+                let r = self.sd.watchdog();
+                self.check(r);
+            }
+            WatchdogAction::Resumed => {
+                tracing::warn!("real-time thread progresses again; petting the systemd watchdog");
+                let r = self.sd.watchdog();
+                self.check(r);
+            }
+            WatchdogAction::Withheld(quiet) => tracing::error!(
+                "real-time thread made no progress for {quiet:?}: not petting the systemd watchdog (systemd restarts the daemon when it expires)"
+            ),
+        }
+    }
+
+    /// `STOPPING=1`, once.
+    pub fn stopping(&mut self) {
+        if self.sd.enabled() && !std::mem::replace(&mut self.stopping, true) {
+            let r = self.sd.stopping("stopping");
+            self.check(r);
+        }
+    }
+}
+
+/// The human status line: state, offset, its standard deviation, drift, counters.
+pub fn status_line(st: &Status, last: Option<&Estimate>) -> String {
+    let counts = format!(
+        "received cam {} lidar {}, {} estimates",
+        st.received[0], st.received[1], st.estimates_published
+    );
+    match last {
+        Some(e) => format!(
+            "{}: offset {:+.3} ms ± {:.3} ms, drift {:+.2} ppm{}; {counts}",
+            e.state,
+            e.offset_s * 1e3,
+            e.offset_std_s * 1e3,
+            e.drift * 1e6,
+            if st.degraded != 0 { ", degraded" } else { "" }
+        ),
+        None => format!("waiting for both sensors; {counts}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ffi::OsString;
+
+    fn os(s: &str) -> OsString {
+        OsString::from(s)
+    }
+
+    #[test]
+    fn unset_socket_is_a_silent_no_op() {
+        let (n, problems) = SdNotify::from_values(None, Some(&os("1000000")), None, 1);
+        assert!(problems.is_empty());
+        assert!(!n.enabled());
+        assert_eq!(n.watchdog_period(), None);
+        n.ready("x").unwrap();
+        n.watchdog().unwrap();
+        n.stopping("x").unwrap();
+    }
+
+    #[test]
+    fn path_socket_receives_every_message() {
+        let dir = std::env::temp_dir().join(format!("vlsync-notify-unit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("notify.sock");
+        let _ = std::fs::remove_file(&path);
+        let rx = UnixDatagram::bind(&path).unwrap();
+        rx.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+        let (n, problems) = SdNotify::from_values(Some(path.as_os_str()), None, None, 1);
+        assert!(problems.is_empty(), "{problems:?}");
+        assert!(n.enabled());
+        let mut buf = [0u8; 256];
+        n.ready("serving\nprefix").unwrap();
+        let k = rx.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..k], b"READY=1\nSTATUS=serving prefix");
+        n.watchdog().unwrap();
+        let k = rx.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..k], b"WATCHDOG=1");
+        n.stopping("bye").unwrap();
+        let k = rx.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..k], b"STOPPING=1\nSTATUS=bye");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn abstract_socket_names_work() {
+        use std::os::linux::net::SocketAddrExt;
+        let name = format!("vlsync-notify-unit-{}", std::process::id());
+        let rx = UnixDatagram::bind_addr(&SocketAddr::from_abstract_name(name.as_bytes()).unwrap())
+            .unwrap();
+        rx.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+        let (n, problems) = SdNotify::from_values(Some(&os(&format!("@{name}"))), None, None, 1);
+        assert!(problems.is_empty(), "{problems:?}");
+        n.status("hello").unwrap();
+        let mut buf = [0u8; 64];
+        let k = rx.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..k], b"STATUS=hello");
+    }
+
+    #[test]
+    fn a_missing_listener_is_an_error_naming_the_socket() {
+        let (n, _) = SdNotify::from_values(Some(&os("/nonexistent/vlsync/notify")), None, None, 1);
+        let e = n.watchdog().unwrap_err();
+        assert!(e.contains("/nonexistent/vlsync/notify"), "{e}");
+    }
+
+    #[test]
+    fn bad_variables_are_reported_and_disable_only_their_part() {
+        let (n, p) = SdNotify::from_values(Some(&os("relative/path")), None, None, 1);
+        assert!(!n.enabled());
+        assert!(
+            p[0].contains("NOTIFY_SOCKET") && p[0].contains("relative/path"),
+            "{p:?}"
+        );
+        let long = format!("/{}", "x".repeat(200));
+        let (_, p) = SdNotify::from_values(Some(&os(&long)), None, None, 1);
+        assert!(p[0].contains("longer than"), "{p:?}");
+
+        let sock = os("@vlsync-notify-unit-unused");
+        let (n, p) = SdNotify::from_values(Some(&sock), Some(&os("soon")), None, 1);
+        assert!(n.enabled() && n.watchdog_period().is_none());
+        assert!(
+            p[0].contains("WATCHDOG_USEC") && p[0].contains("soon"),
+            "{p:?}"
+        );
+        let (_, p) = SdNotify::from_values(Some(&sock), Some(&os("0")), None, 1);
+        assert!(p[0].contains("WATCHDOG_USEC=0"), "{p:?}");
+        let (_, p) = SdNotify::from_values(Some(&sock), Some(&os("100")), Some(&os("me")), 1);
+        assert!(p[0].contains("WATCHDOG_PID"), "{p:?}");
+    }
+
+    #[test]
+    fn watchdog_pid_must_be_ours() {
+        let sock = os("@vlsync-notify-unit-unused");
+        let usec = os("5000000");
+        let (n, p) = SdNotify::from_values(Some(&sock), Some(&usec), Some(&os("42")), 42);
+        assert!(p.is_empty());
+        assert_eq!(n.watchdog_period(), Some(Duration::from_millis(2500)));
+        let (n, p) = SdNotify::from_values(Some(&sock), Some(&usec), Some(&os("43")), 42);
+        assert!(p.is_empty());
+        assert_eq!(n.watchdog_period(), None);
+        // no socket: no watchdog either
+        let (n, _) = SdNotify::from_values(None, Some(&usec), None, 42);
+        assert_eq!(n.watchdog_period(), None);
+    }
+
+    #[test]
+    fn gate_pets_only_while_the_heartbeat_moves() {
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        let mut g = WatchdogGate::new(ms(500), ms(300), t0, 7);
+        assert_eq!(g.poll(t0, 7), WatchdogAction::Pet);
+        assert_eq!(g.poll(t0 + ms(100), 8), WatchdogAction::Idle);
+        assert_eq!(g.due_in(t0 + ms(100)), ms(400));
+        assert_eq!(g.poll(t0 + ms(500), 9), WatchdogAction::Pet);
+        // the heartbeat freezes at 9 (last change at 500 ms)
+        assert_eq!(g.poll(t0 + ms(1000), 9), WatchdogAction::Pet);
+        assert_eq!(g.poll(t0 + ms(1501), 9), WatchdogAction::Withheld(ms(1001)));
+        assert_eq!(g.poll(t0 + ms(2001), 9), WatchdogAction::StillWithheld);
+        // progress again
+        assert_eq!(g.poll(t0 + ms(2100), 10), WatchdogAction::Idle);
+        assert_eq!(g.poll(t0 + ms(2501), 10), WatchdogAction::Resumed);
+        assert_eq!(g.poll(t0 + ms(3001), 11), WatchdogAction::Pet);
+    }
+
+    #[test]
+    fn status_line_shows_state_offset_and_std() {
+        let st = Status {
+            received: [300, 100],
+            estimates_published: 12,
+            ..Status::default()
+        };
+        assert_eq!(
+            status_line(&st, None),
+            "waiting for both sensors; received cam 300 lidar 100, 12 estimates"
+        );
+        let e = Estimate {
+            seq: 3,
+            t_ref_ns: 0,
+            offset_s: -0.0123456,
+            drift: 2.5e-6,
+            offset_std_s: 0.0008,
+            drift_std: 1e-6,
+            state: vlsync_common::EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: f64::NAN,
+        };
+        assert_eq!(
+            status_line(&st, Some(&e)),
+            "tracking: offset -12.346 ms ± 0.800 ms, drift +2.50 ppm; received cam 300 lidar 100, 12 estimates"
+        );
+    }
+
+    #[test]
+    fn gate_tolerates_a_period_shorter_than_the_rt_sleep() {
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        // 50 ms period, the real-time thread beats every 100 ms at worst
+        let mut g = WatchdogGate::new(ms(50), ms(300), t0, 0);
+        let mut beat = 0;
+        let mut pets = 0;
+        for i in 1..=40u64 {
+            if i % 10 == 0 {
+                beat += 1;
+            }
+            let a = g.poll(t0 + ms(i * 10), beat);
+            assert!(
+                matches!(a, WatchdogAction::Idle | WatchdogAction::Pet),
+                "{a:?} at {i}"
+            );
+            pets += u32::from(a == WatchdogAction::Pet);
+        }
+        assert!(pets >= 7, "{pets}");
+    }
+}

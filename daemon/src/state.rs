@@ -1,0 +1,959 @@
+//! Persistence of the last good estimate across daemon restarts
+//! (`daemon.state_file`, `daemon.state_max_age_s`).
+//!
+//! The service thread (never the real-time thread) keeps the newest estimate
+//! worth saving ([`worth_saving`]: tracking, or holding with a small standard
+//! deviation) and writes it at most every [`SAVE_PERIOD`] and once more on
+//! shutdown ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
+//! same directory, is fsynced, renamed over the file, and the directory is
+//! fsynced, so a crash at any point leaves either the old or the new file.
+//!
+//! At start ([`load`]) the file is hostile input: a missing file is a cold start;
+//! a corrupt one (wrong magic or version, truncated, bad checksum, a malformed,
+//! missing, duplicate or unknown key, a non-finite or out-of-range number), one
+//! saved in the future or one older than `daemon.state_max_age_s` gives an error
+//! naming the file and the reason, and the daemon starts cold. A good one is
+//! handed to `Estimator::restore` with its age.
+//!
+//! # Format (version 1)
+//!
+//! ```text
+//! vlsync-state 1
+//! # saved 2026-11-23T13:53:12Z by vlsyncd; written atomically, do not edit
+//! saved_unix_ns = 1795442000000000000
+//! t_ref_ns = 120000000000
+//! offset_s = 0.0123
+//! drift = 1.5e-5
+//! offset_std_s = 0.0008
+//! drift_std = 2e-6
+//! state = tracking
+//! polarity = negative
+//! checksum = fnv1a64:0123456789abcdef
+//! ```
+//!
+//! The checksum is FNV-1a (64 bit) over every byte before the `checksum` line.
+//! Numbers are written in Rust's shortest round-trip form, so a load returns
+//! exactly what was saved.
+
+use std::fmt;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity};
+
+/// First word of the file.
+pub const MAGIC: &str = "vlsync-state";
+/// Format version written and accepted.
+pub const VERSION: u32 = 1;
+/// A state file is a few hundred bytes; anything larger than this is not one.
+pub const MAX_FILE_BYTES: u64 = 16 * 1024;
+/// Minimum time between two saves.
+pub const SAVE_PERIOD: Duration = Duration::from_secs(5);
+/// A holding estimate is saved only while its standard deviation is at most this, seconds.
+pub const HOLD_SAVE_MAX_STD_S: f64 = 0.01;
+/// A file saved further in the future than this (the wall clock moved back, or a
+/// board without a real-time clock booted with an old time) is not trusted, seconds.
+pub const FUTURE_TOLERANCE_S: f64 = 60.0;
+/// Largest accepted |offset|, seconds (the range of `estimator.lag_center_s`).
+pub const MAX_ABS_OFFSET_S: f64 = 1e6;
+/// Largest accepted |drift| (the estimator clamps to ±0.1 anyway).
+pub const MAX_ABS_DRIFT: f64 = 0.1;
+/// Largest accepted offset standard deviation, seconds.
+pub const MAX_OFFSET_STD_S: f64 = 10.0;
+/// Largest accepted drift standard deviation.
+pub const MAX_DRIFT_STD: f64 = 1.0;
+
+const KEYS: [&str; 8] = [
+    "saved_unix_ns",
+    "t_ref_ns",
+    "offset_s",
+    "drift",
+    "offset_std_s",
+    "drift_std",
+    "state",
+    "polarity",
+];
+
+/// A saved estimate and when it was saved.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SavedState {
+    /// Wall-clock save time, ns since the Unix epoch.
+    pub saved_unix_ns: i64,
+    /// The estimate (`seq`, peak fields and the measurement are not saved: 0, 0,
+    /// 0 and NaN after a load).
+    pub estimate: Estimate,
+}
+
+/// Why a state file was not used.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Problem {
+    /// Reading failed.
+    Io(String),
+    /// Larger than [`MAX_FILE_BYTES`].
+    TooLarge,
+    /// Not UTF-8 text.
+    NotText,
+    /// The first line is not `vlsync-state <version>`.
+    BadHeader(String),
+    /// A version this daemon does not read.
+    WrongVersion(String),
+    /// The `checksum` line is missing or not the last line: the file is cut short.
+    Truncated,
+    /// The checksum line is malformed.
+    BadChecksumLine {
+        /// 1-based line number.
+        line: usize,
+    },
+    /// The checksum does not match the contents.
+    ChecksumMismatch {
+        /// Stored.
+        stored: u64,
+        /// Computed over the contents.
+        computed: u64,
+    },
+    /// A line that is not `key = value`.
+    BadLine {
+        /// 1-based line number.
+        line: usize,
+    },
+    /// A key this version does not know.
+    UnknownKey {
+        /// 1-based line number.
+        line: usize,
+        /// The key.
+        key: String,
+    },
+    /// A key given twice.
+    DuplicateKey {
+        /// 1-based line number of the second one.
+        line: usize,
+        /// The key.
+        key: &'static str,
+    },
+    /// A required key is absent.
+    MissingKey(&'static str),
+    /// A value that does not parse.
+    BadValue {
+        /// 1-based line number.
+        line: usize,
+        /// The key.
+        key: &'static str,
+        /// The value as written (shortened).
+        value: String,
+    },
+    /// NaN or infinite.
+    NonFinite {
+        /// The key.
+        key: &'static str,
+    },
+    /// Outside the plausible range.
+    OutOfRange {
+        /// The key.
+        key: &'static str,
+        /// The value.
+        value: f64,
+        /// The allowed range, as text.
+        allowed: &'static str,
+    },
+    /// Older than `daemon.state_max_age_s`.
+    Stale {
+        /// Age, seconds.
+        age_s: f64,
+        /// The limit, seconds.
+        max_age_s: f64,
+    },
+    /// Saved after "now".
+    InTheFuture {
+        /// How far ahead, seconds.
+        ahead_s: f64,
+    },
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Problem::Io(e) => write!(f, "cannot read: {e}"),
+            Problem::TooLarge => write!(f, "larger than {MAX_FILE_BYTES} bytes: not a state file"),
+            Problem::NotText => write!(f, "not UTF-8 text: corrupt"),
+            Problem::BadHeader(h) => write!(
+                f,
+                "line 1: expected `{MAGIC} {VERSION}`, found {:?}: not a vlsync state file",
+                h
+            ),
+            Problem::WrongVersion(v) => write!(
+                f,
+                "line 1: format version {v:?}, this vlsyncd reads version {VERSION}"
+            ),
+            Problem::Truncated => write!(
+                f,
+                "no `checksum` line at the end: truncated (interrupted write?)"
+            ),
+            Problem::BadChecksumLine { line } => write!(
+                f,
+                "line {line}: malformed checksum (expected `checksum = fnv1a64:<16 hex digits>`)"
+            ),
+            Problem::ChecksumMismatch { stored, computed } => write!(
+                f,
+                "checksum mismatch (stored {stored:016x}, contents give {computed:016x}): corrupt"
+            ),
+            Problem::BadLine { line } => write!(f, "line {line}: not `key = value`"),
+            Problem::UnknownKey { line, key } => write!(f, "line {line}: unknown key {key:?}"),
+            Problem::DuplicateKey { line, key } => {
+                write!(f, "line {line}: key `{key}` given twice")
+            }
+            Problem::MissingKey(k) => write!(f, "key `{k}` missing"),
+            Problem::BadValue { line, key, value } => {
+                write!(f, "line {line}: `{key}` = {value:?} is not a valid value")
+            }
+            Problem::NonFinite { key } => write!(f, "`{key}` is not a finite number"),
+            Problem::OutOfRange {
+                key,
+                value,
+                allowed,
+            } => write!(f, "`{key}` = {value} is out of range: allowed {allowed}"),
+            Problem::Stale { age_s, max_age_s } => write!(
+                f,
+                "saved {age_s:.0} s ago, older than daemon.state_max_age_s = {max_age_s} s: stale"
+            ),
+            Problem::InTheFuture { ahead_s } => write!(
+                f,
+                "saved {ahead_s:.0} s in the future: the wall clock moved back, age unknown"
+            ),
+        }
+    }
+}
+
+/// A problem with a named state file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateError {
+    /// The file.
+    pub path: PathBuf,
+    /// What was wrong.
+    pub problem: Problem,
+}
+
+impl fmt::Display for StateError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "state file {}: {}", self.path.display(), self.problem)
+    }
+}
+
+impl std::error::Error for StateError {}
+
+/// FNV-1a, 64 bit.
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Now on the wall clock, ns since the Unix epoch (0 if the clock is before 1970).
+pub fn unix_now_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
+
+/// True for an estimate worth saving: tracking, or holding with a standard
+/// deviation of at most [`HOLD_SAVE_MAX_STD_S`]; all numbers finite.
+pub fn worth_saving(e: &Estimate) -> bool {
+    let finite = e.offset_s.is_finite()
+        && e.drift.is_finite()
+        && e.offset_std_s.is_finite()
+        && e.drift_std.is_finite();
+    finite
+        && match e.state {
+            EstimatorState::Tracking => true,
+            EstimatorState::Holding => e.offset_std_s <= HOLD_SAVE_MAX_STD_S,
+            EstimatorState::Acquiring | EstimatorState::Lost => false,
+        }
+}
+
+/// The file's text.
+pub fn encode(s: &SavedState) -> String {
+    let e = &s.estimate;
+    let mut body = format!(
+        "{MAGIC} {VERSION}\n# saved {} by vlsyncd; written atomically, do not edit\n",
+        utc_text(s.saved_unix_ns)
+    );
+    body.push_str(&format!(
+        "saved_unix_ns = {}\nt_ref_ns = {}\noffset_s = {:?}\ndrift = {:?}\noffset_std_s = {:?}\ndrift_std = {:?}\nstate = {}\npolarity = {}\n",
+        s.saved_unix_ns,
+        e.t_ref_ns,
+        e.offset_s,
+        e.drift,
+        e.offset_std_s,
+        e.drift_std,
+        e.state.name(),
+        e.polarity.name(),
+    ));
+    let sum = fnv1a64(body.as_bytes());
+    body.push_str(&format!("checksum = fnv1a64:{sum:016x}\n"));
+    body
+}
+
+/// Parses a state file's bytes (no staleness check).
+pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
+    let text = std::str::from_utf8(bytes).map_err(|_| Problem::NotText)?;
+    // header
+    let first = text.split('\n').next().unwrap_or("");
+    let mut words = first.split_whitespace();
+    if words.next() != Some(MAGIC) {
+        return Err(Problem::BadHeader(shorten(first)));
+    }
+    match (words.next(), words.next()) {
+        (Some(v), None) if v == VERSION.to_string() => {}
+        (Some(v), None) => return Err(Problem::WrongVersion(shorten(v))),
+        _ => return Err(Problem::BadHeader(shorten(first))),
+    }
+    // the checksum line is the last line and ends with a newline
+    let Some(body_and_sum) = text.strip_suffix('\n') else {
+        return Err(Problem::Truncated);
+    };
+    let (body_len, sum_line) = match body_and_sum.rfind('\n') {
+        Some(i) => (i + 1, &body_and_sum[i + 1..]),
+        None => return Err(Problem::Truncated),
+    };
+    let body = &text[..body_len];
+    let sum_lineno = body.matches('\n').count() + 1;
+    let Some(stored) = sum_line.trim().strip_prefix("checksum") else {
+        return Err(Problem::Truncated);
+    };
+    let stored = stored
+        .trim_start()
+        .strip_prefix('=')
+        .map(str::trim)
+        .and_then(|v| v.strip_prefix("fnv1a64:"))
+        .filter(|h| h.len() == 16)
+        .and_then(|h| u64::from_str_radix(h, 16).ok())
+        .ok_or(Problem::BadChecksumLine { line: sum_lineno })?;
+    let computed = fnv1a64(body.as_bytes());
+    if stored != computed {
+        return Err(Problem::ChecksumMismatch { stored, computed });
+    }
+    // key = value lines
+    let mut values: [Option<(usize, &str)>; KEYS.len()] = [None; KEYS.len()];
+    for (i, line) in body.lines().enumerate().skip(1) {
+        let lineno = i + 1;
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let Some((k, v)) = line.split_once('=') else {
+            return Err(Problem::BadLine { line: lineno });
+        };
+        let k = k.trim();
+        let Some(slot) = KEYS.iter().position(|key| *key == k) else {
+            return Err(Problem::UnknownKey {
+                line: lineno,
+                key: shorten(k),
+            });
+        };
+        if values[slot].is_some() {
+            return Err(Problem::DuplicateKey {
+                line: lineno,
+                key: KEYS[slot],
+            });
+        }
+        values[slot] = Some((lineno, v.trim()));
+    }
+    let get = |slot: usize| values[slot].ok_or(Problem::MissingKey(KEYS[slot]));
+    let int = |slot: usize| -> Result<i64, Problem> {
+        let (line, v) = get(slot)?;
+        v.parse::<i64>().map_err(|_| Problem::BadValue {
+            line,
+            key: KEYS[slot],
+            value: shorten(v),
+        })
+    };
+    let float = |slot: usize, max_abs: f64, allowed: &'static str, non_negative: bool| {
+        let (line, v) = get(slot)?;
+        let x = v.parse::<f64>().map_err(|_| Problem::BadValue {
+            line,
+            key: KEYS[slot],
+            value: shorten(v),
+        })?;
+        if !x.is_finite() {
+            return Err(Problem::NonFinite { key: KEYS[slot] });
+        }
+        if x.abs() > max_abs || (non_negative && x < 0.0) {
+            return Err(Problem::OutOfRange {
+                key: KEYS[slot],
+                value: x,
+                allowed,
+            });
+        }
+        Ok(x)
+    };
+    let saved_unix_ns = int(0)?;
+    let t_ref_ns: Nanos = int(1)?;
+    let offset_s = float(2, MAX_ABS_OFFSET_S, "-1e6 ..= 1e6 s", false)?;
+    let drift = float(3, MAX_ABS_DRIFT, "-0.1 ..= 0.1", false)?;
+    let offset_std_s = float(4, MAX_OFFSET_STD_S, "0 ..= 10 s", true)?;
+    let drift_std = float(5, MAX_DRIFT_STD, "0 ..= 1", true)?;
+    let (line, v) = get(6)?;
+    let state = match v {
+        "tracking" => EstimatorState::Tracking,
+        "holding" => EstimatorState::Holding,
+        _ => {
+            return Err(Problem::BadValue {
+                line,
+                key: KEYS[6],
+                value: shorten(v),
+            })
+        }
+    };
+    let (line, v) = get(7)?;
+    let polarity = match v {
+        "positive" => Polarity::Positive,
+        "negative" => Polarity::Negative,
+        "unknown" => Polarity::Unknown,
+        _ => {
+            return Err(Problem::BadValue {
+                line,
+                key: KEYS[7],
+                value: shorten(v),
+            })
+        }
+    };
+    Ok(SavedState {
+        saved_unix_ns,
+        estimate: Estimate {
+            seq: 0,
+            t_ref_ns,
+            offset_s,
+            drift,
+            offset_std_s,
+            drift_std,
+            state,
+            polarity,
+            peak_score: 0.0,
+            peak_ratio: 0.0,
+            measured_offset_s: f64::NAN,
+        },
+    })
+}
+
+fn shorten(s: &str) -> String {
+    s.chars().take(40).collect()
+}
+
+/// Loads `path` and checks its age against `max_age_s` at wall time `now_unix_ns`.
+/// `Ok(None)`: no file (a first start). `Ok(Some((state, age_s)))`: usable.
+pub fn load(
+    path: &Path,
+    now_unix_ns: i64,
+    max_age_s: f64,
+) -> Result<Option<(SavedState, f64)>, StateError> {
+    let err = |problem| StateError {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let f = match std::fs::File::open(path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(err(Problem::Io(e.to_string()))),
+    };
+    let mut bytes = Vec::new();
+    f.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| err(Problem::Io(e.to_string())))?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(err(Problem::TooLarge));
+    }
+    let s = decode(&bytes).map_err(err)?;
+    let age_s = (now_unix_ns as f64 - s.saved_unix_ns as f64) * 1e-9;
+    if age_s < -FUTURE_TOLERANCE_S {
+        return Err(err(Problem::InTheFuture { ahead_s: -age_s }));
+    }
+    if age_s > max_age_s {
+        return Err(err(Problem::Stale { age_s, max_age_s }));
+    }
+    Ok(Some((s, age_s.max(0.0))))
+}
+
+/// The temporary file a save writes before renaming it over `path`.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".tmp");
+    path.with_file_name(name)
+}
+
+/// Saves `s` to `path` atomically (temp file, fsync, rename, fsync of the directory).
+pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if path.file_name().is_none() {
+        return Err(format!("state file {}: not a file name", path.display()));
+    }
+    let tmp = temp_path(path);
+    let text = encode(s);
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)?;
+        f.write_all(text.as_bytes())?;
+        f.sync_all()
+    };
+    write().map_err(|e| format!("cannot write state file {}: {e}", tmp.display()))?;
+    if let Err(e) = std::fs::rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(format!(
+            "cannot rename {} to {}: {e}",
+            tmp.display(),
+            path.display()
+        ));
+    }
+    std::fs::File::open(&dir)
+        .and_then(|d| d.sync_all())
+        .map_err(|e| {
+            format!(
+                "cannot sync directory {} of the state file: {e}",
+                dir.display()
+            )
+        })
+}
+
+/// `2026-11-23T13:53:12Z` for ns since the Unix epoch.
+pub fn utc_text(unix_ns: i64) -> String {
+    let secs = unix_ns.div_euclid(1_000_000_000);
+    let days = secs.div_euclid(86_400);
+    let tod = secs.rem_euclid(86_400);
+    // civil date from days since 1970-01-01 (H. Hinnant's algorithm)
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        tod / 3600,
+        tod / 60 % 60,
+        tod % 60
+    )
+}
+
+/// Reads the state file of the configuration at start-up and logs the outcome:
+/// `Some((estimate, age_s))` to restore, `None` for a cold start.
+pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f64)> {
+    if cfg.state_file.is_empty() {
+        return None;
+    }
+    let path = Path::new(&cfg.state_file);
+    match load(path, unix_now_ns(), cfg.state_max_age_s) {
+        Ok(Some((s, age_s))) => {
+            tracing::info!(
+                "state file {}: restoring offset {:+.3} ms ± {:.3} ms (drift {:+.2} ppm, {}) saved {age_s:.0} s ago",
+                path.display(),
+                s.estimate.offset_s * 1e3,
+                s.estimate.offset_std_s * 1e3,
+                s.estimate.drift * 1e6,
+                s.estimate.state
+            );
+            Some((s.estimate, age_s))
+        }
+        Ok(None) => {
+            tracing::info!("state file {}: none yet; cold start", path.display());
+            None
+        }
+        Err(e) => {
+            tracing::warn!("{e}; ignoring it, cold start");
+            None
+        }
+    }
+}
+
+/// Saves the newest estimate worth saving at most every `period` (service thread).
+#[derive(Debug)]
+pub struct Saver {
+    path: PathBuf,
+    period: Duration,
+    pending: Option<Estimate>,
+    last_save: Option<Instant>,
+    last_error: Option<String>,
+}
+
+impl Saver {
+    /// A saver for the configured file; `None` when persistence is off.
+    pub fn from_config(cfg: &vlsync_config::DaemonConfig) -> Option<Self> {
+        (!cfg.state_file.is_empty()).then(|| Self::new(PathBuf::from(&cfg.state_file), SAVE_PERIOD))
+    }
+
+    /// A saver for `path`, at most one save per `period`.
+    pub fn new(path: PathBuf, period: Duration) -> Self {
+        Self {
+            path,
+            period,
+            pending: None,
+            last_save: None,
+            last_error: None,
+        }
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Offers an estimate; it is kept if [`worth_saving`].
+    pub fn offer(&mut self, e: &Estimate) {
+        if worth_saving(e) {
+            self.pending = Some(*e);
+        }
+    }
+
+    /// Saves the pending estimate if the period since the last save has passed.
+    /// Returns whether it saved; an error is logged once until a save succeeds.
+    pub fn tick(&mut self, now: Instant) -> bool {
+        let due = self
+            .last_save
+            .is_none_or(|t| now.saturating_duration_since(t) >= self.period);
+        if due && self.pending.is_some() {
+            self.last_save = Some(now);
+            return self.flush();
+        }
+        false
+    }
+
+    /// Saves the pending estimate now (shutdown). Returns whether it saved.
+    pub fn flush(&mut self) -> bool {
+        let Some(e) = self.pending.take() else {
+            return false;
+        };
+        let s = SavedState {
+            saved_unix_ns: unix_now_ns(),
+            estimate: e,
+        };
+        match save(&self.path, &s) {
+            Ok(()) => {
+                if self.last_error.take().is_some() {
+                    tracing::info!("state file {}: saving works again", self.path.display());
+                }
+                true
+            }
+            Err(msg) => {
+                if self.last_error.as_deref() != Some(msg.as_str()) {
+                    tracing::warn!("{msg}; the last good estimate is not persisted");
+                    self.last_error = Some(msg);
+                }
+                false
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn est() -> Estimate {
+        Estimate {
+            seq: 17,
+            t_ref_ns: 123_456_789_012,
+            offset_s: -0.012_345_678_901_234_5,
+            drift: 1.234_567e-5,
+            offset_std_s: 0.000_812_3,
+            drift_std: 2.5e-6,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Negative,
+            peak_score: 0.8,
+            peak_ratio: 2.0,
+            measured_offset_s: -0.0123,
+        }
+    }
+
+    fn state() -> SavedState {
+        SavedState {
+            saved_unix_ns: 1_795_442_000_123_456_789,
+            estimate: est(),
+        }
+    }
+
+    fn dir(tag: &str) -> PathBuf {
+        let d =
+            std::env::temp_dir().join(format!("vlsync-state-unit-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// Re-signs a modified body so that only the modification is wrong.
+    fn resign(text: &str) -> String {
+        let i = text.trim_end_matches('\n').rfind('\n').unwrap() + 1;
+        let body = &text[..i];
+        format!(
+            "{body}checksum = fnv1a64:{:016x}\n",
+            fnv1a64(body.as_bytes())
+        )
+    }
+
+    #[test]
+    fn round_trip_is_exact() {
+        let s = state();
+        let text = encode(&s);
+        assert!(
+            text.starts_with("vlsync-state 1\n# saved 2026-11-23T"),
+            "{text}"
+        );
+        let back = decode(text.as_bytes()).unwrap();
+        assert_eq!(back.saved_unix_ns, s.saved_unix_ns);
+        let (a, b) = (back.estimate, s.estimate);
+        assert_eq!(a.t_ref_ns, b.t_ref_ns);
+        assert_eq!(a.offset_s.to_bits(), b.offset_s.to_bits());
+        assert_eq!(a.drift.to_bits(), b.drift.to_bits());
+        assert_eq!(a.offset_std_s.to_bits(), b.offset_std_s.to_bits());
+        assert_eq!(a.drift_std.to_bits(), b.drift_std.to_bits());
+        assert_eq!((a.state, a.polarity), (b.state, b.polarity));
+        assert!(a.measured_offset_s.is_nan());
+    }
+
+    #[test]
+    fn utc_text_matches_known_dates() {
+        assert_eq!(utc_text(0), "1970-01-01T00:00:00Z");
+        assert_eq!(utc_text(951_782_400_000_000_000), "2000-02-29T00:00:00Z");
+        assert_eq!(utc_text(1_795_442_000_000_000_000), "2026-11-23T13:53:20Z");
+        assert_eq!(utc_text(-1_000_000_000), "1969-12-31T23:59:59Z");
+    }
+
+    #[test]
+    fn every_corruption_kind_is_named() {
+        let good = encode(&state());
+        let set = |key: &str, value: &str| -> String {
+            let mut out = String::new();
+            for l in good.lines() {
+                if l.split('=').next().map(str::trim) == Some(key) {
+                    out.push_str(&format!("{key} = {value}\n"));
+                } else {
+                    out.push_str(&format!("{l}\n"));
+                }
+            }
+            resign(&out)
+        };
+        let without_checksum: String = good
+            .lines()
+            .filter(|l| !l.starts_with("checksum"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let cases: Vec<(String, &str)> = vec![
+            ("".into(), "expected `vlsync-state 1`"),
+            (
+                good.replacen("vlsync-state", "other-state", 1),
+                "not a vlsync state file",
+            ),
+            (
+                good.replacen("vlsync-state 1", "vlsync-state 2", 1),
+                "format version \"2\"",
+            ),
+            (
+                good.replacen("vlsync-state 1", "vlsync-state 1 x", 1),
+                "expected `vlsync-state 1`",
+            ),
+            (good[..good.len() / 2].to_string(), "truncated"),
+            (good.trim_end_matches('\n').to_string(), "truncated"),
+            (without_checksum, "truncated"),
+            (good.replacen("fnv1a64:", "crc32:", 1), "malformed checksum"),
+            (
+                good.replacen("state = tracking", "state = trackinh", 1),
+                "checksum mismatch",
+            ),
+            (
+                resign(&good.replacen("drift = ", "drift: ", 1)),
+                "not `key = value`",
+            ),
+            (
+                resign(&good.replacen("drift = ", "drift_rate = ", 1)),
+                "unknown key \"drift_rate\"",
+            ),
+            (
+                resign(&good.replacen(
+                    "state = tracking\n",
+                    "state = tracking\nstate = holding\n",
+                    1,
+                )),
+                "`state` given twice",
+            ),
+            (
+                resign(&good.replacen("polarity = negative\n", "", 1)),
+                "key `polarity` missing",
+            ),
+            (
+                set("offset_s", "abc"),
+                "`offset_s` = \"abc\" is not a valid value",
+            ),
+            (set("offset_s", "NaN"), "`offset_s` is not a finite"),
+            (set("drift_std", "inf"), "`drift_std` is not a finite"),
+            (
+                set("offset_s", "2e6"),
+                "`offset_s` = 2000000 is out of range",
+            ),
+            (set("drift", "0.5"), "`drift` = 0.5 is out of range"),
+            (
+                set("offset_std_s", "-1"),
+                "`offset_std_s` = -1 is out of range",
+            ),
+            (set("state", "lost"), "`state` = \"lost\""),
+            (set("polarity", "sideways"), "`polarity` = \"sideways\""),
+            (set("saved_unix_ns", "1.5"), "`saved_unix_ns` = \"1.5\""),
+            (set("t_ref_ns", "99999999999999999999"), "`t_ref_ns`"),
+        ];
+        for (text, want) in cases {
+            let e = decode(text.as_bytes()).expect_err(&text).to_string();
+            assert!(e.contains(want), "{e:?} lacks {want:?} for\n{text}");
+        }
+        let e = decode(&[0xff, 0xfe, b'\n']).unwrap_err();
+        assert_eq!(e, Problem::NotText);
+        // the checksum covers the comment too
+        let e = decode(good.replacen("do not edit", "do not edlt", 1).as_bytes()).unwrap_err();
+        assert!(matches!(e, Problem::ChecksumMismatch { .. }), "{e:?}");
+    }
+
+    #[test]
+    fn load_names_the_file_and_checks_age() {
+        let d = dir("age");
+        let p = d.join("vlsync.state");
+        assert_eq!(load(&p, 0, 10.0), Ok(None));
+        let s = state();
+        save(&p, &s).unwrap();
+        let now = s.saved_unix_ns + 30_000_000_000;
+        let (back, age) = load(&p, now, 3600.0).unwrap().unwrap();
+        assert_eq!(back.estimate.offset_s, s.estimate.offset_s);
+        assert!((age - 30.0).abs() < 1e-6, "{age}");
+        let e = load(&p, now, 10.0).unwrap_err();
+        assert!(matches!(e.problem, Problem::Stale { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&p.display().to_string()) && msg.contains("stale"),
+            "{msg}"
+        );
+        // slightly in the future (clock adjustments) is fine, far is not
+        let (_, age) = load(&p, s.saved_unix_ns - 5_000_000_000, 10.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(age, 0.0);
+        let e = load(&p, s.saved_unix_ns - 3_600_000_000_000, 10.0).unwrap_err();
+        assert!(e.to_string().contains("in the future"), "{e}");
+        // oversized and unreadable files
+        std::fs::write(&p, vec![b'#'; MAX_FILE_BYTES as usize + 1]).unwrap();
+        assert_eq!(load(&p, now, 10.0).unwrap_err().problem, Problem::TooLarge);
+        let e = load(&d, now, 10.0).unwrap_err();
+        assert!(matches!(e.problem, Problem::Io(_)), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_crash_mid_write_leaves_the_old_file_intact() {
+        let d = dir("atomic");
+        let p = d.join("vlsync.state");
+        let old = state();
+        save(&p, &old).unwrap();
+        assert!(!temp_path(&p).exists(), "temp file left after a save");
+        // a crash after part of the new text reached the temp file
+        let mut new = old;
+        new.estimate.offset_s = 0.5;
+        let text = encode(&new);
+        std::fs::write(temp_path(&p), &text[..text.len() / 3]).unwrap();
+        let (back, _) = load(&p, old.saved_unix_ns, 60.0).unwrap().unwrap();
+        assert_eq!(back.estimate.offset_s, old.estimate.offset_s);
+        // the next save overwrites the leftover and replaces the file
+        save(&p, &new).unwrap();
+        assert!(!temp_path(&p).exists());
+        let (back, _) = load(&p, new.saved_unix_ns, 60.0).unwrap().unwrap();
+        assert_eq!(back.estimate.offset_s, 0.5);
+        // a failed save (directory gone) reports the path and leaves nothing
+        let gone = d.join("missing").join("vlsync.state");
+        let e = save(&gone, &new).unwrap_err();
+        assert!(e.contains("missing/vlsync.state.tmp"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn only_good_estimates_are_saved_and_at_most_every_period() {
+        let d = dir("saver");
+        let p = d.join("s");
+        let mut sv = Saver::new(p.clone(), Duration::from_secs(5));
+        let t0 = Instant::now();
+        let acquiring = Estimate {
+            state: EstimatorState::Acquiring,
+            ..est()
+        };
+        let loose_hold = Estimate {
+            state: EstimatorState::Holding,
+            offset_std_s: 0.02,
+            ..est()
+        };
+        sv.offer(&acquiring);
+        sv.offer(&loose_hold);
+        sv.offer(&Estimate {
+            offset_s: f64::NAN,
+            ..est()
+        });
+        assert!(!sv.tick(t0), "nothing worth saving yet");
+        assert!(!p.exists());
+        sv.offer(&est());
+        assert!(sv.tick(t0));
+        sv.offer(&Estimate {
+            state: EstimatorState::Holding,
+            offset_std_s: 0.004,
+            offset_s: 0.25,
+            ..est()
+        });
+        assert!(
+            !sv.tick(t0 + Duration::from_secs(4)),
+            "saved within the period"
+        );
+        assert!(sv.tick(t0 + Duration::from_secs(5)));
+        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        assert_eq!(s.estimate.offset_s, 0.25);
+        assert_eq!(s.estimate.state, EstimatorState::Holding);
+        // nothing new: no save; flush saves what is pending regardless of the period
+        assert!(!sv.tick(t0 + Duration::from_secs(20)));
+        sv.offer(&Estimate {
+            offset_s: 0.125,
+            ..est()
+        });
+        assert!(sv.flush());
+        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        assert_eq!(s.estimate.offset_s, 0.125);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+            let _ = decode(&bytes);
+        }
+
+        #[test]
+        fn mutated_files_never_panic(pos in 0usize..400, byte in any::<u8>(), cut in 0usize..400) {
+            let mut b = encode(&state()).into_bytes();
+            let i = pos % b.len();
+            b[i] = byte;
+            b.truncate(cut.max(1).min(b.len()));
+            let _ = decode(&b);
+            // the same with a valid checksum, so the key parser sees the mutation
+            if let Ok(text) = std::str::from_utf8(&b) {
+                if let Some(i) = text.trim_end_matches('\n').rfind('\n') {
+                    let body = &text[..i + 1];
+                    let resigned = format!("{body}checksum = fnv1a64:{:016x}\n", fnv1a64(body.as_bytes()));
+                    if let Ok(s) = decode(resigned.as_bytes()) {
+                        prop_assert!(s.estimate.offset_s.is_finite() && s.estimate.offset_std_s >= 0.0);
+                    }
+                }
+            }
+        }
+    }
+}
