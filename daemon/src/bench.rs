@@ -31,6 +31,9 @@ pub struct BenchArgs {
     /// Also write the results as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Write one SVG per family (its first seed: estimate, ±2σ, truth) into this folder.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 /// Result of one family.
@@ -48,13 +51,14 @@ pub struct FamilyResult {
     pub time_s: f64,
 }
 
-/// Runs one family over `seeds`.
+/// Runs one family over `seeds`; with `plot_dir`, writes the first seed's SVG there.
 pub fn run_family(
     cfg: &Config,
     family: Family,
     seeds: impl Iterator<Item = u64>,
     duration: Option<f64>,
-) -> FamilyResult {
+    plot_dir: Option<&std::path::Path>,
+) -> Result<FamilyResult, String> {
     let mut ours = Vec::new();
     let mut base = Vec::new();
     let mut crbs = Vec::new();
@@ -65,6 +69,23 @@ pub fn run_family(
         let (ests, _) = run_estimator(&cfg.estimator, &run.cam, &run.lidar);
         time += t0.elapsed().as_secs_f64();
         ours.push(score_estimates(&ests, &run));
+        if let (Some(dir), true) = (plot_dir, ours.len() == 1) {
+            let truth: Vec<(vlsync_common::Nanos, f64)> = (0..)
+                .map(|i: i64| i * 50_000_000)
+                .take_while(|t| *t <= run.truth.end_ns)
+                .map(|t| (t, run.truth.offset_at(t)))
+                .collect();
+            let title = format!(
+                "{} seed {seed}: MAE {:.2} ms (CRB {:.2} ms)",
+                family.name(),
+                ours[0].mae_s * 1e3,
+                run.crb_std_s * 1e3
+            );
+            let svg = crate::plot::offset_svg(&title, &ests, Some(&truth), &[]);
+            let path = dir.join(format!("{}.svg", family.name()));
+            std::fs::write(&path, svg)
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        }
         base.push(score_pairs(
             &seed_chunked(&run.cam, &run.lidar, run.cam_hz),
             &run,
@@ -73,13 +94,13 @@ pub fn run_family(
     }
     crbs.sort_by(f64::total_cmp);
     let n = ours.len().max(1);
-    FamilyResult {
+    Ok(FamilyResult {
         family,
         ours: Score::aggregate(&ours),
         baseline: Score::aggregate(&base),
         crb_s: crbs.get(crbs.len() / 2).copied().unwrap_or(f64::NAN),
         time_s: time / n as f64,
-    }
+    })
 }
 
 fn ms(x: f64) -> String {
@@ -184,7 +205,11 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
             return Err(format!("--duration {d}: allowed 5 ..= 3600 s"));
         }
     }
+    if let Some(d) = &args.plots {
+        std::fs::create_dir_all(d).map_err(|e| format!("cannot create {}: {e}", d.display()))?;
+    }
     let total = families.len();
+    let failure = std::sync::Mutex::new(None::<String>);
     let next = std::sync::atomic::AtomicUsize::new(0);
     let done = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(Vec::new());
@@ -196,12 +221,21 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
             sc.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
                 let Some(&fam) = families.get(i) else { break };
-                let r = run_family(
+                let r = match run_family(
                     &cfg,
                     fam,
                     args.seed_base..args.seed_base + args.seeds,
                     args.duration,
-                );
+                    args.plots.as_deref(),
+                ) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        if let Ok(mut f) = failure.lock() {
+                            f.get_or_insert(e);
+                        }
+                        break;
+                    }
+                };
                 let d = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
                 eprintln!(
                     "[{d}/{total}] {:<16} MAE {} ms, p95 {} ms ({:.1} ms per run)",
@@ -226,6 +260,9 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         std::fs::write(p, json(&results))
             .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
         eprintln!("wrote {}", p.display());
+    }
+    if let Some(d) = &args.plots {
+        eprintln!("wrote one SVG per family into {}", d.display());
     }
     Ok(())
 }

@@ -152,7 +152,12 @@ pub fn offset_svg(
         r##"<polygon points="{band}" fill="#54aeff" fill-opacity="0.25"/>"##
     );
     // raw measurements
-    for e in ests.iter().filter(|e| e.measured_offset_s.is_finite()) {
+    // raw measurements outside the plotted range are left out, not piled on the edge
+    for e in ests
+        .iter()
+        .filter(|e| e.measured_offset_s.is_finite())
+        .filter(|e| (y0..=y1).contains(&(e.measured_offset_s * 1e3)))
+    {
         let _ = writeln!(
             s,
             r##"<circle cx="{:.1}" cy="{:.1}" r="1.5" fill="#999"/>"##,
@@ -262,6 +267,7 @@ mod tests {
         assert!(
             svg.contains("<polygon") && svg.contains("stroke=\"black\"") && svg.contains(">load<")
         );
+        // 50 measurements plus the legend's marker
         assert_eq!(svg.matches("<circle").count(), 50 + 1);
     }
 
