@@ -1,0 +1,212 @@
+//! `vlsyncd run` under a simulated systemd: the test plays the service manager's
+//! notification socket and checks READY=1, the watchdog petting at half of
+//! WATCHDOG_USEC, and STOPPING=1 plus a clean exit on SIGTERM.
+
+use std::os::unix::net::UnixDatagram;
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+use vlsync_tests::{bin, Managed};
+
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Receives datagrams until one contains `line` (as a whole line) or `within` passes.
+fn wait_for(sock: &UnixDatagram, line: &str, within: Duration, seen: &mut Vec<String>) -> bool {
+    let t0 = Instant::now();
+    let mut buf = [0u8; 4096];
+    while t0.elapsed() < within {
+        match sock.recv(&mut buf) {
+            Ok(n) => {
+                let msg = String::from_utf8_lossy(&buf[..n]).into_owned();
+                let hit = msg.lines().any(|l| l == line);
+                seen.push(msg);
+                if hit {
+                    return true;
+                }
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) => panic!("receive on the notify socket: {e}"),
+        }
+    }
+    false
+}
+
+#[test]
+fn ready_watchdog_and_stopping_reach_the_service_manager() {
+    let dir = std::env::temp_dir().join(format!("vlsync-it-sdnotify-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let _scratch = Scratch(dir.clone());
+    let sock_path = dir.join("notify.sock");
+    let sock = UnixDatagram::bind(&sock_path).unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(100)))
+        .unwrap();
+    let prefix = format!("vlsync-it/sdnotify-{}", std::process::id());
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
+    )
+    .unwrap();
+    let log = dir.join("vlsyncd.log");
+    let daemon_bin = bin("vlsyncd");
+    let child = Command::new(&daemon_bin)
+        .args(["run", "--config"])
+        .arg(&cfg)
+        .env("NOTIFY_SOCKET", &sock_path)
+        .env("WATCHDOG_USEC", "1000000")
+        .env_remove("WATCHDOG_PID")
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let mut daemon = Managed {
+        name: "vlsyncd".into(),
+        child,
+    };
+    let logtext = || std::fs::read_to_string(&log).unwrap_or_default();
+
+    let mut seen = vec![];
+    assert!(
+        wait_for(&sock, "READY=1", Duration::from_secs(20), &mut seen),
+        "no READY=1; got {seen:?}\n{}",
+        logtext()
+    );
+    let ready = seen.last().unwrap().clone();
+    assert!(
+        ready
+            .lines()
+            .any(|l| l.starts_with("STATUS=") && l.contains(&prefix)),
+        "READY without a status naming the prefix: {ready:?}"
+    );
+
+    // WATCHDOG_USEC = 1 s: a pet every 0.5 s while the real-time thread runs
+    let t0 = Instant::now();
+    let mut pets = vec![];
+    let mut buf = [0u8; 4096];
+    while t0.elapsed() < Duration::from_millis(2200) {
+        if let Ok(n) = sock.recv(&mut buf) {
+            let msg = String::from_utf8_lossy(&buf[..n]).into_owned();
+            if msg.lines().any(|l| l == "WATCHDOG=1") {
+                pets.push(t0.elapsed());
+            }
+            seen.push(msg);
+        }
+    }
+    assert!(
+        pets.len() >= 3,
+        "{} WATCHDOG=1 in 2.2 s (want one every 0.5 s): {pets:?}\n{seen:?}\n{}",
+        pets.len(),
+        logtext()
+    );
+    for w in pets.windows(2) {
+        let gap = w[1] - w[0];
+        assert!(
+            gap < Duration::from_millis(900),
+            "watchdog pets {gap:?} apart, over the 1 s deadline minus margin: {pets:?}"
+        );
+    }
+    // the periodic status line arrives too (status period 1 s)
+    assert!(
+        seen.iter()
+            .any(|m| m.starts_with("STATUS=") && m.contains("received cam 0 lidar 0")),
+        "no periodic STATUS line: {seen:?}"
+    );
+
+    daemon.signal("TERM").unwrap();
+    let mut after = vec![];
+    assert!(
+        wait_for(&sock, "STOPPING=1", Duration::from_secs(5), &mut after),
+        "no STOPPING=1 after SIGTERM; got {after:?}\n{}",
+        logtext()
+    );
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(st) = daemon.child.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "vlsyncd still running 5 s after SIGTERM\n{}",
+            logtext()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "exit {status:?}\n{}", logtext());
+    // no watchdog pet after STOPPING=1
+    let mut late = vec![];
+    wait_for(&sock, "WATCHDOG=1", Duration::from_millis(300), &mut late);
+    let stop_at = after
+        .iter()
+        .position(|m| m.lines().any(|l| l == "STOPPING=1"))
+        .unwrap();
+    assert!(
+        !after[stop_at + 1..]
+            .iter()
+            .chain(late.iter())
+            .any(|m| m.contains("WATCHDOG=1")),
+        "watchdog petted after STOPPING=1: {after:?} {late:?}"
+    );
+}
+
+#[test]
+fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
+    let dir = std::env::temp_dir().join(format!("vlsync-it-sdnone-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let _scratch = Scratch(dir.clone());
+    let prefix = format!("vlsync-it/sdnone-{}", std::process::id());
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
+    )
+    .unwrap();
+    let log = dir.join("vlsyncd.log");
+    let child = Command::new(bin("vlsyncd"))
+        .args(["run", "--config"])
+        .arg(&cfg)
+        .env_remove("NOTIFY_SOCKET")
+        .env("WATCHDOG_USEC", "1000000")
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let mut daemon = Managed {
+        name: "vlsyncd".into(),
+        child,
+    };
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&log)
+        .unwrap_or_default()
+        .contains("serving prefix")
+    {
+        assert!(
+            daemon.running(),
+            "{}",
+            std::fs::read_to_string(&log).unwrap()
+        );
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "daemon did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(daemon.stop(Duration::from_secs(5)));
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(!text.contains("systemd notification"), "{text}");
+    assert!(!text.contains("WARN"), "{text}");
+}
