@@ -1,0 +1,668 @@
+//! Reading the messages of one topic from an MCAP file, in log-time order.
+//!
+//! [`McapReader::open`] reads the file's summary. When the file is indexed
+//! (chunk indexes in the summary, as `ros2 bag record` writes), messages come
+//! through the `mcap` crate's indexed reader in **log-time order** (ties in file
+//! order), only the chunks holding the topic are read, and each chunk's CRC is
+//! checked before its messages are used. When the summary is missing (a
+//! recording that was cut off) or has no chunk indexes, the file is read
+//! linearly in **file order** (chunk CRCs checked too); [`McapReader::is_indexed`]
+//! tells which, and [`McapReader::out_of_order`] counts messages whose log time
+//! went backwards. A truncated file then yields its messages up to the cut and
+//! then an error saying so.
+//!
+//! Topic selection: by name ([`Select::Topic`]; its schema must be one the
+//! caller accepts), or by schema ([`Select::Schema`]): the single topic whose
+//! schema is one of the given names; none or several is an error listing the
+//! topics of the file. Messages must be `cdr`-encoded.
+//!
+//! A recording is hostile input: record lengths are bounded by the file size and
+//! [`ReaderOptions::max_record_bytes`], and every error names the file and, past
+//! the start, the topic, message index and log time.
+//!
+//! Chunk compression: see [`crate::decompress`]; an unsupported compression is
+//! an error naming it.
+
+use crate::decompress;
+use crate::error::{Error, MessageAt};
+use mcap::records::op;
+use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+use mcap::{McapError, Summary};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// Which topic to read.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum Select {
+    /// This topic; its schema must be one of the accepted ones.
+    Topic(String),
+    /// The one topic whose schema is one of the accepted ones (default).
+    #[default]
+    Schema,
+}
+
+/// Reader limits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReaderOptions {
+    /// Largest record (and decompressed chunk) accepted, bytes. Default 1 GiB.
+    pub max_record_bytes: usize,
+}
+
+impl Default for ReaderOptions {
+    fn default() -> Self {
+        Self {
+            max_record_bytes: 1 << 30,
+        }
+    }
+}
+
+/// One channel of a recording.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TopicInfo {
+    /// Topic name.
+    pub topic: String,
+    /// Schema name, e.g. `sensor_msgs/msg/Image` (empty without a schema).
+    pub schema_name: String,
+    /// Message encoding, `cdr` for ROS 2.
+    pub message_encoding: String,
+    /// Messages on the channel, when the file's statistics say.
+    pub message_count: Option<u64>,
+}
+
+/// One message of the selected topic, borrowed from the reader's buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MessageRef<'a> {
+    /// 0-based index among this reader's messages.
+    pub index: u64,
+    /// MCAP log time (the recorder's receive time), ns.
+    pub log_time: u64,
+    /// MCAP publish time, ns.
+    pub publish_time: u64,
+    /// Publisher sequence number (0 when unknown).
+    pub sequence: u32,
+    /// The serialized message (CDR with its encapsulation header).
+    pub data: &'a [u8],
+}
+
+enum Mode {
+    Indexed {
+        reader: Box<IndexedReader>,
+        /// compressed-data offset -> (chunk start, compression)
+        chunks: BTreeMap<u64, (u64, String)>,
+    },
+    Linear {
+        reader: Box<LinearReader>,
+    },
+}
+
+/// Messages of one topic of an MCAP file (see the module docs).
+pub struct McapReader {
+    path: PathBuf,
+    file: File,
+    file_len: u64,
+    topic: TopicInfo,
+    channel_ids: Vec<u16>,
+    mode: Mode,
+    chunk_buf: Vec<u8>,
+    msg_buf: Vec<u8>,
+    next_index: u64,
+    last_log_time: Option<u64>,
+    out_of_order: u64,
+    done: bool,
+}
+
+impl std::fmt::Debug for McapReader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("McapReader")
+            .field("path", &self.path)
+            .field("topic", &self.topic)
+            .field("indexed", &self.is_indexed())
+            .field("next_index", &self.next_index)
+            .finish_non_exhaustive()
+    }
+}
+
+fn io_err(path: &Path, doing: &str, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        doing: doing.to_string(),
+        source,
+    }
+}
+
+fn mcap_err(path: &Path, at: impl Into<String>, source: McapError) -> Error {
+    Error::Mcap {
+        path: path.to_path_buf(),
+        at: at.into(),
+        source,
+    }
+}
+
+/// Reads the summary section; `Ok(None)` when the file has none.
+fn read_summary(
+    file: &mut File,
+    file_len: u64,
+    opts: ReaderOptions,
+) -> Result<Option<Summary>, McapError> {
+    let mut reader = SummaryReader::new_with_options(
+        SummaryReaderOptions::default()
+            .with_file_size(file_len)
+            .with_record_length_limit(opts.max_record_bytes),
+    );
+    while let Some(event) = reader.next_event() {
+        match event? {
+            SummaryReadEvent::ReadRequest(need) => {
+                let n = file.read(reader.insert(need))?;
+                reader.notify_read(n);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                let pos = file.seek(to)?;
+                reader.notify_seeked(pos);
+            }
+        }
+    }
+    Ok(reader.finish())
+}
+
+fn linear_reader(opts: ReaderOptions) -> Result<LinearReader, McapError> {
+    let mut r = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(opts.max_record_bytes),
+    );
+    decompress::register_linear(&mut r)?;
+    Ok(r)
+}
+
+/// Channels found by reading the file from the start (for files without a
+/// summary). Stops quietly at the first error: the main pass reports it.
+fn scan_channels(file: &mut File, opts: ReaderOptions) -> Vec<(u16, TopicInfo)> {
+    let mut out = Vec::new();
+    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
+    if file.seek(SeekFrom::Start(0)).is_err() {
+        return out;
+    }
+    let Ok(mut reader) = linear_reader(opts) else {
+        return out;
+    };
+    while let Some(Ok(event)) = reader.next_event() {
+        match event {
+            LinearReadEvent::ReadRequest(need) => match file.read(reader.insert(need)) {
+                Ok(n) => reader.notify_read(n),
+                Err(_) => break,
+            },
+            LinearReadEvent::Record { opcode, data } => {
+                if opcode != op::SCHEMA && opcode != op::CHANNEL {
+                    continue;
+                }
+                match mcap::parse_record(opcode, data) {
+                    Ok(mcap::records::Record::Schema { header, .. }) => {
+                        schemas.insert(header.id, header.name);
+                    }
+                    Ok(mcap::records::Record::Channel(c)) => {
+                        if out.iter().any(|(id, _)| *id == c.id) {
+                            continue;
+                        }
+                        out.push((
+                            c.id,
+                            TopicInfo {
+                                topic: c.topic,
+                                schema_name: schemas.get(&c.schema_id).cloned().unwrap_or_default(),
+                                message_encoding: c.message_encoding,
+                                message_count: None,
+                            },
+                        ));
+                    }
+                    _ => break,
+                }
+            }
+        }
+    }
+    out
+}
+
+fn summary_channels(s: &Summary) -> Vec<(u16, TopicInfo)> {
+    let counts = s.stats.as_ref().map(|st| &st.channel_message_counts);
+    let mut out: Vec<_> = s
+        .channels
+        .values()
+        .map(|c| {
+            (
+                c.id,
+                TopicInfo {
+                    topic: c.topic.clone(),
+                    schema_name: c
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default(),
+                    message_encoding: c.message_encoding.clone(),
+                    message_count: counts.and_then(|m| m.get(&c.id).copied()),
+                },
+            )
+        })
+        .collect();
+    out.sort_by_key(|(id, _)| *id);
+    out
+}
+
+fn list(channels: &[(u16, TopicInfo)]) -> String {
+    if channels.is_empty() {
+        return "the file has no channels".into();
+    }
+    let items: Vec<String> = channels
+        .iter()
+        .map(|(_, t)| format!("`{}` ({})", t.topic, t.schema_name))
+        .collect();
+    format!("the file has {}", items.join(", "))
+}
+
+/// Picks the channels of the selected topic.
+fn resolve(
+    path: &Path,
+    channels: &[(u16, TopicInfo)],
+    select: &Select,
+    schemas: &[&str],
+) -> Result<(TopicInfo, Vec<u16>), Error> {
+    let topic_err = |reason: String| Error::Topic {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let name = match select {
+        Select::Topic(t) => t.clone(),
+        Select::Schema => {
+            let mut names: Vec<&str> = channels
+                .iter()
+                .filter(|(_, t)| schemas.contains(&t.schema_name.as_str()))
+                .map(|(_, t)| t.topic.as_str())
+                .collect();
+            names.sort_unstable();
+            names.dedup();
+            match names.as_slice() {
+                [one] => one.to_string(),
+                [] => {
+                    return Err(topic_err(format!(
+                        "no topic with schema {}; {}",
+                        schemas.join(" or "),
+                        list(channels)
+                    )))
+                }
+                many => {
+                    return Err(topic_err(format!(
+                        "several topics with schema {}: {}; name one",
+                        schemas.join(" or "),
+                        many.join(", ")
+                    )))
+                }
+            }
+        }
+    };
+    let mine: Vec<&(u16, TopicInfo)> = channels.iter().filter(|(_, t)| t.topic == name).collect();
+    let Some((_, first)) = mine.first() else {
+        return Err(topic_err(format!("no topic `{name}`; {}", list(channels))));
+    };
+    for (_, t) in &mine {
+        if !schemas.contains(&t.schema_name.as_str()) {
+            return Err(topic_err(format!(
+                "topic `{name}` has schema `{}`, expected {}",
+                t.schema_name,
+                schemas.join(" or ")
+            )));
+        }
+        if t.message_encoding != "cdr" {
+            return Err(topic_err(format!(
+                "topic `{name}` has message encoding `{}`, expected `cdr`",
+                t.message_encoding
+            )));
+        }
+    }
+    let mut info = (*first).clone();
+    info.message_count = mine
+        .iter()
+        .map(|(_, t)| t.message_count)
+        .try_fold(0u64, |a, c| c.map(|c| a.saturating_add(c)));
+    Ok((info, mine.iter().map(|(id, _)| *id).collect()))
+}
+
+impl McapReader {
+    /// The channels of a recording (from its summary, or by reading it when it has none).
+    pub fn topics(path: impl AsRef<Path>) -> Result<Vec<TopicInfo>, Error> {
+        let path = path.as_ref();
+        let mut file = File::open(path).map_err(|e| io_err(path, "opening", e))?;
+        let len = file
+            .metadata()
+            .map_err(|e| io_err(path, "reading metadata", e))?
+            .len();
+        let opts = ReaderOptions::default();
+        let ch = match read_summary(&mut file, len, opts) {
+            Ok(Some(s)) => summary_channels(&s),
+            _ => scan_channels(&mut file, opts),
+        };
+        Ok(ch.into_iter().map(|(_, t)| t).collect())
+    }
+
+    /// Opens `path` and selects a topic whose schema is one of `schemas`.
+    pub fn open(
+        path: impl AsRef<Path>,
+        select: &Select,
+        schemas: &[&str],
+        opts: ReaderOptions,
+    ) -> Result<Self, Error> {
+        let path = path.as_ref().to_path_buf();
+        let mut file = File::open(&path).map_err(|e| io_err(&path, "opening", e))?;
+        let file_len = file
+            .metadata()
+            .map_err(|e| io_err(&path, "reading metadata", e))?
+            .len();
+        // a file without a valid summary is read linearly; a broken start shows up there
+        let summary = read_summary(&mut file, file_len, opts).ok().flatten();
+        let channels = match &summary {
+            Some(s) => summary_channels(s),
+            None => scan_channels(&mut file, opts),
+        };
+        let (topic, channel_ids) = match resolve(&path, &channels, select, schemas) {
+            Ok(t) => t,
+            Err(e) if channels.is_empty() && summary.is_none() => {
+                // nothing readable at all: report why, from the start of the file
+                let mut r = linear_reader(opts).map_err(|s| mcap_err(&path, "opening", s))?;
+                file.seek(SeekFrom::Start(0))
+                    .map_err(|e| io_err(&path, "seeking", e))?;
+                loop {
+                    match r.next_event() {
+                        Some(Ok(LinearReadEvent::ReadRequest(need))) => {
+                            let n = file
+                                .read(r.insert(need))
+                                .map_err(|e| io_err(&path, "reading", e))?;
+                            r.notify_read(n);
+                        }
+                        Some(Ok(_)) => {}
+                        Some(Err(s)) => {
+                            return Err(mcap_err(&path, "reading the file from the start", s))
+                        }
+                        None => return Err(e),
+                    }
+                }
+            }
+            Err(e) => return Err(e),
+        };
+        let mode = match summary {
+            Some(s) if !s.chunk_indexes.is_empty() => {
+                let options = IndexedReaderOptions::new()
+                    .include_topics([topic.topic.clone()])
+                    .with_record_length_limit(opts.max_record_bytes);
+                let mut reader = IndexedReader::new_with_options(&s, options)
+                    .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
+                decompress::register_indexed(&mut reader)
+                    .map_err(|e| mcap_err(&path, "opening", e))?;
+                let chunks = s
+                    .chunk_indexes
+                    .iter()
+                    .filter_map(|c| {
+                        let off = c.compressed_data_offset().ok()?;
+                        Some((off, (c.chunk_start_offset, c.compression.clone())))
+                    })
+                    .collect();
+                Mode::Indexed {
+                    reader: Box::new(reader),
+                    chunks,
+                }
+            }
+            _ => {
+                file.seek(SeekFrom::Start(0))
+                    .map_err(|e| io_err(&path, "seeking", e))?;
+                Mode::Linear {
+                    reader: Box::new(
+                        linear_reader(opts).map_err(|e| mcap_err(&path, "opening", e))?,
+                    ),
+                }
+            }
+        };
+        Ok(Self {
+            path,
+            file,
+            file_len,
+            topic,
+            channel_ids,
+            mode,
+            chunk_buf: Vec::new(),
+            msg_buf: Vec::new(),
+            next_index: 0,
+            last_log_time: None,
+            out_of_order: 0,
+            done: false,
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The selected topic.
+    pub fn topic(&self) -> &TopicInfo {
+        &self.topic
+    }
+
+    /// True when messages come in log-time order through the file's index;
+    /// false when the file is read linearly (file order).
+    pub fn is_indexed(&self) -> bool {
+        matches!(self.mode, Mode::Indexed { .. })
+    }
+
+    /// Messages (so far) whose log time is earlier than the previous one's
+    /// (only possible when reading linearly).
+    pub fn out_of_order(&self) -> u64 {
+        self.out_of_order
+    }
+
+    /// Where the next message will be, for error messages.
+    pub fn at(&self, log_time: u64) -> MessageAt {
+        MessageAt {
+            topic: self.topic.topic.clone(),
+            index: self.next_index,
+            log_time,
+        }
+    }
+
+    /// The next message of the topic, `Ok(None)` at the end. After an error the
+    /// reader yields `Ok(None)`.
+    pub fn next_message(&mut self) -> Result<Option<MessageRef<'_>>, Error> {
+        if self.done {
+            return Ok(None);
+        }
+        match self.advance() {
+            Ok(Some((log_time, publish_time, sequence))) => {
+                if self.last_log_time.is_some_and(|t| log_time < t) {
+                    self.out_of_order += 1;
+                }
+                self.last_log_time = Some(log_time);
+                let index = self.next_index;
+                self.next_index += 1;
+                Ok(Some(MessageRef {
+                    index,
+                    log_time,
+                    publish_time,
+                    sequence,
+                    data: &self.msg_buf,
+                }))
+            }
+            Ok(None) => {
+                self.done = true;
+                Ok(None)
+            }
+            Err(e) => {
+                self.done = true;
+                Err(e)
+            }
+        }
+    }
+
+    /// Loads the next message of the topic into `msg_buf`.
+    fn advance(&mut self) -> Result<Option<(u64, u64, u32)>, Error> {
+        let Self {
+            path,
+            file,
+            file_len,
+            channel_ids,
+            mode,
+            chunk_buf,
+            msg_buf,
+            ..
+        } = self;
+        match mode {
+            Mode::Indexed { reader, chunks } => loop {
+                let event = match reader.next_event() {
+                    None => return Ok(None),
+                    Some(Ok(e)) => e,
+                    Some(Err(e)) => {
+                        return Err(mcap_err(
+                            path,
+                            self_position(&self.topic, self.next_index, self.last_log_time),
+                            e,
+                        ))
+                    }
+                };
+                match event {
+                    IndexedReadEvent::ReadChunkRequest { offset, length } => {
+                        let at = self_position(&self.topic, self.next_index, self.last_log_time);
+                        read_chunk(file, *file_len, offset, length, chunk_buf).map_err(|e| {
+                            mcap_err(path, format!("{at}, reading the chunk at byte {offset}"), e)
+                        })?;
+                        if let Some((start, compression)) = chunks.get(&offset) {
+                            if compression.is_empty() {
+                                check_chunk_crc(file, *start, chunk_buf).map_err(|e| {
+                                    mcap_err(path, format!("{at}, chunk at byte {start}"), e)
+                                })?;
+                            }
+                        }
+                        reader
+                            .insert_chunk_record_data(offset, chunk_buf)
+                            .map_err(|e| {
+                                mcap_err(path, format!("{at}, chunk at byte {offset}"), e)
+                            })?;
+                    }
+                    IndexedReadEvent::Message { header, data } => {
+                        if channel_ids.contains(&header.channel_id) {
+                            msg_buf.clear();
+                            msg_buf.extend_from_slice(data);
+                            return Ok(Some((
+                                header.log_time,
+                                header.publish_time,
+                                header.sequence,
+                            )));
+                        }
+                    }
+                }
+            },
+            Mode::Linear { reader } => loop {
+                let event = match reader.next_event() {
+                    None => return Ok(None),
+                    Some(Ok(e)) => e,
+                    Some(Err(e)) => {
+                        return Err(mcap_err(
+                            path,
+                            self_position(&self.topic, self.next_index, self.last_log_time),
+                            e,
+                        ))
+                    }
+                };
+                match event {
+                    LinearReadEvent::ReadRequest(need) => {
+                        let n = file
+                            .read(reader.insert(need))
+                            .map_err(|e| io_err(path, "reading", e))?;
+                        reader.notify_read(n);
+                    }
+                    LinearReadEvent::Record { opcode, data } => match opcode {
+                        op::CHANNEL => {
+                            if let Ok(mcap::records::Record::Channel(c)) =
+                                mcap::parse_record(opcode, data)
+                            {
+                                if c.topic == self.topic.topic && !channel_ids.contains(&c.id) {
+                                    channel_ids.push(c.id);
+                                }
+                            }
+                        }
+                        op::MESSAGE => {
+                            let rec = mcap::parse_record(opcode, data).map_err(|e| {
+                                mcap_err(
+                                    path,
+                                    self_position(&self.topic, self.next_index, self.last_log_time),
+                                    e,
+                                )
+                            })?;
+                            if let mcap::records::Record::Message { header, data } = rec {
+                                if channel_ids.contains(&header.channel_id) {
+                                    msg_buf.clear();
+                                    msg_buf.extend_from_slice(&data);
+                                    return Ok(Some((
+                                        header.log_time,
+                                        header.publish_time,
+                                        header.sequence,
+                                    )));
+                                }
+                            }
+                        }
+                        _ => {}
+                    },
+                }
+            },
+        }
+    }
+}
+
+fn self_position(topic: &TopicInfo, next_index: u64, last: Option<u64>) -> String {
+    match (next_index, last) {
+        (0, _) | (_, None) => format!("before the first message of topic `{}`", topic.topic),
+        (n, Some(t)) => format!(
+            "after message #{} of topic `{}` (log time {t} ns)",
+            n - 1,
+            topic.topic
+        ),
+    }
+}
+
+/// Reads `length` bytes at `offset` into `buf`, checking the range against the file first.
+fn read_chunk(
+    file: &mut File,
+    file_len: u64,
+    offset: u64,
+    length: usize,
+    buf: &mut Vec<u8>,
+) -> Result<(), McapError> {
+    let end = offset.checked_add(length as u64);
+    if end.is_none_or(|e| e > file_len) {
+        return Err(McapError::BadChunkLength {
+            header: length as u64,
+            available: file_len.saturating_sub(offset),
+        });
+    }
+    file.seek(SeekFrom::Start(offset))?;
+    buf.resize(length, 0);
+    file.read_exact(buf)?;
+    Ok(())
+}
+
+/// Checks an uncompressed chunk's data against the CRC in its record header
+/// (the indexed reader does not see that header). A CRC of 0 means "not computed".
+fn check_chunk_crc(file: &mut File, chunk_start: u64, data: &[u8]) -> Result<(), McapError> {
+    // opcode, record length, start time, end time, uncompressed size, CRC
+    let mut head = [0u8; 1 + 8 + 8 + 8 + 8 + 4];
+    file.seek(SeekFrom::Start(chunk_start))?;
+    file.read_exact(&mut head)?;
+    if head[0] != op::CHUNK {
+        return Err(McapError::BadIndex);
+    }
+    let saved = u32::from_le_bytes([head[33], head[34], head[35], head[36]]);
+    if saved != 0 {
+        let calculated = crc32fast::hash(data);
+        if calculated != saved {
+            return Err(McapError::BadChunkCrc { saved, calculated });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,321 @@
+//! LiDAR scans from `sensor_msgs/msg/LaserScan` messages, as
+//! [`vlsync_signature_lidar::Scan`]s.
+//!
+//! # Conventions (from `LaserScan.msg`)
+//!
+//! * `header.stamp` is the acquisition time of the **first** ray; ray `i` was
+//!   measured at `stamp + i · time_increment` (rounded to the nanosecond). A
+//!   driver that publishes `time_increment = 0` gives every ray the stamp.
+//!   The `float32` increment is taken as the decimal it prints as (its shortest
+//!   round-trip representation, see [`f32_as_decimal`]): `0.025` means 25 ms,
+//!   not the binary `0.0250000004`, which would put ray 2 one nanosecond late.
+//! * Ray `i` points at `angle_min + i · angle_increment` radians, about +Z,
+//!   counter-clockwise positive, 0 forward (+X): the same bearing convention as
+//!   `vlsync_signature_lidar::scan` (REP-103), wrapped into `(-π, π]`.
+//! * Sweep direction: bearings grow with time ([`Rotation::Ccw`]) when
+//!   `angle_increment` and `time_increment` have the same sign, else
+//!   [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive).
+//! * A ray is valid when its range is finite, positive and within
+//!   `[range_min, range_max]` (REP-117: ±Inf and NaN are not measurements;
+//!   drivers that mean "no return" by 0 are covered by "positive").
+//! * `intensities` may be empty (intensity 0) or have one value per range.
+//!
+//! With [`StampSource::LogTime`] the MCAP log time replaces `header.stamp` as
+//! the first ray's time.
+//!
+//! The rays vector is reused from scan to scan; `Scan::from_timed` sorts the
+//! rays by time, and Rust's stable sort allocates a scratch buffer for scans of
+//! more than a few hundred rays.
+
+use crate::cdr::{CdrMessage, LaserScan};
+use crate::error::{Error, MessageAt};
+use crate::image::StampSource;
+use crate::read::{McapReader, ReaderOptions, Select, TopicInfo};
+use std::path::Path;
+use vlsync_common::Nanos;
+use vlsync_signature_lidar::scan::wrap_pi;
+use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
+
+/// The schema of a scan topic.
+pub const SCAN_SCHEMAS: [&str; 1] = [LaserScan::SCHEMA_NAME];
+
+/// Options of [`McapScanSource`].
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ScanSourceOptions {
+    /// Topic, or [`Select::Schema`] for the only `LaserScan` topic.
+    pub select: Select,
+    /// Time of the first ray.
+    pub stamp: StampSource,
+    /// Reader limits.
+    pub reader: ReaderOptions,
+}
+
+impl ScanSourceOptions {
+    /// Options reading `topic`.
+    pub fn topic(topic: impl Into<String>) -> Self {
+        Self {
+            select: Select::Topic(topic.into()),
+            ..Self::default()
+        }
+    }
+}
+
+/// Scans from a `LaserScan` topic of an MCAP file (see the module docs).
+///
+/// ```
+/// use vlsync_mcap::{McapScanSource, McapWriter, ScanSourceOptions};
+/// use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
+/// let path = std::env::temp_dir().join(format!("vlsync-mcap-doc-scan-{}.mcap", std::process::id()));
+/// let timing = ScanTiming { start_ns: 5_000_000_000, period_ns: 100_000_000, rotation: Rotation::Ccw, start_bearing_rad: 0.0 };
+/// // 4 rays a quarter turn apart, 25 ms apart
+/// let rays = (0..4).map(|i| Ray::timed(i as f64 * std::f64::consts::FRAC_PI_2, 2.0, 0.0, true,
+///                                      5_000_000_000 + i * 25_000_000)).collect();
+/// let mut w = McapWriter::create(&path).unwrap();
+/// w.write_scan("/scan", &Scan::from_timed(timing, rays)).unwrap();
+/// w.finish().unwrap();
+/// let mut src = McapScanSource::open(&path, ScanSourceOptions::default()).unwrap();
+/// let scan = src.next_scan().unwrap().unwrap();
+/// let times: Vec<i64> = scan.rays().iter().map(|r| r.t_ns).collect();
+/// assert_eq!(times, [5_000_000_000, 5_025_000_000, 5_050_000_000, 5_075_000_000]);
+/// assert!((scan.rays()[1].bearing_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+/// assert!(src.next_scan().unwrap().is_none());
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
+#[derive(Debug)]
+pub struct McapScanSource {
+    reader: McapReader,
+    stamp: StampSource,
+    scan: Scan,
+}
+
+impl McapScanSource {
+    /// Opens a recording and selects the scan topic.
+    pub fn open(path: impl AsRef<Path>, options: ScanSourceOptions) -> Result<Self, Error> {
+        let reader = McapReader::open(path, &options.select, &SCAN_SCHEMAS, options.reader)?;
+        Ok(Self {
+            reader,
+            stamp: options.stamp,
+            scan: Scan::with_capacity(0),
+        })
+    }
+
+    /// The topic read.
+    pub fn topic(&self) -> &TopicInfo {
+        self.reader.topic()
+    }
+
+    /// The underlying reader (order, counters).
+    pub fn reader(&self) -> &McapReader {
+        &self.reader
+    }
+
+    /// The next scan, `Ok(None)` at the end of the topic. The scan borrows the
+    /// source's buffer until the next call.
+    pub fn next_scan(&mut self) -> Result<Option<&Scan>, Error> {
+        let Some(msg) = self.reader.next_message()? else {
+            return Ok(None);
+        };
+        let (index, log_time) = (msg.index, msg.log_time);
+        let mut rays = std::mem::replace(&mut self.scan, Scan::with_capacity(0)).into_rays();
+        let result = LaserScan::decode(msg.data)
+            .map_err(|e| e.to_string())
+            .and_then(|m| {
+                let start = match self.stamp {
+                    StampSource::Header => m.header.stamp.to_nanos(),
+                    StampSource::LogTime => i64::try_from(log_time)
+                        .map_err(|_| format!("log time {log_time} ns does not fit i64"))?,
+                };
+                laser_scan_to_rays(&m, start, &mut rays)
+            });
+        match result {
+            Ok(timing) => {
+                self.scan = Scan::from_timed(timing, rays);
+                Ok(Some(&self.scan))
+            }
+            Err(reason) => Err(Error::Message {
+                path: self.reader.path().to_path_buf(),
+                at: MessageAt {
+                    topic: self.reader.topic().topic.clone(),
+                    index,
+                    log_time,
+                },
+                reason,
+            }),
+        }
+    }
+}
+
+/// Fills `rays` (cleared first) from a `LaserScan` whose first ray is at
+/// `start_ns`; returns the scan timing. See the module docs for the rules.
+pub fn laser_scan_to_rays(
+    m: &LaserScan<'_>,
+    start_ns: Nanos,
+    rays: &mut Vec<Ray>,
+) -> Result<ScanTiming, String> {
+    rays.clear();
+    for (name, v) in [
+        ("angle_min", m.angle_min),
+        ("angle_increment", m.angle_increment),
+        ("time_increment", m.time_increment),
+    ] {
+        if !v.is_finite() {
+            return Err(format!("{name} is {v}"));
+        }
+    }
+    let n = m.ranges.len();
+    if !m.intensities.is_empty() && m.intensities.len() != n {
+        return Err(format!(
+            "{} intensities for {n} ranges (must be 0 or one per range)",
+            m.intensities.len()
+        ));
+    }
+    let (a0, da) = (f64::from(m.angle_min), f64::from(m.angle_increment));
+    let dt_ns = f32_as_decimal(m.time_increment) * 1e9;
+    let (rmin, rmax) = (f64::from(m.range_min), f64::from(m.range_max));
+    rays.reserve(n);
+    for (i, r) in m.ranges.iter().enumerate() {
+        let r = f64::from(r);
+        let valid = r.is_finite() && r > 0.0 && r >= rmin && r <= rmax;
+        // saturating float-to-int cast: a hostile increment cannot overflow
+        let t = start_ns.saturating_add((i as f64 * dt_ns).round() as i64);
+        let intensity = m.intensities.get(i).unwrap_or(0.0);
+        rays.push(Ray::timed(a0 + i as f64 * da, r, intensity, valid, t));
+    }
+    let rotation = if (da >= 0.0) == (dt_ns >= 0.0) {
+        Rotation::Ccw
+    } else {
+        Rotation::Cw
+    };
+    let period = f64::from(m.scan_time) * 1e9;
+    let period_ns = if period.is_finite() && period > 0.0 {
+        period.round() as i64
+    } else {
+        0
+    };
+    Ok(ScanTiming {
+        start_ns,
+        period_ns,
+        rotation,
+        start_bearing_rad: wrap_pi(a0),
+    })
+}
+
+/// The `f64` nearest to the shortest decimal that reads back as `x` (what
+/// `x` prints as), e.g. `0.025f32` → `0.025f64`. Allocation-free.
+///
+/// ```
+/// use vlsync_mcap::scan::f32_as_decimal;
+/// assert_eq!(f32_as_decimal(0.025), 0.025);
+/// assert_eq!(f64::from(0.025f32) == 0.025, false);
+/// assert!(f32_as_decimal(f32::NAN).is_nan());
+/// ```
+pub fn f32_as_decimal(x: f32) -> f64 {
+    use std::io::Write;
+    let mut buf = [0u8; 64];
+    let mut cursor = std::io::Cursor::new(&mut buf[..]);
+    if !x.is_finite() || write!(cursor, "{x}").is_err() {
+        return f64::from(x);
+    }
+    let n = usize::try_from(cursor.position()).unwrap_or(0);
+    std::str::from_utf8(&buf[..n.min(64)])
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(f64::from(x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cdr::{F32Seq, Header, Time};
+    use proptest::prelude::*;
+
+    #[test]
+    fn validity_times_and_direction() {
+        let ranges = [1.0, f32::INFINITY, f32::NAN, 0.0, 0.05, 30.0, 2.0];
+        let m = LaserScan {
+            header: Header {
+                stamp: Time { sec: 1, nanosec: 0 },
+                frame_id: "laser",
+            },
+            angle_min: 3.0,
+            angle_increment: -0.5,
+            time_increment: 0.001,
+            scan_time: 0.125,
+            range_min: 0.1,
+            range_max: 12.0,
+            ranges: F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        };
+        let mut rays = Vec::new();
+        let t = laser_scan_to_rays(&m, 1_000_000_000, &mut rays).unwrap();
+        assert_eq!(t.rotation, Rotation::Cw);
+        assert_eq!(t.period_ns, 125_000_000);
+        let valid: Vec<bool> = rays.iter().map(|r| r.valid).collect();
+        assert_eq!(valid, [true, false, false, false, false, false, true]);
+        assert_eq!(rays[6].t_ns, 1_006_000_000);
+        // 3.0 - 6 * 0.5 = 0; 3.0 - 0.5 = 2.5; wrapped past π: 3.0 stays
+        assert!(rays[6].bearing_rad.abs() < 1e-12);
+        assert!((rays[0].bearing_rad - 3.0).abs() < 1e-12);
+        let m2 = LaserScan {
+            angle_increment: 0.5,
+            angle_min: 3.0,
+            ..m
+        };
+        laser_scan_to_rays(&m2, 0, &mut rays).unwrap();
+        assert!((rays[1].bearing_rad - (3.5 - std::f64::consts::TAU)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_scans_are_errors() {
+        let r = [1.0f32, 2.0];
+        let m = LaserScan {
+            ranges: F32Seq::from_slice(&r),
+            intensities: F32Seq::from_slice(&r[..1]),
+            ..LaserScan::default()
+        };
+        let mut rays = Vec::new();
+        assert!(laser_scan_to_rays(&m, 0, &mut rays)
+            .unwrap_err()
+            .contains("1 intensities for 2 ranges"));
+        let m = LaserScan {
+            time_increment: f32::NAN,
+            ..LaserScan::default()
+        };
+        assert!(laser_scan_to_rays(&m, 0, &mut rays)
+            .unwrap_err()
+            .contains("time_increment"));
+    }
+
+    proptest! {
+        #[test]
+        fn decimal_reading_stays_within_f32_precision(bits in any::<u32>()) {
+            let x = f32::from_bits(bits);
+            let d = f32_as_decimal(x);
+            if x.is_finite() {
+                prop_assert_eq!(d as f32, x);
+            } else {
+                prop_assert_eq!(d.to_bits(), f64::from(x).to_bits());
+            }
+        }
+
+        #[test]
+        fn any_scan_values_never_panic(
+            f in proptest::array::uniform7(any::<u32>()),
+            ranges in proptest::collection::vec(any::<u32>(), 0..40),
+            start in any::<i64>(),
+        ) {
+            let f = f.map(f32::from_bits);
+            let r: Vec<f32> = ranges.iter().map(|&b| f32::from_bits(b)).collect();
+            let m = LaserScan { angle_min: f[0], angle_max: f[1], angle_increment: f[2],
+                time_increment: f[3], scan_time: f[4], range_min: f[5], range_max: f[6],
+                ranges: F32Seq::from_slice(&r), ..LaserScan::default() };
+            let mut rays = Vec::new();
+            if laser_scan_to_rays(&m, start, &mut rays).is_ok() {
+                prop_assert_eq!(rays.len(), r.len());
+                for ray in &rays {
+                    prop_assert!(!ray.valid || ray.range_m.is_finite());
+                }
+            }
+        }
+    }
+}
