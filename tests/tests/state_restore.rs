@@ -1,0 +1,185 @@
+//! `daemon.state_file` end to end: a daemon on a simulated run saves its last
+//! good estimate when stopped; a restarted daemon starts from it (its first
+//! estimates carry the saved offset instead of an acquisition search), and a
+//! corrupt file is named in the log and ignored.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use vlsync_common::{EstimatorState, Stream};
+use vlsync_ipc::OffsetClient;
+use vlsync_tests::{bin, collect, Managed, Rig};
+use vlsyncd::state::{load, unix_now_ns};
+
+fn config(dir: &Path, prefix: &str, state_file: &Path) -> PathBuf {
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[daemon]\ncore = -1\nstate_file = \"{}\"\nstate_max_age_s = 600.0\n\n[services]\nprefix = \"{prefix}\"\n",
+            state_file.display()
+        ),
+    )
+    .unwrap();
+    cfg
+}
+
+fn daemon(cfg: &Path, log: &Path) -> Managed {
+    Managed::spawn(
+        "vlsyncd",
+        &bin("vlsyncd"),
+        &["run".into(), "--config".into(), cfg.display().to_string()],
+        Some(log),
+    )
+    .expect("spawn vlsyncd")
+}
+
+fn read(p: &Path) -> String {
+    std::fs::read_to_string(p).unwrap_or_default()
+}
+
+#[test]
+fn saved_estimate_survives_a_restart() {
+    // 90 simulated seconds at 5x: 18 s of wall time
+    let rig = Rig::new("state", "robot", 11, 90.0, 5.0);
+    let state_file = rig.logs.join("vlsync.state");
+    let _ = std::fs::remove_file(&state_file);
+    let cfg = config(&rig.logs, &rig.prefix, &state_file);
+    let log0 = rig.logs.join("vlsyncd-0.log");
+    let mut d0 = daemon(&cfg, &log0);
+    let mut client = OffsetClient::open(&rig.prefix).unwrap();
+    let _cam = rig.driver(Stream::Cam, 0);
+    let _lidar = rig.driver(Stream::Lidar, 0);
+
+    // run until the daemon tracks for a while
+    let t0 = Instant::now();
+    let mut tracking = vec![];
+    while tracking.len() < 6 && t0.elapsed() < Duration::from_secs(12) {
+        tracking.extend(
+            collect(&mut client, Duration::from_millis(300))
+                .into_iter()
+                .filter(|e| e.state == EstimatorState::Tracking),
+        );
+    }
+    assert!(
+        tracking.len() >= 6,
+        "only {} tracking estimates\n{}",
+        tracking.len(),
+        read(&log0)
+    );
+    assert!(d0.stop(Duration::from_secs(5)), "{}", read(&log0));
+    let last = *tracking.last().unwrap();
+
+    // the file holds a good estimate near the truth, saved just now
+    let (saved, age_s) = load(&state_file, unix_now_ns(), 600.0)
+        .unwrap_or_else(|e| panic!("{e}\n{}", read(&log0)))
+        .unwrap_or_else(|| panic!("no state file after the stop\n{}", read(&log0)));
+    assert!(age_s < 10.0, "saved {age_s} s ago");
+    let s = saved.estimate;
+    assert!(
+        matches!(s.state, EstimatorState::Tracking | EstimatorState::Holding),
+        "{s:?}"
+    );
+    let truth = rig.sim.truth.offset_at(s.t_ref_ns);
+    assert!(
+        (s.offset_s - truth).abs() < 0.02,
+        "saved offset {} vs truth {truth}",
+        s.offset_s
+    );
+    assert!(
+        (s.offset_s - last.offset_s).abs() < 0.01,
+        "saved {s:?}\nlast tracking {last:?}"
+    );
+    assert!(read(&log0).contains("last good estimate saved to"));
+
+    // restart on the same running drivers: the first estimates start from the file
+    let log1 = rig.logs.join("vlsyncd-1.log");
+    let mut d1 = daemon(&cfg, &log1);
+    let first = collect(&mut client, Duration::from_millis(1500));
+    assert!(d1.running(), "{}", read(&log1));
+    let text = read(&log1);
+    assert!(
+        text.contains(&format!(
+            "state file {}: restoring offset",
+            state_file.display()
+        )),
+        "{text}"
+    );
+    let e = *first
+        .first()
+        .unwrap_or_else(|| panic!("no estimate after the restart\n{text}"));
+    // a cold start would report `acquiring` with the lag-range search value
+    assert_ne!(e.state, EstimatorState::Acquiring, "{first:?}");
+    assert!(
+        matches!(e.state, EstimatorState::Holding | EstimatorState::Lost),
+        "first estimate after restart: {e:?}"
+    );
+    assert!(
+        (e.offset_s - s.offset_s).abs() < 0.002 + 3.0 * e.offset_std_s.min(0.005),
+        "first offset {} far from the saved {}: {first:?}",
+        e.offset_s,
+        s.offset_s
+    );
+    assert!(
+        e.offset_std_s >= s.offset_std_s,
+        "uncertainty not inflated: {} < saved {}",
+        e.offset_std_s,
+        s.offset_std_s
+    );
+    assert!(d1.stop(Duration::from_secs(5)), "{}", read(&log1));
+}
+
+#[test]
+fn corrupt_or_stale_state_files_are_named_and_ignored() {
+    let dir = std::env::temp_dir().join(format!("vlsync-it-statebad-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let state_file = dir.join("vlsync.state");
+    let prefix = format!("vlsync-it/statebad-{}", std::process::id());
+    let cfg = config(&dir, &prefix, &state_file);
+    let good = vlsyncd::state::encode(&vlsyncd::state::SavedState {
+        saved_unix_ns: unix_now_ns() - 7_200_000_000_000,
+        estimate: vlsync_common::Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s: 0.031,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Negative,
+            peak_score: 0.0,
+            peak_ratio: 0.0,
+            measured_offset_s: f64::NAN,
+        },
+    });
+    let cases = [
+        (good.replace("0.031", "0.032"), "checksum mismatch"),
+        (good[..good.len() - 30].to_string(), "truncated"),
+        (good.clone(), "stale"),
+    ];
+    for (i, (content, reason)) in cases.iter().enumerate() {
+        std::fs::write(&state_file, content).unwrap();
+        let log = dir.join(format!("vlsyncd-{i}.log"));
+        let mut d = daemon(&cfg, &log);
+        let t0 = Instant::now();
+        while !read(&log).contains("serving prefix") {
+            assert!(d.running(), "daemon exited:\n{}", read(&log));
+            assert!(t0.elapsed() < Duration::from_secs(20), "{}", read(&log));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        assert!(d.stop(Duration::from_secs(5)));
+        let text = read(&log);
+        let want = format!("state file {}:", state_file.display());
+        let line = text
+            .lines()
+            .find(|l| l.contains(&want))
+            .unwrap_or_else(|| panic!("no line naming {want}\n{text}"));
+        assert!(
+            line.contains(reason) && line.contains("cold start") && line.contains("WARN"),
+            "{line}"
+        );
+        // the bad file is left for inspection, not overwritten (nothing good to save)
+        assert_eq!(&read(&state_file), content);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
