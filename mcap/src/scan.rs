@@ -14,7 +14,8 @@
 //!   `vlsync_signature_lidar::scan` (REP-103), wrapped into `(-π, π]`.
 //! * Sweep direction: bearings grow with time ([`Rotation::Ccw`]) when
 //!   `angle_increment` and `time_increment` have the same sign, else
-//!   [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive).
+//!   [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive),
+//!   read as its decimal like `time_increment`.
 //! * A ray is valid when its range is finite, positive and within
 //!   `[range_min, range_max]` (REP-117: ±Inf and NaN are not measurements;
 //!   drivers that mean "no return" by 0 are covered by "positive").
@@ -186,7 +187,7 @@ pub fn laser_scan_to_rays(
     } else {
         Rotation::Cw
     };
-    let period = f64::from(m.scan_time) * 1e9;
+    let period = f32_as_decimal(m.scan_time) * 1e9;
     let period_ns = if period.is_finite() && period > 0.0 {
         period.round() as i64
     } else {

@@ -145,9 +145,9 @@ impl McapWriter {
             })
     }
 
-    /// Writes an already serialized CDR message (encapsulation header included)
-    /// on `topic` with schema `M`.
-    fn write_raw<'m, M: CdrMessage<'m>>(
+    /// Writes already serialized bytes as a message of schema `M` on `topic`,
+    /// unchecked (e.g. to make hostile recordings for tests).
+    pub fn write_serialized<'m, M: CdrMessage<'m>>(
         &mut self,
         topic: &str,
         log_time: u64,
@@ -202,7 +202,7 @@ impl McapWriter {
         let r = msg
             .encode(&mut buf)
             .map_err(|e| self.write_err(topic, e.to_string()))
-            .and_then(|()| self.write_raw::<M>(topic, log_time, &buf));
+            .and_then(|()| self.write_serialized::<M>(topic, log_time, &buf));
         self.cdr = buf;
         r
     }
@@ -232,7 +232,7 @@ impl McapWriter {
             msg.encode(&mut buf)
                 .map_err(|e| self.write_err(topic, e.to_string()))
         });
-        let r = enc.and_then(|()| self.write_raw::<Image>(topic, log_time, &buf));
+        let r = enc.and_then(|()| self.write_serialized::<Image>(topic, log_time, &buf));
         self.cdr = buf;
         r
     }
@@ -271,7 +271,7 @@ impl McapWriter {
                 msg.encode(&mut buf)
                     .map_err(|e| self.write_err(topic, e.to_string()))
             });
-        let r = enc.and_then(|()| self.write_raw::<CompressedImage>(topic, log_time, &buf));
+        let r = enc.and_then(|()| self.write_serialized::<CompressedImage>(topic, log_time, &buf));
         self.cdr = buf;
         self.pixels = png;
         r
@@ -367,7 +367,7 @@ impl McapWriter {
         });
         let result = enc
             .and(log_time)
-            .and_then(|t| self.write_raw::<LaserScan>(topic, t, &buf));
+            .and_then(|t| self.write_serialized::<LaserScan>(topic, t, &buf));
         self.cdr = buf;
         self.ranges = ranges;
         self.intensities = intensities;

@@ -1,0 +1,447 @@
+//! Recordings written with `McapWriter` and read back through the sources:
+//! exact round trips, log-time order, and hostile files (truncated, corrupted
+//! chunk, wrong schema, CDR lengths past the buffer, arbitrary bytes).
+
+use proptest::prelude::*;
+use std::path::PathBuf;
+use vlsync_mcap::cdr::{CdrMessage, CompressedImage, Image, LaserScan};
+use vlsync_mcap::scan::f32_as_decimal;
+use vlsync_mcap::{
+    ImageSourceOptions, McapImageSource, McapReader, McapScanSource, McapWriter, ScanSourceOptions,
+    Select, StampSource, IMAGE_SCHEMAS,
+};
+use vlsync_signature_cam::{FrameSource, FrameTime, GrayFrame};
+use vlsync_signature_lidar::scan::wrap_pi;
+use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
+
+/// A temporary file removed on drop.
+struct Tmp(PathBuf);
+
+impl Tmp {
+    fn new(name: &str) -> Self {
+        Self(std::env::temp_dir().join(format!("vlsync-mcap-{}-{name}.mcap", std::process::id())))
+    }
+}
+
+impl Drop for Tmp {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+fn frame(k: u8, w: usize, h: usize) -> GrayFrame<'static, u8> {
+    let px = (0..w * h)
+        .map(|i| (i as u8).wrapping_mul(7).wrapping_add(k))
+        .collect();
+    GrayFrame::owned(w, h, px).unwrap()
+}
+
+/// A 360-ray CCW scan whose times lie on the grid a reader reproduces exactly.
+fn scan(k: i64) -> Scan {
+    let n = 360;
+    let t0 = 1_700_000_000_123_456_789 + k * 100_000_000;
+    let ti = f32_as_decimal((0.1f64 / n as f64) as f32) * 1e9;
+    let a0 = f64::from(-3.0f32);
+    let da = f64::from((std::f64::consts::TAU / n as f64) as f32);
+    let rays = (0..n)
+        .map(|i| {
+            let range = 1.0 + 0.01 * ((i as i64 + k) % 50) as f32;
+            Ray::timed(
+                wrap_pi(a0 + i as f64 * da),
+                f64::from(range),
+                (i % 7) as f32,
+                i % 10 != 3,
+                t0 + (i as f64 * ti).round() as i64,
+            )
+        })
+        .collect();
+    let timing = ScanTiming {
+        start_ns: t0,
+        period_ns: 100_000_000,
+        rotation: Rotation::Ccw,
+        start_bearing_rad: a0,
+    };
+    Scan::from_timed(timing, rays)
+}
+
+#[test]
+fn images_round_trip_exactly() {
+    let tmp = Tmp::new("images");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    w.set_log_delay_ns(3_000_000);
+    let stamps: Vec<i64> = (0..5)
+        .map(|k| 1_700_000_000_000_000_000 + k * 33_333_333)
+        .collect();
+    for (k, &t) in stamps.iter().enumerate() {
+        w.write_image("/cam/image_raw", t, &frame(k as u8, 64, 48))
+            .unwrap();
+        w.write_compressed_png("/cam/image_raw/compressed", t, &frame(k as u8, 64, 48))
+            .unwrap();
+    }
+    w.finish().unwrap();
+
+    for topic in ["/cam/image_raw", "/cam/image_raw/compressed"] {
+        let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::topic(topic)).unwrap();
+        assert!(src.reader().is_indexed());
+        assert_eq!(src.topic().message_count, Some(5));
+        let mut k = 0;
+        while let Some((f, t)) = src.next_frame().unwrap() {
+            assert_eq!(f, frame(k as u8, 64, 48).view(), "{topic} #{k}");
+            assert_eq!(t, FrameTime::Instant(stamps[k]));
+            k += 1;
+        }
+        assert_eq!(k, 5);
+        // the log time instead of the stamp
+        let opts = ImageSourceOptions {
+            stamp: StampSource::LogTime,
+            ..ImageSourceOptions::topic(topic)
+        };
+        let mut src = McapImageSource::open(&tmp.0, opts).unwrap();
+        let f = src.next_image().unwrap().unwrap();
+        assert_eq!(f.time, FrameTime::Instant(stamps[0] + 3_000_000));
+        assert_eq!((f.stamp_ns, f.index), (stamps[0], 0));
+    }
+}
+
+#[test]
+fn scans_round_trip_exactly() {
+    let tmp = Tmp::new("scans");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    w.set_frame_id("laser");
+    let scans: Vec<Scan> = (0..4).map(scan).collect();
+    for s in &scans {
+        w.write_scan("/scan", s).unwrap();
+    }
+    // an image topic beside it does not disturb schema auto-detection
+    w.write_image("/cam", 1, &frame(0, 4, 4)).unwrap();
+    w.finish().unwrap();
+
+    let mut src = McapScanSource::open(&tmp.0, ScanSourceOptions::default()).unwrap();
+    assert_eq!(src.topic().topic, "/scan");
+    for want in &scans {
+        let got = src.next_scan().unwrap().unwrap();
+        assert_eq!(got.len(), want.len());
+        assert_eq!(got.timing().start_ns, want.timing().start_ns);
+        assert_eq!(got.timing().period_ns, 100_000_000);
+        assert_eq!(got.timing().rotation, Rotation::Ccw);
+        for (g, e) in got.rays().iter().zip(want.rays()) {
+            assert_eq!(g.t_ns, e.t_ns);
+            assert!(wrap_pi(g.bearing_rad - e.bearing_rad).abs() < 1e-9);
+            assert_eq!(g.valid, e.valid);
+            if e.valid {
+                assert_eq!(g.range_m, e.range_m);
+            }
+            assert_eq!(g.intensity, e.intensity);
+        }
+    }
+    assert!(src.next_scan().unwrap().is_none());
+    assert!(src.next_scan().unwrap().is_none());
+}
+
+#[test]
+fn scans_feed_the_lidar_signature() {
+    use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor};
+    // a wall at bearing 0 receding at 0.5 m/s, 10 scans per second
+    let tmp = Tmp::new("wall");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    let n = 360usize;
+    let ti = f32_as_decimal((0.1f64 / n as f64) as f32) * 1e9;
+    let da = f64::from((std::f64::consts::TAU / n as f64) as f32);
+    for k in 0..30i64 {
+        let t0 = k * 100_000_000;
+        let rays = (0..n)
+            .map(|i| {
+                let t = t0 + (i as f64 * ti).round() as i64;
+                let b = wrap_pi(i as f64 * da);
+                let r = if b.abs() < 0.3 {
+                    2.0 + 0.5 * t as f64 * 1e-9
+                } else {
+                    6.0
+                };
+                Ray::timed(b, f64::from(r as f32), 0.0, true, t)
+            })
+            .collect();
+        let timing = ScanTiming {
+            start_ns: t0,
+            period_ns: 100_000_000,
+            rotation: Rotation::Ccw,
+            start_bearing_rad: 0.0,
+        };
+        w.write_scan("/scan", &Scan::from_timed(timing, rays))
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let mut src = McapScanSource::open(&tmp.0, ScanSourceOptions::topic("/scan")).unwrap();
+    let mut sig = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+    let mut samples = Vec::new();
+    while let Some(s) = src.next_scan().unwrap() {
+        sig.push_scan(s, |x| samples.push(x));
+    }
+    assert!(samples.len() >= 20, "{}", samples.len());
+    assert!(
+        samples.iter().all(|s| (s.value - 0.5).abs() < 0.02),
+        "{samples:?}"
+    );
+}
+
+#[test]
+fn messages_come_in_log_time_order() {
+    let tmp = Tmp::new("order");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    for t in [30, 10, 20] {
+        w.write_image("/cam", t, &frame(t as u8, 4, 4)).unwrap();
+    }
+    w.finish().unwrap();
+    let mut r =
+        McapReader::open(&tmp.0, &Select::Schema, &IMAGE_SCHEMAS, Default::default()).unwrap();
+    let mut times = Vec::new();
+    while let Some(m) = r.next_message().unwrap() {
+        times.push(m.log_time);
+    }
+    assert_eq!(times, [10, 20, 30]);
+}
+
+fn err_text(r: Result<impl std::fmt::Debug, vlsync_mcap::Error>) -> String {
+    r.unwrap_err().to_string()
+}
+
+#[test]
+fn wrong_topic_or_schema_is_a_clear_error() {
+    let tmp = Tmp::new("schema");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    w.write_scan("/scan", &scan(0)).unwrap();
+    w.write_image("/a", 1, &frame(0, 4, 4)).unwrap();
+    w.write_image("/b", 1, &frame(0, 4, 4)).unwrap();
+    w.finish().unwrap();
+    let path = tmp.0.display().to_string();
+    let e = err_text(McapImageSource::open(
+        &tmp.0,
+        ImageSourceOptions::topic("/scan"),
+    ));
+    assert!(e.starts_with(&path), "{e}");
+    assert!(
+        e.contains("topic `/scan` has schema `sensor_msgs/msg/LaserScan`"),
+        "{e}"
+    );
+    let e = err_text(McapImageSource::open(&tmp.0, ImageSourceOptions::default()));
+    assert!(e.contains("several topics") && e.contains("/a, /b"), "{e}");
+    let e = err_text(McapScanSource::open(
+        &tmp.0,
+        ScanSourceOptions::topic("/nope"),
+    ));
+    assert!(
+        e.contains("no topic `/nope`") && e.contains("`/scan` (sensor_msgs/msg/LaserScan)"),
+        "{e}"
+    );
+    let e = err_text(McapImageSource::open(
+        "/nonexistent/x.mcap",
+        ImageSourceOptions::default(),
+    ));
+    assert!(e.starts_with("/nonexistent/x.mcap: opening"), "{e}");
+}
+
+#[test]
+fn bad_cdr_and_bad_encodings_name_topic_index_and_log_time() {
+    let tmp = Tmp::new("badcdr");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    w.write_image("/cam", 100, &frame(0, 4, 4)).unwrap();
+    // an Image whose data length claims far more than the message holds
+    let mut buf = Vec::new();
+    let img = Image {
+        height: 4,
+        width: 4,
+        encoding: "mono8",
+        step: 4,
+        data: &[1, 2, 3],
+        ..Image::default()
+    };
+    img.encode(&mut buf).unwrap();
+    let n = buf.len();
+    buf[n - 7..n - 3].copy_from_slice(&0x7fff_fff0u32.to_le_bytes());
+    w.write_serialized::<Image>("/cam", 200, &buf).unwrap();
+    w.finish().unwrap();
+    let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::topic("/cam")).unwrap();
+    assert!(src.next_frame().unwrap().is_some());
+    let e = src.next_frame().unwrap_err().to_string();
+    assert!(
+        e.contains("topic `/cam` message #1 (log time 200 ns)")
+            && e.contains("CDR field `data`")
+            && e.contains(&tmp.0.display().to_string()),
+        "{e}"
+    );
+
+    let tmp = Tmp::new("badenc");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    let bayer = Image {
+        height: 2,
+        width: 2,
+        encoding: "bayer_rggb8",
+        step: 2,
+        data: &[0; 4],
+        ..Image::default()
+    };
+    w.write_message("/cam", 7, &bayer).unwrap();
+    let jpeg_lie = CompressedImage {
+        format: "jpeg",
+        data: &[0xFF, 0xD8, 0xFF, 0, 1, 2],
+        ..CompressedImage::default()
+    };
+    w.write_message("/jpg", 8, &jpeg_lie).unwrap();
+    w.finish().unwrap();
+    let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::topic("/cam")).unwrap();
+    let e = src.next_frame().unwrap_err().to_string();
+    assert!(
+        e.contains(
+            "topic `/cam` message #0 (log time 7 ns): unsupported image encoding `bayer_rggb8`"
+        ),
+        "{e}"
+    );
+    let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::topic("/jpg")).unwrap();
+    let e = src.next_frame().unwrap_err().to_string();
+    assert!(e.contains("cannot decode `jpeg` image"), "{e}");
+    // a LaserScan with a truncated ranges array
+    let tmp = Tmp::new("badscan");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    let mut buf = Vec::new();
+    let r = [1.0f32; 4];
+    LaserScan {
+        ranges: vlsync_mcap::cdr::F32Seq::from_slice(&r),
+        ..LaserScan::default()
+    }
+    .encode(&mut buf)
+    .unwrap();
+    buf.truncate(buf.len() - 6);
+    w.write_serialized::<LaserScan>("/scan", 5, &buf).unwrap();
+    w.finish().unwrap();
+    let mut src = McapScanSource::open(&tmp.0, ScanSourceOptions::default()).unwrap();
+    let e = err_text(src.next_scan().map(|s| s.map(|s| s.len())));
+    assert!(
+        e.contains("message #0 (log time 5 ns): CDR field `ranges`"),
+        "{e}"
+    );
+}
+
+fn recording(name: &str) -> (Tmp, Vec<u8>) {
+    let tmp = Tmp::new(name);
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    for k in 0..6 {
+        w.write_image("/cam", 1_000 + k, &frame(k as u8, 32, 24))
+            .unwrap();
+        w.write_scan("/scan", &scan(k)).unwrap();
+    }
+    w.finish().unwrap();
+    let bytes = std::fs::read(&tmp.0).unwrap();
+    (tmp, bytes)
+}
+
+/// Reads everything of both kinds; returns the frames read and the first error.
+fn drain(path: &std::path::Path) -> (usize, Option<String>) {
+    let mut n = 0;
+    let mut first_err = None;
+    match McapImageSource::open(path, ImageSourceOptions::default()) {
+        Ok(mut s) => loop {
+            match s.next_frame() {
+                Ok(Some(_)) => n += 1,
+                Ok(None) => break,
+                Err(e) => {
+                    first_err.get_or_insert(e.to_string());
+                    break;
+                }
+            }
+        },
+        Err(e) => {
+            first_err.get_or_insert(e.to_string());
+        }
+    }
+    if let Ok(mut s) = McapScanSource::open(path, ScanSourceOptions::default()) {
+        while let Ok(Some(_)) = s.next_scan() {}
+    }
+    let _ = McapReader::topics(path);
+    (n, first_err)
+}
+
+#[test]
+fn truncated_recording_yields_what_it_has_then_says_so() {
+    let (tmp, bytes) = recording("trunc-src");
+    let cut = Tmp::new("trunc");
+    // cut inside the data section: no summary, read linearly up to the cut
+    std::fs::write(&cut.0, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let mut src = McapImageSource::open(&cut.0, ImageSourceOptions::topic("/cam")).unwrap();
+    assert!(!src.reader().is_indexed());
+    let mut n = 0;
+    let err = loop {
+        match src.next_frame() {
+            Ok(Some((f, _))) => {
+                assert_eq!(f, frame(n as u8, 32, 24).view());
+                n += 1;
+            }
+            Ok(None) => panic!("a truncated file must end in an error"),
+            Err(e) => break e.to_string(),
+        }
+    };
+    assert!(n >= 1, "{n}");
+    assert!(err.contains(&cut.0.display().to_string()), "{err}");
+    assert!(err.contains("truncated"), "{err}");
+    eprintln!("truncated: {err}");
+    assert!(
+        err.contains(&format!("after message #{} of topic `/cam`", n - 1)),
+        "{err}"
+    );
+    // every cut: no panic, never more frames than written
+    for len in (0..bytes.len()).step_by(61) {
+        std::fs::write(&cut.0, &bytes[..len]).unwrap();
+        let (n, _) = drain(&cut.0);
+        assert!(n <= 6);
+    }
+    drop(tmp);
+}
+
+#[test]
+fn corrupted_chunk_is_detected() {
+    let (_tmp, mut bytes) = recording("crc-src");
+    // the pixels of the first frame: 0, 7, 14, ...
+    let pat: Vec<u8> = frame(0, 32, 24).pixels()[..16].to_vec();
+    let at = bytes
+        .windows(pat.len())
+        .position(|w| w == pat.as_slice())
+        .unwrap();
+    bytes[at + 5] ^= 0xFF;
+    let bad = Tmp::new("crc");
+    std::fs::write(&bad.0, &bytes).unwrap();
+    let (n, err) = drain(&bad.0);
+    assert_eq!(n, 0);
+    let err = err.unwrap();
+    assert!(
+        err.contains("CRC") && err.contains(&bad.0.display().to_string()),
+        "{err}"
+    );
+    eprintln!("corrupted: {err}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn arbitrary_bytes_never_panic(data in proptest::collection::vec(any::<u8>(), 0..400),
+                                   magic in any::<bool>()) {
+        let tmp = Tmp::new(&format!("arb-{}", data.len()));
+        let mut bytes = if magic { mcap::MAGIC.to_vec() } else { Vec::new() };
+        bytes.extend_from_slice(&data);
+        std::fs::write(&tmp.0, &bytes).unwrap();
+        let _ = drain(&tmp.0);
+    }
+
+    #[test]
+    fn corrupted_recordings_never_panic(flips in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8)) {
+        let (tmp, mut bytes) = recording(&format!("flip-src-{}", flips.len()));
+        for (i, v) in &flips {
+            let i = i.index(bytes.len());
+            bytes[i] = *v;
+        }
+        let bad = Tmp::new(&format!("flip-{}", flips.len()));
+        std::fs::write(&bad.0, &bytes).unwrap();
+        let (n, _) = drain(&bad.0);
+        prop_assert!(n <= 6);
+        drop(tmp);
+    }
+}
