@@ -1,0 +1,138 @@
+#!/usr/bin/env bash
+# Installs vlsync as systemd services (see deploy/README.md):
+#   user and group `vlsync`; vlsyncd, vlsync-cam, vlsync-lidar, vlsync-echo to
+#   /usr/local/bin; /etc/vlsync/{vlsync.toml,cam.env,lidar.env} (existing ones are
+#   kept, the new version goes next to them as *.new); the units to
+#   /etc/systemd/system; /etc/tmpfiles.d/vlsync.conf; then daemon-reload.
+# It does not enable or start anything.
+#
+#   sudo deploy/install.sh [--bin-dir DIR] [--dry-run]
+#
+#   --bin-dir DIR   where the built binaries are (default: target/release of this
+#                   checkout; a cross build: target/aarch64-unknown-linux-gnu/release)
+#   --dry-run       print every action instead of doing it (needs no root)
+set -euo pipefail
+
+orig_args=("$@")
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+repo="$(cd "$here/.." && pwd)"
+bin_dir="$repo/target/release"
+dry_run=0
+binaries=(vlsyncd vlsync-cam vlsync-lidar vlsync-echo)
+units=(vlsyncd.service vlsync-cam.service vlsync-lidar.service vlsync.target)
+prefix_bin=/usr/local/bin
+etc_dir=/etc/vlsync
+unit_dir=/etc/systemd/system
+tmpfiles_dir=/etc/tmpfiles.d
+doc_dir=/usr/local/share/doc/vlsync
+
+usage() { sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+die() { echo "install.sh: error: $*" >&2; exit 1; }
+
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --dry-run) dry_run=1 ;;
+        --bin-dir)
+            [ $# -ge 2 ] || die "--bin-dir needs a directory"
+            bin_dir="$2"
+            shift
+            ;;
+        --bin-dir=*) bin_dir="${1#--bin-dir=}" ;;
+        -h | --help) usage; exit 0 ;;
+        *) die "unknown option \`$1\` (see --help)" ;;
+    esac
+    shift
+done
+
+if [ "$dry_run" -eq 0 ] && [ "$(id -u)" -ne 0 ]; then
+    die "must run as root (it creates a system user and writes /usr/local/bin, /etc/vlsync and /etc/systemd/system): sudo $0 ${orig_args[*]}; or preview with --dry-run"
+fi
+
+# every input must exist before anything is changed
+for b in "${binaries[@]}"; do
+    [ -x "$bin_dir/$b" ] || die "binary $bin_dir/$b missing or not executable: build first (cargo build --release) or pass --bin-dir"
+done
+for f in "${units[@]}"; do
+    [ -f "$here/systemd/$f" ] || die "unit $here/systemd/$f missing"
+done
+for f in vlsync.toml cam.env lidar.env tmpfiles.d/vlsync.conf README.md; do
+    [ -f "$here/$f" ] || die "$here/$f missing"
+done
+
+# run a command, or print it in --dry-run mode
+run() {
+    if [ "$dry_run" -eq 1 ]; then
+        echo "would run: $(printf '%q ' "$@")"
+    else
+        echo "+ $(printf '%q ' "$@")"
+        "$@"
+    fi
+}
+
+# installs a configuration file without overwriting the operator's version
+install_config() {
+    local src="$1" dst="$2"
+    if [ -e "$dst" ]; then
+        if cmp -s "$src" "$dst"; then
+            echo "$dst is up to date"
+        else
+            echo "$dst exists and was edited: keeping it, the shipped version goes to $dst.new"
+            run install -m 0644 "$src" "$dst.new"
+        fi
+    else
+        run install -m 0644 "$src" "$dst"
+    fi
+}
+
+[ "$dry_run" -eq 1 ] && echo "dry run: nothing is changed"
+
+# user and group shared by the daemon, the drivers and every client
+# (iceoryx2 creates its files mode 0600)
+if getent group vlsync >/dev/null; then
+    echo "group vlsync exists"
+else
+    run groupadd --system vlsync
+fi
+if id -u vlsync >/dev/null 2>&1; then
+    echo "user vlsync exists"
+else
+    run useradd --system --gid vlsync --home-dir /var/lib/vlsync --no-create-home \
+        --shell /usr/sbin/nologin --comment "vlsync daemon and drivers" vlsync
+fi
+
+for b in "${binaries[@]}"; do
+    run install -m 0755 "$bin_dir/$b" "$prefix_bin/$b"
+done
+
+run install -d -m 0755 "$etc_dir"
+install_config "$here/vlsync.toml" "$etc_dir/vlsync.toml"
+install_config "$here/cam.env" "$etc_dir/cam.env"
+install_config "$here/lidar.env" "$etc_dir/lidar.env"
+
+for f in "${units[@]}"; do
+    run install -m 0644 "$here/systemd/$f" "$unit_dir/$f"
+done
+run install -m 0644 "$here/tmpfiles.d/vlsync.conf" "$tmpfiles_dir/vlsync.conf"
+run install -d -m 0755 "$doc_dir"
+run install -m 0644 "$here/README.md" "$doc_dir/README.md"
+
+# /tmp/iceoryx2 created earlier by another user (e.g. a test run as root) would
+# lock the vlsync user out of iceoryx2
+if [ -d /tmp/iceoryx2 ] && [ "$(stat -c %U /tmp/iceoryx2)" != vlsync ]; then
+    echo "warning: /tmp/iceoryx2 belongs to $(stat -c %U /tmp/iceoryx2), not vlsync; stop every iceoryx2 process and remove it (or reboot) before starting vlsync" >&2
+fi
+if [ -d /run/systemd/system ]; then
+    run systemd-tmpfiles --create "$tmpfiles_dir/vlsync.conf"
+    run systemctl daemon-reload
+else
+    echo "systemd is not running here: skipped systemd-tmpfiles and daemon-reload"
+fi
+
+cat <<EOF
+done. Next:
+  check the core in $etc_dir/vlsync.toml (daemon.core) against CPUAffinity= in $unit_dir/vlsyncd.service
+  sudo systemctl enable --now vlsync.target
+  systemctl status vlsyncd            # READY, state, offset ± std in the status line
+  journalctl -u vlsyncd -f
+  sudo -u vlsync vlsync-echo --prefix vlsync/robot
+EOF

@@ -1,0 +1,357 @@
+//! The systemd deployment in deploy/: the units carry the settings the daemon
+//! and iceoryx2 rely on (checked by parsing, works everywhere), they pass
+//! `systemd-analyze verify` where that tool exists, the shipped configuration
+//! loads and agrees with the units, and deploy/install.sh previews, refuses
+//! without root and checks its inputs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use vlsync_tests::bin;
+
+fn deploy() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy")
+}
+
+/// section -> key -> values (a key may repeat)
+type Unit = BTreeMap<String, BTreeMap<String, Vec<String>>>;
+
+fn parse(name: &str) -> Unit {
+    let path = deploy().join("systemd").join(name);
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    let mut unit = Unit::new();
+    let mut section = None;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with(';') {
+            continue;
+        }
+        if let Some(s) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = Some(s.to_string());
+            unit.entry(s.to_string()).or_default();
+            continue;
+        }
+        let (k, v) = line
+            .split_once('=')
+            .unwrap_or_else(|| panic!("{name}:{}: not key=value: {raw}", i + 1));
+        let s = section
+            .clone()
+            .unwrap_or_else(|| panic!("{name}:{}: key outside a section", i + 1));
+        unit.entry(s)
+            .or_default()
+            .entry(k.trim().to_string())
+            .or_default()
+            .push(v.trim().to_string());
+    }
+    unit
+}
+
+fn get<'a>(u: &'a Unit, name: &str, section: &str, key: &str) -> &'a str {
+    let v = u
+        .get(section)
+        .and_then(|s| s.get(key))
+        .unwrap_or_else(|| panic!("{name}: [{section}] {key}= missing"));
+    assert_eq!(
+        v.len(),
+        1,
+        "{name}: [{section}] {key}= given {} times",
+        v.len()
+    );
+    &v[0]
+}
+
+fn words(u: &Unit, section: &str, key: &str) -> Vec<String> {
+    u.get(section)
+        .and_then(|s| s.get(key))
+        .map(|vs| {
+            vs.iter()
+                .flat_map(|v| v.split_whitespace())
+                .map(String::from)
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+const SERVICES: [&str; 3] = [
+    "vlsyncd.service",
+    "vlsync-cam.service",
+    "vlsync-lidar.service",
+];
+
+#[test]
+fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
+    let n = "vlsyncd.service";
+    let u = parse(n);
+    for (k, want) in [
+        ("Type", "notify"),
+        ("NotifyAccess", "main"),
+        ("WatchdogSec", "5s"),
+        ("Restart", "on-failure"),
+        ("RestartSec", "1"),
+        ("User", "vlsync"),
+        ("Group", "vlsync"),
+        ("StateDirectory", "vlsync"),
+        ("ProtectSystem", "strict"),
+        ("NoNewPrivileges", "yes"),
+        ("ProtectHome", "yes"),
+        ("ProtectKernelTunables", "yes"),
+        ("ProtectKernelModules", "yes"),
+        ("ProtectKernelLogs", "yes"),
+        ("ProtectControlGroups", "yes"),
+        ("RestrictAddressFamilies", "AF_UNIX"),
+        ("LimitMEMLOCK", "infinity"),
+        ("KillSignal", "SIGTERM"),
+    ] {
+        assert_eq!(get(&u, n, "Service", k), want, "{n}: {k}=");
+    }
+    assert_eq!(
+        get(&u, n, "Service", "ExecStart"),
+        "/usr/local/bin/vlsyncd run --config /etc/vlsync/vlsync.toml"
+    );
+    let rw = words(&u, "Service", "ReadWritePaths");
+    for p in [
+        "/dev/shm",
+        "/tmp/iceoryx2",
+        "/tmp/vlsync",
+        "/var/lib/vlsync",
+    ] {
+        assert!(
+            rw.iter().any(|w| w == p),
+            "{n}: ReadWritePaths lacks {p}: {rw:?}"
+        );
+    }
+    // no capability is needed: the rlimits allow SCHED_FIFO and mlockall
+    assert_eq!(get(&u, n, "Service", "AmbientCapabilities"), "");
+    assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
+    assert_eq!(get(&u, n, "Install", "WantedBy"), "vlsync.target");
+
+    // the shipped configuration agrees with the unit
+    let cfg_path = deploy().join("vlsync.toml");
+    let cfg = vlsync_config::Config::load(&cfg_path).unwrap();
+    assert_eq!(
+        get(&u, n, "Service", "CPUAffinity"),
+        cfg.daemon.core.to_string(),
+        "CPUAffinity= must be daemon.core of {}",
+        cfg_path.display()
+    );
+    let rtprio: i64 = get(&u, n, "Service", "LimitRTPRIO").parse().unwrap();
+    assert!(
+        cfg.daemon.fifo_priority > 0 && cfg.daemon.fifo_priority <= rtprio,
+        "daemon.fifo_priority {} not allowed by LimitRTPRIO={rtprio}",
+        cfg.daemon.fifo_priority
+    );
+    assert!(cfg.daemon.lock_memory);
+    assert!(
+        cfg.daemon.state_file.starts_with("/var/lib/vlsync/"),
+        "state file {} outside StateDirectory=vlsync",
+        cfg.daemon.state_file
+    );
+}
+
+#[test]
+fn no_vlsync_unit_separates_tmp_or_dev_and_all_share_one_user() {
+    for n in SERVICES {
+        let u = parse(n);
+        let svc = &u["Service"];
+        for k in [
+            "PrivateTmp",
+            "PrivateDevices",
+            "PrivateUsers",
+            "DynamicUser",
+            "RestrictRealtime",
+            "TemporaryFileSystem",
+            "InaccessiblePaths",
+        ] {
+            assert!(
+                !svc.contains_key(k),
+                "{n}: {k}= would hide /tmp/iceoryx2 or /dev/shm, or forbid SCHED_FIFO"
+            );
+        }
+        assert_eq!(get(&u, n, "Service", "User"), "vlsync");
+        assert_eq!(get(&u, n, "Service", "Group"), "vlsync");
+        assert_eq!(get(&u, n, "Service", "ProtectSystem"), "strict");
+        let rw = words(&u, "Service", "ReadWritePaths");
+        for p in ["/dev/shm", "/tmp/iceoryx2"] {
+            assert!(rw.iter().any(|w| w == p), "{n}: ReadWritePaths lacks {p}");
+        }
+    }
+}
+
+#[test]
+fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
+    for n in ["vlsync-cam.service", "vlsync-lidar.service"] {
+        let u = parse(n);
+        assert_eq!(get(&u, n, "Service", "Restart"), "always");
+        assert!(words(&u, "Unit", "After").contains(&"vlsyncd.service".to_string()));
+        assert!(words(&u, "Unit", "Wants").contains(&"vlsyncd.service".to_string()));
+        assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
+        assert_eq!(get(&u, n, "Install", "WantedBy"), "vlsync.target");
+        let exec = get(&u, n, "Service", "ExecStart");
+        let stream = if n.contains("cam") { "cam" } else { "lidar" };
+        assert!(
+            exec.starts_with(&format!(
+                "/usr/local/bin/vlsync-{stream} --config /etc/vlsync/vlsync.toml"
+            )),
+            "{n}: {exec}"
+        );
+        assert!(deploy().join(format!("{stream}.env")).is_file());
+    }
+    let t = parse("vlsync.target");
+    let wants = words(&t, "Unit", "Wants");
+    for s in SERVICES {
+        assert!(
+            wants.iter().any(|w| w == s),
+            "vlsync.target does not want {s}"
+        );
+    }
+    assert_eq!(
+        get(&t, "vlsync.target", "Install", "WantedBy"),
+        "multi-user.target"
+    );
+    let tmpfiles = std::fs::read_to_string(deploy().join("tmpfiles.d/vlsync.conf")).unwrap();
+    for d in ["/tmp/iceoryx2", "/tmp/vlsync"] {
+        assert!(
+            tmpfiles
+                .lines()
+                .any(|l| l.split_whitespace().collect::<Vec<_>>()
+                    == ["d", d, "0750", "vlsync", "vlsync", "-"]
+                    || l.split_whitespace().collect::<Vec<_>>()
+                        == ["d", d, "0755", "vlsync", "vlsync", "-"]),
+            "tmpfiles.d/vlsync.conf does not create {d} for vlsync"
+        );
+    }
+}
+
+/// `systemd-analyze verify` on a scratch root holding the units, the binaries
+/// they start and the distribution's units (without touching the machine).
+#[test]
+fn units_pass_systemd_analyze_verify() {
+    let Ok(out) = Command::new("systemd-analyze").arg("--version").output() else {
+        eprintln!("systemd-analyze not installed: verify skipped (the key checks above still ran)");
+        return;
+    };
+    assert!(out.status.success());
+    let root = std::env::temp_dir().join(format!("vlsync-it-sdroot-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let unit_dir = root.join("etc/systemd/system");
+    let bin_dir = root.join("usr/local/bin");
+    std::fs::create_dir_all(&unit_dir).unwrap();
+    std::fs::create_dir_all(&bin_dir).unwrap();
+    let lib_units = root.join("usr/lib/systemd");
+    std::fs::create_dir_all(&lib_units).unwrap();
+    let st = Command::new("cp")
+        .args(["-a", "/usr/lib/systemd/system"])
+        .arg(&lib_units)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar"] {
+        std::fs::copy(bin(b), bin_dir.join(b)).unwrap();
+    }
+    let mut names = vec![];
+    for e in std::fs::read_dir(deploy().join("systemd")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), unit_dir.join(e.file_name())).unwrap();
+        names.push(e.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    assert_eq!(names.len(), 4, "{names:?}");
+    let out = Command::new("systemd-analyze")
+        .args(["verify", "--man=no"])
+        .arg(format!("--root={}", root.display()))
+        .args(&names)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&root);
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success() && text.trim().is_empty(), "{text}");
+}
+
+fn install_sh() -> Command {
+    let mut c = Command::new("bash");
+    c.arg(deploy().join("install.sh"));
+    c
+}
+
+#[test]
+fn install_script_previews_refuses_without_root_and_checks_inputs() {
+    let bins = bin("vlsyncd").parent().unwrap().to_path_buf();
+    bin("vlsync-echo");
+    let out = install_sh()
+        .arg("--dry-run")
+        .arg("--bin-dir")
+        .arg(&bins)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("dry run: nothing is changed"), "{text}");
+    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
+        let want = format!("install -m 0755 {}/{b} /usr/local/bin/{b}", bins.display());
+        assert!(text.contains(&want), "no `{want}` in\n{text}");
+    }
+    for u in [
+        "vlsyncd.service",
+        "vlsync-cam.service",
+        "vlsync-lidar.service",
+        "vlsync.target",
+    ] {
+        assert!(
+            text.contains(&format!("/etc/systemd/system/{u}")),
+            "{u} not installed:\n{text}"
+        );
+    }
+    assert!(text.contains("/etc/vlsync/vlsync.toml"), "{text}");
+    assert!(text.contains("/etc/tmpfiles.d/vlsync.conf"), "{text}");
+    assert!(
+        text.contains("systemctl daemon-reload")
+            || text.contains("skipped systemd-tmpfiles and daemon-reload"),
+        "{text}"
+    );
+    // every action of a dry run is only printed
+    let executed: Vec<&str> = text.lines().filter(|l| l.starts_with('+')).collect();
+    assert!(executed.is_empty(), "dry run executed {executed:?}");
+
+    // a missing binary is named before anything happens
+    let out = install_sh()
+        .args(["--dry-run", "--bin-dir", "/nonexistent/vlsync-bins"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("/nonexistent/vlsync-bins/vlsyncd missing"),
+        "{err}"
+    );
+    let out = install_sh().arg("--bogus").output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown option `--bogus`"));
+
+    // without root and without --dry-run it refuses with a clear message
+    let unprivileged = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", "bash"])
+        .arg(deploy().join("install.sh"))
+        .arg("--bin-dir")
+        .arg(&bins)
+        .output();
+    match unprivileged {
+        Ok(out) => {
+            assert!(!out.status.success());
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(
+                err.contains("must run as root") && err.contains("--dry-run"),
+                "{err}"
+            );
+        }
+        Err(e) => eprintln!("setpriv unavailable ({e}): refusal without root not checked"),
+    }
+}
