@@ -1,0 +1,446 @@
+//! The pinhole camera: precomputed per-pixel rays in the robot frame, ray
+//! casting against the floor, the ceiling, the walls and the boxes, textured
+//! lookups, motion blur by averaging sub-exposures, and sensor noise.
+//!
+//! Robot frame: `x` forward, `y` left, `z` up. The camera sits
+//! [`CameraConfig::forward_m`] ahead of the robot's centre at height
+//! [`CameraConfig::height_m`], looking forward and pitched down by
+//! [`CameraConfig::pitch_deg`]; image `+x` is right, `+y` down.
+//!
+//! ```
+//! use vlsync_render::camera::{CameraConfig, CameraModel};
+//! use vlsync_render::motion::Pose;
+//! use vlsync_render::scene::Scene;
+//! use vlsync_render::world::Room;
+//! let cfg = CameraConfig { width: 64, height: 48, ..CameraConfig::default() };
+//! let mut cam = CameraModel::new(&cfg).unwrap();
+//! let scene = Scene::new(Room::new(8.0, 5.0, 2.5).unwrap(), 1);
+//! let mut img = vec![0u8; 64 * 48];
+//! let pose = Pose { x: 2.0, y: 2.5, yaw: 0.0 };
+//! cam.render(&scene, &[pose], 0, &mut img).unwrap();
+//! assert!(img.iter().any(|&p| p != img[0])); // textured
+//! ```
+
+use crate::motion::Pose;
+use crate::scene::Scene;
+use crate::world::Surface;
+use crate::RenderError;
+
+/// Camera intrinsics, mounting and sensor parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraConfig {
+    /// Image width, pixels (16..=4096).
+    pub width: usize,
+    /// Image height, pixels (16..=4096).
+    pub height: usize,
+    /// Horizontal field of view, degrees (10..=150); square pixels.
+    pub hfov_deg: f64,
+    /// Height of the optical centre above the floor, metres.
+    pub height_m: f64,
+    /// Mounting point ahead of the robot's centre, metres.
+    pub forward_m: f64,
+    /// Downward pitch of the optical axis, degrees (0..=80).
+    pub pitch_deg: f64,
+    /// Frame rate, Hz.
+    pub fps: f64,
+    /// Exposure time, seconds (0 = instantaneous).
+    pub exposure_s: f64,
+    /// Sub-exposures averaged per frame (1..=16): motion blur.
+    pub exposure_samples: usize,
+    /// Sensor noise, gray levels (1σ, approximately Gaussian).
+    pub noise: f32,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            width: 320,
+            height: 240,
+            hfov_deg: 60.0,
+            height_m: 0.2,
+            forward_m: 0.1,
+            pitch_deg: 25.0,
+            fps: 30.0,
+            exposure_s: 0.008,
+            exposure_samples: 3,
+            noise: 2.0,
+        }
+    }
+}
+
+impl CameraConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), RenderError> {
+        let bad = |field, reason: String| Err(RenderError::config(field, reason));
+        if !(16..=4096).contains(&self.width) {
+            return bad(
+                "camera.width",
+                format!("{} is outside 16..=4096", self.width),
+            );
+        }
+        if !(16..=4096).contains(&self.height) {
+            return bad(
+                "camera.height",
+                format!("{} is outside 16..=4096", self.height),
+            );
+        }
+        let ranges = [
+            ("camera.hfov_deg", self.hfov_deg, 10.0, 150.0),
+            ("camera.height_m", self.height_m, 0.02, 2.0),
+            ("camera.forward_m", self.forward_m, -1.0, 1.0),
+            ("camera.pitch_deg", self.pitch_deg, 0.0, 80.0),
+            ("camera.fps", self.fps, 1.0, 1000.0),
+            ("camera.exposure_s", self.exposure_s, 0.0, 0.1),
+            ("camera.noise", f64::from(self.noise), 0.0, 50.0),
+        ];
+        for (field, v, lo, hi) in ranges {
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                return bad(field, format!("{v} is outside {lo}..={hi}"));
+            }
+        }
+        if self.exposure_s >= 1.0 / self.fps {
+            return bad(
+                "camera.exposure_s",
+                format!(
+                    "{} s is not shorter than the frame period {} s",
+                    self.exposure_s,
+                    1.0 / self.fps
+                ),
+            );
+        }
+        if !(1..=16).contains(&self.exposure_samples) {
+            return bad(
+                "camera.exposure_samples",
+                format!("{} is outside 1..=16", self.exposure_samples),
+            );
+        }
+        Ok(())
+    }
+
+    /// Focal length in pixels.
+    pub fn focal_px(&self) -> f64 {
+        0.5 * self.width as f64 / (0.5 * self.hfov_deg.to_radians()).tan()
+    }
+}
+
+/// One pixel's ray, fixed in the robot frame.
+#[derive(Debug, Clone, Copy)]
+struct PixelRay {
+    /// Unit horizontal direction (robot frame).
+    ux: f32,
+    uy: f32,
+    /// Horizontal distance to the floor hit (`inf` when looking up).
+    floor: f32,
+    /// Horizontal distance to the ceiling hit (`inf` when looking down).
+    ceil: f32,
+    /// Height change per horizontal metre.
+    slope: f32,
+}
+
+/// A camera with its precomputed rays.
+#[derive(Debug, Clone)]
+pub struct CameraModel {
+    cfg: CameraConfig,
+    rays: Vec<PixelRay>,
+    /// accumulation buffer for the sub-exposures
+    acc: Vec<f32>,
+}
+
+impl CameraModel {
+    /// Validates the configuration and precomputes one ray per pixel (centre).
+    pub fn new(cfg: &CameraConfig) -> Result<Self, RenderError> {
+        cfg.validate()?;
+        let f = cfg.focal_px();
+        let (cx, cy) = (0.5 * cfg.width as f64, 0.5 * cfg.height as f64);
+        let p = cfg.pitch_deg.to_radians();
+        let (sp, cp) = p.sin_cos();
+        let mut rays = Vec::with_capacity(cfg.width * cfg.height);
+        for v in 0..cfg.height {
+            let yc = (v as f64 + 0.5 - cy) / f;
+            for u in 0..cfg.width {
+                let xc = (u as f64 + 0.5 - cx) / f;
+                // forward (cp, 0, -sp), right (0, -1, 0), down (-sp, 0, -cp)
+                let dx = cp - yc * sp;
+                let dy = -xc;
+                let dz = -sp - yc * cp;
+                let hn = dx.hypot(dy);
+                let slope = dz / hn;
+                let floor = if dz < 0.0 {
+                    cfg.height_m / -slope
+                } else {
+                    f64::INFINITY
+                };
+                rays.push(PixelRay {
+                    ux: (dx / hn) as f32,
+                    uy: (dy / hn) as f32,
+                    floor: floor as f32,
+                    ceil: f32::INFINITY,
+                    slope: slope as f32,
+                });
+            }
+        }
+        Ok(Self {
+            cfg: *cfg,
+            rays,
+            acc: vec![0.0; cfg.width * cfg.height],
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CameraConfig {
+        &self.cfg
+    }
+
+    /// Renders the average of the views from `poses` (the sub-exposures) into
+    /// `out` (`width * height` gray pixels, row-major), adding sensor noise
+    /// drawn deterministically from `noise_seed`.
+    pub fn render(
+        &mut self,
+        scene: &Scene,
+        poses: &[Pose],
+        noise_seed: u64,
+        out: &mut [u8],
+    ) -> Result<(), RenderError> {
+        let n = self.cfg.width * self.cfg.height;
+        if out.len() != n {
+            return Err(RenderError::config(
+                "render.out",
+                format!(
+                    "buffer of {} pixels for a {}x{} image",
+                    out.len(),
+                    self.cfg.width,
+                    self.cfg.height
+                ),
+            ));
+        }
+        if poses.is_empty() {
+            return Err(RenderError::config(
+                "render.poses",
+                "no pose to render".into(),
+            ));
+        }
+        let acc = &mut self.acc;
+        acc.iter_mut().for_each(|a| *a = 0.0);
+        let room = &scene.room;
+        let ceil_h = (room.height - self.cfg.height_m) as f32;
+        for pose in poses {
+            let (s, c) = pose.yaw.sin_cos();
+            let cxw = pose.x + c * self.cfg.forward_m;
+            let cyw = pose.y + s * self.cfg.forward_m;
+            if !room.is_free(cxw, cyw) {
+                return Err(RenderError::config(
+                    "render.pose",
+                    format!("camera at ({cxw:.3}, {cyw:.3}) is outside the free space"),
+                ));
+            }
+            let (s, c) = (s as f32, c as f32);
+            for (a, r) in acc.iter_mut().zip(&self.rays) {
+                let wx = c * r.ux - s * r.uy;
+                let wy = s * r.ux + c * r.uy;
+                let hit = room.cast(cxw, cyw, f64::from(wx), f64::from(wy));
+                let wall = hit.distance as f32;
+                let ceil = if r.slope > 0.0 {
+                    ceil_h / r.slope
+                } else {
+                    r.ceil
+                };
+                let val = if r.floor < wall {
+                    let d = f64::from(r.floor);
+                    scene
+                        .floor
+                        .sample(cxw + f64::from(wx) * d, cyw + f64::from(wy) * d)
+                } else if ceil < wall {
+                    let d = f64::from(ceil);
+                    0.5 * scene
+                        .ceiling
+                        .sample(cxw + f64::from(wx) * d, cyw + f64::from(wy) * d)
+                        + 90.0
+                } else {
+                    let z = self.cfg.height_m + f64::from(r.slope * wall);
+                    match hit.surface {
+                        Surface::Wall => scene.wall.sample(hit.along, z),
+                        Surface::Box(i) => {
+                            let b = room.boxes[i];
+                            if z <= b.height {
+                                0.7 * scene.wall.sample(hit.along + 50.0, z) + 20.0
+                            } else {
+                                // over the box: the wall behind it
+                                let far = room.cast(
+                                    cxw + f64::from(wx) * hit.distance,
+                                    cyw + f64::from(wy) * hit.distance,
+                                    f64::from(wx),
+                                    f64::from(wy),
+                                );
+                                let z2 = self.cfg.height_m
+                                    + f64::from(r.slope) * (hit.distance + far.distance);
+                                scene.wall.sample(far.along, z2)
+                            }
+                        }
+                    }
+                };
+                *a += val;
+            }
+        }
+        let scale = 1.0 / poses.len() as f32;
+        let mut rng = SplitMix(noise_seed);
+        let sigma = self.cfg.noise;
+        for (o, a) in out.iter_mut().zip(acc.iter()) {
+            let noise = if sigma > 0.0 {
+                sigma * rng.gauss()
+            } else {
+                0.0
+            };
+            *o = (a * scale + noise).round().clamp(0.0, 255.0) as u8;
+        }
+        Ok(())
+    }
+}
+
+/// A tiny deterministic generator for pixel noise.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Approximately standard normal: the sum of four uniforms, scaled.
+    fn gauss(&mut self) -> f32 {
+        let r = self.next();
+        let u = |k: u32| ((r >> (16 * k)) & 0xFFFF) as f32 / 65535.0;
+        // sum of 4 U(0,1): mean 2, variance 1/3
+        (u(0) + u(1) + u(2) + u(3) - 2.0) * 1.732_050_8
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::Room;
+
+    fn scene() -> Scene {
+        Scene::new(Room::new(8.0, 5.0, 2.5).unwrap(), 3)
+    }
+
+    #[test]
+    fn rays_hit_the_floor_where_geometry_says() {
+        let cfg = CameraConfig::default();
+        let cam = CameraModel::new(&cfg).unwrap();
+        // the centre ray is pitched 25° down: floor at h / tan(25°)
+        let (w, h) = (cfg.width, cfg.height);
+        let r = cam.rays[(h / 2) * w + w / 2];
+        let expect = 0.2 / 25f64.to_radians().tan();
+        assert!((f64::from(r.floor) - expect).abs() < 3e-3, "{}", r.floor);
+        // top rows look above the horizon (65.5° half vfov is not reached at 25° pitch
+        // and 60° hfov, but the default vfov of ~47° keeps the top row below it)
+        assert!(cam.rays[0].floor.is_finite());
+        let up = CameraModel::new(&CameraConfig {
+            pitch_deg: 0.0,
+            ..cfg
+        })
+        .unwrap();
+        assert!(up.rays[0].floor.is_infinite() && up.rays[0].slope > 0.0);
+    }
+
+    #[test]
+    fn moving_forward_moves_the_floor_down_the_image() {
+        // a forward step shifts the floor texture toward the bottom of the image
+        let cfg = CameraConfig {
+            noise: 0.0,
+            ..CameraConfig::default()
+        };
+        let mut cam = CameraModel::new(&cfg).unwrap();
+        let sc = scene();
+        let (w, h) = (cfg.width, cfg.height);
+        let mut a = vec![0u8; w * h];
+        let mut b = vec![0u8; w * h];
+        cam.render(
+            &sc,
+            &[Pose {
+                x: 2.0,
+                y: 2.5,
+                yaw: 0.0,
+            }],
+            0,
+            &mut a,
+        )
+        .unwrap();
+        cam.render(
+            &sc,
+            &[Pose {
+                x: 2.01,
+                y: 2.5,
+                yaw: 0.0,
+            }],
+            0,
+            &mut b,
+        )
+        .unwrap();
+        // best vertical shift of the bottom-centre block
+        let block = |img: &[u8], dy: usize| -> Vec<f64> {
+            (0..40)
+                .flat_map(|y| (140..180).map(move |x| (x, y)))
+                .map(|(x, y)| f64::from(img[(170 + y + dy) * w + x]))
+                .collect()
+        };
+        let base = block(&a, 0);
+        let best = (0..20)
+            .min_by_key(|&dy| {
+                let o = block(&b, dy);
+                base.iter()
+                    .zip(&o)
+                    .map(|(p, q)| ((p - q) * (p - q)) as u64)
+                    .sum::<u64>()
+            })
+            .unwrap();
+        assert!((2..15).contains(&best), "{best}");
+        assert!(cam.render(&sc, &[], 0, &mut a).is_err());
+        assert!(cam
+            .render(
+                &sc,
+                &[Pose {
+                    x: -1.0,
+                    y: 2.5,
+                    yaw: 0.0
+                }],
+                0,
+                &mut a
+            )
+            .is_err());
+        assert!(cam
+            .render(
+                &sc,
+                &[Pose {
+                    x: 2.0,
+                    y: 2.5,
+                    yaw: 0.0
+                }],
+                0,
+                &mut a[1..]
+            )
+            .is_err());
+    }
+
+    #[test]
+    fn noise_is_deterministic_and_near_gaussian() {
+        let mut r = SplitMix(5);
+        let v: Vec<f32> = (0..20000).map(|_| r.gauss()).collect();
+        let m = v.iter().sum::<f32>() / v.len() as f32;
+        let s = (v.iter().map(|x| (x - m).powi(2)).sum::<f32>() / v.len() as f32).sqrt();
+        assert!(m.abs() < 0.03 && (s - 1.0).abs() < 0.03, "{m} {s}");
+        let mut r2 = SplitMix(5);
+        assert_eq!(r2.gauss(), v[0]);
+        let bad = CameraConfig {
+            exposure_s: 0.05,
+            ..CameraConfig::default()
+        };
+        assert!(CameraModel::new(&bad)
+            .unwrap_err()
+            .to_string()
+            .contains("exposure_s"));
+    }
+}

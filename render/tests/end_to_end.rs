@@ -1,0 +1,135 @@
+//! End to end through the real front-ends: rendered frames → signature-cam,
+//! rendered scans → signature-lidar, both → the estimator, scored against the
+//! renderer's truth.
+
+use std::time::Instant;
+use vlsync_common::{Estimate, Sample, Stream};
+use vlsync_config::EstimatorConfig;
+use vlsync_estimator::Estimator;
+use vlsync_render::score::{score, Score};
+use vlsync_render::{Event, RenderConfig, Renderer};
+use vlsync_signature_cam as cam;
+use vlsync_signature_lidar as lidar;
+
+struct Outcome {
+    score: Score,
+    estimates: Vec<Estimate>,
+    cam: Vec<Sample>,
+    lidar: Vec<Sample>,
+    truth: vlsync_sim::Truth,
+}
+
+fn pipeline(
+    cfg: RenderConfig,
+    cam_stamping: cam::Stamping,
+    lidar_stamping: lidar::Stamping,
+) -> Outcome {
+    let t0 = Instant::now();
+    let mut r = Renderer::new(cfg).expect("valid config");
+    let truth = r.truth().clone();
+    let mut cp = cam::SignatureProcessor::new(cam::SignatureConfig {
+        stamping: cam_stamping,
+        ..cam::SignatureConfig::default()
+    })
+    .unwrap();
+    let mut lp = lidar::SignatureProcessor::new(lidar::SignatureConfig {
+        stamping: lidar_stamping,
+        ..lidar::SignatureConfig::default() // window straight ahead, ±5°
+    })
+    .unwrap();
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let (mut cs, mut ls, mut estimates) = (Vec::new(), Vec::new(), Vec::new());
+    for ev in r.events() {
+        match ev.expect("render") {
+            Event::Frame(f) => {
+                if let cam::Step::Sample(s) = cp.process(&f.image, f.time).unwrap() {
+                    if s.sample.value.is_finite() && !s.low_texture() {
+                        cs.push(s.sample);
+                        let _ = est.push(Stream::Cam, s.sample);
+                    }
+                }
+            }
+            Event::Scan(s) => {
+                lp.push_scan(&s.scan, |x| {
+                    ls.push(x);
+                    let _ = est.push(Stream::Lidar, x);
+                });
+            }
+        }
+        while let Some(e) = est.poll() {
+            estimates.push(e);
+        }
+    }
+    let score = score(&estimates, &truth);
+    eprintln!(
+        "stamping cam {cam_stamping:?} lidar {lidar_stamping:?}: {} cam, {} lidar samples, {} estimates; \
+         tracking n {} MAE {:.2} ms bias {:+.2} ms p95 {:.2} ms max {:.2} ms; measured MAE {:.2} ms bias {:+.2} ms (n {}); \
+         first lock {:?}; {:.1} s",
+        cs.len(), ls.len(), estimates.len(), score.n, score.mae_s * 1e3, score.bias_s * 1e3,
+        score.p95_s * 1e3, score.max_abs_s * 1e3, score.measured_mae_s * 1e3, score.measured_bias_s * 1e3,
+        score.n_measured, score.first_lock_ns.map(|t| t as f64 * 1e-9), t0.elapsed().as_secs_f64()
+    );
+    Outcome {
+        score,
+        estimates,
+        cam: cs,
+        lidar: ls,
+        truth,
+    }
+}
+
+#[test]
+#[ignore = "exploration: VLSYNC_SEEDS=1,2,3 cargo test -p vlsync-render --test end_to_end explore -- --ignored --nocapture"]
+fn explore() {
+    let seeds = std::env::var("VLSYNC_SEEDS").unwrap_or_else(|_| "1".into());
+    let mut maes = Vec::new();
+    for seed in seeds
+        .split(',')
+        .map(|s| s.trim().parse::<u64>().expect("seed"))
+    {
+        let o = pipeline(
+            RenderConfig::from_seed(seed, 60.0),
+            cam::Stamping::Midpoint,
+            lidar::Stamping::Midpoint,
+        );
+        maes.push((seed, o.score.mae_s * 1e3, o.score.n));
+    }
+    eprintln!("{maes:?}");
+    let cfg = RenderConfig::from_seed(1, 60.0);
+    let o = pipeline(cfg, cam::Stamping::Midpoint, lidar::Stamping::Midpoint);
+    for e in &o.estimates {
+        eprintln!(
+            "{:.2} {:?} off {:+.4} meas {:+.4} truth {:+.4} score {:.2} ratio {:.2}",
+            e.t_ref_ns as f64 * 1e-9,
+            e.state,
+            e.offset_s,
+            e.measured_offset_s,
+            o.truth.offset_at(e.t_ref_ns),
+            e.peak_score,
+            e.peak_ratio
+        );
+    }
+    let w = |name: &str, v: &[Sample]| {
+        let text: String = v
+            .iter()
+            .map(|s| format!("{},{}\n", s.t_ns as f64 * 1e-9, s.value))
+            .collect();
+        std::fs::write(name, text).unwrap();
+    };
+    w("/tmp/e2e_cam.csv", &o.cam);
+    w("/tmp/e2e_lidar.csv", &o.lidar);
+}
+
+#[test]
+fn debug_flow() {
+    let mut r = Renderer::new(RenderConfig::from_seed(1, 8.0)).unwrap();
+    let mut cp = cam::SignatureProcessor::new(cam::SignatureConfig::default()).unwrap();
+    for ev in r.events() {
+        if let Event::Frame(f) = ev.unwrap() {
+            let st = cp.process(&f.image, f.time);
+            if f.index % 15 == 0 {
+                eprintln!("{} {:?}", f.index, st);
+            }
+        }
+    }
+}
