@@ -3,8 +3,9 @@
 //!
 //! The service thread (never the real-time thread) keeps the newest estimate
 //! worth saving ([`worth_saving`]: tracking, or holding with a small standard
-//! deviation) and writes it at most every [`SAVE_PERIOD`] and once more on
-//! shutdown ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
+//! deviation) and writes it at most every [`SAVE_PERIOD`] while it moves, at
+//! least every [`REFRESH_PERIOD`] while it does not (fewer fsyncs wear an SD card
+//! less), and once more on shutdown ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
 //! same directory, is fsynced, renamed over the file, and the directory is
 //! fsynced, so a crash at any point leaves either the old or the new file.
 //!
@@ -49,6 +50,11 @@ pub const VERSION: u32 = 1;
 pub const MAX_FILE_BYTES: u64 = 16 * 1024;
 /// Minimum time between two saves.
 pub const SAVE_PERIOD: Duration = Duration::from_secs(5);
+/// An estimate within this of the last saved one (offset and its standard
+/// deviation, seconds; same state and polarity) is not saved again before [`REFRESH_PERIOD`].
+pub const UNCHANGED_S: f64 = 1e-4;
+/// The longest time between two saves while a good estimate keeps arriving.
+pub const REFRESH_PERIOD: Duration = Duration::from_secs(60);
 /// A holding estimate is saved only while its standard deviation is at most this, seconds.
 pub const HOLD_SAVE_MAX_STD_S: f64 = 0.01;
 /// A file saved further in the future than this (the wall clock moved back, or a
@@ -89,6 +95,8 @@ pub struct SavedState {
 pub enum Problem {
     /// Reading failed.
     Io(String),
+    /// A directory, FIFO, device, ...
+    NotAFile,
     /// Larger than [`MAX_FILE_BYTES`].
     TooLarge,
     /// Not UTF-8 text.
@@ -173,6 +181,7 @@ impl fmt::Display for Problem {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Problem::Io(e) => write!(f, "cannot read: {e}"),
+            Problem::NotAFile => write!(f, "not a regular file"),
             Problem::TooLarge => write!(f, "larger than {MAX_FILE_BYTES} bytes: not a state file"),
             Problem::NotText => write!(f, "not UTF-8 text: corrupt"),
             Problem::BadHeader(h) => write!(
@@ -452,11 +461,14 @@ pub fn load(
         path: path.to_path_buf(),
         problem,
     };
-    let f = match std::fs::File::open(path) {
-        Ok(f) => f,
+    // a FIFO would block the open: only regular files (following a symlink) are read
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => {}
+        Ok(_) => return Err(err(Problem::NotAFile)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(err(Problem::Io(e.to_string()))),
-    };
+    }
+    let f = std::fs::File::open(path).map_err(|e| err(Problem::Io(e.to_string())))?;
     let mut bytes = Vec::new();
     f.take(MAX_FILE_BYTES + 1)
         .read_to_end(&mut bytes)
@@ -574,13 +586,22 @@ pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f
     }
 }
 
+fn unchanged(a: &Estimate, b: &Estimate) -> bool {
+    a.state == b.state
+        && a.polarity == b.polarity
+        && (a.offset_s - b.offset_s).abs() <= UNCHANGED_S
+        && (a.offset_std_s - b.offset_std_s).abs() <= UNCHANGED_S
+}
+
 /// Saves the newest estimate worth saving at most every `period` (service thread).
 #[derive(Debug)]
 pub struct Saver {
     path: PathBuf,
     period: Duration,
+    refresh: Duration,
     pending: Option<Estimate>,
     last_save: Option<Instant>,
+    last_saved: Option<Estimate>,
     last_error: Option<String>,
 }
 
@@ -590,13 +611,16 @@ impl Saver {
         (!cfg.state_file.is_empty()).then(|| Self::new(PathBuf::from(&cfg.state_file), SAVE_PERIOD))
     }
 
-    /// A saver for `path`, at most one save per `period`.
+    /// A saver for `path`, at most one save per `period`; an unchanged estimate
+    /// (see [`UNCHANGED_S`]) only every [`REFRESH_PERIOD`].
     pub fn new(path: PathBuf, period: Duration) -> Self {
         Self {
             path,
             period,
+            refresh: REFRESH_PERIOD.max(period),
             pending: None,
             last_save: None,
+            last_saved: None,
             last_error: None,
         }
     }
@@ -613,13 +637,19 @@ impl Saver {
         }
     }
 
-    /// Saves the pending estimate if the period since the last save has passed.
-    /// Returns whether it saved; an error is logged once until a save succeeds.
+    /// Saves the pending estimate if the period since the last save has passed
+    /// (the refresh period if it equals the last saved one). Returns whether it
+    /// saved; an error is logged once until a save succeeds.
     pub fn tick(&mut self, now: Instant) -> bool {
-        let due = self
-            .last_save
-            .is_none_or(|t| now.saturating_duration_since(t) >= self.period);
-        if due && self.pending.is_some() {
+        let Some(p) = self.pending else {
+            return false;
+        };
+        let since = self.last_save.map(|t| now.saturating_duration_since(t));
+        let wait = match &self.last_saved {
+            Some(l) if unchanged(l, &p) => self.refresh,
+            _ => self.period,
+        };
+        if since.is_none_or(|d| d >= wait) {
             self.last_save = Some(now);
             return self.flush();
         }
@@ -637,6 +667,7 @@ impl Saver {
         };
         match save(&self.path, &s) {
             Ok(()) => {
+                self.last_saved = Some(e);
                 if self.last_error.take().is_some() {
                     tracing::info!("state file {}: saving works again", self.path.display());
                 }
@@ -848,7 +879,17 @@ mod tests {
         std::fs::write(&p, vec![b'#'; MAX_FILE_BYTES as usize + 1]).unwrap();
         assert_eq!(load(&p, now, 10.0).unwrap_err().problem, Problem::TooLarge);
         let e = load(&d, now, 10.0).unwrap_err();
-        assert!(matches!(e.problem, Problem::Io(_)), "{e}");
+        assert_eq!(e.problem, Problem::NotAFile, "{e}");
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        // a FIFO is refused without blocking
+        let fifo = d.join("fifo");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            assert_eq!(
+                load(&fifo, now, 10.0).unwrap_err().problem,
+                Problem::NotAFile
+            );
+        }
         std::fs::remove_dir_all(&d).unwrap();
     }
 
@@ -917,8 +958,28 @@ mod tests {
         let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
         assert_eq!(s.estimate.offset_s, 0.25);
         assert_eq!(s.estimate.state, EstimatorState::Holding);
-        // nothing new: no save; flush saves what is pending regardless of the period
+        // nothing new: no save
         assert!(!sv.tick(t0 + Duration::from_secs(20)));
+        // the same estimate again (within 0.1 ms): saved only after the refresh period
+        sv.offer(&Estimate {
+            state: EstimatorState::Holding,
+            offset_std_s: 0.004,
+            offset_s: 0.250_05,
+            ..est()
+        });
+        assert!(!sv.tick(t0 + Duration::from_secs(20)));
+        assert!(!sv.tick(t0 + Duration::from_secs(64)));
+        assert!(sv.tick(t0 + Duration::from_secs(65)));
+        // a moved estimate goes out after the short period again
+        sv.offer(&Estimate {
+            offset_s: 0.26,
+            ..est()
+        });
+        assert!(!sv.tick(t0 + Duration::from_secs(69)));
+        assert!(sv.tick(t0 + Duration::from_secs(70)));
+        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        assert_eq!(s.estimate.offset_s, 0.26);
+        // flush saves what is pending regardless of the period
         sv.offer(&Estimate {
             offset_s: 0.125,
             ..est()
