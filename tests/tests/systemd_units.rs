@@ -171,6 +171,11 @@ fn no_vlsync_unit_separates_tmp_or_dev_and_all_share_one_user() {
         assert_eq!(get(&u, n, "Service", "User"), "vlsync");
         assert_eq!(get(&u, n, "Service", "Group"), "vlsync");
         assert_eq!(get(&u, n, "Service", "ProtectSystem"), "strict");
+        assert_eq!(
+            get(&u, n, "Service", "ExecStartPre"),
+            "+/usr/bin/systemd-tmpfiles --create /etc/tmpfiles.d/vlsync.conf",
+            "{n}: the shared directories must exist before the sandbox is set up"
+        );
         let rw = words(&u, "Service", "ReadWritePaths");
         for p in ["/dev/shm", "/tmp/iceoryx2"] {
             assert!(rw.iter().any(|w| w == p), "{n}: ReadWritePaths lacks {p}");
@@ -249,6 +254,14 @@ fn units_pass_systemd_analyze_verify() {
     for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar"] {
         std::fs::copy(bin(b), bin_dir.join(b)).unwrap();
     }
+    // the units' ExecStartPre= (the root's /usr/bin exists only for it)
+    let usr_bin = root.join("usr/bin");
+    std::fs::create_dir_all(&usr_bin).unwrap();
+    std::fs::copy(
+        "/usr/bin/systemd-tmpfiles",
+        usr_bin.join("systemd-tmpfiles"),
+    )
+    .unwrap();
     let mut names = vec![];
     for e in std::fs::read_dir(deploy().join("systemd")).unwrap() {
         let e = e.unwrap();
