@@ -1,26 +1,270 @@
-//! Chunk decompression.
+//! Chunk decompression, pure Rust.
 //!
 //! The `mcap` crate's built-in `zstd` and `lz4` decoders bind the C libraries
-//! (`zstd-sys`, `lz4-sys`); this crate builds `mcap` without them, so only
-//! uncompressed chunks are read. A compressed chunk is an error naming its
-//! compression. rosbag2's MCAP storage can compress chunks (zstd, depending on
-//! its storage preset and version); convert such a file first, e.g. with the
-//! `mcap` CLI (`mcap compress --compression none`) or `ros2 bag convert`.
+//! (`zstd-sys`, `lz4-sys`); this crate builds `mcap` without them and registers
+//! its own decoders for the two compressions the MCAP specification names:
+//!
+//! * `zstd`: Zstandard frames (skippable frames skipped), decoded by `ruzstd`;
+//! * `lz4`: LZ4 frames, decoded by `lz4_flex`;
+//! * `""`: uncompressed.
+//!
+//! rosbag2's MCAP storage compresses chunks with zstd by default in several
+//! releases, so both matter for real recordings. Any other compression string
+//! is an error naming it. A chunk decodes to at most
+//! [`crate::ReaderOptions::max_record_bytes`].
+//!
+//! Each decoder takes a whole chunk at once: through the index the reader hands
+//! over whole chunks anyway, and reading linearly the decoder's read hint asks
+//! for all of the chunk's compressed bytes (the reader caps the hint at the
+//! chunk's size and the record limit). A chunk whose frames are truncated
+//! decodes short and the reader reports that no progress was made.
 
+use mcap::sans_io::decompressor::{DecompressResult, Decompressor};
 use mcap::sans_io::indexed_reader::IndexedReader;
 use mcap::sans_io::linear_reader::LinearReader;
-use mcap::McapResult;
+use mcap::{McapError, McapResult};
+use std::io::Read;
 
 /// Appended to an "unsupported compression" error.
-pub const UNSUPPORTED_HINT: &str =
-    " (this build reads uncompressed chunks only; decompress the file first, e.g. `mcap compress --compression none`)";
+pub const UNSUPPORTED_HINT: &str = " (supported chunk compressions: none, zstd, lz4)";
 
-/// Registers this crate's decompressors on a linear reader.
-pub(crate) fn register_linear(_reader: &mut LinearReader) -> McapResult<()> {
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Codec {
+    Zstd,
+    Lz4,
+}
+
+/// Decodes all frames of `src`, appending to `out`; at most `limit` bytes in all.
+fn decode_all(codec: Codec, src: &[u8], out: &mut Vec<u8>, limit: u64) -> Result<(), String> {
+    let room = |out: &Vec<u8>| limit.saturating_sub(out.len() as u64);
+    let too_big = || format!("decompressed chunk exceeds the limit of {limit} bytes");
+    match codec {
+        Codec::Lz4 => {
+            let cap = room(out);
+            let mut d = lz4_flex::frame::FrameDecoder::new(src).take(cap.saturating_add(1));
+            d.read_to_end(out).map_err(|e| e.to_string())?;
+            if out.len() as u64 > limit {
+                return Err(too_big());
+            }
+        }
+        Codec::Zstd => {
+            use ruzstd::decoding::errors::{FrameDecoderError, ReadFrameHeaderError};
+            let mut s = src;
+            while !s.is_empty() {
+                let frame_start = s;
+                match ruzstd::decoding::StreamingDecoder::new(&mut s) {
+                    Ok(mut d) => {
+                        let cap = room(out);
+                        (&mut d)
+                            .take(cap.saturating_add(1))
+                            .read_to_end(out)
+                            .map_err(|e| e.to_string())?;
+                        if out.len() as u64 > limit {
+                            return Err(too_big());
+                        }
+                        // ruzstd ends quietly at the end of its input
+                        if !d.decoder.is_finished() {
+                            return Err("zstd frame is truncated".into());
+                        }
+                    }
+                    Err(FrameDecoderError::ReadFrameHeaderError(
+                        ReadFrameHeaderError::SkipFrame { length, .. },
+                    )) => {
+                        // magic, length, then `length` bytes
+                        let n = usize::try_from(length).unwrap_or(usize::MAX);
+                        s = frame_start
+                            .get(n.saturating_add(8)..)
+                            .ok_or("skippable zstd frame runs past the chunk")?;
+                    }
+                    Err(e) => return Err(e.to_string()),
+                }
+            }
+        }
+    }
     Ok(())
 }
 
+/// A whole-chunk decoder for one codec (see the module docs).
+struct WholeChunk {
+    codec: Codec,
+    limit: u64,
+    out: Vec<u8>,
+    pos: usize,
+}
+
+impl WholeChunk {
+    fn new(codec: Codec, limit: usize) -> Self {
+        Self {
+            codec,
+            limit: limit as u64,
+            out: Vec::new(),
+            pos: 0,
+        }
+    }
+}
+
+impl Decompressor for WholeChunk {
+    fn next_read_size(&self) -> usize {
+        if self.pos == self.out.len() {
+            // all of the chunk (the reader caps this at what the chunk has left)
+            usize::MAX
+        } else {
+            0
+        }
+    }
+
+    fn decompress(&mut self, src: &[u8], dst: &mut [u8]) -> McapResult<DecompressResult> {
+        let mut consumed = 0;
+        if self.pos == self.out.len() && !src.is_empty() {
+            self.out.clear();
+            self.pos = 0;
+            match decode_all(self.codec, src, &mut self.out, self.limit) {
+                Ok(()) => consumed = src.len(),
+                Err(e) => {
+                    self.out.clear();
+                    return Err(McapError::DecompressionError(format!(
+                        "{}: {e}",
+                        self.name()
+                    )));
+                }
+            }
+        }
+        let n = dst.len().min(self.out.len() - self.pos);
+        dst[..n].copy_from_slice(&self.out[self.pos..self.pos + n]);
+        self.pos += n;
+        Ok(DecompressResult { consumed, wrote: n })
+    }
+
+    fn reset(&mut self) -> McapResult<()> {
+        self.out.clear();
+        self.pos = 0;
+        Ok(())
+    }
+
+    fn name(&self) -> &'static str {
+        match self.codec {
+            Codec::Zstd => "zstd",
+            Codec::Lz4 => "lz4",
+        }
+    }
+}
+
+/// Registers this crate's decompressors on a linear reader.
+pub(crate) fn register_linear(reader: &mut LinearReader, limit: usize) -> McapResult<()> {
+    reader.add_decompressor(WholeChunk::new(Codec::Zstd, limit))?;
+    reader.add_decompressor(WholeChunk::new(Codec::Lz4, limit))
+}
+
 /// Registers this crate's decompressors on an indexed reader.
-pub(crate) fn register_indexed(_reader: &mut IndexedReader) -> McapResult<()> {
-    Ok(())
+pub(crate) fn register_indexed(reader: &mut IndexedReader, limit: usize) -> McapResult<()> {
+    reader.add_decompressor(WholeChunk::new(Codec::Zstd, limit))?;
+    reader.add_decompressor(WholeChunk::new(Codec::Lz4, limit))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::io::Write;
+
+    pub(crate) fn zstd(data: &[u8]) -> Vec<u8> {
+        ruzstd::encoding::compress_to_vec(data, ruzstd::encoding::CompressionLevel::Fastest)
+    }
+
+    pub(crate) fn lz4(data: &[u8]) -> Vec<u8> {
+        let mut e = lz4_flex::frame::FrameEncoder::new(Vec::new());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    }
+
+    /// Feeds the whole chunk, then takes the output in small pieces, like the readers.
+    fn drive(d: &mut WholeChunk, src: &[u8], size: usize) -> McapResult<Vec<u8>> {
+        assert_eq!(d.next_read_size(), usize::MAX);
+        let mut out = vec![0u8; size];
+        let mut o = 0;
+        let mut src = src;
+        while o < size {
+            let r = d.decompress(src, &mut out[o..(o + 1000).min(size)])?;
+            if r.consumed == 0 && r.wrote == 0 {
+                return Err(McapError::DecompressionError("no progress".into()));
+            }
+            src = &src[r.consumed..];
+            o += r.wrote;
+        }
+        d.reset()?;
+        Ok(out)
+    }
+
+    #[test]
+    fn both_codecs() {
+        let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+        // two zstd frames with a skippable frame between them, like a chunk may hold
+        let mut z = zstd(&data[..3000]);
+        z.extend_from_slice(&0x184D_2A50u32.to_le_bytes());
+        z.extend_from_slice(&3u32.to_le_bytes());
+        z.extend_from_slice(&[1, 2, 3]);
+        z.extend_from_slice(&zstd(&data[3000..]));
+        let l = lz4(&data);
+        for (codec, src) in [(Codec::Zstd, &z), (Codec::Lz4, &l)] {
+            let mut d = WholeChunk::new(codec, 1 << 20);
+            assert_eq!(drive(&mut d, src, data.len()).unwrap(), data, "{codec:?}");
+            // the same instance decodes the next chunk after reset
+            assert_eq!(drive(&mut d, src, data.len()).unwrap(), data);
+        }
+    }
+
+    #[test]
+    fn errors_and_limits() {
+        let data = vec![7u8; 10_000];
+        let mut d = WholeChunk::new(Codec::Zstd, 1000);
+        let e = d.decompress(&zstd(&data), &mut [0; 10]).unwrap_err();
+        assert!(
+            e.to_string().contains("exceeds the limit of 1000 bytes"),
+            "{e}"
+        );
+        let mut d = WholeChunk::new(Codec::Lz4, 1 << 20);
+        let e = d.decompress(b"not lz4 at all", &mut [0; 10]).unwrap_err();
+        assert!(e.to_string().contains("lz4"), "{e}");
+        // truncated frames never yield the whole chunk (a cut inside lz4's 4-byte
+        // end mark loses no data and is not an error)
+        let mut x = 1u32;
+        let data: Vec<u8> = (0..10_000)
+            .map(|_| {
+                x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (x >> 24) as u8
+            })
+            .collect();
+        for (codec, c) in [(Codec::Zstd, zstd(&data)), (Codec::Lz4, lz4(&data))] {
+            for cut in [5, 9, 20] {
+                let mut d = WholeChunk::new(codec, 1 << 20);
+                assert!(
+                    drive(&mut d, &c[..c.len() - cut], data.len()).is_err(),
+                    "{codec:?} {cut}"
+                );
+            }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn arbitrary_input_never_panics(src in proptest::collection::vec(any::<u8>(), 0..300),
+                                        zstd_magic in any::<bool>()) {
+            let mut s = if zstd_magic { vec![0x28, 0xB5, 0x2F, 0xFD] } else { vec![0x04, 0x22, 0x4D, 0x18] };
+            s.extend_from_slice(&src);
+            for codec in [Codec::Zstd, Codec::Lz4] {
+                let mut d = WholeChunk::new(codec, 1 << 16);
+                let _ = d.decompress(&s, &mut [0u8; 64]);
+                let _ = d.decompress(&src, &mut [0u8; 64]);
+                let _ = d.reset();
+            }
+        }
+
+        #[test]
+        fn round_trips(data in proptest::collection::vec(any::<u8>(), 1..2000)) {
+            for (codec, src) in [(Codec::Zstd, zstd(&data)), (Codec::Lz4, lz4(&data))] {
+                let mut d = WholeChunk::new(codec, 1 << 20);
+                prop_assert_eq!(drive(&mut d, &src, data.len()).unwrap(), data.clone());
+            }
+        }
+    }
 }

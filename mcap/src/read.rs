@@ -174,7 +174,7 @@ fn linear_reader(opts: ReaderOptions) -> Result<LinearReader, McapError> {
             .with_validate_chunk_crcs(true)
             .with_record_length_limit(opts.max_record_bytes),
     );
-    decompress::register_linear(&mut r)?;
+    decompress::register_linear(&mut r, opts.max_record_bytes)?;
     Ok(r)
 }
 
@@ -396,7 +396,7 @@ impl McapReader {
                     .with_record_length_limit(opts.max_record_bytes);
                 let mut reader = IndexedReader::new_with_options(&s, options)
                     .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
-                decompress::register_indexed(&mut reader)
+                decompress::register_indexed(&mut reader, opts.max_record_bytes)
                     .map_err(|e| mcap_err(&path, "opening", e))?;
                 let chunks = s
                     .chunk_indexes

@@ -445,3 +445,121 @@ proptest! {
         drop(tmp);
     }
 }
+
+/// A recording with compressed chunks written by the `mcap` crate's reference
+/// (C library) encoders, with small chunks so that there are many.
+fn compressed_recording(name: &str, compression: mcap::Compression) -> (Tmp, Vec<u8>) {
+    let tmp = Tmp::new(name);
+    let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(compression))
+        .chunk_size(Some(4096))
+        .profile("ros2")
+        .create(file)
+        .unwrap();
+    let img_schema = w
+        .add_schema(Image::SCHEMA_NAME, "ros2msg", Image::SCHEMA_TEXT.as_bytes())
+        .unwrap();
+    let scan_schema = w
+        .add_schema(
+            LaserScan::SCHEMA_NAME,
+            "ros2msg",
+            LaserScan::SCHEMA_TEXT.as_bytes(),
+        )
+        .unwrap();
+    let cam = w
+        .add_channel(img_schema, "/cam", "cdr", &Default::default())
+        .unwrap();
+    let lidar = w
+        .add_channel(scan_schema, "/scan", "cdr", &Default::default())
+        .unwrap();
+    let mut buf = Vec::new();
+    for k in 0..8u32 {
+        let f = frame(k as u8, 32, 24);
+        Image {
+            header: vlsync_mcap::cdr::Header {
+                stamp: vlsync_mcap::cdr::Time { sec: 1, nanosec: k },
+                frame_id: "cam",
+            },
+            height: 24,
+            width: 32,
+            encoding: "mono8",
+            step: 32,
+            data: f.pixels(),
+            ..Image::default()
+        }
+        .encode(&mut buf)
+        .unwrap();
+        let header = |channel_id| mcap::records::MessageHeader {
+            channel_id,
+            sequence: k,
+            log_time: 1_000_000_000 + u64::from(k),
+            publish_time: 0,
+        };
+        w.write_to_known_channel(&header(cam), &buf).unwrap();
+        let ranges = vec![1.5f32 + k as f32; 360];
+        LaserScan {
+            angle_increment: 0.0174,
+            time_increment: 0.0001,
+            range_max: 10.0,
+            ranges: vlsync_mcap::cdr::F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        }
+        .encode(&mut buf)
+        .unwrap();
+        w.write_to_known_channel(&header(lidar), &buf).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    let bytes = std::fs::read(&tmp.0).unwrap();
+    (tmp, bytes)
+}
+
+#[test]
+fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
+    for (name, c) in [
+        ("zstd", mcap::Compression::Zstd),
+        ("lz4", mcap::Compression::Lz4),
+    ] {
+        let (tmp, bytes) = compressed_recording(name, c);
+        assert!(bytes.windows(name.len()).any(|w| w == name.as_bytes()));
+        let cut = Tmp::new(&format!("{name}-cut"));
+        std::fs::write(&cut.0, &bytes[..bytes.len() - 200]).unwrap();
+        for (path, indexed) in [(&tmp.0, true), (&cut.0, false)] {
+            let mut src = McapImageSource::open(path, ImageSourceOptions::topic("/cam")).unwrap();
+            assert_eq!(src.reader().is_indexed(), indexed, "{name}");
+            for k in 0..8u32 {
+                let (f, t) = src.next_frame().unwrap().unwrap();
+                assert_eq!(f, frame(k as u8, 32, 24).view(), "{name} {k}");
+                assert_eq!(t, FrameTime::Instant(1_000_000_000 + i64::from(k)));
+            }
+            let mut scans = McapScanSource::open(path, ScanSourceOptions::default()).unwrap();
+            for k in 0..8 {
+                let s = scans.next_scan().unwrap().unwrap();
+                assert_eq!(s.len(), 360);
+                assert_eq!(s.rays()[359].range_m, f64::from(1.5f32 + k as f32));
+                assert_eq!(s.rays()[10].t_ns, 1_000_000); // stamp 0 + 10 x 0.1 ms
+            }
+        }
+        // an unknown compression name: patch "zstd"/"lz4" in place
+        let mut patched = bytes.clone();
+        let needle = name.as_bytes();
+        let mut i = 0;
+        while i + needle.len() <= patched.len() {
+            if &patched[i..i + needle.len()] == needle {
+                patched[i] = b'x';
+            }
+            i += 1;
+        }
+        let bad = Tmp::new(&format!("{name}-unknown"));
+        std::fs::write(&bad.0, &patched).unwrap();
+        let (n, err) = drain(&bad.0);
+        assert_eq!(n, 0);
+        let err = err.unwrap();
+        assert!(
+            err.contains("Unsupported compression format")
+                && err.contains("supported chunk compressions: none, zstd, lz4"),
+            "{err}"
+        );
+    }
+}
