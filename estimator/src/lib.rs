@@ -417,24 +417,35 @@ impl Estimator {
     /// `holding` around `est.offset_s` with the standard deviation inflated for
     /// `age_s` seconds of blindness, and acquisition searches around it.
     pub fn restore(&mut self, est: &Estimate, age_s: f64) {
-        if !(est.offset_s.is_finite() && est.drift.is_finite() && est.offset_std_s.is_finite()) {
+        if !(est.offset_s.is_finite()
+            && est.drift.is_finite()
+            && est.offset_std_s.is_finite()
+            && est.drift_std.is_finite())
+        {
             return;
         }
         let age = if age_s.is_finite() {
-            age_s.max(0.0)
+            age_s.clamp(0.0, 1e9)
         } else {
             0.0
         };
-        let var = est.offset_std_s.powi(2)
-            + self.p.q_hold.powi(2) * age
-            + (self.p.drift0 * 0.01 * age).powi(2);
-        self.kf = Tracker::new(0.0, est.offset_s, var, self.p.drift0);
-        self.kf.x[1] = est.drift.clamp(-0.1, 0.1);
+        let drift = est.drift.clamp(-0.1, 0.1);
+        let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
+        // blind for `age` seconds: the offset moved by the drift, and its uncertainty
+        // grew like a holding state's (plus the drift's)
+        let var =
+            est.offset_std_s.powi(2) + self.p.q_hold.powi(2) * age + (drift_std * age).powi(2);
+        self.kf = Tracker::new(0.0, est.offset_s + drift * age, var, drift_std);
+        self.kf.x[1] = drift;
         self.epoch_ns = None;
         self.ever_locked = true;
         self.polarity = est.polarity;
-        self.mode = Mode::Acquire;
-        let lag = (est.offset_s * self.p.fs).round() as i64;
+        // tracking around the restored value (state `holding` until a measurement);
+        // without a peak near it while moving, the estimator turns `lost` and re-acquires
+        self.mode = Mode::Locked;
+        self.superseding = true;
+        self.last_meas_t = f64::NEG_INFINITY;
+        let lag = (self.kf.x[0] * self.p.fs).round() as i64;
         self.corr.set_lag0(lag - self.p.half_lags);
     }
 

@@ -206,3 +206,52 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn restore_starts_holding_near_the_saved_offset_and_relocks() {
+    let run = generate(Family::Robot, 21, Some(60.0));
+    let mut first = Estimator::new(&EstimatorConfig::default());
+    let out = replay(&run, &mut first);
+    let saved = *out
+        .iter()
+        .rev()
+        .find(|e| e.state == EstimatorState::Tracking)
+        .unwrap();
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    est.restore(&saved, 30.0);
+    assert_eq!(est.state(), EstimatorState::Holding);
+    let again = replay(&run, &mut est);
+    let e0 = again[0];
+    assert_eq!(e0.state, EstimatorState::Holding);
+    assert!((e0.offset_s - saved.offset_s).abs() < 0.002);
+    assert!(e0.offset_std_s > saved.offset_std_s, "uncertainty inflated");
+    assert!(again.iter().any(|e| e.state == EstimatorState::Tracking));
+    let last = again.last().unwrap();
+    assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
+}
+
+#[test]
+fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
+    let run = generate(Family::Robot, 22, Some(90.0));
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let truth0 = run.truth.offset_at(0);
+    let bogus = vlsync_common::Estimate {
+        seq: 0,
+        t_ref_ns: 0,
+        offset_s: truth0 + 0.3,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 1e-6,
+        state: EstimatorState::Tracking,
+        polarity: Polarity::Negative,
+        peak_score: 0.9,
+        peak_ratio: 2.0,
+        measured_offset_s: f64::NAN,
+    };
+    est.restore(&bogus, 1.0);
+    let out = replay(&run, &mut est);
+    assert!(out.iter().any(|e| e.state == EstimatorState::Lost));
+    let last = out.last().unwrap();
+    assert_eq!(last.state, EstimatorState::Tracking);
+    assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
+}
