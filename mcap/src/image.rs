@@ -424,6 +424,46 @@ mod tests {
         assert!(e.contains("`tiff`"), "{e}");
     }
 
+    #[test]
+    fn colour_png_and_jpeg() {
+        let (mut gray, mut scratch) = (Vec::new(), Vec::new());
+        // RGB PNG: luma of pure red, green, blue, white
+        let rgb =
+            image::RgbImage::from_raw(4, 1, vec![255, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255])
+                .unwrap();
+        let mut png = Vec::new();
+        rgb.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        let m = CompressedImage {
+            header: Header::default(),
+            format: "rgb8; png compressed rgb8",
+            data: &png,
+        };
+        assert_eq!(
+            decode_compressed(&m, 100, &mut gray, &mut scratch),
+            Ok((4, 1))
+        );
+        assert_eq!(gray, [77, 149, 29, 255]);
+        // gray JPEG: lossy, but a flat image stays flat
+        let flat = image::GrayImage::from_pixel(16, 8, image::Luma([100]));
+        let mut jpg = Vec::new();
+        flat.write_to(
+            &mut std::io::Cursor::new(&mut jpg),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+        let m = CompressedImage {
+            format: "jpeg",
+            data: &jpg,
+            ..m
+        };
+        assert_eq!(
+            decode_compressed(&m, 1000, &mut gray, &mut scratch),
+            Ok((16, 8))
+        );
+        assert!(gray.iter().all(|&v| v.abs_diff(100) <= 2), "{gray:?}");
+    }
+
     proptest! {
         #[test]
         fn hostile_images_never_panic(

@@ -24,7 +24,7 @@
 //! an error naming it.
 
 use crate::decompress;
-use crate::error::{Error, MessageAt};
+use crate::error::Error;
 use mcap::records::op;
 use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -457,15 +457,6 @@ impl McapReader {
     /// (only possible when reading linearly).
     pub fn out_of_order(&self) -> u64 {
         self.out_of_order
-    }
-
-    /// Where the next message will be, for error messages.
-    pub fn at(&self, log_time: u64) -> MessageAt {
-        MessageAt {
-            topic: self.topic.topic.clone(),
-            index: self.next_index,
-            log_time,
-        }
     }
 
     /// The next message of the topic, `Ok(None)` at the end. After an error the

@@ -563,3 +563,51 @@ fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
         );
     }
 }
+
+#[test]
+fn unchunked_recordings_are_read_linearly() {
+    let tmp = Tmp::new("unchunked");
+    let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .use_chunks(false)
+        .compression(None)
+        .create(file)
+        .unwrap();
+    let schema = w
+        .add_schema(Image::SCHEMA_NAME, "ros2msg", Image::SCHEMA_TEXT.as_bytes())
+        .unwrap();
+    let ch = w
+        .add_channel(schema, "/cam", "cdr", &Default::default())
+        .unwrap();
+    let mut buf = Vec::new();
+    for k in 0..3u32 {
+        let f = frame(k as u8, 8, 2);
+        Image {
+            height: 2,
+            width: 8,
+            encoding: "mono8",
+            step: 8,
+            data: f.pixels(),
+            ..Image::default()
+        }
+        .encode(&mut buf)
+        .unwrap();
+        let header = mcap::records::MessageHeader {
+            channel_id: ch,
+            sequence: k,
+            log_time: u64::from(3 - k), // backwards: counted, yielded in file order
+            publish_time: 0,
+        };
+        w.write_to_known_channel(&header, &buf).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::default()).unwrap();
+    assert!(!src.reader().is_indexed());
+    for k in 0..3u8 {
+        let (f, _) = src.next_frame().unwrap().unwrap();
+        assert_eq!(f, frame(k, 8, 2).view());
+    }
+    assert!(src.next_frame().unwrap().is_none());
+    assert_eq!(src.reader().out_of_order(), 2);
+}
