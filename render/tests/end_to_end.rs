@@ -23,6 +23,7 @@ fn pipeline(
     cfg: RenderConfig,
     cam_stamping: cam::Stamping,
     lidar_stamping: lidar::Stamping,
+    lidar_half_width_deg: f64,
 ) -> Outcome {
     let t0 = Instant::now();
     let mut r = Renderer::new(cfg).expect("valid config");
@@ -34,7 +35,8 @@ fn pipeline(
     .unwrap();
     let mut lp = lidar::SignatureProcessor::new(lidar::SignatureConfig {
         stamping: lidar_stamping,
-        ..lidar::SignatureConfig::default() // window straight ahead, ±5°
+        window_half_width_rad: lidar_half_width_deg.to_radians(),
+        ..lidar::SignatureConfig::default() // window straight ahead
     })
     .unwrap();
     let mut est = Estimator::new(&EstimatorConfig::default());
@@ -94,6 +96,9 @@ fn explore() {
                     cfg.room.0 = l.parse().unwrap();
                     cfg.lidar.max_range_m = cfg.room.0 + 1.0;
                 }
+                if let Ok(j) = std::env::var("VLSYNC_CAM_JITTER") {
+                    cfg.clock.cam_jitter_s = j.parse().unwrap();
+                }
                 if let Ok(n) = std::env::var("VLSYNC_LIDAR_NOISE") {
                     cfg.lidar.range_noise_m = n.parse().unwrap();
                 }
@@ -101,12 +106,13 @@ fn explore() {
             },
             cam::Stamping::Midpoint,
             lidar::Stamping::Midpoint,
+            std::env::var("VLSYNC_LIDAR_HALF_DEG").map_or(5.0, |h| h.parse().unwrap()),
         );
         maes.push((seed, o.score.mae_s * 1e3, o.score.n));
     }
     eprintln!("{maes:?}");
     let cfg = RenderConfig::from_seed(1, 60.0);
-    let o = pipeline(cfg, cam::Stamping::Midpoint, lidar::Stamping::Midpoint);
+    let o = pipeline(cfg, cam::Stamping::Midpoint, lidar::Stamping::Midpoint, 5.0);
     for e in &o.estimates {
         eprintln!(
             "{:.2} {:?} off {:+.4} meas {:+.4} truth {:+.4} score {:.2} ratio {:.2}",
@@ -133,6 +139,9 @@ fn explore() {
 /// The configuration of the scored runs: the defaults (320x240 at 30 Hz, an
 /// LD06-like 10 Hz LiDAR with 8 mm noise, 2 % frame drops, 1 ms camera jitter,
 /// drift and offset drawn from the seed), 60 s.
+/// The LiDAR front-end's window: straight ahead, ±5° (its default).
+const LIDAR_HALF_WIDTH_DEG: f64 = 5.0;
+
 fn run_cfg(seed: u64) -> RenderConfig {
     RenderConfig::from_seed(seed, 60.0)
 }
@@ -142,12 +151,14 @@ fn mid(seed: u64) -> Outcome {
         run_cfg(seed),
         cam::Stamping::Midpoint,
         lidar::Stamping::Midpoint,
+        LIDAR_HALF_WIDTH_DEG,
     )
 }
 
 /// Midpoint stamping through both real front-ends: seed 1 reaches the 3 ms
-/// target; half of the rest of the seeds do not (see the crate README note in
-/// the report: LD06-level range noise and the turns at the room's ends).
+/// target (2.85 ms measured); other seeds do not (2.6-14 ms over seeds 1-6:
+/// LD06-level range noise, 4 % camera value noise, and the 180° turns at the
+/// room's ends, after which the estimator mostly holds).
 #[test]
 fn midpoint_stamping_tracks_the_truth_and_end_stamping_does_not() {
     let m = mid(1);
@@ -171,7 +182,12 @@ fn midpoint_stamping_tracks_the_truth_and_end_stamping_does_not() {
         m.score.measured_bias_s * 1e3
     );
 
-    let e = pipeline(run_cfg(1), cam::Stamping::End, lidar::Stamping::End);
+    let e = pipeline(
+        run_cfg(1),
+        cam::Stamping::End,
+        lidar::Stamping::End,
+        LIDAR_HALF_WIDTH_DEG,
+    );
     assert!(e.score.n >= 20, "{} tracking estimates", e.score.n);
     assert!(
         e.score.mae_s > 0.015,
@@ -197,4 +213,118 @@ fn midpoint_stamping_other_seeds() {
     let mean = maes.iter().sum::<f64>() / maes.len() as f64;
     assert!(mean <= 0.0095, "mean MAE {} ms ({maes:?})", mean * 1e3);
     assert!(maes.iter().all(|&m| m <= 0.012), "{maes:?}");
+}
+
+/// Least-squares fit `y = g·x + h·a` (no intercept); returns `(g, h)`.
+fn fit2(rows: &[(f64, f64, f64)]) -> (f64, f64) {
+    let (mut sxx, mut sxa, mut saa, mut sxy, mut say) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(y, x, a) in rows {
+        sxx += x * x;
+        sxa += x * a;
+        saa += a * a;
+        sxy += x * y;
+        say += a * y;
+    }
+    let det = sxx * saa - sxa * sxa;
+    ((sxy * saa - say * sxa) / det, (say * sxx - sxy * sxa) / det)
+}
+
+/// The timing audit: each front-end's samples against the true speed of the
+/// drive. A sample stamped `t` (mapped to true time) that really describes
+/// `t - δ` reads `g·v(t - δ) ≈ g·v(t) - g·δ·a(t)`: the fit of the value on
+/// `v(t)` and `a(t)` gives the gain and the delay `δ` (positive = stamped late).
+/// Turns (±1 s) are excluded: the camera sees rotation there, the LiDAR corners.
+/// Returns `[(camera delay, LiDAR delay)]` in seconds for midpoint, then end stamping.
+fn audit(seed: u64) -> [(f64, f64); 2] {
+    let mut r = Renderer::new(run_cfg(seed)).unwrap();
+    let truth = r.truth().clone();
+    let traj = r.trajectory().clone();
+    let stampings = [
+        (cam::Stamping::Midpoint, lidar::Stamping::Midpoint),
+        (cam::Stamping::End, lidar::Stamping::End),
+    ];
+    let mut cps = stampings.map(|(c, _)| {
+        cam::SignatureProcessor::new(cam::SignatureConfig {
+            stamping: c,
+            ..Default::default()
+        })
+        .unwrap()
+    });
+    let mut lps = stampings.map(|(_, l)| {
+        lidar::SignatureProcessor::new(lidar::SignatureConfig {
+            stamping: l,
+            window_half_width_rad: LIDAR_HALF_WIDTH_DEG.to_radians(),
+            ..Default::default()
+        })
+        .unwrap()
+    });
+    let mut crow = [Vec::new(), Vec::new()];
+    let mut lrow = [Vec::new(), Vec::new()];
+    let turning = |t: f64| {
+        traj.turns()
+            .iter()
+            .any(|&(a, b)| t > a - 1.0 && t < b + 1.0)
+    };
+    let acc = |t: f64| (traj.speed(t + 0.005) - traj.speed(t - 0.005)) / 0.01;
+    for ev in r.events() {
+        match ev.unwrap() {
+            Event::Frame(f) => {
+                for (cp, rows) in cps.iter_mut().zip(crow.iter_mut()) {
+                    if let cam::Step::Sample(s) = cp.process(&f.image, f.time).unwrap() {
+                        // camera stamp to true time: τ = t_C + offset(τ)
+                        let t =
+                            (s.sample.t_ns as f64 + truth.offset_at(s.sample.t_ns) * 1e9) * 1e-9;
+                        if !turning(t) && s.sample.value.is_finite() {
+                            rows.push((s.sample.value, traj.speed(t), acc(t)));
+                        }
+                    }
+                }
+            }
+            Event::Scan(sc) => {
+                for (lp, rows) in lps.iter_mut().zip(lrow.iter_mut()) {
+                    lp.push_scan(&sc.scan, |x| {
+                        let t = x.t_ns as f64 * 1e-9;
+                        if !turning(t) {
+                            rows.push((x.value, traj.speed(t), acc(t)));
+                        }
+                    });
+                }
+            }
+        }
+    }
+    let delay = |rows: &[(f64, f64, f64)]| {
+        let (g, h) = fit2(rows);
+        -h / g
+    };
+    let out = [0, 1].map(|i| (delay(&crow[i]), delay(&lrow[i])));
+    eprintln!(
+        "seed {seed} delays (camera, LiDAR): midpoint {:+.2} ms, {:+.2} ms; end {:+.2} ms, {:+.2} ms",
+        out[0].0 * 1e3,
+        out[0].1 * 1e3,
+        out[1].0 * 1e3,
+        out[1].1 * 1e3
+    );
+    out
+}
+
+/// Each front-end on its own: with midpoint stamping the samples describe the
+/// instant they are stamped with (camera -0.2 ms, LiDAR -2.9 ms measured on
+/// seed 1; the LiDAR fit has about ±2-3 ms of noise from 8 mm ranges), with end
+/// stamping they are late by half a frame interval (16.7 ms) and half a
+/// revolution (50 ms).
+#[test]
+fn each_front_end_is_stamped_where_its_sample_belongs() {
+    let [(cm, lm), (ce, le)] = audit(1);
+    assert!(cm.abs() < 0.002, "camera midpoint delay {} ms", cm * 1e3);
+    assert!(lm.abs() < 0.004, "LiDAR midpoint delay {} ms", lm * 1e3);
+    assert!(
+        (ce - 0.01667).abs() < 0.002,
+        "camera end delay {} ms",
+        ce * 1e3
+    );
+    assert!(
+        (le - 0.050).abs() < 0.004,
+        "LiDAR end delay {} ms",
+        le * 1e3
+    );
 }
