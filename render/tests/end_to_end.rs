@@ -235,8 +235,10 @@ fn fit2(rows: &[(f64, f64, f64)]) -> (f64, f64) {
 /// `v(t)` and `a(t)` gives the gain and the delay `δ` (positive = stamped late).
 /// Turns (±1 s) are excluded: the camera sees rotation there, the LiDAR corners.
 /// Returns `[(camera delay, LiDAR delay)]` in seconds for midpoint, then end stamping.
-fn audit(seed: u64) -> [(f64, f64); 2] {
-    let mut r = Renderer::new(run_cfg(seed)).unwrap();
+fn audit(seed: u64, lidar_noise_m: f64) -> [(f64, f64); 2] {
+    let mut cfg = run_cfg(seed);
+    cfg.lidar.range_noise_m = lidar_noise_m;
+    let mut r = Renderer::new(cfg).unwrap();
     let truth = r.truth().clone();
     let traj = r.trajectory().clone();
     let stampings = [
@@ -308,22 +310,25 @@ fn audit(seed: u64) -> [(f64, f64); 2] {
 }
 
 /// Each front-end on its own: with midpoint stamping the samples describe the
-/// instant they are stamped with (camera -0.2 ms, LiDAR -2.9 ms measured on
-/// seed 1; the LiDAR fit has about ±2-3 ms of noise from 8 mm ranges), with end
-/// stamping they are late by half a frame interval (16.7 ms) and half a
-/// revolution (50 ms).
+/// instant they are stamped with, with end stamping they are late by half a
+/// frame interval (16.7 ms) and half a revolution (50 ms). Noise-free ranges
+/// make the LiDAR fit exact. Measured on seed 1: camera -0.19 / +16.68 ms,
+/// LiDAR +0.52 / +51.10 ms (the LiDAR's half-millisecond: the median *range*
+/// of a pass comes from a ray a few degrees off centre, measured ~0.7 ms from
+/// the median *time* it is stamped with). With the default 8 mm noise the
+/// LiDAR fit itself scatters by a few ms (-2.9 ms measured).
 #[test]
 fn each_front_end_is_stamped_where_its_sample_belongs() {
-    let [(cm, lm), (ce, le)] = audit(1);
-    assert!(cm.abs() < 0.002, "camera midpoint delay {} ms", cm * 1e3);
-    assert!(lm.abs() < 0.004, "LiDAR midpoint delay {} ms", lm * 1e3);
+    let [(cm, lm), (ce, le)] = audit(1, 0.0);
+    assert!(cm.abs() < 0.0005, "camera midpoint delay {} ms", cm * 1e3);
+    assert!(lm.abs() < 0.001, "LiDAR midpoint delay {} ms", lm * 1e3);
     assert!(
-        (ce - 0.01667).abs() < 0.002,
+        (ce - 0.01667).abs() < 0.0005,
         "camera end delay {} ms",
         ce * 1e3
     );
     assert!(
-        (le - 0.050).abs() < 0.004,
+        (le - 0.050).abs() < 0.0015,
         "LiDAR end delay {} ms",
         le * 1e3
     );
