@@ -789,19 +789,9 @@ impl Estimator {
                         // the short window's variance is optimistic; keep the step's own
                         // size as uncertainty so the long window can still correct it
                         let var = ms.var.max(0.25 * (ms.z - pred_s).powi(2));
-                        self.kf.reset_offset(ms.z + self.kf.x[1] * hs, var);
                         self.superseding = true;
                         self.step = Streak::default();
-                        self.stats.steps += 1;
-                        self.stats.measurements += 1;
-                        self.last_meas_t = t;
-                        self.emit(
-                            t_ref_ns,
-                            EstimatorState::Tracking,
-                            Some(ms.z),
-                            ms.score,
-                            ms.ratio,
-                        );
+                        self.adopt(t_ref_ns, t, ms.z + self.kf.x[1] * hs, var, &ms, true);
                         return;
                     }
                 }
@@ -837,16 +827,7 @@ impl Estimator {
         let growing = self.corr.blocks_in_window() < self.corr.window_blocks();
         self.superseding &= growing;
         if self.superseding && m.var < self.kf.var_at_lag(h) && norm.abs() <= self.p.gate {
-            self.kf.reset_offset(m.z + self.kf.x[1] * h, m.var);
-            self.stats.measurements += 1;
-            self.last_meas_t = t;
-            self.emit(
-                t_ref_ns,
-                EstimatorState::Tracking,
-                Some(m.z),
-                m.score,
-                m.ratio,
-            );
+            self.adopt(t_ref_ns, t, m.z + self.kf.x[1] * h, m.var, &m, false);
             return;
         }
         // deviations that agree with each other are the truth moving (a step the
@@ -864,17 +845,7 @@ impl Estimator {
             if self.outl.count >= OUTLIER_RELOCK {
                 self.outl = Streak::default();
                 let var = m.var.max(0.25 * (m.z - self.kf.offset_at(t - h)).powi(2));
-                self.kf.reset_offset(m.z + self.kf.x[1] * h, var);
-                self.stats.steps += 1;
-                self.stats.measurements += 1;
-                self.last_meas_t = t;
-                self.emit(
-                    t_ref_ns,
-                    EstimatorState::Tracking,
-                    Some(m.z),
-                    m.score,
-                    m.ratio,
-                );
+                self.adopt(t_ref_ns, t, m.z + self.kf.x[1] * h, var, &m, true);
                 return;
             }
         } else {
@@ -914,6 +885,24 @@ impl Estimator {
                 );
             }
         }
+    }
+
+    /// Replaces the filter's offset by a measurement (a step, a re-lock, or a
+    /// growing window that knows more than the filter) and emits a tracking estimate.
+    fn adopt(&mut self, t_ref_ns: Nanos, t: f64, offset: f64, var: f64, m: &Meas, step: bool) {
+        self.kf.reset_offset(offset, var);
+        if step {
+            self.stats.steps += 1;
+        }
+        self.stats.measurements += 1;
+        self.last_meas_t = t;
+        self.emit(
+            t_ref_ns,
+            EstimatorState::Tracking,
+            Some(m.z),
+            m.score,
+            m.ratio,
+        );
     }
 
     fn emit(
