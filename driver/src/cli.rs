@@ -1,15 +1,22 @@
 //! The command line shared by `vlsync-cam` and `vlsync-lidar`.
 
-use crate::{run, sim_anchor_ns, DriverError, Pacing, Source, VecSource};
+use crate::{raw, run, sim_anchor_ns, DriverError, Pacing, Source, VecSource};
 use clap::Parser;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use vlsync_common::Stream;
 use vlsync_ipc::{create_node, termination_requested, ServiceNames, SignaturePublisher};
 
 /// Arguments of a signature driver.
 #[derive(Parser, Debug, Clone)]
-#[command(version, about = "Publish one signature stream to the vlsync daemon")]
+#[command(
+    version,
+    about = "Publish one signature stream to the vlsync daemon",
+    after_help = "Sources (give exactly one): --csv, --sim and --render for both drivers; \
+                  --mcap for both (image or LaserScan topic); camera: --frames, --v4l2; \
+                  LiDAR: --ld06, --rplidar, --scans. Files and simulators are paced by their \
+                  timestamps (or --fast); live devices publish as data arrives."
+)]
 pub struct DriverArgs {
     /// Service prefix (`services.prefix`); overrides the one of --config.
     #[arg(long)]
@@ -18,7 +25,7 @@ pub struct DriverArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Replay this signature CSV (header, then `t,value` rows, t in seconds).
-    #[arg(long, conflicts_with = "sim")]
+    #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Run the live signature simulator of this family (e.g. `robot`).
     #[arg(long)]
@@ -26,9 +33,36 @@ pub struct DriverArgs {
     /// Simulator seed (both drivers of a pair must use the same).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Simulated duration in seconds (default: the family's).
+    /// Simulated or rendered duration in seconds (default: the family's; 60 s rendered).
     #[arg(long)]
     pub duration: Option<f64>,
+    /// Camera: a directory of PNG/JPEG frames with `frames.csv` (what `vlsync-render` writes).
+    #[arg(long, value_name = "DIR")]
+    pub frames: Option<PathBuf>,
+    /// Camera: a V4L2 device, e.g. /dev/video0 (needs the `v4l2` cargo feature).
+    #[arg(long, value_name = "DEVICE")]
+    pub v4l2: Option<PathBuf>,
+    /// LiDAR: an LD06/LD19 on this serial port, e.g. /dev/ttyUSB0.
+    #[arg(long, value_name = "DEVICE")]
+    pub ld06: Option<String>,
+    /// LiDAR: an RPLIDAR (A1/A2/C1, standard scan) on this serial port; the scan request is sent.
+    #[arg(long, value_name = "DEVICE")]
+    pub rplidar: Option<String>,
+    /// Serial baud rate (default: LD06 230400, RPLIDAR 115200).
+    #[arg(long)]
+    pub baud: Option<u32>,
+    /// LiDAR: a scan CSV, one row per ray (what `vlsync-render` writes as scans.csv).
+    #[arg(long, value_name = "FILE")]
+    pub scans: Option<PathBuf>,
+    /// A ROS 2 recording: the camera reads an Image/CompressedImage topic, the LiDAR a LaserScan topic.
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
+    /// Topic of --mcap (default: the only topic of the right type).
+    #[arg(long, requires = "mcap")]
+    pub topic: Option<String>,
+    /// Render this seed's run with the rendering simulator (both drivers of a pair use the same).
+    #[arg(long, value_name = "SEED")]
+    pub render: Option<u64>,
     /// Publish as fast as possible instead of in real time.
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
@@ -41,24 +75,150 @@ pub struct DriverArgs {
     pub start_at: Option<i64>,
 }
 
-fn source_and_anchor(args: &DriverArgs, stream: Stream) -> Result<(VecSource, i64), DriverError> {
-    match (&args.csv, &args.sim) {
-        (Some(p), None) => {
-            let s = VecSource::from_csv(p).map_err(DriverError::Source)?;
-            let anchor = s.first_t_ns().unwrap_or(0);
-            Ok((s, anchor))
+/// A source with how to pace it.
+pub struct Selected {
+    /// The source.
+    pub source: Box<dyn Source>,
+    /// Pacing anchor (sensor time of the start instant); `None`: a live device,
+    /// published as data arrives.
+    pub anchor_ns: Option<i64>,
+}
+
+/// How long a serial LiDAR may stay silent before the driver gives up.
+const SERIAL_SILENCE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Builds the source `args` select for `stream`; `stop` is polled by live sources while they wait.
+pub fn select_source(
+    args: &DriverArgs,
+    stream: Stream,
+    stop: raw::StopFn,
+) -> Result<Selected, DriverError> {
+    let given: Vec<&str> = [
+        ("--csv", args.csv.is_some()),
+        ("--sim", args.sim.is_some()),
+        ("--render", args.render.is_some()),
+        ("--mcap", args.mcap.is_some()),
+        ("--frames", args.frames.is_some()),
+        ("--v4l2", args.v4l2.is_some()),
+        ("--ld06", args.ld06.is_some()),
+        ("--rplidar", args.rplidar.is_some()),
+        ("--scans", args.scans.is_some()),
+    ]
+    .into_iter()
+    .filter_map(|(f, on)| on.then_some(f))
+    .collect();
+    let choices = match stream {
+        Stream::Cam => "--csv FILE, --sim FAMILY, --frames DIR, --mcap FILE, --v4l2 DEVICE or --render SEED",
+        Stream::Lidar => {
+            "--csv FILE, --sim FAMILY, --ld06 DEVICE, --rplidar DEVICE, --scans FILE, --mcap FILE or --render SEED"
         }
-        (None, Some(fam)) => {
+    };
+    let flag = match given.as_slice() {
+        [f] => *f,
+        [] => {
+            return Err(DriverError::Options(format!(
+                "give exactly one source: {choices}"
+            )))
+        }
+        many => {
+            return Err(DriverError::Options(format!(
+                "give exactly one source, not {}: {choices}",
+                many.join(" and ")
+            )))
+        }
+    };
+    let wrong_stream = |f: &str| {
+        DriverError::Options(format!(
+            "{f} is not a source of vlsync-{stream}; give one of {choices}"
+        ))
+    };
+    if args.baud.is_some() && args.ld06.is_none() && args.rplidar.is_none() {
+        return Err(DriverError::Options(
+            "--baud applies to --ld06 and --rplidar only".into(),
+        ));
+    }
+    let src = DriverError::Source;
+    let offline = |source: Box<dyn Source>| -> Result<Selected, DriverError> {
+        let p = raw::Prefetched::new(source).map_err(DriverError::Source)?;
+        let anchor = p.first_t_ns().unwrap_or(0);
+        Ok(Selected {
+            source: Box::new(p),
+            anchor_ns: Some(anchor),
+        })
+    };
+    match (flag, stream) {
+        ("--csv", _) => {
+            let p = args.csv.as_deref().unwrap_or(Path::new(""));
+            let s = VecSource::from_csv(p).map_err(src)?;
+            let anchor = s.first_t_ns().unwrap_or(0);
+            Ok(Selected {
+                source: Box::new(s),
+                anchor_ns: Some(anchor),
+            })
+        }
+        ("--sim", _) => {
+            let fam = args.sim.as_deref().unwrap_or_default();
             let family: vlsync_sim::Family = fam
                 .parse()
                 .map_err(|e| DriverError::Options(format!("--sim: {e}")))?;
             let run = vlsync_sim::try_generate(family, args.seed, args.duration)
                 .map_err(|e| DriverError::Options(format!("--duration: {e}")))?;
-            Ok((VecSource::from_sim(&run, stream), sim_anchor_ns(&run)))
+            Ok(Selected {
+                source: Box::new(VecSource::from_sim(&run, stream)),
+                anchor_ns: Some(sim_anchor_ns(&run)),
+            })
         }
-        _ => Err(DriverError::Options(
-            "give exactly one source: --csv FILE or --sim FAMILY".to_string(),
-        )),
+        ("--render", _) => {
+            let seed = args.render.unwrap_or_default();
+            let duration = args.duration.unwrap_or(raw::DEFAULT_RENDER_DURATION_S);
+            let r = raw::renderer(seed, duration).map_err(src)?;
+            let anchor = raw::render_anchor_ns(&r);
+            let source: Box<dyn Source> = match stream {
+                Stream::Cam => Box::new(raw::CamSource::render(r).map_err(src)?),
+                Stream::Lidar => Box::new(raw::LidarSource::render(r).map_err(src)?),
+            };
+            Ok(Selected {
+                source,
+                anchor_ns: Some(anchor),
+            })
+        }
+        ("--mcap", _) => {
+            let p = args.mcap.as_deref().unwrap_or(Path::new(""));
+            let topic = args.topic.as_deref();
+            match stream {
+                Stream::Cam => offline(Box::new(raw::CamSource::mcap(p, topic).map_err(src)?)),
+                Stream::Lidar => offline(Box::new(raw::LidarSource::mcap(p, topic).map_err(src)?)),
+            }
+        }
+        ("--frames", Stream::Cam) => {
+            let d = args.frames.as_deref().unwrap_or(Path::new(""));
+            offline(Box::new(raw::CamSource::frames_dir(d).map_err(src)?))
+        }
+        ("--scans", Stream::Lidar) => {
+            let p = args.scans.as_deref().unwrap_or(Path::new(""));
+            offline(Box::new(raw::LidarSource::scans_csv(p).map_err(src)?))
+        }
+        ("--v4l2", Stream::Cam) => {
+            let d = args.v4l2.as_deref().unwrap_or(Path::new(""));
+            Ok(Selected {
+                source: Box::new(raw::CamSource::v4l2(d, stop).map_err(src)?),
+                anchor_ns: None,
+            })
+        }
+        ("--ld06" | "--rplidar", Stream::Lidar) => {
+            let (kind, dev) = match (&args.ld06, &args.rplidar) {
+                (Some(d), _) => (raw::SerialKind::Ld06, d.as_str()),
+                (None, d) => (raw::SerialKind::Rplidar, d.as_deref().unwrap_or_default()),
+            };
+            Ok(Selected {
+                source: Box::new(
+                    raw::LidarSource::serial(kind, dev, args.baud, SERIAL_SILENCE, stop)
+                        .map_err(src)?,
+                ),
+                anchor_ns: None,
+            })
+        }
+        (f, _) => Err(wrong_stream(f)),
     }
 }
 
@@ -74,30 +234,37 @@ fn prefix(args: &DriverArgs) -> Result<String, DriverError> {
     }
 }
 
-/// Runs a driver for `stream` with `args`.
+/// Runs a driver for `stream` with `args`; prints what the source dropped at the end.
 pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary, DriverError> {
     let prefix = prefix(args)?;
     let names = ServiceNames::new(&prefix).map_err(DriverError::Ipc)?;
-    let (mut source, anchor) = source_and_anchor(args, stream)?;
+    let Selected {
+        mut source,
+        anchor_ns,
+    } = select_source(args, stream, termination_requested)?;
     let node = create_node(&format!("vlsync-{stream}"), true).map_err(DriverError::Ipc)?;
     let mut publisher =
         SignaturePublisher::open(&node, &names, stream).map_err(DriverError::Ipc)?;
-    let pacing = if args.fast {
-        Pacing::Fast
-    } else {
-        Pacing::Scaled {
+    let pacing = match anchor_ns {
+        _ if args.fast => Pacing::Fast,
+        // a live device: publish as the data arrives
+        None => Pacing::Fast,
+        Some(anchor) => Pacing::Scaled {
             speed: args.speed.unwrap_or(1.0),
             anchor_ns: anchor,
             start_mono_ns: args.start_at,
-        }
+        },
     };
     eprintln!(
-        "vlsync-{stream}: publishing {} ({} samples) on {}",
+        "vlsync-{stream}: publishing {} on {}",
         source.describe(),
-        source.len(),
         names.signature(stream)
     );
-    run(&mut source, &mut publisher, pacing, &termination_requested)
+    let result = run(&mut *source, &mut publisher, pacing, &termination_requested);
+    if let Some(r) = source.report() {
+        eprintln!("vlsync-{stream}: {r}");
+    }
+    result
 }
 
 /// `main` of a driver binary.

@@ -1,9 +1,11 @@
 //! Driver side of vlsync: a [`Source`] of signature samples, paced in real
 //! time (or as fast as possible) and published on `<prefix>/<stream>/signature`.
 //!
-//! Raw-sensor front-ends slot in later by implementing [`Source`]; today's
-//! sources replay a signature CSV ([`VecSource::from_csv`]) or the live
-//! signature simulator ([`VecSource::from_sim`]).
+//! Sources replay a signature CSV ([`VecSource::from_csv`]), run the live
+//! signature simulator ([`VecSource::from_sim`]), or run raw frames and scans
+//! through the front-ends ([`raw`]: frame directories, MCAP recordings, V4L2,
+//! serial LD06/RPLIDAR, scan CSVs, the rendering simulator). The
+//! `vlsync-cam` and `vlsync-lidar` binaries live in this package ([`cli`]).
 //!
 //! # Pacing and restarts
 //!
@@ -20,6 +22,7 @@
 #![forbid(unsafe_code)]
 
 pub mod cli;
+pub mod raw;
 
 use std::fmt;
 use std::path::Path;
@@ -45,6 +48,11 @@ pub trait Source {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError>;
     /// A short description for logs.
     fn describe(&self) -> String;
+    /// What the source dropped or counted, reported once at exit (front-end
+    /// sources: low-texture frames, passes with too few rays, ...).
+    fn report(&self) -> Option<String> {
+        None
+    }
 }
 
 /// A source over samples already in memory (CSV replay, simulator).
@@ -111,7 +119,7 @@ impl Source for VecSource {
     }
 
     fn describe(&self) -> String {
-        self.what.clone()
+        format!("{} ({} samples)", self.what, self.samples.len())
     }
 }
 

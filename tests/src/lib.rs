@@ -37,9 +37,7 @@ pub fn bin(name: &str) -> PathBuf {
             "-p",
             "vlsync-ipc",
             "-p",
-            "vlsync-signature-cam",
-            "-p",
-            "vlsync-signature-lidar",
+            "vlsync-driver",
         ]);
         if dir.file_name().is_some_and(|n| n == "release") {
             cmd.arg("--release");

@@ -1,0 +1,351 @@
+//! The raw-sensor sources on small generated data: a rendered run as a frame
+//! directory, a scan CSV and an MCAP recording (each must give what the
+//! rendered source gives), LD06 and RPLIDAR byte streams through a
+//! pseudo-terminal, and the errors of the device and option checks.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use vlsync_common::{Sample, Stream};
+use vlsync_driver::cli::{select_source, DriverArgs};
+use vlsync_driver::raw::{self, CamSource, LidarSource, SerialKind};
+use vlsync_driver::Source;
+
+const SEED: u64 = 7;
+const DURATION_S: f64 = 3.0;
+
+fn drain(s: &mut dyn Source) -> Vec<Sample> {
+    let mut v = Vec::new();
+    while let Some(x) = s.next_sample().expect("sample") {
+        v.push(x);
+    }
+    v
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("vlsync-driver-raw-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+fn never() -> bool {
+    false
+}
+
+fn assert_close(a: &[Sample], b: &[Sample], dt_ns: i64, dv: f64, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: sample counts");
+    for (x, y) in a.iter().zip(b) {
+        assert!((x.t_ns - y.t_ns).abs() <= dt_ns, "{what}: {x:?} vs {y:?}");
+        assert!(
+            (x.value - y.value).abs() <= dv * (1.0 + y.value.abs()),
+            "{what}: {x:?} vs {y:?}"
+        );
+    }
+}
+
+#[test]
+fn rendered_run_on_disk_and_in_mcap_matches_the_rendered_source() {
+    let dir = temp_dir("render");
+    let mut r = raw::renderer(SEED, DURATION_S).unwrap();
+    vlsync_render::output::write_run(&mut r, &dir, true).expect("write run");
+
+    let mut cam_r = CamSource::render(raw::renderer(SEED, DURATION_S).unwrap()).unwrap();
+    let cam_ref = drain(&mut cam_r);
+    assert!(cam_ref.len() > 50, "{}", cam_ref.len());
+    assert!(cam_ref.windows(2).all(|w| w[0].t_ns < w[1].t_ns));
+    let report = cam_r.report().unwrap();
+    assert!(report.contains("low texture"), "{report}");
+    let c = cam_r.counts();
+    assert_eq!(
+        c.samples
+            + c.low_texture
+            + c.no_flow
+            + c.gaps
+            + c.not_increasing
+            + c.size_changed
+            + c.refused
+            + 1,
+        c.frames,
+        "{c:?}"
+    );
+
+    let mut lidar_r = LidarSource::render(raw::renderer(SEED, DURATION_S).unwrap()).unwrap();
+    let lidar_ref = drain(&mut lidar_r);
+    assert!(lidar_r.scans() >= 28, "{}", lidar_r.scans());
+    assert!(lidar_ref.len() >= 20, "{}", lidar_ref.len());
+    assert!(lidar_r.report().unwrap().contains("too_few_valid"));
+
+    // frame directory (lossless PNG): the very same samples
+    let mut frames = CamSource::frames_dir(&dir).unwrap();
+    assert!(frames.describe().contains(&dir.display().to_string()));
+    assert_eq!(drain(&mut frames), cam_ref);
+
+    // scan CSV: decimal times and ranges, so equal within rounding
+    let mut scans = LidarSource::scans_csv(&dir.join("scans.csv")).unwrap();
+    assert_close(&drain(&mut scans), &lidar_ref, 2, 1e-3, "scans.csv");
+
+    // an MCAP recording of the same run
+    let mcap = dir.join("run.mcap");
+    let mut w = vlsync_mcap::McapWriter::create(&mcap).unwrap();
+    // camera stamps start before 0 (the clock offset): log them a second later
+    w.set_log_delay_ns(1_000_000_000);
+    let mut r = raw::renderer(SEED, DURATION_S).unwrap();
+    for ev in r.events() {
+        match ev.unwrap() {
+            vlsync_render::Event::Frame(f) => w
+                .write_image("/camera/image_raw", f.stamp_ns, &f.image)
+                .unwrap(),
+            vlsync_render::Event::Scan(s) => w.write_scan("/scan", &s.scan).unwrap(),
+        }
+    }
+    w.finish().unwrap();
+    // mid-exposure stamps as instants: the same frame times as the rendered exposure
+    let mut m = CamSource::mcap(&mcap, Some("/camera/image_raw")).unwrap();
+    assert_eq!(drain(&mut m), cam_ref);
+    // the only image topic is found without naming it
+    let mut m = CamSource::mcap(&mcap, None).unwrap();
+    assert!(m.describe().contains("/camera/image_raw"));
+    assert_eq!(drain(&mut m).len(), cam_ref.len());
+    let mut m = LidarSource::mcap(&mcap, Some("/scan")).unwrap();
+    assert_close(&drain(&mut m), &lidar_ref, 1_000, 1e-3, "mcap scans");
+
+    // errors name the file or topic
+    let e = CamSource::mcap(&mcap, Some("/nope"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("/nope") && e.contains("run.mcap"), "{e}");
+    let e = CamSource::frames_dir(&dir.join("missing"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("missing"), "{e}");
+    std::fs::write(dir.join("bad.csv"), "t_s,bearing_rad\n0.0,oops\n").unwrap();
+    let e = match LidarSource::scans_csv(&dir.join("bad.csv")) {
+        Err(e) => e.to_string(),
+        Ok(mut s) => s.next_sample().unwrap_err().to_string(),
+    };
+    assert!(e.contains("bad.csv"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Writes `bytes` to the pty master at `bytes_per_s`, then keeps it open a while.
+fn feed(
+    mut master: serialport::TTYPort,
+    bytes: Vec<u8>,
+    bytes_per_s: f64,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let t0 = Instant::now();
+        let mut sent = 0usize;
+        while sent < bytes.len() {
+            let due = ((t0.elapsed().as_secs_f64() * bytes_per_s) as usize).min(bytes.len());
+            if due > sent {
+                master
+                    .write_all(&bytes[sent..due])
+                    .expect("write to pty master");
+                sent = due;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        drop(master);
+    })
+}
+
+static LD06_STOP: AtomicBool = AtomicBool::new(false);
+
+#[test]
+fn ld06_through_a_pty() {
+    use serialport::SerialPort;
+    // a wall straight ahead approaching at 0.5 m/s, 2 s of output at the real byte rate
+    let bytes = vlsync_signature_lidar::encode::ld06_stream(3600, 0, 2.0, |t, b| {
+        if b.abs() < 0.3 {
+            3.0 - 0.5 * t
+        } else {
+            6.0
+        }
+    });
+    let rate = bytes.len() as f64 / 2.0;
+    let (master, slave) = serialport::TTYPort::pair().expect("pty pair");
+    let path = slave.name().expect("slave path");
+    let mut src = LidarSource::serial(
+        SerialKind::Ld06,
+        &path,
+        None,
+        Duration::from_secs(2),
+        || LD06_STOP.load(Ordering::Relaxed),
+    )
+    .unwrap();
+    drop(slave);
+    assert!(src.describe().contains(&path), "{}", src.describe());
+    let writer = feed(master, bytes, rate);
+    let mut got = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while got.len() < 15 && Instant::now() < deadline {
+        match src.next_sample() {
+            Ok(Some(s)) => got.push(s),
+            Ok(None) => break,
+            Err(e) => panic!("{e}"),
+        }
+    }
+    LD06_STOP.store(true, Ordering::Relaxed);
+    // stopped: ends instead of waiting for more bytes
+    assert_eq!(src.next_sample().unwrap(), None);
+    writer.join().unwrap();
+    assert!(got.len() >= 15, "{} samples; {:?}", got.len(), src.report());
+    // host-stamped (monotonic clock), in order
+    let now = vlsync_ipc::monotonic_ns();
+    assert!(got.windows(2).all(|w| w[0].t_ns < w[1].t_ns));
+    assert!(got
+        .iter()
+        .all(|s| s.t_ns <= now && s.t_ns > now - 20_000_000_000));
+    let mut v: Vec<f64> = got.iter().map(|s| s.value).collect();
+    v.sort_by(f64::total_cmp);
+    let median = v[v.len() / 2];
+    assert!((median + 0.5).abs() < 0.15, "median {median} m/s: {v:?}");
+    let report = src.report().unwrap();
+    assert!(report.contains("0 CRC errors"), "{report}");
+}
+
+static RP_STOP: AtomicBool = AtomicBool::new(false);
+
+#[test]
+fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
+    use serialport::SerialPort;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("pty pair");
+    let path = slave.name().expect("slave path");
+    let mut src = LidarSource::serial(
+        SerialKind::Rplidar,
+        &path,
+        Some(115_200),
+        Duration::from_secs(2),
+        || RP_STOP.load(Ordering::Relaxed),
+    )
+    .unwrap();
+    drop(slave);
+    master.set_timeout(Duration::from_secs(2)).unwrap();
+    let mut req = [0u8; 2];
+    master.read_exact(&mut req).expect("scan request");
+    assert_eq!(req, vlsync_signature_lidar::rplidar::scan_request());
+    // 5.5 Hz, 360 nodes per revolution, wall straight ahead receding at 1 m/s
+    let period = 1.0 / 5.5;
+    let mut bytes = vlsync_signature_lidar::rplidar::SCAN_DESCRIPTOR.to_vec();
+    for k in 0..12 {
+        bytes.extend(vlsync_signature_lidar::encode::rplidar_revolution(
+            360,
+            k as f64 * period,
+            period,
+            |t, b| if b.abs() < 0.3 { 2.0 + t } else { 5.0 },
+        ));
+    }
+    let rate = 360.0 * 5.0 * 5.5;
+    let writer = feed(master, bytes, rate);
+    let mut got = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while got.len() < 6 && Instant::now() < deadline {
+        got.push(src.next_sample().unwrap().expect("a sample"));
+    }
+    RP_STOP.store(true, Ordering::Relaxed);
+    assert_eq!(src.next_sample().unwrap(), None);
+    writer.join().unwrap();
+    assert!(got.len() >= 6);
+    let mut v: Vec<f64> = got.iter().map(|s| s.value).collect();
+    v.sort_by(f64::total_cmp);
+    assert!((v[v.len() / 2] - 1.0).abs() < 0.3, "{v:?}");
+    assert!(src.report().unwrap().contains("RPLIDAR"));
+}
+
+#[test]
+fn a_silent_serial_device_is_an_error_naming_it() {
+    use serialport::SerialPort;
+    let (_master, slave) = serialport::TTYPort::pair().expect("pty pair");
+    let path = slave.name().expect("slave path");
+    let mut src = LidarSource::serial(
+        SerialKind::Ld06,
+        &path,
+        None,
+        Duration::from_millis(200),
+        never,
+    )
+    .unwrap();
+    let e = src.next_sample().unwrap_err().to_string();
+    assert!(e.contains(&path) && e.contains("no data"), "{e}");
+    let e = LidarSource::serial(
+        SerialKind::Ld06,
+        "/dev/does-not-exist-vlsync",
+        None,
+        Duration::from_secs(1),
+        never,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("/dev/does-not-exist-vlsync") && e.contains("--ld06"),
+        "{e}"
+    );
+}
+
+#[test]
+fn v4l2_without_the_feature_says_how_to_get_it() {
+    let r = CamSource::v4l2(Path::new("/dev/video0"), never);
+    if cfg!(feature = "v4l2") {
+        // with the feature: a missing or non-video device is still an error naming it
+        if let Err(e) = CamSource::v4l2(Path::new("/dev/video-vlsync-missing"), never) {
+            assert!(e.to_string().contains("/dev/video-vlsync-missing"), "{e}");
+        }
+    } else {
+        let e = r.unwrap_err().to_string();
+        assert!(
+            e.contains("built without V4L2 support; rebuild with --features v4l2")
+                && e.contains("/dev/video0"),
+            "{e}"
+        );
+    }
+}
+
+fn args(a: &[&str]) -> DriverArgs {
+    use clap::Parser;
+    DriverArgs::try_parse_from(std::iter::once("vlsync-test").chain(a.iter().copied()))
+        .expect("args")
+}
+
+#[test]
+fn option_errors_name_the_flags() {
+    let err = |a: &[&str], s: Stream| match select_source(&args(a), s, never) {
+        Ok(_) => panic!("{a:?} accepted"),
+        Err(e) => e.to_string(),
+    };
+    let e = err(&[], Stream::Cam);
+    assert!(e.contains("--frames DIR") && e.contains("--v4l2"), "{e}");
+    let e = err(&[], Stream::Lidar);
+    assert!(e.contains("--ld06") && e.contains("--scans"), "{e}");
+    let e = err(&["--frames", "/tmp", "--render", "1"], Stream::Cam);
+    assert!(e.contains("--render and --frames"), "{e}");
+    let e = err(&["--ld06", "/dev/ttyUSB0"], Stream::Cam);
+    assert!(e.contains("--ld06 is not a source of vlsync-cam"), "{e}");
+    let e = err(&["--frames", "/tmp"], Stream::Lidar);
+    assert!(
+        e.contains("--frames is not a source of vlsync-lidar"),
+        "{e}"
+    );
+    let e = err(&["--render", "1", "--baud", "9600"], Stream::Lidar);
+    assert!(e.contains("--baud"), "{e}");
+    let e = err(&["--render", "1", "--duration", "0.1"], Stream::Lidar);
+    assert!(e.contains("duration"), "{e}");
+    // the rendered pair shares one anchor
+    let c = select_source(
+        &args(&["--render", "3", "--duration", "2"]),
+        Stream::Cam,
+        never,
+    )
+    .unwrap();
+    let l = select_source(
+        &args(&["--render", "3", "--duration", "2"]),
+        Stream::Lidar,
+        never,
+    )
+    .unwrap();
+    assert_eq!(c.anchor_ns, l.anchor_ns);
+    assert!(c.anchor_ns.is_some());
+}

@@ -1,7 +1,0 @@
-//! `vlsync-lidar`: publishes the LiDAR signature stream (CSV replay or the live
-//! simulator today; a LiDAR front-end implements `vlsync_driver::Source`).
-#![forbid(unsafe_code)]
-
-fn main() -> std::process::ExitCode {
-    vlsync_driver::cli::main(vlsync_common::Stream::Lidar)
-}
