@@ -44,9 +44,7 @@ use correlator::{Correlator, Step, Sums};
 use filter::BandPass;
 use resample::{Discontinuity, Resampler};
 use tracker::{Tracker, Update};
-use vlsync_common::{
-    Estimate, EstimatorState, Nanos, Polarity, RejectReason, Sample, Stream, NANOS_PER_SEC,
-};
+use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity, RejectReason, Sample, Stream};
 use vlsync_config::EstimatorConfig;
 
 /// Counters of the estimator.
@@ -862,20 +860,9 @@ impl Estimator {
             .kf
             .update(m.z, h, m.var * overlap * huber, m.var, self.p.gate)
         {
-            Update::Accepted => {
-                self.stats.measurements += 1;
-                self.last_meas_t = t;
-                self.emit(
-                    t_ref_ns,
-                    EstimatorState::Tracking,
-                    Some(m.z),
-                    m.score,
-                    m.ratio,
-                );
-            }
+            Update::Accepted => self.measured(t_ref_ns, t, &m),
             Update::Outlier(_) => {
                 self.stats.outliers += 1;
-
                 self.emit(
                     t_ref_ns,
                     EstimatorState::Holding,
@@ -894,6 +881,11 @@ impl Estimator {
         if step {
             self.stats.steps += 1;
         }
+        self.measured(t_ref_ns, t, m);
+    }
+
+    /// Books an accepted measurement and emits a tracking estimate.
+    fn measured(&mut self, t_ref_ns: Nanos, t: f64, m: &Meas) {
         self.stats.measurements += 1;
         self.last_meas_t = t;
         self.emit(
@@ -951,6 +943,3 @@ enum Window {
     Long,
     Short,
 }
-
-/// Nanoseconds per second, re-exported for callers converting units.
-pub const NS_PER_S: i64 = NANOS_PER_SEC;
