@@ -1,4 +1,4 @@
-//! Time per 640x480 frame with the default configuration (ROI x 25-75 %, y 55-95 %,
+//! Time per 640x480 frame with the default configuration (ROI x 25-75 %, y 55-90 %,
 //! 16x8 grid, 3 levels, 9x9 window). Target: <= 3 ms per frame in release.
 //!
 //! `cargo bench -p vlsync-signature-cam --bench flow`

@@ -7,11 +7,15 @@
 //! 1. [`image`]: gray frames ([`image::GrayFrame`], `u8` or `f32`, borrowed or
 //!    owned) and RGB/RGBA/BGR/YUYV to gray conversion ([`image::RawFrame`]).
 //! 2. [`flow`]: pyramidal Lucas-Kanade on a grid of points in the ROI, with a
-//!    Shi-Tomasi texture test; allocation-free after the first frame.
-//! 3. [`reduce`]: flow vectors to one number (trimmed mean magnitude by
-//!    default; median, signed forward component, divergence).
+//!    Shi-Tomasi texture test, each point started from its last flow, tracked
+//!    both ways and checked against its neighbours; allocation-free after the
+//!    first frame.
+//! 3. [`reduce`]: flow vectors to one number (trimmed mean of the downward
+//!    component by default, i.e. forward motion for a camera looking at the
+//!    floor; mean or median magnitude, divergence).
 //! 4. [`signature`]: frames and times to [`vlsync_common::Sample`]s (midpoint
-//!    stamping, mid-exposure times, px/s, gap restart).
+//!    stamping, mid-exposure times, px/s scaled by whole frame periods, gap
+//!    restart).
 //! 5. [`source`]: a directory of PNG/JPEG frames with `frames.csv`; [`v4l2`]:
 //!    a V4L2 camera behind the `v4l2` cargo feature.
 //!
@@ -20,7 +24,7 @@
 //! let (w, h) = (160, 120);
 //! let frame = |shift: f32| {
 //!     let px = (0..w * h).map(|i| {
-//!         let (x, y) = ((i % w) as f32 - shift, (i / w) as f32);
+//!         let (x, y) = ((i % w) as f32, (i / w) as f32 - shift);
 //!         128.0 + 50.0 * (0.3 * x + 0.1 * y).sin() + 40.0 * (0.2 * y - 0.15 * x).cos()
 //!     });
 //!     GrayFrame::owned_f32(w, h, px.collect()).unwrap()
@@ -30,7 +34,7 @@
 //! match p.process(&frame(1.0), FrameTime::Instant(50_000_000)).unwrap() {
 //!     Step::Sample(s) => {
 //!         assert_eq!(s.sample.t_ns, 25_000_000); // midpoint
-//!         assert!((s.sample.value - 20.0).abs() < 0.5); // 1 px in 50 ms
+//!         assert!((s.sample.value - 20.0).abs() < 0.5); // 1 px down in 50 ms
 //!     }
 //!     Step::Started(r) => panic!("{r:?}"),
 //! }
@@ -51,7 +55,8 @@ pub use flow::{FlowConfig, FlowStats, FlowVector, PyrLk, Roi};
 pub use image::{GrayFrame, Pixel, PixelFormat, RawFrame};
 pub use reduce::{Reducer, Reduction};
 pub use signature::{
-    CamSample, FrameTime, SignatureConfig, SignatureProcessor, Stamping, StartReason, Step,
+    CamSample, FramePeriod, FrameTime, SignatureConfig, SignatureProcessor, Stamping, StartReason,
+    Step,
 };
 pub use source::{DirSource, FrameSource};
 pub use v4l2::{V4l2Config, V4l2Source};

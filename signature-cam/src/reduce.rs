@@ -22,17 +22,27 @@ use crate::Error;
 use serde::{Deserialize, Serialize};
 
 /// How the flow vectors of a frame become one number (pixels per frame pair).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+///
+/// The default is [`Reduction::Forward`] along `[0, 1]` (image down): for a
+/// camera looking ahead at the floor, driving forward moves the floor down the
+/// image, and the mean vertical flow over an ROI centred left-right is the
+/// forward speed alone. Turning adds flow too, mostly sideways, and its vertical
+/// part is opposite on the two halves of the ROI and cancels in the mean: a
+/// 1 rad/s turn shows up as well under 1 % of the flow of driving at 0.3 m/s
+/// (measured on rendered runs), where it dominates the flow magnitude
+/// ([`Reduction::MeanMagnitude`]: about 0.5 m/s worth of flow). The forward
+/// component is signed, so reversing reads negative, like the distance rate of
+/// a LiDAR.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Reduction {
-    /// Trimmed mean of `|v|` (the default). Unsigned.
-    #[default]
+    /// Trimmed mean of `|v|`. Unsigned; sees rotation as much as translation.
     MeanMagnitude,
     /// Median of `|v|`. Unsigned.
     MedianMagnitude,
     /// Trimmed mean of `v . u` for the unit vector `u` along `direction`
-    /// (image coordinates, +y down). Signed: e.g. `[0, 1]` for a forward-looking
-    /// camera whose floor flows downward when driving forward.
+    /// (image coordinates, +y down). Signed: e.g. `[0, 1]` (the default) for a
+    /// forward-looking camera whose floor flows downward when driving forward.
     Forward {
         /// Direction in image coordinates; normalised internally, must be non-zero.
         direction: [f32; 2],
@@ -44,6 +54,15 @@ pub enum Reduction {
         /// Focus point as fractions of the frame width and height.
         focus: [f32; 2],
     },
+}
+
+impl Default for Reduction {
+    /// [`Reduction::Forward`] along `[0, 1]` (image down).
+    fn default() -> Self {
+        Reduction::Forward {
+            direction: [0.0, 1.0],
+        }
+    }
 }
 
 /// Default trim fraction at each end for the trimmed means: 10 %.

@@ -13,6 +13,19 @@
 //! [`SignatureConfig::max_gap_ns`] (or a time that does not increase) produces no
 //! sample: the processor restarts from the new frame.
 //!
+//! # Stamp jitter and the scale
+//!
+//! A camera exposes on its own sensor clock, at a steady rate; the stamps a
+//! driver attaches carry host jitter (about 1 ms on a USB camera). Divided by
+//! the raw stamp difference, 1 ms of jitter on a 33 ms interval is 4 % of noise
+//! on every value: more than the flow's own error. So by default
+//! ([`SignatureConfig::dejitter`]) the interval used for the scale is a whole
+//! number of frame periods, the period being tracked from the stamps themselves
+//! (a running mean over the last ~64 intervals that agree with it, so a dropped
+//! frame counts as two periods and a changed frame rate is adopted after three
+//! disagreeing intervals). The *stamps* are never smoothed: a sample is still
+//! stamped at the midpoint of its two frames' own times.
+//!
 //! ```
 //! use vlsync_signature_cam::image::GrayFrame;
 //! use vlsync_signature_cam::signature::{FrameTime, SignatureConfig, SignatureProcessor, Step};
@@ -92,7 +105,7 @@ impl FrameTime {
 pub struct SignatureConfig {
     /// Optical flow.
     pub flow: FlowConfig,
-    /// Flow vectors to scalar (default: trimmed mean magnitude).
+    /// Flow vectors to scalar (default: trimmed mean of the downward component).
     pub reduction: Reduction,
     /// Trim fraction at each end for the trimmed means (default 0.1).
     pub trim: f32,
@@ -100,6 +113,9 @@ pub struct SignatureConfig {
     pub stamping: Stamping,
     /// Longest frame interval a sample may span, ns (default 250 ms).
     pub max_gap_ns: Nanos,
+    /// Scale values by a whole number of tracked frame periods instead of the raw
+    /// stamp difference (default true; see the module docs).
+    pub dejitter: bool,
 }
 
 impl Default for SignatureConfig {
@@ -110,6 +126,7 @@ impl Default for SignatureConfig {
             trim: DEFAULT_TRIM,
             stamping: Stamping::default(),
             max_gap_ns: 250_000_000,
+            dejitter: true,
         }
     }
 }
@@ -137,6 +154,9 @@ pub struct CamSample {
     pub sample: Sample,
     /// Interval between the two frames compared, ns (> 0).
     pub dt_ns: Nanos,
+    /// Interval the value was scaled by, ns: `dt_ns`, or a whole number of tracked
+    /// frame periods with [`SignatureConfig::dejitter`].
+    pub scale_dt_ns: f64,
     /// The reduced flow over that interval, pixels (NaN when no point was tracked).
     pub flow_px: f64,
     /// Point counts; `stats.low_texture` flags too few tracked points.
@@ -190,6 +210,83 @@ pub struct SignatureProcessor {
     lk: PyrLk,
     reducer: Reducer,
     prev_t: Option<Nanos>,
+    period: FramePeriod,
+    /// Periods spanned by the previous sample's interval (for the flow prediction).
+    prev_periods: f64,
+}
+
+/// Running estimate of a camera's frame period from its (jittered) stamps.
+///
+/// ```
+/// use vlsync_signature_cam::signature::FramePeriod;
+/// let mut p = FramePeriod::default();
+/// // 30 Hz with +-1 ms of stamp jitter; the third interval spans a dropped frame
+/// for dt in [33_000_000, 34_200_000, 66_100_000, 32_400_000, 33_500_000] {
+///     p.interval(dt);
+/// }
+/// assert!((p.period_ns() - 33_330_000.0).abs() < 300_000.0);
+/// assert_eq!(p.interval(67_400_000).1, 2.0);
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FramePeriod {
+    period_ns: f64,
+    count: u32,
+    misses: u32,
+}
+
+impl FramePeriod {
+    /// Intervals averaged at most (the running mean becomes an exponential one).
+    const MEMORY: u32 = 64;
+    /// Largest relative deviation of one interval from a whole number of periods.
+    const TOLERANCE: f64 = 0.15;
+    /// Consecutive disagreeing intervals that make the next one the new period.
+    const MAX_MISSES: u32 = 3;
+    /// Most periods one interval may span and still count as frame drops.
+    const MAX_PERIODS: f64 = 8.0;
+
+    /// The tracked period, ns (0 before the first interval).
+    pub fn period_ns(&self) -> f64 {
+        self.period_ns
+    }
+
+    /// Forgets the period.
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    /// Takes one positive interval `dt_ns` between consecutive frames and returns
+    /// `(interval to scale by, periods spanned)`: `(n · period, n)` when `dt_ns` is
+    /// within 15 % of a whole number `n` (1..=8) of the tracked period, else
+    /// `(dt_ns, dt_ns / period)` (raw; the first interval, a changed rate or
+    /// irregular timing). Agreeing intervals refine the period. A `dt_ns <= 0`
+    /// is returned as `(dt_ns, 0)` and changes nothing.
+    pub fn interval(&mut self, dt_ns: Nanos) -> (f64, f64) {
+        let dt = dt_ns as f64;
+        if dt_ns <= 0 {
+            // not an interval: changes nothing
+            return (dt, 0.0);
+        }
+        if self.period_ns <= 0.0 || self.misses >= Self::MAX_MISSES {
+            *self = Self {
+                period_ns: dt,
+                count: 1,
+                misses: 0,
+            };
+            return (dt, 1.0);
+        }
+        let n = (dt / self.period_ns).round();
+        if (1.0..=Self::MAX_PERIODS).contains(&n) {
+            let r = dt / n - self.period_ns;
+            if r.abs() <= Self::TOLERANCE * self.period_ns {
+                self.count = (self.count + 1).min(Self::MEMORY);
+                self.period_ns += r / f64::from(self.count);
+                self.misses = 0;
+                return (n * self.period_ns, n);
+            }
+        }
+        self.misses += 1;
+        (dt, dt / self.period_ns)
+    }
 }
 
 impl SignatureProcessor {
@@ -203,6 +300,8 @@ impl SignatureProcessor {
             lk: PyrLk::new(cfg.flow)?,
             reducer,
             prev_t: None,
+            period: FramePeriod::default(),
+            prev_periods: 0.0,
         })
     }
 
@@ -220,6 +319,7 @@ impl SignatureProcessor {
     pub fn reset(&mut self) {
         self.lk.reset();
         self.prev_t = None;
+        self.prev_periods = 0.0;
     }
 
     /// Processes one frame taken at `time`. After the first frame of a given size
@@ -256,8 +356,21 @@ impl SignatureProcessor {
                 }
             }
         };
+        // the interval this frame closes, in tracked periods (for the scale and
+        // for the flow prediction: a dropped frame doubles the flow)
+        let mut scaled = None;
+        if let (None, Some(p)) = (reason, self.prev_t) {
+            let (scale_dt, periods) = self.period.interval(t - p);
+            if self.prev_periods > 0.0 {
+                self.lk
+                    .set_prediction_scale((periods / self.prev_periods) as f32);
+            }
+            self.prev_periods = periods;
+            scaled = Some(scale_dt);
+        }
         if reason.is_some() {
             self.lk.reset();
+            self.prev_periods = 0.0;
         }
         let stats = match self.lk.push(frame) {
             Ok(s) => s,
@@ -278,10 +391,15 @@ impl SignatureProcessor {
                     Stamping::Midpoint => p + dt_ns / 2,
                     Stamping::End => t,
                 };
-                let value = flow_px * NANOS_PER_SEC as f64 / dt_ns as f64;
+                let scale_dt_ns = match scaled {
+                    Some(d) if self.cfg.dejitter => d,
+                    _ => dt_ns as f64,
+                };
+                let value = flow_px * NANOS_PER_SEC as f64 / scale_dt_ns;
                 Ok(Step::Sample(CamSample {
                     sample: Sample::new(t_ns, value),
                     dt_ns,
+                    scale_dt_ns,
                     flow_px,
                     stats,
                 }))
@@ -426,6 +544,100 @@ mod tests {
             proptest::prop_assert!((s.sample.value * dt as f64 / 1e9 - s.flow_px).abs() < 1e-9 * s.flow_px.abs().max(1.0));
             proptest::prop_assert!((s.flow_px - 1.0).abs() < 0.05);
         }
+    }
+
+    #[test]
+    fn stamp_jitter_does_not_become_value_noise() {
+        // 2 px down per true 33.3 ms frame, stamps jittered by up to ±1.5 ms,
+        // every 7th frame dropped: with dejitter the values are 60 px/s to the
+        // flow's own precision, without they scatter by the jitter (~4 %)
+        let spread = |dejitter| {
+            let mut p = SignatureProcessor::new(SignatureConfig {
+                dejitter,
+                ..SignatureConfig::default()
+            })
+            .unwrap();
+            let mut x = 7u64;
+            let mut values = Vec::new();
+            for k in 0..120i64 {
+                if k % 7 == 3 {
+                    continue;
+                }
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let jitter = (x % 3_000_001) as i64 - 1_500_000;
+                let t = 1_000 * MS + k * 33_333_333 + jitter;
+                if let Step::Sample(s) = p
+                    .process(&shifted(2.0 * k as f32), FrameTime::Instant(t))
+                    .unwrap()
+                {
+                    values.push(s.sample.value);
+                }
+            }
+            let tail = &values[20..];
+            let m = tail.iter().sum::<f64>() / tail.len() as f64;
+            let sd = (tail.iter().map(|v| (v - m).powi(2)).sum::<f64>() / tail.len() as f64).sqrt();
+            (m, sd)
+        };
+        let (m, sd) = spread(true);
+        assert!((m - 60.0).abs() < 0.3 && sd < 0.3, "dejittered {m} {sd}");
+        let (m0, sd0) = spread(false);
+        assert!((m0 - 60.0).abs() < 1.0 && sd0 > 4.0 * sd, "raw {m0} {sd0}");
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Any frame rate, jitter up to ±3 % of the period and drops of up to 3
+        /// frames: the period is learnt to 0.5 %, each interval gets its true
+        /// number of periods and a scale within 1 % of the true interval.
+        #[test]
+        fn frame_period_follows_jittered_stamps(
+            period in 1_000_000i64..200_000_000,
+            seed in proptest::prelude::any::<u64>(),
+        ) {
+            let mut fp = FramePeriod::default();
+            let mut x = seed | 1;
+            let mut next = || { x ^= x << 13; x ^= x >> 7; x ^= x << 17; x };
+            let jit = |r: u64| ((r % 2001) as f64 / 1000.0 - 1.0) * 0.03 * period as f64;
+            let mut k = 0i64;
+            let mut prev = jit(next());
+            for i in 0..200 {
+                let span = if next() % 5 == 0 { 1 + (next() % 3) as i64 } else { 1 };
+                k += span;
+                let now = k as f64 * period as f64 + jit(next());
+                let (scale, n) = fp.interval((now - prev).round() as i64);
+                prev = now;
+                if i >= 30 {
+                    proptest::prop_assert_eq!(n, span as f64);
+                    let truth = (span * period) as f64;
+                    proptest::prop_assert!((scale - truth).abs() <= 0.01 * truth, "{} vs {}", scale, truth);
+                }
+            }
+            proptest::prop_assert!((fp.period_ns() / period as f64 - 1.0).abs() < 0.005);
+        }
+    }
+
+    #[test]
+    fn frame_period_adopts_a_new_rate() {
+        let mut fp = FramePeriod::default();
+        for _ in 0..50 {
+            fp.interval(33_333_333);
+        }
+        // the camera slows to 20 Hz (1.5 periods: no whole number): three raw
+        // intervals, then the new period
+        for _ in 0..3 {
+            let (scale, n) = fp.interval(50_000_000);
+            assert!(
+                scale == 50_000_000.0 && (n - 1.5).abs() < 1e-6,
+                "{scale} {n}"
+            );
+        }
+        assert_eq!(fp.interval(50_000_000), (50_000_000.0, 1.0));
+        assert_eq!(fp.interval(100_000_000), (100_000_000.0, 2.0));
+        assert!((fp.period_ns() - 50_000_000.0).abs() < 1.0);
+        fp.reset();
+        assert_eq!(fp.period_ns(), 0.0);
     }
 
     #[test]

@@ -71,6 +71,7 @@ fn steady_state_processing_allocates_nothing() {
         .map(|k| yuyv(1.3 * k as f32, 0.7 * k as f32))
         .collect();
     for reduction in [
+        Reduction::default(),
         Reduction::MeanMagnitude,
         Reduction::MedianMagnitude,
         Reduction::Divergence { focus: [0.5, 0.6] },
