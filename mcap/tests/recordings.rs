@@ -141,7 +141,7 @@ fn scans_round_trip_exactly() {
 #[test]
 fn scans_feed_the_lidar_signature() {
     use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor};
-    // a wall at bearing 0 receding at 0.5 m/s, 10 scans per second
+    // a flat wall ahead (normal at bearing 0) receding at 0.5 m/s, 10 scans per second
     let tmp = Tmp::new("wall");
     let mut w = McapWriter::create(&tmp.0).unwrap();
     let n = 360usize;
@@ -153,8 +153,8 @@ fn scans_feed_the_lidar_signature() {
             .map(|i| {
                 let t = t0 + (i as f64 * ti).round() as i64;
                 let b = wrap_pi(i as f64 * da);
-                let r = if b.abs() < 0.3 {
-                    2.0 + 0.5 * t as f64 * 1e-9
+                let r = if b.abs() < 0.6 {
+                    (2.0 + 0.5 * t as f64 * 1e-9) / b.cos()
                 } else {
                     6.0
                 };

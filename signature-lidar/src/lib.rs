@@ -1,12 +1,14 @@
 //! LiDAR signature for vlsync: the robust rate of change of the distance to a
-//! wall in a narrow bearing window, one [`vlsync_common::Sample`] (m/s) per
+//! wall in a bearing window, one [`vlsync_common::Sample`] (m/s) per
 //! rotation, stamped at the midpoint of the two measurements it differences.
 //!
 //! * [`scan`]: rays with per-ray measurement times, scan timing, and the
 //!   bearing (CCW positive) and rotation-direction conventions.
-//! * [`signature`]: the allocation-free signature processor (median distance
-//!   per pass of the beam through the window, median time of the rays used,
-//!   derivative stamped at the midpoint, gap resets, drop counters).
+//! * [`signature`]: the allocation-free signature processor (per pass of the
+//!   beam through the window, the perpendicular distance to the wall fitted to
+//!   the returns, or their median; the time of the returns used; derivative
+//!   stamped at the midpoint; gap resets; implausible and cross-surface
+//!   derivatives dropped; drop counters).
 //! * [`ld06`]: LDROBOT LD06/LD19 packets (CRC-8 0x4D), resynchronising decoder,
 //!   360° scan assembly with per-point times, encoder.
 //! * [`rplidar`]: Slamtec RPLIDAR standard scan (A1/A2/C1): requests,
@@ -20,9 +22,11 @@
 //! use vlsync_signature_lidar::ld06::{Ld06Clock, Ld06Config, Ld06Parser};
 //! use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor};
 //!
-//! // a wall on the left (bearing +90°) receding at 0.5 m/s, seen by an LD06 at 10 Hz
+//! // a flat wall on the left (normal at bearing +90°) receding at 0.5 m/s, seen by
+//! // an LD06 at 10 Hz
 //! let bytes = ld06_stream(3600, 0, 1.0, |t, bearing| {
-//!     if (bearing - std::f64::consts::FRAC_PI_2).abs() < 0.3 { 2.0 + 0.5 * t } else { 6.0 }
+//!     let off = bearing - std::f64::consts::FRAC_PI_2;
+//!     if off.abs() < 0.6 { (2.0 + 0.5 * t) / off.cos() } else { 6.0 }
 //! });
 //! let mut parser = Ld06Parser::new(Ld06Config { clock: Ld06Clock::Device, ..Default::default() });
 //! let mut sig = SignatureProcessor::new(SignatureConfig {

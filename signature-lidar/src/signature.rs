@@ -1,14 +1,15 @@
 //! The LiDAR signature: rate of change of the robust distance to a wall.
 //!
-//! For each pass of the beam through a narrow bearing window
-//! (`centre ± half_width`), the processor takes
+//! For each pass of the beam through a bearing window (`centre ± half_width`),
+//! the processor takes
 //!
-//! * the **robust distance** `d[k]`: the median of the valid returns in the
-//!   window (device-invalid, zero, NaN, infinite and out-of-range returns are
-//!   dropped), and
-//! * its **measurement time** `t_d[k]`: the median time of the rays actually
-//!   used (rays are in time order, so this is the middle ray's time, or the
-//!   mean of the two middle ones),
+//! * the **robust distance** `d[k]` from the valid returns in the window
+//!   (device-invalid, zero, NaN, infinite and out-of-range returns are
+//!   dropped), by default ([`Distance::Wall`]) the perpendicular distance to
+//!   the wall straight ahead, fitted robustly to the returns (below), or
+//!   ([`Distance::Median`]) the median range, and
+//! * its **measurement time** `t_d[k]`: the mean time of the returns the wall
+//!   was fitted to (the median time of the rays used, for the median),
 //!
 //! and emits the sample `(d[k] - d[k-1]) / (t_d[k] - t_d[k-1])` in m/s,
 //! stamped by default at the **midpoint** `(t_d[k-1] + t_d[k]) / 2`
@@ -16,6 +17,28 @@
 //! over the interval between them, so stamping it at the end
 //! ([`Stamping::End`], available for comparison) biases every sample late by
 //! half a rotation period.
+//!
+//! # The wall, not the median
+//!
+//! A cheap 2-D LiDAR (LD06: ~1 cm range noise, 0.8° between returns at 10 Hz)
+//! puts a dozen returns into a ±5° window; their median is noisy (a 4.5 cm/s
+//! rate noise at 10 Hz), and wider windows do not help the median because a flat
+//! wall's ranges grow as `1/cos` away from its normal. A straight line fitted to
+//! the returns uses all of them (±20° by default: ~50 returns, 1.6 cm/s), and
+//! its perpendicular distance does not change when the robot turns in place,
+//! whereas the range along a fixed bearing swings through metres as the beam
+//! sweeps along a wall or across a corner. The fit grows from the window centre
+//! and stops at corners and edges (see [`Distance::Wall`]), so it measures the
+//! surface straight ahead; stray returns and other surfaces are left out.
+//!
+//! # Implausible derivatives
+//!
+//! A derivative is not formed across a change of surface: when the fitted
+//! wall's normal turned by more than [`SignatureConfig::max_normal_change_rad`]
+//! between two passes (a turn has carried the window across a corner), or when
+//! it implies a speed above [`SignatureConfig::max_rate_mps`] (a jump to a nearer
+//! surface). Those are [`DropReason::SurfaceChange`] and
+//! [`DropReason::Implausible`]; the next pass differences normally again.
 //!
 //! # Passes, not scans
 //!
@@ -41,7 +64,8 @@
 //! # Allocation
 //!
 //! All buffers are allocated in [`SignatureProcessor::new`]
-//! (`max_window_rays` distances and times); processing never allocates.
+//! (`max_window_rays` ranges, times, bearings and fit scratch); processing never
+//! allocates.
 //!
 //! ```
 //! use vlsync_signature_lidar::scan::{Ray, Rotation, Scan, ScanTiming};
@@ -52,21 +76,26 @@
 //! let period = 100_000_000; // 10 Hz
 //! let mut samples = Vec::new();
 //! for k in 0..3i64 {
-//!     let wall = 2.0 + 0.05 * k as f64; // receding at 0.5 m/s
+//!     // a flat wall on the left (normal at bearing 90°) receding at 0.5 m/s
+//!     let wall = 2.0 + 0.05 * k as f64;
 //!     let rays = (0..360)
-//!         .map(|i| Ray::new((i as f64).to_radians(), wall, 100.0, true))
+//!         .map(|i| {
+//!             let off = (i as f64 - 90.0).to_radians();
+//!             let r = if off.abs() < 1.0 { wall / off.cos() } else { 9.0 };
+//!             Ray::new((i as f64).to_radians(), r, 100.0, true)
+//!         })
 //!         .collect();
 //!     let timing = ScanTiming { start_ns: k * period, period_ns: period, rotation: Rotation::Ccw, start_bearing_rad: 0.0 };
 //!     p.push_scan(&Scan::from_uniform(timing, rays), |s| samples.push(s));
 //! }
 //! assert_eq!(samples.len(), 2);
 //! assert!((samples[0].value - 0.5).abs() < 1e-9);
-//! // midpoint of the two measurements of bearing 90°, 25 ms into scans 0 and 1
+//! // midpoint of the two measurements of the window around 90°, 25 ms into scans 0 and 1
 //! assert_eq!(samples[0].t_ns, 75_000_000);
 //! ```
 
 use crate::scan::{wrap_pi, Ray, Scan};
-use std::f64::consts::FRAC_PI_2;
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::fmt;
 use vlsync_common::{Nanos, Sample, NANOS_PER_SEC};
 
@@ -80,6 +109,42 @@ pub enum Stamping {
     /// `t_d[k]`: the end of the interval. Late by half a rotation period;
     /// only for comparison experiments.
     End,
+}
+
+/// How a pass's returns become one distance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Distance {
+    /// Perpendicular distance to the wall straight ahead, a straight line fitted
+    /// to the window's returns (the default). Uses every return on the wall, so
+    /// its noise is that of a mean of all of them; turning in place leaves it
+    /// unchanged.
+    ///
+    /// In the window frame (`x` along the window centre, `y` to its left) the
+    /// returns are points `r (cos θ, sin θ)` in sweep order; the wall is a line
+    /// `x = a + b y`.
+    /// 1. Seed: the central third of the returns (7 to 25 of them); `b` is the
+    ///    repeated median of their pairwise slopes (right while fewer than half
+    ///    of them lie off the wall: past a corner, strays), `a` the median of
+    ///    `x - b y`; seed returns within `3 · 1.4826 · MAD` (clamped to 2-8 cm)
+    ///    of that line start a least-squares fit.
+    /// 2. Growth: outwards on both sides, a return joins when it lies within
+    ///    `max(3 σ, 2 cm) + 3 s` (at most 8 cm) of the current least-squares
+    ///    line (`σ` the fit's residual standard deviation, `s` the line's
+    ///    standard error where it is extrapolated; refitted after every return);
+    ///    a side stops after 3 consecutive misses (a corner, an edge, another
+    ///    surface).
+    ///
+    /// The distance is `a / √(1 + b²)`, its time the mean time of the returns
+    /// on the line (the fitted distance is the mean of their own distances, so
+    /// for a wall moving steadily during the sweep it is the distance at their
+    /// mean time). No distance ([`DropReason::NoWall`]) when the line explains
+    /// fewer than [`SignatureConfig::min_inlier_fraction`] of the returns (or
+    /// fewer than `min_valid_rays`, or 3), or its normal is farther than
+    /// [`SignatureConfig::max_incidence_rad`] from the window centre.
+    #[default]
+    Wall,
+    /// Median of the valid ranges, timed at the median time of the rays used.
+    Median,
 }
 
 /// Configuration of the signature processor.
@@ -102,19 +167,39 @@ pub struct SignatureConfig {
     pub max_gap_ns: Nanos,
     /// Sample stamping.
     pub stamping: Stamping,
+    /// How the returns of a pass become one distance.
+    pub distance: Distance,
+    /// [`Distance::Wall`]: a fitted wall whose normal is farther than this from
+    /// the window centre (a grazing view) yields no distance, radians, in `(0, π/2)`.
+    pub max_incidence_rad: f64,
+    /// [`Distance::Wall`]: smallest share of the valid returns the fitted wall
+    /// must explain (the rest are outliers: another surface, a corner), in `(0, 1]`.
+    pub min_inlier_fraction: f64,
+    /// [`Distance::Wall`]: a wall whose normal turned by more than this between two
+    /// measurements is another surface (the window crossed a corner or an edge):
+    /// no derivative across it, radians (> 0).
+    pub max_normal_change_rad: f64,
+    /// Derivatives faster than this (m/s) are not a robot's motion but a jump
+    /// between surfaces: dropped (> 0; `inf` disables).
+    pub max_rate_mps: f64,
 }
 
 impl Default for SignatureConfig {
     fn default() -> Self {
         Self {
             window_centre_rad: 0.0,
-            window_half_width_rad: 5f64.to_radians(),
+            window_half_width_rad: 20f64.to_radians(),
             min_range_m: 0.05,
             max_range_m: 40.0,
             min_valid_rays: 3,
             max_window_rays: 1024,
             max_gap_ns: 300_000_000,
             stamping: Stamping::Midpoint,
+            distance: Distance::Wall,
+            max_incidence_rad: 60f64.to_radians(),
+            min_inlier_fraction: 0.5,
+            max_normal_change_rad: 20f64.to_radians(),
+            max_rate_mps: 2.0,
         }
     }
 }
@@ -186,6 +271,29 @@ impl SignatureConfig {
                 format!("must be > 0, got {}", self.max_gap_ns),
             );
         }
+        let inc = self.max_incidence_rad;
+        if !(inc > 0.0 && inc < FRAC_PI_2) {
+            return err(
+                "max_incidence_rad",
+                format!("must be in (0, pi/2), got {inc}"),
+            );
+        }
+        let f = self.min_inlier_fraction;
+        if !(f > 0.0 && f <= 1.0) {
+            return err("min_inlier_fraction", format!("must be in (0, 1], got {f}"));
+        }
+        if self.max_normal_change_rad.is_nan() || self.max_normal_change_rad <= 0.0 {
+            return err(
+                "max_normal_change_rad",
+                format!("must be > 0, got {}", self.max_normal_change_rad),
+            );
+        }
+        if self.max_rate_mps.is_nan() || self.max_rate_mps <= 0.0 {
+            return err(
+                "max_rate_mps",
+                format!("must be > 0 (inf disables), got {}", self.max_rate_mps),
+            );
+        }
         Ok(())
     }
 }
@@ -206,17 +314,28 @@ pub enum DropReason {
     NonIncreasingTime,
     /// A ray earlier than the previous ray was ignored.
     RayOutOfOrder,
+    /// [`Distance::Wall`]: no wall explains enough of the returns, or it is seen
+    /// too obliquely (see [`SignatureConfig::max_incidence_rad`]).
+    NoWall,
+    /// [`Distance::Wall`]: the wall's normal turned more than
+    /// [`SignatureConfig::max_normal_change_rad`]: another surface, no derivative.
+    SurfaceChange,
+    /// The derivative exceeded [`SignatureConfig::max_rate_mps`].
+    Implausible,
 }
 
 impl DropReason {
     /// All reasons, in counter order.
-    pub const ALL: [DropReason; 6] = [
+    pub const ALL: [DropReason; 9] = [
         DropReason::TooFewValid,
         DropReason::WindowOverflow,
         DropReason::Partial,
         DropReason::Gap,
         DropReason::NonIncreasingTime,
         DropReason::RayOutOfOrder,
+        DropReason::NoWall,
+        DropReason::SurfaceChange,
+        DropReason::Implausible,
     ];
 
     /// Index into [`Counters::dropped`].
@@ -233,6 +352,9 @@ impl DropReason {
             DropReason::Gap => "gap",
             DropReason::NonIncreasingTime => "non_increasing_time",
             DropReason::RayOutOfOrder => "ray_out_of_order",
+            DropReason::NoWall => "no_wall",
+            DropReason::SurfaceChange => "surface_change",
+            DropReason::Implausible => "implausible",
         }
     }
 }
@@ -251,7 +373,7 @@ pub struct Counters {
     /// Samples emitted.
     pub samples: u64,
     /// Drops by reason, indexed by [`DropReason::index`].
-    pub dropped: [u64; 6],
+    pub dropped: [u64; 9],
 }
 
 impl Counters {
@@ -264,12 +386,16 @@ impl Counters {
 /// One robust distance measurement.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measurement {
-    /// Median distance, metres.
+    /// Distance, metres: to the fitted wall ([`Distance::Wall`]) or the median range.
     pub distance_m: f64,
-    /// Median time of the rays used, ns.
+    /// Time the distance refers to, ns: the mean time of the wall's inlier rays,
+    /// or the median time of the rays used.
     pub t_ns: Nanos,
-    /// Number of valid returns used.
+    /// Number of returns used (the wall's inliers, or all valid returns).
     pub rays_used: usize,
+    /// Bearing of the fitted wall's normal in the scan frame, radians (NaN for
+    /// [`Distance::Median`]).
+    pub normal_rad: f64,
 }
 
 /// Streaming signature processor; allocation-free after [`SignatureProcessor::new`].
@@ -278,6 +404,12 @@ pub struct SignatureProcessor {
     cfg: SignatureConfig,
     ranges: Vec<f64>,
     times: Vec<Nanos>,
+    bearings: Vec<f64>,
+    /// Scratch of the wall fit (points, then residuals), `max_window_rays` each.
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    scratch: Vec<f64>,
+    medians: Vec<f64>,
     in_pass: bool,
     pass_partial: bool,
     pass_overflow: bool,
@@ -296,6 +428,11 @@ impl SignatureProcessor {
             cfg,
             ranges: Vec::with_capacity(cfg.max_window_rays),
             times: Vec::with_capacity(cfg.max_window_rays),
+            bearings: Vec::with_capacity(cfg.max_window_rays),
+            xs: Vec::with_capacity(cfg.max_window_rays),
+            ys: Vec::with_capacity(cfg.max_window_rays),
+            scratch: Vec::with_capacity(cfg.max_window_rays),
+            medians: Vec::with_capacity(cfg.max_window_rays),
             in_pass: false,
             pass_partial: false,
             pass_overflow: false,
@@ -326,6 +463,7 @@ impl SignatureProcessor {
     pub fn reset(&mut self) {
         self.ranges.clear();
         self.times.clear();
+        self.bearings.clear();
         self.in_pass = false;
         self.pass_partial = false;
         self.pass_overflow = false;
@@ -336,7 +474,7 @@ impl SignatureProcessor {
     /// True when `bearing_rad` lies inside the window (edges included, with a
     /// 1 nrad tolerance so that rays exactly on an edge are not lost to rounding).
     pub fn in_window(&self, bearing_rad: f64) -> bool {
-        wrap_pi(bearing_rad - self.cfg.window_centre_rad).abs()
+        offset(bearing_rad, self.cfg.window_centre_rad).abs()
             <= self.cfg.window_half_width_rad + 1e-9
     }
 
@@ -409,6 +547,7 @@ impl SignatureProcessor {
                 if self.ranges.len() < self.cfg.max_window_rays {
                     self.ranges.push(ray.range_m);
                     self.times.push(ray.t_ns);
+                    self.bearings.push(ray.bearing_rad);
                 } else {
                     self.pass_overflow = true;
                 }
@@ -449,24 +588,170 @@ impl SignatureProcessor {
         };
         if let Some(r) = reason {
             self.drop_reason(r);
-            self.ranges.clear();
-            self.times.clear();
+            self.clear_pass();
             return None;
         }
-        let n = self.ranges.len();
-        let distance_m = median_in_place(&mut self.ranges);
-        // times are in push order, which is time order
-        let (a, b) = (self.times[(n - 1) / 2], self.times[n / 2]);
-        let t_ns = midpoint(a, b);
-        self.ranges.clear();
-        self.times.clear();
-        let m = Measurement {
-            distance_m,
-            t_ns,
-            rays_used: n,
+        let m = match self.cfg.distance {
+            Distance::Median => {
+                let n = self.ranges.len();
+                let distance_m = median_in_place(&mut self.ranges);
+                // times are in push order, which is time order
+                let (a, b) = (self.times[(n - 1) / 2], self.times[n / 2]);
+                Some(Measurement {
+                    distance_m,
+                    t_ns: midpoint(a, b),
+                    rays_used: n,
+                    normal_rad: f64::NAN,
+                })
+            }
+            Distance::Wall => self.fit_wall(),
+        };
+        self.clear_pass();
+        let Some(m) = m else {
+            self.drop_reason(DropReason::NoWall);
+            return None;
         };
         self.counters.measurements += 1;
         self.derivative(m)
+    }
+
+    fn clear_pass(&mut self) {
+        self.ranges.clear();
+        self.times.clear();
+        self.bearings.clear();
+    }
+
+    /// [`Distance::Wall`]: the line grown from the window centre, or `None`.
+    fn fit_wall(&mut self) -> Option<Measurement> {
+        const FLOOR_M: f64 = 0.02;
+        // no return farther than this from the line joins it, however scattered
+        // the fit: a wall, not a compromise between two
+        const CAP_M: f64 = 0.08;
+        const MAX_MISSES: u32 = 3;
+        let n = self.ranges.len();
+        if n < 3 {
+            return None;
+        }
+        let centre = self.cfg.window_centre_rad;
+        self.xs.clear();
+        self.ys.clear();
+        let mut c = 0;
+        let mut best = f64::INFINITY;
+        for (i, (&r, &b)) in self.ranges.iter().zip(&self.bearings).enumerate() {
+            let th = offset(b, centre);
+            if th.abs() < best {
+                best = th.abs();
+                c = i;
+            }
+            let (s, co) = th.sin_cos();
+            self.xs.push(r * co);
+            self.ys.push(r * s);
+        }
+        // 1. seed
+        let seed_half = (n / 6).clamp(3, 12);
+        let lo = c.saturating_sub(seed_half);
+        let hi = (c + seed_half).min(n - 1);
+        // repeated median (Siegel): for each seed return the median slope to the
+        // others, then the median of those; right while fewer than half of the
+        // seed returns are off the line (another wall past a corner, strays)
+        self.medians.clear();
+        for i in lo..=hi {
+            self.scratch.clear();
+            for j in lo..=hi {
+                let dy = self.ys[j] - self.ys[i];
+                if j != i && dy.abs() > 1e-9 {
+                    self.scratch.push((self.xs[j] - self.xs[i]) / dy);
+                }
+            }
+            if !self.scratch.is_empty() {
+                self.medians.push(median_in_place(&mut self.scratch));
+            }
+        }
+        if self.medians.is_empty() {
+            return None;
+        }
+        let b0 = median_in_place(&mut self.medians);
+        self.scratch.clear();
+        self.scratch
+            .extend((lo..=hi).map(|i| self.xs[i] - b0 * self.ys[i]));
+        let a0 = median_in_place(&mut self.scratch);
+        let norm0 = (1.0 + b0 * b0).sqrt();
+        self.scratch.clear();
+        self.scratch
+            .extend((lo..=hi).map(|i| (self.xs[i] - a0 - b0 * self.ys[i]).abs() / norm0));
+        let seed_thr = (3.0 * 1.4826 * median_in_place(&mut self.scratch)).clamp(FLOOR_M, CAP_M);
+        // running least squares, relative to the centre return (precision) and
+        // the first time
+        let (xc, yc, t0) = (self.xs[c], self.ys[c], self.times[0]);
+        let mut fit = LineFit::default();
+        let mut st: i128 = 0;
+        for i in lo..=hi {
+            if (self.xs[i] - a0 - b0 * self.ys[i]).abs() / norm0 <= seed_thr {
+                fit.add(self.xs[i] - xc, self.ys[i] - yc);
+                st += i128::from(self.times[i]) - i128::from(t0);
+            }
+        }
+        if fit.k < 2 {
+            return None;
+        }
+        // 2. growth
+        let (mut left, mut right) = (lo, hi + 1);
+        let (mut miss_l, mut miss_r) = (0, 0);
+        loop {
+            let mut moved = false;
+            for side in [1, 0] {
+                let i = if side == 1 {
+                    if miss_r >= MAX_MISSES || right >= n {
+                        continue;
+                    }
+                    right += 1;
+                    right - 1
+                } else {
+                    if miss_l >= MAX_MISSES || left == 0 {
+                        continue;
+                    }
+                    left -= 1;
+                    left
+                };
+                moved = true;
+                let (u, v) = (self.xs[i] - xc, self.ys[i] - yc);
+                // the line's own uncertainty where it is extrapolated adds to the
+                // returns' scatter
+                let ok = fit.residual(u, v).is_some_and(|(e, sd, se)| {
+                    e <= ((3.0 * sd).max(FLOOR_M) + 3.0 * se).min(CAP_M)
+                });
+                let miss = if side == 1 { &mut miss_r } else { &mut miss_l };
+                if ok {
+                    fit.add(u, v);
+                    st += i128::from(self.times[i]) - i128::from(t0);
+                    *miss = 0;
+                } else {
+                    *miss += 1;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        let need = self
+            .cfg
+            .min_valid_rays
+            .max((self.cfg.min_inlier_fraction * n as f64).ceil() as usize);
+        let (a, b) = fit.line()?;
+        if fit.k < need.max(3) {
+            return None;
+        }
+        let a = a + xc - b * yc;
+        let normal = -b.atan();
+        if !(a > 0.0 && normal.abs() <= self.cfg.max_incidence_rad) {
+            return None;
+        }
+        Some(Measurement {
+            distance_m: a / (1.0 + b * b).sqrt(),
+            t_ns: (i128::from(t0) + st / fit.k as i128) as Nanos,
+            rays_used: fit.k,
+            normal_rad: wrap_pi(centre + normal),
+        })
     }
 
     fn derivative(&mut self, m: Measurement) -> Option<Sample> {
@@ -481,13 +766,91 @@ impl SignatureProcessor {
             self.drop_reason(DropReason::Gap);
             return None;
         }
+        if (m.normal_rad - prev.normal_rad).is_finite()
+            && wrap_pi(m.normal_rad - prev.normal_rad).abs() > self.cfg.max_normal_change_rad
+        {
+            self.drop_reason(DropReason::SurfaceChange);
+            return None;
+        }
         let value = (m.distance_m - prev.distance_m) / (dt as f64 / NANOS_PER_SEC as f64);
+        if value.is_nan() || value.abs() > self.cfg.max_rate_mps {
+            self.drop_reason(DropReason::Implausible);
+            return None;
+        }
         let t_ns = match self.cfg.stamping {
             Stamping::Midpoint => midpoint(prev.t_ns, m.t_ns),
             Stamping::End => m.t_ns,
         };
         self.counters.samples += 1;
         Some(Sample::new(t_ns, value))
+    }
+}
+
+/// Incremental least squares of `x = a + b y`.
+#[derive(Debug, Clone, Copy, Default)]
+struct LineFit {
+    k: usize,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+    syy: f64,
+}
+
+impl LineFit {
+    fn add(&mut self, x: f64, y: f64) {
+        self.k += 1;
+        self.sx += x;
+        self.sy += y;
+        self.sxx += x * x;
+        self.sxy += x * y;
+        self.syy += y * y;
+    }
+
+    /// `(a, b)`, or `None` when the points do not spread in `y`.
+    fn line(&self) -> Option<(f64, f64)> {
+        let k = self.k as f64;
+        let d = k * self.syy - self.sy * self.sy;
+        if !(self.k >= 2 && d > 1e-12 * k * k) {
+            return None;
+        }
+        let b = (k * self.sxy - self.sx * self.sy) / d;
+        Some(((self.sx - b * self.sy) / k, b))
+    }
+
+    /// Perpendicular distance of `(x, y)` from the line, the fit's residual
+    /// standard deviation (perpendicular; 0 with fewer than 3 points) and the
+    /// standard error of the line itself at `y`.
+    fn residual(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
+        let (a, b) = self.line()?;
+        let norm = (1.0 + b * b).sqrt();
+        let sse = (self.sxx - a * self.sx - b * self.sxy).max(0.0);
+        let sd = if self.k > 2 {
+            (sse / (self.k - 2) as f64).sqrt() / norm
+        } else {
+            0.0
+        };
+        let k = self.k as f64;
+        let my = self.sy / k;
+        let syy = (self.syy - k * my * my).max(1e-12);
+        let se = sd * (1.0 / k + (y - my) * (y - my) / syy).sqrt();
+        Some(((x - a - b * y).abs() / norm, sd, se))
+    }
+}
+
+/// `wrap_pi(bearing - centre)`, without the remainder in the common case of
+/// both angles within a turn of each other (once per ray: it matters).
+#[inline]
+fn offset(bearing: f64, centre: f64) -> f64 {
+    let d = bearing - centre;
+    if d.abs() <= PI {
+        d
+    } else if d > PI && d <= 3.0 * PI {
+        d - TAU
+    } else if (-3.0 * PI..-PI).contains(&d) {
+        d + TAU
+    } else {
+        wrap_pi(d)
     }
 }
 
@@ -516,9 +879,21 @@ mod tests {
     use super::*;
     use crate::scan::{Rotation, ScanTiming};
     use proptest::prelude::*;
-    use std::f64::consts::PI;
+    use std::f64::consts::{FRAC_PI_4, PI, TAU};
 
     const PERIOD: Nanos = 100_000_000;
+
+    /// The window of the tests of pass and stamping logic below: ±5°, median
+    /// distance (their "walls" are circles of constant range around the sensor),
+    /// no rate limit (they move walls by up to 10 m/s).
+    fn legacy() -> SignatureConfig {
+        SignatureConfig {
+            window_half_width_rad: 5f64.to_radians(),
+            distance: Distance::Median,
+            max_rate_mps: f64::INFINITY,
+            ..SignatureConfig::default()
+        }
+    }
 
     fn scan_at(k: i64, wall: impl Fn(usize) -> f64, rotation: Rotation) -> Scan {
         let rays = (0..360)
@@ -549,7 +924,7 @@ mod tests {
             .collect();
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
-            ..Default::default()
+            ..legacy()
         };
         let (mid, p) = run(cfg, &scans);
         assert_eq!(mid.len(), 4);
@@ -575,7 +950,7 @@ mod tests {
         let scans: Vec<_> = (0..4)
             .map(|k| scan_at(k, |_| 2.0 + 0.2 * k as f64, Rotation::Ccw))
             .collect();
-        let (out, p) = run(SignatureConfig::default(), &scans);
+        let (out, p) = run(legacy(), &scans);
         // first pass (rays 0..5 of scan 0) started with the stream: partial
         assert_eq!(p.counters().dropped(DropReason::Partial), 1);
         // passes closing in scans 1, 2 and 3 each straddle a seam: 3 distances, 2 samples
@@ -594,7 +969,7 @@ mod tests {
     fn too_few_valid_and_invalid_returns_are_counted() {
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
-            ..Default::default()
+            ..legacy()
         };
         let bad = |i: usize| {
             if (86..=94).contains(&i) {
@@ -621,7 +996,7 @@ mod tests {
     fn median_rejects_outliers() {
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
-            ..Default::default()
+            ..legacy()
         };
         let spiky = |k: i64| {
             move |i: usize| {
@@ -644,7 +1019,7 @@ mod tests {
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
             max_gap_ns: 150_000_000,
-            ..Default::default()
+            ..legacy()
         };
         let scans = [
             scan_at(0, |_| 2.0, Rotation::Ccw),
@@ -663,7 +1038,7 @@ mod tests {
     fn cw_rotation_measures_later_in_scan() {
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
-            ..Default::default()
+            ..legacy()
         };
         let scans: Vec<_> = (0..2)
             .map(|k| scan_at(k, |_| 1.0 + k as f64, Rotation::Cw))
@@ -678,7 +1053,7 @@ mod tests {
     fn sector_only_scans_still_close_passes() {
         let cfg = SignatureConfig {
             window_centre_rad: PI / 2.0,
-            ..Default::default()
+            ..legacy()
         };
         let scans: Vec<_> = (0..5)
             .map(|k| {
@@ -702,6 +1077,259 @@ mod tests {
         assert_eq!(out.len(), 2);
         assert!((out[0].value - 1.0).abs() < 1e-9);
         assert_eq!(out[0].t_ns, PERIOD + PERIOD / 4 + PERIOD / 2);
+    }
+
+    /// A scan of a room corner seen from the origin: a flat wall with its
+    /// normal at bearing `normal` and distance `d` (returns within ±60° of the
+    /// normal), nothing elsewhere; 0.8° between returns, clockwise like an LD06,
+    /// range noise `sigma` from `seed`.
+    fn wall_scan(k: i64, d: f64, normal: f64, sigma: f64, seed: u64) -> Scan {
+        let n = 450;
+        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut gauss = || {
+            // sum of 4 uniforms: approximately normal
+            (0..4)
+                .map(|_| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    (x >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .sum::<f64>()
+                * 3f64.sqrt()
+                - 2.0 * 3f64.sqrt()
+        };
+        let rays = (0..n)
+            .map(|i| {
+                let b = -(i as f64) * TAU / n as f64;
+                let off = wrap_pi(b - normal);
+                let r = if off.abs() < 1.05 {
+                    d / off.cos() + sigma * gauss()
+                } else {
+                    0.0
+                };
+                Ray::new(b, r, 50.0, r > 0.0)
+            })
+            .collect();
+        let timing = ScanTiming {
+            start_ns: k * PERIOD,
+            period_ns: PERIOD,
+            rotation: Rotation::Cw,
+            start_bearing_rad: 0.0,
+        };
+        Scan::from_uniform(timing, rays)
+    }
+
+    /// The distance of the pass that straddles scans 0 and 1 of `make(k)`
+    /// (the window at bearing 0 spans the scan start).
+    fn measure(cfg: SignatureConfig, make: impl Fn(i64) -> Scan) -> Option<Measurement> {
+        let mut p = SignatureProcessor::new(cfg).unwrap();
+        p.push_scan(&make(0), |_| {});
+        p.push_scan(&make(1), |_| {});
+        p.last_measurement()
+    }
+
+    #[test]
+    fn wall_distance_is_perpendicular_and_turning_leaves_it() {
+        // the same wall, 1.5 m away, seen head-on and with the robot turned by up
+        // to 40°: the range straight ahead goes from 1.5 to 1.96 m, the wall's
+        // distance stays
+        for turn_deg in [0.0f64, 10.0, 25.0, 40.0] {
+            let scan = |k| wall_scan(k, 1.5, -turn_deg.to_radians(), 0.0, 1);
+            let m = measure(SignatureConfig::default(), scan).unwrap();
+            assert!((m.distance_m - 1.5).abs() < 1e-9, "{turn_deg}: {m:?}");
+            assert!(
+                (m.normal_rad + turn_deg.to_radians()).abs() < 1e-9,
+                "{turn_deg}: {m:?}"
+            );
+            // ±20° of returns on the wall
+            assert!((49..=52).contains(&m.rays_used), "{m:?}");
+            let median = measure(
+                SignatureConfig {
+                    distance: Distance::Median,
+                    ..SignatureConfig::default()
+                },
+                scan,
+            )
+            .unwrap();
+            if turn_deg > 0.0 {
+                assert!(median.distance_m > m.distance_m + 0.01, "{median:?}");
+            }
+        }
+        // beyond the incidence limit: no wall
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        p.push_scan(&wall_scan(0, 1.5, 70f64.to_radians(), 0.0, 1), |_| {});
+        p.push_scan(&wall_scan(1, 1.5, 70f64.to_radians(), 0.0, 1), |_| {});
+        assert_eq!(p.counters().dropped(DropReason::NoWall), 1);
+        assert!(p.last_measurement().is_none());
+    }
+
+    #[test]
+    fn wall_fit_averages_the_noise_the_median_keeps() {
+        // LD06-like noise (8 mm): the spread of the distance over many scans
+        let spread = |distance| {
+            let cfg = SignatureConfig {
+                distance,
+                ..SignatureConfig::default()
+            };
+            let d: Vec<f64> = (0..200)
+                .map(|s| {
+                    measure(cfg, |k| wall_scan(k, 2.0, 0.0, 0.008, s + 1000 * k as u64))
+                        .unwrap()
+                        .distance_m
+                })
+                .collect();
+            let m = d.iter().sum::<f64>() / d.len() as f64;
+            let sd = (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
+            (m, sd)
+        };
+        let (mw, sw) = spread(Distance::Wall);
+        let (mm, sm) = spread(Distance::Median);
+        // the line through ~50 returns: 8 mm / sqrt(50) = 1.1 mm
+        assert!((mw - 2.0).abs() < 5e-4 && sw < 0.0016, "wall {mw} {sw}");
+        // the median of the same returns reads the 1/cos growth and its own noise
+        assert!(mm > 2.02 && sm > 1.5 * sw, "median {mm} {sm}");
+    }
+
+    #[test]
+    fn wall_fit_ignores_stray_returns_and_stops_at_a_corner() {
+        // a 1.5 m wall ahead, and a box edge at 0.6 m covering the left 6° of the
+        // window: the fit keeps the wall
+        let boxed = |k| {
+            let scan = wall_scan(k, 1.5, 0.0, 0.004, 3 + k as u64);
+            let rays: Vec<Ray> = scan
+                .rays()
+                .iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let mut r = *r;
+                    let b = r.bearing_rad.to_degrees();
+                    if (14.0..20.0).contains(&b) || i % 17 == 5 {
+                        // the box, and one stray return in 17
+                        r.range_m = 0.6;
+                    }
+                    r
+                })
+                .collect();
+            Scan::from_timed(*scan.timing(), rays)
+        };
+        let m = measure(SignatureConfig::default(), boxed).unwrap();
+        assert!((m.distance_m - 1.5).abs() < 0.003, "{m:?}");
+        // a corner: a wall with its normal at -45° (right) meets one with its
+        // normal at +45° at bearing `split`: the fit follows the wall at the
+        // window centre, and gives no distance when that holds too few returns
+        let corner = |split_deg: f64, min_inlier_fraction: f64| {
+            let cfg = SignatureConfig {
+                min_inlier_fraction,
+                ..SignatureConfig::default()
+            };
+            measure(cfg, |k| {
+                let rays: Vec<Ray> = (0..450)
+                    .map(|i| {
+                        let b = -(i as f64) * TAU / 450.0;
+                        let n = if wrap_pi(b).to_degrees() < split_deg {
+                            -FRAC_PI_4
+                        } else {
+                            FRAC_PI_4
+                        };
+                        Ray::new(b, 2.0 / wrap_pi(b - n).cos(), 50.0, true)
+                    })
+                    .collect();
+                let timing = ScanTiming {
+                    start_ns: k * PERIOD,
+                    period_ns: PERIOD,
+                    rotation: Rotation::Cw,
+                    start_bearing_rad: 0.0,
+                };
+                Scan::from_uniform(timing, rays)
+            })
+        };
+        for split in [8.0, 3.0, -3.0, -8.0] {
+            let m = corner(split, 0.5).unwrap();
+            let normal = if split > 0.0 { -FRAC_PI_4 } else { FRAC_PI_4 };
+            assert!(
+                (m.normal_rad - normal).abs() < 1e-6 && (m.distance_m - 2.0).abs() < 1e-6,
+                "{split}: {m:?}"
+            );
+        }
+        // 3° off centre, the centre's wall holds 29 of the 51 returns: under 70 %
+        assert!(corner(3.0, 0.7).is_none());
+    }
+
+    #[test]
+    fn turning_across_a_corner_is_no_derivative() {
+        // a window on the right (bearing -90°, inside each scan); scans 0-1 and
+        // 3 see one wall, scan 2 a wall turned by 40°: no sample across
+        let cfg = SignatureConfig {
+            window_centre_rad: -FRAC_PI_2,
+            ..SignatureConfig::default()
+        };
+        let right = -FRAC_PI_2;
+        let scans = [
+            wall_scan(0, 2.0, right, 0.0, 1),
+            wall_scan(1, 2.0, right, 0.0, 1),
+            wall_scan(2, 2.0, right + 40f64.to_radians(), 0.0, 1),
+            wall_scan(3, 2.0, right, 0.0, 1),
+        ];
+        let (out, p) = run(cfg, &scans);
+        assert_eq!(
+            p.counters().dropped(DropReason::SurfaceChange),
+            2,
+            "{:?}",
+            p.counters()
+        );
+        assert_eq!(out.len(), 1);
+        assert!(out[0].value.abs() < 1e-9, "{out:?}");
+        // a jump to a nearer surface ahead is implausibly fast
+        let scans = [
+            wall_scan(0, 2.0, right, 0.0, 1),
+            wall_scan(1, 2.0, right, 0.0, 1),
+            wall_scan(2, 1.6, right, 0.0, 1),
+            wall_scan(3, 1.58, right, 0.0, 1),
+        ];
+        let (out, p) = run(cfg, &scans);
+        assert_eq!(p.counters().dropped(DropReason::Implausible), 1);
+        assert_eq!(out.len(), 2);
+        assert!((out[1].value + 0.2).abs() < 1e-6, "{out:?}");
+    }
+
+    #[test]
+    fn wall_time_is_the_mean_time_of_its_returns() {
+        // a wall moving at 1 m/s: each distance is the wall's at the mean time of
+        // the returns used, so the derivative is exact whatever the window
+        for hw in [5.0f64, 20.0, 40.0] {
+            let cfg = SignatureConfig {
+                window_centre_rad: 0.3,
+                window_half_width_rad: hw.to_radians(),
+                ..SignatureConfig::default()
+            };
+            let mut p = SignatureProcessor::new(cfg).unwrap();
+            let mut out = Vec::new();
+            for k in 0..4i64 {
+                // per-ray times: the wall is where it is when each ray is measured
+                let rays: Vec<Ray> = (0..450)
+                    .map(|i| {
+                        let t = k * PERIOD + i * PERIOD / 450;
+                        let d = 2.0 - 1.0 * t as f64 * 1e-9;
+                        let b = wrap_pi(-(i as f64) * TAU / 450.0);
+                        let off = wrap_pi(b - 0.3);
+                        let r = if off.abs() < 1.2 { d / off.cos() } else { 0.0 };
+                        Ray::timed(b, r, 50.0, r > 0.0, t)
+                    })
+                    .collect();
+                let timing = ScanTiming {
+                    start_ns: k * PERIOD,
+                    period_ns: PERIOD,
+                    rotation: Rotation::Cw,
+                    start_bearing_rad: 0.0,
+                };
+                p.push_scan(&Scan::from_timed(timing, rays), |s| out.push(s));
+            }
+            assert!(out.len() >= 2, "{hw}: {:?}", p.counters());
+            for s in &out {
+                assert!((s.value + 1.0).abs() < 1e-3, "{hw}: {s:?}");
+            }
+        }
     }
 
     #[test]
@@ -741,6 +1369,26 @@ mod tests {
             },
         ] {
             assert!(SignatureProcessor::new(bad).is_err());
+        }
+    }
+
+    #[test]
+    fn offset_is_wrap_pi_of_the_difference() {
+        for (b, c) in [
+            (0.1, -0.2),
+            (3.0, -3.0),
+            (-3.0, 3.0),
+            (PI, -PI),
+            (10.0, 0.5),
+            (-20.0, 7.0),
+            (f64::NAN, 0.0),
+        ] {
+            let (o, w) = (offset(b, c), wrap_pi(b - c));
+            assert!(
+                o == w || (o - w).abs() < 1e-12 || (o.is_nan() && w.is_nan()),
+                "{b} {c}: {o} {w}"
+            );
+            assert!(o.is_nan() || (-PI..=PI).contains(&o));
         }
     }
 

@@ -8,7 +8,7 @@ use vlsync_signature_lidar::ld06::{Ld06Clock, Ld06Config, Ld06Encoder, Ld06Parse
 use vlsync_signature_lidar::rplidar::{RplidarConfig, RplidarNode, RplidarParser, SCAN_DESCRIPTOR};
 use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor, Stamping};
 
-/// Wall distance (m) at time t (s): 2 m +- 0.3 m at 0.5 Hz.
+/// Wall distance (m, perpendicular) at time t (s): 2 m +- 0.3 m at 0.5 Hz.
 fn wall(t: f64) -> f64 {
     2.0 + 0.3 * (PI * t).sin()
 }
@@ -87,9 +87,10 @@ fn ld06_stream(seconds: f64) -> Vec<u8> {
         v.extend_from_slice(&enc.next_packet(|a| {
             let t = t0 + i as f64 / POINT_RATE_HZ as f64;
             i += 1;
-            // wall on the left: clockwise device angle 270 deg (bearing +90 deg)
+            // a flat wall on the left, its normal at clockwise device angle 270 deg
+            // (bearing +90 deg): the range at angle a is wall / cos(a - 270)
             if (a - 270.0).abs() < 20.0 {
-                (wall(t) * 1000.0).round() as u16
+                (wall(t) * 1000.0 / (a - 270.0).to_radians().cos()).round() as u16
             } else {
                 5000
             }
@@ -200,8 +201,9 @@ fn rplidar_stream(revs: usize, chunk_nodes: usize) -> (Vec<(Vec<u8>, i64)>, Rpli
         for i in 0..n {
             let t_ns = k as f64 * period_ns as f64 + i as f64 * node_dt;
             let angle = i as f64;
+            // a flat wall, normal at device angle 270 deg (bearing +90 deg)
             let d_mm = if (angle - 270.0).abs() < 20.0 {
-                wall(t_ns * 1e-9) * 1000.0
+                wall(t_ns * 1e-9) * 1000.0 / (angle - 270.0).to_radians().cos()
             } else {
                 4000.0
             };
@@ -256,8 +258,8 @@ fn rplidar_stream_with_host_times_recovers_wall_rate() {
         sig.counters(),
         parser.stats()
     );
-    // a flipped distance byte is not detectable (no checksum) and the median
-    // absorbs it; a flipped flag byte loses a node or a revolution start
+    // a flipped distance byte is not detectable (no checksum) and the wall fit
+    // leaves it out; a flipped flag byte loses a node or a revolution start
     let (rms, max) = errors(&out, 0);
     eprintln!(
         "rplidar: {} samples, rms {rms:.4} max {max:.4}, {:?}",
