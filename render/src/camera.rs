@@ -234,9 +234,19 @@ impl CameraModel {
                 ));
             }
             let (s, c) = (s as f32, c as f32);
+            // a ray reaching the floor nearer than every wall and box hits the
+            // floor: no cast needed (the same pixel value, cheaper)
+            let clear = room.clearance(cxw, cyw) as f32;
             for (a, r) in acc.iter_mut().zip(&self.rays) {
                 let wx = c * r.ux - s * r.uy;
                 let wy = s * r.ux + c * r.uy;
+                if r.floor < clear {
+                    let d = f64::from(r.floor);
+                    *a += scene
+                        .floor
+                        .sample(cxw + f64::from(wx) * d, cyw + f64::from(wy) * d);
+                    continue;
+                }
                 let hit = room.cast(cxw, cyw, f64::from(wx), f64::from(wy));
                 let wall = hit.distance as f32;
                 let ceil = if r.slope > 0.0 {

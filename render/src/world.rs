@@ -103,6 +103,17 @@ impl Room {
             && !self.boxes.iter().any(|b| b.contains(x, y))
     }
 
+    /// Horizontal distance from `(x, y)` (inside the room) to the nearest wall
+    /// or box: no ray cast from there hits anything closer.
+    pub fn clearance(&self, x: f64, y: f64) -> f64 {
+        let walls = x.min(self.length - x).min(y).min(self.width - y);
+        self.boxes.iter().fold(walls, |m, b| {
+            let dx = (b.x0 - x).max(x - b.x1).max(0.0);
+            let dy = (b.y0 - y).max(y - b.y1).max(0.0);
+            m.min(dx.hypot(dy))
+        })
+    }
+
     /// Casts a horizontal ray from `(x, y)` (inside the room) along the unit
     /// direction `(dx, dy)`. Returns the nearest wall or box face.
     pub fn cast(&self, x: f64, y: f64, dx: f64, dy: f64) -> Hit {
@@ -228,6 +239,7 @@ mod tests {
             let on_wall = hx.abs() < 1e-9 || (hx - 8.0).abs() < 1e-9 || hy.abs() < 1e-9 || (hy - 5.0).abs() < 1e-9;
             let on_box = hx > 3.0 - 1e-9 && hx < 4.0 + 1e-9 && hy > -1e-9 && hy < 1.0 + 1e-9;
             prop_assert!(on_wall || on_box, "{hx} {hy}");
+            prop_assert!(r.clearance(x, y) <= h.distance + 1e-9);
             for k in 1..50 {
                 let s = h.distance * (k as f64) / 50.0 - 1e-9;
                 prop_assert!(r.is_free(x + dx * s, y + dy * s) || s <= 0.0);
