@@ -12,6 +12,14 @@
 //! drives back. Plans use the nominal (ripple-free) speed; the poses integrate
 //! the rippled speed on a 2 ms grid and are interpolated linearly.
 //!
+//! The profile itself (raised-cosine segments, ramp lengths from a peak
+//! acceleration, the 0.2-1.5 Hz ripple, sin² yaw bumps) is the signature
+//! simulator's [`vlsync_sim::families::DriveProfile`]; only the planning differs
+//! and must: `vlsync-sim`'s robot has no room (it slows down to turn while
+//! rolling, anywhere), this one has walls to stop before and turns around on the
+//! spot, which is what puts corners into the LiDAR's view and rotation into the
+//! camera's.
+//!
 //! ```
 //! use vlsync_render::motion::{MotionConfig, Trajectory};
 //! use vlsync_render::world::Room;
@@ -27,6 +35,7 @@ use crate::RenderError;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
+use vlsync_sim::families::DriveProfile;
 
 /// Integration step of the pose grid, seconds.
 pub const POSE_DT_S: f64 = 0.002;
@@ -108,74 +117,10 @@ pub struct Pose {
     pub yaw: f64,
 }
 
-#[derive(Debug, Clone, Copy)]
-struct Ramp {
-    t0: f64,
-    t1: f64,
-    v0: f64,
-    v1: f64,
-}
-
-#[derive(Debug, Clone, Copy)]
-struct Turn {
-    t0: f64,
-    t1: f64,
-    peak: f64,
-}
-
-/// Nominal speed plan, yaw-rate bumps and ripple.
-#[derive(Debug, Clone)]
-struct Plan {
-    ramps: Vec<Ramp>,
-    turns: Vec<Turn>,
-    ripple: Vec<(f64, f64, f64)>,
-}
-
-impl Plan {
-    fn base_speed(&self, t: f64) -> f64 {
-        let i = self.ramps.partition_point(|s| s.t0 <= t);
-        if i == 0 {
-            return 0.0;
-        }
-        let s = self.ramps[i - 1];
-        if t >= s.t1 {
-            return s.v1;
-        }
-        let x = (t - s.t0) / (s.t1 - s.t0);
-        s.v0 + (s.v1 - s.v0) * 0.5 * (1.0 - (PI * x).cos())
-    }
-
-    fn speed(&self, t: f64) -> f64 {
-        let b = self.base_speed(t);
-        if b == 0.0 {
-            return 0.0;
-        }
-        let w: f64 = self
-            .ripple
-            .iter()
-            .map(|&(a, f, p)| a * (2.0 * PI * f * t + p).sin())
-            .sum();
-        b * (1.0 + w)
-    }
-
-    fn yaw_rate(&self, t: f64) -> f64 {
-        let i = self.turns.partition_point(|s| s.t0 <= t);
-        if i == 0 {
-            return 0.0;
-        }
-        let s = self.turns[i - 1];
-        if t >= s.t1 {
-            return 0.0;
-        }
-        let x = (t - s.t0) / (s.t1 - s.t0);
-        s.peak * (PI * x).sin().powi(2)
-    }
-}
-
 /// The planned drive and its integrated poses.
 #[derive(Debug, Clone)]
 pub struct Trajectory {
-    plan: Plan,
+    plan: DriveProfile,
     xs: Vec<f64>,
     ys: Vec<f64>,
     yaws: Vec<f64>,
@@ -229,8 +174,7 @@ impl Trajectory {
                 lo
             }
         };
-        let mut ramps = Vec::new();
-        let mut turns = Vec::new();
+        let mut plan = DriveProfile::default();
         let mut turn_intervals = Vec::new();
         let mut stop_intervals = Vec::new();
         let end = duration_s + 1.0;
@@ -240,13 +184,8 @@ impl Trajectory {
         let x0 = draw(&mut rng, (cfg.wall_margin.0, margin_max));
         let mut heading = 0.0f64; // 0: +x, PI: -x
         let mut pos = x0; // position along x (nominal)
-        let push = |ramps: &mut Vec<Ramp>, t: &mut f64, v: &mut f64, v1: f64, len: f64| {
-            ramps.push(Ramp {
-                t0: *t,
-                t1: *t + len,
-                v0: *v,
-                v1,
-            });
+        let push = |plan: &mut DriveProfile, t: &mut f64, v: &mut f64, v1: f64, len: f64| {
+            plan.push_segment(*t, len, *v, v1);
             *t += len;
             let d = ramp_distance(*v, v1, len);
             *v = v1;
@@ -254,7 +193,7 @@ impl Trajectory {
         };
         let ramp_len = |rng: &mut ChaCha8Rng, v0: f64, v1: f64| {
             let a = draw(rng, cfg.accel);
-            (PI * (v1 - v0).abs() / (2.0 * a)).max(0.4)
+            vlsync_sim::families::ramp_len(a, v0, v1)
         };
         while t < end {
             // one leg toward the front wall
@@ -309,14 +248,14 @@ impl Trajectory {
                     if v > 0.0 {
                         let h = ((remaining(pos) - db) / v).max(0.0);
                         let cur = v;
-                        pos += heading.cos() * push(&mut ramps, &mut t, &mut v, cur, h);
-                        pos += heading.cos() * push(&mut ramps, &mut t, &mut v, 0.0, lb);
+                        pos += heading.cos() * push(&mut plan, &mut t, &mut v, cur, h);
+                        pos += heading.cos() * push(&mut plan, &mut t, &mut v, 0.0, lb);
                     }
                     break;
                 }
-                let d = push(&mut ramps, &mut t, &mut v, v1, l);
+                let d = push(&mut plan, &mut t, &mut v, v1, l);
                 let s0 = t;
-                let d2 = push(&mut ramps, &mut t, &mut v, v1, hold);
+                let d2 = push(&mut plan, &mut t, &mut v, v1, hold);
                 if is_stop {
                     stop_intervals.push((s0, t));
                 }
@@ -327,37 +266,18 @@ impl Trajectory {
             }
             // rest, turn on the spot, rest
             let r0 = t;
-            push(&mut ramps, &mut t, &mut v, 0.0, draw(&mut rng, (0.5, 1.5)));
+            push(&mut plan, &mut t, &mut v, 0.0, draw(&mut rng, (0.5, 1.5)));
             let peak = draw(&mut rng, cfg.turn_rate);
             let dir = if rng.gen::<bool>() { 1.0 } else { -1.0 };
             let len = 2.0 * PI / peak; // ∫ peak sin² = peak len / 2 = π
-            turns.push(Turn {
-                t0: t,
-                t1: t + len,
-                peak: dir * peak,
-            });
+            plan.push_turn(t, len, dir * peak);
             turn_intervals.push((t, t + len));
-            push(&mut ramps, &mut t, &mut v, 0.0, len);
-            push(&mut ramps, &mut t, &mut v, 0.0, draw(&mut rng, (0.3, 1.0)));
+            push(&mut plan, &mut t, &mut v, 0.0, len);
+            push(&mut plan, &mut t, &mut v, 0.0, draw(&mut rng, (0.3, 1.0)));
             stop_intervals.push((r0, t));
             heading = if heading == 0.0 { PI } else { 0.0 };
         }
-        let n_rip = 5;
-        let ripple = (0..n_rip)
-            .map(|_| {
-                let f = 0.2 * (1.5f64 / 0.2).powf(rng.gen::<f64>());
-                (
-                    cfg.ripple_rms * (2.0 / n_rip as f64).sqrt() * rng.gen_range(0.6..1.4),
-                    f,
-                    rng.gen_range(0.0..2.0 * PI),
-                )
-            })
-            .collect();
-        let plan = Plan {
-            ramps,
-            turns,
-            ripple,
-        };
+        plan.draw_ripple(&mut rng, cfg.ripple_rms);
         // integrate (midpoint rule) on the pose grid
         let n = (end / POSE_DT_S).ceil() as usize + 2;
         let (mut xs, mut ys, mut yaws) = (

@@ -405,7 +405,34 @@ fn seed_kernel() -> [f64; 7] {
     k.map(|w| w / s)
 }
 
-#[derive(Debug, Clone, Copy)]
+/// A drive's speed and yaw-rate profile: raised-cosine speed segments, a
+/// multiplicative floor/controller ripple while moving, and yaw-rate bumps.
+///
+/// The signature simulator's robot families plan one (position-unaware: speed
+/// changes, stops and turns while rolling) and so does the rendering simulator
+/// (`vlsync-render`: legs toward the front wall of a room, braking before it,
+/// 180° turns on the spot); both evaluate it here.
+///
+/// ```
+/// use vlsync_sim::families::{ramp_len, DriveProfile};
+/// let mut d = DriveProfile::default();
+/// let l = ramp_len(0.4, 0.0, 0.5); // 0 -> 0.5 m/s at a peak of 0.4 m/s²
+/// d.push_segment(1.0, l, 0.0, 0.5);
+/// d.push_segment(1.0 + l, 2.0, 0.5, 0.5);
+/// d.push_turn(4.0, 2.0, 1.0);
+/// assert_eq!(d.base_speed(0.5), 0.0);
+/// assert!((d.base_speed(1.0 + l / 2.0) - 0.25).abs() < 1e-12);
+/// assert_eq!(d.speed(2.0 + l), 0.5); // no ripple drawn
+/// assert!((d.yaw_rate(5.0) - 1.0).abs() < 1e-12); // peak of the sin² bump
+/// ```
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DriveProfile {
+    segs: Vec<Seg>,
+    ripple: Vec<(f64, f64, f64)>,
+    turns: Vec<Turn>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct Seg {
     t0: f64,
     t1: f64,
@@ -413,25 +440,60 @@ struct Seg {
     v1: f64,
 }
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct Turn {
     t0: f64,
     t1: f64,
     peak: f64,
 }
 
-/// A robot drive: piecewise raised-cosine speed, multiplicative ripple, yaw bumps.
-#[derive(Debug, Clone)]
-struct RobotProfile {
-    segs: Vec<Seg>,
-    ripple: Vec<(f64, f64, f64)>,
-    turns: Vec<Turn>,
-    motion_start: f64,
-    rests: Vec<(f64, f64)>,
+/// Length of a raised-cosine speed ramp from `v0` to `v1` whose peak
+/// acceleration is `accel` (m/s²), at least 0.4 s.
+pub fn ramp_len(accel: f64, v0: f64, v1: f64) -> f64 {
+    (PI * (v1 - v0).abs() / (2.0 * accel)).max(0.4)
 }
 
-impl RobotProfile {
-    fn base(&self, t: f64) -> f64 {
+impl DriveProfile {
+    /// Appends a speed segment from `t0` lasting `len` seconds, a raised-cosine
+    /// ramp from `v0` to `v1` (a hold when they are equal). Segments must come in
+    /// time order; before the first one the speed is 0, after the last one it
+    /// stays at that segment's `v1`.
+    pub fn push_segment(&mut self, t0: f64, len: f64, v0: f64, v1: f64) {
+        self.segs.push(Seg {
+            t0,
+            t1: t0 + len,
+            v0,
+            v1,
+        });
+    }
+
+    /// Appends a yaw-rate bump `peak · sin²(π (t - t0) / len)` (rad/s; it turns
+    /// by `peak · len / 2` radians). Bumps must come in time order.
+    pub fn push_turn(&mut self, t0: f64, len: f64, peak: f64) {
+        self.turns.push(Turn {
+            t0,
+            t1: t0 + len,
+            peak,
+        });
+    }
+
+    /// Draws the multiplicative ripple: 5 sinusoids of 0.2-1.5 Hz (log-uniform),
+    /// random phases, `rms` in total (e.g. 0.04 for 4 %), from `rng`.
+    pub fn draw_ripple<R: Rng + ?Sized>(&mut self, rng: &mut R, rms: f64) {
+        self.ripple = (0..5)
+            .map(|_| {
+                let f = 0.2 * (1.5f64 / 0.2).powf(rng.gen::<f64>());
+                (
+                    rms * (2.0f64 / 5.0).sqrt() * rng.gen_range(0.6..1.4),
+                    f,
+                    rng.gen_range(0.0..2.0 * PI),
+                )
+            })
+            .collect();
+    }
+
+    /// The planned speed at `t` (no ripple), m/s.
+    pub fn base_speed(&self, t: f64) -> f64 {
         let i = self.segs.partition_point(|s| s.t0 <= t);
         if i == 0 {
             return 0.0;
@@ -444,8 +506,9 @@ impl RobotProfile {
         s.v0 + (s.v1 - s.v0) * 0.5 * (1.0 - (PI * x).cos())
     }
 
-    fn speed(&self, t: f64) -> f64 {
-        let b = self.base(t);
+    /// The speed at `t` with the ripple (0 whenever the planned speed is 0), m/s.
+    pub fn speed(&self, t: f64) -> f64 {
+        let b = self.base_speed(t);
         if b == 0.0 {
             return 0.0;
         }
@@ -457,7 +520,8 @@ impl RobotProfile {
         b * (1.0 + w)
     }
 
-    fn yaw_rate(&self, t: f64) -> f64 {
+    /// The yaw rate at `t`, rad/s.
+    pub fn yaw_rate(&self, t: f64) -> f64 {
         let i = self.turns.partition_point(|s| s.t0 <= t);
         if i == 0 {
             return 0.0;
@@ -471,10 +535,28 @@ impl RobotProfile {
     }
 }
 
+/// A robot drive of the signature simulator: the profile, when motion starts,
+/// and the rests.
+#[derive(Debug, Clone)]
+struct RobotProfile {
+    drive: DriveProfile,
+    motion_start: f64,
+    rests: Vec<(f64, f64)>,
+}
+
+impl RobotProfile {
+    fn speed(&self, t: f64) -> f64 {
+        self.drive.speed(t)
+    }
+
+    fn yaw_rate(&self, t: f64) -> f64 {
+        self.drive.yaw_rate(t)
+    }
+}
+
 /// Plans a drive over `[0, end]`; `forced` = (start, length) of a standstill to insert.
 fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> RobotProfile {
-    let mut segs: Vec<Seg> = Vec::new();
-    let mut turns = Vec::new();
+    let mut drive = DriveProfile::default();
     let mut rests = Vec::new();
     let mut t = 0.0;
     let mut v = 0.0;
@@ -484,15 +566,10 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
     let motion_start = t;
     let ramp_len = |rng: &mut ChaCha8Rng, v0: f64, v1: f64| {
         let a = rng.gen_range(0.3..0.45);
-        (PI * (v1 - v0).abs() / (2.0 * a)).max(0.4)
+        crate::families::ramp_len(a, v0, v1)
     };
-    fn push(segs: &mut Vec<Seg>, t: &mut f64, v: &mut f64, v1: f64, len: f64) {
-        segs.push(Seg {
-            t0: *t,
-            t1: *t + len,
-            v0: *v,
-            v1,
-        });
+    fn push(segs: &mut DriveProfile, t: &mut f64, v: &mut f64, v1: f64, len: f64) {
+        segs.push_segment(*t, len, *v, v1);
         *t += len;
         *v = v1;
     }
@@ -504,22 +581,22 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
                 if v == 0.0 && fs - t >= 1.6 {
                     // at rest already: drive off slowly, then stop exactly at `fs`
                     let l = PI * 0.2 / (2.0 * 0.4);
-                    push(&mut segs, &mut t, &mut v, 0.2, l);
+                    push(&mut drive, &mut t, &mut v, 0.2, l);
                     let hold = fs - l - t;
-                    push(&mut segs, &mut t, &mut v, 0.2, hold);
-                    push(&mut segs, &mut t, &mut v, 0.0, l);
+                    push(&mut drive, &mut t, &mut v, 0.2, hold);
+                    push(&mut drive, &mut t, &mut v, 0.0, l);
                 } else if v > 0.0 && fs - decel > t {
                     let hold = fs - decel - t;
                     {
                         let cur = v;
-                        push(&mut segs, &mut t, &mut v, cur, hold);
+                        push(&mut drive, &mut t, &mut v, cur, hold);
                     }
                 }
                 if v > 0.0 {
-                    push(&mut segs, &mut t, &mut v, 0.0, decel);
+                    push(&mut drive, &mut t, &mut v, 0.0, decel);
                 }
                 rests.push((t, t + flen));
-                push(&mut segs, &mut t, &mut v, 0.0, flen);
+                push(&mut drive, &mut t, &mut v, 0.0, flen);
                 forced = None;
                 continue;
             }
@@ -527,11 +604,11 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
         if v == 0.0 {
             let v1 = rng.gen_range(0.2..0.6);
             let l = ramp_len(rng, 0.0, v1);
-            push(&mut segs, &mut t, &mut v, v1, l);
+            push(&mut drive, &mut t, &mut v, v1, l);
             let hold = rng.gen_range(1.0..3.0);
             {
                 let cur = v;
-                push(&mut segs, &mut t, &mut v, cur, hold);
+                push(&mut drive, &mut t, &mut v, cur, hold);
             }
             continue;
         }
@@ -539,45 +616,32 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
         if u < 0.45 {
             let v1 = rng.gen_range(0.2..0.6);
             let l = ramp_len(rng, v, v1);
-            push(&mut segs, &mut t, &mut v, v1, l);
+            push(&mut drive, &mut t, &mut v, v1, l);
             let hold = rng.gen_range(1.5..5.0);
             {
                 let cur = v;
-                push(&mut segs, &mut t, &mut v, cur, hold);
+                push(&mut drive, &mut t, &mut v, cur, hold);
             }
         } else if u < 0.7 {
             let l = ramp_len(rng, v, 0.0);
-            push(&mut segs, &mut t, &mut v, 0.0, l);
+            push(&mut drive, &mut t, &mut v, 0.0, l);
             let rest = rng.gen_range(1.0..4.0);
             rests.push((t, t + rest));
-            push(&mut segs, &mut t, &mut v, 0.0, rest);
+            push(&mut drive, &mut t, &mut v, 0.0, rest);
         } else {
             let vt = rng.gen_range(0.05..0.15);
             let l = ramp_len(rng, v, vt);
-            push(&mut segs, &mut t, &mut v, vt, l);
+            push(&mut drive, &mut t, &mut v, vt, l);
             let dur = rng.gen_range(1.0..3.0);
-            turns.push(Turn {
-                t0: t,
-                t1: t + dur,
-                peak: rng.gen_range(0.4..1.0),
-            });
-            push(&mut segs, &mut t, &mut v, vt, dur);
+            drive.push_turn(t, dur, rng.gen_range(0.4..1.0));
+            push(&mut drive, &mut t, &mut v, vt, dur);
             let v1 = rng.gen_range(0.2..0.6);
             let l = ramp_len(rng, vt, v1);
-            push(&mut segs, &mut t, &mut v, v1, l);
+            push(&mut drive, &mut t, &mut v, v1, l);
         }
     }
     // ripple: 5 sinusoids, 0.2-1.5 Hz, about 4 % RMS in total
-    let ripple = (0..5)
-        .map(|_| {
-            let f = 0.2 * (1.5f64 / 0.2).powf(rng.gen::<f64>());
-            (
-                0.04 * (2.0f64 / 5.0).sqrt() * rng.gen_range(0.6..1.4),
-                f,
-                rng.gen_range(0.0..2.0 * PI),
-            )
-        })
-        .collect();
+    drive.draw_ripple(rng, 0.04);
     // merge adjacent rests (e.g. initial rest + first zero segment never happens, but stops can chain)
     let mut merged: Vec<(f64, f64)> = Vec::new();
     for r in rests {
@@ -587,9 +651,7 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
         }
     }
     RobotProfile {
-        segs,
-        ripple,
-        turns,
+        drive,
         motion_start,
         rests: merged,
     }
