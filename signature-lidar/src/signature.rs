@@ -133,6 +133,9 @@ pub enum Distance {
     ///    standard error where it is extrapolated; refitted after every return);
     ///    a side stops after 3 consecutive misses (a corner, an edge, another
     ///    surface).
+    /// 3. Settling: the returns of the grown span within `max(3 σ, 2 cm)` of the
+    ///    grown line are refitted, twice, so the result does not depend on the
+    ///    order in which the returns joined.
     ///
     /// The distance is `a / √(1 + b²)`, its time the mean time of the returns
     /// on the line (the fitted distance is the mean of their own distances, so
@@ -472,10 +475,12 @@ impl SignatureProcessor {
     }
 
     /// True when `bearing_rad` lies inside the window (edges included, with a
-    /// 1 nrad tolerance so that rays exactly on an edge are not lost to rounding).
+    /// 1 µrad tolerance: a window a whole number of angular steps wide has rays
+    /// exactly on its edges, and rounding, e.g. a recording's float32 angles,
+    /// must not move them in or out).
     pub fn in_window(&self, bearing_rad: f64) -> bool {
         offset(bearing_rad, self.cfg.window_centre_rad).abs()
-            <= self.cfg.window_half_width_rad + 1e-9
+            <= self.cfg.window_half_width_rad + 1e-6
     }
 
     /// Sets the rotation period used to bound the length of a pass (0 = unknown,
@@ -639,8 +644,11 @@ impl SignatureProcessor {
         let mut best = f64::INFINITY;
         for (i, (&r, &b)) in self.ranges.iter().zip(&self.bearings).enumerate() {
             let th = offset(b, centre);
-            if th.abs() < best {
-                best = th.abs();
+            // the return nearest the centre; two about equally near (the centre
+            // ray lost, its neighbours at ±one step) go to the later one, so a
+            // rounding of the bearings cannot pick a different seed
+            if th.abs() < best - 1e-6 || th.abs() <= best + 1e-6 {
+                best = best.min(th.abs());
                 c = i;
             }
             let (s, co) = th.sin_cos();
@@ -684,11 +692,12 @@ impl SignatureProcessor {
         // the first time
         let (xc, yc, t0) = (self.xs[c], self.ys[c], self.times[0]);
         let mut fit = LineFit::default();
-        let mut st: i128 = 0;
+        let (mut first, mut last) = (c, c);
         for i in lo..=hi {
             if (self.xs[i] - a0 - b0 * self.ys[i]).abs() / norm0 <= seed_thr {
                 fit.add(self.xs[i] - xc, self.ys[i] - yc);
-                st += i128::from(self.times[i]) - i128::from(t0);
+                first = first.min(i);
+                last = last.max(i);
             }
         }
         if fit.k < 2 {
@@ -723,7 +732,8 @@ impl SignatureProcessor {
                 let miss = if side == 1 { &mut miss_r } else { &mut miss_l };
                 if ok {
                     fit.add(u, v);
-                    st += i128::from(self.times[i]) - i128::from(t0);
+                    first = first.min(i);
+                    last = last.max(i);
                     *miss = 0;
                 } else {
                     *miss += 1;
@@ -732,6 +742,26 @@ impl SignatureProcessor {
             if !moved {
                 break;
             }
+        }
+        // 3. settle: the returns of the grown span within `max(3 σ, 2 cm)` of the
+        // grown line, twice. The result then depends on the wall, not on the
+        // order the returns joined in (a slightly different seed, a rounding of
+        // the bearings: the same returns, the same distance)
+        let mut st: i128 = 0;
+        for _ in 0..2 {
+            let (a, b) = fit.line()?;
+            let norm = (1.0 + b * b).sqrt();
+            let thr = (3.0 * fit.sd()).clamp(FLOOR_M, CAP_M);
+            let mut settled = LineFit::default();
+            st = 0;
+            for i in first..=last {
+                let (u, v) = (self.xs[i] - xc, self.ys[i] - yc);
+                if (u - a - b * v).abs() / norm <= thr {
+                    settled.add(u, v);
+                    st += i128::from(self.times[i]) - i128::from(t0);
+                }
+            }
+            fit = settled;
         }
         let need = self
             .cfg
@@ -818,18 +848,25 @@ impl LineFit {
         Some(((self.sx - b * self.sy) / k, b))
     }
 
+    /// The residual standard deviation, perpendicular to the line (0 with
+    /// fewer than 3 points or no line).
+    fn sd(&self) -> f64 {
+        match self.line() {
+            Some((a, b)) if self.k > 2 => {
+                let sse = (self.sxx - a * self.sx - b * self.sxy).max(0.0);
+                (sse / (self.k - 2) as f64).sqrt() / (1.0 + b * b).sqrt()
+            }
+            _ => 0.0,
+        }
+    }
+
     /// Perpendicular distance of `(x, y)` from the line, the fit's residual
     /// standard deviation (perpendicular; 0 with fewer than 3 points) and the
     /// standard error of the line itself at `y`.
     fn residual(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
         let (a, b) = self.line()?;
         let norm = (1.0 + b * b).sqrt();
-        let sse = (self.sxx - a * self.sx - b * self.sxy).max(0.0);
-        let sd = if self.k > 2 {
-            (sse / (self.k - 2) as f64).sqrt() / norm
-        } else {
-            0.0
-        };
+        let sd = self.sd();
         let k = self.k as f64;
         let my = self.sy / k;
         let syy = (self.syy - k * my * my).max(1e-12);
@@ -1329,6 +1366,47 @@ mod tests {
             for s in &out {
                 assert!((s.value + 1.0).abs() < 1e-3, "{hw}: {s:?}");
             }
+        }
+    }
+
+    #[test]
+    fn wall_fit_does_not_depend_on_rounding() {
+        // the same scans through a float32 recording (bearings rebuilt from
+        // angle_min + i · angle_increment, ranges as f32, times within 1 µs)
+        // give the same returns on the wall, the same distance and time. The
+        // window edges (±20°) fall exactly on rays 0.8° apart.
+        let f32ed = |scan: &Scan| {
+            let inc = (-TAU / 450.0) as f32;
+            let rays: Vec<Ray> = scan
+                .rays()
+                .iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let b = f64::from(inc) * i as f64;
+                    let jitter = ((i * 7919) % 1001) as i64 - 500;
+                    Ray::timed(
+                        b,
+                        f64::from(r.range_m as f32),
+                        50.0,
+                        r.valid,
+                        r.t_ns + jitter,
+                    )
+                })
+                .collect();
+            Scan::from_timed(*scan.timing(), rays)
+        };
+        for seed in 0..40u64 {
+            let d = 0.8 + 0.15 * seed as f64;
+            let normal = 0.02 * (seed as f64 - 20.0);
+            let make = |k| wall_scan(k, d - 0.03 * k as f64, normal, 0.008, seed * 10 + k as u64);
+            let a = measure(SignatureConfig::default(), make).unwrap();
+            let b = measure(SignatureConfig::default(), |k| f32ed(&make(k))).unwrap();
+            assert_eq!(a.rays_used, b.rays_used, "seed {seed}: {a:?} {b:?}");
+            assert!(
+                (a.distance_m - b.distance_m).abs() < 1e-5,
+                "seed {seed}: {a:?} {b:?}"
+            );
+            assert!((a.t_ns - b.t_ns).abs() <= 500, "seed {seed}: {a:?} {b:?}");
         }
     }
 
