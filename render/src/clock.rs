@@ -31,9 +31,12 @@ pub struct ClockConfig {
     /// Offset steps (e.g. load-dependent latency changes): `(τ seconds, delta seconds)`.
     /// A camera latency increase of `Δ` is a step of `-Δ`.
     pub steps: Vec<(f64, f64)>,
-    /// Camera stamp jitter, seconds (1σ).
+    /// Camera stamp jitter, seconds (1σ). Default 1 ms: host-side capture stamps
+    /// of a USB camera (the frames themselves stay regular: the sensor clocks
+    /// them).
     pub cam_jitter_s: f64,
-    /// LiDAR scan stamp jitter, seconds (1σ).
+    /// LiDAR scan stamp jitter, seconds (1σ). Default 0.3 ms: device-clocked
+    /// scans (the LD06 stamps every packet with its own millisecond clock).
     pub lidar_jitter_s: f64,
 }
 

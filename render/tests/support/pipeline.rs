@@ -1,0 +1,225 @@
+#![allow(dead_code)] // shared by a test and an example, each using part of it
+//! The end-to-end pipeline shared by `tests/end_to_end.rs` and
+//! `examples/accuracy.rs`: rendered frames → signature-cam, rendered scans →
+//! signature-lidar, both → the estimator with its shipped defaults, scored
+//! against the renderer's truth. Every run renders once and feeds two lanes
+//! side by side: the front-ends' default (midpoint) stamping and end-of-interval
+//! stamping, everything else equal.
+
+use std::time::{Duration, Instant};
+use vlsync_common::{Sample, Stream};
+use vlsync_config::EstimatorConfig;
+use vlsync_estimator::Estimator;
+use vlsync_render::score::{score, Score};
+use vlsync_render::{Event, RenderConfig, Renderer};
+use vlsync_signature_cam as cam;
+use vlsync_signature_lidar as lidar;
+
+/// One stamping variant: its two front-ends and its estimator.
+struct Lane {
+    cam: cam::SignatureProcessor,
+    lidar: lidar::SignatureProcessor,
+    est: Estimator,
+    estimates: Vec<vlsync_common::Estimate>,
+    cam_samples: usize,
+    lidar_samples: usize,
+}
+
+impl Lane {
+    fn new(cam_stamping: cam::Stamping, lidar_stamping: lidar::Stamping) -> Self {
+        Self {
+            cam: cam::SignatureProcessor::new(cam::SignatureConfig {
+                stamping: cam_stamping,
+                ..cam::SignatureConfig::default()
+            })
+            .expect("default camera front-end"),
+            lidar: lidar::SignatureProcessor::new(lidar::SignatureConfig {
+                stamping: lidar_stamping,
+                ..lidar::SignatureConfig::default()
+            })
+            .expect("default LiDAR front-end"),
+            est: Estimator::new(&EstimatorConfig::default()),
+            estimates: Vec::new(),
+            cam_samples: 0,
+            lidar_samples: 0,
+        }
+    }
+
+    fn frame(&mut self, f: &vlsync_render::RenderedFrame) -> Option<cam::CamSample> {
+        match self.cam.process(&f.image, f.time) {
+            Ok(cam::Step::Sample(s)) if s.sample.value.is_finite() && !s.low_texture() => {
+                self.cam_samples += 1;
+                let _ = self.est.push(Stream::Cam, s.sample);
+                self.drain();
+                Some(s)
+            }
+            _ => None,
+        }
+    }
+
+    fn scan(&mut self, s: &vlsync_render::Scan, out: &mut Vec<Sample>) {
+        out.clear();
+        self.lidar.push_scan(s, |x| out.push(x));
+        for &x in out.iter() {
+            self.lidar_samples += 1;
+            let _ = self.est.push(Stream::Lidar, x);
+        }
+        self.drain();
+    }
+
+    fn drain(&mut self) {
+        while let Some(e) = self.est.poll() {
+            self.estimates.push(e);
+        }
+    }
+}
+
+/// The front-ends' samples against the true speed, for the timing audit: rows
+/// of `(value, speed at the sample's true time, acceleration there)`.
+#[derive(Debug, Default)]
+pub struct AuditRows {
+    /// Camera samples, midpoint and end stamping.
+    pub cam: [Vec<(f64, f64, f64)>; 2],
+    /// LiDAR samples, midpoint and end stamping.
+    pub lidar: [Vec<(f64, f64, f64)>; 2],
+}
+
+/// The outcome of one run.
+#[derive(Debug)]
+pub struct RunResult {
+    /// The seed.
+    pub seed: u64,
+    /// Midpoint stamping (the default), then end stamping.
+    pub scores: [Score; 2],
+    /// Camera and LiDAR samples fed to each lane's estimator.
+    pub samples: [(usize, usize); 2],
+    /// Estimates of each lane.
+    pub estimates: [usize; 2],
+    /// Rows for the timing audit, when asked for.
+    pub audit: Option<AuditRows>,
+    /// Wall time of the run.
+    pub elapsed: Duration,
+}
+
+/// Renders `cfg` once and runs both lanes. With `audit`, also collects each
+/// front-end's samples against the true speed, turns excluded (±1 s: the camera
+/// sees rotation there, the LiDAR other walls).
+pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
+    let t0 = Instant::now();
+    let seed = cfg.seed;
+    let mut r = Renderer::new(cfg).expect("valid config");
+    let truth = r.truth().clone();
+    let traj = r.trajectory().clone();
+    let mut lanes = [
+        Lane::new(cam::Stamping::Midpoint, lidar::Stamping::Midpoint),
+        Lane::new(cam::Stamping::End, lidar::Stamping::End),
+    ];
+    let mut rows = AuditRows::default();
+    let turning = |t: f64| {
+        traj.turns()
+            .iter()
+            .any(|&(a, b)| t > a - 1.0 && t < b + 1.0)
+    };
+    let acc = |t: f64| (traj.speed(t + 0.005) - traj.speed(t - 0.005)) / 0.01;
+    let mut buf = Vec::new();
+    for ev in r.events() {
+        match ev.expect("render") {
+            Event::Frame(f) => {
+                for (i, lane) in lanes.iter_mut().enumerate() {
+                    if let (Some(s), true) = (lane.frame(&f), audit) {
+                        // camera stamp to true time: τ = t_C + offset(τ)
+                        let t = (s.sample.t_ns as f64 + truth.offset_at(f.tau_mid_ns) * 1e9) * 1e-9;
+                        if !turning(t) {
+                            rows.cam[i].push((s.sample.value, traj.speed(t), acc(t)));
+                        }
+                    }
+                }
+            }
+            Event::Scan(s) => {
+                for (i, lane) in lanes.iter_mut().enumerate() {
+                    lane.scan(&s.scan, &mut buf);
+                    if audit {
+                        for x in &buf {
+                            let t = x.t_ns as f64 * 1e-9;
+                            if !turning(t) {
+                                rows.lidar[i].push((x.value, traj.speed(t), acc(t)));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let [a, b] = &lanes;
+    RunResult {
+        seed,
+        scores: [score(&a.estimates, &truth), score(&b.estimates, &truth)],
+        samples: [
+            (a.cam_samples, a.lidar_samples),
+            (b.cam_samples, b.lidar_samples),
+        ],
+        estimates: [a.estimates.len(), b.estimates.len()],
+        audit: audit.then_some(rows),
+        elapsed: t0.elapsed(),
+    }
+}
+
+/// Runs `seeds` (each with `make(seed)`) on `threads` threads; results in seed order.
+pub fn run_seeds(
+    seeds: &[u64],
+    threads: usize,
+    make: impl Fn(u64) -> RenderConfig + Sync,
+) -> Vec<RunResult> {
+    let queue = std::sync::Mutex::new(seeds.iter().rev().copied().collect::<Vec<_>>());
+    let results = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.clamp(1, seeds.len().max(1)) {
+            s.spawn(|| loop {
+                let next = queue.lock().unwrap().pop();
+                let Some(seed) = next else { break };
+                let r = run(make(seed), false);
+                results.lock().unwrap().push(r);
+            });
+        }
+    });
+    let mut out = results.into_inner().unwrap();
+    out.sort_by_key(|r| seeds.iter().position(|&s| s == r.seed));
+    out
+}
+
+/// Least-squares fit `y = g·x + h·a` (no intercept) of `(y, x, a)` rows; the delay
+/// `-h / g` of a sample that reads `g·v(t - δ) ≈ g·v(t) - g·δ·a(t)`: positive
+/// means stamped late.
+pub fn delay(rows: &[(f64, f64, f64)]) -> f64 {
+    let (mut sxx, mut sxa, mut saa, mut sxy, mut say) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(y, x, a) in rows {
+        sxx += x * x;
+        sxa += x * a;
+        saa += a * a;
+        sxy += x * y;
+        say += a * y;
+    }
+    let det = sxx * saa - sxa * sxa;
+    let (g, h) = ((sxy * saa - say * sxa) / det, (say * sxx - sxy * sxa) / det);
+    -h / g
+}
+
+/// One line of the per-seed table (milliseconds).
+pub fn table_row(r: &RunResult) -> String {
+    let [m, e] = &r.scores;
+    format!(
+        "| {} | {:.2} | {:+.2} | {:.2} | {} | {:.2} | {:+.2} | {:.2} | {:.1} |",
+        r.seed,
+        m.mae_s * 1e3,
+        m.bias_s * 1e3,
+        m.p95_s * 1e3,
+        m.n,
+        e.mae_s * 1e3,
+        e.bias_s * 1e3,
+        e.p95_s * 1e3,
+        r.elapsed.as_secs_f64()
+    )
+}
+
+/// The header of [`table_row`]'s table.
+pub const TABLE_HEADER: &str = "| seed | midpoint MAE ms | bias ms | p95 ms | tracking estimates | end MAE ms | end bias ms | end p95 ms | run s |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|";
