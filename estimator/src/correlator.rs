@@ -304,6 +304,36 @@ impl Correlator {
         }
     }
 
+    /// Moves the lag range by `delta` slots (slot 0 at `lag0 + delta`) keeping the
+    /// stored blocks: each keeps the lags it holds that stay in range (its `lo..=hi`
+    /// narrows). The unfinished block and the acquisition window restart.
+    pub fn shift_lags(&mut self, delta: i64) {
+        if delta == 0 {
+            return;
+        }
+        let n = self.n_lags as i64;
+        self.lag0 += delta;
+        for i in 0..self.count {
+            let p = self.phys(i);
+            let b = &mut self.blocks[p];
+            let lo = (b.lo as i64 - delta).max(0);
+            let hi = (b.hi as i64 - delta).min(n - 1);
+            if lo > hi {
+                b.n = 0.0;
+                continue;
+            }
+            let (lo, hi) = (lo as usize, hi as usize);
+            let src = (lo as i64 + delta) as usize;
+            for v in [&mut b.xy, &mut b.y, &mut b.yy] {
+                v.copy_within(src..=src + (hi - lo), lo);
+            }
+            b.lo = lo;
+            b.hi = hi;
+        }
+        self.cur.clear();
+        self.restart_acq();
+    }
+
     /// Restricts the updated lag slots to `lo..=hi` (clamped). Stored blocks stay
     /// (each knows the slots it holds); the acquisition window and the unfinished
     /// block restart when the range changes.

@@ -271,6 +271,8 @@ pub struct Estimator {
     seg_start_t: f64,
     /// Tracker time of the newest hop with motion and an accepted segment measurement.
     info_t: f64,
+    /// The segment started at a change point and has not given an estimate yet.
+    fresh: bool,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -342,6 +344,7 @@ impl Estimator {
             seg_start_k: i64::MIN,
             seg_start_t: f64::NEG_INFINITY,
             info_t: f64::NEG_INFINITY,
+            fresh: false,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -496,6 +499,7 @@ impl Estimator {
     /// Starts a new segment at LiDAR grid index `k` (tracker time `t`); the drift
     /// fit keeps the slope of the old one.
     fn new_segment(&mut self, k: i64, t: f64) {
+        self.fresh = false;
         self.seg_start_k = k;
         self.seg_start_t = t;
         self.drift.close_segment();
@@ -876,19 +880,15 @@ impl Estimator {
     fn hop_track(&mut self, t_ref_ns: Nanos, t: f64, motion: bool) {
         let sign = self.polarity.sign();
         let n = self.corr.count();
-        // keep the lag range centred on the prediction (drift over hours); every
-        // re-centre empties the store, so only near the edge
+        // keep the lag range centred on the prediction (a lock near the edge, drift
+        // over hours); the stored blocks move with it
         let (pred_t, pred_var) = self.predict(t);
-        let pred_slot = pred_t * self.p.fs - self.corr.lag0() as f64;
         let mid = (self.corr.n_lags() / 2) as f64;
+        let pred_slot = pred_t * self.p.fs - self.corr.lag0() as f64;
         if (pred_slot - mid).abs() > mid - 2.0 * self.p.track_slots {
-            self.hold_to(t);
-            let lag = (self.cur.o * self.p.fs).round() as i64;
-            self.corr.set_lag0(lag - self.p.half_lags);
-            self.new_segment(i64::MIN, f64::NEG_INFINITY);
-            self.emit(t_ref_ns, EstimatorState::Holding, None, 0.0, 0.0);
-            return;
+            self.corr.shift_lags((pred_slot - mid).round() as i64);
         }
+        let pred_slot = pred_t * self.p.fs - self.corr.lag0() as f64;
         if self.degraded {
             let margin = self.p.track_slots + 0.25 * self.p.fs * self.p.max_lag_s;
             let lo = (pred_slot - margin).floor().max(0.0) as usize;
@@ -956,9 +956,24 @@ impl Estimator {
             let var = m.var + self.d.1 * lever * lever + self.p.qo * self.p.qo * lever.abs();
             Some(Meas { var, ..m })
         });
-        match meas.filter(|m| m.score >= self.p.min_score) {
+        // a segment measurement replaces the estimate when it is consistent with the
+        // prediction and about as precise (a short segment after a re-centre, or one
+        // that just grew past a gap, is not); a segment just started at a change
+        // point is taken as it is (the step test vouched for it)
+        let fresh = self.fresh;
+        let usable = |m: &Meas| {
+            fresh
+                || (m.var <= 2.0 * pred_var
+                    && (m.z - pred_t).abs() <= self.p.gate * (pred_var + m.var).sqrt())
+        };
+        let meas = meas.filter(|m| m.score >= self.p.min_score);
+        if meas.is_some_and(|m| !usable(&m)) {
+            self.stats.outliers += 1;
+        }
+        match meas.filter(usable) {
             Some(m) if motion || t - self.info_t <= self.p.window_s => {
                 self.blind_moving = 0;
+                self.fresh = false;
                 self.cur = Current {
                     t,
                     o: m.z,
@@ -1100,6 +1115,7 @@ impl Estimator {
                     let k = self.corr.block(c).first_k;
                     let t_c = self.rel_k(k as f64);
                     self.drift.change_at(t_c);
+                    self.fresh = true;
                     self.seg_start_k = k;
                     self.seg_start_t = t_c;
                     self.step = Streak::default();
