@@ -692,4 +692,24 @@ mod tests {
         assert_eq!((c.block(n - 1).lo, c.block(n - 1).hi), (5, 15));
         assert_eq!((c.block(0).lo, c.block(0).hi), (0, 20));
     }
+
+    #[test]
+    fn shifting_the_lag_range_keeps_each_blocks_lags() {
+        let mut c = Correlator::new(21, -10, 10, 4, 8, 1024);
+        for k in 0..100i64 {
+            c.push_cam(k, (k as f64 * 0.1).sin());
+            c.push_lidar(k, (k as f64 * 0.1).cos());
+            while c.step() != Step::Idle {}
+        }
+        let before: Vec<f64> = c.block(0).xy.clone();
+        c.shift_lags(6);
+        assert_eq!(c.lag0(), -4);
+        let b = c.block(0);
+        assert_eq!((b.lo, b.hi), (0, 14));
+        // new slot s holds what old slot s + 6 held (the same lag)
+        for s in 0..=14 {
+            assert_eq!(b.xy[s], before[s + 6]);
+        }
+        assert_eq!(c.acq_count(), 0);
+    }
 }

@@ -229,3 +229,105 @@ impl Segment {
         down
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::correlator::Step;
+    use crate::peak;
+
+    fn sig(k: f64) -> f64 {
+        (k * 0.031).sin() + 0.6 * (k * 0.0113).cos() + 0.3 * (k * 0.071).sin()
+    }
+
+    /// Blocks of `L[k] = C[k - lag(k)]` with a lag that drifts by `drift` slots per
+    /// grid step; `mismatch` adds a camera-only bump to blocks in that range.
+    fn store(drift: f64, mismatch: Option<(i64, i64)>) -> Correlator {
+        let mut c = Correlator::new(61, -30, 50, 4, 40, 8192);
+        for k in 0..2000i64 {
+            let lag = 5.0 + drift * k as f64;
+            let mut y = sig(k as f64);
+            if let Some((a, b)) = mismatch {
+                if (a..b).contains(&k) {
+                    y += 3.0;
+                }
+            }
+            c.push_cam(k, y);
+            c.push_lidar(k, sig(k as f64 - lag));
+            while c.step() != Step::Idle {}
+        }
+        c
+    }
+
+    fn peak_slot(seg: &mut Segment, c: &Correlator, span: &Span) -> f64 {
+        seg.combine(c, span);
+        let mut scratch = vec![0.0; 61];
+        peak::find(&seg.sums, span.lo, span.hi, 1.0, &mut scratch)
+            .unwrap()
+            .slot
+    }
+
+    #[test]
+    fn drift_compensation_aligns_blocks_to_the_reference_time() {
+        let drift = 0.004; // slots per grid step: 8 slots over the stored 2000 steps
+        let c = store(drift, None);
+        let n = c.count();
+        let k_ref = c.block(n - 1).last_k as f64;
+        let mut seg = Segment::new(61, 40);
+        let span = Span {
+            first: 0,
+            last: n - 1,
+            drift,
+            k_ref,
+            lo: 20,
+            hi: 55,
+        };
+        seg.reset_weights(&c, &span);
+        let slot = peak_slot(&mut seg, &c, &span);
+        // slot of lag 5 + drift·k_ref, relative to lag0 = -30
+        let want = 5.0 + drift * k_ref + 30.0;
+        assert!((slot - want).abs() < 0.3, "{slot} vs {want}");
+        // without compensation the peak is the segment's average lag, far off
+        let flat = Span { drift: 0.0, ..span };
+        let slot0 = peak_slot(&mut seg, &c, &flat);
+        assert!((slot0 - want).abs() > 2.0, "{slot0}");
+    }
+
+    #[test]
+    fn mismatching_blocks_are_down_weighted() {
+        let c = store(0.0, Some((1200, 1350)));
+        let n = c.count();
+        let mut seg = Segment::new(61, 40);
+        let span = Span {
+            first: 0,
+            last: n - 1,
+            drift: 0.0,
+            k_ref: 0.0,
+            lo: 25,
+            hi: 45,
+        };
+        seg.reset_weights(&c, &span);
+        for _ in 0..2 {
+            let slot = peak_slot(&mut seg, &c, &span);
+            seg.reweight(&c, &span, slot);
+        }
+        for i in 0..n {
+            let b = c.block(i);
+            // LiDAR k pairs with camera k - 5 at the peak
+            let bumped = b.last_k - 5 >= 1200 && b.first_k - 5 < 1350;
+            let w = seg.weight(&c, i);
+            if bumped {
+                assert!(
+                    w < 0.2,
+                    "block {i} ({}..{}) weight {w}",
+                    b.first_k,
+                    b.last_k
+                );
+            } else {
+                assert!(w > 0.8, "block {i} weight {w}");
+            }
+        }
+        let slot = peak_slot(&mut seg, &c, &span);
+        assert!((slot - 35.0).abs() < 0.05, "{slot}");
+    }
+}
