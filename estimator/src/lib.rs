@@ -885,7 +885,10 @@ impl Estimator {
         let (pred_t, pred_var) = self.predict(t);
         let mid = (self.corr.n_lags() / 2) as f64;
         let pred_slot = pred_t * self.p.fs - self.corr.lag0() as f64;
-        if (pred_slot - mid).abs() > mid - 2.0 * self.p.track_slots {
+        // only when the peak could fall off the range: a shift leaves the stored
+        // blocks without the lags that enter, so the segment is short for a while
+        let margin = (3.0 * pred_var.sqrt() * self.p.fs).max(3.0) + 2.0;
+        if (pred_slot - mid).abs() > mid - margin {
             self.corr.shift_lags((pred_slot - mid).round() as i64);
         }
         let pred_slot = pred_t * self.p.fs - self.corr.lag0() as f64;
@@ -925,8 +928,17 @@ impl Estimator {
             let (lo, hi) = self.track_slots_around(pred_t);
             let near = (4.0 * pred_var.sqrt() * self.p.fs).ceil().max(3.0) + 1.0;
             let c = pred_t * self.p.fs - self.corr.lag0() as f64;
-            let nlo = ((c - near).floor().max(lo as f64) as usize).min(hi);
-            let nhi = ((c + near).ceil().max(0.0) as usize).clamp(nlo, hi);
+            // lags every block of the segment holds (after a shift of the lag range the
+            // older blocks lack the entering lags), one slot kept for the drift shift
+            let (mut ilo, mut ihi) = (lo, hi);
+            for i in first..n {
+                let b = self.corr.block(i);
+                ilo = ilo.max(b.lo + 1);
+                ihi = ihi.min(b.hi.saturating_sub(2));
+            }
+            let (lo_n, hi_n) = if ihi >= ilo + 4 { (ilo, ihi) } else { (lo, hi) };
+            let nlo = ((c - near).floor().max(lo_n as f64) as usize).min(hi_n);
+            let nhi = ((c + near).ceil().max(0.0) as usize).clamp(nlo, hi_n);
             let span = Span {
                 first,
                 last: n - 1,
