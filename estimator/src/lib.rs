@@ -88,6 +88,8 @@ const MOTION_REF_TAU_S: f64 = 120.0;
 const MIN_MEAS_STD_S: f64 = 2e-4;
 /// Window length at which the peak-sharpness variance formula matches the observed scatter, s.
 const CAL_WINDOW_S: f64 = 4.0;
+/// Step-test statistic (squared sigmas) from which a possible change inflates σ.
+const SUSPECT_STAT: f64 = 4.0;
 /// Re-weighting passes of the segment combination.
 const IRLS_PASSES: usize = 2;
 
@@ -273,6 +275,9 @@ pub struct Estimator {
     info_t: f64,
     /// The segment started at a change point and has not given an estimate yet.
     fresh: bool,
+    /// Variance added to the estimate while the step test sees a change it cannot
+    /// confirm yet (a possible step's size squared, weighted by its evidence).
+    suspect_var: f64,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -345,6 +350,7 @@ impl Estimator {
             seg_start_t: f64::NEG_INFINITY,
             info_t: f64::NEG_INFINITY,
             fresh: false,
+            suspect_var: 0.0,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -899,6 +905,7 @@ impl Estimator {
             self.corr.set_active(lo, hi);
         }
         // 1. step test and drift chunks on the newest blocks
+        self.suspect_var = 0.0;
         if motion {
             self.step_test(sign, pred_t);
         } else {
@@ -989,7 +996,7 @@ impl Estimator {
                 self.cur = Current {
                     t,
                     o: m.z,
-                    var: m.var,
+                    var: m.var + self.suspect_var,
                 };
                 if motion {
                     self.info_t = t;
@@ -1111,6 +1118,13 @@ impl Estimator {
                 }
             }
             len += short;
+        }
+        // evidence short of a step still makes the estimate less certain: a change of
+        // size nu may be under way (honest σ while the test accumulates evidence)
+        if let Some((stat, _, _, nu)) = best {
+            let gate2 = self.p.step_gate * self.p.step_gate;
+            let p = ((stat - SUSPECT_STAT) / (gate2 - SUSPECT_STAT).max(1e-9)).clamp(0.0, 1.0);
+            self.suspect_var = p * nu * nu;
         }
         match best {
             Some((stat, c, mp, nu)) if stat > self.p.step_gate * self.p.step_gate => {
