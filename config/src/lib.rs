@@ -100,9 +100,10 @@ pub struct EstimatorConfig {
     pub hold_process_noise: f64,
     /// Innovation gate, in standard deviations.
     pub gate_sigma: f64,
-    /// Step-window innovation threshold, in standard deviations.
+    /// Step test threshold, in standard deviations: hops beyond half of its square
+    /// accumulate evidence.
     pub step_gate_sigma: f64,
-    /// Consecutive consistent step-window outliers that declare an offset step.
+    /// A step is declared once the evidence reaches `step_confirm · step_gate_sigma² / 2`.
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
@@ -135,7 +136,7 @@ impl Default for EstimatorConfig {
             initial_drift_std: 5e-5,
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
-            step_gate_sigma: 4.0,
+            step_gate_sigma: 4.5,
             step_confirm: 3,
             lost_std_s: 0.05,
         }

@@ -278,6 +278,8 @@ pub struct Estimator {
     /// Variance added to the estimate while the step test sees a change it cannot
     /// confirm yet (a possible step's size squared, weighted by its evidence).
     suspect_var: f64,
+    /// Accumulated step-test evidence of the current streak.
+    step_evidence: f64,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -351,6 +353,7 @@ impl Estimator {
             info_t: f64::NEG_INFINITY,
             fresh: false,
             suspect_var: 0.0,
+            step_evidence: 0.0,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -1127,17 +1130,22 @@ impl Estimator {
             self.suspect_var = p * nu * nu;
         }
         match best {
-            Some((stat, c, mp, nu)) if stat > self.p.step_gate * self.p.step_gate => {
+            // evidence accumulates over consecutive hops whose statistic exceeds half the
+            // gate and whose new offsets agree (a CUSUM): a large step is declared after
+            // a hop or two, a marginal one after `step_confirm` hops
+            Some((stat, c, mp, nu)) if stat > 0.5 * self.p.step_gate * self.p.step_gate => {
+                let half = 0.5 * self.p.step_gate * self.p.step_gate;
                 let same = self.step.count > 0
                     && self.step.sign == nu.signum()
                     && (mp.z - self.step.z).abs() <= 3.0 * (mp.var + self.step.var).sqrt();
+                self.step_evidence = if same { self.step_evidence } else { 0.0 } + stat - half;
                 self.step = Streak {
                     count: if same { self.step.count + 1 } else { 1 },
                     z: mp.z,
                     var: mp.var,
                     sign: nu.signum(),
                 };
-                if self.step.count >= self.p.step_confirm {
+                if self.step_evidence >= self.p.step_confirm as f64 * half {
                     let k = self.corr.block(c).first_k;
                     let t_c = self.rel_k(k as f64);
                     self.drift.change_at(t_c);
@@ -1145,11 +1153,15 @@ impl Estimator {
                     self.seg_start_k = k;
                     self.seg_start_t = t_c;
                     self.step = Streak::default();
+                    self.step_evidence = 0.0;
                     self.since_chunk = 0;
                     self.stats.steps += 1;
                 }
             }
-            _ => self.step = Streak::default(),
+            _ => {
+                self.step = Streak::default();
+                self.step_evidence = 0.0;
+            }
         }
     }
 
