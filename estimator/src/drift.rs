@@ -29,6 +29,9 @@ use nalgebra::{Matrix2, Vector2};
 /// Weighted moments of `(t, z)` pairs, `t` relative to the segment's first measurement.
 #[derive(Debug, Clone, Copy, Default)]
 struct Moments {
+    /// Measurements added (not faded).
+    count: u32,
+    /// Faded measurement count.
     n: f64,
     sw: f64,
     st: f64,
@@ -152,12 +155,13 @@ impl DriftFit {
             self.closed_segments *= f;
         }
         self.last_t = Some(t);
-        if self.cur.n == 0.0 {
+        if self.cur.count == 0 {
             self.t0 = t;
             self.z0 = z;
         }
         let (dt, dz, w) = (t - self.t0, z - self.z0, 1.0 / var);
         let m = &mut self.cur;
+        m.count += 1;
         m.n += 1.0;
         m.sw += w;
         m.st += w * dt;
@@ -179,7 +183,7 @@ impl DriftFit {
     }
 
     fn close_committed(&mut self) {
-        if self.cur.n >= 2.0 {
+        if self.cur.count >= 2 {
             let (tt, tz, zz) = self.cur.centred();
             self.closed_tt += tt;
             self.closed_tz += tz;
@@ -280,6 +284,19 @@ mod tests {
         }
         let (d, _) = f.estimate();
         assert!((d - 0.012).abs() < 1e-4, "{d}");
+    }
+
+    #[test]
+    fn two_measurements_far_apart_still_inform_the_slope() {
+        // faded weights must not drop a two-point segment (regression: the faded count
+        // fell below 2 and the segment was discarded)
+        let mut f = DriftFit::new(50e-6, 900.0);
+        f.add(3.75, 0.1936, 5e-5);
+        f.add(6.25, 0.2351, 4.1e-5);
+        f.close_segment();
+        let (d, v) = f.estimate();
+        // the prior (50 ppm) still dominates two points 2.5 s apart, but they count
+        assert!(v < 50e-6 * 50e-6 && d > 0.0, "{d} ± {}", v.sqrt());
     }
 
     #[test]
