@@ -90,8 +90,9 @@ const MIN_MEAS_STD_S: f64 = 2e-4;
 const CAL_WINDOW_S: f64 = 4.0;
 /// Step-test statistic (squared sigmas) from which a possible change inflates σ.
 const SUSPECT_STAT: f64 = 4.0;
-/// Re-weighting passes of the segment combination.
-const IRLS_PASSES: usize = 2;
+/// Re-weighting passes of a fresh robust combination (the segment's weights carry
+/// over from hop to hop, so it needs one pass per hop).
+const IRLS_PASSES: usize = 1;
 
 /// Numbers derived once from the configuration.
 #[derive(Debug, Clone)]
@@ -275,6 +276,11 @@ pub struct Estimator {
     info_t: f64,
     /// The segment started at a change point and has not given an estimate yet.
     fresh: bool,
+    /// The last segment measurement (offset) and its regression `(α, β)`: the next
+    /// hop re-weights from them before its single combination.
+    seg_fit: Option<(f64, (f64, f64))>,
+    /// The step test of the last hop, run at the next push: `(polarity sign, predicted offset)`.
+    pending_step: Option<(f64, f64)>,
     /// Variance added to the estimate while the step test sees a change it cannot
     /// confirm yet (a possible step's size squared, weighted by its evidence).
     suspect_var: f64,
@@ -353,6 +359,8 @@ impl Estimator {
             info_t: f64::NEG_INFINITY,
             fresh: false,
             suspect_var: 0.0,
+            seg_fit: None,
+            pending_step: None,
             step_evidence: 0.0,
             epoch_ns: None,
             polarity: Polarity::Unknown,
@@ -376,6 +384,9 @@ impl Estimator {
 
     /// Pushes one sample of `stream`. Rejected samples are counted and never reach the sums.
     pub fn push(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
+        if let Some((sign, pred_t)) = self.pending_step.take() {
+            self.step_test(sign, pred_t);
+        }
         let si = idx(stream);
         let other_now = self.rs[1 - si].last_time();
         let Self { rs, bp, corr, .. } = self;
@@ -712,6 +723,7 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
+        self.pending_step = None;
         self.corr.restart_acq();
         self.mode = Mode::Acquire;
         self.acq = Streak::default();
@@ -849,23 +861,35 @@ impl Estimator {
 
     /// Combines `span` with weights `w` and measures its peak.
     fn measure_span(&mut self, span: &Span, sign: f64, w: Weights) -> Option<Meas> {
-        if matches!(w, Weights::Uniform | Weights::Robust) {
-            self.seg.reset_weights(&self.corr, span);
-        }
-        let passes = match w {
-            Weights::Uniform => 0,
-            Weights::Robust => IRLS_PASSES,
-            Weights::Warm => 1,
-        };
-        {
-            for _ in 0..passes {
-                self.seg.combine(&self.corr, span);
-                let pk = peak::find(&self.seg.sums, span.lo, span.hi, sign, &mut self.scratch)?;
-                self.seg.reweight(&self.corr, span, pk.slot);
+        match w {
+            Weights::Uniform => self.seg.reset_weights(&self.corr, span),
+            Weights::Robust => {
+                self.seg.reset_weights(&self.corr, span);
+                for _ in 0..IRLS_PASSES {
+                    self.seg.combine(&self.corr, span);
+                    let pk = peak::find(&self.seg.sums, span.lo, span.hi, sign, &mut self.scratch)?;
+                    let fit = self.seg.regression(span, pk.slot)?;
+                    self.seg.reweight(&self.corr, span, pk.slot, fit);
+                }
+            }
+            Weights::Warm => {
+                // the last segment measurement's peak and regression re-weight the blocks
+                // before the one combination of this hop
+                if let Some((z, fit)) = self.seg_fit {
+                    let slot = z * self.p.fs - self.corr.lag0() as f64;
+                    self.seg.reweight(&self.corr, span, slot, fit);
+                }
             }
         }
         self.seg.combine(&self.corr, span);
-        self.measure_sums(Which::Seg, span.lo, span.hi, sign)
+        let m = self.measure_sums(Which::Seg, span.lo, span.hi, sign);
+        if w == Weights::Warm {
+            self.seg_fit = m.and_then(|m| {
+                let slot = m.z * self.p.fs - self.corr.lag0() as f64;
+                Some((m.z, self.seg.regression(span, slot)?))
+            });
+        }
+        m
     }
 
     /// Slots within the tracking range around offset `o`.
@@ -907,11 +931,14 @@ impl Estimator {
             let hi = (pred_slot + margin).ceil().max(0.0) as usize;
             self.corr.set_active(lo, hi);
         }
-        // 1. step test and drift chunks on the newest blocks
-        self.suspect_var = 0.0;
+        // 1. step test and drift chunks on the newest blocks: run with the next
+        // sample pushed, so no single sample carries both it and the segment (its
+        // verdict applies from the next hop on)
         if motion {
-            self.step_test(sign, pred_t);
+            self.pending_step = Some((sign, pred_t));
         } else {
+            self.pending_step = None;
+            self.suspect_var = 0.0;
             self.step = Streak::default();
         }
         // the raw measurement of this hop: the acquisition window's peak near the
@@ -1043,6 +1070,7 @@ impl Estimator {
     /// scale, and every `short` hops feeds the drift fit. Returns that
     /// measurement, referred to the reference time `t_ref`.
     fn step_test(&mut self, sign: f64, pred_t: f64) {
+        self.suspect_var = 0.0;
         let n = self.corr.count();
         let short = self.p.short_blocks;
         let Some(first) = self.segment_first() else {
@@ -1092,11 +1120,11 @@ impl Estimator {
             }
             total.first_k = self.corr.block(first).first_k;
         }
-        let mut len = short;
+        let (mut len, mut prev) = (short, 0);
         while len <= max_post {
             // the blocks entering the post window, with their segment weights
             // (before the post window's own re-weighting changes them)
-            for i in n - len..n - len + short {
+            for i in n - len..n - prev {
                 let w = self.seg.weight(&self.corr, i);
                 self.glr[1].add_range(self.corr.block(i), w, lo, hi);
             }
@@ -1120,6 +1148,7 @@ impl Estimator {
                     }
                 }
             }
+            prev = len;
             len += short;
         }
         // evidence short of a step still makes the estimate less certain: a change of
@@ -1226,8 +1255,9 @@ enum Weights {
     Uniform,
     /// Re-weighted from the residuals, starting from 1 ([`IRLS_PASSES`] passes).
     Robust,
-    /// Re-weighted once from the residuals, starting from the current weights (the
-    /// segment: its weights carry over from hop to hop).
+    /// Re-weighted once from the residuals against the last segment measurement,
+    /// starting from the current weights (the segment: its weights and fit carry over
+    /// from hop to hop).
     Warm,
 }
 

@@ -137,49 +137,62 @@ impl Segment {
                     }
                 } else {
                     let (wa, wb) = (w * (1.0 - f), w * f);
-                    for (o, p) in d.iter_mut().zip(src[src0..src0 + len + 1].windows(2)) {
-                        *o += wa * p[0] + wb * p[1];
+                    let (a, b) = (&src[src0..src0 + len], &src[src0 + 1..src0 + len + 1]);
+                    for ((o, &x), &y) in d.iter_mut().zip(a).zip(b) {
+                        *o += wa * x + wb * y;
                     }
                 }
             }
         }
         s.n
     }
+}
 
-    /// Re-weights the blocks of `span` from their residuals at fractional slot
-    /// `slot` of the last combination. Returns the number of down-weighted blocks.
-    pub fn reweight(&mut self, corr: &Correlator, span: &Span, slot: f64) -> usize {
+/// Linear interpolation of slot array `v` (holding slots `a..=z`) at fractional slot `x`.
+fn at(v: &[f64], a: usize, z: usize, x: f64) -> Option<f64> {
+    let i = x.floor();
+    if i < a as f64 || i + 1.0 > z as f64 {
+        return None;
+    }
+    let (i, f) = (i as usize, x - i);
+    Some(v[i] * (1.0 - f) + v[i + 1] * f)
+}
+
+impl Segment {
+    /// The regression `y ≈ α x + β` of camera on LiDAR values in the last
+    /// combination at fractional slot `slot` of `span`: `(α, β)`.
+    pub fn regression(&self, span: &Span, slot: f64) -> Option<(f64, f64)> {
         let s = &self.sums;
         if s.n < 3.0 || !slot.is_finite() {
-            return 0;
+            return None;
         }
-        // linear interpolation of slot array `v` (holding slots a..=z) at fractional slot x
-        let at = |v: &[f64], a: usize, z: usize, x: f64| -> Option<f64> {
-            let i = x.floor();
-            if i < a as f64 || i + 1.0 > z as f64 {
-                return None;
-            }
-            let (i, f) = (i as usize, x - i);
-            Some(v[i] * (1.0 - f) + v[i + 1] * f)
-        };
-        // global regression of camera on LiDAR at the peak: y ≈ α x + β
         let lo = span.lo as f64;
-        let hi = span.hi as f64;
-        let p = slot.clamp(lo, (hi - 1.0).max(lo));
-        let (Some(sxy), Some(sy)) = (
-            at(&s.xy, span.lo, span.hi, p),
-            at(&s.y, span.lo, span.hi, p),
-        ) else {
-            return 0;
-        };
+        let p = slot.clamp(lo, (span.hi as f64 - 1.0).max(lo));
+        let sxy = at(&s.xy, span.lo, span.hi, p)?;
+        let sy = at(&s.y, span.lo, span.hi, p)?;
         let n = s.n;
         let (mx, my) = (s.sx / n, sy / n);
         let vx = s.sxx / n - mx * mx;
         if vx <= 0.0 || !vx.is_finite() {
-            return 0;
+            return None;
         }
         let alpha = (sxy / n - mx * my) / vx;
-        let beta = my - alpha * mx;
+        Some((alpha, my - alpha * mx))
+    }
+
+    /// Re-weights the blocks of `span` from their residuals against the regression
+    /// `(alpha, beta)` at fractional slot `slot`. Returns the number of down-weighted blocks.
+    pub fn reweight(
+        &mut self,
+        corr: &Correlator,
+        span: &Span,
+        slot: f64,
+        (alpha, beta): (f64, f64),
+    ) -> usize {
+        if !(slot.is_finite() && alpha.is_finite() && beta.is_finite()) {
+            return 0;
+        }
+        let p = slot;
         let mut m = 0;
         for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
             let b = corr.block(i);
@@ -309,7 +322,8 @@ mod tests {
         seg.reset_weights(&c, &span);
         for _ in 0..2 {
             let slot = peak_slot(&mut seg, &c, &span);
-            seg.reweight(&c, &span, slot);
+            let fit = seg.regression(&span, slot).unwrap();
+            seg.reweight(&c, &span, slot, fit);
         }
         for i in 0..n {
             let b = c.block(i);
