@@ -1026,7 +1026,7 @@ impl Estimator {
                 self.cur = Current {
                     t,
                     o: m.z,
-                    var: m.var + self.suspect_var,
+                    var: m.var,
                 };
                 if motion {
                     self.info_t = t;
@@ -1215,8 +1215,13 @@ impl Estimator {
         score: f64,
         ratio: f64,
     ) {
+        // a change the step test sees but has not confirmed widens what is reported,
+        // not the state the next hops predict from
         let (offset, std) = if self.ever_locked {
-            (self.cur.o, self.cur.var.max(0.0).sqrt())
+            (
+                self.cur.o,
+                (self.cur.var + self.suspect_var).max(0.0).sqrt(),
+            )
         } else {
             (
                 z.unwrap_or(self.corr.lag0() as f64 * self.p.dt_s + self.p.max_lag_s),
