@@ -34,9 +34,12 @@
 //!   `τ_end + shift`; the driver reads `CLOCK_MONOTONIC` **after** the
 //!   front-end processed the frame and uses that as the frame's time, like a
 //!   cheap camera stamped in software. The sample is stamped at the midpoint of
-//!   the two software stamps and its value is the flow over their interval
-//!   (the processor's rule with those times), so scheduling delays, CPU load and
-//!   stalls move the stamps as they would on a robot.
+//!   the two software stamps (the processor's rule with those times), so
+//!   scheduling delays, CPU load and stalls move the stamps as they would on a
+//!   robot. Its value is the flow over the frames' own interval, from their
+//!   frame numbers and the nominal period (what a V4L2 buffer's `sequence`
+//!   gives), not over the software interval: late frames would otherwise
+//!   arrive in bursts a millisecond apart and turn into spikes of the signature.
 //!
 //! Every sample of a rendered source carries a [`SampleTruth`]: its true event
 //! time on the run's time base (the midpoint of the two true mid-exposure
@@ -123,9 +126,13 @@ fn mid(a: Nanos, b: Nanos) -> Nanos {
 
 // ---------------------------------------------------------------- camera
 
-/// What the driver knows about one frame beyond its image and time.
+/// What the driver knows about a rendered frame beyond its image and time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct FrameTruth {
+    /// Frame number counting dropped frames (a V4L2 buffer's `sequence`).
+    sequence: u64,
+    /// The camera's nominal frame period, ns.
+    period_ns: Nanos,
     /// True mid-exposure, on the run's time base.
     event_ns: Nanos,
     /// Delivered this late after the end of exposure (software stamping).
@@ -167,7 +174,13 @@ struct RenderFrames {
     r: vlsync_render::Renderer,
     next: usize,
     shift: Nanos,
+    period_ns: Nanos,
     cur: Option<vlsync_render::RenderedFrame>,
+}
+
+/// The nominal frame period of a rendered run, ns.
+fn frame_period_ns(r: &vlsync_render::Renderer) -> Nanos {
+    (1e9 / r.config().camera.fps).round() as Nanos
 }
 
 impl Frames for RenderFrames {
@@ -189,6 +202,8 @@ impl Frames for RenderFrames {
                     },
                 };
                 let truth = FrameTruth {
+                    sequence: f.index,
+                    period_ns: self.period_ns,
                     event_ns: f.tau_mid_ns + self.shift,
                     ..FrameTruth::default()
                 };
@@ -216,6 +231,7 @@ struct LiveRender {
     rx: Receiver<Rendered>,
     seed: u64,
     shift: Nanos,
+    period_ns: Nanos,
     stop: StopFn,
     /// Frames whose exposure ended before this were skipped (a restarted driver).
     skip_before: Nanos,
@@ -242,6 +258,7 @@ pub struct LiveCounts {
 impl LiveRender {
     fn start(r: vlsync_render::Renderer, shift: Nanos, stop: StopFn) -> Result<Self, SourceError> {
         let seed = r.config().seed;
+        let period_ns = frame_period_ns(&r);
         let now = monotonic_ns();
         let exp_half = vlsync_common::secs_to_nanos(r.config().camera.exposure_s) / 2;
         // a driver restarted mid-run (start_at in the past) resumes at the current frame
@@ -290,6 +307,7 @@ impl LiveRender {
             rx,
             seed,
             shift,
+            period_ns,
             stop,
             skip_before,
             cur: None,
@@ -343,6 +361,8 @@ impl Frames for LiveRender {
         self.live.delivered += 1;
         self.live.max_late_ns = self.live.max_late_ns.max(late_ns);
         let truth = FrameTruth {
+            sequence: f.index,
+            period_ns: self.period_ns,
             event_ns: f.tau_mid_ns + self.shift,
             late_ns,
             render_late_ns,
@@ -518,6 +538,7 @@ impl CamSource {
             ),
             _ => Self::with_frames(
                 Box::new(RenderFrames {
+                    period_ns: frame_period_ns(&r),
                     r,
                     next: 0,
                     shift: stamp.shift_ns(),
@@ -589,17 +610,26 @@ impl Source for CamSource {
                     let before = prev.replace(this);
                     let mut sample = s.sample;
                     if *software {
-                        // the processor's rule (midpoint, flow over the interval)
-                        // applied to the software stamps
+                        // stamped at the midpoint of the two software stamps; the
+                        // flow is over the frames' own interval: the frame numbers
+                        // times the nominal period when known (software stamps
+                        // jitter by tens of ms under load, the sensor's clock does
+                        // not), else the software interval
                         let p_sw = before.map_or(t_done, |b| b.0);
                         let dt = t_done - p_sw;
                         if dt <= 0 {
                             counts.not_increasing += 1;
                             continue;
                         }
+                        let interval = match (before.and_then(|b| b.1), truth) {
+                            (Some(a), Some(b)) if b.sequence > a.sequence && b.period_ns > 0 => {
+                                (b.sequence - a.sequence) as f64 * b.period_ns as f64
+                            }
+                            _ => dt as f64,
+                        };
                         sample = Sample::new(
                             mid(p_sw, t_done),
-                            s.flow_px * vlsync_common::NANOS_PER_SEC as f64 / dt as f64,
+                            s.flow_px * vlsync_common::NANOS_PER_SEC as f64 / interval,
                         );
                     }
                     if !sample.value.is_finite() {
