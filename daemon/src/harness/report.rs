@@ -56,6 +56,8 @@ pub struct PhaseReport {
     pub end_s: f64,
     /// Estimates whose reference time falls in the phase.
     pub estimates: usize,
+    /// Of those, how many in state `tracking` (the rest hold, acquire or are lost).
+    pub tracking: usize,
     /// Error of the locked ones with a defined truth.
     pub error: ErrorStats,
     /// Mean true offset over the phase, seconds.
@@ -194,6 +196,10 @@ pub fn analyse(d: &RunData<'_>) -> Vec<PhaseReport> {
             start_s: rel(a),
             end_s: rel(b),
             estimates: mine.len(),
+            tracking: mine
+                .iter()
+                .filter(|r| r.est.state == EstimatorState::Tracking)
+                .count(),
             error: ErrorStats::of(&errs),
             truth_mean_s: d.truth.mean_between(a, b).map(|m| m.0),
             cam_delay_s,
@@ -407,17 +413,18 @@ fn us3(v: Option<[u64; 3]>) -> String {
 /// The two tables (accuracy; latency, loss, CPU) as Markdown.
 pub fn tables(reports: &[PhaseReport]) -> String {
     let mut s = String::new();
-    s.push_str("| phase | load | from s | to s | estimates | MAE ms | p95 ms | max ms | true offset ms | camera delay mean/p95 ms | renders late | load step |\n");
+    s.push_str("| phase | load | from s | to s | estimates (tracking, scored) | MAE ms | p95 ms | max ms | true offset ms | camera delay mean/p95 ms | renders late | load step |\n");
     s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
     for r in reports {
         let e = &r.error;
         s.push_str(&format!(
-            "| {} | {} | {:.0} | {:.0} | {} ({} scored) | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {:.0} | {:.0} | {} ({}, {}) | {} | {} | {} | {} | {} | {} | {} |\n",
             r.name,
             r.load,
             r.start_s,
             r.end_s,
             r.estimates,
+            r.tracking,
             e.n,
             ms((e.n > 0).then_some(e.mae)),
             ms((e.n > 0).then_some(e.p95)),
@@ -478,6 +485,7 @@ pub fn to_json(reports: &[PhaseReport], targets: &[Target], extra: Value) -> Val
                 "start_s": r.start_s,
                 "end_s": r.end_s,
                 "estimates": r.estimates,
+                "tracking": r.tracking,
                 "error": {
                     "scored": e.n,
                     "mae_ms": opt((e.n > 0).then_some(e.mae)),
