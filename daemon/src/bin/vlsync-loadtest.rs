@@ -2,7 +2,8 @@
 //! time, the camera stamped in software after its processing, under load
 //! profiles (idle, steady full CPU load, bursts, steps, driver stalls, memory
 //! pressure). Scores the estimates against the offset the drivers measured,
-//! per phase, and writes `loadtest.md`, `loadtest.json` and `loadtest.svg`.
+//! per phase, and writes `loadtest.md`, `loadtest.json`, `loadtest.svg` and
+//! `estimates.csv`.
 //! See the README's "Load test" section.
 #![forbid(unsafe_code)]
 
@@ -14,7 +15,7 @@ use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::load::{find_stress_ng, profile, profiles, run_profile, Progress};
-use vlsyncd::harness::report::{analyse, svg, tables, targets, to_json, RunData};
+use vlsyncd::harness::report::{analyse, estimates_csv, svg, tables, targets, to_json, RunData};
 use vlsyncd::harness::session::{Role, Session, SessionOptions, Source, Stamping};
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::truth::{read_truth_csv, MeasuredTruth};
@@ -218,7 +219,7 @@ fn run(a: &Args) -> Result<bool, String> {
     let cam_report = session
         .log("vlsync-cam.log")
         .lines()
-        .find(|l| l.contains(" frames, ") && l.contains("real time"))
+        .find(|l| l.contains("frames delivered"))
         .unwrap_or("")
         .to_string();
     let usage: Vec<(Role, String)> = Role::ALL
@@ -305,6 +306,7 @@ fn run(a: &Args) -> Result<bool, String> {
             serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?,
         ),
         ("loadtest.svg", svg(&title, &data)),
+        ("estimates.csv", estimates_csv(&data)),
     ] {
         let p = out.join(name);
         std::fs::write(&p, body).map_err(|e| format!("{}: {e}", p.display()))?;

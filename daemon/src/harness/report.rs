@@ -524,6 +524,36 @@ pub fn to_json(reports: &[PhaseReport], targets: &[Target], extra: Value) -> Val
     json!({"phases": phases, "targets": targets, "run": extra})
 }
 
+/// Every estimate as CSV: reference time and publish time (seconds since the
+/// run started), state, offset, its σ, drift, the hop's raw measurement and
+/// the measured truth (empty where undefined); offsets in ms, drift in ppm.
+pub fn estimates_csv(d: &RunData<'_>) -> String {
+    let mut s = String::from(
+        "t_ref_s,publish_s,state,offset_ms,offset_std_ms,drift_ppm,measured_ms,truth_ms\n",
+    );
+    for r in d.estimates {
+        let e = &r.est;
+        s.push_str(&format!(
+            "{:.3},{:.3},{},{:.4},{:.4},{:.3},{},{}\n",
+            (e.t_ref_ns - d.start_at) as f64 * 1e-9,
+            (r.publish_ns - d.start_at) as f64 * 1e-9,
+            e.state.name(),
+            e.offset_s * 1e3,
+            e.offset_std_s * 1e3,
+            e.drift * 1e6,
+            if e.measured_offset_s.is_finite() {
+                format!("{:.4}", e.measured_offset_s * 1e3)
+            } else {
+                String::new()
+            },
+            d.truth
+                .offset_at(e.t_ref_ns)
+                .map_or(String::new(), |t| format!("{:.4}", t * 1e3)),
+        ));
+    }
+    s
+}
+
 /// The plot: estimates ±2σ against the measured truth, loaded phases shaded;
 /// times in seconds since the run started.
 pub fn svg(title: &str, d: &RunData<'_>) -> String {
@@ -749,6 +779,15 @@ mod tests {
         let j = to_json(&r, &t, json!({"profile": "t"}));
         assert_eq!(j["phases"][2]["lost"]["lidar"], 1);
         assert_eq!(j["targets"][2]["pass"], false);
+        let csv = estimates_csv(&d);
+        assert_eq!(csv.lines().count(), 1 + ests.len());
+        assert!(
+            csv.lines()
+                .nth(5)
+                .unwrap()
+                .contains(",tracking,-5.0000,1.0000,"),
+            "{csv}"
+        );
         let svg = svg("t", &d);
         assert!(svg.contains(">full<") && svg.contains(">stalls<") && !svg.contains(">warm-up<"));
 

@@ -251,6 +251,9 @@ pub struct Session {
     _node: IpcNode,
 }
 
+/// Longest wait for the daemon's "serving prefix" log line.
+const DAEMON_READY_WAIT: Duration = Duration::from_secs(3);
+
 /// File names of the drivers' truth files in the log directory.
 pub const TRUTH_FILES: [&str; 2] = ["vlsync-cam.truth.csv", "vlsync-lidar.truth.csv"];
 
@@ -288,7 +291,9 @@ impl Session {
         let daemon_started = Instant::now();
         let offsets = OffsetClient::open(&prefix).map_err(|e| e.to_string())?;
         let status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
-        // the daemon logs "serving prefix" once its real-time thread runs
+        // the daemon logs "serving prefix" once its real-time thread runs; a
+        // quieter RUST_LOG hides the line, so a daemon still running after
+        // DAEMON_READY_WAIT is taken as serving
         let t0 = Instant::now();
         loop {
             if !daemon.running() {
@@ -299,14 +304,8 @@ impl Session {
                 ));
             }
             let log = std::fs::read_to_string(&daemon_log).unwrap_or_default();
-            if log.contains("serving prefix") {
+            if log.contains("serving prefix") || t0.elapsed() > DAEMON_READY_WAIT {
                 break;
-            }
-            if t0.elapsed() > Duration::from_secs(10) {
-                return Err(format!(
-                    "vlsyncd did not start serving within 10 s; see {}",
-                    daemon_log.display()
-                ));
             }
             std::thread::sleep(Duration::from_millis(20));
         }
