@@ -157,6 +157,10 @@ pub struct DaemonConfig {
     pub latency_budget_us: f64,
     /// Status publication period, seconds.
     pub status_period_s: f64,
+    /// When true, the latency percentiles of each status cover only the last
+    /// status period (the histograms restart after each status) instead of the
+    /// whole run; a load test reads them per phase.
+    pub latency_per_period: bool,
     /// Where the last good estimate is saved; empty: no persistence.
     pub state_file: String,
     /// A saved state older than this is ignored at start, seconds.
@@ -171,6 +175,7 @@ impl Default for DaemonConfig {
             lock_memory: false,
             latency_budget_us: 200.0,
             status_period_s: 1.0,
+            latency_per_period: false,
             state_file: String::new(),
             state_max_age_s: 3600.0,
         }
