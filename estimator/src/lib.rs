@@ -82,8 +82,9 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
-/// Time constant of the decay of each stream's "typical motion" variance, seconds.
-const MOTION_REF_TAU_S: f64 = 120.0;
+/// Hops of acquisition-window variances behind the motion gate's reference (120 s at
+/// the default hop).
+const MOTION_HISTORY: usize = 240;
 /// Floor of the measurement standard deviation (stamp jitter, interpolation), seconds.
 const MIN_MEAS_STD_S: f64 = 2e-4;
 /// Window length at which the peak-sharpness variance formula matches the observed scatter, s.
@@ -248,6 +249,48 @@ struct Current {
     var: f64,
 }
 
+/// The last [`MOTION_HISTORY`] values of one signal's window variance.
+#[derive(Debug, Clone)]
+struct History {
+    buf: [f64; MOTION_HISTORY],
+    n: usize,
+    pos: usize,
+    sort: [f64; MOTION_HISTORY],
+}
+
+impl Default for History {
+    fn default() -> Self {
+        Self {
+            buf: [0.0; MOTION_HISTORY],
+            n: 0,
+            pos: 0,
+            sort: [0.0; MOTION_HISTORY],
+        }
+    }
+}
+
+impl History {
+    fn push(&mut self, v: f64) {
+        if v.is_finite() {
+            self.buf[self.pos] = v;
+            self.pos = (self.pos + 1) % MOTION_HISTORY;
+            self.n = (self.n + 1).min(MOTION_HISTORY);
+        }
+    }
+
+    /// The 75th percentile of the values held (0 when empty).
+    fn upper_quartile(&mut self) -> f64 {
+        if self.n == 0 {
+            return 0.0;
+        }
+        let v = &mut self.sort[..self.n];
+        v.copy_from_slice(&self.buf[..self.n]);
+        let k = (3 * self.n) / 4;
+        *v.select_nth_unstable_by(k.min(self.n - 1), f64::total_cmp)
+            .1
+    }
+}
+
 /// Online offset/drift estimator. Push samples of both streams in any
 /// interleaving; poll estimates. Allocates nothing after [`Estimator::new`].
 #[derive(Debug, Clone)]
@@ -294,7 +337,8 @@ pub struct Estimator {
     since_chunk: usize,
     /// Consecutive hops with motion but no usable peak near the prediction.
     blind_moving: usize,
-    motion_ref: [f64; 2],
+    /// Recent acquisition-window variances of each signal (the motion gate's reference).
+    motion_hist: [History; 2],
     /// Per stream: the other stream's newest accepted time when this stream's newest
     /// sample was accepted (tells a silence from a clock step).
     other_at_last: [Option<Nanos>; 2],
@@ -368,7 +412,7 @@ impl Estimator {
             step: Streak::default(),
             since_chunk: 0,
             blind_moving: 0,
-            motion_ref: [0.0; 2],
+            motion_hist: [History::default(), History::default()],
             other_at_last: [None; 2],
             degraded: false,
             queue: Queue {
@@ -664,20 +708,23 @@ impl Estimator {
     }
 
     /// Motion gate on the acquisition window: both signals vary at least
-    /// `min_motion_ratio` of their recent typical variance.
+    /// `min_motion_ratio` of their typical variance, the upper quartile of the
+    /// acquisition windows of the last [`MOTION_HISTORY`] hops. A quantile rather than
+    /// a decaying maximum: a few seconds of one signature spiking (a turn sweeping the
+    /// LiDAR's window across a corner) must not make ordinary motion look like none.
     fn motion_ok(&mut self, update_ref: bool) -> bool {
         let w = self.corr.acq();
         let mid = self.corr.n_lags() / 2;
         let (a, b) = self.corr.active();
         let slot = mid.clamp(a, b);
         let v = [w.var_y(slot), w.var_x()];
-        let decay = (-self.p.hop_s / MOTION_REF_TAU_S).exp();
         let mut ok = true;
-        for (r, &vi) in self.motion_ref.iter_mut().zip(v.iter()) {
+        for (h, &vi) in self.motion_hist.iter_mut().zip(v.iter()) {
             if update_ref {
-                *r = (*r * decay).max(vi);
+                h.push(vi);
             }
-            if !(vi > 0.0 && vi >= self.p.min_motion * *r) {
+            let r = h.upper_quartile();
+            if !(vi > 0.0 && vi >= self.p.min_motion * r) {
                 ok = false;
             }
         }
