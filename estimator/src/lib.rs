@@ -5,9 +5,11 @@
 //!
 //! Pipeline: [`resample`] (validate, linear interpolation onto a uniform grid on
 //! each sensor's own clock) → [`filter`] (the same band-pass on both) →
-//! [`correlator`] (incremental windowed Pearson correlation per lag, O(lags) per
-//! grid sample) → [`peak`] (gated peak search, sub-sample refinement, polarity) →
-//! [`tracker`] (Kalman filter on offset and drift, innovation gate, step re-lock).
+//! [`correlator`] (incremental Pearson sums per lag in blocks of one hop, O(lags) per
+//! grid sample) → [`peak`] (gated peak search, sub-sample refinement, polarity);
+//! once locked, [`segment`] (robust, drift-compensated combination of every block
+//! since the last change point) with a two-sample step test, and [`drift`] (a line
+//! through disjoint short-window peaks).
 //!
 //! ```
 //! use vlsync_common::{Sample, Stream, EstimatorState};
