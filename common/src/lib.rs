@@ -221,8 +221,9 @@ pub struct Estimate {
     /// Sequence number, starting at 0, +1 per estimate.
     pub seq: u64,
     /// Reference time on the LiDAR clock (ns): the estimate is the offset at this instant.
-    /// It is the centre of the correlation window, so it lags the newest data by about
-    /// half a window plus the lag range; use [`Estimate::offset_at`] to extrapolate.
+    /// It lags the newest LiDAR data by `estimator.reference_lag_s` (3 s by default), so
+    /// the estimate rests on data from both sides of it; use [`Estimate::offset_at`] to
+    /// extrapolate to now.
     pub t_ref_ns: Nanos,
     /// `t_L - t_C` at `t_ref_ns`, seconds.
     pub offset_s: f64,
@@ -240,7 +241,10 @@ pub struct Estimate {
     pub peak_score: f64,
     /// Main-peak to second-peak ratio of this hop (`f64::INFINITY` when there is no second peak, 0 when no peak).
     pub peak_ratio: f64,
-    /// Raw correlation measurement of this hop (offset at the window centre), seconds; NaN when none.
+    /// Raw measurement of this hop: the peak of the newest `window_s` of data (near the
+    /// prediction once locked), moved from that window's centre to `t_ref_ns` with the
+    /// drift, seconds; NaN when none. Noisier than `offset_s`, which rests on the
+    /// whole segment.
     pub measured_offset_s: f64,
 }
 

@@ -51,8 +51,14 @@ pub struct Config {
 pub struct EstimatorConfig {
     /// Rate of the common resampling grid, Hz.
     pub grid_hz: f64,
-    /// Correlation window length, seconds.
+    /// Acquisition window length (also the motion gate's window), seconds.
     pub window_s: f64,
+    /// Longest segment: once locked, the offset is measured on every block since the
+    /// last change point (lock, step), at most this long, seconds.
+    pub segment_s: f64,
+    /// Estimates refer to this long before the newest data (the segment holds this
+    /// much data after the reference time), seconds.
+    pub reference_lag_s: f64,
     /// Hop between estimates, seconds (also the block length of the incremental sums).
     pub hop_s: f64,
     /// Half-width of the acquisition lag search, seconds.
@@ -85,8 +91,8 @@ pub struct EstimatorConfig {
     pub measurement_noise_scale: f64,
     /// Random-walk intensity of the offset, s/sqrt(s).
     pub offset_process_noise: f64,
-    /// Random-walk intensity of the drift, (s/s)/sqrt(s).
-    pub drift_process_noise: f64,
+    /// Time constant with which old drift information fades, seconds.
+    pub drift_memory_s: f64,
     /// Prior standard deviation of the drift at lock, s/s.
     pub initial_drift_std: f64,
     /// Random-walk intensity of the offset once no measurement was accepted for a
@@ -94,9 +100,10 @@ pub struct EstimatorConfig {
     pub hold_process_noise: f64,
     /// Innovation gate, in standard deviations.
     pub gate_sigma: f64,
-    /// Step-window innovation threshold, in standard deviations.
+    /// Step test threshold, in standard deviations: hops beyond half of its square
+    /// accumulate evidence.
     pub step_gate_sigma: f64,
-    /// Consecutive consistent step-window outliers that declare an offset step.
+    /// A step is declared once the evidence reaches `step_confirm · step_gate_sigma² / 2`.
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
@@ -107,6 +114,8 @@ impl Default for EstimatorConfig {
         Self {
             grid_hz: 100.0,
             window_s: 6.0,
+            segment_s: 60.0,
+            reference_lag_s: 3.0,
             hop_s: 0.5,
             max_lag_s: 0.5,
             lag_center_s: 0.0,
@@ -123,11 +132,11 @@ impl Default for EstimatorConfig {
             acquire_confirm: 4,
             measurement_noise_scale: 1.0,
             offset_process_noise: 2e-4,
-            drift_process_noise: 2e-6,
+            drift_memory_s: 900.0,
             initial_drift_std: 5e-5,
             hold_process_noise: 3e-3,
             gate_sigma: 3.0,
-            step_gate_sigma: 3.0,
+            step_gate_sigma: 4.5,
             step_confirm: 3,
             lost_std_s: 0.05,
         }
@@ -148,6 +157,10 @@ pub struct DaemonConfig {
     pub latency_budget_us: f64,
     /// Status publication period, seconds.
     pub status_period_s: f64,
+    /// When true, the latency percentiles of each status cover only the last
+    /// status period (the histograms restart after each status) instead of the
+    /// whole run; a load test reads them per phase.
+    pub latency_per_period: bool,
     /// Where the last good estimate is saved; empty: no persistence.
     pub state_file: String,
     /// A saved state older than this is ignored at start, seconds.
@@ -162,6 +175,7 @@ impl Default for DaemonConfig {
             lock_memory: false,
             latency_budget_us: 200.0,
             status_period_s: 1.0,
+            latency_per_period: false,
             state_file: String::new(),
             state_max_age_s: 3600.0,
         }
@@ -235,6 +249,8 @@ impl EstimatorConfig {
         let k = |n: &str| format!("estimator.{n}");
         c.range(&k("grid_hz"), self.grid_hz, 10.0, 2000.0)?;
         c.range(&k("window_s"), self.window_s, 1.0, 120.0)?;
+        c.range(&k("segment_s"), self.segment_s, 1.0, 600.0)?;
+        c.range(&k("reference_lag_s"), self.reference_lag_s, 0.0, 600.0)?;
         c.range(&k("hop_s"), self.hop_s, 0.05, 10.0)?;
         c.range(&k("max_lag_s"), self.max_lag_s, 0.01, 2.0)?;
         c.range(&k("lag_center_s"), self.lag_center_s, -1e6, 1e6)?;
@@ -261,12 +277,7 @@ impl EstimatorConfig {
             0.0,
             1.0,
         )?;
-        c.range(
-            &k("drift_process_noise"),
-            self.drift_process_noise,
-            0.0,
-            1.0,
-        )?;
+        c.range(&k("drift_memory_s"), self.drift_memory_s, 1.0, 1e9)?;
         c.range(&k("initial_drift_std"), self.initial_drift_std, 1e-9, 0.1)?;
         c.range(&k("hold_process_noise"), self.hold_process_noise, 0.0, 1.0)?;
         c.range(&k("gate_sigma"), self.gate_sigma, 1.0, 100.0)?;
@@ -277,6 +288,18 @@ impl EstimatorConfig {
             format!(
                 "`estimator.hop_s` = {} must not exceed `estimator.window_s` = {}",
                 self.hop_s, self.window_s
+            )
+        })?;
+        c.rule(self.window_s <= self.segment_s, || {
+            format!(
+                "`estimator.window_s` = {} must not exceed `estimator.segment_s` = {}",
+                self.window_s, self.segment_s
+            )
+        })?;
+        c.rule(self.reference_lag_s <= self.segment_s, || {
+            format!(
+                "`estimator.reference_lag_s` = {} must not exceed `estimator.segment_s` = {}",
+                self.reference_lag_s, self.segment_s
             )
         })?;
         c.rule(self.step_window_s <= self.window_s, || {
@@ -306,11 +329,11 @@ impl EstimatorConfig {
             )
         })?;
         let lags = 2.0 * self.max_lag_s * self.grid_hz + 1.0;
-        let blocks = (self.window_s / self.hop_s).ceil() + 1.0;
+        let blocks = (self.segment_s / self.hop_s).ceil() + 1.0;
         c.rule(lags * blocks <= 4.0e6, || {
             format!(
-                "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.window_s`/`estimator.hop_s` = {}/{} need {} lag sums: allowed at most 4000000 (about 100 MB)",
-                self.max_lag_s, self.grid_hz, self.window_s, self.hop_s, lags * blocks
+                "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.segment_s`/`estimator.hop_s` = {}/{} need {} lag sums: allowed at most 4000000 (about 100 MB)",
+                self.max_lag_s, self.grid_hz, self.segment_s, self.hop_s, lags * blocks
             )
         })?;
         c.rule(self.track_range_s <= self.max_lag_s, || {
@@ -459,6 +482,10 @@ mod tests {
         let e =
             Config::from_toml_str("[estimator]\nhop_s = 8.0\nwindow_s = 4.0\n", "x").unwrap_err();
         assert!(e.to_string().contains("hop_s"), "{e}");
+        let e = Config::from_toml_str("[estimator]\nreference_lag_s = 70.0\n", "x").unwrap_err();
+        assert!(e.to_string().contains("reference_lag_s"), "{e}");
+        let e = Config::from_toml_str("[estimator]\nsegment_s = 5.0\n", "x").unwrap_err();
+        assert!(e.to_string().contains("segment_s"), "{e}");
         let e = Config::from_toml_str("[services]\nprefix = \"/a//b\"\n", "x").unwrap_err();
         assert!(e.to_string().contains("services.prefix"), "{e}");
     }
@@ -476,8 +503,8 @@ mod tests {
         fn window_values_accepted_iff_in_range(w in -10.0f64..200.0) {
             let text = format!("[estimator]\nwindow_s = {w:?}\n");
             let r = Config::from_toml_str(&text, "p");
-            // the default step window (2 s) is the binding lower limit
-            let in_range = (2.0..=120.0).contains(&w);
+            // the default step window (2 s) and segment (60 s) are the binding limits
+            let in_range = (2.0..=60.0).contains(&w);
             prop_assert_eq!(r.is_ok(), in_range, "w={}", w);
         }
     }

@@ -84,7 +84,12 @@ pub fn offset_svg(
     let px = |t: f64| L + (t - t0) / (t1 - t0) * (W - L - R);
     let py = |y: f64| T + (y1 - y.clamp(y0, y1)) / (y1 - y0) * (H - T - B);
     for (a, b, label) in shaded {
-        let (xa, xb) = (px(nanos_to_secs(*a)), px(nanos_to_secs(*b)));
+        // intervals reaching past the estimates are cut at the plot's edges
+        let edge = |x: f64| x.clamp(L, W - R);
+        let (xa, xb) = (edge(px(nanos_to_secs(*a))), edge(px(nanos_to_secs(*b))));
+        if xb <= xa {
+            continue;
+        }
         let _ = writeln!(
             s,
             r##"<rect x="{xa:.1}" y="{T}" width="{:.1}" height="{}" fill="#ddf4ff"/><text x="{:.1}" y="{}" fill="#0969da">{}</text>"##,
@@ -267,6 +272,26 @@ mod tests {
         assert!(
             svg.contains("<polygon") && svg.contains("stroke=\"black\"") && svg.contains(">load<")
         );
+        // shading past the data is cut at the edge; wholly outside it is left out
+        let svg = offset_svg(
+            "t",
+            &ests,
+            None,
+            &[
+                (40_000_000_000, 90_000_000_000, "late".into()),
+                (60_000_000_000, 90_000_000_000, "outside".into()),
+            ],
+        );
+        assert!(svg.contains(">late<") && !svg.contains(">outside<"));
+        let x = |tag: &str| -> f64 {
+            let i = svg.find(&format!(">{tag}<")).unwrap();
+            let r = svg[..i].rfind("<rect x=\"").unwrap();
+            let rest = &svg[r + 9..];
+            let xa: f64 = rest[..rest.find('"').unwrap()].parse().unwrap();
+            let w = &rest[rest.find("width=\"").unwrap() + 7..];
+            xa + w[..w.find('"').unwrap()].parse::<f64>().unwrap()
+        };
+        assert!(x("late") <= W - R + 0.05);
         // 50 measurements plus the legend's marker
         assert_eq!(svg.matches("<circle").count(), 50 + 1);
     }

@@ -73,7 +73,35 @@ pub struct DriverArgs {
     /// the same one; a restarted driver given the same resumes at the current position).
     #[arg(long)]
     pub start_at: Option<i64>,
+    /// How a rendered run is stamped: `sensor` (the rendered sensor clocks),
+    /// `mono` (the same stamps carried onto CLOCK_MONOTONIC from --start-at),
+    /// `software` (camera only: CLOCK_MONOTONIC read after the front-end
+    /// processed each frame, frames delivered in real time). `mono` and
+    /// `software` need real time (no --fast or --speed other than 1) and both
+    /// drivers of a pair must share --start-at.
+    #[arg(long, value_enum, default_value_t = StampArg::Sensor)]
+    pub stamp: StampArg,
+    /// Write one truth row per published sample of a rendered run to FILE:
+    /// `seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns`
+    /// (true event time against the stamp published; see `vlsync_driver::SampleTruth`).
+    #[arg(long, value_name = "FILE")]
+    pub truth_out: Option<PathBuf>,
 }
+
+/// `--stamp`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StampArg {
+    /// The rendered sensor clocks.
+    Sensor,
+    /// The rendered sensor clocks on CLOCK_MONOTONIC.
+    Mono,
+    /// Camera: CLOCK_MONOTONIC after processing.
+    Software,
+}
+
+/// How long after now a `--stamp mono|software` run without `--start-at` starts
+/// (the render thread fills its queue meanwhile).
+pub const DEFAULT_START_DELAY_NS: i64 = 1_000_000_000;
 
 /// A source with how to pace it.
 pub struct Selected {
@@ -82,6 +110,9 @@ pub struct Selected {
     /// Pacing anchor (sensor time of the start instant); `None`: a live device,
     /// published as data arrives.
     pub anchor_ns: Option<i64>,
+    /// The start instant the stamps were built on (`--stamp mono|software`
+    /// without `--start-at` picks one); `None`: `--start-at` or the start of the run.
+    pub start_at: Option<i64>,
 }
 
 /// How long a serial LiDAR may stay silent before the driver gives up.
@@ -132,6 +163,25 @@ pub fn select_source(
             "{f} is not a source of vlsync-{stream}; give one of {choices}"
         ))
     };
+    if args.stamp != StampArg::Sensor {
+        if flag != "--render" {
+            return Err(DriverError::Options(format!(
+                "--stamp {} applies to --render only",
+                args.stamp.name()
+            )));
+        }
+        if args.fast || args.speed.is_some_and(|s| s != 1.0) {
+            return Err(DriverError::Options(format!(
+                "--stamp {} stamps on CLOCK_MONOTONIC: it needs real time (no --fast, --speed 1)",
+                args.stamp.name()
+            )));
+        }
+    }
+    if args.truth_out.is_some() && flag != "--render" {
+        return Err(DriverError::Options(
+            "--truth-out needs --render (only the rendering simulator knows the truth)".into(),
+        ));
+    }
     if args.baud.is_some() && args.ld06.is_none() && args.rplidar.is_none() {
         return Err(DriverError::Options(
             "--baud applies to --ld06 and --rplidar only".into(),
@@ -144,6 +194,7 @@ pub fn select_source(
         Ok(Selected {
             source: Box::new(p),
             anchor_ns: Some(anchor),
+            start_at: None,
         })
     };
     match (flag, stream) {
@@ -154,6 +205,7 @@ pub fn select_source(
             Ok(Selected {
                 source: Box::new(s),
                 anchor_ns: Some(anchor),
+                start_at: None,
             })
         }
         ("--sim", _) => {
@@ -166,6 +218,7 @@ pub fn select_source(
             Ok(Selected {
                 source: Box::new(VecSource::from_sim(&run, stream)),
                 anchor_ns: Some(sim_anchor_ns(&run)),
+                start_at: None,
             })
         }
         ("--render", _) => {
@@ -173,13 +226,32 @@ pub fn select_source(
             let duration = args.duration.unwrap_or(raw::DEFAULT_RENDER_DURATION_S);
             let r = raw::renderer(seed, duration).map_err(src)?;
             let anchor = raw::render_anchor_ns(&r);
+            // mono stamps are built on the start instant: pick one now if none was given
+            let start_at = match args.stamp {
+                StampArg::Sensor => args.start_at,
+                _ => Some(
+                    args.start_at
+                        .unwrap_or_else(|| vlsync_ipc::monotonic_ns() + DEFAULT_START_DELAY_NS),
+                ),
+            };
+            let shift_ns = start_at.unwrap_or(0) - anchor;
+            let stamp = match args.stamp {
+                StampArg::Sensor => raw::RenderStamp::Sensor,
+                StampArg::Mono => raw::RenderStamp::Mono { shift_ns },
+                StampArg::Software => raw::RenderStamp::Software { shift_ns },
+            };
             let source: Box<dyn Source> = match stream {
-                Stream::Cam => Box::new(raw::CamSource::render(r).map_err(src)?),
-                Stream::Lidar => Box::new(raw::LidarSource::render(r).map_err(src)?),
+                Stream::Cam => Box::new(raw::CamSource::render_with(r, stamp, stop).map_err(src)?),
+                Stream::Lidar => Box::new(raw::LidarSource::render_with(r, stamp).map_err(src)?),
             };
             Ok(Selected {
                 source,
-                anchor_ns: Some(anchor),
+                // software stamping paces itself (frames are delivered in real time)
+                anchor_ns: match stamp {
+                    raw::RenderStamp::Software { .. } => None,
+                    _ => Some(anchor + stamp.shift_ns()),
+                },
+                start_at,
             })
         }
         ("--mcap", _) => {
@@ -203,6 +275,7 @@ pub fn select_source(
             Ok(Selected {
                 source: Box::new(raw::CamSource::v4l2(d, stop).map_err(src)?),
                 anchor_ns: None,
+                start_at: None,
             })
         }
         ("--ld06" | "--rplidar", Stream::Lidar) => {
@@ -216,6 +289,7 @@ pub fn select_source(
                         .map_err(src)?,
                 ),
                 anchor_ns: None,
+                start_at: None,
             })
         }
         (f, _) => Err(wrong_stream(f)),
@@ -241,10 +315,15 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     let Selected {
         mut source,
         anchor_ns,
+        start_at,
     } = select_source(args, stream, termination_requested)?;
     let node = create_node(&format!("vlsync-{stream}"), true).map_err(DriverError::Ipc)?;
     let mut publisher =
         SignaturePublisher::open(&node, &names, stream).map_err(DriverError::Ipc)?;
+    let mut truth = match &args.truth_out {
+        Some(p) => Some(crate::TruthLog::create(p)?),
+        None => None,
+    };
     let pacing = match anchor_ns {
         _ if args.fast => Pacing::Fast,
         // a live device: publish as the data arrives
@@ -252,7 +331,7 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         Some(anchor) => Pacing::Scaled {
             speed: args.speed.unwrap_or(1.0),
             anchor_ns: anchor,
-            start_mono_ns: args.start_at,
+            start_mono_ns: start_at.or(args.start_at),
         },
     };
     eprintln!(
@@ -260,11 +339,36 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         source.describe(),
         names.signature(stream)
     );
-    let result = run(&mut *source, &mut publisher, pacing, &termination_requested);
+    let result = run(
+        &mut *source,
+        &mut publisher,
+        pacing,
+        &termination_requested,
+        truth.as_mut(),
+    );
     if let Some(r) = source.report() {
         eprintln!("vlsync-{stream}: {r}");
     }
+    if let (Some(t), Some(p)) = (truth.as_mut(), &args.truth_out) {
+        t.finish().map_err(DriverError::Source)?;
+        eprintln!(
+            "vlsync-{stream}: {} truth rows written to {}",
+            t.rows(),
+            p.display()
+        );
+    }
     result
+}
+
+impl StampArg {
+    /// The value as written on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            StampArg::Sensor => "sensor",
+            StampArg::Mono => "mono",
+            StampArg::Software => "software",
+        }
+    }
 }
 
 /// `main` of a driver binary.

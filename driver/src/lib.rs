@@ -53,6 +53,98 @@ pub trait Source {
     fn report(&self) -> Option<String> {
         None
     }
+    /// The truth of the sample [`Source::next_sample`] returned last, when the
+    /// source knows it (the rendering simulator does; a real sensor does not).
+    fn truth(&self) -> Option<SampleTruth> {
+        None
+    }
+}
+
+/// What a simulating source knows about one sample beyond its stamp.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SampleTruth {
+    /// True time of the physical event the sample describes (the midpoint of
+    /// the two true instants it spans), ns, on the run's time base:
+    /// `CLOCK_MONOTONIC` with `--stamp mono|software`, the simulator's own
+    /// true time with `--stamp sensor`. `stamp - event` is the stamping error.
+    pub event_ns: Nanos,
+    /// Camera, software stamping: how late the later frame reached the
+    /// front-end after its exposure ended (scheduling, stalls, rendering), ns.
+    pub late_ns: Nanos,
+    /// Camera, software stamping: front-end processing time of the later frame, ns.
+    pub process_ns: Nanos,
+    /// Camera, software stamping: how late the renderer finished the later frame
+    /// after its exposure ended (0 when it was ready in time), ns.
+    pub render_late_ns: Nanos,
+}
+
+/// Header of a truth file.
+pub const TRUTH_HEADER: &str = "seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns";
+
+/// Writes one truth row per published sample (`--truth-out`): the sequence
+/// number, when it was published, the true event time, the stamp published and
+/// the camera's delay diagnostics (see [`SampleTruth`]); `CLOCK_MONOTONIC` ns.
+pub struct TruthLog {
+    out: std::io::BufWriter<std::fs::File>,
+    path: std::path::PathBuf,
+    rows: u64,
+    last_flush: std::time::Instant,
+}
+
+impl TruthLog {
+    /// Creates (truncates) `path` and writes the header.
+    pub fn create(path: &Path) -> Result<Self, DriverError> {
+        use std::io::Write;
+        let f = std::fs::File::create(path)
+            .map_err(|e| DriverError::Options(format!("--truth-out {}: {e}", path.display())))?;
+        let mut out = std::io::BufWriter::new(f);
+        writeln!(out, "{TRUTH_HEADER}")
+            .map_err(|e| DriverError::Options(format!("--truth-out {}: {e}", path.display())))?;
+        Ok(Self {
+            out,
+            path: path.to_path_buf(),
+            rows: 0,
+            last_flush: std::time::Instant::now(),
+        })
+    }
+
+    /// Appends one row; flushed about once a second (and on [`TruthLog::finish`]).
+    pub fn record(
+        &mut self,
+        seq: u64,
+        publish_ns: Nanos,
+        stamp_ns: Nanos,
+        t: &SampleTruth,
+    ) -> Result<(), SourceError> {
+        use std::io::Write;
+        writeln!(
+            self.out,
+            "{seq},{publish_ns},{},{stamp_ns},{},{},{}",
+            t.event_ns, t.late_ns, t.process_ns, t.render_late_ns
+        )
+        .map_err(|e| SourceError(format!("--truth-out {}: {e}", self.path.display())))?;
+        self.rows += 1;
+        if self.last_flush.elapsed() >= Duration::from_secs(1) {
+            self.last_flush = std::time::Instant::now();
+            self.out
+                .flush()
+                .map_err(|e| SourceError(format!("--truth-out {}: {e}", self.path.display())))?;
+        }
+        Ok(())
+    }
+
+    /// Rows written.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// Flushes everything written.
+    pub fn finish(&mut self) -> Result<(), SourceError> {
+        use std::io::Write;
+        self.out
+            .flush()
+            .map_err(|e| SourceError(format!("--truth-out {}: {e}", self.path.display())))
+    }
 }
 
 /// A source over samples already in memory (CSV replay, simulator).
@@ -188,11 +280,13 @@ const MAX_SLEEP: Duration = Duration::from_millis(50);
 /// Publishes every sample of `source` with `pacing` until it ends or `stop()`
 /// returns true. Publish failures are counted, not fatal (the daemon may be
 /// restarting); more than `max_consecutive_failures` in a row is an error.
+/// With `truth`, every published sample whose truth the source knows gets a row.
 pub fn run(
     source: &mut dyn Source,
     publisher: &mut SignaturePublisher,
     pacing: Pacing,
     stop: &dyn Fn() -> bool,
+    mut truth: Option<&mut TruthLog>,
 ) -> Result<RunSummary, DriverError> {
     const MAX_CONSECUTIVE_FAILURES: u64 = 1000;
     let started = monotonic_ns();
@@ -239,9 +333,13 @@ pub fn run(
             }
         }
         match publisher.publish(s.t_ns, s.value) {
-            Ok(_) => {
+            Ok(seq) => {
                 sum.published += 1;
                 consecutive = 0;
+                if let (Some(log), Some(t)) = (truth.as_deref_mut(), source.truth()) {
+                    log.record(seq, monotonic_ns(), s.t_ns, &t)
+                        .map_err(DriverError::Source)?;
+                }
             }
             Err(e) => {
                 sum.failed += 1;
@@ -302,7 +400,7 @@ mod tests {
         let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
         let mut src = VecSource::new(samples, "test");
         let t0 = std::time::Instant::now();
-        let sum = run(&mut src, &mut p, pacing, &|| false).unwrap();
+        let sum = run(&mut src, &mut p, pacing, &|| false, None).unwrap();
         let el = t0.elapsed();
         let mut got = vec![];
         while let Some(s) = sub.receive().unwrap() {

@@ -19,12 +19,41 @@
 //! Live devices stamp on the host's `CLOCK_MONOTONIC` (V4L2 buffer times
 //! normally are; serial LiDAR chunks are stamped with it on arrival), so both
 //! drivers of a robot share a time base up to the sensors' latencies.
+//!
+//! # Rendered runs: stamping and truth ([`RenderStamp`])
+//!
+//! * `Sensor`: the rendered sensor clocks (the camera clock carries the run's
+//!   offset and drift; the LiDAR clock is the true time plus per-scan jitter).
+//! * `Mono`: the same stamps carried onto `CLOCK_MONOTONIC`: true time `τ` maps
+//!   to `τ + shift`, `shift = start_at - anchor` (both drivers of a pair compute
+//!   the same from `--start-at`), so stamps of a real-time run read like the
+//!   host clock while keeping the sensors' own stamping.
+//! * `Software` (camera): frames are rendered ahead on their own thread (the
+//!   "camera hardware", raised to nice −10 when allowed so host load does not
+//!   slow it) and handed to the front-end when their exposure ends, at
+//!   `τ_end + shift`; the driver reads `CLOCK_MONOTONIC` **after** the
+//!   front-end processed the frame and uses that as the frame's time, like a
+//!   cheap camera stamped in software. The sample is stamped at the midpoint of
+//!   the two software stamps (the processor's rule with those times), so
+//!   scheduling delays, CPU load and stalls move the stamps as they would on a
+//!   robot. Its value is the flow over the frames' own interval, from their
+//!   frame numbers and the nominal period (what a V4L2 buffer's `sequence`
+//!   gives), not over the software interval: late frames would otherwise
+//!   arrive in bursts a millisecond apart and turn into spikes of the signature.
+//!
+//! Every sample of a rendered source carries a [`SampleTruth`]: its true event
+//! time on the run's time base (the midpoint of the two true mid-exposure
+//! instants for the camera; for the LiDAR the stamp with the jitter of the two
+//! scans it spans removed), so `stamp - event` is the stamping error and the
+//! true offset of a pair is `(stamp - event)_LiDAR - (stamp - event)_camera`.
 
-use crate::{Source, SourceError};
+use crate::{SampleTruth, Source, SourceError};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 use vlsync_common::{Nanos, Sample};
+use vlsync_ipc::monotonic_ns;
 use vlsync_signature_cam as cam;
 use vlsync_signature_lidar as lidar;
 
@@ -62,34 +91,303 @@ pub fn render_anchor_ns(r: &vlsync_render::Renderer) -> Nanos {
     }
 }
 
+/// How a rendered source stamps its samples (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RenderStamp {
+    /// The rendered sensor clocks.
+    Sensor,
+    /// The rendered sensor clocks carried onto `CLOCK_MONOTONIC` (`+ shift_ns`).
+    Mono {
+        /// `start_at - anchor`: true time `τ` happens at `τ + shift_ns` on `CLOCK_MONOTONIC`.
+        shift_ns: Nanos,
+    },
+    /// Camera only: `CLOCK_MONOTONIC` read after the front-end processed each
+    /// frame; frames are delivered in real time at the end of their exposure.
+    Software {
+        /// As for `Mono`.
+        shift_ns: Nanos,
+    },
+}
+
+impl RenderStamp {
+    /// The shift from the run's true time to the published time base.
+    pub fn shift_ns(self) -> Nanos {
+        match self {
+            RenderStamp::Sensor => 0,
+            RenderStamp::Mono { shift_ns } | RenderStamp::Software { shift_ns } => shift_ns,
+        }
+    }
+}
+
+/// `(a + b) / 2` without overflow.
+fn mid(a: Nanos, b: Nanos) -> Nanos {
+    ((i128::from(a) + i128::from(b)).div_euclid(2)) as Nanos
+}
+
 // ---------------------------------------------------------------- camera
 
-/// Rendered frames as a [`FrameSource`].
+/// What the driver knows about a rendered frame beyond its image and time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct FrameTruth {
+    /// Frame number counting dropped frames (a V4L2 buffer's `sequence`).
+    sequence: u64,
+    /// The camera's nominal frame period, ns.
+    period_ns: Nanos,
+    /// True mid-exposure, on the run's time base.
+    event_ns: Nanos,
+    /// Delivered this late after the end of exposure (software stamping).
+    late_ns: Nanos,
+    /// Rendered this late after the end of exposure (software stamping).
+    render_late_ns: Nanos,
+}
+
+/// A frame, its time and its truth.
+type TimedFrame<'a> = (cam::GrayFrame<'a, u8>, cam::FrameTime, Option<FrameTruth>);
+
+/// Frames with their truth when the source knows it.
+trait Frames {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error>;
+    /// Real-time delivery counts and the render thread's priority (live rendering only).
+    fn live(&self) -> Option<(LiveCounts, String)> {
+        None
+    }
+}
+
+/// A front-end frame source: no truth.
+struct Plain(Box<dyn FrameSource>);
+
+impl Frames for Plain {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
+        Ok(self.0.next_frame()?.map(|(f, t)| (f, t, None)))
+    }
+}
+
+fn render_error(seed: u64, i: u64, e: &vlsync_render::RenderError) -> cam::Error {
+    cam::Error::Decode {
+        path: PathBuf::from(format!("render seed {seed} frame {i}")),
+        reason: e.to_string(),
+    }
+}
+
+/// Rendered frames on the rendered camera clock (shifted by `shift` ns), in turn.
 struct RenderFrames {
     r: vlsync_render::Renderer,
     next: usize,
+    shift: Nanos,
+    period_ns: Nanos,
     cur: Option<vlsync_render::RenderedFrame>,
 }
 
-impl FrameSource for RenderFrames {
-    fn next_frame(
-        &mut self,
-    ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+/// The nominal frame period of a rendered run, ns.
+fn frame_period_ns(r: &vlsync_render::Renderer) -> Nanos {
+    (1e9 / r.config().camera.fps).round() as Nanos
+}
+
+impl Frames for RenderFrames {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
         let i = self.next;
         match self.r.render_frame(i) {
             None => Ok(None),
-            Some(Err(e)) => Err(cam::Error::Decode {
-                path: PathBuf::from(format!("render seed {} frame {i}", self.r.config().seed)),
-                reason: e.to_string(),
-            }),
+            Some(Err(e)) => Err(render_error(self.r.config().seed, i as u64, &e)),
             Some(Ok(f)) => {
                 self.next += 1;
+                let time = match f.time {
+                    cam::FrameTime::Instant(t) => cam::FrameTime::Instant(t + self.shift),
+                    cam::FrameTime::Exposure {
+                        start_ns,
+                        duration_ns,
+                    } => cam::FrameTime::Exposure {
+                        start_ns: start_ns + self.shift,
+                        duration_ns,
+                    },
+                };
+                let truth = FrameTruth {
+                    sequence: f.index,
+                    period_ns: self.period_ns,
+                    event_ns: f.tau_mid_ns + self.shift,
+                    ..FrameTruth::default()
+                };
                 let f = self.cur.insert(f);
-                Ok(Some((f.image.view(), f.time)))
+                Ok(Some((f.image.view(), time, Some(truth))))
             }
         }
     }
 }
+
+/// Frames rendered ahead of time on a thread ("the camera hardware").
+pub const RENDER_AHEAD_FRAMES: usize = 30;
+/// Nice value asked for the render thread, so host load does not slow the
+/// simulated camera hardware (refusal is reported, not fatal).
+pub const RENDER_THREAD_NICE: i32 = -10;
+
+struct Rendered {
+    frame: Result<vlsync_render::RenderedFrame, vlsync_render::RenderError>,
+    /// `CLOCK_MONOTONIC` when rendering finished.
+    done_ns: Nanos,
+}
+
+/// Rendered frames delivered in real time for software stamping.
+struct LiveRender {
+    rx: Receiver<Rendered>,
+    seed: u64,
+    shift: Nanos,
+    period_ns: Nanos,
+    stop: StopFn,
+    /// Frames whose exposure ended before this were skipped (a restarted driver).
+    skip_before: Nanos,
+    cur: Option<vlsync_render::RenderedFrame>,
+    nice: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    live: LiveCounts,
+}
+
+/// What the real-time delivery of rendered frames saw.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LiveCounts {
+    /// Frames delivered.
+    pub delivered: u64,
+    /// Frames skipped because their time passed before the driver started.
+    pub skipped: u64,
+    /// Frames the renderer finished after their exposure ended.
+    pub render_late: u64,
+    /// Largest render lateness, ns.
+    pub max_render_late_ns: Nanos,
+    /// Largest delivery lateness (end of exposure to front-end), ns.
+    pub max_late_ns: Nanos,
+}
+
+impl LiveRender {
+    fn start(r: vlsync_render::Renderer, shift: Nanos, stop: StopFn) -> Result<Self, SourceError> {
+        let seed = r.config().seed;
+        let period_ns = frame_period_ns(&r);
+        let now = monotonic_ns();
+        let exp_half = vlsync_common::secs_to_nanos(r.config().camera.exposure_s) / 2;
+        // a driver restarted mid-run (start_at in the past) resumes at the current frame
+        let skip_before = if shift + render_anchor_ns(&r) < now {
+            now
+        } else {
+            Nanos::MIN
+        };
+        let first = r
+            .frame_schedule()
+            .iter()
+            .position(|f| f.tau_mid_ns + exp_half + shift >= skip_before)
+            .unwrap_or(r.frame_schedule().len());
+        let (tx, rx) = sync_channel(RENDER_AHEAD_FRAMES);
+        let nice = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let nice_t = nice.clone();
+        let mut r = r;
+        std::thread::Builder::new()
+            .name("vlsync-render".into())
+            .spawn(move || {
+                let got = vlsync_ipc::rt::set_current_thread_nice(
+                    RENDER_THREAD_NICE,
+                    &format!("render thread nice {RENDER_THREAD_NICE}"),
+                );
+                if let Ok(mut n) = nice_t.lock() {
+                    *n = Some(match got {
+                        Ok(()) => format!("render thread at nice {RENDER_THREAD_NICE}"),
+                        Err(e) => format!("{e}; render thread at the default priority"),
+                    });
+                }
+                let mut i = first;
+                while let Some(frame) = r.render_frame(i) {
+                    i += 1;
+                    let done_ns = monotonic_ns();
+                    if tx.send(Rendered { frame, done_ns }).is_err() {
+                        break; // the driver is gone
+                    }
+                }
+            })
+            .map_err(|e| {
+                SourceError(format!(
+                    "render seed {seed}: cannot start the render thread: {e}"
+                ))
+            })?;
+        Ok(Self {
+            rx,
+            seed,
+            shift,
+            period_ns,
+            stop,
+            skip_before,
+            cur: None,
+            nice,
+            live: LiveCounts {
+                skipped: first as u64,
+                ..LiveCounts::default()
+            },
+        })
+    }
+}
+
+impl Frames for LiveRender {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
+        let f = loop {
+            if (self.stop)() {
+                return Ok(None);
+            }
+            let r = match self.rx.recv_timeout(MAX_WAIT) {
+                Ok(r) => r,
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => return Ok(None),
+            };
+            let f = r.frame.map_err(|e| render_error(self.seed, 0, &e))?;
+            let due = f.tau_available_ns + self.shift;
+            if due < self.skip_before {
+                self.live.skipped += 1;
+                continue;
+            }
+            let render_late = (r.done_ns - due).max(0);
+            if render_late > 0 {
+                self.live.render_late += 1;
+                self.live.max_render_late_ns = self.live.max_render_late_ns.max(render_late);
+            }
+            // the exposure ends at `due`: the frame exists from then on
+            loop {
+                let now = monotonic_ns();
+                if now >= due {
+                    break;
+                }
+                if (self.stop)() {
+                    return Ok(None);
+                }
+                std::thread::sleep(Duration::from_nanos((due - now) as u64).min(MAX_WAIT));
+            }
+            break (f, render_late, due);
+        };
+        let (f, render_late_ns, due) = f;
+        let now = monotonic_ns();
+        let late_ns = now - due;
+        self.live.delivered += 1;
+        self.live.max_late_ns = self.live.max_late_ns.max(late_ns);
+        let truth = FrameTruth {
+            sequence: f.index,
+            period_ns: self.period_ns,
+            event_ns: f.tau_mid_ns + self.shift,
+            late_ns,
+            render_late_ns,
+        };
+        let f = self.cur.insert(f);
+        Ok(Some((
+            f.image.view(),
+            cam::FrameTime::Instant(now),
+            Some(truth),
+        )))
+    }
+
+    fn live(&self) -> Option<(LiveCounts, String)> {
+        let nice = self
+            .nice
+            .lock()
+            .ok()
+            .and_then(|n| n.clone())
+            .unwrap_or_else(|| "render thread priority unknown".into());
+        Some((self.live, nice))
+    }
+}
+
+/// Longest single wait of the live render source, so a stop request is seen.
+const MAX_WAIT: Duration = Duration::from_millis(50);
 
 /// What the camera front-end did with the frames.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -114,12 +412,17 @@ pub struct CamCounts {
 
 /// Camera frames through `SignatureProcessor`.
 pub struct CamSource {
-    frames: Box<dyn FrameSource>,
+    frames: Box<dyn Frames>,
     proc: cam::SignatureProcessor,
     what: String,
     stop: StopFn,
     counts: CamCounts,
     last_refusal: Option<String>,
+    /// Stamp each frame with `CLOCK_MONOTONIC` after processing it.
+    software: bool,
+    /// Software stamp and truth of the previous frame the processor kept.
+    prev: Option<(Nanos, Option<FrameTruth>)>,
+    last_truth: Option<SampleTruth>,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -133,6 +436,15 @@ impl std::fmt::Debug for CamSource {
 
 impl CamSource {
     fn new(frames: Box<dyn FrameSource>, what: String, stop: StopFn) -> Result<Self, SourceError> {
+        Self::with_frames(Box::new(Plain(frames)), what, stop, false)
+    }
+
+    fn with_frames(
+        frames: Box<dyn Frames>,
+        what: String,
+        stop: StopFn,
+        software: bool,
+    ) -> Result<Self, SourceError> {
         let proc = cam::SignatureProcessor::new(cam::SignatureConfig::default())
             .map_err(|e| SourceError(format!("{what}: camera signature config: {e}")))?;
         Ok(Self {
@@ -142,6 +454,9 @@ impl CamSource {
             stop,
             counts: CamCounts::default(),
             last_refusal: None,
+            software,
+            prev: None,
+            last_truth: None,
         })
     }
 
@@ -189,28 +504,61 @@ impl CamSource {
         )
     }
 
-    /// The frames of rendered run `seed` (see [`renderer`]).
+    /// The frames of rendered run `seed` on the rendered camera clock (see [`renderer`]).
     pub fn render(r: vlsync_render::Renderer) -> Result<Self, SourceError> {
+        Self::render_with(r, RenderStamp::Sensor, never)
+    }
+
+    /// The frames of a rendered run, stamped as `stamp` says. `Software`
+    /// renders on a thread and delivers each frame at the end of its exposure
+    /// (`stop` is polled while waiting); the others render on demand.
+    pub fn render_with(
+        r: vlsync_render::Renderer,
+        stamp: RenderStamp,
+        stop: StopFn,
+    ) -> Result<Self, SourceError> {
         let what = format!(
-            "render seed {} ({} s, {} frames)",
+            "render seed {} ({} s, {} frames{})",
             r.config().seed,
             r.config().duration_s,
-            r.frame_schedule().len()
+            r.frame_schedule().len(),
+            match stamp {
+                RenderStamp::Sensor => "",
+                RenderStamp::Mono { .. } => ", sensor stamps on CLOCK_MONOTONIC",
+                RenderStamp::Software { .. } =>
+                    ", real time, stamped on CLOCK_MONOTONIC after processing",
+            }
         );
-        Self::new(
-            Box::new(RenderFrames {
-                r,
-                next: 0,
-                cur: None,
-            }),
-            what,
-            never,
-        )
+        match stamp {
+            RenderStamp::Software { shift_ns } => Self::with_frames(
+                Box::new(LiveRender::start(r, shift_ns, stop)?),
+                what,
+                stop,
+                true,
+            ),
+            _ => Self::with_frames(
+                Box::new(RenderFrames {
+                    period_ns: frame_period_ns(&r),
+                    r,
+                    next: 0,
+                    shift: stamp.shift_ns(),
+                    cur: None,
+                }),
+                what,
+                never,
+                false,
+            ),
+        }
     }
 
     /// The counts so far.
     pub fn counts(&self) -> CamCounts {
         self.counts
+    }
+
+    /// Real-time delivery counts of a software-stamped render.
+    pub fn live_counts(&self) -> Option<LiveCounts> {
+        self.frames.live().map(|l| l.0)
     }
 }
 
@@ -226,34 +574,80 @@ impl Source for CamSource {
                 what,
                 counts,
                 last_refusal,
+                software,
+                prev,
+                last_truth,
                 ..
             } = self;
-            let Some((frame, time)) = frames
-                .next_frame()
+            let Some((frame, time, truth)) = frames
+                .next()
                 .map_err(|e| SourceError(format!("{what}: {e}")))?
             else {
                 return Ok(None);
             };
             counts.frames += 1;
-            match proc.process(&frame, time) {
+            let t_in = monotonic_ns();
+            let step = proc.process(&frame, time);
+            // software stamping: the clock is read once the front-end is done
+            let t_done = monotonic_ns();
+            let this = (t_done, truth);
+            match step {
                 Err(e) => {
                     counts.refused += 1;
                     *last_refusal = Some(e.to_string());
+                    *prev = None;
                 }
-                Ok(cam::Step::Started(r)) => match r {
-                    cam::StartReason::First => {}
-                    cam::StartReason::Gap { .. } => counts.gaps += 1,
-                    cam::StartReason::NotIncreasing { .. } => counts.not_increasing += 1,
-                    cam::StartReason::SizeChanged { .. } => counts.size_changed += 1,
-                },
+                Ok(cam::Step::Started(r)) => {
+                    *prev = Some(this);
+                    match r {
+                        cam::StartReason::First => {}
+                        cam::StartReason::Gap { .. } => counts.gaps += 1,
+                        cam::StartReason::NotIncreasing { .. } => counts.not_increasing += 1,
+                        cam::StartReason::SizeChanged { .. } => counts.size_changed += 1,
+                    }
+                }
                 Ok(cam::Step::Sample(s)) => {
-                    if !s.sample.value.is_finite() {
+                    let before = prev.replace(this);
+                    let mut sample = s.sample;
+                    if *software {
+                        // stamped at the midpoint of the two software stamps; the
+                        // flow is over the frames' own interval: the frame numbers
+                        // times the nominal period when known (software stamps
+                        // jitter by tens of ms under load, the sensor's clock does
+                        // not), else the software interval
+                        let p_sw = before.map_or(t_done, |b| b.0);
+                        let dt = t_done - p_sw;
+                        if dt <= 0 {
+                            counts.not_increasing += 1;
+                            continue;
+                        }
+                        let interval = match (before.and_then(|b| b.1), truth) {
+                            (Some(a), Some(b)) if b.sequence > a.sequence && b.period_ns > 0 => {
+                                (b.sequence - a.sequence) as f64 * b.period_ns as f64
+                            }
+                            _ => dt as f64,
+                        };
+                        sample = Sample::new(
+                            mid(p_sw, t_done),
+                            s.flow_px * vlsync_common::NANOS_PER_SEC as f64 / interval,
+                        );
+                    }
+                    if !sample.value.is_finite() {
                         counts.no_flow += 1;
                     } else if s.low_texture() {
                         counts.low_texture += 1;
                     } else {
                         counts.samples += 1;
-                        return Ok(Some(s.sample));
+                        *last_truth = match (before.and_then(|b| b.1), truth) {
+                            (Some(a), Some(b)) => Some(SampleTruth {
+                                event_ns: mid(a.event_ns, b.event_ns),
+                                late_ns: b.late_ns,
+                                process_ns: t_done - t_in,
+                                render_late_ns: b.render_late_ns,
+                            }),
+                            _ => None,
+                        };
+                        return Ok(Some(sample));
                     }
                 }
             }
@@ -262,6 +656,10 @@ impl Source for CamSource {
 
     fn describe(&self) -> String {
         self.what.clone()
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        self.last_truth
     }
 
     fn report(&self) -> Option<String> {
@@ -280,6 +678,17 @@ impl Source for CamSource {
         );
         if let Some(r) = &self.last_refusal {
             s.push_str(&format!(" (last: {r})"));
+        }
+        if let Some((l, nice)) = self.frames.live() {
+            s.push_str(&format!(
+                "; real time: {} frames delivered, {} skipped (before a restart), {} rendered late \
+                 (worst {:.1} ms), worst delivery {:.1} ms after exposure end; {nice}",
+                l.delivered,
+                l.skipped,
+                l.render_late,
+                l.max_render_late_ns as f64 / 1e6,
+                l.max_late_ns as f64 / 1e6
+            ));
         }
         Some(s)
     }
@@ -345,6 +754,9 @@ enum ScanInput {
     Render {
         r: Box<vlsync_render::Renderer>,
         next: usize,
+        shift: Nanos,
+        /// `(first-ray stamp, stamp - true time)` of the last scans: the jitter to undo.
+        recent: VecDeque<(Nanos, Nanos)>,
     },
     Serial(Box<Serial>),
 }
@@ -353,9 +765,10 @@ enum ScanInput {
 pub struct LidarSource {
     input: ScanInput,
     proc: lidar::SignatureProcessor,
-    queue: VecDeque<Sample>,
+    queue: VecDeque<(Sample, Option<SampleTruth>)>,
     what: String,
     scans: u64,
+    last_truth: Option<SampleTruth>,
 }
 
 impl std::fmt::Debug for LidarSource {
@@ -377,6 +790,7 @@ impl LidarSource {
             queue: VecDeque::new(),
             what,
             scans: 0,
+            last_truth: None,
         })
     }
 
@@ -399,18 +813,40 @@ impl LidarSource {
         Self::new(ScanInput::Mcap(src), what)
     }
 
-    /// The scans of a rendered run (see [`renderer`]).
+    /// The scans of a rendered run on the rendered LiDAR clock (see [`renderer`]).
     pub fn render(r: vlsync_render::Renderer) -> Result<Self, SourceError> {
+        Self::render_with(r, RenderStamp::Sensor)
+    }
+
+    /// The scans of a rendered run, stamped as `stamp` says (`Software` is a
+    /// camera mode and is refused).
+    pub fn render_with(
+        r: vlsync_render::Renderer,
+        stamp: RenderStamp,
+    ) -> Result<Self, SourceError> {
         let what = format!(
-            "render seed {} ({} s, {} scans)",
+            "render seed {} ({} s, {} scans{})",
             r.config().seed,
             r.config().duration_s,
-            r.scan_schedule().len()
+            r.scan_schedule().len(),
+            match stamp {
+                RenderStamp::Sensor => "",
+                RenderStamp::Mono { .. } => ", sensor stamps on CLOCK_MONOTONIC",
+                RenderStamp::Software { .. } => {
+                    return Err(SourceError(format!(
+                        "render seed {}: software stamping is a camera mode; the LiDAR \
+                         stamps like its sensor (--stamp sensor or mono)",
+                        r.config().seed
+                    )));
+                }
+            }
         );
         Self::new(
             ScanInput::Render {
                 r: Box::new(r),
                 next: 0,
+                shift: stamp.shift_ns(),
+                recent: VecDeque::new(),
             },
             what,
         )
@@ -478,14 +914,19 @@ impl LidarSource {
             queue,
             what,
             scans,
+            ..
         } = self;
+        // returns how many samples were queued
         let mut push = |scan: &lidar::Scan| {
             *scans += 1;
+            let mut n = 0;
             proc.push_scan(scan, |s| {
                 if s.value.is_finite() {
-                    queue.push_back(s)
+                    queue.push_back((s, None));
+                    n += 1;
                 }
             });
+            n
         };
         match input {
             ScanInput::Csv(r) => match r.next() {
@@ -504,11 +945,30 @@ impl LidarSource {
                     Ok(true)
                 }
             },
-            ScanInput::Render { r, next } => match r.render_scan(*next) {
+            ScanInput::Render {
+                r,
+                next,
+                shift,
+                recent,
+            } => match r.render_scan(*next) {
                 None => Ok(false),
                 Some(s) => {
                     *next += 1;
-                    push(&s.scan);
+                    let start = s.scan.timing().start_ns;
+                    recent.push_back((start, start - s.tau_start_ns));
+                    if recent.len() > 8 {
+                        recent.pop_front();
+                    }
+                    let n = push(&s.scan);
+                    let period = s.scan.timing().period_ns;
+                    let before = queue.len() - n;
+                    for (sample, truth) in queue.iter_mut().skip(before) {
+                        *truth = Some(SampleTruth {
+                            event_ns: lidar_event_ns(recent, sample.t_ns, period) + *shift,
+                            ..SampleTruth::default()
+                        });
+                        sample.t_ns += *shift;
+                    }
                     Ok(true)
                 }
             },
@@ -562,10 +1022,27 @@ impl LidarSource {
     }
 }
 
+/// True time of a LiDAR sample stamped `t` (the midpoint of two passes over the
+/// bearing window, one revolution apart): `t` minus the mean stamp jitter of the
+/// scans holding `t - period/2` and `t + period/2`. Exact unless a pass's median
+/// ray lies within the jitter of a scan boundary.
+fn lidar_event_ns(recent: &VecDeque<(Nanos, Nanos)>, t: Nanos, period: Nanos) -> Nanos {
+    let jitter_at = |x: Nanos| {
+        recent
+            .iter()
+            .rev()
+            .find(|(start, _)| *start <= x)
+            .or(recent.front())
+            .map_or(0, |(_, j)| *j)
+    };
+    t - mid(jitter_at(t - period / 2), jitter_at(t + period / 2))
+}
+
 impl Source for LidarSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
         loop {
-            if let Some(s) = self.queue.pop_front() {
+            if let Some((s, truth)) = self.queue.pop_front() {
+                self.last_truth = truth;
                 return Ok(Some(s));
             }
             if !self.fill()? {
@@ -576,6 +1053,10 @@ impl Source for LidarSource {
 
     fn describe(&self) -> String {
         self.what.clone()
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        self.last_truth
     }
 
     fn report(&self) -> Option<String> {
@@ -612,28 +1093,46 @@ impl Source for LidarSource {
 
 /// A source whose first sample was read ahead (to anchor the pacing on it).
 pub struct Prefetched {
-    first: Option<Sample>,
+    first: Option<(Sample, Option<SampleTruth>)>,
+    first_out: bool,
     inner: Box<dyn Source>,
 }
 
 impl Prefetched {
     /// Reads the first sample of `inner`.
     pub fn new(mut inner: Box<dyn Source>) -> Result<Self, SourceError> {
-        let first = inner.next_sample()?;
-        Ok(Self { first, inner })
+        let first = inner.next_sample()?.map(|s| (s, inner.truth()));
+        Ok(Self {
+            first,
+            first_out: false,
+            inner,
+        })
     }
 
     /// The first sample's time.
     pub fn first_t_ns(&self) -> Option<Nanos> {
-        self.first.map(|s| s.t_ns)
+        self.first.map(|s| s.0.t_ns)
     }
 }
 
 impl Source for Prefetched {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
-        match self.first.take() {
-            Some(s) => Ok(Some(s)),
-            None => self.inner.next_sample(),
+        match self.first {
+            Some((s, _)) if !self.first_out => {
+                self.first_out = true;
+                Ok(Some(s))
+            }
+            _ => {
+                self.first = None;
+                self.inner.next_sample()
+            }
+        }
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        match self.first {
+            Some((_, t)) if self.first_out => t,
+            _ => self.inner.truth(),
         }
     }
 

@@ -57,3 +57,64 @@ fn wrong_sources_fail_with_a_message() {
         assert!(err.contains("rebuild with --features v4l2"), "{err}");
     }
 }
+
+#[test]
+fn truth_files_have_one_row_per_published_sample() {
+    let prefix = format!("vlsync-test/driver-truth-{}", std::process::id());
+    let dir = std::env::temp_dir().join(format!("vlsync-driver-truth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (bin, stamp) in [
+        (env!("CARGO_BIN_EXE_vlsync-cam"), "software"),
+        (env!("CARGO_BIN_EXE_vlsync-lidar"), "mono"),
+    ] {
+        let file = dir.join(format!("{stamp}.csv"));
+        let (ok, err) = run(
+            bin,
+            &[
+                "--render",
+                "5",
+                "--duration",
+                "2",
+                "--stamp",
+                stamp,
+                "--truth-out",
+                file.to_str().unwrap(),
+                "--prefix",
+                &prefix,
+            ],
+        );
+        assert!(ok, "{err}");
+        let published: usize = err
+            .lines()
+            .find_map(|l| {
+                l.split_once(" published,")?
+                    .0
+                    .rsplit(' ')
+                    .next()?
+                    .parse()
+                    .ok()
+            })
+            .unwrap_or_else(|| panic!("no published count in {err}"));
+        let text = std::fs::read_to_string(&file).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some(vlsync_driver::TRUTH_HEADER));
+        let rows: Vec<Vec<i64>> = lines
+            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+            .collect();
+        assert_eq!(rows.len(), published, "{err}");
+        assert!(published > 10, "{err}");
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(r.len(), 7);
+            assert_eq!(r[0], i as i64, "sequence numbers in order");
+            // published on CLOCK_MONOTONIC when the event happened (the LiDAR
+            // is paced by its stamps, which carry 0.3 ms of jitter) or after it
+            assert!(r[1] >= r[2] - 2_000_000, "{r:?}");
+            assert!(r[1] - r[2] < 1_000_000_000, "{r:?}");
+        }
+        assert!(
+            err.contains(&format!("{published} truth rows written")),
+            "{err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

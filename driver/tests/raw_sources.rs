@@ -349,3 +349,121 @@ fn option_errors_name_the_flags() {
     assert_eq!(c.anchor_ns, l.anchor_ns);
     assert!(c.anchor_ns.is_some());
 }
+
+#[test]
+fn stamping_options_are_checked() {
+    let err = |a: &[&str], s: Stream| match select_source(&args(a), s, never) {
+        Ok(_) => panic!("{a:?} accepted"),
+        Err(e) => e.to_string(),
+    };
+    let e = err(&["--render", "1", "--stamp", "software"], Stream::Lidar);
+    assert!(e.contains("software stamping is a camera mode"), "{e}");
+    let e = err(
+        &["--render", "1", "--stamp", "mono", "--fast"],
+        Stream::Lidar,
+    );
+    assert!(e.contains("--stamp mono") && e.contains("real time"), "{e}");
+    let e = err(
+        &["--render", "1", "--stamp", "software", "--speed", "2"],
+        Stream::Cam,
+    );
+    assert!(
+        e.contains("--stamp software") && e.contains("real time"),
+        "{e}"
+    );
+    let e = err(&["--frames", "/tmp", "--stamp", "mono"], Stream::Cam);
+    assert!(e.contains("--stamp mono applies to --render only"), "{e}");
+    let e = err(
+        &["--frames", "/tmp", "--truth-out", "/tmp/x.csv"],
+        Stream::Cam,
+    );
+    assert!(e.contains("--truth-out needs --render"), "{e}");
+    // mono stamps are the sensor stamps moved by start_at - anchor; the pacing
+    // anchor moves with them, so both drivers still publish in step
+    let sensor = select_source(
+        &args(&["--render", "3", "--duration", "2"]),
+        Stream::Lidar,
+        never,
+    )
+    .unwrap();
+    let start_at = 5_000_000_000_000;
+    let mut mono = select_source(
+        &args(&[
+            "--render",
+            "3",
+            "--duration",
+            "2",
+            "--stamp",
+            "mono",
+            "--start-at",
+            &start_at.to_string(),
+        ]),
+        Stream::Lidar,
+        never,
+    )
+    .unwrap();
+    let anchor = sensor.anchor_ns.unwrap();
+    assert_eq!(mono.anchor_ns, Some(start_at));
+    let mut plain = sensor.source;
+    let (a, b) = (
+        plain.next_sample().unwrap().unwrap(),
+        mono.source.next_sample().unwrap().unwrap(),
+    );
+    assert_eq!(b.t_ns - a.t_ns, start_at - anchor);
+    assert_eq!(a.value, b.value);
+    // its truth: the stamp with the scans' jitter (0.3 ms 1σ) removed
+    let t = mono.source.truth().unwrap();
+    assert!((b.t_ns - t.event_ns).abs() < 2_000_000, "{t:?} vs {b:?}");
+    assert!(plain.truth().is_some());
+}
+
+#[test]
+fn software_stamping_runs_in_real_time_and_knows_its_truth() {
+    let duration = 2.0;
+    let r = raw::renderer(SEED, duration).unwrap();
+    let anchor = raw::render_anchor_ns(&r);
+    let exposure_ns = (r.config().camera.exposure_s * 1e9) as i64;
+    let start_at = vlsync_ipc::monotonic_ns() + 300_000_000;
+    let shift = start_at - anchor;
+    let mut cam =
+        CamSource::render_with(r, raw::RenderStamp::Software { shift_ns: shift }, never).unwrap();
+    assert!(cam.describe().contains("after processing"));
+    let t0 = Instant::now();
+    let mut n = 0;
+    let mut last = i64::MIN;
+    while let Some(s) = cam.next_sample().unwrap() {
+        let t = cam.truth().expect("rendered samples carry their truth");
+        let now = vlsync_ipc::monotonic_ns();
+        // stamped on CLOCK_MONOTONIC after the frame: at least half an exposure
+        // after the true mid-exposure, never in the future
+        assert!(s.t_ns - t.event_ns >= exposure_ns / 2, "{s:?} {t:?}");
+        assert!(s.t_ns <= now && s.t_ns > last, "{s:?}");
+        assert!(t.process_ns > 0 && t.late_ns >= 0, "{t:?}");
+        last = s.t_ns;
+        n += 1;
+    }
+    // delivered in real time: the run takes its duration (generous bounds)
+    let el = t0.elapsed();
+    assert!(el >= Duration::from_millis(1_900), "{el:?}");
+    assert!(el < Duration::from_secs(20), "{el:?}");
+    assert!(n > 40, "{n}");
+    let live = cam.live_counts().unwrap();
+    assert_eq!(live.skipped, 0);
+    assert!(live.delivered as usize > n);
+    let report = cam.report().unwrap();
+    assert!(
+        report.contains("real time:") && report.contains("render thread"),
+        "{report}"
+    );
+    // a driver (re)started after its start instant skips the frames already past
+    let r = raw::renderer(SEED, duration).unwrap();
+    let shift = vlsync_ipc::monotonic_ns() - 1_000_000_000 - raw::render_anchor_ns(&r);
+    let mut late =
+        CamSource::render_with(r, raw::RenderStamp::Software { shift_ns: shift }, never).unwrap();
+    assert!(late.next_sample().unwrap().is_some());
+    assert!(
+        late.live_counts().unwrap().skipped >= 25,
+        "{:?}",
+        late.live_counts()
+    );
+}

@@ -1,13 +1,20 @@
 //! Cost of the incremental correlator against a batch recompute of the same window.
 //!
 //! Per estimate (one hop): the incremental path adds `hop` grid samples (O(lags) each)
-//! and combines blocks; the batch paths recompute the whole window's correlation at
-//! every lag, directly (O(window·lags)) or with FFTs (O(n log n)).
+//! and moves the acquisition window by one block; the batch paths recompute the whole
+//! window's correlation at every lag, directly (O(window·lags)) or with FFTs
+//! (O(n log n)). `segment` measures the whole estimator per hop while tracking (the
+//! samples of one hop, the robust drift-compensated combination of a 60 s segment,
+//! the step test) against a batch recompute of the same 60 s at the tracking range's
+//! lags and with FFTs at every lag.
 //! `cargo bench -p vlsync-estimator --bench correlator`; the ratio is what matters.
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
 use rustfft::{num_complex::Complex, FftPlanner};
+use vlsync_common::Stream;
+use vlsync_config::EstimatorConfig;
 use vlsync_estimator::correlator::{Correlator, Step};
+use vlsync_estimator::Estimator;
 
 struct Setting {
     name: &'static str,
@@ -108,7 +115,7 @@ fn bench(c: &mut Criterion) {
         let wb = (s.window_s / s.hop_s) as usize;
         let win = (s.window_s * s.fs) as usize;
         // incremental: warm a correlator, then measure one hop (hop samples + block combine)
-        let mut corr = Correlator::new(n_lags, -half, hop, wb, 4, 8192);
+        let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
         let mut k = 0i64;
         let feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
             for _ in 0..n {
@@ -122,7 +129,7 @@ fn bench(c: &mut Criterion) {
         g.bench_function(BenchmarkId::new("incremental", s.name), |b| {
             b.iter(|| {
                 feed(&mut corr, &mut k, hop);
-                black_box(corr.long().ncc(n_lags / 2))
+                black_box(corr.acq().ncc(n_lags / 2))
             })
         });
         let x: Vec<f64> = (0..win as i64).map(|i| sig(i - 12)).collect();
@@ -149,7 +156,7 @@ fn bench(c: &mut Criterion) {
         let half = (s.max_lag_s * s.fs) as i64;
         let n_lags = (2 * half + 1) as usize;
         let wb = (s.window_s / s.hop_s) as usize;
-        let mut corr = Correlator::new(n_lags, -half, hop, wb, 4, 8192);
+        let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
         let mut k = 0i64;
         g.bench_function(BenchmarkId::new("incremental", s.name), |b| {
             b.iter(|| {
@@ -163,5 +170,71 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+/// The whole estimator per hop while tracking a 60 s segment, against batch
+/// recomputes of that segment.
+fn segment(c: &mut Criterion) {
+    let mut g = c.benchmark_group("segment");
+    let cfg = EstimatorConfig::default();
+    let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Robot, 1, Some(3600.0));
+    let mut est = Estimator::new(&cfg);
+    // cursors into the camera and LiDAR samples
+    let mut ij = (0usize, 0usize);
+    let push_until = |est: &mut Estimator, ij: &mut (usize, usize), t_ns: i64| {
+        while ij.0 < run.cam.len() && run.cam[ij.0].t_ns <= t_ns {
+            let _ = est.push(Stream::Cam, run.cam[ij.0]);
+            ij.0 += 1;
+        }
+        while ij.1 < run.lidar.len() && run.lidar[ij.1].t_ns <= t_ns {
+            let _ = est.push(Stream::Lidar, run.lidar[ij.1]);
+            ij.1 += 1;
+        }
+        while est.poll().is_some() {}
+    };
+    // warm up past a full segment
+    let mut t = 90_000_000_000i64;
+    push_until(&mut est, &mut ij, t);
+    let hop_ns = (cfg.hop_s * 1e9) as i64;
+    g.bench_function("estimator_hop", |b| {
+        b.iter(|| {
+            t += hop_ns;
+            if t > 3_590_000_000_000 {
+                t = 90_000_000_000;
+                est = Estimator::new(&cfg);
+                ij = (0, 0);
+            }
+            push_until(&mut est, &mut ij, t);
+            black_box(est.state())
+        })
+    });
+    let win = (cfg.segment_s * cfg.grid_hz) as usize;
+    let half = (cfg.max_lag_s * cfg.grid_hz) as usize;
+    let track = (2.0 * cfg.track_range_s * cfg.grid_hz) as usize + 1;
+    let x: Vec<f64> = (0..win as i64).map(|i| sig(i - 12)).collect();
+    let y: Vec<f64> = (0..(win + 2 * half + 1) as i64)
+        .map(|i| sig(i - half as i64))
+        .collect();
+    let mut out = vec![0.0; 2 * half + 1];
+    g.bench_function("batch_direct_tracking_lags", |b| {
+        b.iter(|| {
+            batch_direct(black_box(&x), black_box(&y), track, &mut out);
+            black_box(out[0])
+        })
+    });
+    let mut planner = FftPlanner::new();
+    g.bench_function("batch_fft_all_lags", |b| {
+        b.iter(|| {
+            batch_fft(
+                black_box(&x),
+                black_box(&y),
+                2 * half + 1,
+                &mut planner,
+                &mut out,
+            );
+            black_box(out[0])
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, segment);
 criterion_main!(benches);

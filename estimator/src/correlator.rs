@@ -3,11 +3,16 @@
 //! Both resampled, filtered streams are kept in index-tagged rings. For every
 //! LiDAR grid index `k` (the cursor) the pairs `(L[k], C[k - m])` of every
 //! active lag `m` are added to the sums of the current *block* (one hop long):
-//! `O(lags)` per grid sample. Window totals are maintained per hop by adding
-//! the completed block and subtracting the one that leaves the window, and are
-//! rebuilt exactly from the blocks once per window length so rounding never
-//! accumulates. A second, short window (the last few blocks) feeds step
-//! detection. Nothing allocates after construction.
+//! `O(lags)` per grid sample; a block's Σy, Σy² per lag are sliding sums over
+//! the camera ring, computed once when the block completes.
+//!
+//! Completed blocks are kept in a ring (the longest segment the estimator may
+//! combine, see [`crate::segment`]). The acquisition window, the newest
+//! `acq_blocks` blocks, is maintained as a running total: the completed block is
+//! added and the one leaving is subtracted, and the total is rebuilt exactly
+//! from its blocks once per window length so rounding never accumulates.
+//! A break in the data (a gap) drops the unfinished block and keeps the
+//! completed ones: a segment may span a gap. Nothing allocates after construction.
 //!
 //! Lag `m` (grid steps) pairs LiDAR time `k·dt` with camera time `(k-m)·dt`; a
 //! peak at `m` means `offset = t_L - t_C = m·dt`.
@@ -31,10 +36,15 @@ pub struct Sums {
     pub first_k: i64,
     /// Last LiDAR grid index covered.
     pub last_k: i64,
+    /// Lag slots these sums hold (the active range when the block completed).
+    pub lo: usize,
+    /// Last lag slot held (inclusive).
+    pub hi: usize,
 }
 
 impl Sums {
-    fn new(n_lags: usize) -> Self {
+    /// Empty sums over `n_lags` lag slots.
+    pub fn new(n_lags: usize) -> Self {
         Self {
             n: 0.0,
             sx: 0.0,
@@ -44,10 +54,13 @@ impl Sums {
             yy: vec![0.0; n_lags],
             first_k: 0,
             last_k: 0,
+            lo: 0,
+            hi: n_lags.saturating_sub(1),
         }
     }
 
-    fn clear(&mut self) {
+    /// Zeroes every sum.
+    pub fn clear(&mut self) {
         self.n = 0.0;
         self.sx = 0.0;
         self.sxx = 0.0;
@@ -67,6 +80,41 @@ impl Sums {
         ] {
             for (p, q) in a.iter_mut().zip(b.iter()) {
                 *p += sign * q;
+            }
+        }
+    }
+
+    /// Adds `sign` times the slots `lo..=hi` of `o` (and its lag-free sums).
+    pub fn add_range(&mut self, o: &Sums, sign: f64, lo: usize, hi: usize) {
+        self.n += sign * o.n;
+        self.sx += sign * o.sx;
+        self.sxx += sign * o.sxx;
+        for (a, b) in [
+            (&mut self.xy, &o.xy),
+            (&mut self.y, &o.y),
+            (&mut self.yy, &o.yy),
+        ] {
+            for (p, q) in a[lo..=hi].iter_mut().zip(&b[lo..=hi]) {
+                *p += sign * q;
+            }
+        }
+    }
+
+    /// Sets `self` to `a - b` on slots `lo..=hi` (and the lag-free sums).
+    pub fn diff_range(&mut self, a: &Sums, b: &Sums, lo: usize, hi: usize) {
+        self.n = a.n - b.n;
+        self.sx = a.sx - b.sx;
+        self.sxx = a.sxx - b.sxx;
+        for (d, (x, y)) in [
+            (&mut self.xy, (&a.xy, &b.xy)),
+            (&mut self.y, (&a.y, &b.y)),
+            (&mut self.yy, (&a.yy, &b.yy)),
+        ] {
+            for (p, (q, r)) in d[lo..=hi]
+                .iter_mut()
+                .zip(x[lo..=hi].iter().zip(&y[lo..=hi]))
+            {
+                *p = q - r;
             }
         }
     }
@@ -170,9 +218,9 @@ pub enum Step {
     Idle,
     /// One grid index was added.
     Added,
-    /// A block (hop) completed; the window totals are updated.
+    /// A block (hop) completed and was stored.
     Hop,
-    /// Data were missing: the window was reset and the cursor jumped.
+    /// Data were missing: the unfinished block was dropped and the cursor jumped.
     Break,
 }
 
@@ -182,51 +230,52 @@ pub struct Correlator {
     n_lags: usize,
     lag0: i64,
     hop_len: i64,
-    window_blocks: usize,
-    short_blocks: usize,
+    acq_blocks: usize,
     lidar: Ring,
     cam: Ring,
     cursor: Option<i64>,
     cur: Sums,
+    /// Completed blocks, a ring of `blocks.len()`; `head` is the oldest.
     blocks: Vec<Sums>,
-    /// Ring position of the oldest block in the window and count.
     head: usize,
     count: usize,
-    long: Sums,
-    short: Sums,
+    /// Running total of the newest `acq_count` blocks.
+    acq: Sums,
+    acq_count: usize,
     since_rebuild: usize,
     active: (usize, usize),
 }
 
 impl Correlator {
     /// A correlator over `n_lags` lag slots starting at lag `lag0` (grid steps),
-    /// hops of `hop_len` grid samples, windows of `window_blocks` and
-    /// `short_blocks` blocks; rings able to hold `ring_len` grid samples.
+    /// hops of `hop_len` grid samples, an acquisition window of `acq_blocks`
+    /// blocks, a store of `cap_blocks` completed blocks, and rings able to hold
+    /// `ring_len` grid samples.
     pub fn new(
         n_lags: usize,
         lag0: i64,
         hop_len: i64,
-        window_blocks: usize,
-        short_blocks: usize,
+        acq_blocks: usize,
+        cap_blocks: usize,
         ring_len: usize,
     ) -> Self {
         let n_lags = n_lags.max(3);
-        let window_blocks = window_blocks.max(1);
+        let acq_blocks = acq_blocks.max(1);
+        let cap_blocks = cap_blocks.max(acq_blocks);
         Self {
             n_lags,
             lag0,
             hop_len: hop_len.max(1),
-            window_blocks,
-            short_blocks: short_blocks.clamp(1, window_blocks),
+            acq_blocks,
             lidar: Ring::new(ring_len.max(n_lags * 2)),
             cam: Ring::new(ring_len.max(n_lags * 2)),
             cursor: None,
             cur: Sums::new(n_lags),
-            blocks: (0..window_blocks).map(|_| Sums::new(n_lags)).collect(),
+            blocks: (0..cap_blocks).map(|_| Sums::new(n_lags)).collect(),
             head: 0,
             count: 0,
-            long: Sums::new(n_lags),
-            short: Sums::new(n_lags),
+            acq: Sums::new(n_lags),
+            acq_count: 0,
             since_rebuild: 0,
             active: (0, n_lags - 1),
         }
@@ -242,21 +291,59 @@ impl Correlator {
         self.lag0
     }
 
-    /// Moves the lag range (slot 0 at `lag0`); resets the window.
+    /// Grid samples per block.
+    pub fn hop_len(&self) -> i64 {
+        self.hop_len
+    }
+
+    /// Moves the lag range (slot 0 at `lag0`); forgets every block.
     pub fn set_lag0(&mut self, lag0: i64) {
         if lag0 != self.lag0 {
             self.lag0 = lag0;
-            self.reset_window();
+            self.clear_blocks();
         }
     }
 
-    /// Restricts the updated lag slots to `lo..=hi` (clamped); resets the window when changed.
+    /// Moves the lag range by `delta` slots (slot 0 at `lag0 + delta`) keeping the
+    /// stored blocks: each keeps the lags it holds that stay in range (its `lo..=hi`
+    /// narrows). The unfinished block and the acquisition window restart.
+    pub fn shift_lags(&mut self, delta: i64) {
+        if delta == 0 {
+            return;
+        }
+        let n = self.n_lags as i64;
+        self.lag0 += delta;
+        for i in 0..self.count {
+            let p = self.phys(i);
+            let b = &mut self.blocks[p];
+            let lo = (b.lo as i64 - delta).max(0);
+            let hi = (b.hi as i64 - delta).min(n - 1);
+            if lo > hi {
+                b.n = 0.0;
+                continue;
+            }
+            let (lo, hi) = (lo as usize, hi as usize);
+            let src = (lo as i64 + delta) as usize;
+            for v in [&mut b.xy, &mut b.y, &mut b.yy] {
+                v.copy_within(src..=src + (hi - lo), lo);
+            }
+            b.lo = lo;
+            b.hi = hi;
+        }
+        self.cur.clear();
+        self.restart_acq();
+    }
+
+    /// Restricts the updated lag slots to `lo..=hi` (clamped). Stored blocks stay
+    /// (each knows the slots it holds); the acquisition window and the unfinished
+    /// block restart when the range changes.
     pub fn set_active(&mut self, lo: usize, hi: usize) {
         let hi = hi.min(self.n_lags - 1);
         let lo = lo.min(hi);
         if (lo, hi) != self.active {
             self.active = (lo, hi);
-            self.reset_window();
+            self.cur.clear();
+            self.restart_acq();
         }
     }
 
@@ -290,74 +377,67 @@ impl Correlator {
         self.cam.brk();
     }
 
-    /// Window totals.
-    pub fn long(&self) -> &Sums {
-        &self.long
+    /// Totals of the acquisition window (the newest blocks, at most `acq_blocks`).
+    pub fn acq(&self) -> &Sums {
+        &self.acq
     }
 
-    /// Short-window totals (the last `short_blocks` blocks).
-    pub fn short(&self) -> &Sums {
-        &self.short
+    /// Blocks in the acquisition window.
+    pub fn acq_count(&self) -> usize {
+        self.acq_count
     }
 
-    /// Completed blocks in the window.
-    pub fn blocks_in_window(&self) -> usize {
+    /// Blocks in the acquisition window when it is full.
+    pub fn acq_blocks(&self) -> usize {
+        self.acq_blocks
+    }
+
+    /// Completed blocks stored.
+    pub fn count(&self) -> usize {
         self.count
     }
 
-    /// Blocks in the window when it is full.
-    pub fn window_blocks(&self) -> usize {
-        self.window_blocks
+    /// Stored block `i`, 0 the oldest, `count() - 1` the newest.
+    pub fn block(&self, i: usize) -> &Sums {
+        &self.blocks[self.phys(i)]
     }
 
-    /// Blocks in the short window when it is full.
-    pub fn short_blocks(&self) -> usize {
-        self.short_blocks
+    /// Position in the store of block `i` (stable while the block is stored).
+    pub fn phys(&self, i: usize) -> usize {
+        (self.head + i) % self.blocks.len()
     }
 
-    /// Empties the window (the cursor stays).
-    pub fn reset_window(&mut self) {
+    /// Forgets every completed block and the unfinished one (the cursor stays).
+    pub fn clear_blocks(&mut self) {
         self.cur.clear();
         self.count = 0;
-        self.long.clear();
-        self.short.clear();
+        self.acq.clear();
+        self.acq_count = 0;
         self.since_rebuild = 0;
     }
 
-    /// Resets the window and moves the cursor forward to `k` (never backward).
+    /// Empties the acquisition window only (the blocks stay for the segment).
+    pub fn restart_acq(&mut self) {
+        self.acq.clear();
+        self.acq_count = 0;
+        self.since_rebuild = 0;
+    }
+
+    /// Drops the unfinished block and moves the cursor forward to `k` (never backward).
     pub fn skip_to(&mut self, k: i64) {
-        self.reset_window();
+        self.cur.clear();
         self.cursor = Some(self.cursor.map_or(k, |c| c.max(k)));
     }
 
-    /// Keeps only the newest `keep` blocks in the window.
-    pub fn truncate(&mut self, keep: usize) {
-        if keep >= self.count {
-            return;
+    fn rebuild_acq(&mut self) {
+        self.acq.clear();
+        for i in self.count - self.acq_count..self.count {
+            let b = &self.blocks[(self.head + i) % self.blocks.len()];
+            self.acq.add(b, 1.0);
         }
-        let drop = self.count - keep;
-        self.head = (self.head + drop) % self.window_blocks;
-        self.count = keep;
-        self.rebuild();
-    }
-
-    fn rebuild(&mut self) {
-        self.long.clear();
-        self.short.clear();
-        let wb = self.window_blocks;
-        for i in 0..self.count {
-            let b = &self.blocks[(self.head + i) % wb];
-            self.long.add(b, 1.0);
-            if i + self.short_blocks >= self.count {
-                self.short.add(b, 1.0);
-            }
-        }
-        if self.count > 0 {
-            self.long.first_k = self.blocks[self.head].first_k;
-            self.long.last_k = self.blocks[(self.head + self.count - 1) % wb].last_k;
-            let s0 = self.count.saturating_sub(self.short_blocks);
-            self.short.first_k = self.blocks[(self.head + s0) % wb].first_k;
-            self.short.last_k = self.long.last_k;
+        if self.acq_count > 0 {
+            self.acq.first_k = self.block(self.count - self.acq_count).first_k;
+            self.acq.last_k = self.block(self.count - 1).last_k;
         }
         self.since_rebuild = 0;
     }
@@ -384,7 +464,6 @@ impl Correlator {
         if self.lidar.end < k || self.cam.end < k.saturating_sub(m_lo) {
             return Step::Idle;
         }
-        // the oldest camera value needed must still be in the ring
         // the oldest and newest camera values needed must be in the ring (segments are contiguous)
         let (Some(x), Some(_), Some(_)) = (
             self.lidar.get(k),
@@ -411,8 +490,11 @@ impl Correlator {
         }
         self.cursor = Some(k + 1);
         if (k + 1).rem_euclid(self.hop_len) == 0 {
-            self.complete_block();
-            Step::Hop
+            if self.complete_block() {
+                Step::Hop
+            } else {
+                Step::Break
+            }
         } else {
             Step::Added
         }
@@ -452,43 +534,46 @@ impl Correlator {
         true
     }
 
-    fn complete_block(&mut self) {
-        if !self.fill_y_sums() {
-            self.reset_window();
-            return;
+    /// Stores the finished block; false (and the block dropped) when the camera
+    /// ring no longer holds its values.
+    fn complete_block(&mut self) -> bool {
+        if self.cur.n == 0.0 || !self.fill_y_sums() {
+            self.cur.clear();
+            return false;
         }
-        let wb = self.window_blocks;
-        if self.count == wb {
-            // evict the oldest
-            let old = std::mem::replace(&mut self.blocks[self.head], Sums::new(0));
-            self.long.add(&old, -1.0);
-            self.blocks[self.head] = old;
-            self.head = (self.head + 1) % wb;
+        let cap = self.blocks.len();
+        if self.count == cap {
+            // the oldest block leaves the store (it left the acquisition window long ago
+            // unless the window is the whole store)
+            if self.acq_count == cap {
+                self.acq.add(&self.blocks[self.head], -1.0);
+                self.acq_count -= 1;
+            }
+            self.head = (self.head + 1) % cap;
             self.count -= 1;
         }
-        let pos = (self.head + self.count) % wb;
+        let pos = (self.head + self.count) % cap;
+        (self.cur.lo, self.cur.hi) = self.active;
         std::mem::swap(&mut self.blocks[pos], &mut self.cur);
         self.cur.clear();
         self.count += 1;
+        self.acq_count += 1;
         self.since_rebuild += 1;
-        if self.since_rebuild >= wb {
-            self.rebuild();
-            return;
+        if self.acq_count > self.acq_blocks {
+            self.acq_count = self.acq_blocks;
+            if self.since_rebuild < self.acq_blocks {
+                let leaving = (self.head + self.count - 1 - self.acq_blocks) % cap;
+                self.acq.add(&self.blocks[leaving], -1.0);
+            }
         }
-        let nb = &self.blocks[pos];
-        self.long.add(nb, 1.0);
-        self.short.add(nb, 1.0);
-        if self.count > self.short_blocks {
-            let leaving = (self.head + self.count - 1 - self.short_blocks) % wb;
-            let lb = std::mem::replace(&mut self.blocks[leaving], Sums::new(0));
-            self.short.add(&lb, -1.0);
-            self.blocks[leaving] = lb;
+        if self.since_rebuild >= self.acq_blocks {
+            self.rebuild_acq();
+        } else {
+            self.acq.add(&self.blocks[pos], 1.0);
+            self.acq.first_k = self.block(self.count - self.acq_count).first_k;
+            self.acq.last_k = self.block(self.count - 1).last_k;
         }
-        self.long.first_k = self.blocks[self.head].first_k;
-        self.long.last_k = self.blocks[pos].last_k;
-        let s0 = self.count.saturating_sub(self.short_blocks);
-        self.short.first_k = self.blocks[(self.head + s0) % wb].first_k;
-        self.short.last_k = self.long.last_k;
+        true
     }
 }
 
@@ -515,7 +600,7 @@ mod tests {
     fn incremental_matches_batch_and_finds_lag() {
         let sig = |i: i64| ((i as f64) * 0.05).sin() + 0.5 * ((i as f64) * 0.013).cos();
         let true_lag = 7; // L[k] = C[k - 7]
-        let mut c = Correlator::new(41, -20, 50, 6, 2, 4096);
+        let mut c = Correlator::new(41, -20, 50, 6, 10, 4096);
         let mut hops = 0;
         for k in 0..2000i64 {
             c.push_cam(k, sig(k));
@@ -527,11 +612,13 @@ mod tests {
             }
         }
         assert!(hops > 10);
-        let w = c.long();
-        assert_eq!(c.blocks_in_window(), 6);
+        let w = c.acq();
+        assert_eq!(c.acq_count(), 6);
+        assert_eq!(c.count(), 10);
         let l: Vec<(i64, f64)> = (w.first_k..=w.last_k)
             .map(|k| (k, sig(k - true_lag)))
             .collect();
+        assert_eq!(l.len(), 300);
         for slot in 0..41 {
             let m = -20 + slot as i64;
             let b = batch(&l, &sig, m);
@@ -545,23 +632,32 @@ mod tests {
             .max_by(|&a, &b| w.ncc(a).partial_cmp(&w.ncc(b)).unwrap())
             .unwrap();
         assert_eq!(-20 + best as i64, true_lag);
-        assert!((c.short().n - 100.0).abs() < 1e-9);
+        // the stored blocks add up to the acquisition window
+        let mut sum = Sums::new(41);
+        for i in c.count() - 6..c.count() {
+            sum.add(c.block(i), 1.0);
+        }
+        for slot in 0..41 {
+            assert!((sum.xy[slot] - w.xy[slot]).abs() < 1e-6);
+        }
     }
 
     #[test]
-    fn gap_breaks_window() {
-        let mut c = Correlator::new(11, -5, 10, 4, 2, 1024);
+    fn gap_drops_the_unfinished_block_and_keeps_the_stored_ones() {
+        let mut c = Correlator::new(11, -5, 10, 4, 8, 1024);
         for k in 0..200i64 {
             c.push_cam(k, (k as f64).sin());
             c.push_lidar(k, (k as f64).sin());
             while c.step() != Step::Idle {}
         }
-        assert_eq!(c.blocks_in_window(), 4);
+        assert_eq!(c.acq_count(), 4);
+        assert_eq!(c.count(), 8);
+        let newest = c.block(7).last_k;
         c.break_lidar();
         let mut saw_break = false;
-        for k in 300..320i64 {
-            c.push_cam(k, 0.0);
-            c.push_lidar(k, 0.0);
+        for k in 300..335i64 {
+            c.push_cam(k, (k as f64).cos());
+            c.push_lidar(k, (k as f64).cos());
             loop {
                 match c.step() {
                     Step::Idle => break,
@@ -571,6 +667,49 @@ mod tests {
             }
         }
         assert!(saw_break);
-        assert!(c.blocks_in_window() <= 2);
+        // blocks before the gap are still stored; new ones follow after it
+        assert_eq!(c.count(), 8);
+        assert!(c.block(0).last_k <= newest);
+        assert!(c.block(7).first_k >= 300);
+    }
+
+    #[test]
+    fn narrowing_the_active_range_keeps_blocks_with_their_own_range() {
+        let mut c = Correlator::new(21, -10, 10, 4, 8, 1024);
+        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| {
+            for k in r {
+                c.push_cam(k, (k as f64 * 0.1).sin());
+                c.push_lidar(k, (k as f64 * 0.1).sin());
+                while c.step() != Step::Idle {}
+            }
+        };
+        feed(&mut c, 0..100);
+        assert_eq!((c.block(0).lo, c.block(0).hi), (0, 20));
+        c.set_active(5, 15);
+        assert_eq!(c.acq_count(), 0);
+        feed(&mut c, 100..140);
+        let n = c.count();
+        assert_eq!((c.block(n - 1).lo, c.block(n - 1).hi), (5, 15));
+        assert_eq!((c.block(0).lo, c.block(0).hi), (0, 20));
+    }
+
+    #[test]
+    fn shifting_the_lag_range_keeps_each_blocks_lags() {
+        let mut c = Correlator::new(21, -10, 10, 4, 8, 1024);
+        for k in 0..100i64 {
+            c.push_cam(k, (k as f64 * 0.1).sin());
+            c.push_lidar(k, (k as f64 * 0.1).cos());
+            while c.step() != Step::Idle {}
+        }
+        let before: Vec<f64> = c.block(0).xy.clone();
+        c.shift_lags(6);
+        assert_eq!(c.lag0(), -4);
+        let b = c.block(0);
+        assert_eq!((b.lo, b.hi), (0, 14));
+        // new slot s holds what old slot s + 6 held (the same lag)
+        for s in 0..=14 {
+            assert_eq!(b.xy[s], before[s + 6]);
+        }
+        assert_eq!(c.acq_count(), 0);
     }
 }

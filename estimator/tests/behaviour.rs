@@ -129,7 +129,10 @@ fn stalled_stream_goes_holding_then_lost_then_reacquires() {
         !during.is_empty(),
         "estimates continue while the LiDAR is silent"
     );
-    assert!(during.iter().all(|s| s.1 != EstimatorState::Tracking));
+    assert!(
+        during.iter().all(|s| s.1 != EstimatorState::Tracking),
+        "{during:?}"
+    );
     assert!(during.iter().any(|s| s.1 == EstimatorState::Holding));
     assert!(during.iter().any(|s| s.1 == EstimatorState::Lost));
     // std grows while blind

@@ -541,6 +541,45 @@ impl OffsetClient {
         ))
     }
 
+    /// Every valid estimate pending, in order, each with the `CLOCK_MONOTONIC` time
+    /// the daemon published it (what a recorder needs: [`OffsetClient::wait_next`]
+    /// keeps only the newest). Waits up to `timeout` on the offset event when none
+    /// is pending; an empty vector on timeout. The subscriber buffers 16 estimates
+    /// (8 s at the default hop): a caller that sleeps longer loses the oldest.
+    pub fn wait_all(&mut self, timeout: Duration) -> Result<Vec<(Estimate, Nanos)>, IpcError> {
+        let deadline = Instant::now() + timeout;
+        let mut out = vec![];
+        loop {
+            loop {
+                let s = self
+                    .subscriber
+                    .receive()
+                    .map_err(|e| IpcError::new("receive on offset service", format!("{e:?}")))?;
+                let Some(s) = s else { break };
+                let w: OffsetEstimate = *s.payload();
+                match Estimate::try_from(&w) {
+                    Ok(e) => {
+                        self.latest = Some(e);
+                        self.latest_publish_ns = w.publish_ns;
+                        out.push((e, w.publish_ns));
+                    }
+                    Err(_) => self.invalid += 1,
+                }
+            }
+            let now = Instant::now();
+            if !out.is_empty() || now >= deadline {
+                return Ok(out);
+            }
+            if let Err(e) = self.listener.timed_wait(|_| {}, deadline - now) {
+                // a signal interrupted the wait: let the caller decide
+                if termination_requested() {
+                    return Ok(out);
+                }
+                return Err(IpcError::new("wait on offset event", format!("{e:?}")));
+            }
+        }
+    }
+
     /// Waits up to `timeout` for the next estimate; sleeps on the offset event.
     /// `Ok(None)` on timeout.
     pub fn wait_next(&mut self, timeout: Duration) -> Result<Option<Estimate>, IpcError> {
@@ -588,6 +627,32 @@ impl StatusClient {
             _service: svc,
             _node: node,
         })
+    }
+
+    /// Every valid status pending, oldest first (the subscriber buffers 16);
+    /// invalid payloads are skipped and the last validation error returned when
+    /// nothing valid arrived.
+    pub fn receive_all(&mut self) -> Result<Vec<Status>, WireErrorOrIpc> {
+        let mut out = vec![];
+        let mut last_err = None;
+        loop {
+            let s = self.subscriber.receive().map_err(|e| {
+                WireErrorOrIpc::Ipc(IpcError::new("receive on status service", format!("{e:?}")))
+            })?;
+            let Some(s) = s else { break };
+            let st: Status = *s.payload();
+            match st.validate() {
+                Ok(()) => {
+                    self.latest = Some(st);
+                    out.push(st);
+                }
+                Err(e) => last_err = Some(e),
+            }
+        }
+        match (out.is_empty(), last_err) {
+            (true, Some(e)) => Err(WireErrorOrIpc::Wire(e)),
+            _ => Ok(out),
+        }
     }
 
     /// The most recent valid status; invalid payloads are skipped.
@@ -727,5 +792,49 @@ mod tests {
         let t0 = Instant::now();
         assert!(c.wait_next(Duration::from_millis(100)).unwrap().is_none());
         assert!(t0.elapsed() >= Duration::from_millis(90));
+        // wait_all keeps every estimate, in order, with its publish time
+        for (seq, publish) in [(4, 30), (5, 40)] {
+            let e = Estimate { seq, ..e };
+            publ.send_copy(OffsetEstimate::from_estimate(&e, publish).unwrap())
+                .unwrap();
+        }
+        publ.send_copy(bad).unwrap();
+        noti.notify().unwrap();
+        let all = c.wait_all(Duration::from_secs(1)).unwrap();
+        let seqs: Vec<(u64, i64)> = all.iter().map(|(e, p)| (e.seq, *p)).collect();
+        assert_eq!(seqs, vec![(4, 30), (5, 40)]);
+        assert_eq!(c.invalid_count(), 2);
+        assert!(c.wait_all(Duration::from_millis(50)).unwrap().is_empty());
+    }
+
+    #[test]
+    fn status_client_receives_every_pending_status() {
+        let names = ServiceNames::new(&unique_prefix("status")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "status").unwrap();
+        let mut c = StatusClient::open(&names.prefix).unwrap();
+        assert!(c.receive_all().unwrap().is_empty());
+        for n in 1..=3 {
+            publ.send_copy(Status {
+                estimates_published: n,
+                ..Status::default()
+            })
+            .unwrap();
+        }
+        let got: Vec<u64> = c
+            .receive_all()
+            .unwrap()
+            .iter()
+            .map(|s| s.estimates_published)
+            .collect();
+        assert_eq!(got, vec![1, 2, 3]);
+        assert_eq!(c.latest().unwrap().unwrap().estimates_published, 3);
+        publ.send_copy(Status {
+            degraded: 9,
+            ..Status::default()
+        })
+        .unwrap();
+        assert!(matches!(c.receive_all(), Err(WireErrorOrIpc::Wire(_))));
     }
 }

@@ -78,6 +78,37 @@ pub fn set_current_thread_fifo(priority: i32) -> Result<(), RtRefused> {
     }
 }
 
+/// Sets the nice value of the calling thread (-20..=19; below 0 needs
+/// CAP_SYS_NICE or RLIMIT_NICE). Linux keeps nice per thread, so other threads
+/// of the process keep theirs. `setting` names what asked for it in the error.
+pub fn set_current_thread_nice(nice: i32, setting: &str) -> Result<(), RtRefused> {
+    if !(-20..=19).contains(&nice) {
+        return Err(RtRefused {
+            setting: setting.to_string(),
+            reason: format!("nice {nice} is outside -20..=19"),
+        });
+    }
+    // SAFETY: gettid takes no argument and cannot fail.
+    let tid = unsafe { libc::gettid() };
+    // SAFETY: setpriority takes plain integers and touches no memory of ours;
+    // PRIO_PROCESS with a thread id designates that one thread on Linux.
+    let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, nice) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        let err = std::io::Error::last_os_error();
+        let hint = if matches!(err.raw_os_error(), Some(libc::EPERM | libc::EACCES)) {
+            " (needs CAP_SYS_NICE or an RLIMIT_NICE allowing it)"
+        } else {
+            ""
+        };
+        Err(RtRefused {
+            setting: setting.to_string(),
+            reason: format!("setpriority(nice {nice}): {err}{hint}"),
+        })
+    }
+}
+
 /// Locks all current and future pages of the process in RAM.
 pub fn lock_all_memory() -> Result<(), RtRefused> {
     // SAFETY: mlockall takes only flags and touches no memory of ours.
@@ -110,6 +141,29 @@ mod tests {
     fn fifo_out_of_range_is_refused() {
         assert!(set_current_thread_fifo(0).is_err());
         assert!(set_current_thread_fifo(100).is_err());
+    }
+
+    fn own_thread_nice() -> i32 {
+        let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap();
+        let rest = &stat[stat.rfind(')').unwrap() + 1..];
+        // after ')': field 3 (state) is at index 0, so nice (field 19) is at 16
+        rest.split_whitespace().nth(16).unwrap().parse().unwrap()
+    }
+
+    #[test]
+    fn nice_applies_to_the_calling_thread_only() {
+        assert!(set_current_thread_nice(40, "x").is_err());
+        let before = own_thread_nice();
+        let target = (before + 3).min(19);
+        // raising nice (lower priority) is always allowed
+        let got = std::thread::spawn(move || {
+            set_current_thread_nice(target, "test").unwrap();
+            own_thread_nice()
+        })
+        .join()
+        .unwrap();
+        assert_eq!(got, target);
+        assert_eq!(own_thread_nice(), before);
     }
 
     #[test]

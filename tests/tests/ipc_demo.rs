@@ -1,29 +1,20 @@
 //! `vlsync-demo` interrupted with Ctrl-C (SIGINT) stops every child and leaves
-//! no shared-memory resource behind.
+//! no shared-memory resource behind, on the signature simulator and on its
+//! default source, rendered frames and scans through the front-ends.
 
 use std::time::{Duration, Instant};
 use vlsync_tests::{bin, ipc_resources, Managed};
 
-#[test]
-fn demo_ctrl_c_stops_children_and_leaves_nothing() {
+/// Runs the demo with `args` for `run_for`, interrupts it, checks the clean
+/// stop; returns its output.
+fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     let demo = bin("vlsync-demo");
     let before = ipc_resources();
-    let log = std::env::temp_dir().join(format!("vlsync-demo-test-{}.log", std::process::id()));
-    let mut m = Managed::spawn(
-        "vlsync-demo",
-        &demo,
-        &[
-            "--family".into(),
-            "robot".into(),
-            "--duration".into(),
-            "60".into(),
-            "--speed".into(),
-            "2".into(),
-        ],
-        Some(&log),
-    )
-    .unwrap();
-    std::thread::sleep(Duration::from_secs(6));
+    let log =
+        std::env::temp_dir().join(format!("vlsync-demo-test-{tag}-{}.log", std::process::id()));
+    let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+    let mut m = Managed::spawn("vlsync-demo", &demo, &args, Some(&log)).unwrap();
+    std::thread::sleep(run_for);
     assert!(
         m.running(),
         "demo ended early:\n{}",
@@ -53,4 +44,32 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
     }
     let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
     assert!(leaked.is_empty(), "left behind: {leaked:?}");
+    out
+}
+
+#[test]
+fn demo_ctrl_c_stops_children_and_leaves_nothing() {
+    // one after the other: a second demo would show up in the first one's resources
+    let out = interrupt_demo(
+        "sim",
+        &["--family", "robot", "--duration", "60", "--speed", "2"],
+        Duration::from_secs(6),
+    );
+    assert!(out.contains("signature simulator `robot`"), "{out}");
+    // the default source: rendered frames and scans, scored against the render's truth;
+    // long enough for the first locked estimates (about 5 s after the start)
+    let out = interrupt_demo("render", &["--duration", "60"], Duration::from_secs(12));
+    assert!(
+        out.contains("rendered run seed 1 through the front-ends"),
+        "{out}"
+    );
+    assert!(
+        out.contains("convergence (wall time after the drivers' start)"),
+        "{out}"
+    );
+    assert!(
+        out.lines()
+            .any(|l| l.contains("tracking") || l.contains("holding")),
+        "no locked estimate in 12 s:\n{out}"
+    );
 }

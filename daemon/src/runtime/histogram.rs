@@ -108,6 +108,13 @@ impl Histogram {
     pub fn summary(&self) -> [u64; 3] {
         [self.percentile(0.5), self.percentile(0.99), self.max]
     }
+
+    /// Forgets every value (no allocation).
+    pub fn clear(&mut self) {
+        self.counts.fill(0);
+        self.total = 0;
+        self.max = 0;
+    }
 }
 
 #[cfg(test)]
@@ -119,6 +126,17 @@ mod tests {
     fn empty_is_zero() {
         let h = Histogram::new();
         assert_eq!(h.summary(), [0, 0, 0]);
+    }
+
+    #[test]
+    fn clear_starts_over() {
+        let mut h = Histogram::new();
+        h.record(5_000);
+        h.record(9_000);
+        h.clear();
+        assert_eq!((h.count(), h.summary()), (0, [0, 0, 0]));
+        h.record(7);
+        assert_eq!(h.summary(), [7, 7, 7]);
     }
 
     #[test]

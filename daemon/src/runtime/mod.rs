@@ -18,6 +18,10 @@
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
 //!   `daemon.status_period_s`.
 //!
+//! The latency percentiles of a status cover the whole run, or only the last
+//! status period with `daemon.latency_per_period` (the load harness reads them
+//! per phase).
+//!
 //! Over budget (`daemon.latency_budget_us` for one sample) the estimator is put
 //! in degraded mode (`Estimator::set_degraded(true)`: a narrower search per
 //! sample); it returns to normal after [`DEGRADED_QUIET`] without overrun.
@@ -436,6 +440,10 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             next_status = now + status_period_ns;
             let st = snapshot(&mut c, degraded, s.start_ns, now);
             emit(&s.tx, &mut c, RtEvent::Status(st));
+            if s.cfg.daemon.latency_per_period {
+                c.processing.clear();
+                c.end_to_end.clear();
+            }
         }
     }
     // final status so the last counters are not lost

@@ -22,6 +22,10 @@ struct Args {
     /// Duration in seconds (default: 12 for seed, 120 otherwise).
     #[arg(long, allow_negative_numbers = true)]
     duration: Option<f64>,
+    /// Multiplier of the family's signature noise (0: noiseless values; jitter, drops
+    /// and gaps unchanged). Useful to tell estimator bias from noise.
+    #[arg(long, default_value_t = 1.0)]
+    noise_scale: f64,
     /// Output directory (created if missing).
     #[arg(long, required_unless_present = "list")]
     out: Option<PathBuf>,
@@ -51,8 +55,8 @@ fn run(args: &Args) -> Result<(), String> {
     let family: Family = name
         .parse()
         .map_err(|e: families::UnknownFamily| e.to_string())?;
-    let run =
-        families::try_generate(family, args.seed, args.duration).map_err(|e| e.to_string())?;
+    let run = families::try_generate_with(family, args.seed, args.duration, args.noise_scale)
+        .map_err(|e| e.to_string())?;
     std::fs::create_dir_all(out)
         .map_err(|e| format!("cannot create output directory {}: {e}", out.display()))?;
     io::write_signature_csv(out.join("cam.csv"), &run.cam).map_err(|e| e.to_string())?;

@@ -1,0 +1,316 @@
+//! `vlsync-loadtest`: the whole pipeline on the rendering simulator in real
+//! time, the camera stamped in software after its processing, under load
+//! profiles (idle, steady full CPU load, bursts, steps, driver stalls, memory
+//! pressure). Scores the estimates against the offset the drivers measured,
+//! per phase, and writes `loadtest.md`, `loadtest.json`, `loadtest.svg` and
+//! `estimates.csv`.
+//! See the README's "Load test" section.
+#![forbid(unsafe_code)]
+
+use clap::Parser;
+use serde_json::json;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+use vlsync_common::EstimatorState;
+use vlsync_ipc::termination_requested;
+use vlsyncd::harness::load::{find_stress_ng, profile, profiles, run_profile, Progress};
+use vlsyncd::harness::report::{analyse, estimates_csv, svg, tables, targets, to_json, RunData};
+use vlsyncd::harness::session::{Role, Session, SessionOptions, Source, Stamping};
+use vlsyncd::harness::stats::ErrorStats;
+use vlsyncd::harness::truth::{read_truth_csv, MeasuredTruth};
+
+#[derive(Parser)]
+#[command(
+    name = "vlsync-loadtest",
+    version,
+    about = "Load-injection harness: the live pipeline under CPU load, stalls and memory pressure"
+)]
+struct Args {
+    /// Load profile (`--list` shows them).
+    #[arg(long, default_value = "all")]
+    profile: String,
+    /// List the profiles and exit.
+    #[arg(long)]
+    list: bool,
+    /// Rendering simulator seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Directory for the report and the processes' logs (default: a temporary directory).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Base daemon configuration; the harness sets `daemon.core`,
+    /// `daemon.fifo_priority` and `daemon.latency_per_period` on top.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Core the daemon's real-time thread is pinned to.
+    #[arg(long, default_value_t = 1)]
+    core: i64,
+    /// SCHED_FIFO priority of the daemon's real-time thread (0: normal scheduler).
+    #[arg(long, default_value_t = 50)]
+    fifo: i64,
+    /// Exit with status 1 when a target is missed.
+    #[arg(long)]
+    check: bool,
+    /// Do not print each estimate.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let a = Args::parse();
+    match run(&a) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) if a.check => ExitCode::from(1),
+        Ok(false) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("vlsync-loadtest: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// The daemon's own words about its real-time settings (from its log).
+fn rt_lines(log: &str) -> Vec<String> {
+    log.lines()
+        .filter(|l| l.contains("real-time thread:") || l.contains("could not apply"))
+        .map(|l| {
+            let i = l
+                .find("real-time thread:")
+                .or_else(|| l.find("could not apply"));
+            l[i.unwrap_or(0)..].to_string()
+        })
+        .collect()
+}
+
+fn run(a: &Args) -> Result<bool, String> {
+    if a.list {
+        for p in profiles() {
+            println!("{:>8}  {:>4.0} s  {}", p.name, p.duration_s(), p.about);
+            for ph in &p.phases {
+                println!(
+                    "{:>16}  {:>4.0} s  {}",
+                    ph.name,
+                    ph.duration_s,
+                    ph.load.describe()
+                );
+            }
+        }
+        return Ok(true);
+    }
+    let prof = profile(&a.profile)?;
+    let stress = if prof.needs_stress_ng() {
+        Some(find_stress_ng()?)
+    } else {
+        None
+    };
+    let pid = std::process::id();
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("vlsync-loadtest-{pid}")));
+    std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let mut cfg = match &a.config {
+        Some(p) => vlsync_config::Config::load(p).map_err(|e| e.to_string())?,
+        None => vlsync_config::Config::default(),
+    };
+    cfg.daemon.core = a.core;
+    cfg.daemon.fifo_priority = a.fifo;
+    cfg.daemon.latency_per_period = true;
+    cfg.validate("vlsync-loadtest options")
+        .map_err(|e| e.to_string())?;
+    let cfg_path = out.join("vlsyncd.toml");
+    let text = toml::to_string(&cfg).map_err(|e| format!("daemon configuration: {e}"))?;
+    std::fs::write(&cfg_path, text).map_err(|e| format!("{}: {e}", cfg_path.display()))?;
+
+    let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
+    println!(
+        "vlsync-loadtest: profile `{}` ({:.0} s: {}), rendered seed {}, {cpus} CPUs; report and logs in {}",
+        prof.name,
+        prof.duration_s(),
+        prof.about,
+        a.seed,
+        out.display()
+    );
+    let mut session = Session::start(SessionOptions {
+        name: "vlsync-loadtest".into(),
+        prefix: None,
+        log_dir: Some(out.clone()),
+        daemon_config: Some(cfg_path),
+        source: Source::Render {
+            seed: a.seed,
+            duration_s: prof.duration_s() + 1.0,
+            speed: 1.0,
+            stamping: Stamping::Software,
+        },
+        // the camera driver renders ahead meanwhile
+        start_delay: Duration::from_secs(2),
+    })?;
+    let rt = rt_lines(&session.log("vlsyncd.log"));
+    for l in &rt {
+        println!("  daemon: {l}");
+    }
+    let start_at = session.start_at;
+    let quiet = a.quiet;
+    let mut progress = |p: Progress<'_>| match p {
+        Progress::Line(l) => println!("{l}"),
+        Progress::Estimate(r) if !quiet => {
+            let e = &r.est;
+            println!(
+                "  t {:>6.1} s  {:>9}  offset {:>+8.2} ms ±{:.2}",
+                (e.t_ref_ns - start_at) as f64 * 1e-9,
+                e.state.name(),
+                e.offset_s * 1e3,
+                e.offset_std_s * 1e3
+            );
+        }
+        Progress::Estimate(_) => {}
+    };
+    let records = run_profile(&mut session, &prof, stress.as_deref(), &mut progress);
+    // let the drivers finish their run (the last second), then stop everything
+    let t0 = std::time::Instant::now();
+    while records.is_ok()
+        && !termination_requested()
+        && !session.drivers_done()
+        && t0.elapsed() < Duration::from_secs(5)
+    {
+        session.poll(Duration::from_millis(100))?;
+    }
+    let clean = session.stop()?;
+    let records = records?;
+    let interrupted = termination_requested();
+
+    let [cam_p, lidar_p] = session.truth_paths();
+    let cam_rows = read_truth_csv(&cam_p)?;
+    let lidar_rows = read_truth_csv(&lidar_p)?;
+    let truth = MeasuredTruth::new(&cam_rows, &lidar_rows, cfg.estimator.window_s)?;
+    let data = RunData {
+        phases: &records,
+        estimates: &session.estimates,
+        statuses: &session.statuses,
+        truth: &truth,
+        cam_rows: &cam_rows,
+        lidar_rows: &lidar_rows,
+        start_at,
+    };
+    let reports = analyse(&data);
+    let budget = cfg.daemon.latency_budget_us;
+    let tg = targets(&reports, &records, budget);
+
+    // whole run after the warm-up
+    let after_warmup = records.get(1).map_or(i64::MAX, |r| r.start_ns);
+    let errs: Vec<f64> = session
+        .estimates
+        .iter()
+        .filter(|r| {
+            matches!(
+                r.est.state,
+                EstimatorState::Tracking | EstimatorState::Holding
+            )
+        })
+        .filter(|r| {
+            truth
+                .event_of_lidar(r.est.t_ref_ns)
+                .is_some_and(|e| e >= after_warmup)
+        })
+        .filter_map(|r| Some(r.est.offset_s - truth.offset_at(r.est.t_ref_ns)?))
+        .collect();
+    let overall = ErrorStats::of(&errs);
+    let cam_report = session
+        .log("vlsync-cam.log")
+        .lines()
+        .find(|l| l.contains("frames delivered"))
+        .unwrap_or("")
+        .to_string();
+    let usage: Vec<(Role, String)> = Role::ALL
+        .iter()
+        .map(|r| (*r, session.usage(*r).describe()))
+        .collect();
+
+    let mut md = format!(
+        "# vlsync load test: profile `{}`{}\n\nRendered seed {}, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\n\n",
+        prof.name,
+        if interrupted { " (interrupted)" } else { "" },
+        a.seed,
+        cfg.estimator.window_s,
+        if rt.is_empty() { "no real-time setting requested".to_string() } else { rt.join("; ") }
+    );
+    md.push_str(&tables(&reports));
+    md.push_str(&format!(
+        "\nAfter the warm-up: {}.\n\nTargets:\n",
+        overall.describe()
+    ));
+    for t in &tg {
+        md.push_str(&format!(
+            "- [{}] {}: {}\n",
+            match t.pass {
+                Some(true) => "PASS",
+                Some(false) => "MISS",
+                None => "n/a",
+            },
+            t.what,
+            t.figure
+        ));
+    }
+    md.push_str("\nProcesses:\n");
+    for (r, u) in &usage {
+        md.push_str(&format!("- {}: {u}\n", r.name()));
+    }
+    if !cam_report.is_empty() {
+        md.push_str(&format!("- {}\n", cam_report.trim()));
+    }
+    md.push_str(&format!(
+        "\nAll processes stopped {}.\n",
+        if clean {
+            "cleanly"
+        } else {
+            "(some needed SIGKILL)"
+        }
+    ));
+    println!("\n{md}");
+
+    let json = to_json(
+        &reports,
+        &tg,
+        json!({
+            "profile": prof.name,
+            "interrupted": interrupted,
+            "seed": a.seed,
+            "cpus": cpus,
+            "daemon": {
+                "core": a.core,
+                "fifo_priority_requested": a.fifo,
+                "realtime": rt,
+                "latency_budget_us": budget,
+            },
+            "estimator_window_s": cfg.estimator.window_s,
+            "after_warmup": {
+                "scored": overall.n,
+                "mae_ms": overall.mae * 1e3,
+                "p95_ms": overall.p95 * 1e3,
+                "max_ms": overall.max * 1e3,
+            },
+            "processes": usage.iter().map(|(r, u)| json!({"name": r.name(), "usage": u})).collect::<Vec<_>>(),
+            "camera_driver": cam_report.trim(),
+            "stopped_cleanly": clean,
+        }),
+    );
+    let title = format!(
+        "vlsync load test `{}`: estimate ±2σ vs measured truth (seed {})",
+        prof.name, a.seed
+    );
+    for (name, body) in [
+        ("loadtest.md", md.clone()),
+        (
+            "loadtest.json",
+            serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?,
+        ),
+        ("loadtest.svg", svg(&title, &data)),
+        ("estimates.csv", estimates_csv(&data)),
+    ] {
+        let p = out.join(name);
+        std::fs::write(&p, body).map_err(|e| format!("{}: {e}", p.display()))?;
+        println!("wrote {}", p.display());
+    }
+    Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted)
+}

@@ -1,0 +1,615 @@
+//! A live run of the whole pipeline: `vlsyncd run` and both drivers as separate
+//! processes on a unique prefix, their common start instant, every estimate
+//! and status the daemon publishes, CPU time and memory of each process, and a
+//! clean stop. `vlsync-demo` and `vlsync-loadtest` are thin layers over it.
+
+use super::truth::{read_truth_csv, MeasuredTruth, TruthModel};
+use crate::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use vlsync_common::wire::Status;
+use vlsync_common::{Estimate, Nanos};
+use vlsync_ipc::{create_node, monotonic_ns, IpcNode, OffsetClient, StatusClient};
+
+/// What the drivers publish.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Source {
+    /// The signature-level simulator (`--sim FAMILY`).
+    Sim {
+        /// Family.
+        family: vlsync_sim::Family,
+        /// Seed.
+        seed: u64,
+        /// Simulated seconds.
+        duration_s: f64,
+        /// Real-time speed factor.
+        speed: f64,
+    },
+    /// The rendering simulator through the real front-ends (`--render SEED`).
+    Render {
+        /// Seed (both drivers render the same run).
+        seed: u64,
+        /// Rendered seconds.
+        duration_s: f64,
+        /// Real-time speed factor (1 with software stamping).
+        speed: f64,
+        /// How the drivers stamp.
+        stamping: Stamping,
+    },
+}
+
+/// How rendered data is stamped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stamping {
+    /// The rendered sensor clocks (known offset and drift): scored against the
+    /// rendering simulator's truth.
+    Sensor,
+    /// Camera stamped in software after processing, LiDAR with its sensor
+    /// stamps, both on `CLOCK_MONOTONIC`; each driver writes a truth file and
+    /// the run is scored against the measured truth.
+    Software,
+}
+
+impl Source {
+    /// Wall seconds the drivers run.
+    pub fn wall_s(&self) -> f64 {
+        match *self {
+            Source::Sim {
+                duration_s, speed, ..
+            }
+            | Source::Render {
+                duration_s, speed, ..
+            } => duration_s / speed,
+        }
+    }
+
+    /// One line for the user.
+    pub fn describe(&self) -> String {
+        match self {
+            Source::Sim {
+                family,
+                seed,
+                duration_s,
+                speed,
+            } => format!(
+                "signature simulator `{}` seed {seed}, {duration_s} s at {speed}x",
+                family.name()
+            ),
+            Source::Render {
+                seed,
+                duration_s,
+                speed,
+                stamping,
+            } => format!(
+                "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}",
+                match stamping {
+                    Stamping::Sensor => "sensor clocks",
+                    Stamping::Software =>
+                        "camera stamped in software after processing, LiDAR sensor stamps",
+                }
+            ),
+        }
+    }
+
+    /// The offset model when it is known in advance (simulators on their own clocks).
+    pub fn known_truth(&self) -> Result<Option<vlsync_sim::Truth>, String> {
+        match *self {
+            Source::Sim {
+                family,
+                seed,
+                duration_s,
+                ..
+            } => vlsync_sim::try_generate(family, seed, Some(duration_s))
+                .map(|r| Some(r.truth))
+                .map_err(|e| format!("simulator: {e}")),
+            Source::Render {
+                seed,
+                duration_s,
+                stamping: Stamping::Sensor,
+                ..
+            } => vlsync_driver::raw::renderer(seed, duration_s)
+                .map(|r| Some(r.truth().clone()))
+                .map_err(|e| e.to_string()),
+            Source::Render {
+                stamping: Stamping::Software,
+                ..
+            } => Ok(None),
+        }
+    }
+
+    fn check(&self) -> Result<(), String> {
+        let (d, s) = match *self {
+            Source::Sim {
+                duration_s, speed, ..
+            }
+            | Source::Render {
+                duration_s, speed, ..
+            } => (duration_s, speed),
+        };
+        if !(d.is_finite() && d > 0.0 && s.is_finite() && s > 0.0) {
+            return Err(format!(
+                "duration {d} s and speed {s} must be finite numbers > 0"
+            ));
+        }
+        if let Source::Render {
+            stamping: Stamping::Software,
+            ..
+        } = self
+        {
+            if s != 1.0 {
+                return Err(format!(
+                    "software stamping runs in real time only (speed {s})"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How to start a session.
+#[derive(Debug, Clone)]
+pub struct SessionOptions {
+    /// Name of the tool (prefix `<name>/<pid>`, log directory `<tmp>/<name>-<pid>`).
+    pub name: String,
+    /// Service prefix instead of the default.
+    pub prefix: Option<String>,
+    /// Log directory instead of the default.
+    pub log_dir: Option<PathBuf>,
+    /// `vlsyncd run --config`.
+    pub daemon_config: Option<PathBuf>,
+    /// What the drivers publish.
+    pub source: Source,
+    /// From the drivers' spawn to their common start instant.
+    pub start_delay: Duration,
+}
+
+/// The three processes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// `vlsyncd run`.
+    Daemon,
+    /// `vlsync-cam`.
+    Cam,
+    /// `vlsync-lidar`.
+    Lidar,
+}
+
+impl Role {
+    /// All three, in display order.
+    pub const ALL: [Role; 3] = [Role::Daemon, Role::Cam, Role::Lidar];
+
+    /// Process name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Daemon => "vlsyncd",
+            Role::Cam => "vlsync-cam",
+            Role::Lidar => "vlsync-lidar",
+        }
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// CPU time and memory of one process, read while it ran.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Usage {
+    /// CPU seconds (user + system) at the last reading.
+    pub cpu_s: Option<f64>,
+    /// Resident memory at the last reading, kB.
+    pub rss_kb: Option<u64>,
+    /// Seconds since the process started at that reading.
+    pub elapsed_s: f64,
+}
+
+impl Usage {
+    /// "CPU 1.23 s (2.05 % of a core) over 60.0 s wall, RSS 5.1 MB".
+    pub fn describe(&self) -> String {
+        format!(
+            "CPU {} over {:.1} s wall, RSS {}",
+            self.cpu_s.map_or("?".into(), |c| format!(
+                "{c:.2} s ({:.2} % of a core)",
+                100.0 * c / self.elapsed_s.max(1e-3)
+            )),
+            self.elapsed_s,
+            self.rss_kb
+                .map_or("?".into(), |r| format!("{:.1} MB", r as f64 / 1024.0))
+        )
+    }
+}
+
+/// One estimate as received.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Received {
+    /// The estimate.
+    pub est: Estimate,
+    /// When the daemon published it, `CLOCK_MONOTONIC` ns.
+    pub publish_ns: Nanos,
+}
+
+/// A running session; dropping it stops every process.
+pub struct Session {
+    /// Service prefix.
+    pub prefix: String,
+    /// Where the processes log (and the drivers write their truth files).
+    pub log_dir: PathBuf,
+    /// The drivers' common start instant, `CLOCK_MONOTONIC` ns.
+    pub start_at: Nanos,
+    /// What the drivers publish.
+    pub source: Source,
+    /// Every estimate received, in order.
+    pub estimates: Vec<Received>,
+    /// Every status received, in order.
+    pub statuses: Vec<Status>,
+    procs: [Managed; 3],
+    started: [Instant; 3],
+    usage: [Usage; 3],
+    last_usage: Instant,
+    offsets: OffsetClient,
+    status: StatusClient,
+    _node: IpcNode,
+}
+
+/// Longest wait for the daemon's "serving prefix" log line.
+const DAEMON_READY_WAIT: Duration = Duration::from_secs(3);
+
+/// File names of the drivers' truth files in the log directory.
+pub const TRUTH_FILES: [&str; 2] = ["vlsync-cam.truth.csv", "vlsync-lidar.truth.csv"];
+
+impl Session {
+    /// Starts the daemon, waits until it serves, then both drivers on a common
+    /// start instant `start_delay` ahead. Installs the SIGINT/SIGTERM handler of
+    /// this process (see [`vlsync_ipc::termination_requested`]).
+    pub fn start(o: SessionOptions) -> Result<Self, String> {
+        o.source.check()?;
+        let pid = std::process::id();
+        let prefix = o
+            .prefix
+            .clone()
+            .unwrap_or_else(|| format!("{}/{pid}", o.name));
+        let log_dir = o
+            .log_dir
+            .clone()
+            .unwrap_or_else(|| std::env::temp_dir().join(format!("{}-{pid}", o.name)));
+        std::fs::create_dir_all(&log_dir)
+            .map_err(|e| format!("cannot create {}: {e}", log_dir.display()))?;
+        // our own node: handles Ctrl-C for this process
+        let node = create_node(&o.name, true).map_err(|e| e.to_string())?;
+        let mut dargs = vec!["run".to_string(), "--prefix".into(), prefix.clone()];
+        if let Some(c) = &o.daemon_config {
+            dargs.push("--config".into());
+            dargs.push(c.display().to_string());
+        }
+        let daemon_log = log_dir.join("vlsyncd.log");
+        let mut daemon = Managed::spawn(
+            "vlsyncd",
+            &sibling_binary("vlsyncd")?,
+            &dargs,
+            Some(&daemon_log),
+        )?;
+        let daemon_started = Instant::now();
+        let offsets = OffsetClient::open(&prefix).map_err(|e| e.to_string())?;
+        let status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
+        // the daemon logs "serving prefix" once its real-time thread runs; a
+        // quieter RUST_LOG hides the line, so a daemon still running after
+        // DAEMON_READY_WAIT is taken as serving
+        let t0 = Instant::now();
+        loop {
+            if !daemon.running() {
+                return Err(format!(
+                    "vlsyncd exited at start; see {}:\n{}",
+                    daemon_log.display(),
+                    std::fs::read_to_string(&daemon_log).unwrap_or_default()
+                ));
+            }
+            let log = std::fs::read_to_string(&daemon_log).unwrap_or_default();
+            if log.contains("serving prefix") || t0.elapsed() > DAEMON_READY_WAIT {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
+        let mut spawned = vec![];
+        for (role, stream) in [(Role::Cam, "cam"), (Role::Lidar, "lidar")] {
+            let args = driver_args(&o.source, &prefix, start_at, role, &log_dir);
+            let m = Managed::spawn(
+                role.name(),
+                &sibling_binary(role.name())?,
+                &args,
+                Some(&log_dir.join(format!("vlsync-{stream}.log"))),
+            )?;
+            spawned.push((m, Instant::now()));
+        }
+        let (lidar, lidar_t) = spawned.pop().ok_or("no LiDAR driver")?;
+        let (cam, cam_t) = spawned.pop().ok_or("no camera driver")?;
+        Ok(Self {
+            prefix,
+            log_dir,
+            start_at,
+            source: o.source,
+            estimates: vec![],
+            statuses: vec![],
+            procs: [daemon, cam, lidar],
+            started: [daemon_started, cam_t, lidar_t],
+            usage: [Usage::default(); 3],
+            last_usage: Instant::now() - Duration::from_secs(1),
+            offsets,
+            status,
+            _node: node,
+        })
+    }
+
+    /// Process id of `role`.
+    pub fn pid(&self, role: Role) -> u32 {
+        self.procs[role.index()].pid()
+    }
+
+    /// Sends `signal` (e.g. "STOP", "CONT") to `role`.
+    pub fn signal(&self, role: Role, signal: &str) -> Result<(), String> {
+        self.procs[role.index()].signal(signal)
+    }
+
+    /// CPU seconds of `role` so far.
+    pub fn cpu_seconds(&self, role: Role) -> Result<f64, String> {
+        cpu_seconds(self.pid(role))
+    }
+
+    /// True while `role` runs.
+    pub fn running(&mut self, role: Role) -> bool {
+        self.procs[role.index()].running()
+    }
+
+    /// True once both drivers have exited.
+    pub fn drivers_done(&mut self) -> bool {
+        !self.running(Role::Cam) && !self.running(Role::Lidar)
+    }
+
+    /// `CLOCK_MONOTONIC` instant the drivers' run ends.
+    pub fn end_ns(&self) -> Nanos {
+        self.start_at + (self.source.wall_s() * 1e9) as Nanos
+    }
+
+    /// The truth files of a software-stamped run.
+    pub fn truth_paths(&self) -> [PathBuf; 2] {
+        TRUTH_FILES.map(|f| self.log_dir.join(f))
+    }
+
+    /// Reads CPU time and memory of every running process (at most every 0.5 s
+    /// unless `force`).
+    pub fn sample_usage(&mut self, force: bool) {
+        if !force && self.last_usage.elapsed() < Duration::from_millis(500) {
+            return;
+        }
+        self.last_usage = Instant::now();
+        for r in Role::ALL {
+            let i = r.index();
+            if !self.procs[i].running() {
+                continue;
+            }
+            if let (Ok(c), Ok(m)) = (cpu_seconds(self.pid(r)), rss_kb(self.pid(r))) {
+                self.usage[i] = Usage {
+                    cpu_s: Some(c),
+                    rss_kb: Some(m),
+                    elapsed_s: self.started[i].elapsed().as_secs_f64(),
+                };
+            }
+        }
+    }
+
+    /// Usage of `role` at its last reading.
+    pub fn usage(&self, role: Role) -> Usage {
+        self.usage[role.index()]
+    }
+
+    /// Waits up to `timeout` for estimates; records them and every pending
+    /// status; reads usage. Returns the new estimates.
+    pub fn poll(&mut self, timeout: Duration) -> Result<Vec<Received>, String> {
+        let got: Vec<Received> = self
+            .offsets
+            .wait_all(timeout)
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(|(est, publish_ns)| Received { est, publish_ns })
+            .collect();
+        self.estimates.extend_from_slice(&got);
+        self.drain_status()?;
+        self.sample_usage(false);
+        Ok(got)
+    }
+
+    fn drain_status(&mut self) -> Result<(), String> {
+        let st = self.status.receive_all().map_err(|e| e.to_string())?;
+        self.statuses.extend(st);
+        Ok(())
+    }
+
+    /// Stops the drivers, waits for the daemon's next status (so the counters
+    /// include every sample), stops the daemon. True when every process exited
+    /// cleanly.
+    pub fn stop(&mut self) -> Result<bool, String> {
+        self.sample_usage(true);
+        let clean_drivers = [
+            self.procs[1].stop(Duration::from_secs(3)),
+            self.procs[2].stop(Duration::from_secs(3)),
+        ];
+        // the daemon publishes a final status when it stops; also wait for a
+        // periodic one so the counters of a still-running daemon are current
+        let last = self.statuses.last().map_or(0, |s| s.publish_ns);
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(3) {
+            self.drain_status()?;
+            if self.statuses.last().is_some_and(|s| s.publish_ns > last) {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // the estimates published before the drivers stopped
+        let more = self
+            .offsets
+            .wait_all(Duration::from_millis(10))
+            .map_err(|e| e.to_string())?;
+        self.estimates.extend(
+            more.into_iter()
+                .map(|(est, publish_ns)| Received { est, publish_ns }),
+        );
+        self.sample_usage(true);
+        let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
+        Ok(clean_drivers.iter().all(|c| *c) && clean_daemon)
+    }
+
+    /// The truth of this run: the known model, or the measured one from the
+    /// drivers' truth files (read now) with the estimator window `window_s`.
+    pub fn truth(&self, window_s: f64) -> Result<TruthModel, String> {
+        if let Some(t) = self.source.known_truth()? {
+            return Ok(TruthModel::Known(t));
+        }
+        let [c, l] = self.truth_paths();
+        let cam = read_truth_csv(&c)?;
+        let lidar = read_truth_csv(&l)?;
+        MeasuredTruth::new(&cam, &lidar, window_s)
+            .map(TruthModel::Measured)
+            .map_err(|e| format!("{} and {}: {e}", c.display(), l.display()))
+    }
+
+    /// The last status received.
+    pub fn last_status(&self) -> Option<&Status> {
+        self.statuses.last()
+    }
+
+    /// Contents of a log of the log directory (for error messages).
+    pub fn log(&self, file: &str) -> String {
+        std::fs::read_to_string(self.log_dir.join(file)).unwrap_or_default()
+    }
+}
+
+/// Command line of a driver.
+fn driver_args(
+    src: &Source,
+    prefix: &str,
+    start_at: Nanos,
+    role: Role,
+    logs: &Path,
+) -> Vec<String> {
+    let mut a: Vec<String> = vec!["--prefix".into(), prefix.into()];
+    match src {
+        Source::Sim {
+            family,
+            seed,
+            duration_s,
+            speed,
+        } => a.extend([
+            "--sim".into(),
+            family.name().into(),
+            "--seed".into(),
+            seed.to_string(),
+            "--duration".into(),
+            duration_s.to_string(),
+            "--speed".into(),
+            speed.to_string(),
+        ]),
+        Source::Render {
+            seed,
+            duration_s,
+            speed,
+            stamping,
+        } => {
+            a.extend([
+                "--render".into(),
+                seed.to_string(),
+                "--duration".into(),
+                duration_s.to_string(),
+                "--speed".into(),
+                speed.to_string(),
+            ]);
+            if *stamping == Stamping::Software {
+                let stamp = if role == Role::Cam {
+                    "software"
+                } else {
+                    "mono"
+                };
+                let file = TRUTH_FILES[usize::from(role == Role::Lidar)];
+                a.extend([
+                    "--stamp".into(),
+                    stamp.into(),
+                    "--truth-out".into(),
+                    logs.join(file).display().to_string(),
+                ]);
+            }
+        }
+    }
+    a.extend(["--start-at".into(), start_at.to_string()]);
+    a
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn driver_command_lines() {
+        let src = Source::Render {
+            seed: 3,
+            duration_s: 40.0,
+            speed: 1.0,
+            stamping: Stamping::Software,
+        };
+        let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
+        assert_eq!(
+            cam,
+            "--prefix p/1 --render 3 --duration 40 --speed 1 --stamp software \
+             --truth-out /l/vlsync-cam.truth.csv --start-at 77"
+        );
+        let lidar = driver_args(&src, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
+        assert!(lidar.contains("--stamp mono --truth-out /l/vlsync-lidar.truth.csv"));
+        let sim = Source::Sim {
+            family: vlsync_sim::Family::Robot,
+            seed: 2,
+            duration_s: 10.0,
+            speed: 2.0,
+        };
+        let a = driver_args(&sim, "p", 5, Role::Cam, Path::new("/l")).join(" ");
+        assert_eq!(
+            a,
+            "--prefix p --sim robot --seed 2 --duration 10 --speed 2 --start-at 5"
+        );
+        assert_eq!(sim.wall_s(), 5.0);
+    }
+
+    #[test]
+    fn sources_are_checked_and_know_their_truth() {
+        let bad = Source::Render {
+            seed: 1,
+            duration_s: 10.0,
+            speed: 2.0,
+            stamping: Stamping::Software,
+        };
+        assert!(bad.check().unwrap_err().contains("real time"));
+        let bad = Source::Sim {
+            family: vlsync_sim::Family::Robot,
+            seed: 1,
+            duration_s: f64::NAN,
+            speed: 1.0,
+        };
+        assert!(bad.check().is_err());
+        let sensor = Source::Render {
+            seed: 1,
+            duration_s: 10.0,
+            speed: 1.0,
+            stamping: Stamping::Sensor,
+        };
+        let t = sensor.known_truth().unwrap().unwrap();
+        let r = vlsync_driver::raw::renderer(1, 10.0).unwrap();
+        assert_eq!(
+            t.offset_at(5_000_000_000),
+            r.truth().offset_at(5_000_000_000)
+        );
+        let sw = Source::Render {
+            seed: 1,
+            duration_s: 10.0,
+            speed: 1.0,
+            stamping: Stamping::Software,
+        };
+        assert!(sw.known_truth().unwrap().is_none());
+    }
+}
