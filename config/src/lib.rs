@@ -37,7 +37,7 @@ impl std::error::Error for ConfigError {}
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// The estimator (correlator, gating, tracker).
+    /// The estimator (correlator, gating, segment and drift estimation).
     pub estimator: EstimatorConfig,
     /// The daemon process (core, priority, budget, state file).
     pub daemon: DaemonConfig,
