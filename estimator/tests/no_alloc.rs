@@ -1,39 +1,12 @@
 //! After construction, pushing samples and polling estimates allocates nothing.
-//! A counting global allocator observes every allocation of this test binary.
+//! `vlsync-alloc-count`'s allocator counts this thread's allocations.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use vlsync_common::{Sample, Stream};
 use vlsync_config::EstimatorConfig;
 use vlsync_estimator::Estimator;
 
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-static ARMED: AtomicBool = AtomicBool::new(false);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if ARMED.load(Ordering::SeqCst) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
-        // SAFETY: forwarding the caller's layout to the system allocator unchanged.
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        // SAFETY: `p` was allocated by `System` with layout `l` (see `alloc`).
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if ARMED.load(Ordering::SeqCst) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
-        // SAFETY: `p`/`l` come from this allocator, which forwards to `System`.
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 #[test]
 fn push_and_poll_allocate_nothing() {
@@ -52,7 +25,7 @@ fn push_and_poll_allocate_nothing() {
     ] {
         let mut est = Estimator::new(&cfg);
         let mut n_est = 0usize;
-        ARMED.store(true, Ordering::SeqCst);
+        let before = vlsync_alloc_count::this_thread();
         for r in [&run, &steps] {
             let (mut i, mut j) = (0, 0);
             while i < r.cam.len() || j < r.lidar.len() {
@@ -73,12 +46,8 @@ fn push_and_poll_allocate_nothing() {
             // degraded mode switches, too
             est.set_degraded(true);
         }
-        ARMED.store(false, Ordering::SeqCst);
+        let allocs = vlsync_alloc_count::this_thread() - before;
         assert!(n_est > 100, "estimates: {n_est}");
-        assert_eq!(
-            ALLOCS.load(Ordering::SeqCst),
-            0,
-            "allocations on the hot path"
-        );
+        assert_eq!(allocs, 0, "allocations on the hot path");
     }
 }

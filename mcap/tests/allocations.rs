@@ -2,35 +2,14 @@
 //! (PNG/JPEG decoding does; see the `image` module docs). Counted with a
 //! global allocator, in its own test binary so nothing else runs beside it.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use vlsync_mcap::{
     ImageSourceOptions, McapImageSource, McapScanSource, McapWriter, ScanSourceOptions,
 };
 use vlsync_signature_cam::{FrameSource, GrayFrame};
 use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
 
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-// SAFETY: every method forwards to the system allocator with the caller's arguments
-// unchanged; the counter has no effect on memory.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 #[test]
 fn raw_frames_and_small_scans_allocate_nothing_per_message() {
@@ -69,20 +48,20 @@ fn raw_frames_and_small_scans_allocate_nothing_per_message() {
     for _ in 0..20 {
         src.next_frame().unwrap().unwrap();
     }
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = vlsync_alloc_count::this_thread();
     let mut n = 0;
     while src.next_frame().unwrap().is_some() {
         n += 1;
     }
-    let frames = ALLOCS.load(Ordering::Relaxed) - before;
+    let frames = vlsync_alloc_count::this_thread() - before;
 
     let mut scans = McapScanSource::open(&path, ScanSourceOptions::topic("/scan")).unwrap();
     for _ in 0..20 {
         scans.next_scan().unwrap().unwrap();
     }
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = vlsync_alloc_count::this_thread();
     while scans.next_scan().unwrap().is_some() {}
-    let scan_allocs = ALLOCS.load(Ordering::Relaxed) - before;
+    let scan_allocs = vlsync_alloc_count::this_thread() - before;
     std::fs::remove_file(&path).unwrap();
     eprintln!("{n} frames: {frames} allocations; 180 scans: {scan_allocs} allocations");
     // chunks (768 KiB by default) are loaded and indexed as the reader reaches them;

@@ -2,54 +2,17 @@
 //! (thread-local counts, so the test harness's other threads do not interfere)
 //! watches frames 2..N of a stream of same-size frames.
 //!
-//! This file is its own crate: installing a `#[global_allocator]` needs one
-//! `unsafe impl GlobalAlloc`, which only delegates to the system allocator.
+//! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use vlsync_signature_cam::{
     FrameTime, GrayFrame, PixelFormat, RawFrame, Reduction, SignatureConfig, SignatureProcessor,
     Step,
 };
 
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-struct Counting;
-
-#[allow(unsafe_code)]
-// SAFETY: every method forwards its arguments unchanged to `System`, which upholds
-// the `GlobalAlloc` contract; the counter is a const-initialised thread-local
-// `Cell` without destructor, so touching it never allocates or recurses.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
-fn allocs() -> u64 {
-    ALLOCS.with(|c| c.get())
-}
+use vlsync_alloc_count::this_thread as allocs;
 
 /// A 640x480 YUYV frame of a smooth texture shifted by `(sx, sy)`.
 fn yuyv(sx: f32, sy: f32) -> Vec<u8> {

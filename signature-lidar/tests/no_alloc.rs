@@ -3,55 +3,18 @@
 //! interfere) watches every scan after construction, for the wall fit and the
 //! median, through passes, corners, drops and gaps.
 //!
-//! This file is its own crate: installing a `#[global_allocator]` needs one
-//! `unsafe impl GlobalAlloc`, which only delegates to the system allocator.
+//! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::f64::consts::{FRAC_PI_2, TAU};
 use vlsync_signature_lidar::signature::Distance;
 use vlsync_signature_lidar::{
     Ray, Rotation, Scan, ScanTiming, SignatureConfig, SignatureProcessor,
 };
 
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-struct Counting;
-
-#[allow(unsafe_code)]
-// SAFETY: every method forwards its arguments unchanged to `System`, which upholds
-// the `GlobalAlloc` contract; the counter is a const-initialised thread-local
-// `Cell` without destructor, so touching it never allocates or recurses.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
-fn allocs() -> u64 {
-    ALLOCS.with(|c| c.get())
-}
+use vlsync_alloc_count::this_thread as allocs;
 
 /// Scan `k` of a robot turning in place 7° per scan in a 4x6 m room, 450 rays
 /// clockwise from the front, every 13th return lost, scan 20 missing (a gap).

@@ -9,63 +9,14 @@
 //! (2/s at the default hop), none per received sample. The test pins exactly
 //! that bound. `VLSYNC_ALLOC_BT=1` prints a backtrace for each allocation.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_tests::Rig;
 
-struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-static RT_ALLOCS: AtomicU64 = AtomicU64::new(0);
-static ARMED: AtomicBool = AtomicBool::new(false);
-
-thread_local! {
-    static IN_HOOK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Counts an allocation, attributing it to the real-time thread by name.
-fn count() {
-    ALLOCS.fetch_add(1, Ordering::Relaxed);
-    if !ARMED.load(Ordering::Relaxed) {
-        return;
-    }
-    let _ = IN_HOOK.try_with(|h| {
-        if !h.get() {
-            h.set(true);
-            if std::thread::current().name() == Some("vlsync-rt") {
-                RT_ALLOCS.fetch_add(1, Ordering::Relaxed);
-                if std::env::var_os("VLSYNC_ALLOC_BT").is_some() {
-                    eprintln!("{}", std::backtrace::Backtrace::force_capture());
-                }
-            }
-            h.set(false);
-        }
-    });
-}
-
-// SAFETY: forwards every call unchanged to the system allocator; the counter is
-// an atomic that never allocates.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        count();
-        // SAFETY: same contract as ours.
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        // SAFETY: `p` came from `System.alloc` with layout `l`.
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        count();
-        // SAFETY: same contract as ours.
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 #[test]
 fn daemon_allocates_nothing_in_steady_state() {
@@ -82,10 +33,11 @@ fn daemon_allocates_nothing_in_steady_state() {
     let mut status = vlsync_ipc::StatusClient::open(&rig.prefix).unwrap();
     std::thread::sleep(Duration::from_millis(1200));
     let s0 = status.latest().unwrap().expect("status");
-    ARMED.store(true, Ordering::Relaxed);
+    let rt0 = vlsync_alloc_count::watched();
+    vlsync_alloc_count::watch_thread("vlsync-rt", std::env::var_os("VLSYNC_ALLOC_BT").is_some());
     std::thread::sleep(Duration::from_secs(4));
-    ARMED.store(false, Ordering::Relaxed);
-    let rt = RT_ALLOCS.load(Ordering::Relaxed);
+    vlsync_alloc_count::unwatch_thread();
+    let rt = vlsync_alloc_count::watched() - rt0;
     std::thread::sleep(Duration::from_millis(1200));
     let s1 = status.latest().unwrap().expect("status");
     let samples = s1.received.iter().sum::<u64>() - s0.received.iter().sum::<u64>();
@@ -95,7 +47,6 @@ fn daemon_allocates_nothing_in_steady_state() {
     daemon.join().unwrap().unwrap();
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(running, "drivers ended before the measurement window");
-    let _ = &ALLOCS;
     // the status window (~6.4 s) contains the 4 s allocation window
     assert!(samples > 500, "only {samples} samples in the window");
     assert!(
