@@ -6,7 +6,42 @@
 //! * `scans.csv` — `vlsync_signature_lidar::csv`'s format, one row per ray with
 //!   its own time `t_s` (LiDAR clock);
 //! * `truth.csv` — `t,offset` every 10 ms (LiDAR clock), as `vlsync-sim` writes it;
-//! * `motion.csv` — `t,x,y,yaw,speed,yaw_rate` every 10 ms (true time), for plots.
+//! * `motion.csv` — `t,x,y,yaw,speed,yaw_rate` every 10 ms (true time), for plots;
+//! * optionally ([`write_run_with`], `vlsync-render --mcap`) a ROS 2 recording
+//!   of the same frames and scans, which `vlsync_mcap::McapImageSource` and
+//!   `McapScanSource` (the drivers' `--mcap`) read. See below.
+//!
+//! # The MCAP recording
+//!
+//! One file, profile `ros2`, two topics, written in the order the sensors
+//! deliver ([`Renderer::events`]):
+//!
+//! * [`MCAP_IMAGE_TOPIC`] (`/camera/image_raw`): `sensor_msgs/msg/Image`,
+//!   `mono8`, frame id [`MCAP_CAMERA_FRAME_ID`]; with [`McapOutput::png`]
+//!   instead [`MCAP_PNG_TOPIC`] (`/camera/image_raw/compressed`, image_transport's
+//!   name): `sensor_msgs/msg/CompressedImage`, lossless PNG. `header.stamp` is
+//!   the **mid-exposure** stamp on the camera clock, `frames.csv`'s `t_s`. The
+//!   message has no exposure field, so `exposure_start_s` and `exposure_s` are
+//!   not recorded: `McapImageSource` takes the stamp as the frame's instant
+//!   (`FrameTime::Instant(t_s)`), which is exactly the instant `DirSource`
+//!   derives from `frames.csv` (`start + duration / 2`, to the nanosecond), so
+//!   the camera front-end stamps the same samples from either.
+//! * [`MCAP_SCAN_TOPIC`] (`/scan`): `sensor_msgs/msg/LaserScan`, frame id
+//!   [`MCAP_LIDAR_FRAME_ID`], written by `vlsync_mcap::McapWriter::write_scan`:
+//!   `header.stamp` is the first ray's time on the LiDAR clock (`scans.csv`'s
+//!   first `t_s` of the scan), `time_increment` and `angle_increment` the ray
+//!   spacing, `scan_time` the period. Read back, ray `i` is at
+//!   `stamp + round(i · time_increment)`: the rays are evenly spaced (the
+//!   LiDAR clock's jitter is per scan), and the `float32` increment puts them
+//!   within a few ns of `scans.csv`'s times (1 ns at the default 450 rays,
+//!   10 Hz). Ranges are `float32`; invalid rays (no return) are NaN.
+//!
+//! Stamps may be negative (with a positive offset `t_L - t_C` the camera clock
+//! reads less than the true time, which starts at 0); `builtin_interfaces/Time`
+//! holds them. The MCAP **log time** of a message is the true time at which the
+//! sensor delivered it (end of exposure, end of the revolution): a recorder
+//! with a perfect clock and no transport latency. It is never negative, orders
+//! the file as the sensors deliver, and is what `StampSource::LogTime` reads.
 //!
 //! ```
 //! use vlsync_render::{output::write_run, RenderConfig, Renderer};
@@ -27,7 +62,40 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
+use vlsync_mcap::McapWriter;
 use vlsync_signature_lidar::csv::{format_seconds, write_header, write_scan};
+
+/// Topic of the frames in the MCAP recording (`sensor_msgs/msg/Image`, `mono8`).
+pub const MCAP_IMAGE_TOPIC: &str = "/camera/image_raw";
+/// Topic of the frames when written as PNG (`sensor_msgs/msg/CompressedImage`).
+pub const MCAP_PNG_TOPIC: &str = "/camera/image_raw/compressed";
+/// Topic of the scans in the MCAP recording (`sensor_msgs/msg/LaserScan`).
+pub const MCAP_SCAN_TOPIC: &str = "/scan";
+/// `header.frame_id` of the frames.
+pub const MCAP_CAMERA_FRAME_ID: &str = "camera";
+/// `header.frame_id` of the scans.
+pub const MCAP_LIDAR_FRAME_ID: &str = "laser";
+
+/// An MCAP recording to write beside the directory (see the module docs).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct McapOutput {
+    /// The file (created or truncated; its directory must exist).
+    pub path: PathBuf,
+    /// Frames as PNG `CompressedImage`s on [`MCAP_PNG_TOPIC`] instead of
+    /// `mono8` `Image`s on [`MCAP_IMAGE_TOPIC`].
+    pub png: bool,
+}
+
+impl McapOutput {
+    /// The topic the frames go to.
+    pub fn image_topic(&self) -> &'static str {
+        if self.png {
+            MCAP_PNG_TOPIC
+        } else {
+            MCAP_IMAGE_TOPIC
+        }
+    }
+}
 
 /// What [`write_run`] wrote, and how long it took.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -57,9 +125,29 @@ fn create(path: &Path) -> Result<BufWriter<File>, RenderError> {
     File::create(path).map(BufWriter::new).map_err(io_err(path))
 }
 
+/// An MCAP error as a render error (`vlsync_mcap::Error` names the file).
+fn mcap_err(e: vlsync_mcap::Error) -> RenderError {
+    RenderError::Encode {
+        path: e.path().to_path_buf(),
+        reason: e.detail(),
+    }
+}
+
 /// Renders the whole run into `dir` (created if needed). With `png = false`
 /// the frames are rendered and listed but not written (for timing).
 pub fn write_run(r: &mut Renderer, dir: &Path, png: bool) -> Result<Summary, RenderError> {
+    write_run_with(r, dir, png, None)
+}
+
+/// [`write_run`], and with `mcap` also the MCAP recording of the same frames
+/// and scans (see the module docs), in the same rendering pass. The recording
+/// is complete only when this returns `Ok`.
+pub fn write_run_with(
+    r: &mut Renderer,
+    dir: &Path,
+    png: bool,
+    mcap: Option<&McapOutput>,
+) -> Result<Summary, RenderError> {
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
     let frames_csv = dir.join("frames.csv");
@@ -68,6 +156,10 @@ pub fn write_run(r: &mut Renderer, dir: &Path, png: bool) -> Result<Summary, Ren
     let mut scsv = create(&scans_csv)?;
     writeln!(fcsv, "file,t_s,exposure_start_s,exposure_s").map_err(io_err(&frames_csv))?;
     write_header(&mut scsv).map_err(io_err(&scans_csv))?;
+    let mut rec = match mcap {
+        Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
+        None => None,
+    };
     let mut s = Summary {
         frames: 0,
         frames_dropped: r.frames_dropped(),
@@ -115,10 +207,32 @@ pub fn write_run(r: &mut Renderer, dir: &Path, png: bool) -> Result<Summary, Ren
                     format_seconds(dur)
                 )
                 .map_err(io_err(&frames_csv))?;
+                if let Some((w, m)) = &mut rec {
+                    // log time = stamp + delay = the true time the frame is complete
+                    w.set_log_delay_ns(f.tau_available_ns - f.stamp_ns);
+                    w.set_frame_id(MCAP_CAMERA_FRAME_ID);
+                    if m.png {
+                        w.write_compressed_png(MCAP_PNG_TOPIC, f.stamp_ns, &f.image)
+                    } else {
+                        w.write_image(MCAP_IMAGE_TOPIC, f.stamp_ns, &f.image)
+                    }
+                    .map_err(mcap_err)?;
+                }
                 s.frames += 1;
             }
             Event::Scan(sc) => {
                 write_scan(&mut scsv, &sc.scan).map_err(io_err(&scans_csv))?;
+                if let Some((w, _)) = &mut rec {
+                    // write_scan stamps the first ray
+                    let stamp = sc
+                        .scan
+                        .rays()
+                        .first()
+                        .map_or(sc.scan.timing().start_ns, |ray| ray.t_ns);
+                    w.set_log_delay_ns(sc.tau_available_ns - stamp);
+                    w.set_frame_id(MCAP_LIDAR_FRAME_ID);
+                    w.write_scan(MCAP_SCAN_TOPIC, &sc.scan).map_err(mcap_err)?;
+                }
                 s.scans += 1;
                 s.rays += sc.scan.len();
             }
@@ -127,6 +241,11 @@ pub fn write_run(r: &mut Renderer, dir: &Path, png: bool) -> Result<Summary, Ren
     }
     fcsv.flush().map_err(io_err(&frames_csv))?;
     scsv.flush().map_err(io_err(&scans_csv))?;
+    if let Some((w, _)) = rec {
+        let t = Instant::now();
+        w.finish().map_err(mcap_err)?;
+        s.write_time += t.elapsed();
+    }
     let truth_csv = dir.join("truth.csv");
     r.truth()
         .write_csv(&truth_csv)

@@ -5,12 +5,15 @@ use clap::Parser;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
-use vlsync_render::{output::write_run, RenderConfig, Renderer};
+use vlsync_render::output::{write_run_with, McapOutput};
+use vlsync_render::{RenderConfig, Renderer};
 
 /// Renders a robot driving in a textured room as seen by a camera and a 2-D LiDAR,
 /// with known clock truth: DIR/frames/*.png + DIR/frames.csv (signature-cam's
 /// DirSource format), DIR/scans.csv (signature-lidar's scan CSV), DIR/truth.csv
-/// (`t,offset`, offset = t_L - t_C), DIR/motion.csv.
+/// (`t,offset`, offset = t_L - t_C), DIR/motion.csv; with --mcap also a ROS 2
+/// MCAP recording of the same frames and scans (/camera/image_raw, /scan) for
+/// the drivers' --mcap.
 #[derive(Debug, Parser)]
 #[command(name = "vlsync-render", version)]
 struct Args {
@@ -53,6 +56,18 @@ struct Args {
     /// Render but do not write PNG files (timing).
     #[arg(long)]
     no_png: bool,
+    /// Also write a ROS 2 MCAP recording of the run to FILE (default, when
+    /// given without a value: DIR/run.mcap; FILE's directory must exist):
+    /// /camera/image_raw (sensor_msgs/Image, mono8) and /scan
+    /// (sensor_msgs/LaserScan), header stamps on each sensor's clock as in
+    /// frames.csv (mid-exposure) and scans.csv (first ray); log time = true
+    /// delivery time.
+    #[arg(long, value_name = "FILE")]
+    mcap: Option<Option<PathBuf>>,
+    /// With --mcap: frames as lossless PNG sensor_msgs/CompressedImage on
+    /// /camera/image_raw/compressed instead of raw Image.
+    #[arg(long, requires = "mcap")]
+    mcap_png: bool,
 }
 
 fn parse_step(s: &str) -> Result<(f64, f64), String> {
@@ -92,7 +107,11 @@ fn main() -> ExitCode {
         }
     };
     let setup = t0.elapsed();
-    let s = match write_run(&mut r, &a.out, !a.no_png) {
+    let mcap = a.mcap.as_ref().map(|file| McapOutput {
+        path: file.clone().unwrap_or_else(|| a.out.join("run.mcap")),
+        png: a.mcap_png,
+    });
+    let s = match write_run_with(&mut r, &a.out, !a.no_png, mcap.as_ref()) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("vlsync-render: error: {e}");
@@ -119,6 +138,16 @@ fn main() -> ExitCode {
         c.lidar.rays_per_turn,
         s.scans
     );
+    if let Some(m) = &mcap {
+        println!(
+            "  mcap {}: {} frames on {}, {} scans on {}",
+            m.path.display(),
+            s.frames,
+            m.image_topic(),
+            s.scans,
+            vlsync_render::output::MCAP_SCAN_TOPIC
+        );
+    }
     println!(
         "  truth offset t_L - t_C: {:+.6} s at 0, {:+.6} s at end (drift {:+.1} ppm, {} steps)",
         truth.offset_at(0),
