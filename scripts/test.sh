@@ -3,18 +3,29 @@
 # Used verbatim by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+# apt-get install, as root or through sudo; says so when neither is possible
+install_deb() {
+    local sudo
+    if [ "$(id -u)" -eq 0 ]; then sudo=""; elif command -v sudo >/dev/null 2>&1; then sudo="sudo"; else
+        echo "$1 is missing and cannot be installed (not root, no sudo): $2" >&2
+        return 0
+    fi
+    $sudo apt-get install -y "$1" || { $sudo apt-get update && $sudo apt-get install -y "$1"; }
+}
+
 # The Python subscriber test needs the official iceoryx2 package, pinned to the
 # same version as the Rust crate.
 if [ -f examples/python/requirements.txt ]; then
     python3 -m pip install --quiet --disable-pip-version-check -r examples/python/requirements.txt
 fi
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
-if ! command -v stress-ng >/dev/null 2>&1; then
-    if [ "$(id -u)" -eq 0 ]; then SUDO=""; elif command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else SUDO="none"; fi
-    if [ "$SUDO" = "none" ]; then
-        echo "stress-ng is missing and cannot be installed (not root, no sudo): the load test will fail" >&2
-    else
-        $SUDO apt-get install -y stress-ng || { $SUDO apt-get update && $SUDO apt-get install -y stress-ng; }
-    fi
+command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"
+# The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang.
+if ! dpkg -s libclang-dev >/dev/null 2>&1; then
+    install_deb libclang-dev "the V4L2 source's tests will fail to build"
 fi
+
 cargo test --workspace
+# the V4L2 source with the feature on (errors for missing and non-video devices)
+cargo test -p vlsync-signature-cam --features v4l2 --lib v4l2

@@ -291,9 +291,10 @@ fn v4l2_without_the_feature_says_how_to_get_it() {
     let r = CamSource::v4l2(Path::new("/dev/video0"), never);
     if cfg!(feature = "v4l2") {
         // with the feature: a missing or non-video device is still an error naming it
-        if let Err(e) = CamSource::v4l2(Path::new("/dev/video-vlsync-missing"), never) {
-            assert!(e.to_string().contains("/dev/video-vlsync-missing"), "{e}");
-        }
+        let e = CamSource::v4l2(Path::new("/dev/video-vlsync-missing"), never)
+            .err()
+            .expect("a missing device is an error");
+        assert!(e.to_string().contains("/dev/video-vlsync-missing"), "{e}");
     } else {
         let e = r.unwrap_err().to_string();
         assert!(
