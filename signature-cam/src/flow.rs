@@ -132,7 +132,8 @@ pub struct FlowConfig {
     /// from the median `m` of its tracked 8-neighbours on the grid (at least 3 of them)
     /// is dropped as a mis-track. The flow of a rigid scene is smooth across the grid,
     /// a point locked onto the wrong texture is not. Defaults 1.0 px and 0.25;
-    /// `outlier_px = inf` disables the check.
+    /// `outlier_px = inf` disables the check, and with it the forward/backward
+    /// agreement test of [`FlowConfig::symmetric`], which uses the same tolerance.
     pub outlier_px: f32,
     /// See [`FlowConfig::outlier_px`].
     pub outlier_rel: f32,

@@ -10,9 +10,10 @@
 //!    Shi-Tomasi texture test, each point started from its last flow, tracked
 //!    both ways and checked against its neighbours; allocation-free after the
 //!    first frame.
-//! 3. [`reduce`]: flow vectors to one number (trimmed mean of the downward
-//!    component by default, i.e. forward motion for a camera looking at the
-//!    floor; mean or median magnitude, divergence).
+//! 3. [`reduce`]: flow vectors to one number (by default the downward
+//!    component over the whole grid against a learnt per-point pattern, i.e.
+//!    forward motion for a camera looking at the floor; mean or median
+//!    magnitude, divergence; trimmed means of the tracked points).
 //! 4. [`signature`]: frames and times to [`vlsync_common::Sample`]s (midpoint
 //!    stamping, mid-exposure times, px/s scaled by whole frame periods, gap
 //!    restart).

@@ -1,7 +1,7 @@
 //! Reductions of per-point flow vectors to one scalar.
 //!
-//! Means are **trimmed** means (the `trim` fraction of values is dropped at each
-//! end before averaging), which makes them robust to the few points that LK
+//! [`Reducer::reduce`]'s means are **trimmed** means (the `trim` fraction of
+//! values is dropped at each end before averaging), which makes them robust to the few points that LK
 //! mis-tracks (moving objects, specular spots, repetitive texture), while
 //! keeping a mean's low noise. `trim = 0` gives the plain mean; the median is
 //! the 0.5 limit.
@@ -180,7 +180,7 @@ impl Reducer {
     /// the image, motion blur takes its texture (on rendered 640x480 runs that
     /// bent the signature by -2 % at 0.6 m/s). Each point's scalar `s_i` is
     /// modelled as `v · g_i`, with `g_i` its learnt share of the motion (mean 1
-    /// over the whole grid). Ratios `s_i / g_i` farther than 4 MADs (and 5 %)
+    /// over the whole grid). Ratios `s_i / g_i` farther than 4 robust σ (4 · 1.4826 · MAD, and 5 %)
     /// from their median are outliers, and the value is `Σ s_i / Σ g_i` over the
     /// points kept: the grid's mean flow as if every point had been tracked (the
     /// median ratio for [`Reduction::MedianMagnitude`]). With every point kept it

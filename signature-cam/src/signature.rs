@@ -106,9 +106,11 @@ impl FrameTime {
 pub struct SignatureConfig {
     /// Optical flow.
     pub flow: FlowConfig,
-    /// Flow vectors to scalar (default: trimmed mean of the downward component).
+    /// Flow vectors to scalar (default: the downward component, reduced over the
+    /// whole grid against its learnt pattern, see `normalise`).
     pub reduction: Reduction,
-    /// Trim fraction at each end for the trimmed means (default 0.1).
+    /// Trim fraction at each end for the trimmed means (default 0.1); used only
+    /// with `normalise = false` (the grid reduction drops outliers by a MAD test).
     pub trim: f32,
     /// Sample stamping (default midpoint).
     pub stamping: Stamping,
@@ -220,6 +222,8 @@ pub struct SignatureProcessor {
     period: FramePeriod,
     /// Periods spanned by the previous sample's interval (for the flow prediction).
     prev_periods: f64,
+    /// Frame size the reducer's learnt grid pattern belongs to.
+    pattern_size: Option<(usize, usize)>,
 }
 
 /// Running estimate of a camera's frame period from its (jittered) stamps.
@@ -244,7 +248,8 @@ pub struct FramePeriod {
 impl FramePeriod {
     /// Intervals averaged at most (the running mean becomes an exponential one).
     const MEMORY: u32 = 64;
-    /// Largest relative deviation of one interval from a whole number of periods.
+    /// Largest deviation of one interval from a whole number of periods, as a
+    /// share of one period.
     /// (1 ms of stamp jitter makes intervals at 30 Hz vary by 4 % rms, and
     /// 1 in 1000 by 15 %: a 15 % tolerance left those unscaled, 18 % off.)
     const TOLERANCE: f64 = 0.3;
@@ -265,7 +270,7 @@ impl FramePeriod {
 
     /// Takes one positive interval `dt_ns` between consecutive frames and returns
     /// `(interval to scale by, periods spanned)`: `(n · period, n)` when `dt_ns` is
-    /// within 30 % of a whole number `n` (1..=8) of the tracked period, else
+    /// within 30 % of one period of a whole number `n` (1..=8) of periods, else
     /// `(dt_ns, dt_ns / period)` (raw; the first interval, a changed rate or
     /// irregular timing). Agreeing intervals refine the period. A `dt_ns <= 0`
     /// is returned as `(dt_ns, 0)` and changes nothing.
@@ -285,8 +290,10 @@ impl FramePeriod {
         }
         let n = (dt / self.period_ns).round();
         if (1.0..=Self::MAX_PERIODS).contains(&n) {
-            let r = dt / n - self.period_ns;
-            if r.abs() <= Self::TOLERANCE * self.period_ns {
+            // the tolerance applies to the interval, not to the period it implies:
+            // 1.5 periods is a miss, not two periods 25 % short
+            if (dt - n * self.period_ns).abs() <= Self::TOLERANCE * self.period_ns {
+                let r = dt / n - self.period_ns;
                 self.count = (self.count + 1).min(Self::MEMORY);
                 self.period_ns += r / f64::from(self.count);
                 self.misses = 0;
@@ -311,6 +318,7 @@ impl SignatureProcessor {
             prev_t: None,
             period: FramePeriod::default(),
             prev_periods: 0.0,
+            pattern_size: None,
         })
     }
 
@@ -381,8 +389,13 @@ impl SignatureProcessor {
             self.lk.reset();
             self.prev_periods = 0.0;
         }
-        if let Some(StartReason::SizeChanged { .. }) = reason {
-            self.reducer.reset_pattern();
+        // a pattern learnt on another frame size (also across a reset or an
+        // error, after which the size change reads as a first frame) is void
+        if self.pattern_size != Some(size) {
+            if self.pattern_size.is_some() {
+                self.reducer.reset_pattern();
+            }
+            self.pattern_size = Some(size);
         }
         let stats = match self.lk.push(frame) {
             Ok(s) => s,
@@ -654,6 +667,49 @@ mod tests {
         assert!((fp.period_ns() - 20_000_000.0).abs() < 1.0);
         fp.reset();
         assert_eq!(fp.period_ns(), 0.0);
+        // 30 Hz slowing to 20 Hz (auto-exposure): 1.5 periods is not two short
+        // ones; three raw intervals, then the new period
+        for _ in 0..50 {
+            fp.interval(33_333_333);
+        }
+        for _ in 0..3 {
+            let (scale, n) = fp.interval(50_000_000);
+            assert!(
+                scale == 50_000_000.0 && (n - 1.5).abs() < 0.01,
+                "{scale} {n}"
+            );
+        }
+        assert_eq!(fp.interval(50_000_000), (50_000_000.0, 1.0));
+        assert!((fp.period_ns() - 50_000_000.0).abs() < 1.0);
+    }
+
+    #[test]
+    fn a_pattern_learnt_on_one_size_is_void_on_another_even_after_an_error() {
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        // flow that grows across the image (0.5 px/frame at the left, 2.5 at the
+        // right): the learnt pattern is far from flat
+        let sheared = |k: f32| frame(200, 150, move |x, y| (x, y - k * (0.5 + x / 100.0)));
+        for k in 0..40 {
+            let _ = p.process(&sheared(k as f32), FrameTime::Instant(k * 33 * MS));
+        }
+        assert!(
+            p.reducer.pattern().iter().any(|&g| (g - 1.0).abs() > 0.1),
+            "{:?}",
+            p.reducer.pattern()
+        );
+        // a bad stamp restarts the processor; the next frame, of another size,
+        // reads as a first frame, and the old pattern must not carry over
+        let bad = FrameTime::Exposure {
+            start_ns: 0,
+            duration_ns: -1,
+        };
+        assert!(p.process(&sheared(40.0), bad).is_err());
+        let small = frame(180, 150, |x, y| (x, y));
+        assert_eq!(
+            p.process(&small, FrameTime::Instant(2_000 * MS)).unwrap(),
+            Step::Started(StartReason::First)
+        );
+        assert!(p.reducer.pattern().iter().all(|&g| g == 1.0));
     }
 
     #[test]

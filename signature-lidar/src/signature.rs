@@ -56,7 +56,9 @@
 //! # Gaps
 //!
 //! No derivative spans a gap: if two consecutive measurement times are more
-//! than `max_gap_ns` apart (a scan was lost, or a pass was dropped), the new
+//! than `max_gap_ns` apart (at the default 300 ms and 10 Hz: two or more
+//! consecutive scans or passes lost; one lost pass only makes the derivative
+//! span two revolutions, still divided by its true interval), the new
 //! distance restarts the derivative ([`DropReason::Gap`]). A pass cut by a gap
 //! between two rays, or one already under way when the stream (re)started, is
 //! dropped ([`DropReason::Partial`]).
@@ -259,6 +261,15 @@ impl SignatureConfig {
         if self.min_valid_rays == 0 {
             return err("min_valid_rays", "must be >= 1, got 0".into());
         }
+        if self.distance == Distance::Wall && self.max_window_rays < 3 {
+            return err(
+                "max_window_rays",
+                format!(
+                    "must be >= 3 with the wall fit (it needs 3 returns on the line), got {}",
+                    self.max_window_rays
+                ),
+            );
+        }
         if self.max_window_rays < self.min_valid_rays || self.max_window_rays > 1 << 20 {
             return err(
                 "max_window_rays",
@@ -315,7 +326,8 @@ pub enum DropReason {
     Gap,
     /// Measurement time not after the previous one: restarts the derivative.
     NonIncreasingTime,
-    /// A ray earlier than the previous ray was ignored.
+    /// A ray earlier than the previous ray (by at most `max_gap_ns`) was
+    /// ignored; a larger step back restarts, counted as [`Self::NonIncreasingTime`].
     RayOutOfOrder,
     /// [`Distance::Wall`]: no wall explains enough of the returns, or it is seen
     /// too obliquely (see [`SignatureConfig::max_incidence_rad`]).
@@ -520,8 +532,16 @@ impl SignatureProcessor {
         let mut after_gap = self.last_ray_t.is_none();
         if let Some(lt) = self.last_ray_t {
             if ray.t_ns < lt {
-                self.drop_reason(DropReason::RayOutOfOrder);
-                return None;
+                if lt.saturating_sub(ray.t_ns) <= self.cfg.max_gap_ns {
+                    self.drop_reason(DropReason::RayOutOfOrder);
+                    return None;
+                }
+                // the clock stepped back (a restarted sensor, concatenated
+                // recordings, one ray stamped far ahead): start over from this ray
+                // instead of waiting for time to pass the old one
+                self.drop_reason(DropReason::NonIncreasingTime);
+                self.reset();
+                after_gap = true;
             }
             if ray.t_ns.saturating_sub(lt) > self.cfg.max_gap_ns {
                 after_gap = true;
@@ -1419,6 +1439,35 @@ mod tests {
     }
 
     #[test]
+    fn a_clock_step_back_restarts_instead_of_stalling() {
+        // one ray stamped 1000 s ahead (a mistyped CSV row), then the stream goes on
+        let cfg = SignatureConfig {
+            window_centre_rad: PI / 2.0,
+            ..legacy()
+        };
+        let mut p = SignatureProcessor::new(cfg).unwrap();
+        let mut out = Vec::new();
+        for k in 0..5 {
+            p.push_scan(&scan_at(k, |_| 3.0 - 0.1 * k as f64, Rotation::Ccw), |x| {
+                out.push(x)
+            });
+        }
+        assert_eq!(out.len(), 4);
+        p.push_ray(&Ray::timed(1.0, 2.0, 0.0, true, 1_000 * 1_000_000_000));
+        for k in 5..10 {
+            p.push_scan(&scan_at(k, |_| 3.0 - 0.1 * k as f64, Rotation::Ccw), |x| {
+                out.push(x)
+            });
+        }
+        assert_eq!(p.counters().dropped(DropReason::NonIncreasingTime), 1);
+        assert_eq!(p.counters().dropped(DropReason::RayOutOfOrder), 0);
+        // restarted at scan 5: its pass starts a new derivative, scans 6..9 give samples
+        assert_eq!(out.len(), 8, "{out:?}");
+        assert!(out[4..].iter().all(|s| (s.value + 1.0).abs() < 1e-9));
+        assert!(out.windows(2).skip(4).all(|w| w[1].t_ns > w[0].t_ns));
+    }
+
+    #[test]
     fn config_errors_name_the_field() {
         let e = SignatureConfig {
             window_half_width_rad: 3.0,
@@ -1448,6 +1497,18 @@ mod tests {
         ] {
             assert!(SignatureProcessor::new(bad).is_err());
         }
+        // the wall fit needs room for 3 returns; the median does not
+        let tiny = SignatureConfig {
+            min_valid_rays: 1,
+            max_window_rays: 2,
+            ..Default::default()
+        };
+        assert_eq!(tiny.validate().unwrap_err().field, "max_window_rays");
+        let median = SignatureConfig {
+            distance: Distance::Median,
+            ..tiny
+        };
+        assert!(median.validate().is_ok());
     }
 
     #[test]
