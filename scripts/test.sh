@@ -26,6 +26,8 @@ if ! dpkg -s libclang-dev >/dev/null 2>&1; then
     install_deb libclang-dev "the V4L2 source's tests will fail to build"
 fi
 
-cargo test --workspace
-# the V4L2 source with the feature on (errors for missing and non-video devices)
-cargo test -p vlsync-signature-cam --features v4l2 --lib v4l2
+# One build for everything, with the V4L2 source compiled in (its tests then check the
+# errors for missing and non-video devices). The multi-process tests build the binaries
+# with the same profile and features (VLSYNC_CARGO_FEATURES), reusing this build.
+export VLSYNC_CARGO_FEATURES="vlsync-driver/v4l2"
+cargo test --workspace --features "$VLSYNC_CARGO_FEATURES"

@@ -567,17 +567,7 @@ impl PyrLk {
             let (px, py) = self.geom.as_ref().map_or((0.0, 0.0), |g| g.points[i]);
             self.grid_flow[i] = NO_FLOW;
             // level-0 template first: the texture test decides whether to track at all
-            make_template(
-                &self.prev[0],
-                px,
-                py,
-                c.window,
-                &mut self.patch,
-                &mut self.t0,
-            );
-            let eig = min_eigen(&self.t0) / n;
-            // NaN (non-finite pixels in an f32 frame) counts as no texture
-            if eig.is_nan() || eig < c.min_eigen {
+            if !textured(&self.prev[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
                 continue;
             }
             textured += 1;
@@ -592,16 +582,7 @@ impl PyrLk {
             };
             if c.symmetric {
                 // the backward template must be textured too
-                make_template(
-                    &self.cur[0],
-                    px,
-                    py,
-                    c.window,
-                    &mut self.patch,
-                    &mut self.t0,
-                );
-                let eig = min_eigen(&self.t0) / n;
-                if eig.is_nan() || eig < c.min_eigen {
+                if !textured(&self.cur[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
                     continue;
                 }
                 let Some(b) = self.track_both_ways(px, py, Some((-d.0, -d.1)), true) else {
@@ -783,6 +764,24 @@ fn median_small(v: &mut [f32]) -> f32 {
 }
 
 /// Smallest eigenvalue of the template's structure tensor.
+/// The Shi-Tomasi texture test of the level-0 window around `(px, py)`: its
+/// smaller gradient eigenvalue, per pixel (`n`), reaches `c.min_eigen`. NaN
+/// (non-finite pixels in an f32 frame) counts as no texture. Leaves the
+/// template in `t`.
+fn textured(
+    lv: &Level,
+    px: f32,
+    py: f32,
+    c: &FlowConfig,
+    n: f32,
+    patch: &mut [f32],
+    t: &mut Template,
+) -> bool {
+    make_template(lv, px, py, c.window, patch, t);
+    let eig = min_eigen(t) / n;
+    !eig.is_nan() && eig >= c.min_eigen
+}
+
 fn min_eigen(t: &Template) -> f32 {
     let tr = t.gxx + t.gyy;
     let d = ((t.gxx - t.gyy) * (t.gxx - t.gyy) + 4.0 * t.gxy * t.gxy).sqrt();

@@ -21,7 +21,9 @@ fn profile_dir() -> PathBuf {
         .to_path_buf()
 }
 
-/// Path of workspace binary `name`, building every vlsync binary once first.
+/// Path of workspace binary `name`, building every vlsync binary once first
+/// (with the test profile, and the features in `VLSYNC_CARGO_FEATURES` when set,
+/// as `scripts/test.sh` builds the tests).
 pub fn bin(name: &str) -> PathBuf {
     static BUILT: OnceLock<Result<(), String>> = OnceLock::new();
     let dir = profile_dir();
@@ -39,8 +41,17 @@ pub fn bin(name: &str) -> PathBuf {
             "-p",
             "vlsync-driver",
         ]);
+        // the profile and features of the test build itself, so that the binaries
+        // reuse its compiled crates instead of building the workspace again
         if dir.file_name().is_some_and(|n| n == "release") {
             cmd.arg("--release");
+        } else {
+            cmd.args(["--profile", "test"]);
+        }
+        if let Ok(f) = std::env::var("VLSYNC_CARGO_FEATURES") {
+            if !f.trim().is_empty() {
+                cmd.args(["--features", f.trim()]);
+            }
         }
         // the binaries must land next to this test's profile directory
         if let Some(target) = dir.parent() {
