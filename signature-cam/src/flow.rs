@@ -567,7 +567,7 @@ impl PyrLk {
             let (px, py) = self.geom.as_ref().map_or((0.0, 0.0), |g| g.points[i]);
             self.grid_flow[i] = NO_FLOW;
             // level-0 template first: the texture test decides whether to track at all
-            if !textured(&self.prev[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
+            if !has_texture(&self.prev[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
                 continue;
             }
             textured += 1;
@@ -582,7 +582,7 @@ impl PyrLk {
             };
             if c.symmetric {
                 // the backward template must be textured too
-                if !textured(&self.cur[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
+                if !has_texture(&self.cur[0], px, py, &c, n, &mut self.patch, &mut self.t0) {
                     continue;
                 }
                 let Some(b) = self.track_both_ways(px, py, Some((-d.0, -d.1)), true) else {
@@ -768,7 +768,7 @@ fn median_small(v: &mut [f32]) -> f32 {
 /// smaller gradient eigenvalue, per pixel (`n`), reaches `c.min_eigen`. NaN
 /// (non-finite pixels in an f32 frame) counts as no texture. Leaves the
 /// template in `t`.
-fn textured(
+fn has_texture(
     lv: &Level,
     px: f32,
     py: f32,
