@@ -27,7 +27,9 @@ if ! dpkg -s libclang-dev >/dev/null 2>&1; then
 fi
 
 # One build for everything, with the V4L2 source compiled in (its tests then check the
-# errors for missing and non-video devices). The multi-process tests build the binaries
-# with the same profile and features (VLSYNC_CARGO_FEATURES), reusing this build.
+# errors for missing and non-video devices). `cargo test --workspace` builds every binary
+# before running any test; the multi-process tests run those (VLSYNC_PREBUILT_BINS)
+# instead of building the workspace a second time.
 export VLSYNC_CARGO_FEATURES="vlsync-driver/v4l2"
+export VLSYNC_PREBUILT_BINS=1
 cargo test --workspace --features "$VLSYNC_CARGO_FEATURES"

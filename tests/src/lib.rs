@@ -22,12 +22,18 @@ fn profile_dir() -> PathBuf {
 }
 
 /// Path of workspace binary `name`, building every vlsync binary once first
-/// (with the test profile, and the features in `VLSYNC_CARGO_FEATURES` when set,
-/// as `scripts/test.sh` builds the tests).
+/// (with the features in `VLSYNC_CARGO_FEATURES` when set), unless
+/// `VLSYNC_PREBUILT_BINS=1` says the test build made them (`scripts/test.sh`).
 pub fn bin(name: &str) -> PathBuf {
     static BUILT: OnceLock<Result<(), String>> = OnceLock::new();
     let dir = profile_dir();
     let built = BUILT.get_or_init(|| {
+        // `scripts/test.sh` runs `cargo test --workspace`, which builds every
+        // binary of the workspace (each package has an integration test) before
+        // any test runs: a second build would only compile the workspace again
+        if std::env::var_os("VLSYNC_PREBUILT_BINS").is_some_and(|v| v == "1") {
+            return Ok(());
+        }
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let mut cmd = Command::new(cargo);
@@ -41,12 +47,8 @@ pub fn bin(name: &str) -> PathBuf {
             "-p",
             "vlsync-driver",
         ]);
-        // the profile and features of the test build itself, so that the binaries
-        // reuse its compiled crates instead of building the workspace again
         if dir.file_name().is_some_and(|n| n == "release") {
             cmd.arg("--release");
-        } else {
-            cmd.args(["--profile", "test"]);
         }
         if let Ok(f) = std::env::var("VLSYNC_CARGO_FEATURES") {
             if !f.trim().is_empty() {

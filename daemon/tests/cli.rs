@@ -1,0 +1,52 @@
+//! The daemon package's binaries start, describe themselves, and refuse a bad
+//! command line with clap's usage error (exit code 2) naming what was wrong.
+//! (This file also makes `cargo test` build these binaries, which the
+//! multi-process tests in `tests/` then run.)
+
+use std::process::Command;
+
+fn run(bin: &str, args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(bin)
+        .args(args)
+        .output()
+        .expect("run the binary");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn every_binary_has_help_and_rejects_an_unknown_argument() {
+    for (bin, help_names) in [
+        (
+            env!("CARGO_BIN_EXE_vlsyncd"),
+            &["run", "replay", "bench"][..],
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsync-demo"),
+            &["--seed", "--duration"][..],
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsync-loadtest"),
+            &["--profile", "--check"][..],
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsync-latency"),
+            &["--config", "--check"][..],
+        ),
+    ] {
+        let (code, out, _) = run(bin, &["--help"]);
+        assert_eq!(code, 0, "{bin} --help");
+        for name in help_names {
+            assert!(out.contains(name), "{bin} --help lacks {name}:\n{out}");
+        }
+        let (code, _, err) = run(bin, &["--no-such-option"]);
+        assert_eq!(code, 2, "{bin}: {err}");
+        assert!(err.contains("--no-such-option"), "{bin}: {err}");
+    }
+    let (code, _, err) = run(env!("CARGO_BIN_EXE_vlsyncd"), &["frobnicate"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("frobnicate"), "{err}");
+}
