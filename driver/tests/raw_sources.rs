@@ -287,13 +287,12 @@ fn a_silent_serial_device_is_an_error_naming_it() {
 }
 
 #[test]
-fn v4l2_without_the_feature_says_how_to_get_it() {
+fn v4l2_errors_name_the_device_or_the_missing_feature() {
     let r = CamSource::v4l2(Path::new("/dev/video0"), never);
     if cfg!(feature = "v4l2") {
         // with the feature: a missing or non-video device is still an error naming it
         let e = CamSource::v4l2(Path::new("/dev/video-vlsync-missing"), never)
-            .err()
-            .expect("a missing device is an error");
+            .expect_err("a missing device is an error");
         assert!(e.to_string().contains("/dev/video-vlsync-missing"), "{e}");
     } else {
         let e = r.unwrap_err().to_string();
