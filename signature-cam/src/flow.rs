@@ -270,6 +270,17 @@ pub struct FlowStats {
     pub low_texture: bool,
 }
 
+impl FlowStats {
+    /// No frame geometry yet: nothing tracked.
+    const NONE: Self = Self {
+        points: 0,
+        textured: 0,
+        tracked: 0,
+        inconsistent: 0,
+        low_texture: true,
+    };
+}
+
 /// One pyramid level: a row-major `f32` image.
 #[derive(Debug, Default, Clone)]
 struct Level {
@@ -548,13 +559,7 @@ impl PyrLk {
     fn track(&mut self) -> FlowStats {
         self.vectors.clear();
         let Some(g) = &self.geom else {
-            return FlowStats {
-                points: 0,
-                textured: 0,
-                tracked: 0,
-                inconsistent: 0,
-                low_texture: true,
-            };
+            return FlowStats::NONE;
         };
         let c = self.cfg;
         let n = (c.window * c.window) as f32;
@@ -605,13 +610,7 @@ impl PyrLk {
         let inconsistent = self.drop_inconsistent();
         self.has_prior = true;
         let Some(g) = &self.geom else {
-            return FlowStats {
-                points: 0,
-                textured: 0,
-                tracked: 0,
-                inconsistent: 0,
-                low_texture: true,
-            };
+            return FlowStats::NONE;
         };
         for (&(px, py), &[dx, dy]) in g.points.iter().zip(&self.grid_flow) {
             if dx.is_finite() {

@@ -952,6 +952,17 @@ mod tests {
         }
     }
 
+    /// Scan `k` (starting at `k · PERIOD`) of `rays` spread uniformly over the revolution.
+    fn uniform(k: i64, rotation: Rotation, rays: Vec<Ray>) -> Scan {
+        let timing = ScanTiming {
+            start_ns: k * PERIOD,
+            period_ns: PERIOD,
+            rotation,
+            start_bearing_rad: 0.0,
+        };
+        Scan::from_uniform(timing, rays)
+    }
+
     fn scan_at(k: i64, wall: impl Fn(usize) -> f64, rotation: Rotation) -> Scan {
         let rays = (0..360)
             .map(|i| Ray::new((i as f64).to_radians(), wall(i), 50.0, true))
@@ -1117,13 +1128,7 @@ mod tests {
                 let rays = (86..=94)
                     .map(|i| Ray::new((i as f64).to_radians(), 1.0 + 0.1 * k as f64, 0.0, true))
                     .collect();
-                let timing = ScanTiming {
-                    start_ns: k * PERIOD,
-                    period_ns: PERIOD,
-                    rotation: Rotation::Ccw,
-                    start_bearing_rad: 0.0,
-                };
-                Scan::from_uniform(timing, rays)
+                uniform(k, Rotation::Ccw, rays)
             })
             .collect();
         let (out, p) = run(cfg, &scans);
@@ -1168,13 +1173,7 @@ mod tests {
                 Ray::new(b, r, 50.0, r > 0.0)
             })
             .collect();
-        let timing = ScanTiming {
-            start_ns: k * PERIOD,
-            period_ns: PERIOD,
-            rotation: Rotation::Cw,
-            start_bearing_rad: 0.0,
-        };
-        Scan::from_uniform(timing, rays)
+        uniform(k, Rotation::Cw, rays)
     }
 
     /// The distance of the pass that straddles scans 0 and 1 of `make(k)`
@@ -1292,13 +1291,7 @@ mod tests {
                         Ray::new(b, 2.0 / wrap_pi(b - n).cos(), 50.0, true)
                     })
                     .collect();
-                let timing = ScanTiming {
-                    start_ns: k * PERIOD,
-                    period_ns: PERIOD,
-                    rotation: Rotation::Cw,
-                    start_bearing_rad: 0.0,
-                };
-                Scan::from_uniform(timing, rays)
+                uniform(k, Rotation::Cw, rays)
             })
         };
         for split in [8.0, 3.0, -3.0, -8.0] {

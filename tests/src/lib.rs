@@ -69,7 +69,16 @@ pub fn bin(name: &str) -> PathBuf {
         panic!("{e}");
     }
     let p = dir.join(name);
-    assert!(p.is_file(), "binary {} missing after build", p.display());
+    assert!(
+        p.is_file(),
+        "binary {} missing{}",
+        p.display(),
+        if std::env::var_os("VLSYNC_PREBUILT_BINS").is_some_and(|v| v == "1") {
+            " (VLSYNC_PREBUILT_BINS=1 skipped the build: run `cargo test --workspace`, or unset it)"
+        } else {
+            " after `cargo build --bins`"
+        }
+    );
     p
 }
 
