@@ -2,7 +2,7 @@
 //! several seeds, beside the seed article's chunked algorithm (sign and lag-range
 //! bugs fixed) as a clearly labelled baseline.
 
-use crate::replay::run_estimator;
+use crate::replay::{run_estimator, run_estimator_with_changes};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use vlsync_config::Config;
@@ -34,6 +34,11 @@ pub struct BenchArgs {
     /// Write one SVG per family (its first seed: estimate, ±2σ, truth) into this folder.
     #[arg(long)]
     pub plots: Option<PathBuf>,
+    /// Also run the families with offset steps (load-steps) with the true step times
+    /// announced to the estimator (`Estimator::declare_change`): what an instant step
+    /// detector would achieve, the floor for the step test.
+    #[arg(long)]
+    pub known_steps: bool,
 }
 
 /// Result of one family.
@@ -53,6 +58,9 @@ pub struct FamilyResult {
     /// which the first tracking estimate exists (its reference time plus the
     /// reference lag); `None` when a run never locked.
     pub lock_published_s: Option<f64>,
+    /// With `--known-steps`, for a family with offset steps: the score with the true
+    /// step times announced to the estimator.
+    pub known_steps: Option<Score>,
 }
 
 /// Runs one family over `seeds`; with `plot_dir`, writes the first seed's SVG there.
@@ -62,8 +70,10 @@ pub fn run_family(
     seeds: impl Iterator<Item = u64>,
     duration: Option<f64>,
     plot_dir: Option<&std::path::Path>,
+    known_steps: bool,
 ) -> Result<FamilyResult, String> {
     let mut ours = Vec::new();
+    let mut known = Vec::new();
     let mut base = Vec::new();
     let mut crbs = Vec::new();
     let mut time = 0.0;
@@ -73,6 +83,12 @@ pub fn run_family(
         let (ests, _) = run_estimator(&cfg.estimator, &run.cam, &run.lidar);
         time += t0.elapsed().as_secs_f64();
         ours.push(score_estimates(&ests, &run));
+        if known_steps && !run.truth.steps.is_empty() {
+            let times: Vec<vlsync_common::Nanos> = run.truth.steps.iter().map(|s| s.0).collect();
+            let (ests, _) =
+                run_estimator_with_changes(&cfg.estimator, &run.cam, &run.lidar, &times);
+            known.push(score_estimates(&ests, &run));
+        }
         if let (Some(dir), true) = (plot_dir, ours.len() == 1) {
             let truth: Vec<(vlsync_common::Nanos, f64)> = (0..)
                 .map(|i: i64| i * 50_000_000)
@@ -109,6 +125,7 @@ pub fn run_family(
         baseline: Score::aggregate(&base),
         crb_s: crbs.get(crbs.len() / 2).copied().unwrap_or(f64::NAN),
         time_s: time / n as f64,
+        known_steps: (!known.is_empty()).then(|| Score::aggregate(&known)),
     })
 }
 
@@ -161,6 +178,34 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
             pct(b.share_over_20ms),
         );
     }
+    let known: Vec<_> = results
+        .iter()
+        .filter_map(|r| Some((r.family, r.known_steps.as_ref()?)))
+        .collect();
+    if !known.is_empty() {
+        let _ = writeln!(s);
+        let _ = writeln!(
+            s,
+            "With the true step times announced (`--known-steps`: each segment restarts one step window after its step, as an instant step detector would):"
+        );
+        let _ = writeln!(s);
+        let _ = writeln!(
+            s,
+            "| family | MAE ms | p95 ms | >20 ms % | 2σ consistency % |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        for (f, o) in known {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} |",
+                f.name(),
+                ms(o.mae_s),
+                ms(o.p95_s),
+                pct(o.share_over_20ms),
+                o.consistency_2sigma.map_or("-".to_string(), pct),
+            );
+        }
+    }
     let _ = writeln!(s);
     let _ = writeln!(
         s,
@@ -187,6 +232,7 @@ fn json(results: &[FamilyResult]) -> String {
                 "family": r.family.name(), "estimator": sc(&r.ours), "baseline": sc(&r.baseline),
                 "crb_s": r.crb_s, "estimator_time_s": r.time_s,
                 "first_lock_published_s": r.lock_published_s,
+                "known_steps": r.known_steps.as_ref().map(sc),
             })
         })
         .collect();
@@ -237,6 +283,7 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
                     args.seed_base..args.seed_base + args.seeds,
                     args.duration,
                     args.plots.as_deref(),
+                    args.known_steps,
                 ) {
                     Ok(r) => r,
                     Err(e) => {

@@ -14,15 +14,31 @@ pub fn run_estimator(
     cam: &[Sample],
     lidar: &[Sample],
 ) -> (Vec<Estimate>, EstimatorStats) {
+    run_estimator_with_changes(cfg, cam, lidar, &[])
+}
+
+/// [`run_estimator`], announcing each of `changes` (LiDAR times, ns, sorted) to the
+/// estimator ([`Estimator::declare_change`]) when the first LiDAR sample at or
+/// after it is pushed.
+pub fn run_estimator_with_changes(
+    cfg: &EstimatorConfig,
+    cam: &[Sample],
+    lidar: &[Sample],
+    changes: &[Nanos],
+) -> (Vec<Estimate>, EstimatorStats) {
     let mut est = Estimator::new(cfg);
     let mut out = Vec::with_capacity(lidar.len() / 2 + 16);
-    let (mut i, mut j) = (0, 0);
+    let (mut i, mut j, mut c) = (0, 0, 0);
     while i < cam.len() || j < lidar.len() {
         let take_cam = j >= lidar.len() || (i < cam.len() && cam[i].t_ns <= lidar[j].t_ns);
         let r = if take_cam {
             i += 1;
             est.push(Stream::Cam, cam[i - 1])
         } else {
+            while c < changes.len() && changes[c] <= lidar[j].t_ns {
+                est.declare_change(changes[c]);
+                c += 1;
+            }
             j += 1;
             est.push(Stream::Lidar, lidar[j - 1])
         };

@@ -331,6 +331,9 @@ pub struct Estimator {
     suspect_var: f64,
     /// Accumulated step-test evidence of the current streak.
     step_evidence: f64,
+    /// A change point announced from outside ([`Estimator::declare_change`]), as a
+    /// LiDAR grid index, applied once the data reach past it.
+    known_change: Option<i64>,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -408,6 +411,7 @@ impl Estimator {
             seg_fit: None,
             pending_step: None,
             step_evidence: 0.0,
+            known_change: None,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -480,6 +484,19 @@ impl Estimator {
         self.run_correlator();
         self.check_stall(stream, sample.t_ns);
         Ok(())
+    }
+
+    /// Announces that the offset may have stepped at LiDAR time `t_lidar_ns` (the
+    /// caller knows something the data cannot show quickly: a driver restarted or
+    /// changed its stamping, a CPU governor switched). Once the estimator holds a
+    /// step window (`step_window_s`) of data after that time, its segment restarts
+    /// there, as after a detected step; a later announcement replaces an earlier one
+    /// still pending. Ignored before the first lock. `vlsyncd bench --known-steps`
+    /// uses it to measure how well the estimator could do if it detected the
+    /// simulated load steps instantly.
+    pub fn declare_change(&mut self, t_lidar_ns: Nanos) {
+        let k = t_lidar_ns.saturating_add(self.group_delay_ns) / self.p.dt_ns;
+        self.known_change = Some(k);
     }
 
     /// Takes the oldest pending estimate, if any.
@@ -588,6 +605,7 @@ impl Estimator {
         let lag = (self.cur.o * self.p.fs).round() as i64;
         self.corr.set_lag0(lag - self.p.half_lags);
         self.corr.clear_blocks();
+        self.known_change = None;
         self.mode = Mode::Acquire;
         self.acq = Streak::default();
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
@@ -1125,6 +1143,18 @@ impl Estimator {
         let Some(first) = self.segment_first() else {
             return;
         };
+        // a change announced from outside, once a step window of data follows it
+        if let Some(kc) = self.known_change {
+            if self.seg_start_k >= kc {
+                self.known_change = None;
+            } else if self.corr.block(n - 1).last_k >= kc + short as i64 * self.p.hop_len {
+                self.known_change = None;
+                if let Some(c) = (first..n).find(|&i| self.corr.block(i).last_k >= kc) {
+                    self.change_at_block(c);
+                    return;
+                }
+            }
+        }
         let len_seg = n - first;
         let (lo, hi) = self.track_slots_around(pred_t);
         let (d, vd) = self.d;
@@ -1224,16 +1254,7 @@ impl Estimator {
                     sign: nu.signum(),
                 };
                 if self.step_evidence >= self.p.step_confirm as f64 * half {
-                    let k = self.corr.block(c).first_k;
-                    let t_c = self.rel_k(k as f64);
-                    self.drift.change_at(t_c);
-                    self.fresh = true;
-                    self.seg_start_k = k;
-                    self.seg_start_t = t_c;
-                    self.step = Streak::default();
-                    self.step_evidence = 0.0;
-                    self.since_chunk = 0;
-                    self.stats.steps += 1;
+                    self.change_at_block(c);
                 }
             }
             _ => {
@@ -1241,6 +1262,20 @@ impl Estimator {
                 self.step_evidence = 0.0;
             }
         }
+    }
+
+    /// A change point at stored block `c`: the segment restarts there.
+    fn change_at_block(&mut self, c: usize) {
+        let k = self.corr.block(c).first_k;
+        let t_c = self.rel_k(k as f64);
+        self.drift.change_at(t_c);
+        self.fresh = true;
+        self.seg_start_k = k;
+        self.seg_start_t = t_c;
+        self.step = Streak::default();
+        self.step_evidence = 0.0;
+        self.since_chunk = 0;
+        self.stats.steps += 1;
     }
 
     /// The acquisition window's peak within the tracking range of the prediction,

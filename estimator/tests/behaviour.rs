@@ -44,6 +44,64 @@ fn robot_run_locks_with_negative_polarity_and_converges() {
     assert!(out.windows(2).all(|w| w[1].seq == w[0].seq + 1));
 }
 
+/// Mean absolute error (s) of the locked estimates whose reference time lies
+/// 3..10 s after one of `steps`.
+fn error_after_steps(out: &[vlsync_common::Estimate], run: &SimRun) -> f64 {
+    let errs: Vec<f64> = out
+        .iter()
+        .filter(|e| matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding))
+        .filter(|e| {
+            run.truth
+                .steps
+                .iter()
+                .any(|&(s, _)| (3_000_000_000..10_000_000_000).contains(&(e.t_ref_ns - s)))
+        })
+        .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+        .collect();
+    assert!(errs.len() > 20, "{} estimates after the steps", errs.len());
+    errs.iter().sum::<f64>() / errs.len() as f64
+}
+
+#[test]
+fn announced_changes_restart_the_segment_at_the_step() {
+    // load steps of ±25 ms: with their times announced (as a caller that knows a
+    // driver restarted would), the 3-10 s after each step are far closer to the truth
+    // than when the step test has to find them in the data
+    let run = generate(Family::LoadSteps, 2, Some(120.0));
+    let cfg = EstimatorConfig::default();
+    let detected = replay(&run, &mut Estimator::new(&cfg));
+    let mut est = Estimator::new(&cfg);
+    let mut out = Vec::new();
+    let (mut i, mut j, mut c) = (0, 0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, run.cam[i]);
+            i += 1;
+        } else {
+            if let Some(&(t, _)) = run.truth.steps.get(c).filter(|s| s.0 <= run.lidar[j].t_ns) {
+                est.declare_change(t);
+                c += 1;
+            }
+            let _ = est.push(Stream::Lidar, run.lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    assert!(run.truth.steps.len() >= 4 && c == run.truth.steps.len());
+    let (known, found) = (
+        error_after_steps(&out, &run),
+        error_after_steps(&detected, &run),
+    );
+    assert!(
+        known < 0.005 && known < 0.5 * found,
+        "announced {known}, detected {found}"
+    );
+    // every announced step restarted the segment once
+    assert!(est.stats().steps >= run.truth.steps.len() as u64);
+}
+
 #[test]
 fn bad_samples_are_rejected_counted_and_harmless() {
     let run = generate(Family::Robot, 5, Some(60.0));
