@@ -446,11 +446,34 @@ proptest! {
     }
 }
 
-/// A recording with compressed chunks written by the `mcap` crate's reference
-/// (C library) encoders, with small chunks so that there are many.
-fn compressed_recording(name: &str, compression: mcap::Compression) -> (Tmp, Vec<u8>) {
-    let tmp = Tmp::new(name);
-    let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
+/// The recordings with compressed chunks (`tests/data/{zstd,lz4}-chunks.mcap`):
+/// 8 frames and 8 scans written by the `mcap` crate's reference (C library)
+/// encoders, with small chunks so that there are many. They are checked in, so the
+/// suite does not build the C libraries (zstd-sys, lz4-sys) for one test;
+/// `cargo test -p vlsync-mcap --features c-encoders --test recordings -- --ignored`
+/// writes them again.
+#[cfg(feature = "c-encoders")]
+#[test]
+#[ignore = "writes the checked-in fixtures"]
+fn regenerate_compressed_fixtures() {
+    for (name, c) in [
+        ("zstd", mcap::Compression::Zstd),
+        ("lz4", mcap::Compression::Lz4),
+    ] {
+        write_compressed_recording(&fixture(name), c);
+    }
+}
+
+/// Path of the checked-in recording with `name` chunks.
+fn fixture(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(format!("{name}-chunks.mcap"))
+}
+
+#[cfg(feature = "c-encoders")]
+fn write_compressed_recording(path: &std::path::Path, compression: mcap::Compression) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut w = mcap::WriteOptions::new()
         .compression(Some(compression))
         .chunk_size(Some(4096))
@@ -510,18 +533,15 @@ fn compressed_recording(name: &str, compression: mcap::Compression) -> (Tmp, Vec
         w.write_to_known_channel(&header(lidar), &buf).unwrap();
     }
     w.finish().unwrap();
-    drop(w);
-    let bytes = std::fs::read(&tmp.0).unwrap();
-    (tmp, bytes)
 }
 
 #[test]
 fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
-    for (name, c) in [
-        ("zstd", mcap::Compression::Zstd),
-        ("lz4", mcap::Compression::Lz4),
-    ] {
-        let (tmp, bytes) = compressed_recording(name, c);
+    for name in ["zstd", "lz4"] {
+        let tmp = Tmp::new(name);
+        let bytes = std::fs::read(fixture(name))
+            .unwrap_or_else(|e| panic!("{}: {e}", fixture(name).display()));
+        std::fs::write(&tmp.0, &bytes).unwrap();
         assert!(bytes.windows(name.len()).any(|w| w == name.as_bytes()));
         let cut = Tmp::new(&format!("{name}-cut"));
         std::fs::write(&cut.0, &bytes[..bytes.len() - 200]).unwrap();
