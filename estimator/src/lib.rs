@@ -490,8 +490,9 @@ impl Estimator {
     /// caller knows something the data cannot show quickly: a driver restarted or
     /// changed its stamping, a CPU governor switched). Once the estimator holds a
     /// step window (`step_window_s`) of data after that time, its segment restarts
-    /// there, as after a detected step; a later announcement replaces an earlier one
-    /// still pending. Ignored before the first lock. `vlsyncd bench --known-steps`
+    /// there, as after a detected step (counted in `EstimatorStats::steps`); a later
+    /// announcement replaces an earlier one still pending, and one that precedes the
+    /// current segment (a lock after it) is dropped. `vlsyncd bench --known-steps`
     /// uses it to measure how well the estimator could do if it detected the
     /// simulated load steps instantly.
     pub fn declare_change(&mut self, t_lidar_ns: Nanos) {
@@ -1147,7 +1148,9 @@ impl Estimator {
         if let Some(kc) = self.known_change {
             if self.seg_start_k >= kc {
                 self.known_change = None;
-            } else if self.corr.block(n - 1).last_k >= kc + short as i64 * self.p.hop_len {
+            } else if self.corr.block(n - 1).last_k
+                >= kc.saturating_add(short as i64 * self.p.hop_len)
+            {
                 self.known_change = None;
                 if let Some(c) = (first..n).find(|&i| self.corr.block(i).last_k >= kc) {
                     self.change_at_block(c);

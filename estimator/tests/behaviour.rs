@@ -252,6 +252,31 @@ proptest! {
         }
     }
 
+    /// Announced changes at any time (far past, far future, extremes) on a locked
+    /// run: no panic, every estimate finite.
+    #[test]
+    fn announced_changes_at_any_time_are_harmless(
+        times in proptest::collection::vec((0usize..400, any::<i64>()), 0..6),
+    ) {
+        let run = generate(Family::Robot, 4, Some(40.0));
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        for (j, s) in run.lidar.iter().enumerate() {
+            for &(at, t) in &times {
+                if at == j {
+                    est.declare_change(t);
+                }
+            }
+            let _ = est.push(Stream::Lidar, *s);
+            for c in run.cam.iter().skip(3 * j).take(3) {
+                let _ = est.push(Stream::Cam, *c);
+            }
+            while let Some(e) = est.poll() {
+                prop_assert!(e.offset_s.is_finite() && e.offset_std_s.is_finite());
+            }
+        }
+        prop_assert!(run.lidar.len() <= 400 && est.stats().locks >= 1);
+    }
+
     /// Plausible streams with random rates, offsets and noise: estimates stay finite.
     #[test]
     fn random_streams_stay_finite(offset in -0.4f64..0.4, cam_hz in 5.0f64..90.0, lidar_hz in 4.0f64..40.0, seed in 0u64..1000) {
