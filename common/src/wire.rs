@@ -451,6 +451,65 @@ impl Status {
     }
 }
 
+/// One readable line (what `vlsync-echo --status` prints): uptime, state, per
+/// stream received / rejected (by reason, when any) / lost, estimates, budget
+/// overruns, latency percentiles in µs.
+///
+/// ```
+/// use vlsync_common::wire::Status;
+/// let mut s = Status { uptime_ns: 12_500_000_000, received: [375, 125], ..Status::default() };
+/// s.rejected[0][2] = 3; // camera samples that went backwards
+/// let line = s.to_string();
+/// assert!(line.starts_with("up 12.5 s  state none  cam 375 received, 3 rejected (backwards 3), 0 lost"));
+/// ```
+impl core::fmt::Display for Status {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let state = self.estimator_state().map_or("none", |s| s.name());
+        write!(f, "up {:.1} s  state {state}", self.uptime_ns as f64 * 1e-9)?;
+        if self.degraded == 1 {
+            write!(f, " (degraded)")?;
+        }
+        for (i, name) in ["cam", "lidar"].iter().enumerate() {
+            write!(
+                f,
+                "  {name} {} received, {} rejected",
+                self.received[i],
+                self.rejected_total(i)
+            )?;
+            if self.rejected_total(i) > 0 {
+                let mut sep = " (";
+                for (r, n) in REJECT_NAMES.iter().enumerate() {
+                    if self.rejected[i][r] > 0 {
+                        write!(f, "{sep}{n} {}", self.rejected[i][r])?;
+                        sep = ", ";
+                    }
+                }
+                write!(f, ")")?;
+            }
+            write!(f, ", {} lost", self.lost[i])?;
+        }
+        let us = |v: u64| v as f64 * 1e-3;
+        let [p50, p99, max] = self.processing_ns;
+        let [e50, e99, emax] = self.end_to_end_ns;
+        write!(
+            f,
+            "  estimates {}  overruns {}  processing p50/p99/max {:.1}/{:.1}/{:.1} µs  end-to-end {:.1}/{:.1}/{:.1} µs",
+            self.estimates_published,
+            self.budget_overruns,
+            us(p50),
+            us(p99),
+            us(max),
+            us(e50),
+            us(e99),
+            us(emax)
+        )?;
+        if self.events_dropped > 0 {
+            write!(f, "  log events dropped {}", self.events_dropped)?;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,7 +11,7 @@ fn echo_has_help_and_rejects_an_unknown_argument() {
     assert!(out.status.success());
     let help = String::from_utf8_lossy(&out.stdout);
     assert!(
-        help.contains("--prefix") && help.contains("--json"),
+        help.contains("--prefix") && help.contains("--json") && help.contains("--status"),
         "{help}"
     );
     let out = Command::new(bin).arg("--bogus").output().unwrap();

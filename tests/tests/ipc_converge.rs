@@ -1,10 +1,11 @@
 //! The three processes (daemon, camera driver, LiDAR driver) converge to the
-//! simulated truth, and a clean shutdown leaves no shared-memory resource behind.
+//! simulated truth, `vlsync-echo --status` shows the daemon's counters, and a clean
+//! shutdown leaves no shared-memory resource behind.
 
 use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_ipc::{OffsetClient, StatusClient};
-use vlsync_tests::{collect, ipc_resources, locked_errors, Rig};
+use vlsync_tests::{bin, collect, ipc_resources, locked_errors, Rig};
 
 #[test]
 fn three_processes_converge_to_the_truth_and_clean_up() {
@@ -16,7 +17,31 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let mut status = StatusClient::open(&rig.prefix).unwrap();
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
+    // an operator's view of the running daemon: two statuses, as JSON and as text
+    // (run beside the collection, so the client's buffer never has to hold more)
+    let echo = |json: bool| {
+        let mut cmd = std::process::Command::new(bin("vlsync-echo"));
+        cmd.args([
+            "--prefix",
+            &rig.prefix,
+            "--status",
+            "--count",
+            "2",
+            "--duration",
+            "8",
+        ]);
+        if json {
+            cmd.arg("--json");
+        }
+        cmd.stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let (json_echo, text_echo) = (echo(true), echo(false));
     let est = collect(&mut client, rig.remaining() + Duration::from_millis(1500));
+    let json_out = json_echo.wait_with_output().unwrap();
+    let text_out = text_echo.wait_with_output().unwrap();
     let st = status.latest().unwrap().expect("a status from the daemon");
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(
@@ -45,6 +70,31 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     assert_eq!(st.lost, [0, 0]);
     assert_eq!(st.rejected_total(0) + st.rejected_total(1), 0);
     assert!(st.estimates_published >= est.len() as u64);
+    // vlsync-echo --status: two statuses each, counters growing while the drivers run
+    for out in [&json_out, &text_out] {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&json_out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2, "{lines:?}");
+    let received = |v: &serde_json::Value| v["cam"]["received"].as_u64().unwrap();
+    assert!(received(&lines[1]) > received(&lines[0]), "{lines:?}");
+    assert_eq!(lines[1]["lidar"]["lost"], 0);
+    assert_eq!(lines[1]["cam"]["rejected"]["backwards"], 0);
+    assert!(lines[1]["processing_ns"]["p50"].as_u64().unwrap() > 0);
+    let text = String::from_utf8_lossy(&text_out.stdout);
+    assert_eq!(text.lines().count(), 2, "{text}");
+    assert!(
+        text.lines()
+            .all(|l| l.starts_with("up ") && l.contains(" received, ")),
+        "{text}"
+    );
 
     drop((client, status));
     // iceoryx2 removes a service's files when its last user is gone

@@ -1,18 +1,20 @@
 //! `vlsync-echo`: prints the daemon's offset estimates as they arrive, one
-//! readable line each, or one JSON object per line with `--json`.
+//! readable line each, or one JSON object per line with `--json`; with
+//! `--status`, the daemon's counters instead (one line per status period).
 #![forbid(unsafe_code)]
 
 use clap::Parser;
 use std::io::Write;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
+use vlsync_common::wire::{Status, REJECT_NAMES};
 use vlsync_common::Estimate;
 
 #[derive(Parser)]
 #[command(
     name = "vlsync-echo",
     version,
-    about = "Print vlsync offset estimates as they arrive"
+    about = "Print vlsync offset estimates as they arrive (or, with --status, the daemon's counters)"
 )]
 struct Args {
     /// Service prefix (`services.prefix` of the daemon).
@@ -21,7 +23,12 @@ struct Args {
     /// One JSON object per line instead of readable text.
     #[arg(long)]
     json: bool,
-    /// Exit after this many estimates (0: run until Ctrl-C).
+    /// Print the daemon's status (samples received, rejected by reason and lost per
+    /// stream, estimates, budget overruns, latency percentiles) as it is published,
+    /// every `daemon.status_period_s`, instead of the estimates.
+    #[arg(long)]
+    status: bool,
+    /// Exit after this many estimates (statuses with --status; 0: run until Ctrl-C).
     #[arg(long, default_value_t = 0)]
     count: u64,
     /// Exit after this many seconds (0: no limit).
@@ -69,6 +76,83 @@ fn line(e: &Estimate, json: bool) -> String {
     }
 }
 
+fn status_line(s: &Status, json: bool) -> String {
+    if json {
+        let streams: Vec<serde_json::Value> = (0..2)
+            .map(|i| {
+                let rejected: serde_json::Map<String, serde_json::Value> = REJECT_NAMES
+                    .iter()
+                    .zip(s.rejected[i])
+                    .map(|(n, v)| (n.to_string(), serde_json::json!(v)))
+                    .collect();
+                serde_json::json!({
+                    "received": s.received[i], "rejected": rejected, "lost": s.lost[i],
+                })
+            })
+            .collect();
+        serde_json::json!({
+            "uptime_ns": s.uptime_ns,
+            "publish_ns": s.publish_ns,
+            "state": s.estimator_state().map_or("none", |st| st.name()),
+            "degraded": s.degraded == 1,
+            "cam": streams[0],
+            "lidar": streams[1],
+            "estimates_published": s.estimates_published,
+            "budget_overruns": s.budget_overruns,
+            "events_dropped": s.events_dropped,
+            "processing_ns": {"p50": s.processing_ns[0], "p99": s.processing_ns[1], "max": s.processing_ns[2]},
+            "end_to_end_ns": {"p50": s.end_to_end_ns[0], "p99": s.end_to_end_ns[1], "max": s.end_to_end_ns[2]},
+            "latency_count": s.latency_count,
+        })
+        .to_string()
+    } else {
+        s.to_string()
+    }
+}
+
+/// `--status`: prints each status as it arrives (polled: a status comes about once
+/// a second). Invalid payloads are reported on stderr and skipped.
+fn run_status(args: &Args) -> ExitCode {
+    let mut client = match vlsync_ipc::StatusClient::open(&args.prefix) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("vlsync-echo: error: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    let start = Instant::now();
+    let mut n = 0u64;
+    let mut out = std::io::stdout().lock();
+    while !vlsync_ipc::termination_requested() {
+        if args.duration > 0.0 && start.elapsed().as_secs_f64() >= args.duration {
+            break;
+        }
+        match client.receive_all() {
+            Ok(all) => {
+                for s in all {
+                    if writeln!(out, "{}", status_line(&s, args.json)).is_err() {
+                        return ExitCode::SUCCESS; // stdout closed
+                    }
+                    let _ = out.flush();
+                    n += 1;
+                    if args.count > 0 && n >= args.count {
+                        return ExitCode::SUCCESS;
+                    }
+                }
+            }
+            Err(vlsync_ipc::WireErrorOrIpc::Wire(e)) => {
+                eprintln!("vlsync-echo: skipped an invalid status: {e}")
+            }
+            Err(e) => {
+                eprintln!("vlsync-echo: error: {e}");
+                return ExitCode::from(1);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    ExitCode::SUCCESS
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     if !(args.duration.is_finite() && args.duration >= 0.0) {
@@ -83,6 +167,9 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    if args.status {
+        return run_status(&args);
+    }
     let mut client = match vlsync_ipc::OffsetClient::open(&args.prefix) {
         Ok(c) => c,
         Err(e) => {
