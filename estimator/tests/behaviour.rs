@@ -103,6 +103,42 @@ fn announced_changes_restart_the_segment_at_the_step() {
 }
 
 #[test]
+fn an_hour_of_drifting_clocks_keeps_one_lock_and_learns_the_drift() {
+    // a robot running for an hour: 20-60 ppm between the clocks moves the offset by
+    // up to 216 ms, far beyond the tracking range, so the lag range must follow it;
+    // jitter, drops and a LiDAR gap as in the clocks family
+    let run = generate(Family::Clocks, 1, Some(3600.0));
+    let truth_drift = (run.truth.offset_at(3_600_000_000_000) - run.truth.offset_at(0)) / 3600.0;
+    assert!(truth_drift.abs() > 20e-6, "drift {truth_drift}");
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay(&run, &mut est);
+    assert_eq!(est.stats().locks, 1, "{:?}", est.stats());
+    assert!(out
+        .iter()
+        .all(|e| e.state != EstimatorState::Lost && e.offset_s.is_finite()));
+    // the last half hour: ms-level error, the drift known to a few ppm
+    let last = out.last().unwrap();
+    let tail: Vec<f64> = out
+        .iter()
+        .filter(|e| e.t_ref_ns > last.t_ref_ns - 1_800_000_000_000)
+        .filter(|e| e.state == EstimatorState::Tracking)
+        .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+        .collect();
+    let mae = tail.iter().sum::<f64>() / tail.len() as f64;
+    assert!(
+        tail.len() > 3000 && mae < 0.002,
+        "{} estimates, MAE {mae}",
+        tail.len()
+    );
+    assert!(
+        (last.drift - truth_drift).abs() < 5e-6 && last.drift_std < 5e-6,
+        "drift {} ± {} vs {truth_drift}",
+        last.drift,
+        last.drift_std
+    );
+}
+
+#[test]
 fn bad_samples_are_rejected_counted_and_harmless() {
     let run = generate(Family::Robot, 5, Some(60.0));
     let mut clean = Estimator::new(&EstimatorConfig::default());
