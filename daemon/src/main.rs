@@ -44,6 +44,16 @@ enum Cmd {
     Bench(vlsyncd::bench::BenchArgs),
     /// Run the real-time estimator service on the iceoryx2 services (until SIGINT/SIGTERM).
     Run(vlsyncd::runtime::RunArgs),
+    /// Validate a configuration file as `run` would (exit code 2 and the error when it is
+    /// not valid); --print shows the effective configuration, defaults filled in.
+    Check {
+        /// Configuration file (TOML).
+        #[arg(long)]
+        config: PathBuf,
+        /// Also print the effective configuration (every key) as TOML.
+        #[arg(long)]
+        print: bool,
+    },
 }
 
 fn main() -> ExitCode {
@@ -66,6 +76,9 @@ fn main() -> ExitCode {
         }),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
         Cmd::Run(args) => vlsyncd::runtime::run_cli(&args),
+        Cmd::Check { config, print } => {
+            vlsyncd::check::check(&config, print).map(|report| print!("{report}"))
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -22,7 +22,7 @@ fn every_binary_has_help_and_rejects_an_unknown_argument() {
     for (bin, help_names) in [
         (
             env!("CARGO_BIN_EXE_vlsyncd"),
-            &["run", "replay", "bench"][..],
+            &["run", "replay", "bench", "check"][..],
         ),
         (
             env!("CARGO_BIN_EXE_vlsync-demo"),
