@@ -110,8 +110,9 @@ fn status_line(s: &Status, json: bool) -> String {
     }
 }
 
-/// `--status`: prints each status as it arrives (polled: a status comes about once
-/// a second). Invalid payloads are reported on stderr and skipped.
+/// `--status`: prints each status as it arrives (polled every 100 ms; the daemon
+/// publishes one every `daemon.status_period_s`). Invalid payloads are reported on
+/// stderr and skipped; a transport error ends the command (exit code 1).
 fn run_status(args: &Args) -> ExitCode {
     let mut client = match vlsync_ipc::StatusClient::open(&args.prefix) {
         Ok(c) => c,
