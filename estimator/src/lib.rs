@@ -93,6 +93,10 @@ const MIN_MEAS_STD_S: f64 = 2e-4;
 const CAL_WINDOW_S: f64 = 4.0;
 /// Step-test statistic (squared sigmas) from which a possible change inflates σ.
 const SUSPECT_STAT: f64 = 4.0;
+/// Disjoint short-window innovations (newest data against the estimate's
+/// prediction) whose mean estimates the estimate's current bias: 4 step windows,
+/// 8 s by default.
+const BIAS_WINDOWS: usize = 4;
 /// Re-weighting passes of a fresh robust combination (the segment's weights carry
 /// over from hop to hop, so it needs one pass per hop).
 const IRLS_PASSES: usize = 1;
@@ -331,6 +335,13 @@ pub struct Estimator {
     suspect_var: f64,
     /// Accumulated step-test evidence of the current streak.
     step_evidence: f64,
+    /// The newest disjoint short-window innovations `(ν, var)` of this segment,
+    /// newest first (`innov_n` of them valid).
+    innov: [(f64, f64); BIAS_WINDOWS],
+    innov_n: usize,
+    /// Squared bias of the estimate the innovations show (unbiased: their weighted
+    /// mean squared, less its variance), added to the reported variance.
+    bias_var: f64,
     /// A change point announced from outside ([`Estimator::declare_change`]), as a
     /// LiDAR grid index, applied once the data reach past it.
     known_change: Option<i64>,
@@ -411,6 +422,9 @@ impl Estimator {
             seg_fit: None,
             pending_step: None,
             step_evidence: 0.0,
+            innov: [(0.0, 0.0); BIAS_WINDOWS],
+            innov_n: 0,
+            bias_var: 0.0,
             known_change: None,
             epoch_ns: None,
             polarity: Polarity::Unknown,
@@ -583,6 +597,8 @@ impl Estimator {
     /// Starts a new segment at LiDAR grid index `k` (tracker time `t`); the drift
     /// fit keeps the slope of the old one.
     fn new_segment(&mut self, k: i64, t: f64) {
+        self.innov_n = 0;
+        self.bias_var = 0.0;
         self.fresh = false;
         self.seg_start_k = k;
         self.seg_start_t = t;
@@ -1185,6 +1201,7 @@ impl Estimator {
             if self.since_chunk >= short {
                 self.drift.add(t_s, m.z, m.var);
                 self.since_chunk = 0;
+                self.add_innovation(nu, var_s + m.var);
             }
         }
         // post windows of short, 2·short, ... blocks (robust on their own) against the
@@ -1267,8 +1284,33 @@ impl Estimator {
         }
     }
 
+    /// Adds a disjoint short-window innovation `nu` (variance `var`, clipped at 3σ:
+    /// the short windows' errors have heavy tails) and re-estimates the squared
+    /// bias of the estimate: the weighted mean of the newest [`BIAS_WINDOWS`]
+    /// innovations, squared, less its own variance. An estimate that the newest data
+    /// keep contradicting (a step the step test cannot confirm yet, a drift outside
+    /// the prior) reports that in its σ; the estimate itself is unchanged.
+    fn add_innovation(&mut self, nu: f64, var: f64) {
+        if !(nu.is_finite() && var.is_finite() && var > 0.0) {
+            return;
+        }
+        let sd = var.sqrt();
+        self.innov.copy_within(0..BIAS_WINDOWS - 1, 1);
+        self.innov[0] = (nu.clamp(-3.0 * sd, 3.0 * sd), var);
+        self.innov_n = (self.innov_n + 1).min(BIAS_WINDOWS);
+        let (mut sw, mut swn) = (0.0, 0.0);
+        for &(x, v) in &self.innov[..self.innov_n] {
+            sw += 1.0 / v;
+            swn += x / v;
+        }
+        let mean = swn / sw;
+        self.bias_var = (mean * mean - 1.0 / sw).max(0.0);
+    }
+
     /// A change point at stored block `c`: the segment restarts there.
     fn change_at_block(&mut self, c: usize) {
+        self.innov_n = 0;
+        self.bias_var = 0.0;
         let k = self.corr.block(c).first_k;
         let t_c = self.rel_k(k as f64);
         self.drift.change_at(t_c);
@@ -1302,12 +1344,14 @@ impl Estimator {
         score: f64,
         ratio: f64,
     ) {
-        // a change the step test sees but has not confirmed widens what is reported,
-        // not the state the next hops predict from
+        // a change the step test sees but has not confirmed, and a bias the newest
+        // data show, widen what is reported, not the state the next hops predict from
         let (offset, std) = if self.ever_locked {
             (
                 self.cur.o,
-                (self.cur.var + self.suspect_var).max(0.0).sqrt(),
+                (self.cur.var + self.suspect_var + self.bias_var)
+                    .max(0.0)
+                    .sqrt(),
             )
         } else {
             (
