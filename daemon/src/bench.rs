@@ -186,7 +186,7 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
         let _ = writeln!(s);
         let _ = writeln!(
             s,
-            "With the true step times announced (`--known-steps`: each segment restarts one step window after its step, as an instant step detector would):"
+            "With the true step times announced (`--known-steps`: the segment restarts at each step once a step window of data follows it, as an instant step detector would have it):"
         );
         let _ = writeln!(s);
         let _ = writeln!(
@@ -322,4 +322,74 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         eprintln!("wrote one SVG per family into {}", d.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args() -> BenchArgs {
+        BenchArgs {
+            families: vec![],
+            seeds: 1,
+            seed_base: 2,
+            duration: Some(60.0),
+            config: None,
+            json: None,
+            plots: None,
+            known_steps: false,
+        }
+    }
+
+    #[test]
+    fn known_steps_score_only_families_with_steps_and_beat_detection() {
+        let cfg = Config::default();
+        let robot = run_family(&cfg, Family::Robot, 2..3, Some(60.0), None, true).unwrap();
+        assert!(robot.known_steps.is_none());
+        assert!(robot.ours.mae_s < 0.01 && robot.baseline.mae_s > robot.ours.mae_s);
+        let steps = run_family(&cfg, Family::LoadSteps, 2..4, None, None, true).unwrap();
+        let known = steps.known_steps.as_ref().expect("load-steps has steps");
+        assert!(
+            known.mae_s < 0.6 * steps.ours.mae_s,
+            "{known:?} vs {:?}",
+            steps.ours
+        );
+        let without = run_family(&cfg, Family::LoadSteps, 2..4, None, None, false).unwrap();
+        assert!(without.known_steps.is_none());
+        assert_eq!(without.ours.mae_s, steps.ours.mae_s);
+        // the table and the JSON carry the extra figures only when they exist
+        let t = table(&[robot.clone(), steps.clone()], 2, 2);
+        assert!(
+            t.contains("| robot |") && t.contains("--known-steps"),
+            "{t}"
+        );
+        assert_eq!(t.matches("| load-steps |").count(), 2, "{t}");
+        assert!(!table(&[robot.clone()], 1, 2).contains("--known-steps"));
+        let j: serde_json::Value = serde_json::from_str(&json(&[robot, steps])).unwrap();
+        assert!(j[0]["known_steps"].is_null() && j[1]["known_steps"]["mae_s"].is_f64());
+    }
+
+    #[test]
+    fn bad_arguments_are_named() {
+        let e = run_cli(&BenchArgs { seeds: 0, ..args() }).unwrap_err();
+        assert!(e.contains("--seeds"), "{e}");
+        let e = run_cli(&BenchArgs {
+            families: vec!["nope".into()],
+            ..args()
+        })
+        .unwrap_err();
+        assert!(e.contains("--families") && e.contains("nope"), "{e}");
+        let e = run_cli(&BenchArgs {
+            duration: Some(1.0),
+            ..args()
+        })
+        .unwrap_err();
+        assert!(e.contains("--duration"), "{e}");
+        let e = run_cli(&BenchArgs {
+            config: Some("/nonexistent/vlsync.toml".into()),
+            ..args()
+        })
+        .unwrap_err();
+        assert!(e.contains("/nonexistent/vlsync.toml"), "{e}");
+    }
 }
