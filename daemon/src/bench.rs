@@ -364,7 +364,7 @@ mod tests {
             "{t}"
         );
         assert_eq!(t.matches("| load-steps |").count(), 2, "{t}");
-        assert!(!table(&[robot.clone()], 1, 2).contains("--known-steps"));
+        assert!(!table(std::slice::from_ref(&robot), 1, 2).contains("--known-steps"));
         let j: serde_json::Value = serde_json::from_str(&json(&[robot, steps])).unwrap();
         assert!(j[0]["known_steps"].is_null() && j[1]["known_steps"]["mae_s"].is_f64());
     }
