@@ -967,13 +967,7 @@ mod tests {
         let rays = (0..360)
             .map(|i| Ray::new((i as f64).to_radians(), wall(i), 50.0, true))
             .collect();
-        let timing = ScanTiming {
-            start_ns: k * PERIOD,
-            period_ns: PERIOD,
-            rotation,
-            start_bearing_rad: 0.0,
-        };
-        Scan::from_uniform(timing, rays)
+        uniform(k, rotation, rays)
     }
 
     fn run(cfg: SignatureConfig, scans: &[Scan]) -> (Vec<Sample>, SignatureProcessor) {
