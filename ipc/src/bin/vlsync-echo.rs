@@ -110,17 +110,13 @@ fn status_line(s: &Status, json: bool) -> String {
     }
 }
 
-/// `--status`: prints each status as it arrives (polled every 100 ms; the daemon
-/// publishes one every `daemon.status_period_s`). Invalid payloads are reported on
-/// stderr and skipped; a transport error ends the command (exit code 1).
-fn run_status(args: &Args) -> ExitCode {
-    let mut client = match vlsync_ipc::StatusClient::open(&args.prefix) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("vlsync-echo: error: {e}");
-            return ExitCode::from(1);
-        }
-    };
+/// Prints the lines each `next()` returns until `--count` lines, `--duration`,
+/// Ctrl-C, a closed stdout (all exit 0) or an error from `next()` (its message,
+/// exit code 1). `next()` waits a little for data itself.
+fn print_until_done(
+    args: &Args,
+    mut next: impl FnMut() -> Result<Vec<String>, String>,
+) -> ExitCode {
     let start = Instant::now();
     let mut n = 0u64;
     let mut out = std::io::stdout().lock();
@@ -128,28 +124,23 @@ fn run_status(args: &Args) -> ExitCode {
         if args.duration > 0.0 && start.elapsed().as_secs_f64() >= args.duration {
             break;
         }
-        match client.receive_all() {
-            Ok(all) => {
-                for s in all {
-                    if writeln!(out, "{}", status_line(&s, args.json)).is_err() {
-                        return ExitCode::SUCCESS; // stdout closed
-                    }
-                    let _ = out.flush();
-                    n += 1;
-                    if args.count > 0 && n >= args.count {
-                        return ExitCode::SUCCESS;
-                    }
-                }
-            }
-            Err(vlsync_ipc::WireErrorOrIpc::Wire(e)) => {
-                eprintln!("vlsync-echo: skipped an invalid status: {e}")
-            }
+        let lines = match next() {
+            Ok(lines) => lines,
             Err(e) => {
                 eprintln!("vlsync-echo: error: {e}");
                 return ExitCode::from(1);
             }
+        };
+        for l in lines {
+            if writeln!(out, "{l}").is_err() {
+                return ExitCode::SUCCESS; // stdout closed (e.g. piped into head)
+            }
+            let _ = out.flush();
+            n += 1;
+            if args.count > 0 && n >= args.count {
+                return ExitCode::SUCCESS;
+            }
         }
-        std::thread::sleep(Duration::from_millis(100));
     }
     ExitCode::SUCCESS
 }
@@ -168,8 +159,29 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    let json = args.json;
     if args.status {
-        return run_status(&args);
+        // statuses are polled every 100 ms (the daemon publishes one every
+        // `daemon.status_period_s`); an invalid payload is reported and skipped
+        let mut client = match vlsync_ipc::StatusClient::open(&args.prefix) {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("vlsync-echo: error: {e}");
+                return ExitCode::from(1);
+            }
+        };
+        return print_until_done(&args, || {
+            let lines = match client.receive_all() {
+                Ok(all) => all.iter().map(|s| status_line(s, json)).collect(),
+                Err(vlsync_ipc::WireErrorOrIpc::Wire(e)) => {
+                    eprintln!("vlsync-echo: skipped an invalid status: {e}");
+                    vec![]
+                }
+                Err(e) => return Err(e.to_string()),
+            };
+            std::thread::sleep(Duration::from_millis(100));
+            Ok(lines)
+        });
     }
     let mut client = match vlsync_ipc::OffsetClient::open(&args.prefix) {
         Ok(c) => c,
@@ -178,30 +190,10 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    let start = Instant::now();
-    let mut n = 0u64;
-    let mut out = std::io::stdout().lock();
-    while !vlsync_ipc::termination_requested() {
-        if args.duration > 0.0 && start.elapsed().as_secs_f64() >= args.duration {
-            break;
-        }
-        match client.wait_next(Duration::from_millis(200)) {
-            Ok(Some(e)) => {
-                if writeln!(out, "{}", line(&e, args.json)).is_err() {
-                    return ExitCode::SUCCESS; // stdout closed (e.g. piped into head)
-                }
-                let _ = out.flush();
-                n += 1;
-                if args.count > 0 && n >= args.count {
-                    break;
-                }
-            }
-            Ok(None) => {}
-            Err(e) => {
-                eprintln!("vlsync-echo: error: {e}");
-                return ExitCode::from(1);
-            }
-        }
-    }
-    ExitCode::SUCCESS
+    print_until_done(&args, || {
+        client
+            .wait_next(Duration::from_millis(200))
+            .map(|e| e.iter().map(|e| line(e, json)).collect())
+            .map_err(|e| e.to_string())
+    })
 }
