@@ -1,6 +1,6 @@
 //! The three processes (daemon, camera driver, LiDAR driver) converge to the
-//! simulated truth, `vlsync-echo --status` shows the daemon's counters, and a clean
-//! shutdown leaves no shared-memory resource behind.
+//! simulated truth, `vlsync-echo` prints the estimates and (`--status`) the daemon's
+//! counters, and a clean shutdown leaves no shared-memory resource behind.
 
 use std::time::Duration;
 use vlsync_common::Stream;
@@ -17,31 +17,29 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let mut status = StatusClient::open(&rig.prefix).unwrap();
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
-    // an operator's view of the running daemon: two statuses, as JSON and as text
+    // an operator's view of the running daemon: two statuses, as JSON and as text,
+    // and two estimates
     // (run beside the collection, so the client's buffer never has to hold more)
-    let echo = |json: bool| {
+    let echo = |json: bool, status: bool| {
         let mut cmd = std::process::Command::new(bin("vlsync-echo"));
-        cmd.args([
-            "--prefix",
-            &rig.prefix,
-            "--status",
-            "--count",
-            "2",
-            "--duration",
-            "8",
-        ]);
+        cmd.args(["--prefix", &rig.prefix, "--count", "2", "--duration", "8"]);
         if json {
             cmd.arg("--json");
+        }
+        if status {
+            cmd.arg("--status");
         }
         cmd.stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap()
     };
-    let (json_echo, text_echo) = (echo(true), echo(false));
+    let (json_echo, text_echo) = (echo(true, true), echo(false, true));
+    let est_echo = echo(true, false);
     let est = collect(&mut client, rig.remaining() + Duration::from_millis(1500));
     let json_out = json_echo.wait_with_output().unwrap();
     let text_out = text_echo.wait_with_output().unwrap();
+    let est_out = est_echo.wait_with_output().unwrap();
     let st = status.latest().unwrap().expect("a status from the daemon");
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(
@@ -88,6 +86,17 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     assert_eq!(lines[1]["lidar"]["lost"], 0);
     assert_eq!(lines[1]["cam"]["rejected"]["backwards"], 0);
     assert!(lines[1]["processing_ns"]["p50"].as_u64().unwrap() > 0);
+    // and the estimates themselves, one JSON object each
+    assert!(est_out.status.success());
+    let est_lines: Vec<serde_json::Value> = String::from_utf8_lossy(&est_out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(est_lines.len(), 2, "{est_lines:?}");
+    assert!(est_lines[1]["seq"].as_u64() > est_lines[0]["seq"].as_u64());
+    assert!(est_lines
+        .iter()
+        .all(|e| e["offset_s"].is_f64() && e["state"].is_string()));
     let text = String::from_utf8_lossy(&text_out.stdout);
     assert_eq!(text.lines().count(), 2, "{text}");
     assert!(
