@@ -768,6 +768,28 @@ impl Estimator {
         ok
     }
 
+    /// The motion references: the upper quartiles of the acquisition windows'
+    /// camera and LiDAR variances over the last [`MOTION_HISTORY`] hops.
+    fn motion_refs(&mut self) -> [f64; 2] {
+        let [c, l] = &mut self.motion_hist;
+        [c.upper_quartile(), l.upper_quartile()]
+    }
+
+    /// Whether the short-window combination in `self.seg.sums` moves as the motion
+    /// gate asks (both signals at least `min_motion_ratio` of `refs`) at the lag of
+    /// offset `z`. A window at the end of motion (the robot slowing to a stop) can
+    /// show a confident peak in what is only noise: it must not measure a step.
+    fn seg_moving(&self, z: f64, refs: [f64; 2]) -> bool {
+        let sums = &self.seg.sums;
+        let last = self.corr.n_lags().saturating_sub(1);
+        let slot = (z * self.p.fs - self.corr.lag0() as f64).round();
+        let slot = (slot.max(0.0) as usize).min(last);
+        let v = [sums.var_y(slot), sums.var_x()];
+        v.iter()
+            .zip(refs)
+            .all(|(&vi, r)| vi > 0.0 && vi >= self.p.min_motion * r)
+    }
+
     /// Offset and variance predicted at tracker time `t` from the current estimate.
     fn predict(&self, t: f64) -> (f64, f64) {
         let dt = t - self.cur.t;
@@ -1151,8 +1173,10 @@ impl Estimator {
     /// `short..=4·short`) against the rest of it, the most significant split winning.
     /// A split beyond `step_gate_sigma` for `step_confirm` consecutive hops starts a
     /// new segment there. The newest `short` blocks' measurement calibrates the
-    /// scale, and every `short` hops feeds the drift fit. Returns that
-    /// measurement, referred to the reference time `t_ref`.
+    /// scale, and every `short` hops feeds the drift fit. Post windows and drift
+    /// chunks must move as the motion gate asks ([`Self::seg_moving`]): the end of
+    /// a drive holds seconds of noise whose peak can look confident. The innovation
+    /// record for the σ takes every chunk (it only ever widens the σ).
     fn step_test(&mut self, sign: f64, pred_t: f64) {
         self.suspect_var = 0.0;
         let n = self.corr.count();
@@ -1186,9 +1210,11 @@ impl Estimator {
             hi,
         };
         // the newest `short` blocks, robustly
+        let refs = self.motion_refs();
         let chunk = self
             .measure_span(&span(n - short, n - 1), sign, Weights::Robust)
             .filter(|m| m.score >= self.p.min_score);
+        let moving = chunk.is_some_and(|m| self.seg_moving(m.z, refs));
         if let Some(m) = chunk {
             let t_s = self.rel_k(0.5 * (self.seg.sums.first_k + self.seg.sums.last_k) as f64);
             let (pred_s, var_s) = self.predict(t_s);
@@ -1199,7 +1225,9 @@ impl Estimator {
             // disjoint windows only: independent measurements
             self.since_chunk += 1;
             if self.since_chunk >= short {
-                self.drift.add(t_s, m.z, m.var);
+                if moving {
+                    self.drift.add(t_s, m.z, m.var);
+                }
                 self.since_chunk = 0;
                 self.add_innovation(nu, var_s + m.var);
             }
@@ -1235,7 +1263,9 @@ impl Estimator {
             }
             let t_pre = self.rel_k(0.5 * (self.glr[2].first_k + self.glr[2].last_k) as f64);
             let pre = self.measure_sums(Which::Glr(2), lo, hi, sign);
-            let post = self.measure_span(&span(n - len, n - 1), sign, Weights::Robust);
+            let post = self
+                .measure_span(&span(n - len, n - 1), sign, Weights::Robust)
+                .filter(|m| self.seg_moving(m.z, refs));
             let t_post = self.rel_k(0.5 * (self.seg.sums.first_k + self.seg.sums.last_k) as f64);
             if let (Some(mp), Some(mq)) = (post, pre) {
                 if mp.score >= self.p.min_score && mq.score >= self.p.min_score {
