@@ -165,6 +165,13 @@ pub struct DaemonConfig {
     pub state_file: String,
     /// A saved state older than this is ignored at start, seconds.
     pub state_max_age_s: f64,
+    /// Watch the kernel's CPU pressure (`/proc/pressure/cpu`) and tell the estimator
+    /// that the offset may have stepped where it changes (software-stamped sensors
+    /// are late by a processing time that grows with contention).
+    pub load_hints: bool,
+    /// Change of CPU pressure (share of time some task waited for a CPU, newest 2 s
+    /// against the 4 s before) that counts as a load step.
+    pub load_hint_threshold: f64,
 }
 
 impl Default for DaemonConfig {
@@ -178,6 +185,8 @@ impl Default for DaemonConfig {
             latency_per_period: false,
             state_file: String::new(),
             state_max_age_s: 3600.0,
+            load_hints: false,
+            load_hint_threshold: 0.1,
         }
     }
 }
@@ -355,6 +364,12 @@ impl DaemonConfig {
         c.range("daemon.latency_budget_us", self.latency_budget_us, 1.0, 1e6)?;
         c.range("daemon.status_period_s", self.status_period_s, 0.05, 3600.0)?;
         c.range("daemon.state_max_age_s", self.state_max_age_s, 0.0, 1e9)?;
+        c.range(
+            "daemon.load_hint_threshold",
+            self.load_hint_threshold,
+            0.01,
+            1.0,
+        )?;
         Ok(())
     }
 }

@@ -39,7 +39,26 @@ pub struct BenchArgs {
     /// detector would achieve, the floor for the step test.
     #[arg(long)]
     pub known_steps: bool,
+    /// With `--known-steps`: announce them as hints of a ±25 ms step
+    /// (`Estimator::hint_change`, what `daemon.load_hints` does) instead of certain changes.
+    #[arg(long, requires = "known_steps")]
+    pub hinted: bool,
 }
+
+/// How the true step times of a run are announced in the extra run of `--known-steps`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepRun {
+    /// No extra run.
+    Off,
+    /// `Estimator::declare_change` at each step.
+    Known,
+    /// `Estimator::hint_change` at each step (a ±25 ms step hinted).
+    Hinted,
+}
+
+/// The step size a hinted step announces in `--known-steps --hinted`, seconds (1σ);
+/// the daemon's load hints use the same.
+pub const HINT_STEP_STD_S: f64 = 0.025;
 
 /// Result of one family.
 #[derive(Debug, Clone)]
@@ -61,6 +80,8 @@ pub struct FamilyResult {
     /// With `--known-steps`, for a family with offset steps: the score with the true
     /// step times announced to the estimator.
     pub known_steps: Option<Score>,
+    /// How they were announced.
+    pub step_run: StepRun,
 }
 
 /// Runs one family over `seeds`; with `plot_dir`, writes the first seed's SVG there.
@@ -70,7 +91,7 @@ pub fn run_family(
     seeds: impl Iterator<Item = u64>,
     duration: Option<f64>,
     plot_dir: Option<&std::path::Path>,
-    known_steps: bool,
+    steps: StepRun,
 ) -> Result<FamilyResult, String> {
     let mut ours = Vec::new();
     let mut known = Vec::new();
@@ -83,10 +104,11 @@ pub fn run_family(
         let (ests, _) = run_estimator(&cfg.estimator, &run.cam, &run.lidar);
         time += t0.elapsed().as_secs_f64();
         ours.push(score_estimates(&ests, &run));
-        if known_steps && !run.truth.steps.is_empty() {
+        if steps != StepRun::Off && !run.truth.steps.is_empty() {
             let times: Vec<vlsync_common::Nanos> = run.truth.steps.iter().map(|s| s.0).collect();
+            let hint = (steps == StepRun::Hinted).then_some(HINT_STEP_STD_S);
             let (ests, _) =
-                run_estimator_with_changes(&cfg.estimator, &run.cam, &run.lidar, &times);
+                run_estimator_with_changes(&cfg.estimator, &run.cam, &run.lidar, &times, hint);
             known.push(score_estimates(&ests, &run));
         }
         if let (Some(dir), true) = (plot_dir, ours.len() == 1) {
@@ -126,6 +148,7 @@ pub fn run_family(
         crb_s: crbs.get(crbs.len() / 2).copied().unwrap_or(f64::NAN),
         time_s: time / n as f64,
         known_steps: (!known.is_empty()).then(|| Score::aggregate(&known)),
+        step_run: steps,
     })
 }
 
@@ -183,10 +206,16 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
         .filter_map(|r| Some((r.family, r.known_steps.as_ref()?)))
         .collect();
     if !known.is_empty() {
+        let hinted = results.iter().any(|r| r.step_run == StepRun::Hinted);
         let _ = writeln!(s);
         let _ = writeln!(
             s,
-            "With the true step times announced (`--known-steps`: the segment restarts at each step once a step window of data follows it, as an instant step detector would have it):"
+            "{}",
+            if hinted {
+                "With the true step times hinted (`--known-steps --hinted`: `hint_change` with a ±25 ms step, as `daemon.load_hints` does; the segment restarts once a step window of data follows, and the old offset is weighed against it until the new segment is as precise):"
+            } else {
+                "With the true step times announced (`--known-steps`: the segment restarts at each step once a step window of data follows it, as an instant step detector would have it):"
+            }
         );
         let _ = writeln!(s);
         let _ = writeln!(
@@ -233,6 +262,7 @@ fn json(results: &[FamilyResult]) -> String {
                 "crb_s": r.crb_s, "estimator_time_s": r.time_s,
                 "first_lock_published_s": r.lock_published_s,
                 "known_steps": r.known_steps.as_ref().map(sc),
+                "known_steps_hinted": r.step_run == StepRun::Hinted,
             })
         })
         .collect();
@@ -283,7 +313,11 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
                     args.seed_base..args.seed_base + args.seeds,
                     args.duration,
                     args.plots.as_deref(),
-                    args.known_steps,
+                    match (args.known_steps, args.hinted) {
+                        (false, _) => StepRun::Off,
+                        (true, false) => StepRun::Known,
+                        (true, true) => StepRun::Hinted,
+                    },
                 ) {
                     Ok(r) => r,
                     Err(e) => {
@@ -338,23 +372,25 @@ mod tests {
             json: None,
             plots: None,
             known_steps: false,
+            hinted: false,
         }
     }
 
     #[test]
     fn known_steps_score_only_families_with_steps_and_beat_detection() {
         let cfg = Config::default();
-        let robot = run_family(&cfg, Family::Robot, 2..3, Some(60.0), None, true).unwrap();
+        let robot =
+            run_family(&cfg, Family::Robot, 2..3, Some(60.0), None, StepRun::Known).unwrap();
         assert!(robot.known_steps.is_none());
         assert!(robot.ours.mae_s < 0.01 && robot.baseline.mae_s > robot.ours.mae_s);
-        let steps = run_family(&cfg, Family::LoadSteps, 2..4, None, None, true).unwrap();
+        let steps = run_family(&cfg, Family::LoadSteps, 2..4, None, None, StepRun::Known).unwrap();
         let known = steps.known_steps.as_ref().expect("load-steps has steps");
         assert!(
             known.mae_s < 0.6 * steps.ours.mae_s,
             "{known:?} vs {:?}",
             steps.ours
         );
-        let without = run_family(&cfg, Family::LoadSteps, 2..4, None, None, false).unwrap();
+        let without = run_family(&cfg, Family::LoadSteps, 2..4, None, None, StepRun::Off).unwrap();
         assert!(without.known_steps.is_none());
         assert_eq!(without.ours.mae_s, steps.ours.mae_s);
         // the table and the JSON carry the extra figures only when they exist

@@ -14,17 +14,19 @@ pub fn run_estimator(
     cam: &[Sample],
     lidar: &[Sample],
 ) -> (Vec<Estimate>, EstimatorStats) {
-    run_estimator_with_changes(cfg, cam, lidar, &[])
+    run_estimator_with_changes(cfg, cam, lidar, &[], None)
 }
 
 /// [`run_estimator`], announcing each of `changes` (LiDAR times, ns, sorted) to the
-/// estimator ([`Estimator::declare_change`]) when the first LiDAR sample at or
-/// after it is pushed.
+/// estimator when the first LiDAR sample at or after it is pushed: as a certain
+/// change ([`Estimator::declare_change`]), or with `hint_std_s` as a hint of a step
+/// of about that size ([`Estimator::hint_change`]).
 pub fn run_estimator_with_changes(
     cfg: &EstimatorConfig,
     cam: &[Sample],
     lidar: &[Sample],
     changes: &[Nanos],
+    hint_std_s: Option<f64>,
 ) -> (Vec<Estimate>, EstimatorStats) {
     let mut est = Estimator::new(cfg);
     let mut out = Vec::with_capacity(lidar.len() / 2 + 16);
@@ -36,7 +38,10 @@ pub fn run_estimator_with_changes(
             est.push(Stream::Cam, cam[i - 1])
         } else {
             while c < changes.len() && changes[c] <= lidar[j].t_ns {
-                est.declare_change(changes[c]);
+                match hint_std_s {
+                    Some(sd) => est.hint_change(changes[c], sd),
+                    None => est.declare_change(changes[c]),
+                }
                 c += 1;
             }
             j += 1;

@@ -297,6 +297,21 @@ impl History {
     }
 }
 
+/// The old segment at a hinted change (see [`Estimator::hint_change`]).
+#[derive(Debug, Clone, Copy)]
+struct HintPrior {
+    /// Offset at the change, s, and its variance.
+    o: f64,
+    v: f64,
+    /// Variance of the step the hint announces.
+    v_step: f64,
+    /// Tracker time of the change.
+    t: f64,
+    /// Where the old segment started (grid index, tracker time).
+    start_k: i64,
+    start_t: f64,
+}
+
 /// Online offset/drift estimator. Push samples of both streams in any
 /// interleaving; poll estimates. Allocates nothing after [`Estimator::new`].
 #[derive(Debug, Clone)]
@@ -345,6 +360,13 @@ pub struct Estimator {
     /// A change point announced from outside ([`Estimator::declare_change`]), as a
     /// LiDAR grid index, applied once the data reach past it.
     known_change: Option<i64>,
+    /// The expected step size's variance of the pending `known_change`, when it is
+    /// only a hint ([`Estimator::hint_change`]).
+    hint_var: Option<f64>,
+    /// After a hinted change: the old offset at the change and the old segment's
+    /// start, weighed against the new segment until it is as precise alone
+    /// ([`Self::hinted`]).
+    seg_prior: Option<HintPrior>,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -426,6 +448,8 @@ impl Estimator {
             innov_n: 0,
             bias_var: 0.0,
             known_change: None,
+            hint_var: None,
+            seg_prior: None,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -512,6 +536,23 @@ impl Estimator {
     pub fn declare_change(&mut self, t_lidar_ns: Nanos) {
         let k = t_lidar_ns.saturating_add(self.group_delay_ns) / self.p.dt_ns;
         self.known_change = Some(k);
+        self.hint_var = None;
+    }
+
+    /// Like [`Self::declare_change`], for a change that may not have happened: a
+    /// hint such as a CPU-load change (`vlsyncd`'s `daemon.load_hints`). The segment
+    /// restarts at `t_lidar_ns` alike, but the old offset stays in the estimate as a
+    /// prior with standard deviation `step_std_s` (the size of step the hint
+    /// announces), fused with the new segment's measurements until they are five
+    /// times more precise: a hint without a step costs history, not accuracy.
+    pub fn hint_change(&mut self, t_lidar_ns: Nanos, step_std_s: f64) {
+        self.declare_change(t_lidar_ns);
+        let s = if step_std_s.is_finite() {
+            step_std_s.clamp(1e-4, 1.0)
+        } else {
+            0.025
+        };
+        self.hint_var = Some(s * s);
     }
 
     /// Takes the oldest pending estimate, if any.
@@ -597,6 +638,7 @@ impl Estimator {
     /// Starts a new segment at LiDAR grid index `k` (tracker time `t`); the drift
     /// fit keeps the slope of the old one.
     fn new_segment(&mut self, k: i64, t: f64) {
+        self.seg_prior = None;
         self.innov_n = 0;
         self.bias_var = 0.0;
         self.fresh = false;
@@ -1111,11 +1153,17 @@ impl Estimator {
             let var = m.var + self.d.1 * lever * lever + self.p.qo * self.p.qo * lever.abs();
             Some(Meas { var, ..m })
         });
+        // after a hinted change: the old offset and the new segment, weighed
+        let meas = match (meas, self.seg_prior) {
+            (Some(m), Some(h)) => Some(self.hinted(m, h, t)),
+            (m, _) => m,
+        };
         // a segment measurement replaces the estimate when it is consistent with the
         // prediction and about as precise (a short segment after a re-centre, or one
         // that just grew past a gap, is not); a segment just started at a change
-        // point is taken as it is (the step test vouched for it)
-        let fresh = self.fresh;
+        // point is taken as it is (the step test vouched for it), and so is one under
+        // a hint's prior (the prior keeps it honest)
+        let fresh = self.fresh || self.seg_prior.is_some();
         let usable = |m: &Meas| {
             fresh
                 || (m.var <= 2.0 * pred_var
@@ -1192,8 +1240,20 @@ impl Estimator {
                 >= kc.saturating_add(short as i64 * self.p.hop_len)
             {
                 self.known_change = None;
+                let hint = self.hint_var.take();
                 if let Some(c) = (first..n).find(|&i| self.corr.block(i).last_k >= kc) {
+                    let t_c = self.rel_k(self.corr.block(c).first_k as f64);
+                    let (o, v) = self.predict(t_c);
+                    let (start_k, start_t) = (self.seg_start_k, self.seg_start_t);
                     self.change_at_block(c);
+                    self.seg_prior = hint.map(|v_step| HintPrior {
+                        o,
+                        v,
+                        v_step,
+                        t: t_c,
+                        start_k,
+                        start_t,
+                    });
                     return;
                 }
             }
@@ -1314,6 +1374,49 @@ impl Estimator {
         }
     }
 
+    /// The estimate after a hinted change, from the new segment's measurement `m` at
+    /// tracker time `t` and the old segment `h`: a mixture of "no step" (the old
+    /// offset, moved with the drift, fused with `m`) and "a step of about
+    /// `h.v_step`" (`m`, with the old offset as a prior that wide), weighed by how
+    /// likely `m`'s departure from the old offset is under each, with even prior
+    /// odds; its σ covers both. A wrong hint keeps the old estimate; a real step
+    /// wins as soon as the new segment shows it. Once the new segment alone is as
+    /// precise as the old offset, the verdict is final: a step keeps the new
+    /// segment, no step gives the old segment its history back (its start again).
+    fn hinted(&mut self, m: Meas, h: HintPrior, t: f64) -> Meas {
+        let (o, v, v_step) = (h.o, h.v, h.v_step);
+        let dt = t - h.t;
+        let v0 = v + self.d.1 * dt * dt + self.p.qo * self.p.qo * dt.abs();
+        let o_t = o + self.d.0 * dt;
+        let fuse = |vp: f64| {
+            let w = m.var / (m.var + vp);
+            (m.z + w * (o_t - m.z), m.var * vp / (m.var + vp))
+        };
+        let (z0, var0) = fuse(v0);
+        let (z1, var1) = fuse(v0 + v_step);
+        let nu = m.z - o_t;
+        let (s0, s1) = (m.var + v0, m.var + v0 + v_step);
+        // log-likelihood ratio of "step" against "no step"
+        let llr = 0.5 * ((s0 / s1).ln() + nu * nu * (1.0 / s0 - 1.0 / s1));
+        let p1 = 1.0 / (1.0 + (-llr.clamp(-50.0, 50.0)).exp());
+        if m.var <= v0 {
+            self.seg_prior = None;
+            if p1 >= 0.5 {
+                return m;
+            }
+            self.seg_start_k = h.start_k;
+            self.seg_start_t = h.start_t;
+            return Meas {
+                z: z0,
+                var: var0,
+                ..m
+            };
+        }
+        let z = (1.0 - p1) * z0 + p1 * z1;
+        let var = (1.0 - p1) * (var0 + (z0 - z).powi(2)) + p1 * (var1 + (z1 - z).powi(2));
+        Meas { z, var, ..m }
+    }
+
     /// Adds a disjoint short-window innovation `nu` (variance `var`, clipped at 3σ:
     /// the short windows' errors have heavy tails) and re-estimates the squared
     /// bias of the estimate: the weighted mean of the newest [`BIAS_WINDOWS`]
@@ -1339,6 +1442,7 @@ impl Estimator {
 
     /// A change point at stored block `c`: the segment restarts there.
     fn change_at_block(&mut self, c: usize) {
+        self.seg_prior = None;
         self.innov_n = 0;
         self.bias_var = 0.0;
         let k = self.corr.block(c).first_k;

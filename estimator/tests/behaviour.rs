@@ -154,6 +154,86 @@ fn announced_changes_restart_the_segment_at_the_step() {
     assert!(est.stats().steps >= run.truth.steps.len() as u64);
 }
 
+/// Replays `run`, calling `announce(est, t)` for each of `times` (LiDAR clock)
+/// just before the first LiDAR sample at or after it.
+fn replay_announcing(
+    run: &SimRun,
+    est: &mut Estimator,
+    times: &[i64],
+    announce: impl Fn(&mut Estimator, i64),
+) -> Vec<vlsync_common::Estimate> {
+    let mut out = Vec::new();
+    let (mut i, mut j, mut c) = (0, 0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, run.cam[i]);
+            i += 1;
+        } else {
+            if let Some(&t) = times.get(c).filter(|&&t| t <= run.lidar[j].t_ns) {
+                announce(est, t);
+                c += 1;
+            }
+            let _ = est.push(Stream::Lidar, run.lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    assert_eq!(c, times.len(), "every time announced");
+    out
+}
+
+/// MAE (s) and worst error of the locked estimates after the first lock.
+fn locked_errors(out: &[vlsync_common::Estimate], run: &SimRun) -> (f64, f64) {
+    let errs: Vec<f64> = out
+        .iter()
+        .skip_while(|e| e.state != EstimatorState::Tracking)
+        .filter(|e| matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding))
+        .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+        .collect();
+    assert!(errs.len() > 100);
+    (
+        errs.iter().sum::<f64>() / errs.len() as f64,
+        errs.iter().copied().fold(0.0, f64::max),
+    )
+}
+
+#[test]
+fn hints_follow_real_steps_and_cost_little_when_wrong() {
+    let cfg = EstimatorConfig::default();
+    let hint = |e: &mut Estimator, t: i64| e.hint_change(t, 0.025);
+    // real ±25 ms steps, hinted where they happen: followed as fast as announced ones
+    let run = generate(Family::LoadSteps, 2, Some(120.0));
+    let steps: Vec<i64> = run.truth.steps.iter().map(|s| s.0).collect();
+    let detected = replay(&run, &mut Estimator::new(&cfg));
+    let hinted = replay_announcing(&run, &mut Estimator::new(&cfg), &steps, hint);
+    let (h, d) = (
+        error_after_steps(&hinted, &run),
+        error_after_steps(&detected, &run),
+    );
+    assert!(h < 0.005 && h < 0.5 * d, "hinted {h}, detected {d}");
+    // hints every 15 s on a run without steps: only history is lost
+    let run = generate(Family::Robot, 3, Some(120.0));
+    let wrong: Vec<i64> = (1..8).map(|k| k * 15_000_000_000).collect();
+    let plain = locked_errors(&replay(&run, &mut Estimator::new(&cfg)), &run);
+    let mut est = Estimator::new(&cfg);
+    let with = locked_errors(&replay_announcing(&run, &mut est, &wrong, hint), &run);
+    assert!(
+        est.stats().steps >= 5,
+        "hints restarted the segment: {:?}",
+        est.stats()
+    );
+    assert!(
+        with.0 < 1.5 * plain.0 + 0.0005 && with.1 < 0.015,
+        "wrong hints: MAE {:.2} ms, worst {:.2} ms; without: {:.2} / {:.2} ms",
+        with.0 * 1e3,
+        with.1 * 1e3,
+        plain.0 * 1e3,
+        plain.1 * 1e3
+    );
+}
+
 #[test]
 fn an_hour_of_drifting_clocks_keeps_one_lock_and_learns_the_drift() {
     // a robot running for an hour: 20-60 ppm between the clocks moves the offset by

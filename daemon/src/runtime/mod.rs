@@ -54,6 +54,7 @@
 #![forbid(unsafe_code)]
 
 pub mod histogram;
+pub mod loadwatch;
 pub mod notify;
 pub mod procs;
 
@@ -152,6 +153,13 @@ pub enum RtEvent {
     Status(Status),
     /// A published estimate (persisted and shown by the service thread).
     Estimate(Estimate),
+    /// A load hint became a declared change point of the estimator.
+    ChangeDeclared {
+        /// The change's time on the LiDAR clock, ns.
+        t_lidar_ns: Nanos,
+    },
+    /// A load hint arrived before any LiDAR sample: no clock to date it on.
+    HintUndated,
     /// The real-time loop ended because iceoryx2 failed (the text is static).
     Fatal(&'static str),
 }
@@ -226,6 +234,8 @@ struct RtSetup {
     heartbeat: Arc<AtomicU64>,
     /// A saved estimate and its age (s) to start from.
     restore: Option<(Estimate, f64)>,
+    /// Load hints: `CLOCK_MONOTONIC` times at which the offset may have stepped.
+    hints: Receiver<Nanos>,
 }
 
 /// What the real-time thread reports once, before its loop.
@@ -312,6 +322,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     let mut last_overrun: Nanos = 0;
     let mut last_state: Option<EstimatorState> = None;
     let mut next_status = monotonic_ns() + status_period_ns;
+    // the newest LiDAR sample: its stamp and when its driver published it
+    // (`CLOCK_MONOTONIC`), which dates a load hint on the LiDAR clock
+    let mut lidar_clock: Option<(Nanos, Nanos)> = None;
     let _ = ready.send(Ok(report));
 
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
@@ -355,6 +368,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 }
                 if w.is_first() {
                     emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
+                }
+                if stream == Stream::Lidar && w.publish_ns > 0 {
+                    lidar_clock = Some((w.t_ns, w.publish_ns));
                 }
                 let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
                 if lost > 0 {
@@ -421,6 +437,16 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                         );
                     }
                 }
+            }
+        }
+        while let Ok(at_mono) = s.hints.try_recv() {
+            match lidar_clock {
+                Some((t_l, pub_ns)) => {
+                    let t_lidar_ns = t_l.saturating_add(at_mono.saturating_sub(pub_ns));
+                    est.hint_change(t_lidar_ns, LOAD_HINT_STEP_STD_S);
+                    emit(&s.tx, &mut c, RtEvent::ChangeDeclared { t_lidar_ns });
+                }
+                None => emit(&s.tx, &mut c, RtEvent::HintUndated),
             }
         }
         let now = monotonic_ns();
@@ -562,7 +588,48 @@ fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
         RtEvent::Status(st) => status_pub(st),
         // persisted and shown by the service loop itself
         RtEvent::Estimate(_) => {}
+        RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
+            "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s",
+            *t_lidar_ns as f64 * 1e-9
+        ),
+        RtEvent::HintUndated => {
+            tracing::info!("load hint before any LiDAR sample: nothing to restart yet")
+        }
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
+    }
+}
+
+/// How often the CPU pressure is read for load hints, ns.
+pub const LOAD_PERIOD_NS: Nanos = 250_000_000;
+/// The size of offset step a load hint announces (1σ), seconds: the seed
+/// article's load steps were ±25 ms.
+pub const LOAD_HINT_STEP_STD_S: f64 = crate::bench::HINT_STEP_STD_S;
+/// At most one load hint per this many seconds.
+pub const LOAD_HINT_INTERVAL_S: f64 = 10.0;
+
+/// The load-hint detector and its next reading time, when `daemon.load_hints` is on
+/// and the kernel publishes CPU pressure (says so when it does not).
+fn load_watch(cfg: &Config) -> Option<(loadwatch::LoadWatch, Nanos)> {
+    if !cfg.daemon.load_hints {
+        return None;
+    }
+    match loadwatch::read_cpu_pressure() {
+        Ok(_) => {
+            tracing::info!(
+                "load hints on: a CPU pressure change of {:.0} % or more declares an offset change",
+                cfg.daemon.load_hint_threshold * 100.0
+            );
+            Some((
+                loadwatch::LoadWatch::new(cfg.daemon.load_hint_threshold, LOAD_HINT_INTERVAL_S),
+                0,
+            ))
+        }
+        Err(e) => {
+            tracing::warn!(
+                "daemon.load_hints: {e} (kernel without PSI, or booted with psi=0); running without load hints"
+            );
+            None
+        }
     }
 }
 
@@ -629,6 +696,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let (hint_tx, hint_rx) = bounded::<Nanos>(4);
+    let mut load = load_watch(&cfg);
     let setup = RtSetup {
         cfg: cfg.clone(),
         names: names.clone(),
@@ -637,6 +706,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         start_ns,
         heartbeat,
         restore,
+        hints: hint_rx,
     };
     let rt = std::thread::Builder::new()
         .name("vlsync-rt".into())
@@ -710,6 +780,31 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             }
             Err(crossbeam::channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam::channel::RecvTimeoutError::Disconnected) => break,
+        }
+        if let Some((w, next)) = load.as_mut() {
+            let t = monotonic_ns();
+            if t >= *next {
+                *next = t + LOAD_PERIOD_NS;
+                match loadwatch::read_cpu_pressure() {
+                    Ok(total) => {
+                        if let Some(h) = w.observe(t, total) {
+                            tracing::info!(
+                                "CPU pressure {:.0} % -> {:.0} % ({:.1} s ago): load step",
+                                h.before * 100.0,
+                                h.after * 100.0,
+                                (t - h.at_ns) as f64 * 1e-9
+                            );
+                            if hint_tx.try_send(h.at_ns).is_err() {
+                                tracing::warn!("load hint dropped: the real-time thread lags");
+                            }
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!("{e}; load hints off from now on");
+                        load = None;
+                    }
+                }
+            }
         }
         let now = std::time::Instant::now();
         systemd.tick(now);
