@@ -81,6 +81,13 @@ pub struct DriverArgs {
     /// drivers of a pair must share --start-at.
     #[arg(long, value_enum, default_value_t = StampArg::Sensor)]
     pub stamp: StampArg,
+    /// With `--stamp software`: the camera front-end's CPU cost per frame, ms. The
+    /// driver works on after processing until its thread has spent this much CPU on
+    /// the frame, then stamps it: a heavier front-end (a slower board, a bigger image,
+    /// a JPEG decode) on this machine, whose stamps CPU load delays accordingly.
+    /// 0: the front-end's own cost only.
+    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    pub frame_cpu_ms: f64,
     /// Write one truth row per published sample of a rendered run to FILE:
     /// `seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns`
     /// (true event time against the stamp published; see `vlsync_driver::SampleTruth`).
@@ -177,6 +184,24 @@ pub fn select_source(
             )));
         }
     }
+    if args.frame_cpu_ms != 0.0 {
+        if args.stamp != StampArg::Software || stream != Stream::Cam {
+            return Err(DriverError::Options(
+                "--frame-cpu-ms applies to vlsync-cam --stamp software only".into(),
+            ));
+        }
+        if !(args.frame_cpu_ms.is_finite() && (0.0..=1000.0).contains(&args.frame_cpu_ms)) {
+            return Err(DriverError::Options(format!(
+                "--frame-cpu-ms {} is out of range: allowed 0 ..= 1000",
+                args.frame_cpu_ms
+            )));
+        }
+        if vlsync_ipc::rt::thread_cpu_ns().is_none() {
+            return Err(DriverError::Options(
+                "--frame-cpu-ms needs the thread CPU clock, which this system lacks".into(),
+            ));
+        }
+    }
     if args.truth_out.is_some() && flag != "--render" {
         return Err(DriverError::Options(
             "--truth-out needs --render (only the rendering simulator knows the truth)".into(),
@@ -241,7 +266,11 @@ pub fn select_source(
                 StampArg::Software => raw::RenderStamp::Software { shift_ns },
             };
             let source: Box<dyn Source> = match stream {
-                Stream::Cam => Box::new(raw::CamSource::render_with(r, stamp, stop).map_err(src)?),
+                Stream::Cam => {
+                    let mut c = raw::CamSource::render_with(r, stamp, stop).map_err(src)?;
+                    c.set_frame_cpu_ns((args.frame_cpu_ms * 1e6) as vlsync_common::Nanos);
+                    Box::new(c)
+                }
                 Stream::Lidar => Box::new(raw::LidarSource::render_with(r, stamp).map_err(src)?),
             };
             Ok(Selected {

@@ -119,6 +119,16 @@ impl RenderStamp {
     }
 }
 
+/// Works on the calling thread until its CPU clock reaches `until_ns`.
+fn burn_cpu_until(until_ns: Nanos) {
+    let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+    while vlsync_ipc::rt::thread_cpu_ns().is_some_and(|t| t < until_ns) {
+        for _ in 0..256 {
+            x = std::hint::black_box(x ^ (x << 13) ^ (x >> 7));
+        }
+    }
+}
+
 /// `(a + b) / 2` without overflow.
 fn mid(a: Nanos, b: Nanos) -> Nanos {
     ((i128::from(a) + i128::from(b)).div_euclid(2)) as Nanos
@@ -423,6 +433,8 @@ pub struct CamSource {
     /// Software stamp and truth of the previous frame the processor kept.
     prev: Option<(Nanos, Option<FrameTruth>)>,
     last_truth: Option<SampleTruth>,
+    /// CPU time each frame costs before it is stamped, ns (0: the front-end's own).
+    frame_cpu_ns: Nanos,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -457,7 +469,15 @@ impl CamSource {
             software,
             prev: None,
             last_truth: None,
+            frame_cpu_ns: 0,
         })
+    }
+
+    /// With software stamping: keep each frame's thread busy until it has spent
+    /// `ns` of CPU on the frame (front-end included) before stamping it; stands in
+    /// for a heavier front-end, whose stamps CPU contention delays accordingly.
+    pub fn set_frame_cpu_ns(&mut self, ns: Nanos) {
+        self.frame_cpu_ns = ns.max(0);
     }
 
     /// A directory of frames with `frames.csv` (see `vlsync_signature_cam::source`).
@@ -577,6 +597,7 @@ impl Source for CamSource {
                 software,
                 prev,
                 last_truth,
+                frame_cpu_ns,
                 ..
             } = self;
             let Some((frame, time, truth)) = frames
@@ -587,7 +608,13 @@ impl Source for CamSource {
             };
             counts.frames += 1;
             let t_in = monotonic_ns();
+            let cpu_in = (*frame_cpu_ns > 0)
+                .then(vlsync_ipc::rt::thread_cpu_ns)
+                .flatten();
             let step = proc.process(&frame, time);
+            if let Some(c0) = cpu_in {
+                burn_cpu_until(c0.saturating_add(*frame_cpu_ns));
+            }
             // software stamping: the clock is read once the front-end is done
             let t_done = monotonic_ns();
             let this = (t_done, truth);

@@ -118,3 +118,41 @@ fn truth_files_have_one_row_per_published_sample() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_heavier_camera_front_end_delays_the_software_stamps() {
+    // --frame-cpu-ms 8: each frame costs 8 ms of CPU before its stamp, so its
+    // processing (truth column process_ns) takes at least that long in wall time
+    let prefix = format!("vlsync-test/driver-cpu-{}", std::process::id());
+    let file = std::env::temp_dir().join(format!("vlsync-driver-cpu-{}.csv", std::process::id()));
+    let (ok, err) = run(
+        env!("CARGO_BIN_EXE_vlsync-cam"),
+        &[
+            "--render",
+            "5",
+            "--duration",
+            "2",
+            "--stamp",
+            "software",
+            "--frame-cpu-ms",
+            "8",
+            "--truth-out",
+            file.to_str().unwrap(),
+            "--prefix",
+            &prefix,
+        ],
+    );
+    assert!(ok, "{err}");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let process_ns: Vec<i64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(5).unwrap().parse().unwrap())
+        .collect();
+    assert!(process_ns.len() > 10, "{err}");
+    assert!(
+        process_ns.iter().all(|&p| p >= 8_000_000),
+        "processing times {process_ns:?}"
+    );
+    std::fs::remove_file(&file).unwrap();
+}

@@ -373,6 +373,31 @@ fn stamping_options_are_checked() {
     );
     let e = err(&["--frames", "/tmp", "--stamp", "mono"], Stream::Cam);
     assert!(e.contains("--stamp mono applies to --render only"), "{e}");
+    for (a, s) in [
+        (&["--render", "1", "--frame-cpu-ms", "5"][..], Stream::Cam),
+        (
+            &["--render", "1", "--stamp", "mono", "--frame-cpu-ms", "5"][..],
+            Stream::Lidar,
+        ),
+    ] {
+        let e = err(a, s);
+        assert!(
+            e.contains("--frame-cpu-ms applies to vlsync-cam --stamp software"),
+            "{e}"
+        );
+    }
+    let e = err(
+        &[
+            "--render",
+            "1",
+            "--stamp",
+            "software",
+            "--frame-cpu-ms",
+            "5000",
+        ],
+        Stream::Cam,
+    );
+    assert!(e.contains("--frame-cpu-ms 5000 is out of range"), "{e}");
     let e = err(
         &["--frames", "/tmp", "--truth-out", "/tmp/x.csv"],
         Stream::Cam,

@@ -2,8 +2,9 @@
 //! mlockall. Each returns what the system refused, so a daemon without
 //! privileges starts anyway and says what it could not get.
 //!
-//! This is the one module of vlsync with `unsafe`: `sched_setscheduler` has no
-//! safe wrapper in the crates the workspace uses.
+//! This is the one module of vlsync with `unsafe`: `sched_setscheduler` (and the
+//! thread CPU clock, [`thread_cpu_ns`]) have no safe wrapper in the crates the
+//! workspace uses.
 #![allow(unsafe_code)]
 
 use std::fmt;
@@ -109,6 +110,22 @@ pub fn set_current_thread_nice(nice: i32, setting: &str) -> Result<(), RtRefused
     }
 }
 
+/// CPU time the calling thread has used, ns (`CLOCK_THREAD_CPUTIME_ID`); `None`
+/// where the clock is unavailable.
+pub fn thread_cpu_ns() -> Option<i64> {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes one timespec into `ts`, a valid, exclusively
+    // borrowed local that outlives the call.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    // time_t and c_long are 32 bits on 32-bit Linux (a Pi with a 32-bit OS)
+    #[allow(clippy::unnecessary_cast)]
+    let (sec, nsec) = (ts.tv_sec as i64, ts.tv_nsec as i64);
+    (rc == 0).then(|| sec.saturating_mul(1_000_000_000).saturating_add(nsec))
+}
+
 /// Locks all current and future pages of the process in RAM.
 pub fn lock_all_memory() -> Result<(), RtRefused> {
     // SAFETY: mlockall takes only flags and touches no memory of ours.
@@ -129,6 +146,17 @@ pub fn lock_all_memory() -> Result<(), RtRefused> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn thread_cpu_clock_advances_with_work() {
+        let a = thread_cpu_ns().expect("Linux has a thread CPU clock");
+        let mut x = 0u64;
+        while thread_cpu_ns().unwrap() - a < 2_000_000 {
+            x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(7));
+        }
+        let b = thread_cpu_ns().unwrap();
+        assert!(b - a >= 2_000_000 && b - a < 1_000_000_000, "{a} {b} {x}");
+    }
 
     #[test]
     fn missing_core_is_reported_not_fatal() {

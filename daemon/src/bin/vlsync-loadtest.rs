@@ -40,7 +40,8 @@ struct Args {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Base daemon configuration; the harness sets `daemon.core`,
-    /// `daemon.fifo_priority` and `daemon.latency_per_period` on top.
+    /// `daemon.fifo_priority`, `daemon.latency_per_period` and `daemon.load_hints`
+    /// (from `--load-hints`) on top.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Core the daemon's real-time thread is pinned to.
@@ -49,6 +50,17 @@ struct Args {
     /// SCHED_FIFO priority of the daemon's real-time thread (0: normal scheduler).
     #[arg(long, default_value_t = 50)]
     fifo: i64,
+    /// CPU the camera front-end spends per frame before stamping it, ms
+    /// (`vlsync-cam --frame-cpu-ms`): a heavier front-end than this machine's
+    /// 320x240 flow (about 1 ms), so that CPU load delays the stamps measurably.
+    /// 0: the front-end's own cost.
+    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    cam_frame_cpu_ms: f64,
+    /// Run the daemon with `daemon.load_hints` (a change of CPU pressure tells the
+    /// estimator that the offset may have stepped); without it, the estimator finds
+    /// load steps from the data alone, as the shipped default does.
+    #[arg(long)]
+    load_hints: bool,
     /// Exit with status 1 when a target is missed.
     #[arg(long)]
     check: bool,
@@ -99,6 +111,12 @@ fn run(a: &Args) -> Result<bool, String> {
         return Ok(true);
     }
     let prof = profile(&a.profile)?;
+    if !(a.cam_frame_cpu_ms.is_finite() && (0.0..=30.0).contains(&a.cam_frame_cpu_ms)) {
+        return Err(format!(
+            "--cam-frame-cpu-ms {} is out of range: allowed 0 ..= 30 (a 30 Hz camera has 33 ms per frame)",
+            a.cam_frame_cpu_ms
+        ));
+    }
     let stress = if prof.needs_stress_ng() {
         Some(find_stress_ng()?)
     } else {
@@ -117,6 +135,7 @@ fn run(a: &Args) -> Result<bool, String> {
     cfg.daemon.core = a.core;
     cfg.daemon.fifo_priority = a.fifo;
     cfg.daemon.latency_per_period = true;
+    cfg.daemon.load_hints = a.load_hints;
     cfg.validate("vlsync-loadtest options")
         .map_err(|e| e.to_string())?;
     let cfg_path = out.join("vlsyncd.toml");
@@ -141,7 +160,9 @@ fn run(a: &Args) -> Result<bool, String> {
             seed: a.seed,
             duration_s: prof.duration_s() + 1.0,
             speed: 1.0,
-            stamping: Stamping::Software,
+            stamping: Stamping::Software {
+                frame_cpu_us: (a.cam_frame_cpu_ms * 1e3).round() as u32,
+            },
         },
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),
@@ -227,13 +248,30 @@ fn run(a: &Args) -> Result<bool, String> {
         .map(|r| (*r, session.usage(*r).describe()))
         .collect();
 
+    let daemon_log = session.log("vlsyncd.log");
+    let hints_declared = daemon_log
+        .lines()
+        .filter(|l| l.contains("load hint: estimator told"))
+        .count();
+    let hints = if !cfg.daemon.load_hints {
+        "off (the default; `--load-hints` turns them on)".to_string()
+    } else if daemon_log.contains("running without load hints") {
+        "requested, but the kernel publishes no CPU pressure".to_string()
+    } else {
+        format!("on, {hints_declared} change(s) declared")
+    };
     let mut md = format!(
-        "# vlsync load test: profile `{}`{}\n\nRendered seed {}, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\n\n",
+        "# vlsync load test: profile `{}`{}\n\nRendered seed {}, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\nLoad hints (`daemon.load_hints`): {hints}.\nCamera front-end: {}.\n\n",
         prof.name,
         if interrupted { " (interrupted)" } else { "" },
         a.seed,
         cfg.estimator.window_s,
-        if rt.is_empty() { "no real-time setting requested".to_string() } else { rt.join("; ") }
+        if rt.is_empty() { "no real-time setting requested".to_string() } else { rt.join("; ") },
+        if a.cam_frame_cpu_ms > 0.0 {
+            format!("{} ms of CPU per frame before its stamp (`--cam-frame-cpu-ms`)", a.cam_frame_cpu_ms)
+        } else {
+            "its own cost per frame (320x240 flow)".to_string()
+        }
     );
     md.push_str(&tables(&reports));
     md.push_str(&format!(
@@ -284,6 +322,8 @@ fn run(a: &Args) -> Result<bool, String> {
                 "latency_budget_us": budget,
             },
             "estimator_window_s": cfg.estimator.window_s,
+            "load_hints": {"on": cfg.daemon.load_hints, "declared": hints_declared},
+            "cam_frame_cpu_ms": a.cam_frame_cpu_ms,
             "after_warmup": {
                 "scored": overall.n,
                 "mae_ms": overall.mae * 1e3,

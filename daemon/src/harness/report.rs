@@ -15,6 +15,9 @@ use vlsync_common::{EstimatorState, Nanos};
 pub const FOLLOW_HOLD_S: f64 = 2.0;
 /// Steps of the true offset smaller than this are not scored for following.
 pub const MIN_STEP_S: f64 = 0.001;
+/// The time a load step is given to be followed (issue 5: within 5 s); the
+/// steady-load error of a phase starts this long after the phase.
+pub const SETTLE_S: f64 = 5.0;
 
 /// How the estimates followed a load step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,6 +63,9 @@ pub struct PhaseReport {
     pub tracking: usize,
     /// Error of the locked ones with a defined truth.
     pub error: ErrorStats,
+    /// The same once the estimate has had [`SETTLE_S`] to follow the change that
+    /// starts the phase (every phase but the first): the steady-load error.
+    pub steady: ErrorStats,
     /// Mean true offset over the phase, seconds.
     pub truth_mean_s: Option<f64>,
     /// Camera stamping error (stamp - event): mean and 95th percentile, seconds.
@@ -145,10 +151,23 @@ pub fn analyse(d: &RunData<'_>) -> Vec<PhaseReport> {
                     .is_some_and(|e| (a..b).contains(&e))
             })
             .collect();
-        let errs: Vec<f64> = mine
+        let err_of = |r: &&&Received| {
+            Some((
+                d.truth.event_of_lidar(r.est.t_ref_ns)?,
+                r.est.offset_s - d.truth.offset_at(r.est.t_ref_ns)?,
+            ))
+        };
+        let scored: Vec<(Nanos, f64)> = mine
             .iter()
             .filter(|r| locked(r.est.state))
-            .filter_map(|r| Some(r.est.offset_s - d.truth.offset_at(r.est.t_ref_ns)?))
+            .filter_map(|r| err_of(&r))
+            .collect();
+        let errs: Vec<f64> = scored.iter().map(|e| e.1).collect();
+        let settle = if k == 0 { 0 } else { (SETTLE_S * 1e9) as Nanos };
+        let steady: Vec<f64> = scored
+            .iter()
+            .filter(|e| e.0 >= a + settle)
+            .map(|e| e.1)
             .collect();
         let cam_in: Vec<&TruthRow> = d
             .cam_rows
@@ -201,6 +220,7 @@ pub fn analyse(d: &RunData<'_>) -> Vec<PhaseReport> {
                 .filter(|r| r.est.state == EstimatorState::Tracking)
                 .count(),
             error: ErrorStats::of(&errs),
+            steady: ErrorStats::of(&steady),
             truth_mean_s: d.truth.mean_between(a, b).map(|m| m.0),
             cam_delay_s,
             render_late: cam_in.iter().filter(|r| r.render_late_ns > 0).count(),
@@ -306,12 +326,12 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
         .collect();
     let worst_p95 = full
         .iter()
-        .filter(|r| r.error.n > 0)
-        .map(|r| r.error.p95)
+        .filter(|r| r.steady.n > 0)
+        .map(|r| r.steady.p95)
         .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
-    let no_est = full.iter().any(|r| r.error.n == 0);
+    let no_est = full.iter().any(|r| r.steady.n == 0);
     t.push(Target {
-        what: "full CPU load: error p95 <= 5 ms against the measured truth".into(),
+        what: "steady full CPU load (5 s after the change on, the time given to follow it): error p95 <= 5 ms against the measured truth".into(),
         pass: if full.is_empty() {
             None
         } else {
@@ -341,7 +361,7 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
         pass: if scored.is_empty() {
             None
         } else {
-            Some(scored.iter().all(|s| s.is_some_and(|v| v <= 5.0)))
+            Some(scored.iter().all(|s| s.is_some_and(|v| v <= SETTLE_S)))
         },
         figure: if steps.is_empty() {
             "no load step".into()
@@ -413,12 +433,12 @@ fn us3(v: Option<[u64; 3]>) -> String {
 /// The two tables (accuracy; latency, loss, CPU) as Markdown.
 pub fn tables(reports: &[PhaseReport]) -> String {
     let mut s = String::new();
-    s.push_str("| phase | load | from s | to s | estimates (tracking, scored) | MAE ms | p95 ms | max ms | true offset ms | camera delay mean/p95 ms | renders late | load step |\n");
-    s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
+    s.push_str("| phase | load | from s | to s | estimates (tracking, scored) | MAE ms | p95 ms | max ms | p95 after 5 s ms | true offset ms | camera delay mean/p95 ms | renders late | load step |\n");
+    s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
     for r in reports {
         let e = &r.error;
         s.push_str(&format!(
-            "| {} | {} | {:.0} | {:.0} | {} ({}, {}) | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {:.0} | {:.0} | {} ({}, {}) | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.name,
             r.load,
             r.start_s,
@@ -429,6 +449,7 @@ pub fn tables(reports: &[PhaseReport]) -> String {
             ms((e.n > 0).then_some(e.mae)),
             ms((e.n > 0).then_some(e.p95)),
             ms((e.n > 0).then_some(e.max)),
+            ms((r.steady.n > 0).then_some(r.steady.p95)),
             ms(r.truth_mean_s),
             r.cam_delay_s.map_or("-".into(), |(m, p)| format!(
                 "{:.2}/{:.2}",
@@ -492,6 +513,13 @@ pub fn to_json(reports: &[PhaseReport], targets: &[Target], extra: Value) -> Val
                     "rms_ms": opt((e.n > 0).then_some(e.rms)),
                     "p95_ms": opt((e.n > 0).then_some(e.p95)),
                     "max_ms": opt((e.n > 0).then_some(e.max)),
+                },
+                "steady_error": {
+                    "settle_s": SETTLE_S,
+                    "scored": r.steady.n,
+                    "mae_ms": opt((r.steady.n > 0).then_some(r.steady.mae)),
+                    "p95_ms": opt((r.steady.n > 0).then_some(r.steady.p95)),
+                    "max_ms": opt((r.steady.n > 0).then_some(r.steady.max)),
                 },
                 "true_offset_mean_ms": opt(r.truth_mean_s),
                 "camera_delay_mean_ms": opt(r.cam_delay_s.map(|c| c.0)),

@@ -46,8 +46,12 @@ pub enum Stamping {
     Sensor,
     /// Camera stamped in software after processing, LiDAR with its sensor
     /// stamps, both on `CLOCK_MONOTONIC`; each driver writes a truth file and
-    /// the run is scored against the measured truth.
-    Software,
+    /// the run is scored against the measured truth. `frame_cpu_us` > 0: the camera
+    /// front-end costs that much CPU per frame (`vlsync-cam --frame-cpu-ms`).
+    Software {
+        /// CPU per camera frame before its stamp, µs (0: the front-end's own).
+        frame_cpu_us: u32,
+    },
 }
 
 impl Source {
@@ -84,7 +88,7 @@ impl Source {
                 "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}",
                 match stamping {
                     Stamping::Sensor => "sensor clocks",
-                    Stamping::Software =>
+                    Stamping::Software { .. } =>
                         "camera stamped in software after processing, LiDAR sensor stamps",
                 }
             ),
@@ -111,7 +115,7 @@ impl Source {
                 .map(|r| Some(r.truth().clone()))
                 .map_err(|e| e.to_string()),
             Source::Render {
-                stamping: Stamping::Software,
+                stamping: Stamping::Software { .. },
                 ..
             } => Ok(None),
         }
@@ -132,7 +136,7 @@ impl Source {
             ));
         }
         if let Source::Render {
-            stamping: Stamping::Software,
+            stamping: Stamping::Software { .. },
             ..
         } = self
         {
@@ -522,7 +526,7 @@ fn driver_args(
                 "--speed".into(),
                 speed.to_string(),
             ]);
-            if *stamping == Stamping::Software {
+            if let Stamping::Software { frame_cpu_us } = *stamping {
                 let stamp = if role == Role::Cam {
                     "software"
                 } else {
@@ -535,6 +539,12 @@ fn driver_args(
                     "--truth-out".into(),
                     logs.join(file).display().to_string(),
                 ]);
+                if role == Role::Cam && frame_cpu_us > 0 {
+                    a.extend([
+                        "--frame-cpu-ms".into(),
+                        (f64::from(frame_cpu_us) * 1e-3).to_string(),
+                    ]);
+                }
             }
         }
     }
@@ -552,7 +562,7 @@ mod tests {
             seed: 3,
             duration_s: 40.0,
             speed: 1.0,
-            stamping: Stamping::Software,
+            stamping: Stamping::Software { frame_cpu_us: 0 },
         };
         let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
         assert_eq!(
@@ -562,6 +572,19 @@ mod tests {
         );
         let lidar = driver_args(&src, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
         assert!(lidar.contains("--stamp mono --truth-out /l/vlsync-lidar.truth.csv"));
+        // a heavier camera front-end: the camera driver only
+        let heavy = Source::Render {
+            seed: 3,
+            duration_s: 40.0,
+            speed: 1.0,
+            stamping: Stamping::Software {
+                frame_cpu_us: 12_500,
+            },
+        };
+        let cam = driver_args(&heavy, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
+        assert!(cam.contains("--frame-cpu-ms 12.5 --start-at 77"), "{cam}");
+        let lidar = driver_args(&heavy, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
+        assert!(!lidar.contains("--frame-cpu-ms"), "{lidar}");
         let sim = Source::Sim {
             family: vlsync_sim::Family::Robot,
             seed: 2,
@@ -582,7 +605,7 @@ mod tests {
             seed: 1,
             duration_s: 10.0,
             speed: 2.0,
-            stamping: Stamping::Software,
+            stamping: Stamping::Software { frame_cpu_us: 0 },
         };
         assert!(bad.check().unwrap_err().contains("real time"));
         let bad = Source::Sim {
@@ -608,7 +631,7 @@ mod tests {
             seed: 1,
             duration_s: 10.0,
             speed: 1.0,
-            stamping: Stamping::Software,
+            stamping: Stamping::Software { frame_cpu_us: 0 },
         };
         assert!(sw.known_truth().unwrap().is_none());
     }
