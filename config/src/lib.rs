@@ -172,6 +172,9 @@ pub struct DaemonConfig {
     /// Change of CPU pressure (share of time some task waited for a CPU, newest 2 s
     /// against the 4 s before) that counts as a load step.
     pub load_hint_threshold: f64,
+    /// The pressure file read for load hints (PSI format: the system's
+    /// `/proc/pressure/cpu`, or a cgroup's `cpu.pressure`).
+    pub load_hint_source: String,
 }
 
 impl Default for DaemonConfig {
@@ -187,6 +190,7 @@ impl Default for DaemonConfig {
             state_max_age_s: 3600.0,
             load_hints: false,
             load_hint_threshold: 0.1,
+            load_hint_source: "/proc/pressure/cpu".into(),
         }
     }
 }
@@ -369,6 +373,10 @@ impl DaemonConfig {
             self.load_hint_threshold,
             0.01,
             1.0,
+        )?;
+        c.rule(
+            !(self.load_hints && self.load_hint_source.trim().is_empty()),
+            || "`daemon.load_hint_source` is empty while `daemon.load_hints` is on: give a pressure file such as /proc/pressure/cpu".to_string(),
         )?;
         Ok(())
     }

@@ -10,7 +10,8 @@
 //!
 //! The kernel's pressure-stall information measures that contention directly:
 //! `/proc/pressure/cpu`'s `some ... total=` is the time (µs) during which at
-//! least one runnable task waited for a CPU. [`LoadWatch`] turns its rate into
+//! least one runnable task waited for a CPU (a cgroup's `cpu.pressure` has the
+//! same format; `daemon.load_hint_source` names the file). [`LoadWatch`] turns its rate into
 //! change points: the mean over the newest [`NEW_S`] against the [`OLD_S`] before
 //! it; a difference beyond the threshold is a change, dated at the first interval
 //! of the new window past the midpoint of the two levels. After a hint the
@@ -29,8 +30,6 @@ use vlsync_common::Nanos;
 pub const NEW_S: f64 = 2.0;
 /// The window before it, seconds.
 pub const OLD_S: f64 = 4.0;
-/// Where the kernel publishes CPU pressure.
-pub const PSI_CPU: &str = "/proc/pressure/cpu";
 
 /// A detected change of CPU pressure.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -140,10 +139,11 @@ pub fn parse_some_total(text: &str) -> Result<u64, String> {
         .map_err(|e| format!("`total={v}` in `{line}`: {e}"))
 }
 
-/// Reads [`PSI_CPU`]'s `some` total, µs; the error names the file.
-pub fn read_cpu_pressure() -> Result<u64, String> {
-    let text = std::fs::read_to_string(PSI_CPU).map_err(|e| format!("{PSI_CPU}: {e}"))?;
-    parse_some_total(&text).map_err(|e| format!("{PSI_CPU}: {e}"))
+/// Reads the `some` total (µs) of the pressure file `path`
+/// (`daemon.load_hint_source`); the error names the file.
+pub fn read_pressure(path: &str) -> Result<u64, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
+    parse_some_total(&text).map_err(|e| format!("{path}: {e}"))
 }
 
 #[cfg(test)]

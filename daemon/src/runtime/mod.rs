@@ -613,11 +613,12 @@ fn load_watch(cfg: &Config) -> Option<(loadwatch::LoadWatch, Nanos)> {
     if !cfg.daemon.load_hints {
         return None;
     }
-    match loadwatch::read_cpu_pressure() {
+    match loadwatch::read_pressure(&cfg.daemon.load_hint_source) {
         Ok(_) => {
             tracing::info!(
-                "load hints on: a CPU pressure change of {:.0} % or more declares an offset change",
-                cfg.daemon.load_hint_threshold * 100.0
+                "load hints on: a change of {:.0} points of CPU pressure ({}) declares an offset change",
+                cfg.daemon.load_hint_threshold * 100.0,
+                cfg.daemon.load_hint_source
             );
             Some((
                 loadwatch::LoadWatch::new(cfg.daemon.load_hint_threshold, LOAD_HINT_INTERVAL_S),
@@ -626,7 +627,7 @@ fn load_watch(cfg: &Config) -> Option<(loadwatch::LoadWatch, Nanos)> {
         }
         Err(e) => {
             tracing::warn!(
-                "daemon.load_hints: {e} (kernel without PSI, or booted with psi=0); running without load hints"
+                "daemon.load_hints: {e} (for /proc/pressure: a kernel without PSI, or booted with psi=0); running without load hints"
             );
             None
         }
@@ -785,7 +786,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             let t = monotonic_ns();
             if t >= *next {
                 *next = t + LOAD_PERIOD_NS;
-                match loadwatch::read_cpu_pressure() {
+                match loadwatch::read_pressure(&cfg.daemon.load_hint_source) {
                     Ok(total) => {
                         if let Some(h) = w.observe(t, total) {
                             tracing::info!(
