@@ -541,10 +541,11 @@ impl Estimator {
 
     /// Like [`Self::declare_change`], for a change that may not have happened: a
     /// hint such as a CPU-load change (`vlsyncd`'s `daemon.load_hints`). The segment
-    /// restarts at `t_lidar_ns` alike, but the old offset stays in the estimate as a
-    /// prior with standard deviation `step_std_s` (the size of step the hint
-    /// announces), fused with the new segment's measurements until they are five
-    /// times more precise: a hint without a step costs history, not accuracy.
+    /// restarts at `t_lidar_ns` alike, but until the new segment alone is as
+    /// precise as the old offset, the estimate weighs "no step" against "a step of
+    /// about `step_std_s`" by the data; then a step keeps the new segment and no step
+    /// gives the old one its history back. A hint without a step costs a few
+    /// noisier seconds, not the history.
     pub fn hint_change(&mut self, t_lidar_ns: Nanos, step_std_s: f64) {
         self.declare_change(t_lidar_ns);
         let s = if step_std_s.is_finite() {
@@ -1155,7 +1156,7 @@ impl Estimator {
         });
         // after a hinted change: the old offset and the new segment, weighed
         let meas = match (meas, self.seg_prior) {
-            (Some(m), Some(h)) => Some(self.hinted(m, h, t)),
+            (Some(m), Some(h)) => self.hinted(m, h, t),
             (m, _) => m,
         };
         // a segment measurement replaces the estimate when it is consistent with the
@@ -1382,8 +1383,10 @@ impl Estimator {
     /// odds; its σ covers both. A wrong hint keeps the old estimate; a real step
     /// wins as soon as the new segment shows it. Once the new segment alone is as
     /// precise as the old offset, the verdict is final: a step keeps the new
-    /// segment, no step gives the old segment its history back (its start again).
-    fn hinted(&mut self, m: Meas, h: HintPrior, t: f64) -> Meas {
+    /// segment, no step gives the old segment its history back (its start again;
+    /// the drift fit keeps the extra intercept the change gave it). `None`: `m` is
+    /// beyond the gate of even the step hypothesis, an outlier.
+    fn hinted(&mut self, m: Meas, h: HintPrior, t: f64) -> Option<Meas> {
         let (o, v, v_step) = (h.o, h.v, h.v_step);
         let dt = t - h.t;
         let v0 = v + self.d.1 * dt * dt + self.p.qo * self.p.qo * dt.abs();
@@ -1396,25 +1399,29 @@ impl Estimator {
         let (z1, var1) = fuse(v0 + v_step);
         let nu = m.z - o_t;
         let (s0, s1) = (m.var + v0, m.var + v0 + v_step);
+        if nu.abs() > self.p.gate * s1.sqrt() {
+            self.stats.outliers += 1;
+            return None;
+        }
         // log-likelihood ratio of "step" against "no step"
         let llr = 0.5 * ((s0 / s1).ln() + nu * nu * (1.0 / s0 - 1.0 / s1));
         let p1 = 1.0 / (1.0 + (-llr.clamp(-50.0, 50.0)).exp());
         if m.var <= v0 {
             self.seg_prior = None;
             if p1 >= 0.5 {
-                return m;
+                return Some(m);
             }
             self.seg_start_k = h.start_k;
             self.seg_start_t = h.start_t;
-            return Meas {
+            return Some(Meas {
                 z: z0,
                 var: var0,
                 ..m
-            };
+            });
         }
         let z = (1.0 - p1) * z0 + p1 * z1;
         let var = (1.0 - p1) * (var0 + (z0 - z).powi(2)) + p1 * (var1 + (z1 - z).powi(2));
-        Meas { z, var, ..m }
+        Some(Meas { z, var, ..m })
     }
 
     /// Adds a disjoint short-window innovation `nu` (variance `var`, clipped at 3σ:

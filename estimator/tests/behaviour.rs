@@ -424,14 +424,18 @@ proptest! {
     /// run: no panic, every estimate finite.
     #[test]
     fn announced_changes_at_any_time_are_harmless(
-        times in proptest::collection::vec((0usize..400, any::<i64>()), 0..6),
+        times in proptest::collection::vec((0usize..400, any::<i64>(), proptest::option::of(any::<f64>())), 0..6),
     ) {
+        // certain changes and hints (any step size, NaN and infinities included)
         let run = generate(Family::Robot, 4, Some(40.0));
         let mut est = Estimator::new(&EstimatorConfig::default());
         for (j, s) in run.lidar.iter().enumerate() {
-            for &(at, t) in &times {
+            for &(at, t, hint) in &times {
                 if at == j {
-                    est.declare_change(t);
+                    match hint {
+                        Some(sd) => est.hint_change(t, sd),
+                        None => est.declare_change(t),
+                    }
                 }
             }
             let _ = est.push(Stream::Lidar, *s);

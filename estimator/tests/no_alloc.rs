@@ -10,7 +10,7 @@ static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 #[test]
 fn push_and_poll_allocate_nothing() {
-    // a full simulated run with drops, jitter, a gap, load steps and bad samples,
+    // a full simulated run with drops, jitter, a gap, load steps, hints and bad samples,
     // generated before arming so only the estimator is observed
     let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(90.0));
     let steps =
@@ -33,6 +33,11 @@ fn push_and_poll_allocate_nothing() {
                     let _ = est.push(Stream::Cam, r.cam[i]);
                     i += 1;
                 } else {
+                    // a load hint every 30 s (right or wrong): the mixture and
+                    // the segment's restart and revert allocate nothing either
+                    if j % 300 == 150 {
+                        est.hint_change(r.lidar[j].t_ns, 0.025);
+                    }
                     let _ = est.push(Stream::Lidar, r.lidar[j]);
                     j += 1;
                 }
