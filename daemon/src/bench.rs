@@ -56,10 +56,6 @@ pub enum StepRun {
     Hinted,
 }
 
-/// The step size a hinted step announces in `--known-steps --hinted`, seconds (1σ);
-/// the daemon's load hints use the same.
-pub const HINT_STEP_STD_S: f64 = 0.025;
-
 /// Result of one family.
 #[derive(Debug, Clone)]
 pub struct FamilyResult {
@@ -106,7 +102,7 @@ pub fn run_family(
         ours.push(score_estimates(&ests, &run));
         if steps != StepRun::Off && !run.truth.steps.is_empty() {
             let times: Vec<vlsync_common::Nanos> = run.truth.steps.iter().map(|s| s.0).collect();
-            let hint = (steps == StepRun::Hinted).then_some(HINT_STEP_STD_S);
+            let hint = (steps == StepRun::Hinted).then_some(vlsync_estimator::HINT_STEP_STD_S);
             let (ests, _) =
                 run_estimator_with_changes(&cfg.estimator, &run.cam, &run.lidar, &times, hint);
             known.push(score_estimates(&ests, &run));

@@ -297,6 +297,10 @@ impl History {
     }
 }
 
+/// The step a hint announces by default (1σ), seconds: the seed article's load
+/// steps were ±25 ms. `vlsyncd`'s load hints and `bench --known-steps --hinted` use it.
+pub const HINT_STEP_STD_S: f64 = 0.025;
+
 /// The old segment at a hinted change (see [`Estimator::hint_change`]).
 #[derive(Debug, Clone, Copy)]
 struct HintPrior {
@@ -551,7 +555,7 @@ impl Estimator {
         let s = if step_std_s.is_finite() {
             step_std_s.clamp(1e-4, 1.0)
         } else {
-            0.025
+            HINT_STEP_STD_S
         };
         self.hint_var = Some(s * s);
     }

@@ -7,21 +7,7 @@ use vlsync_estimator::Estimator;
 use vlsync_sim::families::{generate, Family, SimRun};
 
 fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
-    let mut out = Vec::new();
-    let (mut i, mut j) = (0, 0);
-    while i < run.cam.len() || j < run.lidar.len() {
-        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
-            let _ = est.push(Stream::Cam, run.cam[i]);
-            i += 1;
-        } else {
-            let _ = est.push(Stream::Lidar, run.lidar[j]);
-            j += 1;
-        }
-        while let Some(e) = est.poll() {
-            out.push(e);
-        }
-    }
-    out
+    replay_announcing(run, est, &[], |_, _| {})
 }
 
 #[test]
@@ -122,26 +108,10 @@ fn announced_changes_restart_the_segment_at_the_step() {
     let run = generate(Family::LoadSteps, 2, Some(120.0));
     let cfg = EstimatorConfig::default();
     let detected = replay(&run, &mut Estimator::new(&cfg));
+    let steps: Vec<i64> = run.truth.steps.iter().map(|s| s.0).collect();
     let mut est = Estimator::new(&cfg);
-    let mut out = Vec::new();
-    let (mut i, mut j, mut c) = (0, 0, 0);
-    while i < run.cam.len() || j < run.lidar.len() {
-        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
-            let _ = est.push(Stream::Cam, run.cam[i]);
-            i += 1;
-        } else {
-            if let Some(&(t, _)) = run.truth.steps.get(c).filter(|s| s.0 <= run.lidar[j].t_ns) {
-                est.declare_change(t);
-                c += 1;
-            }
-            let _ = est.push(Stream::Lidar, run.lidar[j]);
-            j += 1;
-        }
-        while let Some(e) = est.poll() {
-            out.push(e);
-        }
-    }
-    assert!(run.truth.steps.len() >= 4 && c == run.truth.steps.len());
+    let out = replay_announcing(&run, &mut est, &steps, |e, t| e.declare_change(t));
+    assert!(steps.len() >= 4);
     let (known, found) = (
         error_after_steps(&out, &run),
         error_after_steps(&detected, &run),
@@ -202,7 +172,7 @@ fn locked_errors(out: &[vlsync_common::Estimate], run: &SimRun) -> (f64, f64) {
 #[test]
 fn hints_follow_real_steps_and_cost_little_when_wrong() {
     let cfg = EstimatorConfig::default();
-    let hint = |e: &mut Estimator, t: i64| e.hint_change(t, 0.025);
+    let hint = |e: &mut Estimator, t: i64| e.hint_change(t, vlsync_estimator::HINT_STEP_STD_S);
     // real ±25 ms steps, hinted where they happen: followed as fast as announced ones
     let run = generate(Family::LoadSteps, 2, Some(120.0));
     let steps: Vec<i64> = run.truth.steps.iter().map(|s| s.0).collect();

@@ -36,7 +36,7 @@ fn push_and_poll_allocate_nothing() {
                     // a load hint every 30 s (right or wrong): the mixture and
                     // the segment's restart and revert allocate nothing either
                     if j % 300 == 150 {
-                        est.hint_change(r.lidar[j].t_ns, 0.025);
+                        est.hint_change(r.lidar[j].t_ns, vlsync_estimator::HINT_STEP_STD_S);
                     }
                     let _ = est.push(Stream::Lidar, r.lidar[j]);
                     j += 1;

@@ -443,7 +443,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             match lidar_clock {
                 Some((t_l, pub_ns)) => {
                     let t_lidar_ns = t_l.saturating_add(at_mono.saturating_sub(pub_ns));
-                    est.hint_change(t_lidar_ns, LOAD_HINT_STEP_STD_S);
+                    est.hint_change(t_lidar_ns, vlsync_estimator::HINT_STEP_STD_S);
                     emit(&s.tx, &mut c, RtEvent::ChangeDeclared { t_lidar_ns });
                 }
                 None => emit(&s.tx, &mut c, RtEvent::HintUndated),
@@ -601,9 +601,6 @@ fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
 
 /// How often the CPU pressure is read for load hints, ns.
 pub const LOAD_PERIOD_NS: Nanos = 250_000_000;
-/// The size of offset step a load hint announces (1σ), seconds: the seed
-/// article's load steps were ±25 ms.
-pub const LOAD_HINT_STEP_STD_S: f64 = crate::bench::HINT_STEP_STD_S;
 /// At most one load hint per this many seconds.
 pub const LOAD_HINT_INTERVAL_S: f64 = 10.0;
 
