@@ -178,6 +178,18 @@ impl Rig {
     }
 }
 
+impl Drop for Rig {
+    /// A passing test leaves nothing in the temporary directory; a failing one
+    /// keeps its processes' logs and says where.
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("logs kept in {}", self.logs.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.logs);
+        }
+    }
+}
+
 /// Collects every estimate arriving within `wall`.
 pub fn collect(client: &mut OffsetClient, wall: Duration) -> Vec<Estimate> {
     let t0 = Instant::now();

@@ -10,9 +10,11 @@ use vlsync_tests::{bin, ipc_resources, Managed};
 fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     let demo = bin("vlsync-demo");
     let before = ipc_resources();
-    let log =
-        std::env::temp_dir().join(format!("vlsync-demo-test-{tag}-{}.log", std::process::id()));
-    let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+    let dir = std::env::temp_dir().join(format!("vlsync-demo-test-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("demo.log");
+    let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+    args.extend(["--log-dir".to_string(), dir.join("children").display().to_string()]);
     let mut m = Managed::spawn("vlsync-demo", &demo, &args, Some(&log)).unwrap();
     std::thread::sleep(run_for);
     assert!(
@@ -44,6 +46,7 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     }
     let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
     assert!(leaked.is_empty(), "left behind: {leaked:?}");
+    let _ = std::fs::remove_dir_all(&dir);
     out
 }
 

@@ -129,16 +129,12 @@ fn run(a: &Args) -> Result<bool, String> {
         dargs.push("--config".into());
         dargs.push(c.display().to_string());
     }
-    let mut daemon = Managed::spawn(
-        "vlsyncd",
-        &sibling_binary("vlsyncd")?,
-        &dargs,
-        Some(&std::env::temp_dir().join(format!("vlsync-latency-{}.log", std::process::id()))),
-    )?;
+    let log = std::env::temp_dir().join(format!("vlsync-latency-{}.log", std::process::id()));
+    let mut daemon = Managed::spawn("vlsyncd", &sibling_binary("vlsyncd")?, &dargs, Some(&log))?;
     let mut status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
     std::thread::sleep(Duration::from_millis(300));
     if !daemon.running() {
-        return Err("vlsyncd exited at start".into());
+        return Err(format!("vlsyncd exited at start (its log: {})", log.display()));
     }
 
     // ---- phase 1: 100x ----
@@ -203,6 +199,11 @@ fn run(a: &Args) -> Result<bool, String> {
         rss as f64 / 1024.0
     );
     let clean = daemon.stop(Duration::from_secs(3));
+    if clean {
+        let _ = std::fs::remove_file(&log);
+    } else {
+        println!("daemon log kept in {}", log.display());
+    }
 
     let checks = [
         (
