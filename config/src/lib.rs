@@ -153,6 +153,11 @@ pub struct DaemonConfig {
     pub fifo_priority: i64,
     /// Lock the process memory (mlockall) when allowed.
     pub lock_memory: bool,
+    /// CPU wake-up latency the daemon asks the kernel for while it runs,
+    /// microseconds (a PM QoS request on `/dev/cpu_dma_latency`, as cyclictest
+    /// makes): 0 keeps idle cores polling instead of halting, so a sample wakes the
+    /// daemon sooner, at the price of power on every core. -1: no request.
+    pub cpu_latency_us: i64,
     /// Processing budget per sample, microseconds.
     pub latency_budget_us: f64,
     /// Status publication period, seconds.
@@ -183,6 +188,7 @@ impl Default for DaemonConfig {
             core: 1,
             fifo_priority: 0,
             lock_memory: false,
+            cpu_latency_us: -1,
             latency_budget_us: 200.0,
             status_period_s: 1.0,
             latency_per_period: false,
@@ -365,6 +371,7 @@ impl DaemonConfig {
         let c = Checker { source };
         c.int_range("daemon.core", self.core, -1, 1023)?;
         c.int_range("daemon.fifo_priority", self.fifo_priority, 0, 99)?;
+        c.int_range("daemon.cpu_latency_us", self.cpu_latency_us, -1, 1_000_000)?;
         c.range("daemon.latency_budget_us", self.latency_budget_us, 1.0, 1e6)?;
         c.range("daemon.status_period_s", self.status_period_s, 0.05, 3600.0)?;
         c.range("daemon.state_max_age_s", self.state_max_age_s, 0.0, 1e9)?;
@@ -492,6 +499,11 @@ mod tests {
         assert!(s.contains("estimator.max_lag_s"), "{s}");
         assert!(s.contains('5'), "{s}");
         assert!(s.contains("0.01 ..= 2"), "{s}");
+        let e = Config::from_toml_str("[daemon]\ncpu_latency_us = -2\n", "x.toml").unwrap_err();
+        let s = e.to_string();
+        assert!(s.contains("daemon.cpu_latency_us") && s.contains("-2"), "{s}");
+        let c = Config::from_toml_str("[daemon]\ncpu_latency_us = 0\n", "x.toml").unwrap();
+        assert_eq!(c.daemon.cpu_latency_us, 0);
     }
 
     #[test]

@@ -143,6 +143,36 @@ pub fn lock_all_memory() -> Result<(), RtRefused> {
     }
 }
 
+/// The kernel's CPU latency (PM QoS) request file.
+pub const CPU_LATENCY_DEVICE: &str = "/dev/cpu_dma_latency";
+
+/// Asks the kernel to keep CPU wake-up latency at or below `us` microseconds by
+/// writing the 32-bit request to `device` ([`CPU_LATENCY_DEVICE`]). The request
+/// lasts while the returned file stays open (the kernel drops it on close, so a
+/// crash cannot leave it behind).
+pub fn request_cpu_latency(us: u32, device: &std::path::Path) -> Result<std::fs::File, RtRefused> {
+    use std::io::Write;
+    let refused = |what: String| RtRefused {
+        setting: format!("daemon.cpu_latency_us = {us}"),
+        reason: what,
+    };
+    let value = i32::try_from(us).map_err(|_| refused(format!("{us} µs is too large")))?;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(device)
+        .map_err(|e| {
+            let hint = if e.kind() == std::io::ErrorKind::PermissionDenied {
+                " (root, or a udev rule giving the daemon's group write access)"
+            } else {
+                ""
+            };
+            refused(format!("cannot open {}: {e}{hint}", device.display()))
+        })?;
+    f.write_all(&value.to_ne_bytes())
+        .map_err(|e| refused(format!("cannot write {}: {e}", device.display())))?;
+    Ok(f)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,6 +193,21 @@ mod tests {
         let e = pin_current_thread(100_000).unwrap_err();
         assert!(e.to_string().contains("daemon.core = 100000"), "{e}");
         assert!(e.reason.contains("available"), "{e}");
+    }
+
+    #[test]
+    fn cpu_latency_request_is_a_32_bit_value_held_open() {
+        let dir = std::env::temp_dir().join(format!("vlsync-rt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let dev = dir.join("cpu_dma_latency");
+        std::fs::write(&dev, b"").unwrap();
+        let f = request_cpu_latency(25, &dev).unwrap();
+        assert_eq!(std::fs::read(&dev).unwrap(), 25i32.to_ne_bytes());
+        drop(f);
+        let e = request_cpu_latency(0, &dir.join("missing")).unwrap_err();
+        assert!(e.to_string().contains("daemon.cpu_latency_us = 0"), "{e}");
+        assert!(e.reason.contains("missing"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -717,6 +717,22 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             Err(e) => tracing::warn!("{e}; running without"),
         }
     }
+    // held until the daemon returns: closing the file ends the request
+    let _cpu_latency = u32::try_from(cfg.daemon.cpu_latency_us)
+        .ok()
+        .and_then(|us| {
+            let dev = Path::new(vlsync_ipc::rt::CPU_LATENCY_DEVICE);
+            match vlsync_ipc::rt::request_cpu_latency(us, dev) {
+                Ok(f) => {
+                    tracing::info!("CPU wake-up latency held at {us} µs ({})", dev.display());
+                    Some(f)
+                }
+                Err(e) => {
+                    tracing::warn!("{e}; running without");
+                    None
+                }
+            }
+        });
     let status_svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())
         .map_err(|e| e.to_string())?;
     let status_pub = publisher(&status_svc, &names.status()).map_err(|e| e.to_string())?;
