@@ -501,7 +501,10 @@ mod tests {
         assert!(s.contains("0.01 ..= 2"), "{s}");
         let e = Config::from_toml_str("[daemon]\ncpu_latency_us = -2\n", "x.toml").unwrap_err();
         let s = e.to_string();
-        assert!(s.contains("daemon.cpu_latency_us") && s.contains("-2"), "{s}");
+        assert!(
+            s.contains("daemon.cpu_latency_us") && s.contains("-2"),
+            "{s}"
+        );
         let c = Config::from_toml_str("[daemon]\ncpu_latency_us = 0\n", "x.toml").unwrap();
         assert_eq!(c.daemon.cpu_latency_us, 0);
     }

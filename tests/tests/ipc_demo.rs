@@ -14,7 +14,10 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     std::fs::create_dir_all(&dir).unwrap();
     let log = dir.join("demo.log");
     let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
-    args.extend(["--log-dir".to_string(), dir.join("children").display().to_string()]);
+    args.extend([
+        "--log-dir".to_string(),
+        dir.join("children").display().to_string(),
+    ]);
     let mut m = Managed::spawn("vlsync-demo", &demo, &args, Some(&log)).unwrap();
     std::thread::sleep(run_for);
     assert!(

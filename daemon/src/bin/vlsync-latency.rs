@@ -134,7 +134,10 @@ fn run(a: &Args) -> Result<bool, String> {
     let mut status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
     std::thread::sleep(Duration::from_millis(300));
     if !daemon.running() {
-        return Err(format!("vlsyncd exited at start (its log: {})", log.display()));
+        return Err(format!(
+            "vlsyncd exited at start (its log: {})",
+            log.display()
+        ));
     }
 
     // ---- phase 1: 100x ----
