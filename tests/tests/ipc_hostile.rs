@@ -41,6 +41,15 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     let mut bad_pad = at(now_t, 1.0);
     bad_pad.reserved = 7;
     evil.publish_raw(bad_pad).unwrap();
+    // a flood: counted, but the log names it once and then counts it
+    const FLOOD: u64 = 300;
+    for i in 0..FLOOD as i64 {
+        evil.publish_raw(at(now_t + 4_000_000 + i, f64::NAN))
+            .unwrap();
+        if i % 50 == 49 {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
 
     let after = collect(&mut client, rig.remaining() + Duration::from_millis(1000));
     std::thread::sleep(Duration::from_millis(1200));
@@ -49,7 +58,32 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     assert!(daemon.stop(Duration::from_secs(3)));
 
     let cam_rej = st.rejected[0];
-    assert!(cam_rej[RejectReason::NonFinite.index()] >= 2, "{st:?}");
+    assert!(
+        cam_rej[RejectReason::NonFinite.index()] >= 2 + FLOOD,
+        "{st:?}"
+    );
+    let log = rig.log("vlsyncd-0.log");
+    let lines = log.matches("rejected: non_finite").count();
+    assert_eq!(lines, 1, "each rejected sample logged:\n{log}");
+    let held: u64 = log
+        .lines()
+        .filter(|l| l.contains("more cam samples rejected (non_finite)"))
+        .filter_map(|l| {
+            l.split(" WARN ")
+                .nth(1)?
+                .split_whitespace()
+                .nth(1)?
+                .parse::<u64>()
+                .ok()
+        })
+        .sum();
+    // every rejection is in the log's counts (unless the event channel overflowed,
+    // which the status counts too)
+    let n = cam_rej[RejectReason::NonFinite.index()];
+    assert!(
+        held < n && held + 1 + st.events_dropped >= n,
+        "{n} {st:?}\n{log}"
+    );
     assert!(cam_rej[RejectReason::TooLarge.index()] >= 1, "{st:?}");
     assert!(cam_rej[RejectReason::Backwards.index()] >= 1, "{st:?}");
     assert_eq!(cam_rej[REJECT_MALFORMED], 2, "{st:?}");

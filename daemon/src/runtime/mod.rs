@@ -56,6 +56,7 @@
 #![forbid(unsafe_code)]
 
 pub mod histogram;
+pub mod journal;
 pub mod loadwatch;
 pub mod notify;
 pub mod procs;
@@ -588,24 +589,54 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
     ))
 }
 
-fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
+fn log_event(
+    ev: &RtEvent,
+    status_pub: &mut dyn FnMut(&Status),
+    throttle: &mut journal::Throttle,
+    now: Nanos,
+) {
+    let more = |n: u64| {
+        if n > 0 {
+            format!(" ({n} more since the last such line)")
+        } else {
+            String::new()
+        }
+    };
     match ev {
         RtEvent::Rejected {
             stream,
             reason,
             t_ns,
-        } => tracing::warn!(
-            "{stream} sample at t={t_ns} ns rejected: {}",
-            REJECT_NAMES.get(*reason).copied().unwrap_or("?")
-        ),
+        } => {
+            let key = journal::rejected_key(stream_index(*stream), *reason);
+            if let Some(n) = throttle.admit(key, 1, now) {
+                tracing::warn!(
+                    "{stream} sample at t={t_ns} ns rejected: {}{}",
+                    REJECT_NAMES.get(*reason).copied().unwrap_or("?"),
+                    more(n)
+                )
+            }
+        }
         RtEvent::Lost { stream, count } => {
-            tracing::warn!("{stream}: {count} sample(s) lost (sequence gap)")
+            let key = journal::lost_key(stream_index(*stream));
+            if let Some(n) = throttle.admit(key, *count, now) {
+                tracing::warn!("{stream}: {count} sample(s) lost (sequence gap){}", more(n))
+            }
         }
         RtEvent::DriverStarted { stream } => tracing::info!("{stream} driver (re)started"),
-        RtEvent::State { from, to } => tracing::info!(
-            "estimator state {} -> {to}",
-            from.map_or("none", |s| s.name())
-        ),
+        RtEvent::State { from, to } => {
+            let from_name = from.map_or("none", |s| s.name());
+            // every stop of the robot holds and every start tracks again: routine
+            if matches!(
+                (from, to),
+                (Some(EstimatorState::Tracking), EstimatorState::Holding)
+                    | (Some(EstimatorState::Holding), EstimatorState::Tracking)
+            ) {
+                tracing::debug!("estimator state {from_name} -> {to}")
+            } else {
+                tracing::info!("estimator state {from_name} -> {to}")
+            }
+        }
         RtEvent::InvalidEstimate { seq } => {
             tracing::error!("estimate #{seq} has an invalid field; not published")
         }
@@ -632,6 +663,14 @@ fn log_event(ev: &RtEvent, status_pub: &mut dyn FnMut(&Status)) {
         }
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
     }
+}
+
+/// Logs the count of warnings of throttle kind `key` held back since its last line.
+fn report_suppressed(key: usize, n: u64) {
+    tracing::warn!(
+        "{n} more {} since the last such line",
+        journal::kind_text(key)
+    )
 }
 
 /// How often the CPU pressure is read for load hints, ns.
@@ -813,10 +852,13 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             st.estimates_published
         );
     };
+    let mut throttle = journal::Throttle::new(journal::THROTTLE_NS);
+    let mut summary = journal::Summary::new(journal::SUMMARY_NS);
     loop {
         match rx.recv_timeout(WAKE_PERIOD) {
             Ok(RtEvent::Estimate(e)) => {
                 systemd.on_estimate(&e);
+                summary.on_estimate(&e);
                 if let Some(sv) = saver.as_mut() {
                     sv.offer(&e);
                 }
@@ -824,11 +866,17 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             Ok(ev) => {
                 if let RtEvent::Status(st) = &ev {
                     systemd.on_status(st);
+                    summary.on_status(st);
                 }
-                log_event(&ev, &mut publish_status)
+                log_event(&ev, &mut publish_status, &mut throttle, monotonic_ns())
             }
             Err(crossbeam::channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam::channel::RecvTimeoutError::Disconnected) => break,
+        }
+        let mono = monotonic_ns();
+        throttle.due(mono, report_suppressed);
+        if let Some(line) = summary.due(mono) {
+            tracing::info!("{line}");
         }
         if let Some((w, next)) = load.as_mut() {
             let t = monotonic_ns();
@@ -869,6 +917,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     }
     systemd.stopping();
     let _ = rt.join();
+    // every warning still held back (the channel was drained: the loop ends on disconnect)
+    throttle.due(Nanos::MAX, report_suppressed);
     if let Some(sv) = saver.as_mut() {
         if sv.flush() {
             tracing::info!("last good estimate saved to {}", sv.path().display());

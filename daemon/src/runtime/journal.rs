@@ -1,0 +1,310 @@
+//! What the daemon writes to its log over months of running: a warning that repeats
+//! (a driver sending NaN at 30 Hz, a lossy link) is logged at once, then at most once
+//! per [`THROTTLE_NS`] with the count of those suppressed meanwhile; and every
+//! [`SUMMARY_NS`] one line says how the estimate and the streams fared. Pure logic,
+//! driven by the service thread with monotonic times; the real-time thread never
+//! sees it.
+
+use vlsync_common::wire::{Status, REJECT_NAMES, REJECT_REASONS};
+use vlsync_common::{Estimate, EstimatorState, Nanos};
+
+/// A repeated warning of one kind is logged at most once per this period, ns.
+pub const THROTTLE_NS: Nanos = 10_000_000_000;
+/// Period of the summary line, ns (10 minutes).
+pub const SUMMARY_NS: Nanos = 600_000_000_000;
+
+/// Kinds of throttled warnings: rejections per stream and reason, then losses per stream.
+pub const KINDS: usize = 2 * REJECT_REASONS + 2;
+
+/// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
+pub fn rejected_key(si: usize, reason: usize) -> usize {
+    si.min(1) * REJECT_REASONS + reason.min(REJECT_REASONS - 1)
+}
+
+/// Throttle key of a sequence gap of stream `si`.
+pub fn lost_key(si: usize) -> usize {
+    2 * REJECT_REASONS + si.min(1)
+}
+
+/// Rate limit per kind of warning.
+#[derive(Debug, Clone)]
+pub struct Throttle {
+    period: Nanos,
+    last: [Option<Nanos>; KINDS],
+    /// Events (rejections: samples; losses: samples lost) suppressed since the last line.
+    suppressed: [u64; KINDS],
+}
+
+impl Throttle {
+    /// A throttle letting one line per `period` through for each kind.
+    pub fn new(period: Nanos) -> Self {
+        Self {
+            period,
+            last: [None; KINDS],
+            suppressed: [0; KINDS],
+        }
+    }
+
+    /// An event of kind `key` counting `n` at `now`: `Some(suppressed)` when it is to be
+    /// logged (with the count suppressed since the last logged one), `None` when it is
+    /// counted for later.
+    pub fn admit(&mut self, key: usize, n: u64, now: Nanos) -> Option<u64> {
+        let k = key.min(KINDS - 1);
+        match self.last[k] {
+            Some(t) if now.saturating_sub(t) < self.period => {
+                self.suppressed[k] = self.suppressed[k].saturating_add(n);
+                None
+            }
+            _ => {
+                self.last[k] = Some(now);
+                Some(std::mem::take(&mut self.suppressed[k]))
+            }
+        }
+    }
+
+    /// Reports `(key, count)` of every kind whose suppressed events have waited a whole
+    /// period, and starts its next period now.
+    pub fn due(&mut self, now: Nanos, mut report: impl FnMut(usize, u64)) {
+        for k in 0..KINDS {
+            let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.period);
+            if waited && self.suppressed[k] > 0 {
+                self.last[k] = Some(now);
+                report(k, std::mem::take(&mut self.suppressed[k]));
+            }
+        }
+    }
+}
+
+/// Readable text of a throttle key's kind, e.g. `cam samples rejected (non_finite)`.
+pub fn kind_text(key: usize) -> String {
+    let stream = |si: usize| if si == 0 { "cam" } else { "lidar" };
+    if key < 2 * REJECT_REASONS {
+        format!(
+            "{} samples rejected ({})",
+            stream(key / REJECT_REASONS),
+            REJECT_NAMES[key % REJECT_REASONS]
+        )
+    } else {
+        format!(
+            "{} samples lost (sequence gaps)",
+            stream(key - 2 * REJECT_REASONS)
+        )
+    }
+}
+
+/// The periodic summary of estimates and stream counters.
+#[derive(Debug, Clone)]
+pub struct Summary {
+    period: Nanos,
+    since: Option<Nanos>,
+    per_state: [u64; 4],
+    last: Option<Estimate>,
+    status_then: Option<Status>,
+    status_now: Option<Status>,
+}
+
+impl Summary {
+    /// A summary every `period`.
+    pub fn new(period: Nanos) -> Self {
+        Self {
+            period,
+            since: None,
+            per_state: [0; 4],
+            last: None,
+            status_then: None,
+            status_now: None,
+        }
+    }
+
+    /// Counts an estimate.
+    pub fn on_estimate(&mut self, e: &Estimate) {
+        self.per_state[e.state as usize % 4] += 1;
+        self.last = Some(*e);
+    }
+
+    /// Keeps the newest status (its counters are totals since the daemon started).
+    pub fn on_status(&mut self, s: &Status) {
+        self.status_now = Some(*s);
+    }
+
+    /// The summary line once a period has passed since the last one (the first period
+    /// starts at the first call).
+    pub fn due(&mut self, now: Nanos) -> Option<String> {
+        let since = *self.since.get_or_insert(now);
+        if now.saturating_sub(since) < self.period {
+            return None;
+        }
+        self.since = Some(now);
+        let line = self.line(now.saturating_sub(since));
+        self.per_state = [0; 4];
+        self.status_then = self.status_now;
+        Some(line)
+    }
+
+    fn line(&self, span_ns: Nanos) -> String {
+        let n: u64 = self.per_state.iter().sum();
+        let mut out = format!("last {:.0} min: {n} estimates", span_ns as f64 / 60e9);
+        if n > 0 {
+            let shares: Vec<String> = [
+                EstimatorState::Tracking,
+                EstimatorState::Holding,
+                EstimatorState::Acquiring,
+                EstimatorState::Lost,
+            ]
+            .iter()
+            .filter(|s| self.per_state[**s as usize] > 0)
+            .map(|s| {
+                let pct = 100.0 * self.per_state[*s as usize] as f64 / n as f64;
+                format!("{} {pct:.0} %", s.name())
+            })
+            .collect();
+            out.push_str(&format!(" ({})", shares.join(", ")));
+        }
+        if let Some(e) = &self.last {
+            out.push_str(&format!(
+                "; now {}: offset {:+.2} ± {:.2} ms, drift {:+.1} ± {:.1} ppm",
+                e.state.name(),
+                e.offset_s * 1e3,
+                e.offset_std_s * 1e3,
+                e.drift * 1e6,
+                e.drift_std * 1e6
+            ));
+        }
+        if let Some(now) = &self.status_now {
+            let then = self.status_then.unwrap_or_default();
+            for (si, name) in ["cam", "lidar"].iter().enumerate() {
+                let rej = |s: &Status| s.rejected[si].iter().sum::<u64>();
+                out.push_str(&format!(
+                    "; {name} {} received, {} rejected, {} lost",
+                    now.received[si].saturating_sub(then.received[si]),
+                    rej(now).saturating_sub(rej(&then)),
+                    now.lost[si].saturating_sub(then.lost[si])
+                ));
+            }
+            out.push_str(&format!(
+                "; {} over budget",
+                now.budget_overruns.saturating_sub(then.budget_overruns)
+            ));
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use vlsync_common::Polarity;
+
+    const S: Nanos = 1_000_000_000;
+
+    #[test]
+    fn first_event_is_logged_then_one_line_per_period_with_the_count() {
+        let mut t = Throttle::new(10 * S);
+        let k = rejected_key(0, 0);
+        assert_eq!(t.admit(k, 1, 0), Some(0));
+        for i in 1..=30 {
+            assert_eq!(t.admit(k, 1, i * S / 10), None);
+        }
+        // other kinds are independent
+        assert_eq!(t.admit(lost_key(1), 5, S), Some(0));
+        let mut seen = vec![];
+        t.due(9 * S, |k, n| seen.push((k, n)));
+        assert!(seen.is_empty());
+        t.due(10 * S, |k, n| seen.push((k, n)));
+        assert_eq!(seen, vec![(k, 30)]);
+        // reported: the next event waits for the next period, and counts from zero
+        assert_eq!(t.admit(k, 1, 11 * S), None);
+        assert_eq!(t.admit(k, 1, 20 * S), Some(1));
+        assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
+        assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
+    }
+
+    proptest! {
+        // Nothing is lost: every event is either in a logged line's own count, a
+        // suppressed count reported later, or still pending.
+        #[test]
+        fn throttle_accounts_for_every_event(
+            evs in proptest::collection::vec((0usize..KINDS, 1u64..5, 0i64..(3 * S)), 0..200)
+        ) {
+            let mut evs = evs;
+            evs.sort_by_key(|e| e.2);
+            let mut t = Throttle::new(S);
+            let mut total = [0u64; KINDS];
+            let mut accounted = [0u64; KINDS];
+            for &(k, n, at) in &evs {
+                total[k] += n;
+                if let Some(before) = t.admit(k, n, at) {
+                    accounted[k] += before + n;
+                }
+                t.due(at, |k, c| accounted[k] += c);
+            }
+            t.due(i64::MAX, |k, c| accounted[k] += c);
+            prop_assert_eq!(total, accounted);
+        }
+    }
+
+    fn est(state: EstimatorState, offset_s: f64) -> Estimate {
+        Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s,
+            drift: 12e-6,
+            offset_std_s: 0.0012,
+            drift_std: 4e-6,
+            state,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: f64::NAN,
+        }
+    }
+
+    #[test]
+    fn summary_every_period_with_shares_and_counter_deltas() {
+        let mut s = Summary::new(600 * S);
+        assert_eq!(s.due(0), None);
+        let mut st = Status {
+            received: [18_000, 6_000],
+            lost: [0, 3],
+            ..Default::default()
+        };
+        s.on_status(&st);
+        for i in 0..10 {
+            let state = if i < 9 {
+                EstimatorState::Tracking
+            } else {
+                EstimatorState::Holding
+            };
+            s.on_estimate(&est(state, 0.1234));
+        }
+        assert_eq!(s.due(599 * S), None);
+        let line = s.due(600 * S).unwrap();
+        assert!(
+            line.starts_with("last 10 min: 10 estimates (tracking 90 %, holding 10 %)"),
+            "{line}"
+        );
+        assert!(
+            line.contains("now holding: offset +123.40 ± 1.20 ms, drift +12.0 ± 4.0 ppm"),
+            "{line}"
+        );
+        assert!(
+            line.contains("cam 18000 received, 0 rejected, 0 lost"),
+            "{line}"
+        );
+        assert!(
+            line.contains("lidar 6000 received, 0 rejected, 3 lost"),
+            "{line}"
+        );
+        // the next period counts from the last summary's totals
+        st.received = [18_100, 6_030];
+        st.rejected[0][0] = 2;
+        s.on_status(&st);
+        let line = s.due(1200 * S).unwrap();
+        assert!(line.starts_with("last 10 min: 0 estimates;"), "{line}");
+        assert!(
+            line.contains("cam 100 received, 2 rejected, 0 lost"),
+            "{line}"
+        );
+    }
+}
