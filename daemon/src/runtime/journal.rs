@@ -13,8 +13,12 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// Period of the summary line, ns (10 minutes).
 pub const SUMMARY_NS: Nanos = 600_000_000_000;
 
-/// Kinds of throttled warnings: rejections per stream and reason, then losses per stream.
-pub const KINDS: usize = 2 * REJECT_REASONS + 2;
+/// Kinds of throttled warnings: rejections per stream and reason, losses per stream,
+/// then the switches to degraded mode (budget overruns).
+pub const KINDS: usize = 2 * REJECT_REASONS + 3;
+
+/// Throttle key of a switch to degraded mode.
+pub const DEGRADED_KEY: usize = 2 * REJECT_REASONS + 2;
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
 pub fn rejected_key(si: usize, reason: usize) -> usize {
@@ -84,11 +88,13 @@ pub fn kind_text(key: usize) -> String {
             stream(key / REJECT_REASONS),
             REJECT_NAMES[key % REJECT_REASONS]
         )
-    } else {
+    } else if key < DEGRADED_KEY {
         format!(
             "{} samples lost (sequence gaps)",
             stream(key - 2 * REJECT_REASONS)
         )
+    } else {
+        "switches to degraded mode (processing over budget)".to_string()
     }
 }
 
@@ -218,6 +224,7 @@ mod tests {
         assert_eq!(t.admit(k, 1, 20 * S), Some(1));
         assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
         assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
+        assert!(kind_text(DEGRADED_KEY).contains("degraded"));
     }
 
     proptest! {

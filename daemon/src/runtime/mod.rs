@@ -642,13 +642,14 @@ fn log_event(
         }
         RtEvent::PublishFailed { seq } => tracing::warn!("estimate #{seq} could not be published"),
         RtEvent::Degraded { on, processing_ns } => {
-            if *on {
+            if !*on {
+                tracing::debug!("no budget overrun for {DEGRADED_QUIET:?}: degraded mode off")
+            } else if let Some(n) = throttle.admit(journal::DEGRADED_KEY, 1, now) {
                 tracing::warn!(
-                    "processing took {} µs, over budget: estimator degraded (narrower search)",
-                    processing_ns / 1000
+                    "processing took {} µs, over budget: estimator degraded (narrower search) until {DEGRADED_QUIET:?} pass without an overrun{}",
+                    processing_ns / 1000,
+                    more(n)
                 )
-            } else {
-                tracing::info!("no budget overrun for {DEGRADED_QUIET:?}: degraded mode off")
             }
         }
         RtEvent::Status(st) => status_pub(st),
