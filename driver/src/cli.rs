@@ -1,9 +1,12 @@
 //! The command line shared by `vlsync-cam` and `vlsync-lidar`.
 
-use crate::{raw, run, sim_anchor_ns, DriverError, Pacing, Source, VecSource};
+use crate::{
+    raw, run, sim_anchor_ns, DriverError, Pacing, Progress, RunSummary, Source, VecSource,
+};
 use clap::Parser;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_ipc::{create_node, termination_requested, ServiceNames, SignaturePublisher};
 
@@ -368,12 +371,28 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         source.describe(),
         names.signature(stream)
     );
+    let mut last = RunSummary::default();
+    let mut report = |s: &RunSummary, r: Option<String>| {
+        eprintln!(
+            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}",
+            PROGRESS_EVERY.as_secs() / 60,
+            s.published - last.published,
+            s.failed - last.failed,
+            s.published,
+            r.map(|r| format!("; {r}")).unwrap_or_default()
+        );
+        last = *s;
+    };
     let result = run(
         &mut *source,
         &mut publisher,
         pacing,
         &termination_requested,
         truth.as_mut(),
+        Some(Progress {
+            every: PROGRESS_EVERY,
+            report: &mut report,
+        }),
     );
     if let Some(r) = source.report() {
         eprintln!("vlsync-{stream}: {r}");
@@ -399,6 +418,9 @@ impl StampArg {
         }
     }
 }
+
+/// How often a driver writes a progress line (journald under systemd).
+pub const PROGRESS_EVERY: Duration = Duration::from_secs(600);
 
 /// `main` of a driver binary.
 pub fn main(stream: Stream) -> ExitCode {

@@ -251,6 +251,16 @@ pub struct RunSummary {
     pub interrupted: bool,
 }
 
+/// A progress report of a long run: every `every`, [`run`] calls `report` with the
+/// totals so far and the source's own counts ([`Source::report`]); a driver under
+/// systemd runs for months, and its journal should say it is alive and how it fares.
+pub struct Progress<'a> {
+    /// The period.
+    pub every: Duration,
+    /// Called with the totals so far and the source's report.
+    pub report: &'a mut dyn FnMut(&RunSummary, Option<String>),
+}
+
 /// A driver failure.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DriverError {
@@ -287,6 +297,7 @@ pub fn run(
     pacing: Pacing,
     stop: &dyn Fn() -> bool,
     mut truth: Option<&mut TruthLog>,
+    mut progress: Option<Progress<'_>>,
 ) -> Result<RunSummary, DriverError> {
     const MAX_CONSECUTIVE_FAILURES: u64 = 1000;
     let started = monotonic_ns();
@@ -307,7 +318,17 @@ pub fn run(
     };
     let mut sum = RunSummary::default();
     let mut consecutive = 0u64;
+    let mut next_progress = progress
+        .as_ref()
+        .map(|p| started.saturating_add(p.every.as_nanos().min(i64::MAX as u128) as i64));
     while let Some(s) = source.next_sample().map_err(DriverError::Source)? {
+        if let (Some(p), Some(due)) = (progress.as_mut(), next_progress.as_mut()) {
+            let now = monotonic_ns();
+            if now >= *due {
+                *due = now.saturating_add(p.every.as_nanos().min(i64::MAX as u128) as i64);
+                (p.report)(&sum, source.report());
+            }
+        }
         if stop() {
             sum.interrupted = true;
             return Ok(sum);
@@ -400,13 +421,47 @@ mod tests {
         let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
         let mut src = VecSource::new(samples, "test");
         let t0 = std::time::Instant::now();
-        let sum = run(&mut src, &mut p, pacing, &|| false, None).unwrap();
+        let sum = run(&mut src, &mut p, pacing, &|| false, None, None).unwrap();
         let el = t0.elapsed();
         let mut got = vec![];
         while let Some(s) = sub.receive().unwrap() {
             got.push(*s.payload());
         }
         (sum, got, el)
+    }
+
+    #[test]
+    fn progress_reports_the_totals_so_far() {
+        let names =
+            ServiceNames::new(&format!("vlsync-test/progress-{}", std::process::id())).unwrap();
+        let node = create_node("progress-test", false).unwrap();
+        let _svc = open_or_create_pubsub::<SignatureSample>(
+            &node,
+            &names.signature(Stream::Cam),
+            Qos::signature(256),
+        )
+        .unwrap();
+        let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
+        let samples: Vec<Sample> = (0..5).map(|i| Sample::new(i + 1, i as f64)).collect();
+        let mut src = VecSource::new(samples, "test");
+        let mut seen = vec![];
+        let mut report = |s: &RunSummary, r: Option<String>| seen.push((s.published, r));
+        let progress = Progress {
+            every: Duration::ZERO,
+            report: &mut report,
+        };
+        let sum = run(
+            &mut src,
+            &mut p,
+            Pacing::Fast,
+            &|| false,
+            None,
+            Some(progress),
+        )
+        .unwrap();
+        assert_eq!(sum.published, 5);
+        // before each sample after the first: the totals published so far
+        assert_eq!(seen, (0..5).map(|n| (n, None)).collect::<Vec<_>>());
     }
 
     #[test]
