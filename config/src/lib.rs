@@ -43,6 +43,8 @@ pub struct Config {
     pub daemon: DaemonConfig,
     /// iceoryx2 service naming.
     pub services: ServicesConfig,
+    /// The LiDAR driver's front-end: where the wall is.
+    pub lidar: LidarConfig,
 }
 
 /// Estimator parameters. Times in seconds.
@@ -198,6 +200,51 @@ impl Default for DaemonConfig {
             load_hint_threshold: 0.1,
             load_hint_source: "/proc/pressure/cpu".into(),
         }
+    }
+}
+
+/// The LiDAR driver's front-end (`vlsync-lidar`): the bearing window in which it
+/// fits the wall whose distance rate is the signature.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LidarConfig {
+    /// Centre of the bearing window, degrees (the scan's frame, counter-clockwise).
+    pub window_centre_deg: f64,
+    /// Half-width of the bearing window, degrees.
+    pub window_half_width_deg: f64,
+    /// Also fit the wall opposite the window (centre + 180°) and publish its distance
+    /// rate, negated, in the same stream: twice the returns, about half the noise
+    /// variance, where a wall faces each way (a corridor, a room driven lengthwise).
+    pub opposite_window: bool,
+}
+
+impl Default for LidarConfig {
+    fn default() -> Self {
+        Self {
+            window_centre_deg: 0.0,
+            window_half_width_deg: 20.0,
+            opposite_window: false,
+        }
+    }
+}
+
+impl LidarConfig {
+    /// Checks every value.
+    pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
+        let c = Checker { source };
+        c.range(
+            "lidar.window_centre_deg",
+            self.window_centre_deg,
+            -360.0,
+            360.0,
+        )?;
+        c.range(
+            "lidar.window_half_width_deg",
+            self.window_half_width_deg,
+            1.0,
+            90.0,
+        )?;
+        Ok(())
     }
 }
 
@@ -447,6 +494,7 @@ impl Config {
         self.estimator.validate(source_name)?;
         self.daemon.validate(source_name)?;
         self.services.validate(source_name)?;
+        self.lidar.validate(source_name)?;
         Ok(())
     }
 }

@@ -24,9 +24,14 @@ pub struct DriverArgs {
     /// Service prefix (`services.prefix`); overrides the one of --config.
     #[arg(long)]
     pub prefix: Option<String>,
-    /// Configuration file (only `[services]` is used here).
+    /// Configuration file (`[services]`; `vlsync-lidar` also reads `[lidar]`, the
+    /// bearing window of the wall its front-end fits).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// LiDAR front-ends: also fit the wall opposite the window and publish its rate,
+    /// negated, in the same stream (`lidar.opposite_window = true`).
+    #[arg(long)]
+    pub opposite_window: bool,
     /// Replay this signature CSV (header, then `t,value` rows, t in seconds).
     #[arg(long)]
     pub csv: Option<PathBuf>,
@@ -215,7 +220,15 @@ pub fn select_source(
             "--baud applies to --ld06 and --rplidar only".into(),
         ));
     }
+    let scan_flags = ["--render", "--mcap", "--scans", "--ld06", "--rplidar"];
+    if args.opposite_window && !(stream == Stream::Lidar && scan_flags.contains(&flag)) {
+        return Err(DriverError::Options(
+            "--opposite-window applies to vlsync-lidar with a scan source (--render, --mcap, --scans, --ld06, --rplidar)".into(),
+        ));
+    }
+    let front = lidar_front(args)?;
     let src = DriverError::Source;
+    let fronted = |s: raw::LidarSource| s.with_front(&front).map_err(DriverError::Source);
     let offline = |source: Box<dyn Source>| -> Result<Selected, DriverError> {
         let p = raw::Prefetched::new(source).map_err(DriverError::Source)?;
         let anchor = p.first_t_ns().unwrap_or(0);
@@ -274,7 +287,9 @@ pub fn select_source(
                     c.set_frame_cpu_ns((args.frame_cpu_ms * 1e6) as vlsync_common::Nanos);
                     Box::new(c)
                 }
-                Stream::Lidar => Box::new(raw::LidarSource::render_with(r, stamp).map_err(src)?),
+                Stream::Lidar => Box::new(fronted(
+                    raw::LidarSource::render_with(r, stamp).map_err(src)?,
+                )?),
             };
             Ok(Selected {
                 source,
@@ -291,7 +306,9 @@ pub fn select_source(
             let topic = args.topic.as_deref();
             match stream {
                 Stream::Cam => offline(Box::new(raw::CamSource::mcap(p, topic).map_err(src)?)),
-                Stream::Lidar => offline(Box::new(raw::LidarSource::mcap(p, topic).map_err(src)?)),
+                Stream::Lidar => offline(Box::new(fronted(
+                    raw::LidarSource::mcap(p, topic).map_err(src)?,
+                )?)),
             }
         }
         ("--frames", Stream::Cam) => {
@@ -300,7 +317,9 @@ pub fn select_source(
         }
         ("--scans", Stream::Lidar) => {
             let p = args.scans.as_deref().unwrap_or(Path::new(""));
-            offline(Box::new(raw::LidarSource::scans_csv(p).map_err(src)?))
+            offline(Box::new(fronted(
+                raw::LidarSource::scans_csv(p).map_err(src)?,
+            )?))
         }
         ("--v4l2", Stream::Cam) => {
             let d = args.v4l2.as_deref().unwrap_or(Path::new(""));
@@ -316,16 +335,29 @@ pub fn select_source(
                 (None, d) => (raw::SerialKind::Rplidar, d.as_deref().unwrap_or_default()),
             };
             Ok(Selected {
-                source: Box::new(
+                source: Box::new(fronted(
                     raw::LidarSource::serial(kind, dev, args.baud, SERIAL_SILENCE, stop)
                         .map_err(src)?,
-                ),
+                )?),
                 anchor_ns: None,
                 start_at: None,
             })
         }
         (f, _) => Err(wrong_stream(f)),
     }
+}
+
+/// The LiDAR front-end's windows: `[lidar]` of --config (defaults without one),
+/// `--opposite-window` on top.
+fn lidar_front(args: &DriverArgs) -> Result<vlsync_config::LidarConfig, DriverError> {
+    let mut f = match &args.config {
+        Some(path) => vlsync_config::Config::load(path)
+            .map(|c| c.lidar)
+            .map_err(|e| DriverError::Options(e.to_string()))?,
+        None => vlsync_config::LidarConfig::default(),
+    };
+    f.opposite_window |= args.opposite_window;
+    Ok(f)
 }
 
 fn prefix(args: &DriverArgs) -> Result<String, DriverError> {

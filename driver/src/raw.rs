@@ -788,10 +788,35 @@ enum ScanInput {
     Serial(Box<Serial>),
 }
 
+/// The LiDAR front-end: one bearing window, or a window and the one opposite it
+/// (`lidar.opposite_window`).
+#[derive(Debug, Clone)]
+enum Front {
+    One(Box<lidar::SignatureProcessor>),
+    Two(Box<lidar::OppositeWindows>),
+}
+
+impl Front {
+    fn push_scan(&mut self, scan: &lidar::Scan, emit: impl FnMut(Sample)) -> usize {
+        match self {
+            Front::One(p) => p.push_scan(scan, emit),
+            Front::Two(w) => w.push_scan(scan, emit),
+        }
+    }
+
+    /// The counters of the window (ahead).
+    fn counters(&self) -> &lidar::Counters {
+        match self {
+            Front::One(p) => p.counters(),
+            Front::Two(w) => w.ahead().counters(),
+        }
+    }
+}
+
 /// LiDAR scans through `SignatureProcessor::push_scan`.
 pub struct LidarSource {
     input: ScanInput,
-    proc: lidar::SignatureProcessor,
+    proc: Front,
     queue: VecDeque<(Sample, Option<SampleTruth>)>,
     what: String,
     scans: u64,
@@ -813,12 +838,40 @@ impl LidarSource {
             .map_err(|e| SourceError(format!("{what}: {e}")))?;
         Ok(Self {
             input,
-            proc,
+            proc: Front::One(Box::new(proc)),
             queue: VecDeque::new(),
             what,
             scans: 0,
             last_truth: None,
         })
+    }
+
+    /// Fits the wall in the bearing window(s) `f` gives (the `[lidar]` section of
+    /// the configuration) instead of the default window.
+    pub fn with_front(mut self, f: &vlsync_config::LidarConfig) -> Result<Self, SourceError> {
+        let cfg = lidar::SignatureConfig {
+            window_centre_rad: lidar::scan::wrap_pi(f.window_centre_deg.to_radians()),
+            window_half_width_rad: f.window_half_width_deg.to_radians(),
+            ..lidar::SignatureConfig::default()
+        };
+        let err = |e: lidar::ConfigError| SourceError(format!("{}: {e}", self.what));
+        self.proc = if f.opposite_window {
+            Front::Two(Box::new(lidar::OppositeWindows::new(cfg).map_err(err)?))
+        } else {
+            Front::One(Box::new(lidar::SignatureProcessor::new(cfg).map_err(err)?))
+        };
+        self.what = format!(
+            "{}; wall window {:.1}° ± {:.1}°{}",
+            self.what,
+            f.window_centre_deg,
+            f.window_half_width_deg,
+            if f.opposite_window {
+                " and the opposite one"
+            } else {
+                ""
+            }
+        );
+        Ok(self)
     }
 
     /// A scan CSV (`vlsync_signature_lidar::csv`'s format).
@@ -1096,6 +1149,15 @@ impl Source for LidarSource {
             s.push_str(&format!(" {} {},", r.name(), c.dropped(r)));
         }
         s.push_str(&format!(" invalid returns {}", c.invalid_returns));
+        if let Front::Two(w) = &self.proc {
+            let c = w.behind().counters();
+            s.push_str(&format!(
+                "; opposite window: {} passes, {} samples, {} dropped out of time order",
+                c.passes,
+                c.samples,
+                w.out_of_order()
+            ));
+        }
         if let ScanInput::Serial(ser) = &self.input {
             match &ser.parser {
                 Parser::Ld06(p) => {

@@ -492,3 +492,87 @@ fn software_stamping_runs_in_real_time_and_knows_its_truth() {
         late.live_counts()
     );
 }
+
+#[test]
+fn the_opposite_window_doubles_the_lidar_stream_in_time_order() {
+    // a run long enough for the robot to drive between the two end walls
+    let secs = 12.0;
+    let mut front = LidarSource::render(raw::renderer(SEED, secs).unwrap()).unwrap();
+    let front = drain(&mut front);
+    let both = vlsync_config::LidarConfig {
+        opposite_window: true,
+        ..vlsync_config::LidarConfig::default()
+    };
+    let mut src = LidarSource::render(raw::renderer(SEED, secs).unwrap())
+        .unwrap()
+        .with_front(&both)
+        .unwrap();
+    assert!(
+        src.describe().contains("and the opposite one"),
+        "{}",
+        src.describe()
+    );
+    let merged = drain(&mut src);
+    assert!(merged.windows(2).all(|w| w[0].t_ns < w[1].t_ns));
+    // the front window's samples are all there, and the wall behind adds as many again
+    assert!(front.iter().all(|f| merged.contains(f)));
+    let behind: Vec<&Sample> = merged.iter().filter(|m| !front.contains(m)).collect();
+    assert!(
+        behind.len() * 10 >= front.len() * 7,
+        "{} behind, {} ahead",
+        behind.len(),
+        front.len()
+    );
+    // negated, the receding wall's rate moves with the approaching wall's: at each
+    // sample behind, the front stream interpolated there agrees in sign when moving
+    let at = |t: i64| {
+        let i = front
+            .partition_point(|f| f.t_ns < t)
+            .clamp(1, front.len() - 1);
+        let (a, b) = (front[i - 1], front[i]);
+        a.value + (b.value - a.value) * (t - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64
+    };
+    let moving: Vec<(f64, f64)> = behind
+        .iter()
+        .map(|m| (m.value, at(m.t_ns)))
+        .filter(|(_, f)| f.abs() > 0.1)
+        .collect();
+    assert!(moving.len() >= 10, "{}", moving.len());
+    let agree = moving.iter().filter(|(b, f)| b * f > 0.0).count();
+    assert!(
+        agree * 10 >= moving.len() * 9,
+        "{agree} of {}",
+        moving.len()
+    );
+    assert!(src.report().unwrap().contains("opposite window:"));
+}
+
+#[test]
+fn lidar_window_options_are_checked() {
+    let err = |a: &[&str], s: Stream| match select_source(&args(a), s, never) {
+        Ok(_) => panic!("{a:?} accepted"),
+        Err(e) => e.to_string(),
+    };
+    let dir = temp_dir("window-opts");
+    let cfg = dir.join("bad.toml");
+    std::fs::write(&cfg, "[lidar]\nwindow_half_width_deg = 0.0\n").unwrap();
+    let e = err(
+        &["--render", "1", "--config", cfg.to_str().unwrap()],
+        Stream::Lidar,
+    );
+    assert!(
+        e.contains("lidar.window_half_width_deg") && e.contains("bad.toml"),
+        "{e}"
+    );
+    let e = err(&["--render", "1", "--opposite-window"], Stream::Cam);
+    assert!(
+        e.contains("--opposite-window applies to vlsync-lidar"),
+        "{e}"
+    );
+    let e = err(&["--sim", "robot", "--opposite-window"], Stream::Lidar);
+    assert!(
+        e.contains("--opposite-window applies to vlsync-lidar"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

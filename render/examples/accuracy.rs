@@ -70,8 +70,9 @@ fn parse() -> Result<Args, String> {
             "--threads" => a.threads = value()?.parse().map_err(|e| format!("--threads: {e}"))?,
             "--width" => width = Some(value()?.parse().map_err(|e| format!("--width: {e}"))?),
             "--height" => height = Some(value()?.parse().map_err(|e| format!("--height: {e}"))?),
+            "--opposite-window" => pipeline::OPPOSITE_WINDOW.store(true, std::sync::atomic::Ordering::Relaxed),
             "--help" | "-h" => {
-                return Err("usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H]".into())
+                return Err("usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window]".into())
             }
             other => return Err(format!("unknown argument `{other}` (try --help)")),
         }

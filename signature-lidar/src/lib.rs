@@ -9,6 +9,8 @@
 //!   the returns, or their median; the time of the returns used; derivative
 //!   stamped at the midpoint; gap resets; implausible and cross-surface
 //!   derivatives dropped; drop counters).
+//! * [`opposite`]: the window and the one opposite it (the wall behind), merged
+//!   into one stream.
 //! * [`ld06`]: LDROBOT LD06/LD19 packets (CRC-8 0x4D), resynchronising decoder,
 //!   360° scan assembly with per-point times, encoder.
 //! * [`rplidar`]: Slamtec RPLIDAR standard scan (A1/A2/C1): requests,
@@ -44,11 +46,13 @@
 pub mod csv;
 pub mod encode;
 pub mod ld06;
+pub mod opposite;
 pub mod rplidar;
 pub mod scan;
 pub mod serial;
 pub mod signature;
 
+pub use opposite::OppositeWindows;
 pub use scan::{Ray, Rotation, Scan, ScanTiming};
 pub use signature::{
     ConfigError, Counters, DropReason, Measurement, SignatureConfig, SignatureProcessor, Stamping,

@@ -78,3 +78,19 @@ fn steady_state_processing_allocates_nothing() {
         assert!(samples > 30 && c.measurements > 40, "{distance:?}: {c:?}");
     }
 }
+
+#[test]
+fn opposite_windows_allocate_nothing() {
+    let scans: Vec<Scan> = (0..60).filter(|&k| k != 20).map(scan).collect();
+    let mut w = vlsync_signature_lidar::OppositeWindows::new(SignatureConfig::default()).unwrap();
+    let mut samples = 0u64;
+    let before = allocs();
+    for s in &scans {
+        w.push_scan(s, |_| samples += 1);
+    }
+    let n = allocs() - before;
+    assert_eq!(n, 0, "{n} allocations");
+    let both = w.ahead().counters().samples + w.behind().counters().samples;
+    assert!(samples > 60, "{samples}");
+    assert_eq!(samples + w.out_of_order(), both);
+}

@@ -61,6 +61,10 @@ struct Args {
     /// load steps from the data alone, as the shipped default does.
     #[arg(long)]
     load_hints: bool,
+    /// The LiDAR front-end also fits the wall behind (`lidar.opposite_window`; the
+    /// rendered room has a wall at each end): half the LiDAR noise variance.
+    #[arg(long)]
+    opposite_window: bool,
     /// Exit with status 1 when a target is missed.
     #[arg(long)]
     check: bool,
@@ -163,6 +167,7 @@ fn run(a: &Args) -> Result<bool, String> {
             stamping: Stamping::Software {
                 frame_cpu_us: (a.cam_frame_cpu_ms * 1e3).round() as u32,
             },
+            opposite_window: a.opposite_window,
         },
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),
@@ -324,6 +329,7 @@ fn run(a: &Args) -> Result<bool, String> {
             "estimator_window_s": cfg.estimator.window_s,
             "load_hints": {"on": cfg.daemon.load_hints, "declared": hints_declared},
             "cam_frame_cpu_ms": a.cam_frame_cpu_ms,
+            "lidar_opposite_window": a.opposite_window,
             "after_warmup": {
                 "scored": overall.n,
                 "mae_ms": overall.mae * 1e3,

@@ -35,6 +35,9 @@ pub enum Source {
         speed: f64,
         /// How the drivers stamp.
         stamping: Stamping,
+        /// The LiDAR front-end also fits the wall behind (`--opposite-window`; the
+        /// rendered room has a wall at each end).
+        opposite_window: bool,
     },
 }
 
@@ -84,12 +87,18 @@ impl Source {
                 duration_s,
                 speed,
                 stamping,
+                opposite_window,
             } => format!(
-                "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}",
+                "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}{}",
                 match stamping {
                     Stamping::Sensor => "sensor clocks",
                     Stamping::Software { .. } =>
                         "camera stamped in software after processing, LiDAR sensor stamps",
+                },
+                if *opposite_window {
+                    ", LiDAR walls ahead and behind"
+                } else {
+                    ""
                 }
             ),
         }
@@ -517,6 +526,7 @@ fn driver_args(
             duration_s,
             speed,
             stamping,
+            opposite_window,
         } => {
             a.extend([
                 "--render".into(),
@@ -526,6 +536,9 @@ fn driver_args(
                 "--speed".into(),
                 speed.to_string(),
             ]);
+            if role == Role::Lidar && *opposite_window {
+                a.push("--opposite-window".into());
+            }
             if let Stamping::Software { frame_cpu_us } = *stamping {
                 let stamp = if role == Role::Cam {
                     "software"
@@ -563,6 +576,7 @@ mod tests {
             duration_s: 40.0,
             speed: 1.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
+            opposite_window: false,
         };
         let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
         assert_eq!(
@@ -580,11 +594,15 @@ mod tests {
             stamping: Stamping::Software {
                 frame_cpu_us: 12_500,
             },
+            opposite_window: true,
         };
         let cam = driver_args(&heavy, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
         assert!(cam.contains("--frame-cpu-ms 12.5 --start-at 77"), "{cam}");
         let lidar = driver_args(&heavy, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
         assert!(!lidar.contains("--frame-cpu-ms"), "{lidar}");
+        // the wall behind: the LiDAR driver only
+        assert!(lidar.contains("--opposite-window"), "{lidar}");
+        assert!(!cam.contains("--opposite-window"), "{cam}");
         let sim = Source::Sim {
             family: vlsync_sim::Family::Robot,
             seed: 2,
@@ -606,6 +624,7 @@ mod tests {
             duration_s: 10.0,
             speed: 2.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
+            opposite_window: false,
         };
         assert!(bad.check().unwrap_err().contains("real time"));
         let bad = Source::Sim {
@@ -620,6 +639,7 @@ mod tests {
             duration_s: 10.0,
             speed: 1.0,
             stamping: Stamping::Sensor,
+            opposite_window: false,
         };
         let t = sensor.known_truth().unwrap().unwrap();
         let r = vlsync_driver::raw::renderer(1, 10.0).unwrap();
@@ -632,6 +652,7 @@ mod tests {
             duration_s: 10.0,
             speed: 1.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
+            opposite_window: false,
         };
         assert!(sw.known_truth().unwrap().is_none());
     }

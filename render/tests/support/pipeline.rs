@@ -6,7 +6,9 @@
 //! side by side: the front-ends' default (midpoint) stamping and end-of-interval
 //! stamping, everything else equal.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
+
 use vlsync_common::{Sample, Stream};
 use vlsync_config::EstimatorConfig;
 use vlsync_estimator::Estimator;
@@ -15,10 +17,19 @@ use vlsync_render::{Event, RenderConfig, Renderer};
 use vlsync_signature_cam as cam;
 use vlsync_signature_lidar as lidar;
 
+/// Also measure the wall behind the robot (`lidar::OppositeWindows`: a second
+/// bearing window centred at 180°, its distance rate negated, both windows'
+/// samples in time order as the one LiDAR stream; `lidar.opposite_window` of the
+/// driver): twice the independent range returns per revolution, so half the
+/// rate-noise variance. Off by default.
+pub static OPPOSITE_WINDOW: AtomicBool = AtomicBool::new(false);
+
 /// One stamping variant: its two front-ends and its estimator.
 struct Lane {
     cam: cam::SignatureProcessor,
     lidar: lidar::SignatureProcessor,
+    /// the window and the one behind (see [`OPPOSITE_WINDOW`]), used instead of `lidar`
+    both: Option<lidar::OppositeWindows>,
     est: Estimator,
     estimates: Vec<vlsync_common::Estimate>,
     cam_samples: usize,
@@ -38,6 +49,13 @@ impl Lane {
                 ..lidar::SignatureConfig::default()
             })
             .expect("default LiDAR front-end"),
+            both: OPPOSITE_WINDOW.load(Ordering::Relaxed).then(|| {
+                lidar::OppositeWindows::new(lidar::SignatureConfig {
+                    stamping: lidar_stamping,
+                    ..lidar::SignatureConfig::default()
+                })
+                .expect("LiDAR front-end with the opposite window")
+            }),
             est: Estimator::new(&EstimatorConfig::default()),
             estimates: Vec::new(),
             cam_samples: 0,
@@ -59,7 +77,10 @@ impl Lane {
 
     fn scan(&mut self, s: &vlsync_render::Scan, out: &mut Vec<Sample>) {
         out.clear();
-        self.lidar.push_scan(s, |x| out.push(x));
+        match &mut self.both {
+            Some(both) => both.push_scan(s, |x| out.push(x)),
+            None => self.lidar.push_scan(s, |x| out.push(x)),
+        };
         for &x in out.iter() {
             self.lidar_samples += 1;
             let _ = self.est.push(Stream::Lidar, x);
