@@ -408,6 +408,16 @@ mod tests {
         samples: Vec<Sample>,
         tag: &str,
     ) -> (RunSummary, Vec<SignatureSample>, Duration) {
+        publish_run_reporting(pacing, samples, tag, None)
+    }
+
+    /// [`publish_run`] with a progress report.
+    fn publish_run_reporting(
+        pacing: Pacing,
+        samples: Vec<Sample>,
+        tag: &str,
+        progress: Option<Progress<'_>>,
+    ) -> (RunSummary, Vec<SignatureSample>, Duration) {
         let names =
             ServiceNames::new(&format!("vlsync-test/driver-{tag}-{}", std::process::id())).unwrap();
         let node = create_node("driver-test", false).unwrap();
@@ -421,7 +431,7 @@ mod tests {
         let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
         let mut src = VecSource::new(samples, "test");
         let t0 = std::time::Instant::now();
-        let sum = run(&mut src, &mut p, pacing, &|| false, None, None).unwrap();
+        let sum = run(&mut src, &mut p, pacing, &|| false, None, progress).unwrap();
         let el = t0.elapsed();
         let mut got = vec![];
         while let Some(s) = sub.receive().unwrap() {
@@ -432,33 +442,16 @@ mod tests {
 
     #[test]
     fn progress_reports_the_totals_so_far() {
-        let names =
-            ServiceNames::new(&format!("vlsync-test/progress-{}", std::process::id())).unwrap();
-        let node = create_node("progress-test", false).unwrap();
-        let _svc = open_or_create_pubsub::<SignatureSample>(
-            &node,
-            &names.signature(Stream::Cam),
-            Qos::signature(256),
-        )
-        .unwrap();
-        let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
         let samples: Vec<Sample> = (0..5).map(|i| Sample::new(i + 1, i as f64)).collect();
-        let mut src = VecSource::new(samples, "test");
         let mut seen = vec![];
         let mut report = |s: &RunSummary, r: Option<String>| seen.push((s.published, r));
         let progress = Progress {
             every: Duration::ZERO,
             report: &mut report,
         };
-        let sum = run(
-            &mut src,
-            &mut p,
-            Pacing::Fast,
-            &|| false,
-            None,
-            Some(progress),
-        )
-        .unwrap();
+        let (sum, got, _) =
+            publish_run_reporting(Pacing::Fast, samples, "progress", Some(progress));
+        assert_eq!(got.len(), 5);
         assert_eq!(sum.published, 5);
         // before each sample after the first: the totals published so far
         assert_eq!(seen, (0..5).map(|n| (n, None)).collect::<Vec<_>>());

@@ -52,6 +52,13 @@ fn scan(k: i64) -> Scan {
     Scan::from_uniform(timing, rays)
 }
 
+/// Allocations `f` makes on this thread.
+fn allocations(f: impl FnOnce()) -> u64 {
+    let before = allocs();
+    f();
+    allocs() - before
+}
+
 #[test]
 fn steady_state_processing_allocates_nothing() {
     let scans: Vec<Scan> = (0..60).filter(|&k| k != 20).map(scan).collect();
@@ -67,11 +74,11 @@ fn steady_state_processing_allocates_nothing() {
         })
         .unwrap();
         let mut samples = 0u64;
-        let before = allocs();
-        for s in &scans {
-            p.push_scan(s, |_| samples += 1);
-        }
-        let n = allocs() - before;
+        let n = allocations(|| {
+            for s in &scans {
+                p.push_scan(s, |_| samples += 1);
+            }
+        });
         assert_eq!(n, 0, "{distance:?} at {centre}: {n} allocations");
         let c = p.counters();
         eprintln!("{distance:?} at {centre}: {samples} samples, {c:?}");
@@ -84,11 +91,11 @@ fn opposite_windows_allocate_nothing() {
     let scans: Vec<Scan> = (0..60).filter(|&k| k != 20).map(scan).collect();
     let mut w = vlsync_signature_lidar::OppositeWindows::new(SignatureConfig::default()).unwrap();
     let mut samples = 0u64;
-    let before = allocs();
-    for s in &scans {
-        w.push_scan(s, |_| samples += 1);
-    }
-    let n = allocs() - before;
+    let n = allocations(|| {
+        for s in &scans {
+            w.push_scan(s, |_| samples += 1);
+        }
+    });
     assert_eq!(n, 0, "{n} allocations");
     let both = w.ahead().counters().samples + w.behind().counters().samples;
     assert!(samples > 60, "{samples}");

@@ -190,6 +190,18 @@ impl Drop for Rig {
     }
 }
 
+/// Writes `dir/vlsync.toml`: a daemon on no fixed core serving `prefix`, with
+/// `daemon_keys` (TOML lines) added to its `[daemon]` section. Returns its path.
+pub fn write_daemon_config(dir: &Path, prefix: &str, daemon_keys: &str) -> PathBuf {
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!("[daemon]\ncore = -1\n{daemon_keys}\n[services]\nprefix = \"{prefix}\"\n"),
+    )
+    .expect("write the daemon configuration");
+    cfg
+}
+
 /// Collects every estimate arriving within `wall`.
 pub fn collect(client: &mut OffsetClient, wall: Duration) -> Vec<Estimate> {
     let t0 = Instant::now();

@@ -11,19 +11,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vlsync_common::Stream;
 use vlsync_ipc::monotonic_ns;
-use vlsync_tests::{bin, Managed, Rig};
+use vlsync_tests::{bin, write_daemon_config, Managed, Rig};
 
 fn config(dir: &Path, prefix: &str, source: &Path) -> PathBuf {
-    let cfg = dir.join("vlsync.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[daemon]\ncore = -1\nload_hints = true\nload_hint_source = \"{}\"\n\n[services]\nprefix = \"{prefix}\"\n",
-            source.display()
-        ),
-    )
-    .unwrap();
-    cfg
+    let keys = format!(
+        "load_hints = true\nload_hint_source = \"{}\"\n",
+        source.display()
+    );
+    write_daemon_config(dir, prefix, &keys)
 }
 
 /// Writes `some ... total=` into `path` (atomically: write and rename).

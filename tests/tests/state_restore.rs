@@ -7,20 +7,15 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use vlsync_common::{EstimatorState, Stream};
 use vlsync_ipc::OffsetClient;
-use vlsync_tests::{bin, collect, Managed, Rig};
+use vlsync_tests::{bin, collect, write_daemon_config, Managed, Rig};
 use vlsyncd::state::{load, unix_now_ns};
 
 fn config(dir: &Path, prefix: &str, state_file: &Path) -> PathBuf {
-    let cfg = dir.join("vlsync.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[daemon]\ncore = -1\nstate_file = \"{}\"\nstate_max_age_s = 600.0\n\n[services]\nprefix = \"{prefix}\"\n",
-            state_file.display()
-        ),
-    )
-    .unwrap();
-    cfg
+    let keys = format!(
+        "state_file = \"{}\"\nstate_max_age_s = 600.0\n",
+        state_file.display()
+    );
+    write_daemon_config(dir, prefix, &keys)
 }
 
 fn daemon(cfg: &Path, log: &Path) -> Managed {
