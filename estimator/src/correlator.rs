@@ -442,6 +442,13 @@ impl Correlator {
         self.since_rebuild = 0;
     }
 
+    /// Whether the next [`Correlator::step`] may complete a block (conservative:
+    /// true before the first index). Until it does, the stored blocks stay as they are.
+    pub fn may_complete_block(&self) -> bool {
+        self.cursor
+            .is_none_or(|k| (k + 1).rem_euclid(self.hop_len) == 0)
+    }
+
     /// Adds at most one grid index. Call until it returns [`Step::Idle`].
     pub fn step(&mut self) -> Step {
         let (Some(l0), Some(c0)) = (self.lidar.seg_start, self.cam.seg_start) else {

@@ -247,6 +247,76 @@ struct Meas {
     sign: f64,
 }
 
+/// Where a step test in progress stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StepStage {
+    /// A change announced from outside; the newest `short` blocks.
+    Start,
+    /// The segment's total with its weights.
+    Total,
+    /// The post window of `len` blocks (then the next, or the verdict).
+    Post,
+}
+
+/// The step test of one tracking hop ([`Estimator::step_start`]), split into stages
+/// of a few microseconds each, one per pushed sample, so that no single sample
+/// carries the whole test. Everything it reads stays as it was at the hop until the
+/// next block completes, and it is finished before that (or before a stall, a clock
+/// jump, a restore changes what it reads), so its verdict is the one an unsplit
+/// test would give at the first push after the hop.
+#[derive(Debug, Clone, Copy)]
+struct StepJob {
+    sign: f64,
+    pred_t: f64,
+    stage: StepStage,
+    /// The segment's first stored block and the number stored.
+    first: usize,
+    n: usize,
+    /// Lag slots searched.
+    lo: usize,
+    hi: usize,
+    /// Motion references (see [`Estimator::seg_moving`]).
+    refs: [f64; 2],
+    /// Longest post window, and the current and previous lengths, in blocks.
+    max_post: usize,
+    len: usize,
+    prev: usize,
+    /// The most significant split so far: statistic, first post block, post
+    /// measurement, innovation.
+    best: Option<(f64, usize, Meas, f64)>,
+}
+
+impl StepJob {
+    fn new(sign: f64, pred_t: f64) -> Self {
+        Self {
+            sign,
+            pred_t,
+            stage: StepStage::Start,
+            first: 0,
+            n: 0,
+            lo: 0,
+            hi: 0,
+            refs: [0.0; 2],
+            max_post: 0,
+            len: 0,
+            prev: 0,
+            best: None,
+        }
+    }
+
+    /// Blocks `first..=last` at slots `lo..=hi`, without drift compensation.
+    fn span(&self, first: usize, last: usize, lo: usize, hi: usize) -> Span {
+        Span {
+            first,
+            last,
+            drift: 0.0,
+            k_ref: 0.0,
+            lo,
+            hi,
+        }
+    }
+}
+
 /// The current offset estimate: offset `o` at tracker time `t`, its variance.
 #[derive(Debug, Clone, Copy)]
 struct Current {
@@ -347,8 +417,11 @@ pub struct Estimator {
     /// The last segment measurement (offset) and its regression `(α, β)`: the next
     /// hop re-weights from them before its single combination.
     seg_fit: Option<(f64, (f64, f64))>,
-    /// The step test of the last hop, run at the next push: `(polarity sign, predicted offset)`.
-    pending_step: Option<(f64, f64)>,
+    /// The step test of the last tracking hop, run in stages by the next pushes.
+    step_job: Option<StepJob>,
+    /// Whether the step test runs one stage per push (always, except in the test
+    /// that compares it with the whole test at once).
+    split_step: bool,
     /// Variance added to the estimate while the step test sees a change it cannot
     /// confirm yet (a possible step's size squared, weighted by its evidence).
     suspect_var: f64,
@@ -446,7 +519,8 @@ impl Estimator {
             fresh: false,
             suspect_var: 0.0,
             seg_fit: None,
-            pending_step: None,
+            step_job: None,
+            split_step: true,
             step_evidence: 0.0,
             innov: [(0.0, 0.0); BIAS_WINDOWS],
             innov_n: 0,
@@ -476,8 +550,12 @@ impl Estimator {
 
     /// Pushes one sample of `stream`. Rejected samples are counted and never reach the sums.
     pub fn push(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
-        if let Some((sign, pred_t)) = self.pending_step.take() {
-            self.step_test(sign, pred_t);
+        // one stage of the last hop's step test per sample: no sample carries both the
+        // hop's combination and the whole test
+        if self.split_step {
+            self.step_stage();
+        } else {
+            self.finish_step();
         }
         let si = idx(stream);
         let other_now = self.rs[1 - si].last_time();
@@ -621,6 +699,7 @@ impl Estimator {
         self.d = (drift, drift_std * drift_std);
         self.epoch_ns = None;
         self.ever_locked = true;
+        self.step_job = None;
         self.polarity = est.polarity;
         // tracking around the restored value (state `holding` until a measurement);
         // without a peak near it while moving, the estimator turns `lost` and re-acquires
@@ -657,6 +736,7 @@ impl Estimator {
     /// A stream's clock stepped by `jump_ns` (beyond one sample interval): the offset
     /// moves by the same amount (LiDAR: +, camera: -); re-acquire around the new value.
     fn clock_jump(&mut self, stream: Stream, jump_ns: Nanos) {
+        self.finish_step();
         let j = jump_ns as f64 * 1e-9;
         let shift = match stream {
             Stream::Cam => -j,
@@ -677,6 +757,9 @@ impl Estimator {
 
     fn run_correlator(&mut self) {
         loop {
+            if self.step_job.is_some() && self.corr.may_complete_block() {
+                self.finish_step();
+            }
             match self.corr.step() {
                 Step::Idle => break,
                 Step::Added | Step::Break => {}
@@ -706,6 +789,7 @@ impl Estimator {
         if target < first {
             return;
         }
+        self.finish_step();
         // at most one queue's worth of blind estimates
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
@@ -876,7 +960,7 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
-        self.pending_step = None;
+        self.step_job = None;
         self.corr.restart_acq();
         self.mode = Mode::Acquire;
         self.acq = Streak::default();
@@ -893,6 +977,8 @@ impl Estimator {
     }
 
     fn hop(&mut self) {
+        // normally finished already, before the block that makes this hop completed
+        self.finish_step();
         let count = self.corr.count();
         if count == 0 {
             return;
@@ -1088,9 +1174,9 @@ impl Estimator {
         // sample pushed, so no single sample carries both it and the segment (its
         // verdict applies from the next hop on)
         if motion {
-            self.pending_step = Some((sign, pred_t));
+            self.step_job = Some(StepJob::new(sign, pred_t));
         } else {
-            self.pending_step = None;
+            self.step_job = None;
             self.suspect_var = 0.0;
             self.step = Streak::default();
         }
@@ -1222,6 +1308,33 @@ impl Estimator {
         }
     }
 
+    /// Runs the next stage of the pending step test, if any.
+    fn step_stage(&mut self) {
+        let Some(mut job) = self.step_job.take() else {
+            return;
+        };
+        let more = match job.stage {
+            StepStage::Start => self.step_start(&mut job),
+            StepStage::Total => {
+                self.step_total(&job);
+                job.stage = StepStage::Post;
+                true
+            }
+            StepStage::Post => self.step_post(&mut job),
+        };
+        if more {
+            self.step_job = Some(job);
+        }
+    }
+
+    /// Runs the pending step test to its end: before anything changes the stored
+    /// blocks or the estimate it reads (a block completing, a stall, a clock jump).
+    fn finish_step(&mut self) {
+        while self.step_job.is_some() {
+            self.step_stage();
+        }
+    }
+
     /// Two-sample test for an offset step: the segment's newest blocks (the last
     /// `short..=4·short`) against the rest of it, the most significant split winning.
     /// A split beyond `step_gate_sigma` for `step_confirm` consecutive hops starts a
@@ -1230,12 +1343,17 @@ impl Estimator {
     /// chunks must move as the motion gate asks ([`Self::seg_moving`]): the end of
     /// a drive holds seconds of noise whose peak can look confident. The innovation
     /// record for the σ takes every chunk (it only ever widens the σ).
-    fn step_test(&mut self, sign: f64, pred_t: f64) {
+    ///
+    /// The test runs in stages, one per pushed sample after the hop that asked for
+    /// it ([`StepJob`]): this one (a change announced from outside, the newest
+    /// `short` blocks), the segment's total, then one post window each; the last
+    /// gives the verdict. Returns whether stages remain.
+    fn step_start(&mut self, job: &mut StepJob) -> bool {
         self.suspect_var = 0.0;
         let n = self.corr.count();
         let short = self.p.short_blocks;
         let Some(first) = self.segment_first() else {
-            return;
+            return false;
         };
         // a change announced from outside, once a step window of data follows it
         if let Some(kc) = self.known_change {
@@ -1259,25 +1377,20 @@ impl Estimator {
                         start_k,
                         start_t,
                     });
-                    return;
+                    return false;
                 }
             }
         }
         let len_seg = n - first;
-        let (lo, hi) = self.track_slots_around(pred_t);
-        let (d, vd) = self.d;
-        let span = |first: usize, last: usize| Span {
-            first,
-            last,
-            drift: 0.0,
-            k_ref: 0.0,
-            lo,
-            hi,
-        };
+        let (lo, hi) = self.track_slots_around(job.pred_t);
         // the newest `short` blocks, robustly
         let refs = self.motion_refs();
         let chunk = self
-            .measure_span(&span(n - short, n - 1), sign, Weights::Robust)
+            .measure_span(
+                &job.span(n - short, n - 1, lo, hi),
+                job.sign,
+                Weights::Robust,
+            )
             .filter(|m| m.score >= self.p.min_score);
         let moving = chunk.is_some_and(|m| self.seg_moving(m.z, refs));
         if let Some(m) = chunk {
@@ -1301,50 +1414,82 @@ impl Estimator {
         // blocks before them (with the weights of the segment's last combination):
         // pre = segment - post, both with those weights, so one pass over the segment
         let max_post = (4 * short).min(len_seg.saturating_sub(short));
-        let mut best: Option<(f64, usize, Meas, f64)> = None;
-        if max_post >= short {
-            let [total, post, _] = &mut self.glr;
-            total.clear();
-            post.clear();
-            for i in first..n {
-                let w = self.seg.weight(&self.corr, i);
-                total.add_range(self.corr.block(i), w, lo, hi);
-            }
-            total.first_k = self.corr.block(first).first_k;
+        *job = StepJob {
+            stage: StepStage::Total,
+            first,
+            n,
+            lo,
+            hi,
+            refs,
+            max_post,
+            len: short,
+            prev: 0,
+            ..*job
+        };
+        if max_post < short {
+            self.step_verdict(job);
+            return false;
         }
-        let (mut len, mut prev) = (short, 0);
-        while len <= max_post {
-            // the blocks entering the post window, with their segment weights
-            // (before the post window's own re-weighting changes them)
-            for i in n - len..n - prev {
-                let w = self.seg.weight(&self.corr, i);
-                self.glr[1].add_range(self.corr.block(i), w, lo, hi);
-            }
-            {
-                let [total, post, pre] = &mut self.glr;
-                pre.diff_range(total, post, lo, hi);
-                pre.first_k = total.first_k;
-                pre.last_k = self.corr.block(n - len - 1).last_k;
-            }
-            let t_pre = self.rel_k(0.5 * (self.glr[2].first_k + self.glr[2].last_k) as f64);
-            let pre = self.measure_sums(Which::Glr(2), lo, hi, sign);
-            let post = self
-                .measure_span(&span(n - len, n - 1), sign, Weights::Robust)
-                .filter(|m| self.seg_moving(m.z, refs));
-            let t_post = self.rel_k(0.5 * (self.seg.sums.first_k + self.seg.sums.last_k) as f64);
-            if let (Some(mp), Some(mq)) = (post, pre) {
-                if mp.score >= self.p.min_score && mq.score >= self.p.min_score {
-                    let lever = t_post - t_pre;
-                    let nu = mp.z - (mq.z + d * lever);
-                    let stat = nu * nu / (mp.var + mq.var + vd * lever * lever);
-                    if best.is_none_or(|b| stat > b.0) {
-                        best = Some((stat, n - len, mp, nu));
-                    }
+        true
+    }
+
+    /// The step test's second stage: the segment's blocks with their weights, summed.
+    fn step_total(&mut self, job: &StepJob) {
+        let [total, post, _] = &mut self.glr;
+        total.clear();
+        post.clear();
+        for i in job.first..job.n {
+            let w = self.seg.weight(&self.corr, i);
+            total.add_range(self.corr.block(i), w, job.lo, job.hi);
+        }
+        total.first_k = self.corr.block(job.first).first_k;
+    }
+
+    /// One post window of the step test against the blocks before it; the verdict
+    /// after the last one. Returns whether post windows remain.
+    fn step_post(&mut self, job: &mut StepJob) -> bool {
+        let (n, len, lo, hi, sign) = (job.n, job.len, job.lo, job.hi, job.sign);
+        let (d, vd) = self.d;
+        // the blocks entering the post window, with their segment weights
+        // (before the post window's own re-weighting changes them)
+        for i in n - len..n - job.prev {
+            let w = self.seg.weight(&self.corr, i);
+            self.glr[1].add_range(self.corr.block(i), w, lo, hi);
+        }
+        {
+            let [total, post, pre] = &mut self.glr;
+            pre.diff_range(total, post, lo, hi);
+            pre.first_k = total.first_k;
+            pre.last_k = self.corr.block(n - len - 1).last_k;
+        }
+        let t_pre = self.rel_k(0.5 * (self.glr[2].first_k + self.glr[2].last_k) as f64);
+        let pre = self.measure_sums(Which::Glr(2), lo, hi, sign);
+        let post = self
+            .measure_span(&job.span(n - len, n - 1, lo, hi), sign, Weights::Robust)
+            .filter(|m| self.seg_moving(m.z, job.refs));
+        let t_post = self.rel_k(0.5 * (self.seg.sums.first_k + self.seg.sums.last_k) as f64);
+        if let (Some(mp), Some(mq)) = (post, pre) {
+            if mp.score >= self.p.min_score && mq.score >= self.p.min_score {
+                let lever = t_post - t_pre;
+                let nu = mp.z - (mq.z + d * lever);
+                let stat = nu * nu / (mp.var + mq.var + vd * lever * lever);
+                if job.best.is_none_or(|b| stat > b.0) {
+                    job.best = Some((stat, n - len, mp, nu));
                 }
             }
-            prev = len;
-            len += short;
         }
+        job.prev = len;
+        job.len += self.p.short_blocks;
+        if job.len <= job.max_post {
+            return true;
+        }
+        self.step_verdict(job);
+        false
+    }
+
+    /// The step test's verdict from its most significant split.
+    fn step_verdict(&mut self, job: &StepJob) {
+        let best = job.best;
         // evidence short of a step still makes the estimate less certain: a change of
         // size nu may be under way (honest σ while the test accumulates evidence)
         if let Some((stat, _, _, nu)) = best {
@@ -1547,4 +1692,71 @@ enum Which {
     Acq,
     Seg,
     Glr(usize),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_sim::families::{generate, Family};
+
+    /// Replays `run`, one estimator splitting its step tests over the pushes and one
+    /// running each whole at the first push after its hop. Returns both estimate
+    /// sequences, the split one's step count, and how many pushes found a step test
+    /// still unfinished after their own stage.
+    fn split_and_whole(
+        family: Family,
+        seed: u64,
+        cfg: &EstimatorConfig,
+    ) -> (Vec<Estimate>, Vec<Estimate>, u64, usize) {
+        let run = generate(family, seed, None);
+        let mut all: Vec<(Stream, Sample)> = run
+            .cam
+            .iter()
+            .map(|s| (Stream::Cam, *s))
+            .chain(run.lidar.iter().map(|s| (Stream::Lidar, *s)))
+            .collect();
+        all.sort_by_key(|(_, s)| s.t_ns);
+        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
+        whole.split_step = false;
+        let (mut a, mut b, mut pending) = (Vec::new(), Vec::new(), 0);
+        for &(stream, s) in &all {
+            let _ = split.push(stream, s);
+            let _ = whole.push(stream, s);
+            pending += usize::from(split.step_job.is_some_and(|j| j.stage != StepStage::Start));
+            a.extend(std::iter::from_fn(|| split.poll()));
+            b.extend(std::iter::from_fn(|| whole.poll()));
+        }
+        (a, b, split.stats().steps, pending)
+    }
+
+    #[test]
+    fn the_step_test_in_stages_gives_the_verdicts_of_the_whole_test() {
+        // hops of 0.1 s leave 4 pushes between hops: the test is finished before the
+        // next block completes, not only by the pushes between
+        let short_hops = EstimatorConfig {
+            hop_s: 0.1,
+            ..EstimatorConfig::default()
+        };
+        for (family, seed, cfg) in [
+            (Family::LoadSteps, 3, EstimatorConfig::default()),
+            (Family::Clocks, 1000, EstimatorConfig::default()),
+            (Family::LoadSteps, 3, short_hops),
+        ] {
+            let (split, whole, steps, pending) = split_and_whole(family, seed, &cfg);
+            assert!(split.len() > 150, "{family:?}: {} estimates", split.len());
+            // the comparison means something: the test ran in stages and found steps
+            assert!(
+                pending > 500,
+                "{family:?}: {pending} pushes with a test under way"
+            );
+            if family == Family::LoadSteps {
+                assert!(steps >= 2, "{steps} steps");
+            }
+            assert_eq!(split.len(), whole.len());
+            // exact (Debug prints every f64 round-trip; NaN equals NaN there)
+            for (x, y) in split.iter().zip(&whole) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?}");
+            }
+        }
+    }
 }
