@@ -24,6 +24,7 @@ struct Args {
     duration_s: f64,
     threads: usize,
     size: Option<(usize, usize)>,
+    steps: Vec<(f64, f64)>,
 }
 
 fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
@@ -48,12 +49,33 @@ fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
     Ok(out)
 }
 
+/// `T:D,...`: offset steps of `D` ms at `T` s (a camera latency increase of Δ is
+/// a step of -Δ).
+fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
+    s.split(',')
+        .map(|part| {
+            let (t, d) = part
+                .split_once(':')
+                .ok_or(format!("--steps: `{part}` is not TIME_S:DELTA_MS"))?;
+            let num = |x: &str| {
+                x.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or(format!("--steps: `{x}` in `{part}` is not a number"))
+            };
+            Ok((num(t)?, num(d)? * 1e-3))
+        })
+        .collect()
+}
+
 fn parse() -> Result<Args, String> {
     let mut a = Args {
         seeds: (1..=6).collect(),
         duration_s: 60.0,
         threads: 2,
         size: None,
+        steps: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     let mut width = None;
@@ -70,9 +92,10 @@ fn parse() -> Result<Args, String> {
             "--threads" => a.threads = value()?.parse().map_err(|e| format!("--threads: {e}"))?,
             "--width" => width = Some(value()?.parse().map_err(|e| format!("--width: {e}"))?),
             "--height" => height = Some(value()?.parse().map_err(|e| format!("--height: {e}"))?),
+            "--steps" => a.steps = parse_steps(&value()?)?,
             "--opposite-window" => pipeline::OPPOSITE_WINDOW.store(true, std::sync::atomic::Ordering::Relaxed),
             "--help" | "-h" => {
-                return Err("usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window]".into())
+                return Err("usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window] [--steps T_S:DELTA_MS,...]".into())
             }
             other => return Err(format!("unknown argument `{other}` (try --help)")),
         }
@@ -95,6 +118,7 @@ fn main() -> ExitCode {
     };
     let make = |seed| {
         let mut c = RenderConfig::from_seed(seed, a.duration_s);
+        c.clock.steps.clone_from(&a.steps);
         if let Some((w, h)) = a.size {
             c.camera.width = w;
             c.camera.height = h;
@@ -109,6 +133,20 @@ fn main() -> ExitCode {
     println!("{TABLE_HEADER}");
     for r in &results {
         println!("{}", table_row(r));
+    }
+    if !a.steps.is_empty() {
+        println!("\nsteps followed (as the load harness judges it, publish time; midpoint):");
+        for r in &results {
+            let cells: Vec<String> = r
+                .follow
+                .iter()
+                .map(|(t, d, f)| match f {
+                    Some(f) => format!("{:+.0} ms at {t:.0} s: {f:.1} s", d * 1e3),
+                    None => format!("{:+.0} ms at {t:.0} s: not followed", d * 1e3),
+                })
+                .collect();
+            println!("  seed {}: {}", r.seed, cells.join(", "));
+        }
     }
     let n = results.len() as f64;
     let mean = |f: &dyn Fn(&pipeline::RunResult) -> f64| results.iter().map(f).sum::<f64>() / n;

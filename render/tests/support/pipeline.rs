@@ -118,6 +118,9 @@ pub struct RunResult {
     pub estimates: [usize; 2],
     /// Rows for the timing audit, when asked for.
     pub audit: Option<AuditRows>,
+    /// Per offset step of the run's clock (midpoint lane): seconds after the step
+    /// until the estimates followed it ([`follow_times`]), `None` if they did not.
+    pub follow: Vec<(f64, f64, Option<f64>)>,
     /// Wall time of the run.
     pub elapsed: Duration,
 }
@@ -128,6 +131,7 @@ pub struct RunResult {
 pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
     let t0 = Instant::now();
     let seed = cfg.seed;
+    let steps = cfg.clock.steps.clone();
     let mut r = Renderer::new(cfg).expect("valid config");
     let truth = r.truth().clone();
     let traj = r.trajectory().clone();
@@ -172,6 +176,8 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
         }
     }
     let [a, b] = &lanes;
+    let ref_lag_s = EstimatorConfig::default().reference_lag_s;
+    let follow = follow_times(&a.estimates, &steps, ref_lag_s);
     RunResult {
         seed,
         scores: [score(&a.estimates, &truth), score(&b.estimates, &truth)],
@@ -181,8 +187,59 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
         ],
         estimates: [a.estimates.len(), b.estimates.len()],
         audit: audit.then_some(rows),
+        follow,
         elapsed: t0.elapsed(),
     }
+}
+
+/// How long the estimates took to follow each offset step `(τ s, delta s)`, as
+/// the load harness judges it (`vlsyncd`'s `harness::report`): an estimate is
+/// published `ref_lag_s` after its reference time; the level is the mean of the
+/// locked estimates published in the 5 s before the step; the step is followed
+/// at the first estimate published after it from which every estimate for 2 s
+/// has moved at least half the step from that level. Rows `(τ, delta, seconds
+/// after the step)`.
+pub fn follow_times(
+    estimates: &[vlsync_common::Estimate],
+    steps: &[(f64, f64)],
+    ref_lag_s: f64,
+) -> Vec<(f64, f64, Option<f64>)> {
+    use vlsync_common::EstimatorState::{Holding, Tracking};
+    let locked: Vec<(f64, f64)> = estimates
+        .iter()
+        .filter(|e| matches!(e.state, Tracking | Holding))
+        .map(|e| (e.t_ref_ns as f64 * 1e-9 + ref_lag_s, e.offset_s))
+        .collect();
+    let mut out = Vec::new();
+    for (j, &(t, delta)) in steps.iter().enumerate() {
+        let end = steps.get(j + 1).map_or(f64::INFINITY, |s| s.0);
+        let before: Vec<f64> = locked
+            .iter()
+            .filter(|(p, _)| *p >= t - 5.0 && *p < t)
+            .map(|x| x.1)
+            .collect();
+        if before.len() < 3 {
+            out.push((t, delta, None));
+            continue;
+        }
+        let level = before.iter().sum::<f64>() / before.len() as f64;
+        let after: Vec<(f64, f64)> = locked
+            .iter()
+            .copied()
+            .filter(|(p, _)| *p >= t && *p < end)
+            .collect();
+        let moved = |o: f64| (o - level) / delta >= 0.5;
+        let found = (0..after.len()).find(|&i| {
+            let p0 = after[i].0;
+            p0 + 2.0 <= end
+                && after[i..]
+                    .iter()
+                    .take_while(|(p, _)| *p <= p0 + 2.0)
+                    .all(|&(_, o)| moved(o))
+        });
+        out.push((t, delta, found.map(|i| after[i].0 - t)));
+    }
+    out
 }
 
 /// Runs `seeds` (each with `make(seed)`) on `threads` threads; results in seed order.
