@@ -284,6 +284,8 @@ struct StepJob {
     /// The most significant split so far: statistic, first post block, post
     /// measurement, innovation.
     best: Option<(f64, usize, Meas, f64)>,
+    /// The slower stream's sample rate when the test started ([`Estimator::min_rate`]).
+    rate: f64,
 }
 
 impl StepJob {
@@ -301,6 +303,7 @@ impl StepJob {
             len: 0,
             prev: 0,
             best: None,
+            rate: 0.0,
         }
     }
 
@@ -419,6 +422,9 @@ pub struct Estimator {
     seg_fit: Option<(f64, (f64, f64))>,
     /// The step test of the last tracking hop, run in stages by the next pushes.
     step_job: Option<StepJob>,
+    /// While a step test's later stage runs: the sample rate its first stage saw
+    /// (every push moves the streams' mean intervals).
+    step_rate: Option<f64>,
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
     split_step: bool,
@@ -520,6 +526,7 @@ impl Estimator {
             suspect_var: 0.0,
             seg_fit: None,
             step_job: None,
+            step_rate: None,
             split_step: true,
             step_evidence: 0.0,
             innov: [(0.0, 0.0); BIAS_WINDOWS],
@@ -685,6 +692,8 @@ impl Estimator {
         } else {
             0.0
         };
+        // the last hop's step test, as it would have run at the next push
+        self.finish_step();
         let drift = est.drift.clamp(-0.1, 0.1);
         let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
         // blind for `age` seconds: the offset moved by the drift, and its uncertainty
@@ -699,7 +708,6 @@ impl Estimator {
         self.d = (drift, drift_std * drift_std);
         self.epoch_ns = None;
         self.ever_locked = true;
-        self.step_job = None;
         self.polarity = est.polarity;
         // tracking around the restored value (state `holding` until a measurement);
         // without a peak near it while moving, the estimator turns `lost` and re-acquires
@@ -843,7 +851,12 @@ impl Estimator {
         var.max(MIN_MEAS_STD_S * MIN_MEAS_STD_S)
     }
 
+    /// The slower stream's mean sample rate (it bounds the band a measurement's
+    /// variance counts); during a step test's later stages, the rate its first stage saw.
     fn min_rate(&self) -> f64 {
+        if let Some(r) = self.step_rate {
+            return r;
+        }
         let r = |i: usize| {
             let m = self.rs[i].mean_interval_s();
             if m > 0.0 {
@@ -1314,13 +1327,21 @@ impl Estimator {
             return;
         };
         let more = match job.stage {
-            StepStage::Start => self.step_start(&mut job),
+            StepStage::Start => {
+                job.rate = self.min_rate();
+                self.step_start(&mut job)
+            }
             StepStage::Total => {
                 self.step_total(&job);
                 job.stage = StepStage::Post;
                 true
             }
-            StepStage::Post => self.step_post(&mut job),
+            StepStage::Post => {
+                self.step_rate = Some(job.rate);
+                let more = self.step_post(&mut job);
+                self.step_rate = None;
+                more
+            }
         };
         if more {
             self.step_job = Some(job);
@@ -1741,6 +1762,16 @@ mod tests {
             (Family::LoadSteps, 3, EstimatorConfig::default()),
             (Family::Clocks, 1000, EstimatorConfig::default()),
             (Family::LoadSteps, 3, short_hops),
+            // a 5.5 Hz LiDAR below twice the low-pass: the slower stream's rate, which
+            // every push moves, bounds the measurements' band
+            (
+                Family::Rates60x5,
+                1000,
+                EstimatorConfig {
+                    lowpass_hz: 3.0,
+                    ..EstimatorConfig::default()
+                },
+            ),
         ] {
             let (split, whole, steps, pending) = split_and_whole(family, seed, &cfg);
             assert!(split.len() > 150, "{family:?}: {} estimates", split.len());
