@@ -73,7 +73,8 @@ pub struct EstimatorConfig {
     pub step_window_s: f64,
     /// A gap between consecutive samples of one stream longer than this breaks the window.
     pub max_gap_s: f64,
-    /// A timestamp jump (forward, or backward by more than `max_gap_s`) larger than this resets that stream.
+    /// A timestamp jump forward or backward larger than this resets that stream (a
+    /// smaller step backward is rejected as `backwards`).
     pub reset_jump_s: f64,
     /// Low-pass cut-off applied identically to both resampled signals, Hz.
     pub lowpass_hz: f64,

@@ -6,10 +6,11 @@ use std::path::Path;
 use vlsync_config::Config;
 
 /// Loads and validates `path`; returns the report to print on success: one line
-/// naming the file, followed with `print` by the effective configuration as TOML.
+/// naming the file, and with `print` the effective configuration after it, the
+/// line then a TOML comment so that the whole output is a valid file.
 pub fn check(path: &Path, print: bool) -> Result<String, String> {
     let cfg = Config::load(path).map_err(|e| e.to_string())?;
-    let mut out = format!("{}: ok\n", path.display());
+    let mut out = format!("{}{}: ok\n", if print { "# " } else { "" }, path.display());
     if print {
         let text = toml::to_string(&cfg)
             .map_err(|e| format!("cannot print the configuration of {}: {e}", path.display()))?;
@@ -32,13 +33,16 @@ mod tests {
     fn a_partial_file_prints_every_key_with_its_default() {
         let p = file("ok.toml", "[estimator]\nwindow_s = 8.0\n");
         let out = check(&p, true).unwrap();
-        assert!(out.starts_with(&format!("{}: ok\n", p.display())), "{out}");
-        // the printed configuration is itself a valid file with the same values
-        let back = Config::from_toml_str(out.split_once('\n').unwrap().1, "printed").unwrap();
+        assert!(
+            out.starts_with(&format!("# {}: ok\n", p.display())),
+            "{out}"
+        );
+        // the whole output is itself a valid file with the same values
+        let back = Config::from_toml_str(&out, "printed").unwrap();
         assert_eq!(back.estimator.window_s, 8.0);
         assert_eq!(back, Config::load(&p).unwrap());
         assert!(out.contains("hop_s") && out.contains("[daemon]") && out.contains("prefix"));
-        assert_eq!(check(&p, false).unwrap().lines().count(), 1);
+        assert_eq!(check(&p, false).unwrap(), format!("{}: ok\n", p.display()));
         let _ = std::fs::remove_file(p);
     }
 

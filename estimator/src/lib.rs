@@ -1358,8 +1358,9 @@ impl Estimator {
 
     /// Two-sample test for an offset step: the segment's newest blocks (the last
     /// `short..=4·short`) against the rest of it, the most significant split winning.
-    /// A split beyond `step_gate_sigma` for `step_confirm` consecutive hops starts a
-    /// new segment there. The newest `short` blocks' measurement calibrates the
+    /// Consecutive hops whose split exceeds half the `step_gate_sigma` gate and agree
+    /// accumulate evidence; at `step_confirm` times half the gate², a new segment
+    /// starts at the split. The newest `short` blocks' measurement calibrates the
     /// scale, and every `short` hops feeds the drift fit. Post windows and drift
     /// chunks must move as the motion gate asks ([`Self::seg_moving`]): the end of
     /// a drive holds seconds of noise whose peak can look confident. The innovation

@@ -5,8 +5,9 @@
 //! its processing time, which grows when the CPU is contended: a load change is
 //! an offset step. The estimator finds such steps from the data alone, but at the
 //! signatures' signal-to-noise ratio that takes 5-8 s; told when the step happened
-//! ([`vlsync_estimator::Estimator::declare_change`]) it restarts its segment there
-//! once two seconds of data follow.
+//! ([`vlsync_estimator::Estimator::hint_change`], a change that may not have
+//! happened) it restarts its segment there once two seconds of data follow and
+//! weighs a step against none until the new segment alone is as precise.
 //!
 //! The kernel's pressure-stall information measures that contention directly:
 //! `/proc/pressure/cpu`'s `some ... total=` is the time (µs) during which at
