@@ -10,7 +10,7 @@
 //!   (mono8, rgb8, bgr8, rgba8, yuv422/yuyv, PNG, JPEG).
 //! * [`scan`]: [`McapScanSource`], `vlsync_signature_lidar::Scan`s with per-ray
 //!   times from `header.stamp + i · time_increment`.
-//! * [`write`]: [`McapWriter`]: mono8 images, PNG images and scans.
+//! * [`write`](mod@write): [`McapWriter`]: mono8 images, PNG images and scans.
 //! * [`decompress`]: which chunk compressions are read.
 //!
 //! A recording is hostile input: nothing here panics on any file, and every
