@@ -1183,9 +1183,9 @@ impl Estimator {
             let hi = (pred_slot + margin).ceil().max(0.0) as usize;
             self.corr.set_active(lo, hi);
         }
-        // 1. step test and drift chunks on the newest blocks: run with the next
-        // sample pushed, so no single sample carries both it and the segment (its
-        // verdict applies from the next hop on)
+        // 1. step test and drift chunks on the newest blocks: run in stages by the
+        // next samples pushed, so no single sample carries both it and the segment,
+        // nor the whole test (its verdict applies from the next hop on)
         if motion {
             self.step_job = Some(StepJob::new(sign, pred_t));
         } else {
