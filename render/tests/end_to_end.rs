@@ -133,3 +133,45 @@ fn each_front_end_is_stamped_where_its_sample_belongs() {
         le * 1e3
     );
 }
+
+/// The step-following measure of the accuracy example (`--steps`), on estimates
+/// made up for it: published 3 s after their reference times, 2 per second.
+#[test]
+fn follow_times_judge_a_step_as_the_load_harness_does() {
+    use support::pipeline::follow_times;
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    let est = |t: f64, offset_s: f64, state| Estimate {
+        seq: 0,
+        t_ref_ns: (t * 1e9) as i64,
+        offset_s,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 0.0,
+        state,
+        polarity: Polarity::Positive,
+        peak_score: 1.0,
+        peak_ratio: 2.0,
+        measured_offset_s: f64::NAN,
+    };
+    // a -12 ms step at 30 s (publish time); the estimates reach the new level when
+    // published at 34 s, after a dip past half the step and back at 32.5 s
+    let ests: Vec<Estimate> = (0..120)
+        .map(|i| {
+            let p = i as f64 * 0.5;
+            let o = if p >= 34.0 || p == 32.0 { 0.088 } else { 0.100 };
+            est(p - 3.0, o, EstimatorState::Tracking)
+        })
+        .collect();
+    let f = follow_times(&ests, &[(30.0, -0.012)], 3.0);
+    assert_eq!(f.len(), 1);
+    assert_eq!(f[0].2, Some(4.0), "{f:?}");
+    // a step the estimates never follow, and one with no locked estimates before it
+    let flat: Vec<Estimate> = (0..120)
+        .map(|i| est(i as f64 * 0.5 - 3.0, 0.1, EstimatorState::Tracking))
+        .collect();
+    assert_eq!(follow_times(&flat, &[(30.0, -0.012)], 3.0)[0].2, None);
+    let acquiring: Vec<Estimate> = (0..120)
+        .map(|i| est(i as f64 * 0.5 - 3.0, 0.1, EstimatorState::Acquiring))
+        .collect();
+    assert_eq!(follow_times(&acquiring, &[(30.0, -0.012)], 3.0)[0].2, None);
+}
