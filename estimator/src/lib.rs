@@ -263,7 +263,11 @@ enum StepStage {
 /// carries the whole test. Everything it reads stays as it was at the hop until the
 /// next block completes, and it is finished before that (or before a stall, a clock
 /// jump, a restore changes what it reads), so its verdict is the one an unsplit
-/// test would give at the first push after the hop.
+/// test would give at the first push after the hop. One difference from the code
+/// before the stages: when one push completes two blocks (short hops, a burst after
+/// a stall), the first hop's test is now finished before the second block; it used
+/// to be dropped. At the default hop the replays of every simulated family are
+/// byte for byte those of that code.
 #[derive(Debug, Clone, Copy)]
 struct StepJob {
     sign: f64,
@@ -1788,6 +1792,110 @@ mod tests {
             // exact (Debug prints every f64 round-trip; NaN equals NaN there)
             for (x, y) in split.iter().zip(&whole) {
                 assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?}");
+            }
+        }
+    }
+
+    /// How long after a load step the restore case interrupts its step test: 6 s into
+    /// load-steps seed 3's first step the test's verdict widens the σ, and a restore
+    /// that dropped the test half-done (instead of finishing it) changes the
+    /// estimates (checked: 3-5 s would not show it).
+    const RESTORE_AFTER_STEP_NS: Nanos = 6_000_000_000;
+
+    /// What interrupts a step test under way in [`interrupted_tests_finish_first`].
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Interrupt {
+        /// Both streams silent for 3 s, then the camera first: a stall.
+        Silence,
+        /// The LiDAR's clock steps 8 s forward: a reset and a clock jump.
+        ClockJump,
+        /// The caller restores a saved estimate.
+        Restore,
+    }
+
+    /// Each way a step test can be interrupted before its stages are done: injected
+    /// right after a tracking hop (its test pending), into an estimator splitting the
+    /// test and one running it whole; the estimates must stay identical.
+    #[test]
+    fn interrupted_tests_finish_first() {
+        for what in [Interrupt::Silence, Interrupt::ClockJump, Interrupt::Restore] {
+            // a restore where the step test may be about to widen the σ or declare a
+            // step (seconds after a load step), so that dropping it half-done would show
+            let (run, from_ns) = if what == Interrupt::Restore {
+                let run = generate(Family::LoadSteps, 3, None);
+                let t = RESTORE_AFTER_STEP_NS + run.step_times_ns[0];
+                (run, t)
+            } else {
+                (generate(Family::Robot, 11, Some(90.0)), 40_000_000_000)
+            };
+            let mut all: Vec<(Stream, Sample)> = run
+                .cam
+                .iter()
+                .map(|s| (Stream::Cam, *s))
+                .chain(run.lidar.iter().map(|s| (Stream::Lidar, *s)))
+                .collect();
+            all.sort_by_key(|(_, s)| s.t_ns);
+            let cfg = EstimatorConfig::default();
+            let (mut split, mut whole) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            whole.split_step = false;
+            let (mut a, mut b) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
+            let mut injected: Option<Nanos> = None;
+            let mut lidar_shift = 0;
+            // pushes since the tracking hop chosen for the interruption
+            let mut after_hop: Option<usize> = None;
+            for &(stream, s) in &all {
+                if let Some(t0) = injected {
+                    if what == Interrupt::Silence && s.t_ns < t0 + 3_000_000_000 {
+                        continue;
+                    }
+                }
+                let s = match stream {
+                    Stream::Lidar => Sample {
+                        t_ns: s.t_ns + lidar_shift,
+                        ..s
+                    },
+                    Stream::Cam => s,
+                };
+                let _ = split.push(stream, s);
+                let _ = whole.push(stream, s);
+                let n = a.len();
+                a.extend(std::iter::from_fn(|| split.poll()));
+                b.extend(std::iter::from_fn(|| whole.poll()));
+                let tracking = a.len() > n && a[a.len() - 1].state == EstimatorState::Tracking;
+                if injected.is_none() && s.t_ns > from_ns {
+                    after_hop = match after_hop {
+                        None if tracking => Some(0),
+                        Some(k) => Some(k + 1),
+                        None => None,
+                    };
+                }
+                // a restore two pushes after the hop, when the split test has run its
+                // first stages and the whole one is done; the others right after it
+                let due = if what == Interrupt::Restore { 2 } else { 0 };
+                if injected.is_none() && after_hop == Some(due) {
+                    assert!(split.step_job.is_some(), "{what:?}: no test under way");
+                    injected = Some(s.t_ns);
+                    match what {
+                        Interrupt::Silence => {}
+                        Interrupt::ClockJump => lidar_shift = 8_000_000_000,
+                        Interrupt::Restore => {
+                            let last = a[a.len() - 1];
+                            split.restore(&last, 1.0);
+                            whole.restore(&last, 1.0);
+                        }
+                    }
+                }
+            }
+            assert!(injected.is_some(), "{what:?} never injected");
+            match what {
+                Interrupt::Silence => assert!(split.stats().gaps[0] > 0),
+                Interrupt::ClockJump => assert!(split.stats().resets[1] > 0),
+                Interrupt::Restore => {}
+            }
+            assert!(a.len() > 150, "{what:?}: {} estimates", a.len());
+            assert_eq!(a.len(), b.len(), "{what:?}");
+            for (x, y) in a.iter().zip(&b) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{what:?}");
             }
         }
     }

@@ -162,16 +162,31 @@ fn follow_times_judge_a_step_as_the_load_harness_does() {
             est(p - 3.0, o, EstimatorState::Tracking)
         })
         .collect();
-    let f = follow_times(&ests, &[(30.0, -0.012)], 3.0);
+    let f = follow_times(&ests, &[(30.0, -0.012)], 3.0, 60.0);
     assert_eq!(f.len(), 1);
     assert_eq!(f[0].2, Some(4.0), "{f:?}");
     // a step the estimates never follow, and one with no locked estimates before it
     let flat: Vec<Estimate> = (0..120)
         .map(|i| est(i as f64 * 0.5 - 3.0, 0.1, EstimatorState::Tracking))
         .collect();
-    assert_eq!(follow_times(&flat, &[(30.0, -0.012)], 3.0)[0].2, None);
+    assert_eq!(follow_times(&flat, &[(30.0, -0.012)], 3.0, 60.0)[0].2, None);
     let acquiring: Vec<Estimate> = (0..120)
         .map(|i| est(i as f64 * 0.5 - 3.0, 0.1, EstimatorState::Acquiring))
         .collect();
-    assert_eq!(follow_times(&acquiring, &[(30.0, -0.012)], 3.0)[0].2, None);
+    assert_eq!(
+        follow_times(&acquiring, &[(30.0, -0.012)], 3.0, 60.0)[0].2,
+        None
+    );
+    // moved only in the run's last second: not 2 s of evidence
+    let late: Vec<Estimate> = (0..120)
+        .map(|i| {
+            let p = i as f64 * 0.5;
+            est(
+                p - 3.0,
+                if p >= 59.0 { 0.088 } else { 0.1 },
+                EstimatorState::Tracking,
+            )
+        })
+        .collect();
+    assert_eq!(follow_times(&late, &[(30.0, -0.012)], 3.0, 60.0)[0].2, None);
 }

@@ -132,6 +132,7 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
     let t0 = Instant::now();
     let seed = cfg.seed;
     let steps = cfg.clock.steps.clone();
+    let duration_s = cfg.duration_s;
     let mut r = Renderer::new(cfg).expect("valid config");
     let truth = r.truth().clone();
     let traj = r.trajectory().clone();
@@ -177,7 +178,7 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
     }
     let [a, b] = &lanes;
     let ref_lag_s = EstimatorConfig::default().reference_lag_s;
-    let follow = follow_times(&a.estimates, &steps, ref_lag_s);
+    let follow = follow_times(&a.estimates, &steps, ref_lag_s, duration_s);
     RunResult {
         seed,
         scores: [score(&a.estimates, &truth), score(&b.estimates, &truth)],
@@ -195,14 +196,16 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
 /// How long the estimates took to follow each offset step `(τ s, delta s)`, as
 /// the load harness judges it (`vlsyncd`'s `harness::report`): an estimate is
 /// published `ref_lag_s` after its reference time; the level is the mean of the
-/// locked estimates published in the 5 s before the step; the step is followed
-/// at the first estimate published after it from which every estimate for 2 s
-/// has moved at least half the step from that level. Rows `(τ, delta, seconds
-/// after the step)`.
+/// locked estimates published in the 5 s before the step (not before the previous
+/// step); the step is followed at the first estimate published after it from
+/// which every estimate for 2 s has moved at least half the step from that level,
+/// those 2 s ending before the next step or the end of the run (`end_s`). Rows
+/// `(τ, delta, seconds after the step)`.
 pub fn follow_times(
     estimates: &[vlsync_common::Estimate],
     steps: &[(f64, f64)],
     ref_lag_s: f64,
+    end_s: f64,
 ) -> Vec<(f64, f64, Option<f64>)> {
     use vlsync_common::EstimatorState::{Holding, Tracking};
     let locked: Vec<(f64, f64)> = estimates
@@ -212,10 +215,15 @@ pub fn follow_times(
         .collect();
     let mut out = Vec::new();
     for (j, &(t, delta)) in steps.iter().enumerate() {
-        let end = steps.get(j + 1).map_or(f64::INFINITY, |s| s.0);
+        let end = steps.get(j + 1).map_or(end_s, |s| s.0);
+        let start = if j > 0 {
+            steps[j - 1].0
+        } else {
+            f64::NEG_INFINITY
+        };
         let before: Vec<f64> = locked
             .iter()
-            .filter(|(p, _)| *p >= t - 5.0 && *p < t)
+            .filter(|(p, _)| *p >= (t - 5.0).max(start) && *p < t)
             .map(|x| x.1)
             .collect();
         if before.len() < 3 {
