@@ -1734,14 +1734,7 @@ mod tests {
         seed: u64,
         cfg: &EstimatorConfig,
     ) -> (Vec<Estimate>, Vec<Estimate>, u64, usize) {
-        let run = generate(family, seed, None);
-        let mut all: Vec<(Stream, Sample)> = run
-            .cam
-            .iter()
-            .map(|s| (Stream::Cam, *s))
-            .chain(run.lidar.iter().map(|s| (Stream::Lidar, *s)))
-            .collect();
-        all.sort_by_key(|(_, s)| s.t_ns);
+        let all = generate(family, seed, None).pushes();
         let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
         whole.split_step = false;
         let (mut a, mut b, mut pending) = (Vec::new(), Vec::new(), 0);
@@ -1828,13 +1821,7 @@ mod tests {
             } else {
                 (generate(Family::Robot, 11, Some(90.0)), 40_000_000_000)
             };
-            let mut all: Vec<(Stream, Sample)> = run
-                .cam
-                .iter()
-                .map(|s| (Stream::Cam, *s))
-                .chain(run.lidar.iter().map(|s| (Stream::Lidar, *s)))
-                .collect();
-            all.sort_by_key(|(_, s)| s.t_ns);
+            let all = run.pushes();
             let cfg = EstimatorConfig::default();
             let (mut split, mut whole) = (Estimator::new(&cfg), Estimator::new(&cfg));
             whole.split_step = false;

@@ -73,7 +73,7 @@ use rand_distr::StandardNormal;
 use std::f64::consts::PI;
 use std::fmt;
 use std::str::FromStr;
-use vlsync_common::{nanos_to_secs, secs_to_nanos, Nanos, Polarity, Sample};
+use vlsync_common::{nanos_to_secs, secs_to_nanos, Nanos, Polarity, Sample, Stream};
 
 /// Shortest run accepted, seconds.
 pub const MIN_DURATION_S: f64 = 2.0;
@@ -380,6 +380,32 @@ pub struct SimRun {
     pub cam_clean: Vec<CleanPoint>,
     /// Noiseless signature behind each LiDAR sample (same order as `lidar`).
     pub lidar_clean: Vec<CleanPoint>,
+}
+
+impl SimRun {
+    /// Both streams' samples in the order a live system would push them: by
+    /// timestamp, the camera's first on a tie.
+    ///
+    /// ```
+    /// use vlsync_common::Stream;
+    /// use vlsync_sim::families::{generate, Family};
+    /// let run = generate(Family::Robot, 1, Some(20.0));
+    /// let p = run.pushes();
+    /// assert_eq!(p.len(), run.cam.len() + run.lidar.len());
+    /// assert!(p.windows(2).all(|w| w[0].1.t_ns <= w[1].1.t_ns));
+    /// assert!(p.iter().any(|(s, _)| *s == Stream::Lidar));
+    /// ```
+    pub fn pushes(&self) -> Vec<(Stream, Sample)> {
+        let mut all: Vec<(Stream, Sample)> = self
+            .cam
+            .iter()
+            .map(|s| (Stream::Cam, *s))
+            .chain(self.lidar.iter().map(|s| (Stream::Lidar, *s)))
+            .collect();
+        // stable: the camera's samples come first on equal stamps
+        all.sort_by_key(|(_, s)| s.t_ns);
+        all
+    }
 }
 
 // ---------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 //! `vlsync-demo` interrupted with Ctrl-C (SIGINT) stops every child and leaves
 //! no shared-memory resource behind, on the signature simulator and on its
-//! default source, rendered frames and scans through the front-ends.
+//! default source, rendered frames and scans through the front-ends; and so it
+//! does when its reader goes away (`vlsync-demo | head`).
 
 use std::time::{Duration, Instant};
 use vlsync_tests::{bin, ipc_resources, Managed};
@@ -41,6 +42,13 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     assert!(status.success(), "demo exit {status}:\n{out}");
     assert!(out.contains("=== summary (interrupted) ==="), "{out}");
     assert!(out.contains("children stopped cleanly"), "{out}");
+    assert_nothing_left(&before);
+    let _ = std::fs::remove_dir_all(&dir);
+    out
+}
+
+/// No iceoryx2 resource beyond `before` (after up to 3 s for the clean-up).
+fn assert_nothing_left(before: &[String]) {
     let t0 = Instant::now();
     let mut after = ipc_resources();
     while after != before && t0.elapsed() < Duration::from_secs(3) {
@@ -49,8 +57,61 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     }
     let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
     assert!(leaked.is_empty(), "left behind: {leaked:?}");
+}
+
+/// `vlsync-demo | head -3`: the demo reads a closed pipe as the end of its run,
+/// stops its children and exits 0 instead of panicking on its next line.
+fn close_the_reader() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let before = ipc_resources();
+    let dir = std::env::temp_dir().join(format!("vlsync-demo-test-pipe-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let err = dir.join("stderr.log");
+    let mut child = Command::new(bin("vlsync-demo"))
+        .args([
+            "--family",
+            "robot",
+            "--duration",
+            "60",
+            "--speed",
+            "2",
+            "--log-dir",
+        ])
+        .arg(dir.join("children"))
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    for _ in 0..3 {
+        assert!(
+            lines.next().is_some_and(|l| l.is_ok()),
+            "fewer than 3 lines"
+        );
+    }
+    drop(lines);
+    let t0 = Instant::now();
+    let status = loop {
+        if let Ok(Some(s)) = child.try_wait() {
+            break s;
+        }
+        if t0.elapsed() > Duration::from_secs(15) {
+            // Ctrl-C first, so that a failing demo still stops its children
+            let _ = Command::new("kill")
+                .args(["-INT", &child.id().to_string()])
+                .status();
+            std::thread::sleep(Duration::from_secs(5));
+            let _ = child.kill();
+            panic!("demo still running 15 s after its reader went away");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stderr = std::fs::read_to_string(&err).unwrap_or_default();
+    assert!(status.success(), "demo exit {status}:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_nothing_left(&before);
     let _ = std::fs::remove_dir_all(&dir);
-    out
 }
 
 #[test]
@@ -78,4 +139,5 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
             .any(|l| l.contains("tracking") || l.contains("holding")),
         "no locked estimate in 12 s:\n{out}"
     );
+    close_the_reader();
 }

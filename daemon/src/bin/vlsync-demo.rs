@@ -14,6 +14,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
+use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{Received, Role, Session, SessionOptions, Source, Stamping};
 use vlsyncd::harness::stats::ErrorStats;
 
@@ -77,6 +78,7 @@ fn locked(r: &Received) -> bool {
 }
 
 fn run(a: Args) -> Result<(), String> {
+    let mut out = Out::new();
     let source = match &a.family {
         Some(f) => Source::Sim {
             family: f.parse().map_err(|e| format!("--family: {e}"))?,
@@ -103,14 +105,14 @@ fn run(a: Args) -> Result<(), String> {
         source,
         start_delay: Duration::from_millis(1500),
     })?;
-    println!(
+    out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
         s.source.describe(),
         s.prefix,
         s.log_dir.display()
-    );
+    ));
     if !a.quiet {
-        println!(
+        out.line(format_args!(
             "{:>8} {:>10} {:>11} {:>11} {:>9} {:>10} {:>10} {:>10}",
             "t_ref s",
             "state",
@@ -120,12 +122,13 @@ fn run(a: Args) -> Result<(), String> {
             "±1σ ms",
             "drift ppm",
             "truth ppm"
-        );
+        ));
     }
     let end = s.end_ns() + 1_500_000_000;
     let mut interrupted = false;
     while vlsync_ipc::monotonic_ns() < end {
-        if termination_requested() {
+        // Ctrl-C, or nobody reads the output any more (`| head`): stop the run
+        if termination_requested() || out.closed() {
             interrupted = true;
             break;
         }
@@ -133,7 +136,7 @@ fn run(a: Args) -> Result<(), String> {
             let e = &r.est;
             let t = truth.offset_at(e.t_ref_ns);
             if !a.quiet {
-                println!(
+                out.line(format_args!(
                     "{:>8.2} {:>10} {:>+11.2} {:>+11.2} {:>+9.2} {:>10.2} {:>+10.1} {:>+10.1}",
                     e.t_ref_ns as f64 * 1e-9,
                     e.state.name(),
@@ -143,7 +146,7 @@ fn run(a: Args) -> Result<(), String> {
                     e.offset_std_s * 1e3,
                     e.drift * 1e6,
                     truth.drift * 1e6
-                );
+                ));
             }
         }
         if s.drivers_done() {
@@ -161,11 +164,14 @@ fn run(a: Args) -> Result<(), String> {
         .filter(|r| locked(r))
         .map(|r| r.est.offset_s - truth.offset_at(r.est.t_ref_ns))
         .collect();
-    println!(
+    out.line(format_args!(
         "\n=== summary{} ===",
         if interrupted { " (interrupted)" } else { "" }
-    );
-    println!("accuracy: {}", ErrorStats::of(&errs).describe());
+    ));
+    out.line(format_args!(
+        "accuracy: {}",
+        ErrorStats::of(&errs).describe()
+    ));
     // convergence: the first locked estimate from which every later locked one
     // is within CONVERGED_S of the truth (wall time from the drivers' start)
     let within: Vec<(f64, bool)> = s
@@ -188,46 +194,48 @@ fn run(a: Args) -> Result<(), String> {
             within.get(i + 1).map(|w| w.0)
         });
     let secs = |v: Option<f64>| v.map_or("never".to_string(), |v| format!("{v:.1} s"));
-    println!(
+    out.line(format_args!(
         "convergence (wall time after the drivers' start): first lock {}, first estimate within {:.0} ms {}, within {:.0} ms from then on {}",
         secs(first_lock),
         CONVERGED_S * 1e3,
         secs(first_within),
         CONVERGED_S * 1e3,
         secs(stays)
-    );
-    println!(
+    ));
+    out.line(format_args!(
         "truth: offset {:.2} ms at start, drift {:.1} ppm, {} step(s)",
         truth.offset_at(0) * 1e3,
         truth.drift * 1e6,
         truth.steps.len()
-    );
+    ));
     match s.last_status() {
         Some(st) => {
-            println!(
+            out.line(format_args!(
                 "daemon: received cam {} lidar {}, lost cam {} lidar {}, rejected cam {} lidar {}, {} estimates, {} budget overruns",
                 st.received[0], st.received[1], st.lost[0], st.lost[1], st.rejected_total(0), st.rejected_total(1),
                 st.estimates_published, st.budget_overruns
-            );
-            println!(
+            ));
+            out.line(format_args!(
                 "latency: processing p50 {:.1} µs p99 {:.1} µs max {:.1} µs; driver->daemon done p50 {:.1} µs p99 {:.1} µs max {:.1} µs ({} samples)",
                 st.processing_ns[0] as f64 / 1e3, st.processing_ns[1] as f64 / 1e3, st.processing_ns[2] as f64 / 1e3,
                 st.end_to_end_ns[0] as f64 / 1e3, st.end_to_end_ns[1] as f64 / 1e3, st.end_to_end_ns[2] as f64 / 1e3,
                 st.latency_count
-            );
+            ));
         }
-        None => println!("daemon: no status received"),
+        None => {
+            out.line(format_args!("daemon: no status received"));
+        }
     }
     for r in Role::ALL {
-        println!("{:>12}: {}", r.name(), s.usage(r).describe());
+        out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));
     }
-    println!(
+    out.line(format_args!(
         "children stopped {}",
         if clean {
             "cleanly"
         } else {
             "(some needed SIGKILL)"
         }
-    );
+    ));
     Ok(())
 }

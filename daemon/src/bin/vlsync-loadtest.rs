@@ -14,6 +14,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
+use vlsyncd::harness::console::Out;
 use vlsyncd::harness::load::{find_stress_ng, profile, profiles, run_profile, Progress};
 use vlsyncd::harness::report::{analyse, estimates_csv, svg, tables, targets, to_json, RunData};
 use vlsyncd::harness::session::{Role, Session, SessionOptions, Source, Stamping};
@@ -100,16 +101,24 @@ fn rt_lines(log: &str) -> Vec<String> {
 }
 
 fn run(a: &Args) -> Result<bool, String> {
+    // a reader that goes away stops the printing, not the run: the report files are
+    // its result
+    let mut con = Out::new();
     if a.list {
         for p in profiles() {
-            println!("{:>8}  {:>4.0} s  {}", p.name, p.duration_s(), p.about);
+            con.line(format_args!(
+                "{:>8}  {:>4.0} s  {}",
+                p.name,
+                p.duration_s(),
+                p.about
+            ));
             for ph in &p.phases {
-                println!(
+                con.line(format_args!(
                     "{:>16}  {:>4.0} s  {}",
                     ph.name,
                     ph.duration_s,
                     ph.load.describe()
-                );
+                ));
             }
         }
         return Ok(true);
@@ -147,14 +156,14 @@ fn run(a: &Args) -> Result<bool, String> {
     std::fs::write(&cfg_path, text).map_err(|e| format!("{}: {e}", cfg_path.display()))?;
 
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
-    println!(
+    con.line(format_args!(
         "vlsync-loadtest: profile `{}` ({:.0} s: {}), rendered seed {}, {cpus} CPUs; report and logs in {}",
         prof.name,
         prof.duration_s(),
         prof.about,
         a.seed,
         out.display()
-    );
+    ));
     let mut session = Session::start(SessionOptions {
         name: "vlsync-loadtest".into(),
         prefix: None,
@@ -174,21 +183,23 @@ fn run(a: &Args) -> Result<bool, String> {
     })?;
     let rt = rt_lines(&session.log("vlsyncd.log"));
     for l in &rt {
-        println!("  daemon: {l}");
+        con.line(format_args!("  daemon: {l}"));
     }
     let start_at = session.start_at;
     let quiet = a.quiet;
     let mut progress = |p: Progress<'_>| match p {
-        Progress::Line(l) => println!("{l}"),
+        Progress::Line(l) => {
+            con.line(format_args!("{l}"));
+        }
         Progress::Estimate(r) if !quiet => {
             let e = &r.est;
-            println!(
+            con.line(format_args!(
                 "  t {:>6.1} s  {:>9}  offset {:>+8.2} ms ±{:.2}",
                 (e.t_ref_ns - start_at) as f64 * 1e-9,
                 e.state.name(),
                 e.offset_s * 1e3,
                 e.offset_std_s * 1e3
-            );
+            ));
         }
         Progress::Estimate(_) => {}
     };
@@ -310,7 +321,7 @@ fn run(a: &Args) -> Result<bool, String> {
             "(some needed SIGKILL)"
         }
     ));
-    println!("\n{md}");
+    con.line(format_args!("\n{md}"));
 
     let json = to_json(
         &reports,
@@ -356,7 +367,7 @@ fn run(a: &Args) -> Result<bool, String> {
     ] {
         let p = out.join(name);
         std::fs::write(&p, body).map_err(|e| format!("{}: {e}", p.display()))?;
-        println!("wrote {}", p.display());
+        con.line(format_args!("wrote {}", p.display()));
     }
     Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted)
 }
