@@ -788,35 +788,10 @@ enum ScanInput {
     Serial(Box<Serial>),
 }
 
-/// The LiDAR front-end: one bearing window, or a window and the one opposite it
-/// (`lidar.opposite_window`).
-#[derive(Debug, Clone)]
-enum Front {
-    One(Box<lidar::SignatureProcessor>),
-    Two(Box<lidar::OppositeWindows>),
-}
-
-impl Front {
-    fn push_scan(&mut self, scan: &lidar::Scan, emit: impl FnMut(Sample)) -> usize {
-        match self {
-            Front::One(p) => p.push_scan(scan, emit),
-            Front::Two(w) => w.push_scan(scan, emit),
-        }
-    }
-
-    /// The counters of the window (ahead).
-    fn counters(&self) -> &lidar::Counters {
-        match self {
-            Front::One(p) => p.counters(),
-            Front::Two(w) => w.ahead().counters(),
-        }
-    }
-}
-
 /// LiDAR scans through `SignatureProcessor::push_scan`.
 pub struct LidarSource {
     input: ScanInput,
-    proc: Front,
+    proc: lidar::WallFront,
     queue: VecDeque<(Sample, Option<SampleTruth>)>,
     what: String,
     scans: u64,
@@ -838,7 +813,7 @@ impl LidarSource {
             .map_err(|e| SourceError(format!("{what}: {e}")))?;
         Ok(Self {
             input,
-            proc: Front::One(Box::new(proc)),
+            proc: lidar::WallFront::One(Box::new(proc)),
             queue: VecDeque::new(),
             what,
             scans: 0,
@@ -855,11 +830,7 @@ impl LidarSource {
             ..lidar::SignatureConfig::default()
         };
         let err = |e: lidar::ConfigError| SourceError(format!("{}: {e}", self.what));
-        self.proc = if f.opposite_window {
-            Front::Two(Box::new(lidar::OppositeWindows::new(cfg).map_err(err)?))
-        } else {
-            Front::One(Box::new(lidar::SignatureProcessor::new(cfg).map_err(err)?))
-        };
+        self.proc = lidar::WallFront::new(cfg, f.opposite_window).map_err(err)?;
         self.what = format!(
             "{}; wall window {:.1}° ± {:.1}°{}",
             self.what,
@@ -983,7 +954,7 @@ impl LidarSource {
 
     /// The front-end's counters.
     pub fn counters(&self) -> lidar::Counters {
-        *self.proc.counters()
+        *self.proc.ahead().counters()
     }
 
     /// Reads more input into the queue; false at the end of the input.
@@ -1140,7 +1111,7 @@ impl Source for LidarSource {
     }
 
     fn report(&self) -> Option<String> {
-        let c = self.proc.counters();
+        let c = self.proc.ahead().counters();
         let mut s = format!(
             "{} scans, {} passes, {} samples; dropped:",
             self.scans, c.passes, c.samples
@@ -1149,7 +1120,7 @@ impl Source for LidarSource {
             s.push_str(&format!(" {} {},", r.name(), c.dropped(r)));
         }
         s.push_str(&format!(" invalid returns {}", c.invalid_returns));
-        if let Front::Two(w) = &self.proc {
+        if let Some(w) = self.proc.opposite() {
             let c = w.behind().counters();
             s.push_str(&format!(
                 "; opposite window: {} passes, {} samples, {} dropped out of time order",

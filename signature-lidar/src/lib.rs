@@ -52,7 +52,7 @@ pub mod scan;
 pub mod serial;
 pub mod signature;
 
-pub use opposite::OppositeWindows;
+pub use opposite::{OppositeWindows, WallFront};
 pub use scan::{Ray, Rotation, Scan, ScanTiming};
 pub use signature::{
     ConfigError, Counters, DropReason, Measurement, SignatureConfig, SignatureProcessor, Stamping,

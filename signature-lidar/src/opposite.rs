@@ -115,3 +115,48 @@ impl OppositeWindows {
         self.out_of_order
     }
 }
+
+/// The wall front-end a LiDAR driver runs: the window of a configuration alone, or
+/// with the one opposite it ([`OppositeWindows`], `lidar.opposite_window`).
+#[derive(Debug, Clone)]
+pub enum WallFront {
+    /// The window alone.
+    One(Box<SignatureProcessor>),
+    /// The window and the one opposite it.
+    Two(Box<OppositeWindows>),
+}
+
+impl WallFront {
+    /// The window of `cfg`, and with `opposite` the one opposite it too.
+    pub fn new(cfg: SignatureConfig, opposite: bool) -> Result<Self, ConfigError> {
+        Ok(if opposite {
+            Self::Two(Box::new(OppositeWindows::new(cfg)?))
+        } else {
+            Self::One(Box::new(SignatureProcessor::new(cfg)?))
+        })
+    }
+
+    /// Feeds `scan`; `emit` gets the samples in increasing time. Returns their number.
+    pub fn push_scan(&mut self, scan: &Scan, emit: impl FnMut(Sample)) -> usize {
+        match self {
+            Self::One(p) => p.push_scan(scan, emit),
+            Self::Two(w) => w.push_scan(scan, emit),
+        }
+    }
+
+    /// The window ahead (the configuration's own).
+    pub fn ahead(&self) -> &SignatureProcessor {
+        match self {
+            Self::One(p) => p,
+            Self::Two(w) => w.ahead(),
+        }
+    }
+
+    /// Both windows, when the opposite one runs too.
+    pub fn opposite(&self) -> Option<&OppositeWindows> {
+        match self {
+            Self::One(_) => None,
+            Self::Two(w) => Some(w),
+        }
+    }
+}

@@ -179,11 +179,11 @@ impl Summary {
         if let Some(now) = &self.status_now {
             let then = self.status_then.unwrap_or_default();
             for (si, name) in ["cam", "lidar"].iter().enumerate() {
-                let rej = |s: &Status| s.rejected[si].iter().sum::<u64>();
                 out.push_str(&format!(
                     "; {name} {} received, {} rejected, {} lost",
                     now.received[si].saturating_sub(then.received[si]),
-                    rej(now).saturating_sub(rej(&then)),
+                    now.rejected_total(si)
+                        .saturating_sub(then.rejected_total(si)),
                     now.lost[si].saturating_sub(then.lost[si])
                 ));
             }

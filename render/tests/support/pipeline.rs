@@ -27,9 +27,8 @@ pub static OPPOSITE_WINDOW: AtomicBool = AtomicBool::new(false);
 /// One stamping variant: its two front-ends and its estimator.
 struct Lane {
     cam: cam::SignatureProcessor,
-    lidar: lidar::SignatureProcessor,
-    /// the window and the one behind (see [`OPPOSITE_WINDOW`]), used instead of `lidar`
-    both: Option<lidar::OppositeWindows>,
+    /// the window ahead, and with [`OPPOSITE_WINDOW`] the one behind too
+    lidar: lidar::WallFront,
     est: Estimator,
     estimates: Vec<vlsync_common::Estimate>,
     cam_samples: usize,
@@ -44,18 +43,14 @@ impl Lane {
                 ..cam::SignatureConfig::default()
             })
             .expect("default camera front-end"),
-            lidar: lidar::SignatureProcessor::new(lidar::SignatureConfig {
-                stamping: lidar_stamping,
-                ..lidar::SignatureConfig::default()
-            })
-            .expect("default LiDAR front-end"),
-            both: OPPOSITE_WINDOW.load(Ordering::Relaxed).then(|| {
-                lidar::OppositeWindows::new(lidar::SignatureConfig {
+            lidar: lidar::WallFront::new(
+                lidar::SignatureConfig {
                     stamping: lidar_stamping,
                     ..lidar::SignatureConfig::default()
-                })
-                .expect("LiDAR front-end with the opposite window")
-            }),
+                },
+                OPPOSITE_WINDOW.load(Ordering::Relaxed),
+            )
+            .expect("default LiDAR front-end"),
             est: Estimator::new(&EstimatorConfig::default()),
             estimates: Vec::new(),
             cam_samples: 0,
@@ -77,10 +72,7 @@ impl Lane {
 
     fn scan(&mut self, s: &vlsync_render::Scan, out: &mut Vec<Sample>) {
         out.clear();
-        match &mut self.both {
-            Some(both) => both.push_scan(s, |x| out.push(x)),
-            None => self.lidar.push_scan(s, |x| out.push(x)),
-        };
+        self.lidar.push_scan(s, |x| out.push(x));
         for &x in out.iter() {
             self.lidar_samples += 1;
             let _ = self.est.push(Stream::Lidar, x);
