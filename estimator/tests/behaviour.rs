@@ -133,19 +133,15 @@ fn replay_announcing(
     announce: impl Fn(&mut Estimator, i64),
 ) -> Vec<vlsync_common::Estimate> {
     let mut out = Vec::new();
-    let (mut i, mut j, mut c) = (0, 0, 0);
-    while i < run.cam.len() || j < run.lidar.len() {
-        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
-            let _ = est.push(Stream::Cam, run.cam[i]);
-            i += 1;
-        } else {
-            if let Some(&t) = times.get(c).filter(|&&t| t <= run.lidar[j].t_ns) {
+    let mut c = 0;
+    for (stream, s) in run.pushes() {
+        if stream == Stream::Lidar {
+            if let Some(&t) = times.get(c).filter(|&&t| t <= s.t_ns) {
                 announce(est, t);
                 c += 1;
             }
-            let _ = est.push(Stream::Lidar, run.lidar[j]);
-            j += 1;
         }
+        let _ = est.push(stream, s);
         while let Some(e) = est.poll() {
             out.push(e);
         }
