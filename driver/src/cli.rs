@@ -347,28 +347,28 @@ pub fn select_source(
     }
 }
 
-/// The LiDAR front-end's windows: `[lidar]` of --config (defaults without one),
-/// `--opposite-window` on top.
+/// The configuration of --config (defaults without one).
+fn config(args: &DriverArgs) -> Result<vlsync_config::Config, DriverError> {
+    match &args.config {
+        Some(path) => {
+            vlsync_config::Config::load(path).map_err(|e| DriverError::Options(e.to_string()))
+        }
+        None => Ok(vlsync_config::Config::default()),
+    }
+}
+
+/// The LiDAR front-end's windows: `[lidar]` of --config, `--opposite-window` on top.
 fn lidar_front(args: &DriverArgs) -> Result<vlsync_config::LidarConfig, DriverError> {
-    let mut f = match &args.config {
-        Some(path) => vlsync_config::Config::load(path)
-            .map(|c| c.lidar)
-            .map_err(|e| DriverError::Options(e.to_string()))?,
-        None => vlsync_config::LidarConfig::default(),
-    };
+    let mut f = config(args)?.lidar;
     f.opposite_window |= args.opposite_window;
     Ok(f)
 }
 
+/// `--prefix`, else `services.prefix` of --config.
 fn prefix(args: &DriverArgs) -> Result<String, DriverError> {
-    if let Some(p) = &args.prefix {
-        return Ok(p.clone());
-    }
-    match &args.config {
-        Some(path) => vlsync_config::Config::load(path)
-            .map(|c| c.services.prefix)
-            .map_err(|e| DriverError::Options(e.to_string())),
-        None => Ok(vlsync_config::ServicesConfig::default().prefix),
+    match &args.prefix {
+        Some(p) => Ok(p.clone()),
+        None => Ok(config(args)?.services.prefix),
     }
 }
 
