@@ -244,6 +244,9 @@ pub struct Correlator {
     acq_count: usize,
     since_rebuild: usize,
     active: (usize, usize),
+    /// Changes whenever stored blocks change other than by a block completing
+    /// (lag shift, forgetting): what was computed from them is stale.
+    epoch: u64,
 }
 
 impl Correlator {
@@ -278,7 +281,15 @@ impl Correlator {
             acq_count: 0,
             since_rebuild: 0,
             active: (0, n_lags - 1),
+            epoch: 0,
         }
+    }
+
+    /// Counter of changes to the stored blocks other than a block completing (a
+    /// lag shift, forgetting them): equal epochs and equal block times mean equal
+    /// blocks.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
     }
 
     /// Number of lag slots.
@@ -313,6 +324,7 @@ impl Correlator {
         }
         let n = self.n_lags as i64;
         self.lag0 += delta;
+        self.epoch += 1;
         for i in 0..self.count {
             let p = self.phys(i);
             let b = &mut self.blocks[p];
@@ -410,6 +422,7 @@ impl Correlator {
     /// Forgets every completed block and the unfinished one (the cursor stays).
     pub fn clear_blocks(&mut self) {
         self.cur.clear();
+        self.epoch += 1;
         self.count = 0;
         self.acq.clear();
         self.acq_count = 0;

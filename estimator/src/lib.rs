@@ -47,7 +47,7 @@ use correlator::{Correlator, Step, Sums};
 use drift::DriftFit;
 use filter::BandPass;
 use resample::{Discontinuity, Resampler};
-use segment::{Segment, Span};
+use segment::{PrepKey, Segment, Span};
 use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity, RejectReason, Sample, Stream};
 use vlsync_config::EstimatorConfig;
 
@@ -432,6 +432,14 @@ pub struct Estimator {
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
     split_step: bool,
+    /// Whether the next hop's segment combination is prepared in stages before its
+    /// block completes (always, except in the test that compares it with the
+    /// direct combination).
+    prepare: bool,
+    /// The span the prepared combination covers (see [`Segment::prepare_residuals`]).
+    prep_span: Option<Span>,
+    /// Segment measurements, and those from a prepared combination.
+    prepared_hops: (u64, u64),
     /// Variance added to the estimate while the step test sees a change it cannot
     /// confirm yet (a possible step's size squared, weighted by its evidence).
     suspect_var: f64,
@@ -532,6 +540,9 @@ impl Estimator {
             step_job: None,
             step_rate: None,
             split_step: true,
+            prepare: true,
+            prep_span: None,
+            prepared_hops: (0, 0),
             step_evidence: 0.0,
             innov: [(0.0, 0.0); BIAS_WINDOWS],
             innov_n: 0,
@@ -562,12 +573,15 @@ impl Estimator {
     /// Pushes one sample of `stream`. Rejected samples are counted and never reach the sums.
     pub fn push(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
         // one stage of the last hop's step test per sample: no sample carries both the
-        // hop's combination and the whole test
+        // hop's combination and the whole test; once it is done, the samples prepare
+        // the next hop's combination (below)
+        let staged = self.step_job.is_some();
         if self.split_step {
             self.step_stage();
         } else {
             self.finish_step();
         }
+        let hops = self.stats.estimates;
         let si = idx(stream);
         let other_now = self.rs[1 - si].last_time();
         let Self { rs, bp, corr, .. } = self;
@@ -614,6 +628,9 @@ impl Estimator {
         }
         self.run_correlator();
         self.check_stall(stream, sample.t_ns);
+        if !staged && self.stats.estimates == hops && self.step_job.is_none() {
+            self.prepare_stage();
+        }
         Ok(())
     }
 
@@ -994,6 +1011,13 @@ impl Estimator {
     }
 
     fn hop(&mut self) {
+        self.hop_inner();
+        // what was prepared was for this hop (used, or its inputs changed)
+        self.seg.drop_prepared();
+        self.prep_span = None;
+    }
+
+    fn hop_inner(&mut self) {
         // normally finished already, before the block that makes this hop completed
         self.finish_step();
         let count = self.corr.count();
@@ -1132,18 +1156,15 @@ impl Estimator {
                 // the last segment measurement's peak and regression re-weight the blocks
                 // before the one combination of this hop
                 if let Some((z, fit)) = self.seg_fit {
-                    let slot = z * self.p.fs - self.corr.lag0() as f64;
-                    self.seg.reweight(&self.corr, span, slot, fit);
+                    self.seg.reweight(&self.corr, span, self.slot_of(z), fit);
                 }
             }
         }
         self.seg.combine(&self.corr, span);
         let m = self.measure_sums(Which::Seg, span.lo, span.hi, sign);
         if w == Weights::Warm {
-            self.seg_fit = m.and_then(|m| {
-                let slot = m.z * self.p.fs - self.corr.lag0() as f64;
-                Some((m.z, self.seg.regression(span, slot)?))
-            });
+            self.seg_fit =
+                m.and_then(|m| Some((m.z, self.seg.regression(span, self.slot_of(m.z))?)));
         }
         m
     }
@@ -1164,6 +1185,132 @@ impl Estimator {
         let oldest = n.saturating_sub(self.p.seg_blocks);
         let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
         (n - first >= self.p.short_blocks).then_some(first)
+    }
+
+    /// One stage of preparing the next tracking hop's segment combination
+    /// ([`Segment::prepare_residuals`], then [`Segment::prepare_sums`]) from the
+    /// inputs that hop will have if no block, step or lag shift comes between: the
+    /// hop then only adds its new block. A hop whose inputs differ combines
+    /// directly, so a wrong guess costs time, never accuracy.
+    fn prepare_stage(&mut self) {
+        if !self.prepare || self.mode != Mode::Locked || self.seg.prepared_ready() {
+            return;
+        }
+        if self.seg.prepared_key().is_some() {
+            if let Some(span) = self.prep_span {
+                self.seg.prepare_sums(&self.corr, &span);
+            }
+            return;
+        }
+        let Some((span, key)) = self.next_hop_key() else {
+            return;
+        };
+        if self.seg.prepare_residuals(&self.corr, &span, key) {
+            self.prep_span = Some(span);
+        }
+    }
+
+    /// The next hop's segment (without its new block) and key, predicted.
+    fn next_hop_key(&mut self) -> Option<(Span, PrepKey)> {
+        let n = self.corr.count();
+        let cursor = self.corr.cursor()?;
+        if n == 0 {
+            return None;
+        }
+        let hl = self.p.hop_len;
+        let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
+        let t_ref_ns = (k_end + 1) * self.p.dt_ns - self.group_delay_ns - self.p.ref_lag_ns;
+        let t = self.rel(t_ref_ns);
+        if t < self.seg_start_t {
+            return None;
+        }
+        let (pred_t, _) = self.predict(t);
+        // the blocks the next hop's segment will hold besides the new one
+        let oldest = (n + 1).saturating_sub(self.p.seg_blocks);
+        let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
+        if n + 1 - first < self.p.short_blocks {
+            return None;
+        }
+        let (lo, hi) = self.track_slots_around(pred_t);
+        let span = Span {
+            first,
+            last: n - 1,
+            drift: self.drift.estimate().0,
+            k_ref: (t_ref_ns + self.group_delay_ns) as f64 / self.p.dt_ns as f64,
+            lo,
+            hi,
+        };
+        Some((span, self.prep_key(&span)))
+    }
+
+    /// The key of a combination of `span`'s blocks prepared for the next hop: what
+    /// that hop must find unchanged to use it.
+    fn prep_key(&self, span: &Span) -> PrepKey {
+        PrepKey {
+            epoch: self.corr.epoch(),
+            first_k: self.corr.block(span.first).first_k,
+            last_k: self.corr.block(span.last).last_k,
+            blocks: span.last + 1 - span.first,
+            drift: span.drift,
+            k_ref: span.k_ref,
+            lo: span.lo,
+            hi: span.hi,
+            fit: self.seg_fit.map(|(z, fit)| (self.slot_of(z), fit)),
+        }
+    }
+
+    /// Fractional lag slot of offset `z`.
+    fn slot_of(&self, z: f64) -> f64 {
+        z * self.p.fs - self.corr.lag0() as f64
+    }
+
+    /// The segment's measurement at this hop: near the prediction (`near`), else over
+    /// the whole tracking range (`full`), with the segment's weights re-weighted once
+    /// from the last fit; with the information-weighted sums `(Σ w·n, Σ w·n·k)` of its
+    /// blocks. From the prepared combination when it was prepared for these inputs.
+    fn measure_segment(
+        &mut self,
+        near: &Span,
+        full: &Span,
+        sign: f64,
+    ) -> Option<(Meas, (f64, f64))> {
+        let n = full.last + 1;
+        let prepared = if self.seg.prepared_ready() && full.last > full.first {
+            let key = self.prep_key(&Span {
+                last: full.last - 1,
+                ..*full
+            });
+            self.seg.finish_prepared(&self.corr, full, &key)
+        } else {
+            None
+        };
+        self.prepared_hops.0 += 1;
+        self.prepared_hops.1 += u64::from(prepared.is_some());
+        self.seg.drop_prepared();
+        self.prep_span = None;
+        let Some((lever, _)) = prepared else {
+            let m = match self.measure_span(near, sign, Weights::Warm) {
+                Some(m) => m,
+                None => self.measure_span(full, sign, Weights::Warm)?,
+            };
+            let (mut sw, mut swk) = (0.0, 0.0);
+            for i in full.first..n {
+                let b = self.corr.block(i);
+                let w = self.seg.weight(&self.corr, i) * b.n;
+                sw += w;
+                swk += w * 0.5 * (b.first_k + b.last_k) as f64;
+            }
+            return Some((m, (sw, swk)));
+        };
+        // the combination covers the whole tracking range: measure as the direct path does
+        let mut used = near;
+        let mut m = self.measure_sums(Which::Seg, near.lo, near.hi, sign);
+        if m.is_none() {
+            used = full;
+            m = self.measure_sums(Which::Seg, full.lo, full.hi, sign);
+        }
+        self.seg_fit = m.and_then(|m| Some((m.z, self.seg.regression(used, self.slot_of(m.z))?)));
+        Some((m?, lever))
     }
 
     fn hop_track(&mut self, t_ref_ns: Nanos, t: f64, motion: bool) {
@@ -1240,19 +1387,9 @@ impl Estimator {
                 lo: nlo,
                 hi: nhi,
             };
-            let m = match self.measure_span(&span, sign, Weights::Warm) {
-                Some(m) => m,
-                None => self.measure_span(&Span { lo, hi, ..span }, sign, Weights::Warm)?,
-            };
             // information-weighted centre of the segment: the drift's uncertainty and
             // the offset's random walk act over the distance to it
-            let (mut sw, mut swk) = (0.0, 0.0);
-            for i in first..n {
-                let b = self.corr.block(i);
-                let w = self.seg.weight(&self.corr, i) * b.n;
-                sw += w;
-                swk += w * 0.5 * (b.first_k + b.last_k) as f64;
-            }
+            let (m, (sw, swk)) = self.measure_segment(&span, &Span { lo, hi, ..span }, sign)?;
             let lever = if sw > 0.0 {
                 (k_ref - swk / sw) * self.p.dt_s
             } else {
@@ -1737,6 +1874,10 @@ mod tests {
         let all = generate(family, seed, None).pushes();
         let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
         whole.split_step = false;
+        // both combine directly: a prepared combination sums in another order, and
+        // when it is ready differs between the two (its own test compares it)
+        split.prepare = false;
+        whole.prepare = false;
         let (mut a, mut b, mut pending) = (Vec::new(), Vec::new(), 0);
         for &(stream, s) in &all {
             let _ = split.push(stream, s);
@@ -1746,6 +1887,88 @@ mod tests {
             b.extend(std::iter::from_fn(|| whole.poll()));
         }
         (a, b, split.stats().steps, pending)
+    }
+
+    #[test]
+    fn a_prepared_segment_combination_gives_the_estimates_of_the_direct_one() {
+        let short_hops = EstimatorConfig {
+            hop_s: 0.1,
+            ..EstimatorConfig::default()
+        };
+        let degraded = |e: &mut Estimator| e.set_degraded(true);
+        let none = |_: &mut Estimator| {};
+        // (family, seed, configuration, setup, share of tracking hops prepared at least)
+        type Case<'a> = (
+            Family,
+            u64,
+            EstimatorConfig,
+            &'a dyn Fn(&mut Estimator),
+            f64,
+        );
+        let cases: [Case; 6] = [
+            (Family::Robot, 1000, EstimatorConfig::default(), &none, 0.97),
+            // drift over hours moves the lag range (a shift makes the prepared stale)
+            (Family::Clocks, 1, EstimatorConfig::default(), &none, 0.97),
+            (
+                Family::LoadSteps,
+                3,
+                EstimatorConfig::default(),
+                &none,
+                0.97,
+            ),
+            (
+                Family::HeavyNoise,
+                1,
+                EstimatorConfig::default(),
+                &none,
+                0.8,
+            ),
+            // 4 pushes between hops: the step test's stages leave little room
+            (Family::LoadSteps, 3, short_hops, &none, 0.0),
+            (
+                Family::Robot,
+                1001,
+                EstimatorConfig::default(),
+                &degraded,
+                0.5,
+            ),
+        ];
+        for (family, seed, cfg, setup, share) in cases {
+            let all = generate(family, seed, None).pushes();
+            let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            direct.prepare = false;
+            setup(&mut prep);
+            setup(&mut direct);
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for &(stream, s) in &all {
+                let _ = prep.push(stream, s);
+                let _ = direct.push(stream, s);
+                a.extend(std::iter::from_fn(|| prep.poll()));
+                b.extend(std::iter::from_fn(|| direct.poll()));
+            }
+            let (measured, prepared) = prep.prepared_hops;
+            assert_eq!(direct.prepared_hops.1, 0);
+            // the hops used what the samples before them prepared
+            assert!(
+                prepared as f64 >= share * measured as f64 && measured > 150,
+                "{family:?}: {prepared} of {measured} segment measurements prepared"
+            );
+            assert_eq!(a.len(), b.len(), "{family:?}");
+            assert_eq!(prep.stats(), direct.stats(), "{family:?}");
+            // the same weights, summed in another order: equal to rounding
+            for (x, y) in a.iter().zip(&b) {
+                assert_eq!((x.state, x.seq, x.t_ref_ns), (y.state, y.seq, y.t_ref_ns));
+                for (p, q) in [
+                    (x.offset_s, y.offset_s),
+                    (x.offset_std_s, y.offset_std_s),
+                    (x.drift, y.drift),
+                    (x.peak_score, y.peak_score),
+                ] {
+                    let close = p == q || (p - q).abs() <= 1e-10;
+                    assert!(close, "{family:?} #{}: {p} vs {q}", x.seq);
+                }
+            }
+        }
     }
 
     #[test]
@@ -1810,6 +2033,69 @@ mod tests {
     /// right after a tracking hop (its test pending), into an estimator splitting the
     /// test and one running it whole; the estimates must stay identical.
     #[test]
+    fn a_prepared_combination_is_not_used_after_an_interruption() {
+        // each interruption comes when a combination is prepared for the next hop:
+        // that hop must see that its inputs changed and combine directly
+        for what in [Interrupt::Silence, Interrupt::ClockJump, Interrupt::Restore] {
+            let run = generate(Family::Robot, 11, Some(90.0));
+            let cfg = EstimatorConfig::default();
+            let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            direct.prepare = false;
+            let (mut a, mut b) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
+            let mut injected: Option<Nanos> = None;
+            let mut lidar_shift = 0;
+            for &(stream, s) in &run.pushes() {
+                if let Some(t0) = injected {
+                    if what == Interrupt::Silence && s.t_ns < t0 + 3_000_000_000 {
+                        continue;
+                    }
+                }
+                let s = match stream {
+                    Stream::Lidar => Sample {
+                        t_ns: s.t_ns + lidar_shift,
+                        ..s
+                    },
+                    Stream::Cam => s,
+                };
+                let _ = prep.push(stream, s);
+                let _ = direct.push(stream, s);
+                a.extend(std::iter::from_fn(|| prep.poll()));
+                b.extend(std::iter::from_fn(|| direct.poll()));
+                if injected.is_none() && s.t_ns > 40_000_000_000 && prep.seg.prepared_ready() {
+                    injected = Some(s.t_ns);
+                    match what {
+                        Interrupt::Silence => {}
+                        Interrupt::ClockJump => lidar_shift = 8_000_000_000,
+                        Interrupt::Restore => {
+                            let mut last = a[a.len() - 1];
+                            last.offset_s += 0.004;
+                            prep.restore(&last, 1.0);
+                            direct.restore(&last, 1.0);
+                        }
+                    }
+                }
+            }
+            assert!(injected.is_some(), "{what:?} never injected");
+            assert!(
+                prep.prepared_hops.1 > 100,
+                "{what:?}: {:?}",
+                prep.prepared_hops
+            );
+            assert_eq!(a.len(), b.len(), "{what:?}");
+            assert!(a.len() > 150, "{what:?}: {} estimates", a.len());
+            // equal to rounding (an infinite σ, once lost, equals itself)
+            let close = |p: f64, q: f64| p == q || (p - q).abs() <= 1e-10;
+            for (x, y) in a.iter().zip(&b) {
+                assert_eq!((x.state, x.t_ref_ns), (y.state, y.t_ref_ns), "{what:?}");
+                assert!(
+                    close(x.offset_s, y.offset_s) && close(x.offset_std_s, y.offset_std_s),
+                    "{what:?}: {x:?} vs {y:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn interrupted_tests_finish_first() {
         for what in [Interrupt::Silence, Interrupt::ClockJump, Interrupt::Restore] {
             // a restore where the step test may be about to widen the σ or declare a
@@ -1825,6 +2111,8 @@ mod tests {
             let cfg = EstimatorConfig::default();
             let (mut split, mut whole) = (Estimator::new(&cfg), Estimator::new(&cfg));
             whole.split_step = false;
+            split.prepare = false;
+            whole.prepare = false;
             let (mut a, mut b) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
             let mut injected: Option<Nanos> = None;
             let mut lidar_shift = 0;

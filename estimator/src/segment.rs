@@ -17,6 +17,12 @@
 //!   obstacle crossing the LiDAR's bearing window, a stretch after an offset
 //!   step) gets weight `c·median / residual` instead of 1.
 //!
+//! The hop's combination is mostly **prepared** before the hop, on the samples
+//! between hops ([`Segment::prepare_residuals`], [`Segment::prepare_sums`]): the
+//! blocks already complete are re-weighted and summed for the inputs the hop will
+//! have, and the hop only adds its new block ([`Segment::finish_prepared`]). That
+//! keeps the sample that completes a block, whose estimate waits for it, cheap.
+//!
 //! All sums are computed into preallocated buffers: nothing allocates.
 
 use crate::correlator::{Correlator, Sums};
@@ -35,6 +41,65 @@ pub struct Segment {
     /// Residual energy per sample per stored block.
     e: Vec<f64>,
     sort: Vec<f64>,
+    /// The next hop's combination, prepared before its block completes.
+    prep: Prepared,
+}
+
+/// What [`Segment::prepare_residuals`] and [`Segment::prepare_sums`] computed for the
+/// next hop, and the inputs they assumed ([`PrepKey`]).
+///
+/// The hop's re-weighting sets each block's weight to 1 or to `thr / e` (its
+/// residual energy `e` against the threshold `thr`, a multiple of their median),
+/// so its combination is `Σ_one B + thr · Σ_down B / e`, plus the new block. Both
+/// sums, and the residual energies, need only blocks that are already complete:
+/// they are prepared in stages on the samples before the hop, with the partition
+/// from the median without the new block. The hop adds the new block's residual,
+/// takes the median of all, moves the few blocks that changed side of the
+/// threshold, and adds the new block: the same weights and the same combination as
+/// [`Segment::reweight`] then [`Segment::combine`], summed in another order.
+#[derive(Debug, Clone)]
+struct Prepared {
+    key: Option<PrepKey>,
+    /// Residual energy per stored block (by physical position; NaN: the block's
+    /// weight stays as it is), of the blocks of the key.
+    e: Vec<f64>,
+    /// Whether the block is in `down` (else in `one`, with its weight when `e` is NaN).
+    down: Vec<bool>,
+    /// Blocks at weight 1 (or their fixed weight), and down-weighted blocks divided
+    /// by their residual energy, over the key's slots.
+    one: Sums,
+    down_sums: Sums,
+    /// `(Σ w·n, Σ w·n·k_centre)` of `one` and (divided by `e`) of `down`: the
+    /// segment's information-weighted centre.
+    lever_one: (f64, f64),
+    lever_down: (f64, f64),
+    /// Both stages done.
+    ready: bool,
+}
+
+/// The inputs a prepared combination assumed; the hop uses it only if its own
+/// inputs are these, else it combines directly.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PrepKey {
+    /// [`Correlator::epoch`] when prepared.
+    pub epoch: u64,
+    /// First grid index of the segment's first block.
+    pub first_k: i64,
+    /// Last grid index of the newest block before the hop's.
+    pub last_k: i64,
+    /// Blocks prepared (the segment's before the hop's).
+    pub blocks: usize,
+    /// Drift, slots per grid step (as in [`Span`]).
+    pub drift: f64,
+    /// Reference grid index (as in [`Span`]).
+    pub k_ref: f64,
+    /// First lag slot prepared.
+    pub lo: usize,
+    /// Last lag slot prepared (inclusive).
+    pub hi: usize,
+    /// The last fit the hop re-weights from: peak slot and regression `(α, β)`
+    /// (`None`: no re-weighting, the weights stay).
+    pub fit: Option<(f64, (f64, f64))>,
 }
 
 /// Which blocks to combine and how.
@@ -62,6 +127,16 @@ impl Segment {
             w: vec![1.0; cap_blocks],
             e: vec![0.0; cap_blocks],
             sort: vec![0.0; cap_blocks],
+            prep: Prepared {
+                key: None,
+                e: vec![f64::NAN; cap_blocks],
+                down: vec![false; cap_blocks],
+                one: Sums::new(n_lags),
+                down_sums: Sums::new(n_lags),
+                lever_one: (0.0, 0.0),
+                lever_down: (0.0, 0.0),
+                ready: false,
+            },
         }
     }
 
@@ -103,12 +178,7 @@ impl Segment {
     /// Returns the weighted number of pairs.
     pub fn combine(&mut self, corr: &Correlator, span: &Span) -> f64 {
         let s = &mut self.sums;
-        s.n = 0.0;
-        s.sx = 0.0;
-        s.sxx = 0.0;
-        for v in [&mut s.xy, &mut s.y, &mut s.yy] {
-            v[span.lo..=span.hi].iter_mut().for_each(|x| *x = 0.0);
-        }
+        zero(s, span.lo, span.hi);
         let mut first = true;
         for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
             let w = self.w[corr.phys(i)];
@@ -116,7 +186,7 @@ impl Segment {
             if w <= 0.0 || b.n <= 0.0 {
                 continue;
             }
-            let Some((sh, f)) = Self::shift(b, span) else {
+            let Some(sh) = Self::shift(b, span) else {
                 continue;
             };
             if first {
@@ -124,28 +194,64 @@ impl Segment {
                 first = false;
             }
             s.last_k = b.last_k;
-            s.n += w * b.n;
-            s.sx += w * b.sx;
-            s.sxx += w * b.sxx;
-            let src0 = (span.lo as isize + sh) as usize;
-            let len = span.hi - span.lo + 1;
-            for (dst, src) in [(&mut s.xy, &b.xy), (&mut s.y, &b.y), (&mut s.yy, &b.yy)] {
-                let d = &mut dst[span.lo..=span.hi];
-                if f == 0.0 {
-                    for (o, &v) in d.iter_mut().zip(&src[src0..src0 + len]) {
-                        *o += w * v;
-                    }
-                } else {
-                    let (wa, wb) = (w * (1.0 - f), w * f);
-                    let (a, b) = (&src[src0..src0 + len], &src[src0 + 1..src0 + len + 1]);
-                    for ((o, &x), &y) in d.iter_mut().zip(a).zip(b) {
-                        *o += wa * x + wb * y;
-                    }
-                }
-            }
+            accumulate(s, b, w, span, sh);
         }
         s.n
     }
+}
+
+/// Zeroes the lag-free sums of `s` and its slots `lo..=hi`.
+fn zero(s: &mut Sums, lo: usize, hi: usize) {
+    s.n = 0.0;
+    s.sx = 0.0;
+    s.sxx = 0.0;
+    for v in [&mut s.xy, &mut s.y, &mut s.yy] {
+        v[lo..=hi].iter_mut().for_each(|x| *x = 0.0);
+    }
+}
+
+/// Adds `w` times block `b`, shifted by `(sh, f)` ([`Segment::shift`]), to the
+/// slots `span.lo..=span.hi` of `s` (and its lag-free sums).
+fn accumulate(s: &mut Sums, b: &Sums, w: f64, span: &Span, (sh, f): (isize, f64)) {
+    s.n += w * b.n;
+    s.sx += w * b.sx;
+    s.sxx += w * b.sxx;
+    let src0 = (span.lo as isize + sh) as usize;
+    let len = span.hi - span.lo + 1;
+    for (dst, src) in [(&mut s.xy, &b.xy), (&mut s.y, &b.y), (&mut s.yy, &b.yy)] {
+        let d = &mut dst[span.lo..=span.hi];
+        if f == 0.0 {
+            for (o, &v) in d.iter_mut().zip(&src[src0..src0 + len]) {
+                *o += w * v;
+            }
+        } else {
+            let (wa, wb) = (w * (1.0 - f), w * f);
+            let (a, b) = (&src[src0..src0 + len], &src[src0 + 1..src0 + len + 1]);
+            for ((o, &x), &y) in d.iter_mut().zip(a).zip(b) {
+                *o += wa * x + wb * y;
+            }
+        }
+    }
+}
+
+/// The fit to re-weight from, if it is finite ([`Segment::reweight`] ignores another).
+fn finite_fit(fit: Option<(f64, (f64, f64))>) -> Option<(f64, (f64, f64))> {
+    fit.filter(|&(p, (a, b))| p.is_finite() && a.is_finite() && b.is_finite())
+}
+
+/// Residual energy per sample of block `b` against the regression `(alpha, beta)`
+/// at fractional slot `p` of `span`, moved with the drift to the block's centre.
+fn residual(b: &Sums, span: &Span, p: f64, (alpha, beta): (f64, f64)) -> Option<f64> {
+    let kb = 0.5 * (b.first_k + b.last_k) as f64;
+    let x = p + span.drift * (kb - span.k_ref);
+    let bxy = at(&b.xy, b.lo, b.hi, x)?;
+    let by = at(&b.y, b.lo, b.hi, x)?;
+    let byy = at(&b.yy, b.lo, b.hi, x)?;
+    let en = byy - 2.0 * alpha * bxy - 2.0 * beta * by
+        + alpha * alpha * b.sxx
+        + 2.0 * alpha * beta * b.sx
+        + b.n * beta * beta;
+    Some((en / b.n).max(0.0))
 }
 
 /// Linear interpolation of slot array `v` (holding slots `a..=z`) at fractional slot `x`.
@@ -201,20 +307,9 @@ impl Segment {
             if b.n <= 0.0 || self.w[pi] <= 0.0 {
                 continue;
             }
-            let kb = 0.5 * (b.first_k + b.last_k) as f64;
-            let x = p + span.drift * (kb - span.k_ref);
-            let (Some(bxy), Some(by), Some(byy)) = (
-                at(&b.xy, b.lo, b.hi, x),
-                at(&b.y, b.lo, b.hi, x),
-                at(&b.yy, b.lo, b.hi, x),
-            ) else {
+            let Some(e) = residual(b, span, p, (alpha, beta)) else {
                 continue;
             };
-            let en = byy - 2.0 * alpha * bxy - 2.0 * beta * by
-                + alpha * alpha * b.sxx
-                + 2.0 * alpha * beta * b.sx
-                + b.n * beta * beta;
-            let e = (en / b.n).max(0.0);
             self.e[pi] = e;
             self.sort[m] = e;
             m += 1;
@@ -240,6 +335,279 @@ impl Segment {
             }
         }
         down
+    }
+
+    /// Forgets a prepared combination.
+    pub fn drop_prepared(&mut self) {
+        self.prep.key = None;
+        self.prep.ready = false;
+    }
+
+    /// The key of the prepared combination, if one is prepared or under way.
+    pub fn prepared_key(&self) -> Option<&PrepKey> {
+        self.prep.key.as_ref()
+    }
+
+    /// Whether both stages of the prepared combination are done.
+    pub fn prepared_ready(&self) -> bool {
+        self.prep.key.is_some() && self.prep.ready
+    }
+
+    /// First stage of preparing the next hop's combination of the blocks
+    /// `span.first..=span.last` (the segment's blocks before the hop's new one): the
+    /// residual energies against `key.fit` and the partition at their median.
+    /// False (nothing prepared) when a block does not hold the slots `span.lo..=span.hi`
+    /// at its shift, or there is nothing to re-weight: the hop then combines directly.
+    pub fn prepare_residuals(&mut self, corr: &Correlator, span: &Span, key: PrepKey) -> bool {
+        self.drop_prepared();
+        let fit = finite_fit(key.fit);
+        let last = span.last.min(corr.count().saturating_sub(1));
+        let mut m = 0;
+        for i in span.first..=last {
+            let b = corr.block(i);
+            let pi = corr.phys(i);
+            if b.n > 0.0 && self.w[pi] > 0.0 && Self::shift(b, span).is_none() {
+                return false;
+            }
+            let e = match fit {
+                Some((p, fit)) if b.n > 0.0 && self.w[pi] > 0.0 => residual(b, span, p, fit),
+                _ => None,
+            };
+            self.prep.e[pi] = e.unwrap_or(f64::NAN);
+            if let Some(e) = e {
+                self.sort[m] = e;
+                m += 1;
+            }
+        }
+        let thr0 = if fit.is_some() {
+            if m < 2 {
+                return false;
+            }
+            let (_, med, _) = self.sort[..m].select_nth_unstable_by(m / 2, f64::total_cmp);
+            ROBUST_C * *med
+        } else {
+            f64::INFINITY
+        };
+        for i in span.first..=last {
+            let pi = corr.phys(i);
+            let e = self.prep.e[pi];
+            self.prep.down[pi] = e.is_finite() && e > thr0;
+        }
+        self.prep.key = Some(key);
+        self.prep.ready = false;
+        true
+    }
+
+    /// Second stage: the sums of both parts over `span.lo..=span.hi` and their
+    /// lever sums. `span` must be the one given to [`Segment::prepare_residuals`].
+    pub fn prepare_sums(&mut self, corr: &Correlator, span: &Span) {
+        if self.prep.key.is_none() {
+            return;
+        }
+        let Prepared {
+            e,
+            down,
+            one,
+            down_sums,
+            lever_one,
+            lever_down,
+            ..
+        } = &mut self.prep;
+        zero(one, span.lo, span.hi);
+        zero(down_sums, span.lo, span.hi);
+        *lever_one = (0.0, 0.0);
+        *lever_down = (0.0, 0.0);
+        for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
+            let b = corr.block(i);
+            let pi = corr.phys(i);
+            let (w, dst, lever) = if down[pi] {
+                (1.0 / e[pi], &mut *down_sums, &mut *lever_down)
+            } else if e[pi].is_finite() {
+                (1.0, &mut *one, &mut *lever_one)
+            } else {
+                (self.w[pi], &mut *one, &mut *lever_one)
+            };
+            lever.0 += w * b.n;
+            lever.1 += w * b.n * 0.5 * (b.first_k + b.last_k) as f64;
+            if w <= 0.0 || b.n <= 0.0 {
+                continue;
+            }
+            if let Some(sh) = Self::shift(b, span) {
+                accumulate(dst, b, w, span, sh);
+            }
+        }
+        self.prep.ready = true;
+    }
+
+    /// The hop's combination from the prepared one: `span` is the segment with the
+    /// new block (`span.last`), `key` the hop's inputs. Re-weights as
+    /// [`Segment::reweight`] would (the new block's residual joins the median) and
+    /// leaves in [`Segment::sums`] what [`Segment::combine`] would over the prepared
+    /// slots. Returns the lever sums `(Σ w·n, Σ w·n·k_centre)` of the whole segment
+    /// and how many prepared blocks changed side of the threshold, or `None`
+    /// (nothing changed) when the prepared inputs are not the hop's.
+    pub fn finish_prepared(
+        &mut self,
+        corr: &Correlator,
+        span: &Span,
+        key: &PrepKey,
+    ) -> Option<((f64, f64), usize)> {
+        let prepared = self.prep.key.take()?;
+        if !self.prep.ready || prepared != *key || span.last != span.first + key.blocks {
+            return None;
+        }
+        let last = span.last;
+        if last + 1 != corr.count() {
+            return None;
+        }
+        let nb = corr.block(last);
+        let np = corr.phys(last);
+        let new_shift = if nb.n > 0.0 && self.w[np] > 0.0 {
+            Some(Self::shift(nb, span)?)
+        } else {
+            None
+        };
+        // the new block's residual, and the median of all
+        let fit = finite_fit(key.fit);
+        let e_new = match fit {
+            Some((p, fit)) if nb.n > 0.0 && self.w[np] > 0.0 => residual(nb, span, p, fit),
+            _ => None,
+        };
+        let thr = if fit.is_some() {
+            let mut m = 0;
+            for i in span.first..last {
+                let e = self.prep.e[corr.phys(i)];
+                if e.is_finite() {
+                    self.sort[m] = e;
+                    m += 1;
+                }
+            }
+            if let Some(e) = e_new {
+                self.sort[m] = e;
+                m += 1;
+            }
+            if m < 3 {
+                return None;
+            }
+            let (_, med, _) = self.sort[..m].select_nth_unstable_by(m / 2, f64::total_cmp);
+            let thr = ROBUST_C * *med;
+            if thr <= 0.0 || !thr.is_finite() {
+                return None;
+            }
+            thr
+        } else {
+            f64::INFINITY
+        };
+        // blocks whose side of the threshold moved with the new block's residual
+        let Prepared {
+            e,
+            down,
+            one,
+            down_sums,
+            lever_one,
+            lever_down,
+            ..
+        } = &mut self.prep;
+        let mut moved = 0;
+        for i in span.first..last {
+            let b = corr.block(i);
+            let pi = corr.phys(i);
+            let ei = e[pi];
+            if !ei.is_finite() || (ei > thr) == down[pi] {
+                continue;
+            }
+            moved += 1;
+            let (from, to, lf, lt) = if down[pi] {
+                (
+                    &mut *down_sums,
+                    &mut *one,
+                    &mut *lever_down,
+                    &mut *lever_one,
+                )
+            } else {
+                (
+                    &mut *one,
+                    &mut *down_sums,
+                    &mut *lever_one,
+                    &mut *lever_down,
+                )
+            };
+            let (w_from, w_to) = if down[pi] {
+                (1.0 / ei, 1.0)
+            } else {
+                (1.0, 1.0 / ei)
+            };
+            let kc = 0.5 * (b.first_k + b.last_k) as f64;
+            lf.0 -= w_from * b.n;
+            lf.1 -= w_from * b.n * kc;
+            lt.0 += w_to * b.n;
+            lt.1 += w_to * b.n * kc;
+            if b.n > 0.0 {
+                if let Some(sh) = Self::shift(b, span) {
+                    accumulate(from, b, -w_from, span, sh);
+                    accumulate(to, b, w_to, span, sh);
+                }
+            }
+            down[pi] = !down[pi];
+        }
+        // the weights reweight() would set
+        for i in span.first..last {
+            let pi = corr.phys(i);
+            let ei = e[pi];
+            if ei.is_finite() {
+                self.w[pi] = if ei > thr { thr / ei } else { 1.0 };
+            }
+        }
+        if let Some(en) = e_new {
+            self.w[np] = if en > thr { thr / en } else { 1.0 };
+        }
+        // one + thr · down + the new block
+        let s = &mut self.sums;
+        let thr_s = if thr.is_finite() { thr } else { 0.0 };
+        s.n = one.n + thr_s * down_sums.n;
+        s.sx = one.sx + thr_s * down_sums.sx;
+        s.sxx = one.sxx + thr_s * down_sums.sxx;
+        for (dst, (a, b)) in [
+            (&mut s.xy, (&one.xy, &down_sums.xy)),
+            (&mut s.y, (&one.y, &down_sums.y)),
+            (&mut s.yy, (&one.yy, &down_sums.yy)),
+        ] {
+            for ((o, &x), &y) in dst[span.lo..=span.hi]
+                .iter_mut()
+                .zip(&a[span.lo..=span.hi])
+                .zip(&b[span.lo..=span.hi])
+            {
+                *o = x + thr_s * y;
+            }
+        }
+        let mut lever = (
+            lever_one.0 + thr_s * lever_down.0,
+            lever_one.1 + thr_s * lever_down.1,
+        );
+        let w_new = self.w[np];
+        lever.0 += w_new * nb.n;
+        lever.1 += w_new * nb.n * 0.5 * (nb.first_k + nb.last_k) as f64;
+        if let Some(sh) = new_shift {
+            accumulate(s, nb, w_new, span, sh);
+        }
+        // first and last blocks in the combination
+        s.first_k = nb.first_k;
+        for i in span.first..=last {
+            let b = corr.block(i);
+            if self.w[corr.phys(i)] > 0.0 && b.n > 0.0 {
+                s.first_k = b.first_k;
+                break;
+            }
+        }
+        s.last_k = if new_shift.is_some() {
+            nb.last_k
+        } else {
+            (span.first..last)
+                .rev()
+                .find(|&i| self.w[corr.phys(i)] > 0.0 && corr.block(i).n > 0.0)
+                .map_or(nb.last_k, |i| corr.block(i).last_k)
+        };
+        Some((lever, moved))
     }
 }
 
@@ -343,5 +711,166 @@ mod tests {
         }
         let slot = peak_slot(&mut seg, &c, &span);
         assert!((slot - 35.0).abs() < 0.05, "{slot}");
+    }
+
+    /// The direct hop: re-weight from `fit`, combine; lever sums over the span.
+    fn direct(
+        seg: &mut Segment,
+        c: &Correlator,
+        span: &Span,
+        fit: Option<(f64, (f64, f64))>,
+    ) -> (f64, f64) {
+        if let Some((p, f)) = fit {
+            seg.reweight(c, span, p, f);
+        }
+        seg.combine(c, span);
+        let (mut sw, mut swk) = (0.0, 0.0);
+        for i in span.first..=span.last {
+            let b = c.block(i);
+            let w = seg.weight(c, i) * b.n;
+            sw += w;
+            swk += w * 0.5 * (b.first_k + b.last_k) as f64;
+        }
+        (sw, swk)
+    }
+
+    #[test]
+    fn a_prepared_combination_is_the_direct_one() {
+        // mismatching blocks give a spread of residuals, so the new block's residual
+        // moves some blocks across the threshold
+        let c = store(0.002, Some((900, 1400)));
+        let n = c.count();
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()));
+        let mut moved_total = 0;
+        let mut checked = 0;
+        for (j, first) in [0usize, 3, 20].into_iter().enumerate() {
+            for (q, fit) in [
+                None,
+                Some((35.0, (1.0, 0.0))),
+                Some((34.3, (0.8, 0.05))),
+                Some((36.7, (1.3, -0.1))),
+                Some((35.2, (0.4, 0.2))),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let drift = [0.0, 0.002, -0.001][(j + q) % 3];
+                let k_ref = c.block(n - 1).last_k as f64 - 100.0 * q as f64;
+                let full = Span {
+                    first,
+                    last: n - 1,
+                    drift,
+                    k_ref,
+                    lo: 18,
+                    hi: 50,
+                };
+                let pre = Span {
+                    last: n - 2,
+                    ..full
+                };
+                let key = PrepKey {
+                    epoch: c.epoch(),
+                    first_k: c.block(first).first_k,
+                    last_k: c.block(n - 2).last_k,
+                    blocks: n - 1 - first,
+                    drift,
+                    k_ref,
+                    lo: full.lo,
+                    hi: full.hi,
+                    fit,
+                };
+                let mut a = Segment::new(61, 40);
+                let mut b = Segment::new(61, 40);
+                // earlier weights that stay where a block has no residual
+                for i in 0..n {
+                    let w = 0.5 + 0.5 * ((i * 7) % 5) as f64 / 4.0;
+                    a.set_weight(&c, i, w);
+                    b.set_weight(&c, i, w);
+                }
+                let lever_direct = direct(&mut a, &c, &full, fit);
+                assert!(b.prepare_residuals(&c, &pre, key));
+                assert!(!b.prepared_ready());
+                b.prepare_sums(&c, &pre);
+                assert!(b.prepared_ready());
+                let (lever, moved) = b.finish_prepared(&c, &full, &key).expect("prepared");
+                moved_total += moved;
+                assert!(close(lever.0, lever_direct.0) && close(lever.1, lever_direct.1));
+                for i in first..n {
+                    assert_eq!(a.weight(&c, i), b.weight(&c, i), "block {i}");
+                }
+                let (x, y) = (&a.sums, &b.sums);
+                assert!(close(x.n, y.n) && close(x.sx, y.sx) && close(x.sxx, y.sxx));
+                assert_eq!((x.first_k, x.last_k), (y.first_k, y.last_k));
+                for s in full.lo..=full.hi {
+                    assert!(
+                        close(x.xy[s], y.xy[s]) && close(x.y[s], y.y[s]) && close(x.yy[s], y.yy[s])
+                    );
+                    assert!(close(x.ncc(s), y.ncc(s)), "slot {s}");
+                }
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 15);
+        assert!(
+            moved_total > 0,
+            "no block changed side: the test does not reach that path"
+        );
+    }
+
+    #[test]
+    fn a_prepared_combination_for_other_inputs_is_not_used() {
+        let c = store(0.0, None);
+        let n = c.count();
+        let full = Span {
+            first: 0,
+            last: n - 1,
+            drift: 0.0,
+            k_ref: 0.0,
+            lo: 20,
+            hi: 50,
+        };
+        let pre = Span {
+            last: n - 2,
+            ..full
+        };
+        let key = PrepKey {
+            epoch: c.epoch(),
+            first_k: c.block(0).first_k,
+            last_k: c.block(n - 2).last_k,
+            blocks: n - 1,
+            drift: 0.0,
+            k_ref: 0.0,
+            lo: 20,
+            hi: 50,
+            fit: Some((35.0, (1.0, 0.0))),
+        };
+        let other = [
+            PrepKey { drift: 1e-4, ..key },
+            PrepKey { k_ref: 1.0, ..key },
+            PrepKey {
+                epoch: key.epoch + 1,
+                ..key
+            },
+            PrepKey { hi: 49, ..key },
+            PrepKey { fit: None, ..key },
+            PrepKey {
+                first_k: key.first_k + 50,
+                ..key
+            },
+        ];
+        for k in other {
+            let mut seg = Segment::new(61, 40);
+            seg.prepare_residuals(&c, &pre, key);
+            seg.prepare_sums(&c, &pre);
+            let before = seg.weight(&c, 3);
+            assert!(seg.finish_prepared(&c, &full, &k).is_none(), "{k:?}");
+            assert_eq!(seg.weight(&c, 3), before);
+            // used up either way
+            assert!(seg.finish_prepared(&c, &full, &key).is_none());
+        }
+        // unfinished: not used
+        let mut seg = Segment::new(61, 40);
+        seg.prepare_residuals(&c, &pre, key);
+        assert!(seg.finish_prepared(&c, &full, &key).is_none());
     }
 }
