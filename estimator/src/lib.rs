@@ -8,8 +8,9 @@
 //! [`correlator`] (incremental Pearson sums per lag in blocks of one hop, O(lags) per
 //! grid sample) → [`peak`] (gated peak search, sub-sample refinement, polarity);
 //! once locked, [`segment`] (robust, drift-compensated combination of every block
-//! since the last change point) with a two-sample step test, and [`drift`] (a line
-//! through disjoint short-window peaks).
+//! since the last change point, mostly prepared on the samples before each hop) with
+//! a two-sample step test run in stages on the samples after it, and [`drift`] (a
+//! line through disjoint short-window peaks).
 //!
 //! ```
 //! use vlsync_common::{Sample, Stream, EstimatorState};
