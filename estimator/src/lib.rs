@@ -2030,6 +2030,54 @@ mod tests {
         Restore,
     }
 
+    /// Replays `all` into `a` and `b` alike and interrupts both with `what` at the
+    /// first push after which `due(a, a's estimates so far, sample time)` holds; a
+    /// restore gives back `a`'s last estimate moved by `restore_shift_s`. Returns
+    /// both estimate sequences and when the interruption came.
+    fn replay_interrupted(
+        all: &[(Stream, Sample)],
+        what: Interrupt,
+        restore_shift_s: f64,
+        (a, b): (&mut Estimator, &mut Estimator),
+        mut due: impl FnMut(&Estimator, &[Estimate], Nanos) -> bool,
+    ) -> (Vec<Estimate>, Vec<Estimate>, Option<Nanos>) {
+        let (mut ea, mut eb) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
+        let mut injected: Option<Nanos> = None;
+        let mut lidar_shift = 0;
+        for &(stream, s) in all {
+            if let Some(t0) = injected {
+                if what == Interrupt::Silence && s.t_ns < t0 + 3_000_000_000 {
+                    continue;
+                }
+            }
+            let s = match stream {
+                Stream::Lidar => Sample {
+                    t_ns: s.t_ns + lidar_shift,
+                    ..s
+                },
+                Stream::Cam => s,
+            };
+            let _ = a.push(stream, s);
+            let _ = b.push(stream, s);
+            ea.extend(std::iter::from_fn(|| a.poll()));
+            eb.extend(std::iter::from_fn(|| b.poll()));
+            if injected.is_none() && due(a, &ea, s.t_ns) {
+                injected = Some(s.t_ns);
+                match what {
+                    Interrupt::Silence => {}
+                    Interrupt::ClockJump => lidar_shift = 8_000_000_000,
+                    Interrupt::Restore => {
+                        let mut last = ea[ea.len() - 1];
+                        last.offset_s += restore_shift_s;
+                        a.restore(&last, 1.0);
+                        b.restore(&last, 1.0);
+                    }
+                }
+            }
+        }
+        (ea, eb, injected)
+    }
+
     /// Each way a step test can be interrupted before its stages are done: injected
     /// right after a tracking hop (its test pending), into an estimator splitting the
     /// test and one running it whole; the estimates must stay identical.
@@ -2038,44 +2086,14 @@ mod tests {
         // each interruption comes when a combination is prepared for the next hop:
         // that hop must see that its inputs changed and combine directly
         for what in [Interrupt::Silence, Interrupt::ClockJump, Interrupt::Restore] {
-            let run = generate(Family::Robot, 11, Some(90.0));
+            let all = generate(Family::Robot, 11, Some(90.0)).pushes();
             let cfg = EstimatorConfig::default();
             let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
             direct.prepare = false;
-            let (mut a, mut b) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
-            let mut injected: Option<Nanos> = None;
-            let mut lidar_shift = 0;
-            for &(stream, s) in &run.pushes() {
-                if let Some(t0) = injected {
-                    if what == Interrupt::Silence && s.t_ns < t0 + 3_000_000_000 {
-                        continue;
-                    }
-                }
-                let s = match stream {
-                    Stream::Lidar => Sample {
-                        t_ns: s.t_ns + lidar_shift,
-                        ..s
-                    },
-                    Stream::Cam => s,
-                };
-                let _ = prep.push(stream, s);
-                let _ = direct.push(stream, s);
-                a.extend(std::iter::from_fn(|| prep.poll()));
-                b.extend(std::iter::from_fn(|| direct.poll()));
-                if injected.is_none() && s.t_ns > 40_000_000_000 && prep.seg.prepared_ready() {
-                    injected = Some(s.t_ns);
-                    match what {
-                        Interrupt::Silence => {}
-                        Interrupt::ClockJump => lidar_shift = 8_000_000_000,
-                        Interrupt::Restore => {
-                            let mut last = a[a.len() - 1];
-                            last.offset_s += 0.004;
-                            prep.restore(&last, 1.0);
-                            direct.restore(&last, 1.0);
-                        }
-                    }
-                }
-            }
+            let (a, b, injected) =
+                replay_interrupted(&all, what, 0.004, (&mut prep, &mut direct), |e, _, t| {
+                    t > 40_000_000_000 && e.seg.prepared_ready()
+                });
             assert!(injected.is_some(), "{what:?} never injected");
             assert!(
                 prep.prepared_hops.1 > 100,
@@ -2114,54 +2132,30 @@ mod tests {
             whole.split_step = false;
             split.prepare = false;
             whole.prepare = false;
-            let (mut a, mut b) = (Vec::<Estimate>::new(), Vec::<Estimate>::new());
-            let mut injected: Option<Nanos> = None;
-            let mut lidar_shift = 0;
-            // pushes since the tracking hop chosen for the interruption
+            // pushes since the tracking hop chosen for the interruption: a restore two
+            // pushes after the hop, when the split test has run its first stages and
+            // the whole one is done; the others right after it
             let mut after_hop: Option<usize> = None;
-            for &(stream, s) in &all {
-                if let Some(t0) = injected {
-                    if what == Interrupt::Silence && s.t_ns < t0 + 3_000_000_000 {
-                        continue;
+            let mut seen = 0;
+            let due = if what == Interrupt::Restore { 2 } else { 0 };
+            let (a, b, injected) =
+                replay_interrupted(&all, what, 0.0, (&mut split, &mut whole), |e, est, t| {
+                    let tracking =
+                        est.len() > seen && est[est.len() - 1].state == EstimatorState::Tracking;
+                    seen = est.len();
+                    if t > from_ns {
+                        after_hop = match after_hop {
+                            None if tracking => Some(0),
+                            Some(k) => Some(k + 1),
+                            None => None,
+                        };
                     }
-                }
-                let s = match stream {
-                    Stream::Lidar => Sample {
-                        t_ns: s.t_ns + lidar_shift,
-                        ..s
-                    },
-                    Stream::Cam => s,
-                };
-                let _ = split.push(stream, s);
-                let _ = whole.push(stream, s);
-                let n = a.len();
-                a.extend(std::iter::from_fn(|| split.poll()));
-                b.extend(std::iter::from_fn(|| whole.poll()));
-                let tracking = a.len() > n && a[a.len() - 1].state == EstimatorState::Tracking;
-                if injected.is_none() && s.t_ns > from_ns {
-                    after_hop = match after_hop {
-                        None if tracking => Some(0),
-                        Some(k) => Some(k + 1),
-                        None => None,
-                    };
-                }
-                // a restore two pushes after the hop, when the split test has run its
-                // first stages and the whole one is done; the others right after it
-                let due = if what == Interrupt::Restore { 2 } else { 0 };
-                if injected.is_none() && after_hop == Some(due) {
-                    assert!(split.step_job.is_some(), "{what:?}: no test under way");
-                    injected = Some(s.t_ns);
-                    match what {
-                        Interrupt::Silence => {}
-                        Interrupt::ClockJump => lidar_shift = 8_000_000_000,
-                        Interrupt::Restore => {
-                            let last = a[a.len() - 1];
-                            split.restore(&last, 1.0);
-                            whole.restore(&last, 1.0);
-                        }
+                    let now = after_hop == Some(due);
+                    if now {
+                        assert!(e.step_job.is_some(), "{what:?}: no test under way");
                     }
-                }
-            }
+                    now
+                });
             assert!(injected.is_some(), "{what:?} never injected");
             match what {
                 Interrupt::Silence => assert!(split.stats().gaps[0] > 0),

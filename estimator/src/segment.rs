@@ -73,9 +73,15 @@ struct Prepared {
     /// segment's information-weighted centre.
     lever_one: (f64, f64),
     lever_down: (f64, f64),
-    /// Both stages done.
+    /// Blocks summed so far (from the span's first).
+    next: usize,
+    /// Every stage done.
     ready: bool,
 }
+
+/// Blocks one call of [`Segment::prepare_sums`] sums at most: a full 60 s segment
+/// takes three samples, each costing about what one stage of the step test does.
+pub const PREP_BLOCKS: usize = 40;
 
 /// The inputs a prepared combination assumed; the hop uses it only if its own
 /// inputs are these, else it combines directly.
@@ -135,6 +141,7 @@ impl Segment {
                 down_sums: Sums::new(n_lags),
                 lever_one: (0.0, 0.0),
                 lever_down: (0.0, 0.0),
+                next: 0,
                 ready: false,
             },
         }
@@ -340,6 +347,7 @@ impl Segment {
     /// Forgets a prepared combination.
     pub fn drop_prepared(&mut self) {
         self.prep.key = None;
+        self.prep.next = 0;
         self.prep.ready = false;
     }
 
@@ -398,10 +406,12 @@ impl Segment {
         true
     }
 
-    /// Second stage: the sums of both parts over `span.lo..=span.hi` and their
-    /// lever sums. `span` must be the one given to [`Segment::prepare_residuals`].
+    /// Later stages: the sums of both parts over `span.lo..=span.hi` and their lever
+    /// sums, at most [`PREP_BLOCKS`] blocks per call, until
+    /// [`Segment::prepared_ready`]. `span` must be the one given to
+    /// [`Segment::prepare_residuals`].
     pub fn prepare_sums(&mut self, corr: &Correlator, span: &Span) {
-        if self.prep.key.is_none() {
+        if self.prep.key.is_none() || self.prep.ready {
             return;
         }
         let Prepared {
@@ -411,13 +421,19 @@ impl Segment {
             down_sums,
             lever_one,
             lever_down,
+            next,
             ..
         } = &mut self.prep;
-        zero(one, span.lo, span.hi);
-        zero(down_sums, span.lo, span.hi);
-        *lever_one = (0.0, 0.0);
-        *lever_down = (0.0, 0.0);
-        for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
+        if *next == 0 {
+            zero(one, span.lo, span.hi);
+            zero(down_sums, span.lo, span.hi);
+            *lever_one = (0.0, 0.0);
+            *lever_down = (0.0, 0.0);
+        }
+        let last = span.last.min(corr.count().saturating_sub(1));
+        let from = span.first + *next;
+        let to = (from + PREP_BLOCKS - 1).min(last);
+        for i in from..=to {
             let b = corr.block(i);
             let pi = corr.phys(i);
             let (w, dst, lever) = if down[pi] {
@@ -436,7 +452,8 @@ impl Segment {
                 accumulate(dst, b, w, span, sh);
             }
         }
-        self.prep.ready = true;
+        *next = to + 1 - span.first;
+        self.prep.ready = to >= last;
     }
 
     /// The hop's combination from the prepared one: `span` is the segment with the
@@ -734,6 +751,45 @@ mod tests {
         (sw, swk)
     }
 
+    /// The hop's span of blocks `first..` of `c` (the newest block the hop's own),
+    /// the span prepared before it, and the key for `fit`.
+    fn hop_spans(
+        c: &Correlator,
+        first: usize,
+        (drift, k_ref): (f64, f64),
+        (lo, hi): (usize, usize),
+        fit: Option<(f64, (f64, f64))>,
+    ) -> (Span, Span, PrepKey) {
+        let n = c.count();
+        let full = Span {
+            first,
+            last: n - 1,
+            drift,
+            k_ref,
+            lo,
+            hi,
+        };
+        let key = PrepKey {
+            epoch: c.epoch(),
+            first_k: c.block(first).first_k,
+            last_k: c.block(n - 2).last_k,
+            blocks: n - 1 - first,
+            drift,
+            k_ref,
+            lo,
+            hi,
+            fit,
+        };
+        (
+            full,
+            Span {
+                last: n - 2,
+                ..full
+            },
+            key,
+        )
+    }
+
     #[test]
     fn a_prepared_combination_is_the_direct_one() {
         // mismatching blocks give a spread of residuals, so the new block's residual
@@ -756,29 +812,7 @@ mod tests {
             {
                 let drift = [0.0, 0.002, -0.001][(j + q) % 3];
                 let k_ref = c.block(n - 1).last_k as f64 - 100.0 * q as f64;
-                let full = Span {
-                    first,
-                    last: n - 1,
-                    drift,
-                    k_ref,
-                    lo: 18,
-                    hi: 50,
-                };
-                let pre = Span {
-                    last: n - 2,
-                    ..full
-                };
-                let key = PrepKey {
-                    epoch: c.epoch(),
-                    first_k: c.block(first).first_k,
-                    last_k: c.block(n - 2).last_k,
-                    blocks: n - 1 - first,
-                    drift,
-                    k_ref,
-                    lo: full.lo,
-                    hi: full.hi,
-                    fit,
-                };
+                let (full, pre, key) = hop_spans(&c, first, (drift, k_ref), (18, 50), fit);
                 let mut a = Segment::new(61, 40);
                 let mut b = Segment::new(61, 40);
                 // earlier weights that stay where a block has no residual
@@ -790,8 +824,9 @@ mod tests {
                 let lever_direct = direct(&mut a, &c, &full, fit);
                 assert!(b.prepare_residuals(&c, &pre, key));
                 assert!(!b.prepared_ready());
-                b.prepare_sums(&c, &pre);
-                assert!(b.prepared_ready());
+                while !b.prepared_ready() {
+                    b.prepare_sums(&c, &pre);
+                }
                 let (lever, moved) = b.finish_prepared(&c, &full, &key).expect("prepared");
                 moved_total += moved;
                 assert!(close(lever.0, lever_direct.0) && close(lever.1, lever_direct.1));
@@ -820,30 +855,8 @@ mod tests {
     #[test]
     fn a_prepared_combination_for_other_inputs_is_not_used() {
         let c = store(0.0, None);
-        let n = c.count();
-        let full = Span {
-            first: 0,
-            last: n - 1,
-            drift: 0.0,
-            k_ref: 0.0,
-            lo: 20,
-            hi: 50,
-        };
-        let pre = Span {
-            last: n - 2,
-            ..full
-        };
-        let key = PrepKey {
-            epoch: c.epoch(),
-            first_k: c.block(0).first_k,
-            last_k: c.block(n - 2).last_k,
-            blocks: n - 1,
-            drift: 0.0,
-            k_ref: 0.0,
-            lo: 20,
-            hi: 50,
-            fit: Some((35.0, (1.0, 0.0))),
-        };
+        let fit = Some((35.0, (1.0, 0.0)));
+        let (full, pre, key) = hop_spans(&c, 0, (0.0, 0.0), (20, 50), fit);
         let other = [
             PrepKey { drift: 1e-4, ..key },
             PrepKey { k_ref: 1.0, ..key },
