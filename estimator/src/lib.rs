@@ -253,7 +253,7 @@ struct Meas {
 enum StepStage {
     /// A change announced from outside; the newest `short` blocks.
     Start,
-    /// The segment's total with its weights.
+    /// The segment's total with its weights (a stage per [`segment::PREP_BLOCKS`] blocks).
     Total,
     /// The post window of `len` blocks (then the next, or the verdict).
     Post,
@@ -291,6 +291,9 @@ struct StepJob {
     best: Option<(f64, usize, Meas, f64)>,
     /// The slower stream's sample rate when the test started ([`Estimator::min_rate`]).
     rate: f64,
+    /// Blocks of the segment's total summed so far (the total takes a stage per
+    /// [`segment::PREP_BLOCKS`] blocks).
+    total_done: usize,
 }
 
 impl StepJob {
@@ -309,6 +312,7 @@ impl StepJob {
             prev: 0,
             best: None,
             rate: 0.0,
+            total_done: 0,
         }
     }
 
@@ -1474,8 +1478,9 @@ impl Estimator {
                 self.step_start(&mut job)
             }
             StepStage::Total => {
-                self.step_total(&job);
-                job.stage = StepStage::Post;
+                if !self.step_total(&mut job) {
+                    job.stage = StepStage::Post;
+                }
                 true
             }
             StepStage::Post => {
@@ -1597,16 +1602,24 @@ impl Estimator {
         true
     }
 
-    /// The step test's second stage: the segment's blocks with their weights, summed.
-    fn step_total(&mut self, job: &StepJob) {
+    /// The step test's second stage: the segment's blocks with their weights, summed,
+    /// at most [`segment::PREP_BLOCKS`] blocks per call (in order, so the total is the
+    /// one a single pass gives). Returns whether blocks remain.
+    fn step_total(&mut self, job: &mut StepJob) -> bool {
         let [total, post, _] = &mut self.glr;
-        total.clear();
-        post.clear();
-        for i in job.first..job.n {
+        if job.total_done == 0 {
+            total.clear();
+            post.clear();
+            total.first_k = self.corr.block(job.first).first_k;
+        }
+        let from = job.first + job.total_done;
+        let to = (from + segment::PREP_BLOCKS).min(job.n);
+        for i in from..to {
             let w = self.seg.weight(&self.corr, i);
             total.add_range(self.corr.block(i), w, job.lo, job.hi);
         }
-        total.first_k = self.corr.block(job.first).first_k;
+        job.total_done = to - job.first;
+        to < job.n
     }
 
     /// One post window of the step test against the blocks before it; the verdict
