@@ -1216,16 +1216,19 @@ impl Estimator {
     }
 
     /// The next hop's segment (without its new block) and key, predicted.
-    fn next_hop_key(&mut self) -> Option<(Span, PrepKey)> {
+    fn next_hop_key(&self) -> Option<(Span, PrepKey)> {
         let n = self.corr.count();
         let cursor = self.corr.cursor()?;
         if n == 0 {
             return None;
         }
+        // the tracker's time origin (`rel`): after a restore or a clock jump the next
+        // hop sets it, and nothing is prepared before (the preparation sets nothing)
+        let epoch = self.epoch_ns?;
         let hl = self.p.hop_len;
         let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
         let t_ref_ns = (k_end + 1) * self.p.dt_ns - self.group_delay_ns - self.p.ref_lag_ns;
-        let t = self.rel(t_ref_ns);
+        let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
         if t < self.seg_start_t {
             return None;
         }
