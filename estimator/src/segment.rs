@@ -356,7 +356,7 @@ impl Segment {
         self.prep.key.as_ref()
     }
 
-    /// Whether both stages of the prepared combination are done.
+    /// Whether every stage of the prepared combination is done.
     pub fn prepared_ready(&self) -> bool {
         self.prep.key.is_some() && self.prep.ready
     }
