@@ -1,10 +1,13 @@
 //! CPU cost of one `push` (with its `poll`) on a simulated run: its distribution,
 //! split into the pushes that complete a hop (an estimate) and the others, which
-//! carry the previous hop's step test in stages. `--thrash-mb N` writes an N MiB
-//! buffer between pushes, as the daemon's sleeps between samples let other
-//! processes empty the caches; the hot figures alone would flatter the daemon.
+//! carry the previous hop's step test and the next hop's preparation in stages.
+//! `--thrash-mb N` writes an N MiB buffer between pushes, as the daemon's sleeps
+//! between samples let other processes empty the caches; the hot figures alone
+//! would flatter the daemon. `--urgent` times the daemon's way instead:
+//! `push_urgent` and `poll` as the sample's cost, then `idle` (the background
+//! stage) on its own.
 //!
-//! `cargo run --release -p vlsync-estimator --example push_cost -- [--family F] [--seed S] [--thrash-mb N]`
+//! `cargo run --release -p vlsync-estimator --example push_cost -- [--family F] [--seed S] [--thrash-mb N] [--urgent]`
 use std::io::Write;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -12,12 +15,13 @@ use vlsync_config::EstimatorConfig;
 use vlsync_estimator::Estimator;
 use vlsync_sim::families::{try_generate, Family};
 
-const USAGE: &str = "usage: push_cost [--family F] [--seed S] [--thrash-mb N]";
+const USAGE: &str = "usage: push_cost [--family F] [--seed S] [--thrash-mb N] [--urgent]";
 
 struct Args {
     family: Family,
     seed: u64,
     thrash_mb: usize,
+    urgent: bool,
 }
 
 fn parse() -> Result<Args, String> {
@@ -25,6 +29,7 @@ fn parse() -> Result<Args, String> {
         family: Family::Robot,
         seed: 1000,
         thrash_mb: 0,
+        urgent: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -45,6 +50,7 @@ fn parse() -> Result<Args, String> {
                     .filter(|&m: &usize| m <= 1024)
                     .ok_or(format!("--thrash-mb: `{v}` is not 0..=1024"))?;
             }
+            "--urgent" => a.urgent = true,
             "-h" | "--help" => return Err(USAGE.into()),
             _ => return Err(format!("unknown argument `{k}`\n{USAGE}")),
         }
@@ -82,24 +88,33 @@ fn main() -> ExitCode {
     let mut out = std::io::stdout().lock();
     let header = writeln!(
         out,
-        "{} seed {}, {} samples, {} MiB written between pushes; µs per push (3 runs):",
+        "{} seed {}, {} samples, {} MiB written between pushes; µs per {} (3 runs):",
         a.family.name(),
         a.seed,
         all.len(),
-        a.thrash_mb
+        a.thrash_mb,
+        if a.urgent {
+            "push_urgent, and per idle"
+        } else {
+            "push"
+        }
     );
     if header.is_err() {
         return ExitCode::SUCCESS;
     }
     for rep in 1..=3 {
         let mut est = Estimator::new(&EstimatorConfig::default());
-        let (mut hop, mut other) = (Vec::new(), Vec::new());
+        let (mut hop, mut other, mut idle) = (Vec::new(), Vec::new(), Vec::new());
         for &(stream, s) in &all {
             for b in junk.iter_mut().step_by(64) {
                 *b = b.wrapping_add(1);
             }
             let t0 = Instant::now();
-            let _ = est.push(stream, s);
+            let _ = if a.urgent {
+                est.push_urgent(stream, s)
+            } else {
+                est.push(stream, s)
+            };
             let mut n = 0;
             while est.poll().is_some() {
                 n += 1;
@@ -109,6 +124,11 @@ fn main() -> ExitCode {
                 hop.push(dt);
             } else {
                 other.push(dt);
+            }
+            if a.urgent {
+                let t1 = Instant::now();
+                est.idle();
+                idle.push(t1.elapsed().as_nanos() as u64);
             }
         }
         let line = writeln!(
@@ -126,6 +146,19 @@ fn main() -> ExitCode {
         );
         if line.is_err() {
             return ExitCode::SUCCESS;
+        }
+        if a.urgent {
+            let line = writeln!(
+                out,
+                "         idle: p50 {:.1} p99 {:.1} p99.9 {:.1} max {:.1}",
+                pct(&mut idle, 0.5),
+                pct(&mut idle, 0.99),
+                pct(&mut idle, 0.999),
+                pct(&mut idle, 1.0),
+            );
+            if line.is_err() {
+                return ExitCode::SUCCESS;
+            }
         }
     }
     ExitCode::SUCCESS

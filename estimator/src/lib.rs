@@ -445,6 +445,11 @@ pub struct Estimator {
     prep_span: Option<Span>,
     /// Segment measurements, and those from a prepared combination.
     prepared_hops: (u64, u64),
+    /// Whether the last push's stage before its sample ran a step-test stage.
+    staged: bool,
+    /// After an accepted sample, until its stage after it ran: whether the push
+    /// completed no hop.
+    pushed: Option<bool>,
     /// Variance added to the estimate while the step test sees a change it cannot
     /// confirm yet (a possible step's size squared, weighted by its evidence).
     suspect_var: f64,
@@ -548,6 +553,8 @@ impl Estimator {
             prepare: true,
             prep_span: None,
             prepared_hops: (0, 0),
+            staged: false,
+            pushed: None,
             step_evidence: 0.0,
             innov: [(0.0, 0.0); BIAS_WINDOWS],
             innov_n: 0,
@@ -576,16 +583,27 @@ impl Estimator {
     }
 
     /// Pushes one sample of `stream`. Rejected samples are counted and never reach the sums.
+    ///
+    /// Besides the sample's own work (and the hop it may complete), a push runs one
+    /// stage of the work spread over the samples between hops: the last hop's step
+    /// test, then the preparation of the next hop's combination. No sample carries
+    /// both a hop and that work. [`Estimator::push_urgent`] with [`Estimator::idle`]
+    /// does the same in two calls.
     pub fn push(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
-        // one stage of the last hop's step test per sample: no sample carries both the
-        // hop's combination and the whole test; once it is done, the samples prepare
-        // the next hop's combination (below)
-        let staged = self.step_job.is_some();
-        if self.split_step {
-            self.step_stage();
-        } else {
-            self.finish_step();
-        }
+        self.stage_before_push();
+        let r = self.push_urgent(stream, sample);
+        self.stage_after_push();
+        r
+    }
+
+    /// The sample's own work only: what [`Estimator::push`] does without its stage of
+    /// background work. A caller that wants each estimate out first (the daemon
+    /// measures each sample's latency up to it) calls this, polls, then
+    /// [`Estimator::idle`] once before the next sample: the estimates are exactly
+    /// those of `push` alone. Without `idle` the estimates stay correct; the work it
+    /// would have spread then lands on the samples that complete blocks.
+    pub fn push_urgent(&mut self, stream: Stream, sample: Sample) -> Result<(), RejectReason> {
+        self.pushed = None;
         let hops = self.stats.estimates;
         let si = idx(stream);
         let other_now = self.rs[1 - si].last_time();
@@ -633,10 +651,35 @@ impl Estimator {
         }
         self.run_correlator();
         self.check_stall(stream, sample.t_ns);
-        if !staged && self.stats.estimates == hops && self.step_job.is_none() {
+        self.pushed = Some(self.stats.estimates == hops);
+        Ok(())
+    }
+
+    /// One stage of the background work spread over the samples between hops (see
+    /// [`Estimator::push_urgent`]); it never produces an estimate. Call it once after
+    /// each `push_urgent` and its polls, when no sample is waiting.
+    pub fn idle(&mut self) {
+        self.stage_after_push();
+        self.stage_before_push();
+    }
+
+    /// The stage a push runs before its sample: the last hop's step test (the whole
+    /// test at once in the test that compares the two).
+    fn stage_before_push(&mut self) {
+        self.staged = self.step_job.is_some();
+        if self.split_step {
+            self.step_stage();
+        } else {
+            self.finish_step();
+        }
+    }
+
+    /// The stage a push runs after its sample: once the step test is done, and if the
+    /// sample was accepted and completed no hop, the next hop's preparation.
+    fn stage_after_push(&mut self) {
+        if self.pushed.take() == Some(true) && !self.staged && self.step_job.is_none() {
             self.prepare_stage();
         }
-        Ok(())
     }
 
     /// Announces that the offset may have stepped at LiDAR time `t_lidar_ns` (the
@@ -2097,6 +2140,50 @@ mod tests {
     /// Each way a step test can be interrupted before its stages are done: injected
     /// right after a tracking hop (its test pending), into an estimator splitting the
     /// test and one running it whole; the estimates must stay identical.
+    #[test]
+    fn urgent_pushes_with_idle_give_the_estimates_of_pushes() {
+        // the daemon's order: the sample, its estimates, then the background stage
+        for (family, seed) in [
+            (Family::LoadSteps, 3),
+            (Family::Clocks, 1000),
+            (Family::Rates60x5, 1000),
+        ] {
+            let all = generate(family, seed, None).pushes();
+            let cfg = EstimatorConfig::default();
+            let (mut one, mut two) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            let (mut bad, mut last) = (0, [None; 2]);
+            for (i, &(stream, s)) in all.iter().enumerate() {
+                // now and then a rejected sample first (this stream's last, repeated)
+                let again = last[idx(stream)].filter(|_| i % 97 == 0);
+                last[idx(stream)] = Some(s);
+                for s in again.into_iter().chain([s]) {
+                    let r1 = one.push(stream, s);
+                    a.extend(std::iter::from_fn(|| one.poll()));
+                    let r2 = two.push_urgent(stream, s);
+                    b.extend(std::iter::from_fn(|| two.poll()));
+                    two.idle();
+                    assert!(two.poll().is_none(), "idle produced an estimate");
+                    assert_eq!(r1, r2);
+                    bad += usize::from(r1.is_err());
+                }
+            }
+            assert!(bad > 10, "{family:?}: {bad} rejected");
+            assert!(
+                a.len() > 150 && one.prepared_hops.1 > 100,
+                "{family:?}: {} {:?}",
+                a.len(),
+                one.prepared_hops
+            );
+            assert_eq!(a.len(), b.len(), "{family:?}");
+            for (x, y) in a.iter().zip(&b) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?}");
+            }
+            assert_eq!(one.stats(), two.stats());
+            assert_eq!(one.prepared_hops, two.prepared_hops);
+        }
+    }
+
     #[test]
     fn a_prepared_combination_is_not_used_after_an_interruption() {
         // each interruption comes when a combination is prepared for the next hop:

@@ -6,7 +6,10 @@
 //!   sleeps on one iceoryx2 listener (`<prefix>/signature/ready`) until a driver
 //!   publishes, drains both signature subscribers, validates every payload
 //!   (shared memory is hostile input), pushes into the [`Estimator`], publishes
-//!   every estimate on `<prefix>/offset` and notifies. After start-up it logs
+//!   every estimate on `<prefix>/offset` and notifies; then, the sample done and
+//!   its latency recorded, it runs the estimator's background stage
+//!   (`Estimator::idle`: the step test and the next hop's preparation, spread
+//!   over the samples between hops). After start-up it logs
 //!   nothing, does no I/O and allocates nothing per sample: counters live in
 //!   fixed arrays and [`Histogram`]s, and events go to the other thread over a
 //!   bounded crossbeam channel with `try_send` (a full channel counts a drop).
@@ -387,7 +390,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                         },
                     );
                 }
-                if let Err(r) = est.push(stream, w.sample()) {
+                if let Err(r) = est.push_urgent(stream, w.sample()) {
                     c.status.rejected[si][r.index()] += 1;
                     emit(
                         &s.tx,
@@ -440,6 +443,11 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                         );
                     }
                 }
+                // the estimator's background stage (step test, next hop's preparation)
+                // once the sample is done and its estimate out: the same estimates as
+                // `push` alone, none of that work in the sample's latency; a sample
+                // arriving meanwhile waits for it, and its latency shows that
+                est.idle();
             }
         }
         while let Ok(at_mono) = s.hints.try_recv() {
