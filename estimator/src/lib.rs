@@ -441,8 +441,6 @@ pub struct Estimator {
     /// block completes (always, except in the test that compares it with the
     /// direct combination).
     prepare: bool,
-    /// The span the prepared combination covers (see [`Segment::prepare_residuals`]).
-    prep_span: Option<Span>,
     /// Segment measurements, and those from a prepared combination.
     prepared_hops: (u64, u64),
     /// Whether the last push's stage before its sample ran a step-test stage.
@@ -551,7 +549,6 @@ impl Estimator {
             step_rate: None,
             split_step: true,
             prepare: true,
-            prep_span: None,
             prepared_hops: (0, 0),
             staged: false,
             pushed: None,
@@ -1062,7 +1059,6 @@ impl Estimator {
         self.hop_inner();
         // what was prepared was for this hop (used, or its inputs changed)
         self.seg.drop_prepared();
-        self.prep_span = None;
     }
 
     fn hop_inner(&mut self) {
@@ -1244,17 +1240,12 @@ impl Estimator {
         if !self.prepare || self.mode != Mode::Locked || self.seg.prepared_ready() {
             return;
         }
-        if self.seg.prepared_key().is_some() {
-            if let Some(span) = self.prep_span {
-                self.seg.prepare_sums(&self.corr, &span);
-            }
+        if self.seg.preparing() {
+            self.seg.prepare_sums(&self.corr);
             return;
         }
-        let Some((span, key)) = self.next_hop_key() else {
-            return;
-        };
-        if self.seg.prepare_residuals(&self.corr, &span, key) {
-            self.prep_span = Some(span);
+        if let Some((span, key)) = self.next_hop_key() {
+            self.seg.prepare_residuals(&self.corr, &span, key);
         }
     }
 
@@ -1338,7 +1329,6 @@ impl Estimator {
         self.prepared_hops.0 += 1;
         self.prepared_hops.1 += u64::from(prepared.is_some());
         self.seg.drop_prepared();
-        self.prep_span = None;
         let Some((lever, _)) = prepared else {
             let m = match self.measure_span(near, sign, Weights::Warm) {
                 Some(m) => m,

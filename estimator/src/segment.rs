@@ -60,6 +60,8 @@ pub struct Segment {
 #[derive(Debug, Clone)]
 struct Prepared {
     key: Option<PrepKey>,
+    /// The blocks and slots prepared (the hop's segment without its new block).
+    span: Span,
     /// Residual energy per stored block (by physical position; NaN: the block's
     /// weight stays as it is), of the blocks of the key.
     e: Vec<f64>,
@@ -77,6 +79,25 @@ struct Prepared {
     next: usize,
     /// Every stage done.
     ready: bool,
+}
+
+impl Prepared {
+    /// Adds `w` times block `b` to the down-weighted part (`down`) or the other,
+    /// with its lever sums; its lag sums only with a `shift` (a block that holds
+    /// the slots and carries weight).
+    fn add(&mut self, down: bool, b: &Sums, w: f64, shift: Option<(isize, f64)>) {
+        let (sums, lever) = if down {
+            (&mut self.down_sums, &mut self.lever_down)
+        } else {
+            (&mut self.one, &mut self.lever_one)
+        };
+        let kc = 0.5 * (b.first_k + b.last_k) as f64;
+        lever.0 += w * b.n;
+        lever.1 += w * b.n * kc;
+        if let Some(sh) = shift {
+            accumulate(sums, b, w, &self.span, sh);
+        }
+    }
 }
 
 /// Blocks one call of [`Segment::prepare_sums`] sums at most: a full 60 s segment
@@ -135,6 +156,14 @@ impl Segment {
             sort: vec![0.0; cap_blocks],
             prep: Prepared {
                 key: None,
+                span: Span {
+                    first: 0,
+                    last: 0,
+                    drift: 0.0,
+                    k_ref: 0.0,
+                    lo: 0,
+                    hi: 0,
+                },
                 e: vec![f64::NAN; cap_blocks],
                 down: vec![false; cap_blocks],
                 one: Sums::new(n_lags),
@@ -351,9 +380,9 @@ impl Segment {
         self.prep.ready = false;
     }
 
-    /// The key of the prepared combination, if one is prepared or under way.
-    pub fn prepared_key(&self) -> Option<&PrepKey> {
-        self.prep.key.as_ref()
+    /// Whether a combination is prepared or under way.
+    pub fn preparing(&self) -> bool {
+        self.prep.key.is_some()
     }
 
     /// Whether every stage of the prepared combination is done.
@@ -402,57 +431,47 @@ impl Segment {
             self.prep.down[pi] = e.is_finite() && e > thr0;
         }
         self.prep.key = Some(key);
+        self.prep.span = *span;
         self.prep.ready = false;
         true
     }
 
-    /// Later stages: the sums of both parts over `span.lo..=span.hi` and their lever
+    /// Later stages: the sums of both parts over the prepared slots and their lever
     /// sums, at most [`PREP_BLOCKS`] blocks per call, until
-    /// [`Segment::prepared_ready`]. `span` must be the one given to
-    /// [`Segment::prepare_residuals`].
-    pub fn prepare_sums(&mut self, corr: &Correlator, span: &Span) {
+    /// [`Segment::prepared_ready`].
+    pub fn prepare_sums(&mut self, corr: &Correlator) {
         if self.prep.key.is_none() || self.prep.ready {
             return;
         }
-        let Prepared {
-            e,
-            down,
-            one,
-            down_sums,
-            lever_one,
-            lever_down,
-            next,
-            ..
-        } = &mut self.prep;
-        if *next == 0 {
-            zero(one, span.lo, span.hi);
-            zero(down_sums, span.lo, span.hi);
-            *lever_one = (0.0, 0.0);
-            *lever_down = (0.0, 0.0);
+        let span = self.prep.span;
+        if self.prep.next == 0 {
+            zero(&mut self.prep.one, span.lo, span.hi);
+            zero(&mut self.prep.down_sums, span.lo, span.hi);
+            self.prep.lever_one = (0.0, 0.0);
+            self.prep.lever_down = (0.0, 0.0);
         }
         let last = span.last.min(corr.count().saturating_sub(1));
-        let from = span.first + *next;
+        let from = span.first + self.prep.next;
         let to = (from + PREP_BLOCKS - 1).min(last);
         for i in from..=to {
             let b = corr.block(i);
             let pi = corr.phys(i);
-            let (w, dst, lever) = if down[pi] {
-                (1.0 / e[pi], &mut *down_sums, &mut *lever_down)
-            } else if e[pi].is_finite() {
-                (1.0, &mut *one, &mut *lever_one)
+            let (e, down) = (self.prep.e[pi], self.prep.down[pi]);
+            let w = if down {
+                1.0 / e
+            } else if e.is_finite() {
+                1.0
             } else {
-                (self.w[pi], &mut *one, &mut *lever_one)
+                self.w[pi]
             };
-            lever.0 += w * b.n;
-            lever.1 += w * b.n * 0.5 * (b.first_k + b.last_k) as f64;
-            if w <= 0.0 || b.n <= 0.0 {
-                continue;
-            }
-            if let Some(sh) = Self::shift(b, span) {
-                accumulate(dst, b, w, span, sh);
-            }
+            let shift = if w > 0.0 && b.n > 0.0 {
+                Self::shift(b, &span)
+            } else {
+                None
+            };
+            self.prep.add(down, b, w, shift);
         }
-        *next = to + 1 - span.first;
+        self.prep.next = to + 1 - span.first;
         self.prep.ready = to >= last;
     }
 
@@ -516,61 +535,33 @@ impl Segment {
             f64::INFINITY
         };
         // blocks whose side of the threshold moved with the new block's residual
-        let Prepared {
-            e,
-            down,
-            one,
-            down_sums,
-            lever_one,
-            lever_down,
-            ..
-        } = &mut self.prep;
         let mut moved = 0;
         for i in span.first..last {
             let b = corr.block(i);
             let pi = corr.phys(i);
-            let ei = e[pi];
-            if !ei.is_finite() || (ei > thr) == down[pi] {
+            let (ei, was_down) = (self.prep.e[pi], self.prep.down[pi]);
+            if !ei.is_finite() || (ei > thr) == was_down {
                 continue;
             }
             moved += 1;
-            let (from, to, lf, lt) = if down[pi] {
-                (
-                    &mut *down_sums,
-                    &mut *one,
-                    &mut *lever_down,
-                    &mut *lever_one,
-                )
-            } else {
-                (
-                    &mut *one,
-                    &mut *down_sums,
-                    &mut *lever_one,
-                    &mut *lever_down,
-                )
-            };
-            let (w_from, w_to) = if down[pi] {
+            let (w_from, w_to) = if was_down {
                 (1.0 / ei, 1.0)
             } else {
                 (1.0, 1.0 / ei)
             };
-            let kc = 0.5 * (b.first_k + b.last_k) as f64;
-            lf.0 -= w_from * b.n;
-            lf.1 -= w_from * b.n * kc;
-            lt.0 += w_to * b.n;
-            lt.1 += w_to * b.n * kc;
-            if b.n > 0.0 {
-                if let Some(sh) = Self::shift(b, span) {
-                    accumulate(from, b, -w_from, span, sh);
-                    accumulate(to, b, w_to, span, sh);
-                }
-            }
-            down[pi] = !down[pi];
+            let shift = if b.n > 0.0 {
+                Self::shift(b, span)
+            } else {
+                None
+            };
+            self.prep.add(was_down, b, -w_from, shift);
+            self.prep.add(!was_down, b, w_to, shift);
+            self.prep.down[pi] = !was_down;
         }
         // the weights reweight() would set
         for i in span.first..last {
             let pi = corr.phys(i);
-            let ei = e[pi];
+            let ei = self.prep.e[pi];
             if ei.is_finite() {
                 self.w[pi] = if ei > thr { thr / ei } else { 1.0 };
             }
@@ -579,15 +570,15 @@ impl Segment {
             self.w[np] = if en > thr { thr / en } else { 1.0 };
         }
         // one + thr · down + the new block
-        let s = &mut self.sums;
+        let (s, p) = (&mut self.sums, &self.prep);
         let thr_s = if thr.is_finite() { thr } else { 0.0 };
-        s.n = one.n + thr_s * down_sums.n;
-        s.sx = one.sx + thr_s * down_sums.sx;
-        s.sxx = one.sxx + thr_s * down_sums.sxx;
+        s.n = p.one.n + thr_s * p.down_sums.n;
+        s.sx = p.one.sx + thr_s * p.down_sums.sx;
+        s.sxx = p.one.sxx + thr_s * p.down_sums.sxx;
         for (dst, (a, b)) in [
-            (&mut s.xy, (&one.xy, &down_sums.xy)),
-            (&mut s.y, (&one.y, &down_sums.y)),
-            (&mut s.yy, (&one.yy, &down_sums.yy)),
+            (&mut s.xy, (&p.one.xy, &p.down_sums.xy)),
+            (&mut s.y, (&p.one.y, &p.down_sums.y)),
+            (&mut s.yy, (&p.one.yy, &p.down_sums.yy)),
         ] {
             for ((o, &x), &y) in dst[span.lo..=span.hi]
                 .iter_mut()
@@ -598,12 +589,12 @@ impl Segment {
             }
         }
         let mut lever = (
-            lever_one.0 + thr_s * lever_down.0,
-            lever_one.1 + thr_s * lever_down.1,
+            p.lever_one.0 + thr_s * p.lever_down.0,
+            p.lever_one.1 + thr_s * p.lever_down.1,
         );
         let w_new = self.w[np];
         lever.0 += w_new * nb.n;
-        lever.1 += w_new * nb.n * 0.5 * (nb.first_k + nb.last_k) as f64;
+        lever.1 += w_new * nb.n * (0.5 * (nb.first_k + nb.last_k) as f64);
         if let Some(sh) = new_shift {
             accumulate(s, nb, w_new, span, sh);
         }
@@ -825,7 +816,7 @@ mod tests {
                 assert!(b.prepare_residuals(&c, &pre, key));
                 assert!(!b.prepared_ready());
                 while !b.prepared_ready() {
-                    b.prepare_sums(&c, &pre);
+                    b.prepare_sums(&c);
                 }
                 let (lever, moved) = b.finish_prepared(&c, &full, &key).expect("prepared");
                 moved_total += moved;
@@ -874,7 +865,7 @@ mod tests {
         for k in other {
             let mut seg = Segment::new(61, 40);
             seg.prepare_residuals(&c, &pre, key);
-            seg.prepare_sums(&c, &pre);
+            seg.prepare_sums(&c);
             let before = seg.weight(&c, 3);
             assert!(seg.finish_prepared(&c, &full, &k).is_none(), "{k:?}");
             assert_eq!(seg.weight(&c, 3), before);
