@@ -15,22 +15,39 @@ fn push_and_poll_allocate_nothing() {
     let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(90.0));
     let steps =
         vlsync_sim::families::generate(vlsync_sim::families::Family::LoadSteps, 3, Some(60.0));
-    for cfg in [
-        EstimatorConfig::default(),
-        EstimatorConfig {
-            max_lag_s: 2.0,
-            window_s: 12.0,
-            ..EstimatorConfig::default()
-        },
+    // the second configuration pushes as the daemon does: push_urgent, poll, idle
+    for (cfg, urgent) in [
+        (EstimatorConfig::default(), false),
+        (
+            EstimatorConfig {
+                max_lag_s: 2.0,
+                window_s: 12.0,
+                ..EstimatorConfig::default()
+            },
+            true,
+        ),
     ] {
         let mut est = Estimator::new(&cfg);
+        // pushes one sample; returns the estimates it polled (the daemon's order polls
+        // before `idle`, the other leaves them to the loop)
+        let push = |est: &mut Estimator, stream: Stream, s: Sample| -> usize {
+            if urgent {
+                let _ = est.push_urgent(stream, s);
+                let n = std::iter::from_fn(|| est.poll()).count();
+                est.idle();
+                n
+            } else {
+                let _ = est.push(stream, s);
+                0
+            }
+        };
         let mut n_est = 0usize;
         let before = vlsync_alloc_count::this_thread();
         for r in [&run, &steps] {
             let (mut i, mut j) = (0, 0);
             while i < r.cam.len() || j < r.lidar.len() {
                 if j >= r.lidar.len() || (i < r.cam.len() && r.cam[i].t_ns <= r.lidar[j].t_ns) {
-                    let _ = est.push(Stream::Cam, r.cam[i]);
+                    n_est += push(&mut est, Stream::Cam, r.cam[i]);
                     i += 1;
                 } else {
                     // a load hint every 30 s (right or wrong): the mixture and
@@ -38,11 +55,11 @@ fn push_and_poll_allocate_nothing() {
                     if j % 300 == 150 {
                         est.hint_change(r.lidar[j].t_ns, vlsync_estimator::HINT_STEP_STD_S);
                     }
-                    let _ = est.push(Stream::Lidar, r.lidar[j]);
+                    n_est += push(&mut est, Stream::Lidar, r.lidar[j]);
                     j += 1;
                 }
                 if i % 97 == 0 {
-                    let _ = est.push(Stream::Cam, Sample::new(0, f64::NAN));
+                    n_est += push(&mut est, Stream::Cam, Sample::new(0, f64::NAN));
                 }
                 while est.poll().is_some() {
                     n_est += 1;
