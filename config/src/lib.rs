@@ -110,6 +110,16 @@ pub struct EstimatorConfig {
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
+    /// Which streams' stamp cadence is followed: a regular stream's stamps are put
+    /// on its frame grid, and steps of its stamping latency (CPU load on a
+    /// software-stamped camera) are followed from the stamps within a few frames.
+    pub cadence: CadenceStreams,
+    /// Smallest stamping-latency step the cadence follows (and the least tolerance
+    /// of its grid), seconds.
+    pub cadence_min_step_s: f64,
+    /// Consecutive samples off the grid, on the same side and agreeing, that
+    /// confirm a latency step.
+    pub cadence_confirm: u32,
 }
 
 impl Default for EstimatorConfig {
@@ -142,7 +152,36 @@ impl Default for EstimatorConfig {
             step_gate_sigma: 4.5,
             step_confirm: 3,
             lost_std_s: 0.05,
+            cadence: CadenceStreams::Both,
+            cadence_min_step_s: 0.002,
+            cadence_confirm: 3,
         }
+    }
+}
+
+/// Which streams' stamp cadence the estimator follows (`estimator.cadence`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CadenceStreams {
+    /// Camera and LiDAR.
+    Both,
+    /// The camera only (a LiDAR whose scan timing itself wanders, stamped exactly).
+    Camera,
+    /// The LiDAR only.
+    Lidar,
+    /// Neither: every stamp reaches the correlator as it is.
+    Off,
+}
+
+impl CadenceStreams {
+    /// Whether the camera's cadence is followed.
+    pub fn camera(self) -> bool {
+        matches!(self, CadenceStreams::Both | CadenceStreams::Camera)
+    }
+
+    /// Whether the LiDAR's cadence is followed.
+    pub fn lidar(self) -> bool {
+        matches!(self, CadenceStreams::Both | CadenceStreams::Lidar)
     }
 }
 
@@ -351,6 +390,8 @@ impl EstimatorConfig {
         c.range(&k("step_gate_sigma"), self.step_gate_sigma, 1.0, 100.0)?;
         c.int_range(&k("step_confirm"), self.step_confirm.into(), 1, 100)?;
         c.range(&k("lost_std_s"), self.lost_std_s, 1e-4, 10.0)?;
+        c.range(&k("cadence_min_step_s"), self.cadence_min_step_s, 1e-4, 0.1)?;
+        c.int_range(&k("cadence_confirm"), self.cadence_confirm.into(), 1, 15)?;
         c.rule(self.hop_s <= self.window_s, || {
             format!(
                 "`estimator.hop_s` = {} must not exceed `estimator.window_s` = {}",
@@ -556,6 +597,31 @@ mod tests {
         );
         let c = Config::from_toml_str("[daemon]\ncpu_latency_us = 0\n", "x.toml").unwrap();
         assert_eq!(c.daemon.cpu_latency_us, 0);
+    }
+
+    #[test]
+    fn cadence_streams_and_ranges() {
+        let c = Config::from_toml_str("[estimator]\ncadence = \"camera\"\n", "x").unwrap();
+        assert!(c.estimator.cadence.camera() && !c.estimator.cadence.lidar());
+        let c = Config::from_toml_str("[estimator]\ncadence = \"off\"\n", "x").unwrap();
+        assert!(!c.estimator.cadence.camera() && !c.estimator.cadence.lidar());
+        let e = Config::from_toml_str("[estimator]\ncadence = \"yes\"\n", "x.toml").unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains("cadence") && s.contains("yes") && s.contains("both"),
+            "{s}"
+        );
+        let e = Config::from_toml_str("[estimator]\ncadence_confirm = 0\n", "x").unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains("estimator.cadence_confirm") && s.contains("1 ..= 15"),
+            "{s}"
+        );
+        let e = Config::from_toml_str("[estimator]\ncadence_min_step_s = 0.5\n", "x").unwrap_err();
+        assert!(
+            e.to_string().contains("estimator.cadence_min_step_s"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -110,7 +110,7 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
             .collect();
         let _ = writeln!(
             s,
-            "{name:>5}: {} rows read, {} accepted, {} rejected{}{}, {} gaps, {} resets",
+            "{name:>5}: {} rows read, {} accepted, {} rejected{}{}, {} gaps, {} resets; {} latency steps followed from the stamps' cadence, {} cadence relearns",
             rows[i],
             stats.accepted[i],
             stats.rejected[i].iter().sum::<u64>(),
@@ -121,7 +121,9 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
                 rej.join(", ") + ")"
             },
             stats.gaps[i],
-            stats.resets[i]
+            stats.resets[i],
+            stats.cadence_steps[i],
+            stats.cadence_relearns[i]
         );
     }
     let count = |st: vlsync_common::EstimatorState| ests.iter().filter(|e| e.state == st).count();

@@ -37,6 +37,7 @@
 //! so `offset = t_L - t_C = +0.12 s`.)
 #![forbid(unsafe_code)]
 
+pub mod cadence;
 pub mod correlator;
 pub mod drift;
 pub mod filter;
@@ -44,6 +45,7 @@ pub mod peak;
 pub mod resample;
 pub mod segment;
 
+use cadence::{Cadence, CadenceParams};
 use correlator::{Correlator, Step, Sums};
 use drift::DriftFit;
 use filter::BandPass;
@@ -75,6 +77,11 @@ pub struct EstimatorStats {
     pub steps: u64,
     /// Locks acquired (first lock and re-acquisitions).
     pub locks: u64,
+    /// Stamping-latency steps each stream's cadence found (index: 0 cam, 1 lidar):
+    /// followed from the stamps, not the correlation ([`cadence`]).
+    pub cadence_steps: [u64; 2],
+    /// Times each stream's cadence was learnt again (not regular enough, a clock jump).
+    pub cadence_relearns: [u64; 2],
 }
 
 fn idx(s: Stream) -> usize {
@@ -379,9 +386,29 @@ impl History {
     }
 }
 
+/// A cadence step is tested against a period less (a frame dropped at it) when
+/// its stream drops at least this share of frames.
+const CADENCE_AMBIGUITY_MIN: f64 = 0.002;
+/// Uncertainty of that alternative step, s (the stamps measure both to a
+/// fraction of a millisecond).
+const CADENCE_ALT_STD_S: f64 = 1e-3;
+
 /// The step a hint announces by default (1σ), seconds: the seed article's load
 /// steps were ±25 ms. `vlsyncd`'s load hints and `bench --known-steps --hinted` use it.
 pub const HINT_STEP_STD_S: f64 = 0.025;
+
+/// What a hinted change may have done to the offset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Hint {
+    /// Variance of the step the hint announces (about 0 when `alt` is known).
+    v_step: f64,
+    /// The one step the alternative to "no step" is, s (a stream's cadence whose
+    /// step could also have been a frame period less, with a frame dropped at it);
+    /// `None`: a step of any size, `v_step` its variance.
+    alt: Option<f64>,
+    /// Prior log-odds of the step against no step.
+    logit: f64,
+}
 
 /// The old segment at a hinted change (see [`Estimator::hint_change`]).
 #[derive(Debug, Clone, Copy)]
@@ -389,8 +416,8 @@ struct HintPrior {
     /// Offset at the change, s, and its variance.
     o: f64,
     v: f64,
-    /// Variance of the step the hint announces.
-    v_step: f64,
+    /// What the hint announced.
+    hint: Hint,
     /// Tracker time of the change.
     t: f64,
     /// Where the old segment started (grid index, tracker time).
@@ -403,6 +430,9 @@ struct HintPrior {
 #[derive(Debug, Clone)]
 pub struct Estimator {
     p: Params,
+    /// Each stream's stamp cadence: the internal stamps the resamplers interpolate
+    /// at, and the latency levels added back to what is reported.
+    cad: [Cadence; 2],
     rs: [Resampler; 2],
     bp: [BandPass; 2],
     corr: Correlator,
@@ -463,9 +493,9 @@ pub struct Estimator {
     /// A change point announced from outside ([`Estimator::declare_change`]), as a
     /// LiDAR grid index, applied once the data reach past it.
     known_change: Option<i64>,
-    /// The expected step size's variance of the pending `known_change`, when it is
-    /// only a hint ([`Estimator::hint_change`]).
-    hint_var: Option<f64>,
+    /// The step the pending `known_change` may have made, when it is only a hint
+    /// ([`Estimator::hint_change`], an ambiguous cadence step).
+    hint: Option<Hint>,
     /// After a hinted change: the old offset at the change and the old segment's
     /// start, weighed against the new segment until it is as precise alone
     /// ([`Self::hinted`]).
@@ -522,7 +552,15 @@ impl Estimator {
             0.3 * p.lowpass_hz
         };
         let group_delay_ns = (bp.group_delay_s(f_mid) * 1e9).round() as Nanos;
+        let cad = |enabled| {
+            Cadence::new(CadenceParams {
+                enabled,
+                min_step_ns: cfg.cadence_min_step_s * 1e9,
+                confirm: cfg.cadence_confirm as usize,
+            })
+        };
         Self {
+            cad: [cad(cfg.cadence.camera()), cad(cfg.cadence.lidar())],
             rs: [rs.clone(), rs],
             bp: [bp.clone(), bp],
             seg: Segment::new(n_lags, p.seg_blocks),
@@ -557,7 +595,7 @@ impl Estimator {
             innov_n: 0,
             bias_var: 0.0,
             known_change: None,
-            hint_var: None,
+            hint: None,
             seg_prior: None,
             epoch_ns: None,
             polarity: Polarity::Unknown,
@@ -604,22 +642,29 @@ impl Estimator {
         let hops = self.stats.estimates;
         let si = idx(stream);
         let other_now = self.rs[1 - si].last_time();
+        let kind = match self.rs[si].check(sample) {
+            Ok(k) => k,
+            Err(r) => {
+                self.stats.rejected[si][r.index()] += 1;
+                return Err(r);
+            }
+        };
+        // the stamp on the stream's cadence: latency steps and jitter taken out
+        let t_int = self.cad[si].push(sample.t_ns, kind.cadence());
+        self.stats.cadence_steps[si] = self.cad[si].steps();
+        self.stats.cadence_relearns[si] = self.cad[si].relearns();
+        if let Some(st) = self.cad[si].take_step() {
+            self.cadence_step(stream, st);
+        }
         let Self { rs, bp, corr, .. } = self;
         let bp_s = &mut bp[si];
-        let res = rs[si].push(sample, |k, v| {
+        let disc = rs[si].accept(sample, t_int, kind, |k, v| {
             let y = bp_s.step(v);
             match stream {
                 Stream::Cam => corr.push_cam(k, y),
                 Stream::Lidar => corr.push_lidar(k, y),
             }
         });
-        let disc = match res {
-            Ok(d) => d,
-            Err(r) => {
-                self.stats.rejected[si][r.index()] += 1;
-                return Err(r);
-            }
-        };
         self.stats.accepted[si] += 1;
         let other_then = std::mem::replace(&mut self.other_at_last[si], other_now);
         match disc {
@@ -647,7 +692,7 @@ impl Estimator {
             }
         }
         self.run_correlator();
-        self.check_stall(stream, sample.t_ns);
+        self.check_stall(stream, t_int);
         self.pushed = Some(self.stats.estimates == hops);
         Ok(())
     }
@@ -689,9 +734,16 @@ impl Estimator {
     /// uses it to measure how well the estimator could do if it detected the
     /// simulated load steps instantly.
     pub fn declare_change(&mut self, t_lidar_ns: Nanos) {
-        let k = t_lidar_ns.saturating_add(self.group_delay_ns) / self.p.dt_ns;
+        // on the LiDAR's internal clock (its cadence's latency level taken out)
+        let t = t_lidar_ns.saturating_sub(self.cad[1].level().round() as Nanos);
+        self.change_at_internal(t, None);
+    }
+
+    /// A change (or, with `hint`, a possible one) at internal LiDAR time `t`.
+    fn change_at_internal(&mut self, t: Nanos, hint: Option<Hint>) {
+        let k = t.saturating_add(self.group_delay_ns) / self.p.dt_ns;
         self.known_change = Some(k);
-        self.hint_var = None;
+        self.hint = hint;
     }
 
     /// Like [`Self::declare_change`], for a change that may not have happened: a
@@ -702,13 +754,47 @@ impl Estimator {
     /// gives the old one its history back. A hint without a step costs a few
     /// noisier seconds, not the history.
     pub fn hint_change(&mut self, t_lidar_ns: Nanos, step_std_s: f64) {
-        self.declare_change(t_lidar_ns);
         let s = if step_std_s.is_finite() {
             step_std_s.clamp(1e-4, 1.0)
         } else {
             HINT_STEP_STD_S
         };
-        self.hint_var = Some(s * s);
+        let t = t_lidar_ns.saturating_sub(self.cad[1].level().round() as Nanos);
+        let hint = Hint {
+            v_step: s * s,
+            alt: None,
+            logit: 0.0,
+        };
+        self.change_at_internal(t, Some(hint));
+    }
+
+    /// A stream's cadence found a latency step (its stamps say how large, and the
+    /// estimates add it back: the correlation sees none). A step to later stamps
+    /// on a stream that drops frames may instead have been a period less, a frame
+    /// dropped at it: the internal stamps then moved by a period. The estimator
+    /// tests that as a hint with that one alternative, weighed by the stream's
+    /// share of dropped frames; the data tell the two apart within the first
+    /// seconds after the step (a period is 33 ms at 30 Hz), and "no step" gives the
+    /// segment its history back.
+    fn cadence_step(&mut self, stream: Stream, st: cadence::CadenceStep) {
+        if self.mode != Mode::Locked || st.ambiguity < CADENCE_AMBIGUITY_MIN {
+            return;
+        }
+        let p = st.ambiguity.clamp(CADENCE_AMBIGUITY_MIN, 0.5);
+        let period = st.period_ns * 1e-9;
+        // a frame dropped at the step: the frames after it are one later than the
+        // cadence counts, their internal stamps a period early (the camera's: the
+        // offset a period more; the LiDAR's: a period less)
+        let (alt, t) = match stream {
+            Stream::Cam => (period, st.start.saturating_add((self.cur.o * 1e9) as Nanos)),
+            Stream::Lidar => (-period, st.start),
+        };
+        let hint = Hint {
+            v_step: CADENCE_ALT_STD_S * CADENCE_ALT_STD_S,
+            alt: Some(alt),
+            logit: (p / (1.0 - p)).ln(),
+        };
+        self.change_at_internal(t, Some(hint));
     }
 
     /// Takes the oldest pending estimate, if any.
@@ -766,9 +852,11 @@ impl Estimator {
         // grew like a holding state's (plus the drift's)
         let var =
             est.offset_std_s.powi(2) + self.p.q_hold.powi(2) * age + (drift_std * age).powi(2);
+        // the offset between the internal stamps (both cadences' levels taken out)
+        let levels = (self.cad[1].level() - self.cad[0].level()) * 1e-9;
         self.cur = Current {
             t: 0.0,
-            o: est.offset_s + drift * age,
+            o: est.offset_s + drift * age - levels,
             var,
         };
         self.d = (drift, drift_std * drift_std);
@@ -1568,16 +1656,16 @@ impl Estimator {
                 >= kc.saturating_add(short as i64 * self.p.hop_len)
             {
                 self.known_change = None;
-                let hint = self.hint_var.take();
+                let hint = self.hint.take();
                 if let Some(c) = (first..n).find(|&i| self.corr.block(i).last_k >= kc) {
                     let t_c = self.rel_k(self.corr.block(c).first_k as f64);
                     let (o, v) = self.predict(t_c);
                     let (start_k, start_t) = (self.seg_start_k, self.seg_start_t);
                     self.change_at_block(c);
-                    self.seg_prior = hint.map(|v_step| HintPrior {
+                    self.seg_prior = hint.map(|hint| HintPrior {
                         o,
                         v,
-                        v_step,
+                        hint,
                         t: t_c,
                         start_k,
                         start_t,
@@ -1749,29 +1837,40 @@ impl Estimator {
     /// the drift fit keeps the extra intercept the change gave it). `None`: `m` is
     /// beyond the gate of even the step hypothesis, an outlier.
     fn hinted(&mut self, m: Meas, h: HintPrior, t: f64) -> Option<Meas> {
-        let (o, v, v_step) = (h.o, h.v, h.v_step);
+        let (o, v, v_step) = (h.o, h.v, h.hint.v_step);
+        let alt = h.hint.alt.unwrap_or(0.0);
         let dt = t - h.t;
         let v0 = v + self.d.1 * dt * dt + self.p.qo * self.p.qo * dt.abs();
         let o_t = o + self.d.0 * dt;
-        let fuse = |vp: f64| {
+        let fuse = |mu: f64, vp: f64| {
             let w = m.var / (m.var + vp);
-            (m.z + w * (o_t - m.z), m.var * vp / (m.var + vp))
+            (m.z + w * (mu - m.z), m.var * vp / (m.var + vp))
         };
-        let (z0, var0) = fuse(v0);
-        let (z1, var1) = fuse(v0 + v_step);
-        let nu = m.z - o_t;
+        let (z0, var0) = fuse(o_t, v0);
+        let (z1, var1) = fuse(o_t + alt, v0 + v_step);
+        let (nu0, nu1) = (m.z - o_t, m.z - o_t - alt);
         let (s0, s1) = (m.var + v0, m.var + v0 + v_step);
-        if nu.abs() > self.p.gate * s1.sqrt() {
+        if nu0.abs() > self.p.gate * s0.sqrt() && nu1.abs() > self.p.gate * s1.sqrt() {
             self.stats.outliers += 1;
             return None;
         }
-        // log-likelihood ratio of "step" against "no step"
-        let llr = 0.5 * ((s0 / s1).ln() + nu * nu * (1.0 / s0 - 1.0 / s1));
+        // log-likelihood ratio of "step" against "no step", with the prior odds
+        let llr = h.hint.logit + 0.5 * ((s0 / s1).ln() + nu0 * nu0 / s0 - nu1 * nu1 / s1);
         let p1 = 1.0 / (1.0 + (-llr.clamp(-50.0, 50.0)).exp());
-        if m.var <= v0 {
+        // a step of one known size is told from none as soon as the data are decisive
+        let decided = h.hint.alt.is_some() && !(1e-4..=1.0 - 1e-4).contains(&p1);
+        if m.var <= v0 || decided {
             self.seg_prior = None;
             if p1 >= 0.5 {
-                return Some(m);
+                return Some(if h.hint.alt.is_some() {
+                    Meas {
+                        z: z1,
+                        var: var1,
+                        ..m
+                    }
+                } else {
+                    m
+                });
             }
             self.seg_start_k = h.start_k;
             self.seg_start_t = h.start_t;
@@ -1862,12 +1961,18 @@ impl Estimator {
                 self.p.max_lag_s,
             )
         };
+        // back from the internal stamps to the stamps as published: the LiDAR's
+        // latency level at the reference time, the camera's at the same event
+        let (lev_l, var_l) = self.cad[1].level_at(t_ref_ns);
+        let t_cam = t_ref_ns.saturating_sub((offset * 1e9) as Nanos);
+        let (lev_c, var_c) = self.cad[0].level_at(t_cam);
+        let shift = (lev_l - lev_c) * 1e-9;
         let e = Estimate {
             seq: self.seq,
-            t_ref_ns,
-            offset_s: offset,
+            t_ref_ns: t_ref_ns.saturating_add(lev_l.round() as Nanos),
+            offset_s: offset + shift,
             drift: if self.ever_locked { self.d.0 } else { 0.0 },
-            offset_std_s: std,
+            offset_std_s: (std * std + (var_l + var_c) * 1e-18).sqrt(),
             drift_std: if self.ever_locked {
                 self.d.1.max(0.0).sqrt()
             } else {
@@ -1877,7 +1982,7 @@ impl Estimator {
             polarity: self.polarity,
             peak_score: score,
             peak_ratio: ratio,
-            measured_offset_s: z.unwrap_or(f64::NAN),
+            measured_offset_s: z.map_or(f64::NAN, |z| z + shift),
         };
         self.seq += 1;
         self.stats.estimates += 1;
@@ -2023,14 +2128,20 @@ mod tests {
 
     #[test]
     fn the_step_test_in_stages_gives_the_verdicts_of_the_whole_test() {
+        // the correlation's step test (the load steps' stamps are not followed by
+        // their cadence here, so the test has steps to find)
+        let no_cadence = EstimatorConfig {
+            cadence: vlsync_config::CadenceStreams::Off,
+            ..EstimatorConfig::default()
+        };
         // hops of 0.1 s leave 4 pushes between hops: the test is finished before the
         // next block completes, not only by the pushes between
         let short_hops = EstimatorConfig {
             hop_s: 0.1,
-            ..EstimatorConfig::default()
+            ..no_cadence.clone()
         };
         for (family, seed, cfg) in [
-            (Family::LoadSteps, 3, EstimatorConfig::default()),
+            (Family::LoadSteps, 3, no_cadence),
             (Family::Clocks, 1000, EstimatorConfig::default()),
             (Family::LoadSteps, 3, short_hops),
             // a 5.5 Hz LiDAR below twice the low-pass: the slower stream's rate, which

@@ -26,7 +26,10 @@ pub struct Resampler {
     max_gap_ns: Nanos,
     reset_jump_ns: Nanos,
     max_abs: f64,
+    /// The previous accepted sample, at its interpolation time.
     prev: Option<Sample>,
+    /// The previous accepted sample's own stamp (what validation compares with).
+    prev_raw: Option<Nanos>,
     /// Exponential average of the accepted sample interval, ns (0: unknown).
     mean_interval_ns: f64,
 }
@@ -40,6 +43,7 @@ impl Resampler {
             reset_jump_ns,
             max_abs,
             prev: None,
+            prev_raw: None,
             mean_interval_ns: 0.0,
         }
     }
@@ -49,14 +53,9 @@ impl Resampler {
         self.mean_interval_ns * 1e-9
     }
 
-    /// Time of the last accepted sample.
+    /// Interpolation time of the last accepted sample.
     pub fn last_time(&self) -> Option<Nanos> {
         self.prev.map(|p| p.t_ns)
-    }
-
-    /// Forgets the previous sample (next sample starts a new segment).
-    pub fn restart(&mut self) {
-        self.prev = None;
     }
 
     /// Validates `s`; on acceptance calls `emit(k, value)` for every grid index
@@ -66,36 +65,69 @@ impl Resampler {
     pub fn push(
         &mut self,
         s: Sample,
-        mut emit: impl FnMut(i64, f64),
+        emit: impl FnMut(i64, f64),
     ) -> Result<Discontinuity, RejectReason> {
+        let kind = self.check(s)?;
+        Ok(self.accept(s, s.t_ns, kind, emit))
+    }
+
+    /// Validates `s` against the stream so far without taking it: what
+    /// [`Resampler::accept`] then does with it.
+    pub fn check(&self, s: Sample) -> Result<Kind, RejectReason> {
         if !s.value.is_finite() {
             return Err(RejectReason::NonFinite);
         }
         if s.value.abs() > self.max_abs {
             return Err(RejectReason::TooLarge);
         }
-        let Some(p) = self.prev else {
-            self.prev = Some(s);
-            return Ok(Discontinuity::None);
+        let Some(p) = self.prev_raw else {
+            return Ok(Kind::First);
         };
-        let step = s.t_ns.saturating_sub(p.t_ns);
+        let step = s.t_ns.saturating_sub(p);
         if step == 0 {
             return Err(RejectReason::Repeated);
         }
         if step < 0 {
             if step.saturating_neg() > self.reset_jump_ns {
-                self.prev = Some(s);
-                return Ok(Discontinuity::Reset(step));
+                return Ok(Kind::Reset(step));
             }
             return Err(RejectReason::Backwards);
         }
         if step > self.reset_jump_ns {
-            self.prev = Some(s);
-            return Ok(Discontinuity::Reset(step));
+            return Ok(Kind::Reset(step));
         }
-        self.prev = Some(s);
         if step > self.max_gap_ns {
-            return Ok(Discontinuity::Gap);
+            return Ok(Kind::Gap);
+        }
+        Ok(Kind::Normal)
+    }
+
+    /// Takes `s`, checked by [`Resampler::check`] as `kind`, at time `t_ns` on the
+    /// grid's clock (its own stamp, or the stamp the stream's cadence gives it,
+    /// [`crate::cadence`]). An interpolation time that does not increase (it never
+    /// should) restarts the stream there instead of interpolating backwards.
+    pub fn accept(
+        &mut self,
+        s: Sample,
+        t_ns: Nanos,
+        kind: Kind,
+        mut emit: impl FnMut(i64, f64),
+    ) -> Discontinuity {
+        self.prev_raw = Some(s.t_ns);
+        let cur = Sample {
+            t_ns,
+            value: s.value,
+        };
+        let prev = self.prev.replace(cur);
+        let p = match (kind, prev) {
+            (Kind::First, _) | (_, None) => return Discontinuity::None,
+            (Kind::Reset(step), _) => return Discontinuity::Reset(step),
+            (Kind::Gap, _) => return Discontinuity::Gap,
+            (Kind::Normal, Some(p)) => p,
+        };
+        let step = t_ns.saturating_sub(p.t_ns);
+        if step <= 0 {
+            return Discontinuity::Gap;
         }
         let a = if self.mean_interval_ns == 0.0 {
             1.0
@@ -105,16 +137,41 @@ impl Resampler {
         self.mean_interval_ns += a * (step as f64 - self.mean_interval_ns);
         // grid indices k with p.t < k*dt <= s.t
         let first = p.t_ns.div_euclid(self.dt_ns) + 1;
-        let last = s.t_ns.div_euclid(self.dt_ns);
+        let last = t_ns.div_euclid(self.dt_ns);
         let span = step as f64;
         let mut k = first;
         while k <= last {
             let tk = k.saturating_mul(self.dt_ns);
             let w = (tk - p.t_ns) as f64 / span;
-            emit(k, p.value + w * (s.value - p.value));
+            emit(k, p.value + w * (cur.value - p.value));
             k += 1;
         }
-        Ok(Discontinuity::None)
+        Discontinuity::None
+    }
+}
+
+/// What [`Resampler::check`] found a valid sample to be.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// The stream's first sample.
+    First,
+    /// The next one, within the gap limit.
+    Normal,
+    /// After a gap longer than the limit.
+    Gap,
+    /// After a jump beyond the reset limit (the raw step, ns).
+    Reset(Nanos),
+}
+
+impl Kind {
+    /// The same, as the stream's cadence takes it.
+    pub fn cadence(self) -> crate::cadence::Kind {
+        match self {
+            Kind::First => crate::cadence::Kind::First,
+            Kind::Normal => crate::cadence::Kind::Normal,
+            Kind::Gap => crate::cadence::Kind::Gap,
+            Kind::Reset(_) => crate::cadence::Kind::Reset,
+        }
     }
 }
 

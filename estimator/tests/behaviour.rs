@@ -10,6 +10,15 @@ fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
     replay_announcing(run, est, &[], |_, _| {})
 }
 
+/// The defaults without the stamps' cadence: offset steps reach the correlation,
+/// whose step test (or an announcement) must find them.
+fn no_cadence() -> EstimatorConfig {
+    EstimatorConfig {
+        cadence: vlsync_config::CadenceStreams::Off,
+        ..EstimatorConfig::default()
+    }
+}
+
 #[test]
 fn robot_run_locks_with_negative_polarity_and_converges() {
     let run = generate(Family::Robot, 11, Some(90.0));
@@ -78,7 +87,7 @@ fn sigma_stays_honest_while_a_step_is_not_yet_detected() {
     // tracking estimates (3 s after each step excluded, as the benchmark scores them)
     // lie within 2σ + 1 ms of the truth (without the innovation bias term: 80 %)
     let run = generate(Family::LoadSteps, 2, Some(120.0));
-    let out = replay(&run, &mut Estimator::new(&EstimatorConfig::default()));
+    let out = replay(&run, &mut Estimator::new(&no_cadence()));
     let scored: Vec<bool> = out
         .iter()
         .filter(|e| e.state == EstimatorState::Tracking)
@@ -106,7 +115,7 @@ fn announced_changes_restart_the_segment_at_the_step() {
     // driver restarted would), the 3-10 s after each step are far closer to the truth
     // than when the step test has to find them in the data
     let run = generate(Family::LoadSteps, 2, Some(120.0));
-    let cfg = EstimatorConfig::default();
+    let cfg = no_cadence();
     let detected = replay(&run, &mut Estimator::new(&cfg));
     let steps: Vec<i64> = run.truth.steps.iter().map(|s| s.0).collect();
     let mut est = Estimator::new(&cfg);
@@ -122,6 +131,48 @@ fn announced_changes_restart_the_segment_at_the_step() {
     );
     // every announced step restarted the segment once
     assert!(est.stats().steps >= run.truth.steps.len() as u64);
+}
+
+#[test]
+fn load_steps_are_followed_from_the_stamps_cadence() {
+    // the camera's stamps carry each ±25 ms step, on a regular frame grid: the
+    // cadence follows the step within a few frames, the correlation never sees it
+    // (no segment restart), and the 3-10 s after each step are as good as the rest
+    let run = generate(Family::LoadSteps, 2, Some(120.0));
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay(&run, &mut est);
+    let correlation_only = replay(&run, &mut Estimator::new(&no_cadence()));
+    let stats = est.stats();
+    assert_eq!(
+        stats.cadence_steps,
+        [run.truth.steps.len() as u64, 0],
+        "{stats:?}"
+    );
+    assert_eq!(stats.steps, 0, "the step test found none: {stats:?}");
+    let (after, before) = (
+        error_after_steps(&out, &run),
+        error_after_steps(&correlation_only, &run),
+    );
+    let (mae, _) = locked_errors(&out, &run);
+    // the worst error away from the steps themselves (an estimate whose reference
+    // time falls within a frame of a step may take either side's latency)
+    let worst = out
+        .iter()
+        .skip_while(|e| e.state != EstimatorState::Tracking)
+        .filter(|e| {
+            let near = |&(s, _): &(i64, f64)| (e.t_ref_ns - s).abs() < 50_000_000;
+            !run.truth.steps.iter().any(near)
+        })
+        .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        after < 0.002 && after < 0.25 * before && worst < 0.01,
+        "after steps {:.2} ms (correlation only {:.2}), MAE {:.2}, worst {:.2} ms",
+        after * 1e3,
+        before * 1e3,
+        mae * 1e3,
+        worst * 1e3
+    );
 }
 
 /// Replays `run`, calling `announce(est, t)` for each of `times` (LiDAR clock)
@@ -167,7 +218,7 @@ fn locked_errors(out: &[vlsync_common::Estimate], run: &SimRun) -> (f64, f64) {
 
 #[test]
 fn hints_follow_real_steps_and_cost_little_when_wrong() {
-    let cfg = EstimatorConfig::default();
+    let cfg = no_cadence();
     let hint = |e: &mut Estimator, t: i64| e.hint_change(t, vlsync_estimator::HINT_STEP_STD_S);
     // real ±25 ms steps, hinted where they happen: followed as fast as announced ones
     let run = generate(Family::LoadSteps, 2, Some(120.0));

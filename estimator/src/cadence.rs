@@ -1,0 +1,1147 @@
+//! Stamp cadence: the regular frame clock behind one stream's stamps, and the
+//! steps of its stamping latency.
+//!
+//! A camera delivers frames at a fixed period of its own crystal, and a spinning
+//! LiDAR its scans nearly so. A stamp is the frame's event time plus the latency of
+//! the path that stamped it, so the stamps sit on a regular grid `a + n·T` (`n` the
+//! frame's index: a dropped frame skips one) shifted by that latency: a little
+//! jitter from frame to frame, and a *step* whenever the path's latency changes,
+//! which is what CPU load does to a camera stamped in software after its
+//! processing. An offset step from a load change therefore shows in the stamps of
+//! the stream it delays, at once and to a fraction of a millisecond, while the
+//! correlation needs seconds of motion to see it.
+//!
+//! [`Cadence`] learns the grid of a stream (its period by least squares over
+//! [`LEARN`] stamps, dropped frames allowed), follows it, and splits every accepted
+//! stamp `s` into
+//!
+//! * the **internal stamp** the correlator sees: the frame's grid point `a + n·T`,
+//!   with the jitter and the latency taken out, and
+//! * the **level** `s - a - n·T`: the stamping latency (relative to the grid's
+//!   phase). [`Cadence::level_at`] gives it at any recent internal time, averaged
+//!   over the samples within [`LEVEL_HALF_WINDOW_NS`] that share its *piece*
+//!   (the stretch between two latency steps), so an estimate adds back exactly the
+//!   latency its stamps carried and stays `t_L - t_C` of the stamps as published.
+//!
+//! So the correlator sees an offset without the stamping latency (its segment keeps
+//! all its history across a load change), and a step is followed as soon as the
+//! stamps show it: `confirm` frames.
+//!
+//! **A step** is the newest `confirm` samples off the current level by more than
+//! `max(min_step, 4σ)` (their median; σ the stamps' jitter) and within
+//! `max(twice that, half the step)` of each other; it starts at the first of them
+//! beyond half the step. A lone late stamp (a scheduling hiccup) is jitter, not a
+//! step. Frames are unwrapped to the nearest grid point when a stamp is within
+//! `max(min_step, 5σ)` of one, else with the fewest drops: a latency change of
+//! less than a period (a step is assumed not to coincide with a dropped frame; if
+//! one does, the correlator's own step test sees the whole period left over).
+//!
+//! **A stream that is not regular** (jitter above `T/15`, half its stamps off the
+//! grid, a run of stamps off it that never settles into a step, a step of a period
+//! or more) is passed through with its level frozen, and the grid is learnt again.
+//! The grid's fit has a long memory ([`FIT_MEMORY_S`]) so it stays put while the
+//! latency wanders; slow latency changes show in the level, not the grid.
+//!
+//! Everything is in fixed-size buffers: nothing allocates.
+//!
+//! ```
+//! use vlsync_estimator::cadence::{Cadence, CadenceParams, Kind};
+//! let mut c = Cadence::new(CadenceParams::default());
+//! let t = |k: i64| 1_000_000_000 + k * 33_333_333; // 30 Hz frames
+//! let mut internal = Vec::new();
+//! for k in 0..300 {
+//!     // from frame 150 on, the stamps are 25 ms later (CPU load)
+//!     let s = t(k) + if k >= 150 { 25_000_000 } else { 0 };
+//!     internal.push(c.push(s, if k == 0 { Kind::First } else { Kind::Normal }));
+//! }
+//! assert!((internal[299] - t(299)).abs() < 1_000); // the correlator's stamp: on the grid
+//! assert_eq!(c.steps(), 1);
+//! let (before, _) = c.level_at(internal[140]);
+//! let (after, _var) = c.level_at(internal[160]);
+//! assert!(before.abs() < 1e3 && (after - 25e6).abs() < 1e3); // ns
+//! ```
+
+use vlsync_common::Nanos;
+
+/// Samples the grid is learnt from.
+pub const LEARN: usize = 32;
+/// The reference level (what stamps are unwrapped and tested against) is the mean
+/// deviation of the piece's samples on the grid, over at most this many (then an
+/// exponential average of that length). It takes up what the grid's first fit and
+/// a step's estimate got wrong, so the grid itself only moves to follow its period.
+pub const LEVEL_SAMPLES: u32 = 4096;
+/// Memory of the grid's fit, seconds: long, so that the grid stays put while the
+/// latency wanders (the level shows it), yet follows a crystal's thermal drift.
+pub const FIT_MEMORY_S: f64 = 300.0;
+/// [`Cadence::level_at`] averages the samples of the same piece within this of
+/// the time asked for, ns.
+pub const LEVEL_HALF_WINDOW_NS: Nanos = 10_000_000_000;
+/// Duration of the bins the levels are kept in, ns.
+const BIN_NS: Nanos = 250_000_000;
+/// Bins kept: 32 s (estimates refer a few seconds back).
+const BINS: usize = 128;
+/// Longest step-test window, and the most consecutive off-grid samples tolerated
+/// before the grid is learnt again.
+const PENDING: usize = 16;
+/// Samples between re-anchorings of the fit's coordinates.
+const REANCHOR: u32 = 256;
+/// Departures from the level remembered (see [`Cadence::try_step`]).
+const TRANS: usize = 8;
+/// How far back departures count for a step, ns.
+const TRANS_NS: Nanos = 1_500_000_000;
+/// Largest level (stamping latency relative to the grid's phase), ns.
+const MAX_LEVEL_NS: f64 = 1e9;
+
+/// Settings of [`Cadence`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CadenceParams {
+    /// Whether the stamps' cadence is used at all (false: every stamp passes
+    /// through unchanged and the level stays 0).
+    pub enabled: bool,
+    /// Smallest latency step detected, and the least tolerance of the grid, ns.
+    pub min_step_ns: f64,
+    /// Consecutive samples that confirm a step.
+    pub confirm: usize,
+}
+
+impl Default for CadenceParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            min_step_ns: 2e6,
+            confirm: 3,
+        }
+    }
+}
+
+/// A latency step [`Cadence::push`] just found ([`Cadence::take_step`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CadenceStep {
+    /// Internal stamp of its first sample.
+    pub start: Nanos,
+    /// The step of the stamping latency, ns (positive: the stamps came later).
+    pub step_ns: f64,
+    /// The grid's period, ns.
+    pub period_ns: f64,
+    /// The probability that the step was a period less, with a frame dropped at it
+    /// (only a step to later stamps can be: its first stamp is then a frame later
+    /// than it looks): the stream's share of dropped frames, 0 when it drops none.
+    pub ambiguity: f64,
+}
+
+/// What the stream's validation said of a sample (see
+/// [`crate::resample::Resampler::check`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// The stream's first sample.
+    First,
+    /// The next sample.
+    Normal,
+    /// After a silence longer than the gap limit: the grid carries on.
+    Gap,
+    /// After a clock jump: the grid is learnt again, the level kept.
+    Reset,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// Collecting stamps to learn the grid (they pass through, minus the level).
+    Learn,
+    /// On the grid.
+    Track,
+}
+
+/// A sample in the step test's window.
+#[derive(Debug, Clone, Copy, Default)]
+struct Pend {
+    /// Deviation from the grid at the reference level, ns.
+    dev: f64,
+    /// Its internal stamp.
+    internal: Nanos,
+    /// Its level, `stamp - internal`, ns.
+    level: f64,
+    /// Whether it was on the grid (within the tolerance).
+    on: bool,
+}
+
+/// The levels of the samples of one piece within [`BIN_NS`].
+#[derive(Debug, Clone, Copy, Default)]
+struct Bin {
+    /// Internal stamp of its first sample.
+    start: Nanos,
+    piece: u64,
+    sum: f64,
+    count: u32,
+}
+
+/// Exponentially weighted least-squares line `y = c + T·x` (x: frames since the
+/// anchor, y: ns since the anchor's stamp).
+#[derive(Debug, Clone, Copy, Default)]
+struct Fit {
+    sw: f64,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+}
+
+impl Fit {
+    fn add(&mut self, lambda: f64, w: f64, x: f64, y: f64) {
+        self.sw = lambda * self.sw + w;
+        self.sx = lambda * self.sx + w * x;
+        self.sy = lambda * self.sy + w * y;
+        self.sxx = lambda * self.sxx + w * x * x;
+        self.sxy = lambda * self.sxy + w * x * y;
+    }
+
+    /// `(c, T)`, when the line is determined.
+    fn line(&self) -> Option<(f64, f64)> {
+        let den = self.sw * self.sxx - self.sx * self.sx;
+        if !(den > 0.0 && self.sw > 0.0) {
+            return None;
+        }
+        let t = (self.sw * self.sxy - self.sx * self.sy) / den;
+        let c = (self.sy - t * self.sx) / self.sw;
+        (t.is_finite() && c.is_finite() && t > 0.0).then_some((c, t))
+    }
+
+    /// The same sums in coordinates moved by `dx` frames and `dy` ns.
+    fn shift(&mut self, dx: f64, dy: f64) {
+        let Fit {
+            sw,
+            sx,
+            sy,
+            sxx,
+            sxy,
+        } = *self;
+        self.sxx = sxx - 2.0 * dx * sx + dx * dx * sw;
+        self.sxy = sxy - dy * sx - dx * sy + dx * dy * sw;
+        self.sx = sx - dx * sw;
+        self.sy = sy - dy * sw;
+    }
+}
+
+/// The cadence of one stream: see the [module docs](self).
+#[derive(Debug, Clone)]
+pub struct Cadence {
+    p: CadenceParams,
+    mode: Mode,
+    /// Raw stamps collected while learning.
+    learn: [Nanos; LEARN],
+    learn_n: usize,
+    /// Fit anchor: half-frame index and stamp.
+    h0: i64,
+    s0: Nanos,
+    fit: Fit,
+    /// The fit's line `(c, T)` in anchor coordinates.
+    line: (f64, f64),
+    /// Per-sample decay of the fit's weights.
+    lambda: f64,
+    since_anchor: u32,
+    /// Half-frame index of the last sample (even: a frame's grid point; odd: the
+    /// point halfway to the next, where a midpoint stamp spanning a dropped frame
+    /// falls).
+    h_last: i64,
+    /// Robust jitter scale: 1.25 × the weighted mean absolute deviation, ns.
+    sigma: f64,
+    /// Weighted share of recent samples off the grid.
+    off_rate: f64,
+    /// Consecutive samples off the grid.
+    back: usize,
+    /// Weighted share of recent samples that came a frame or more late (a dropped
+    /// frame before them).
+    drop_rate: f64,
+    /// The step found by the last push, until taken.
+    new_step: Option<CadenceStep>,
+    /// The newest departures from the level: `(internal stamp, deviation)` of each
+    /// off-grid sample that followed one on the grid, newest at `trans_head`.
+    trans: [(Nanos, f64); TRANS],
+    trans_head: usize,
+    trans_n: usize,
+    /// Reference level (ns): what stamps are unwrapped and tested against, the mean
+    /// deviation of the piece's samples on the grid (of `level_n` of them).
+    lref: f64,
+    level_n: u32,
+    /// The step test's window: the newest samples since the last step.
+    pend: [Pend; PENDING],
+    pend_n: usize,
+    /// The current piece (counts the steps and relearns that started one).
+    piece: u64,
+    bins: [Bin; BINS],
+    /// Index of the newest bin, and how many are valid.
+    bin_head: usize,
+    bin_n: usize,
+    /// The last internal stamp given out (they strictly increase).
+    last_internal: Option<Nanos>,
+    steps: u64,
+    relearns: u64,
+}
+
+impl Cadence {
+    /// A cadence that has seen nothing yet.
+    pub fn new(p: CadenceParams) -> Self {
+        Self {
+            p: CadenceParams {
+                enabled: p.enabled,
+                min_step_ns: if p.min_step_ns.is_finite() {
+                    p.min_step_ns.clamp(1e3, 1e9)
+                } else {
+                    2e6
+                },
+                confirm: p.confirm.clamp(1, PENDING - 1),
+            },
+            mode: Mode::Learn,
+            learn: [0; LEARN],
+            learn_n: 0,
+            h0: 0,
+            s0: 0,
+            fit: Fit::default(),
+            line: (0.0, 1.0),
+            lambda: 1.0,
+            since_anchor: 0,
+            h_last: 0,
+            sigma: 0.0,
+            off_rate: 0.0,
+            back: 0,
+            drop_rate: 0.0,
+            new_step: None,
+            trans: [(0, 0.0); TRANS],
+            trans_head: 0,
+            trans_n: 0,
+            lref: 0.0,
+            level_n: 0,
+            pend: [Pend::default(); PENDING],
+            pend_n: 0,
+            piece: 0,
+            bins: [Bin::default(); BINS],
+            bin_head: 0,
+            bin_n: 0,
+            last_internal: None,
+            steps: 0,
+            relearns: 0,
+        }
+    }
+
+    /// Latency steps detected so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Times the grid was learnt again (the stream was not regular enough, or its
+    /// clock jumped).
+    pub fn relearns(&self) -> u64 {
+        self.relearns
+    }
+
+    /// The step the last [`Cadence::push`] found, if any (taken once).
+    pub fn take_step(&mut self) -> Option<CadenceStep> {
+        self.new_step.take()
+    }
+
+    /// The stream's recent share of dropped frames (as the grid counts them).
+    pub fn drop_rate(&self) -> f64 {
+        self.drop_rate
+    }
+
+    /// Whether the stream is on a learnt grid (its steps are being followed).
+    pub fn tracking(&self) -> bool {
+        self.mode == Mode::Track
+    }
+
+    /// The grid's period, ns, once learnt.
+    pub fn period_ns(&self) -> Option<f64> {
+        (self.mode == Mode::Track).then_some(self.line.1)
+    }
+
+    /// The current reference level, ns: about `stamp - internal stamp` now.
+    pub fn level(&self) -> f64 {
+        self.lref
+    }
+
+    /// The stamping latency level (ns) at internal time `t`: the mean
+    /// `stamp - internal stamp` of the samples of `t`'s piece within
+    /// [`LEVEL_HALF_WINDOW_NS`] of it, and the variance of that mean (ns²). Outside
+    /// the samples kept: the nearest ones'; before any sample: 0.
+    pub fn level_at(&self, t: Nanos) -> (f64, f64) {
+        if self.bin_n == 0 {
+            return (self.lref, 0.0);
+        }
+        let at = |j: usize| &self.bins[(self.bin_head + BINS - j) % BINS];
+        // the newest bin starting at or before t (or the oldest)
+        let mut j0 = self.bin_n - 1;
+        for j in 0..self.bin_n {
+            if at(j).start <= t {
+                j0 = j;
+                break;
+            }
+        }
+        let piece = at(j0).piece;
+        let near = |b: &Bin| {
+            let mid = b.start.saturating_add(BIN_NS / 2);
+            b.piece == piece && mid.saturating_sub(t).saturating_abs() <= LEVEL_HALF_WINDOW_NS
+        };
+        let (mut sum, mut count) = (at(j0).sum, at(j0).count as f64);
+        for j in (0..j0).rev() {
+            let b = at(j);
+            if !near(b) {
+                break;
+            }
+            sum += b.sum;
+            count += b.count as f64;
+        }
+        for j in j0 + 1..self.bin_n {
+            let b = at(j);
+            if !near(b) {
+                break;
+            }
+            sum += b.sum;
+            count += b.count as f64;
+        }
+        let count = count.max(1.0);
+        (sum / count, self.sigma * self.sigma / count)
+    }
+
+    /// Takes one accepted stamp `s` (raw, on the sensor's clock, validated: it
+    /// increases) and returns its internal stamp (strictly increasing).
+    pub fn push(&mut self, s: Nanos, kind: Kind) -> Nanos {
+        if !self.p.enabled {
+            return s;
+        }
+        match kind {
+            Kind::First | Kind::Reset => {
+                if kind == Kind::Reset {
+                    self.relearns += 1;
+                }
+                self.relearn();
+                // a restarted stream starts over: nothing to keep monotonic against
+                self.last_internal = None;
+            }
+            Kind::Gap => {
+                self.flush_window();
+                self.back = 0;
+            }
+            Kind::Normal => {}
+        }
+        let internal = match self.mode {
+            Mode::Learn => self.push_learn(s),
+            Mode::Track => self.push_track(s),
+        };
+        let internal = match self.last_internal {
+            Some(last) if internal <= last => last.saturating_add(1),
+            _ => internal,
+        };
+        self.last_internal = Some(internal);
+        internal
+    }
+
+    /// Starts learning the grid again; the level stays (the internal stamps carry on
+    /// without a jump).
+    fn relearn(&mut self) {
+        self.flush_window();
+        self.mode = Mode::Learn;
+        self.learn_n = 0;
+        self.back = 0;
+    }
+
+    /// The window's samples on the grid go to the level bins (no step among them).
+    fn flush_window(&mut self) {
+        for j in 0..self.pend_n {
+            let pd = self.pend[j];
+            if pd.on {
+                self.bin_add(pd.internal, pd.level);
+            }
+        }
+        self.pend_n = 0;
+    }
+
+    fn bin_add(&mut self, internal: Nanos, level: f64) {
+        let piece = self.piece;
+        let b = &mut self.bins[self.bin_head];
+        if self.bin_n > 0
+            && b.piece == piece
+            && internal >= b.start
+            && internal < b.start.saturating_add(BIN_NS)
+        {
+            b.sum += level;
+            b.count += 1;
+            return;
+        }
+        if self.bin_n > 0 {
+            self.bin_head = (self.bin_head + 1) % BINS;
+        }
+        self.bin_n = (self.bin_n + 1).min(BINS);
+        self.bins[self.bin_head] = Bin {
+            start: internal,
+            piece,
+            sum: level,
+            count: 1,
+        };
+    }
+
+    fn push_learn(&mut self, s: Nanos) -> Nanos {
+        if self.learn_n == LEARN {
+            // a failed attempt: keep the newer half and try again when full
+            self.learn.copy_within(LEARN / 2.., 0);
+            self.learn_n = LEARN / 2;
+        }
+        self.learn[self.learn_n] = s;
+        self.learn_n += 1;
+        let internal = s.saturating_sub(self.lref.round() as Nanos);
+        self.bin_add(internal, s.saturating_sub(internal) as f64);
+        if self.learn_n == LEARN {
+            self.try_lock();
+        }
+        internal
+    }
+
+    /// Fits the grid to the learnt stamps; tracks from the next sample when they are
+    /// regular enough.
+    fn try_lock(&mut self) {
+        let s = &self.learn[..self.learn_n];
+        let m = s.len() - 1;
+        let mut iv = [0i64; LEARN];
+        for i in 0..m {
+            iv[i] = s[i + 1].saturating_sub(s[i]);
+        }
+        let t0 = *iv[..m].select_nth_unstable(m / 2).1 as f64;
+        if t0 <= 0.0 {
+            return;
+        }
+        // unwrap in half periods (a dropped frame: about two periods; a midpoint
+        // stamp spanning one: a period and a half)
+        let mut h = [0i64; LEARN];
+        for i in 1..s.len() {
+            let d = s[i].saturating_sub(s[i - 1]) as f64;
+            let k = (2.0 * d / t0).round();
+            if !(1.0..=16.0).contains(&k) || (d - 0.5 * k * t0).abs() > 0.125 * t0 {
+                return;
+            }
+            h[i] = h[i - 1] + k as i64;
+        }
+        if h[m] > 4 * m as i64 {
+            return; // more drops than frames
+        }
+        // most stamps on the frames' grid points (even), the others halfway
+        let odd = h[..s.len()].iter().filter(|&&x| x % 2 != 0).count();
+        if 2 * odd > s.len() {
+            for x in &mut h[..s.len()] {
+                *x += 1;
+            }
+        }
+        let last = s[m];
+        let hm = h[m];
+        let x = |i: usize| 0.5 * (h[i] - hm) as f64;
+        let mut fit = Fit::default();
+        for (i, &si) in s.iter().enumerate() {
+            fit.add(1.0, 1.0, x(i), si.saturating_sub(last) as f64);
+        }
+        let Some((c, t)) = fit.line() else {
+            return;
+        };
+        let mut dev = [0f64; LEARN];
+        for (i, (d, &si)) in dev.iter_mut().zip(s).enumerate() {
+            *d = (si.saturating_sub(last) as f64 - c - t * x(i)).abs();
+        }
+        let max = dev[..s.len()].iter().fold(0.0f64, |a, &b| a.max(b));
+        let mad = *dev[..s.len()]
+            .select_nth_unstable_by(s.len() / 2, f64::total_cmp)
+            .1;
+        let sigma = 1.4826 * mad;
+        if sigma > t / 15.0 || max > self.tol_for(sigma).max(0.125 * t) {
+            return;
+        }
+        // track: the fit over the learnt stamps, less the level they carry
+        let lambda = (-t * 1e-9 / FIT_MEMORY_S).exp();
+        self.h0 = hm;
+        self.s0 = last;
+        self.fit = Fit::default();
+        for (i, &si) in s.iter().enumerate() {
+            let y = si.saturating_sub(last) as f64 - self.lref;
+            let w = lambda.powi((m - i) as i32);
+            self.fit.add(1.0, w, x(i), y);
+        }
+        let Some(line) = self.fit.line() else {
+            return;
+        };
+        self.line = line;
+        self.lambda = lambda;
+        self.since_anchor = 0;
+        self.h_last = hm;
+        self.sigma = sigma.max(1.0);
+        self.off_rate = 0.0;
+        self.pend_n = 0;
+        self.back = 0;
+        self.mode = Mode::Track;
+    }
+
+    /// The grid point of half-frame `h`, ns since the anchor's stamp.
+    fn grid(&self, h: i64) -> f64 {
+        self.line.0 + 0.5 * self.line.1 * h.saturating_sub(self.h0) as f64
+    }
+
+    fn abs(&self, rel: f64) -> Nanos {
+        self.s0.saturating_add(rel.round() as Nanos)
+    }
+
+    fn tol_for(&self, sigma: f64) -> f64 {
+        self.p.min_step_ns.max(5.0 * sigma)
+    }
+
+    fn push_track(&mut self, s: Nanos) -> Nanos {
+        let t = self.line.1;
+        let rel = s.saturating_sub(self.s0) as f64 - self.lref;
+        let from_last = rel - self.grid(self.h_last);
+        // the sample's place in half frames
+        let xq = self.h_last as f64 + 2.0 * from_last / t;
+        if !xq.is_finite() || xq.abs() > 1e15 {
+            self.relearns += 1;
+            self.relearn();
+            return self.push_learn(s);
+        }
+        let tol = self.tol_for(self.sigma).min(0.2 * t);
+        // on the grid: a frame's point (normally the next frame, or one after
+        // drops; after off-grid stamps also one already counted: a burst of stamps
+        // after a stall was spread over the frames after it) ...
+        let he = 2.0 * (0.5 * xq).round();
+        let d_frame = (xq - he).abs() * 0.5 * t;
+        let next = (self.h_last - self.h_last.rem_euclid(2) + 2) as f64;
+        // a stamp after dropped frames, or back on time after a burst, is on the grid
+        // as exactly as any other (a late stamp a period and a bit later is a step,
+        // not a drop): 4σ, not the next frame's 5σ
+        let tight = tol.min(self.p.min_step_ns.max(4.0 * self.sigma));
+        let on_frame = if he == next {
+            d_frame <= tol
+        } else if he > next {
+            d_frame <= tight
+        } else {
+            // a frame already counted (a burst after a stall was spread too far)
+            he > (self.h_last - 2 * self.back as i64) as f64 && d_frame <= tight
+        };
+        // ... or halfway, where a midpoint stamp of two frames falls when the one
+        // between was dropped: only after a period and a half (a stamp half a period
+        // off the grid a period after the last is a step of the latency)
+        let ho = 2.0 * (0.5 * xq).floor() + 1.0;
+        let on_half = !on_frame
+            && from_last >= 1.5 * t - tol
+            && ho > self.h_last as f64
+            && (xq - ho).abs() * 0.5 * t <= tol;
+        let on = on_frame || on_half;
+        let h = if on_frame {
+            he as i64
+        } else if on_half {
+            ho as i64
+        } else {
+            // off the grid: a step or a late stamp, on the frames' grid with the
+            // fewest drops
+            let hf = self.h_last - self.h_last.rem_euclid(2);
+            let q = (rel - self.grid(hf)) / t;
+            hf.saturating_add(2 * q.floor().clamp(1.0, 1e12) as i64)
+        };
+        let dev = rel - self.grid(h);
+        let departs = !on && self.back == 0;
+        // a frame or more beyond the next (half a frame beyond, for a midpoint stamp
+        // spanning a drop): frames were dropped before this one
+        let dropped = if h.saturating_sub(self.h_last) > 2 {
+            1.0
+        } else {
+            0.0
+        };
+        self.drop_rate += (dropped - self.drop_rate) / 256.0;
+        self.h_last = h;
+        if on {
+            self.back = 0;
+            self.off_rate -= self.off_rate / 32.0;
+        } else {
+            self.back += 1;
+            self.off_rate += (1.0 - self.off_rate) / 32.0;
+            if self.back > PENDING || self.off_rate > 0.5 {
+                // off the grid for long, or half the time: not regular (now)
+                self.relearns += 1;
+                self.relearn();
+                return self.push_learn(s);
+            }
+        }
+        let internal = self.abs(self.grid(h));
+        let level = s.saturating_sub(internal) as f64;
+        if departs {
+            self.trans_head = (self.trans_head + 1) % TRANS;
+            self.trans_n = (self.trans_n + 1).min(TRANS);
+            self.trans[self.trans_head] = (internal, dev);
+        }
+        self.window_push(Pend {
+            dev,
+            internal,
+            level,
+            on,
+        });
+        if !self.try_step() && on {
+            self.on_grid(h, dev);
+        }
+        internal
+    }
+
+    /// Adds a sample to the step test's window. One leaving it was no step's: if it
+    /// was on the grid, its level goes to the bins and the scale learns from it (a
+    /// jitter the tolerance cannot hold makes the stream irregular, and the grid is
+    /// learnt again).
+    fn window_push(&mut self, pd: Pend) {
+        let k = self.p.confirm;
+        if self.pend_n == k {
+            let old = self.pend[0];
+            if old.on {
+                self.sigma += (1.25 * old.dev.abs() - self.sigma) / 16.0;
+                self.bin_add(old.internal, old.level);
+            }
+            self.pend.copy_within(1..k, 0);
+            self.pend_n -= 1;
+        }
+        self.pend[self.pend_n] = pd;
+        self.pend_n += 1;
+    }
+
+    /// A sample on the grid: the reference level and the fit learn from it.
+    fn on_grid(&mut self, h: i64, dev: f64) {
+        // the fit takes the stamp less the reference level (as refined by it)
+        let before = self.lref;
+        self.level_n = (self.level_n + 1).min(LEVEL_SAMPLES);
+        self.lref += dev / self.level_n as f64;
+        let y = self.grid(h) + dev + before - self.lref;
+        let x = 0.5 * h.saturating_sub(self.h0) as f64;
+        self.fit.add(self.lambda, 1.0, x, y);
+        self.since_anchor += 1;
+        if self.since_anchor >= REANCHOR {
+            self.reanchor(h);
+        }
+        match self.fit.line() {
+            Some(line) => self.line = line,
+            None => {
+                self.relearns += 1;
+                self.relearn();
+            }
+        }
+    }
+
+    /// Moves the fit's anchor to half-frame `h` (keeps its coordinates small).
+    fn reanchor(&mut self, h: i64) {
+        let dx = 0.5 * h.saturating_sub(self.h0) as f64;
+        let dy = self.grid(h).round() as Nanos;
+        self.fit.shift(dx, dy as f64);
+        self.h0 = h;
+        self.s0 = self.s0.saturating_add(dy);
+        self.since_anchor = 0;
+        if let Some(line) = self.fit.line() {
+            self.line = line;
+        }
+    }
+
+    /// Declares a step when the step test's window (the newest `confirm` samples)
+    /// has moved off the level: its median beyond `max(min_step, 4σ)`, its samples
+    /// within `max(2·that, half the step)` of each other (a frame rate that changed
+    /// moves them apart). The step is the median; it starts at the window's first
+    /// sample beyond half of it. Returns whether the window was used up (a step, or a
+    /// relearn for an impossible one).
+    fn try_step(&mut self) -> bool {
+        let k = self.p.confirm;
+        if self.pend_n < k {
+            return false;
+        }
+        let mut devs = [0f64; PENDING];
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (d, pd) in devs.iter_mut().zip(&self.pend[..k]) {
+            *d = pd.dev;
+            lo = lo.min(pd.dev);
+            hi = hi.max(pd.dev);
+        }
+        let step = *devs[..k].select_nth_unstable_by(k / 2, f64::total_cmp).1;
+        let thr = self.p.min_step_ns.max(4.0 * self.sigma);
+        if step.abs() <= thr || hi - lo > (2.0 * thr).max(0.5 * step.abs()) {
+            return false;
+        }
+        let t = self.line.1;
+        if step.abs() >= 0.9 * t {
+            self.relearns += 1;
+            self.relearn();
+            return true;
+        }
+        // the window's samples before the step stay with the old piece
+        let first = self.pend[..k]
+            .iter()
+            .position(|pd| (pd.dev - 0.5 * step) * step.signum() > 0.0)
+            .unwrap_or(0);
+        // A step to later stamps may have been a period less, with a frame dropped at
+        // the first of the window's samples (they all count from it). The departures
+        // from the level just before tell: each that came without a drop before it
+        // reads the true step; so one reading a period less settles it, and every
+        // one reading the same makes a drop at each of them less likely.
+        let (step, shift, ambiguity) = if step > 0.0 {
+            let tol_t = thr.max(t / 6.0);
+            let newest = self.pend[k - 1].internal;
+            let (mut same, mut less) = (0i32, 0i32);
+            for j in 0..self.trans_n {
+                let (at, d) = self.trans[(self.trans_head + TRANS - j) % TRANS];
+                if newest.saturating_sub(at) > TRANS_NS {
+                    continue;
+                }
+                if (d - step).abs() <= tol_t {
+                    same += 1;
+                } else if (d - (step - t)).abs() <= tol_t {
+                    less += 1;
+                }
+            }
+            if less > 0 {
+                (step - t, t, 0.0)
+            } else {
+                (step, 0.0, self.drop_rate.powi(same.max(1)))
+            }
+        } else {
+            (step, 0.0, 0.0)
+        };
+        let lref = self.lref + step;
+        if lref.abs() > MAX_LEVEL_NS || self.pieces_start_after(first) {
+            self.relearns += 1;
+            self.relearn();
+            return true;
+        }
+        for j in 0..first {
+            let pd = self.pend[j];
+            if pd.on {
+                self.bin_add(pd.internal, pd.level);
+            }
+        }
+        self.piece += 1;
+        // a frame dropped at the window's first sample: its samples are a frame later
+        // than counted (their internal stamps, given out already, a period early)
+        let sh = shift.round() as Nanos;
+        for j in first..k {
+            let pd = self.pend[j];
+            self.bin_add(pd.internal.saturating_add(sh), pd.level - shift);
+        }
+        if shift > 0.0 {
+            self.h_last = self.h_last.saturating_add(2);
+        }
+        let start = self.pend[first.min(k - 1)].internal.saturating_add(sh);
+        self.pend_n = 0;
+        self.trans_n = 0;
+        self.lref = lref;
+        self.level_n = 0;
+        // the jitter after a load change is the new load's: at least what the window
+        // shows (a step of less than that would be jitter)
+        self.sigma = self.sigma.max(0.25 * (hi - lo));
+        self.back = 0;
+        self.steps += 1;
+        self.new_step = Some(CadenceStep {
+            start,
+            step_ns: step,
+            period_ns: t,
+            ambiguity,
+        });
+        true
+    }
+
+    /// Whether the newest level bin starts after the window's sample `first`
+    /// (pieces must follow each other in time).
+    fn pieces_start_after(&self, first: usize) -> bool {
+        self.bin_n > 0 && self.bins[self.bin_head].start > self.pend[first].internal
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const MS: f64 = 1e6;
+
+    fn run(c: &mut Cadence, stamps: &[Nanos]) -> Vec<Nanos> {
+        run_levels(c, stamps, 0).0
+    }
+
+    /// The internal stamps, and the level of each sample as `level_at` tells it
+    /// `lag` samples later (as the estimator asks, a few seconds back).
+    fn run_levels(c: &mut Cadence, stamps: &[Nanos], lag: usize) -> (Vec<Nanos>, Vec<f64>) {
+        let mut out = Vec::new();
+        let mut levels = Vec::new();
+        for (i, &s) in stamps.iter().enumerate() {
+            out.push(c.push(s, if i == 0 { Kind::First } else { Kind::Normal }));
+            if i >= lag {
+                levels.push(c.level_at(out[i - lag]).0);
+            }
+        }
+        (out, levels)
+    }
+
+    /// About N(0, 1): a sum of four uniforms from a 64-bit LCG.
+    fn lcg(seed: &mut u64) -> f64 {
+        let mut acc = 0.0;
+        for _ in 0..4 {
+            *seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            acc += (*seed >> 11) as f64 / (1u64 << 53) as f64;
+        }
+        (acc - 2.0) * 3.0f64.sqrt()
+    }
+
+    /// Frames at `period` with latency `lat(k)` (ns) and Gaussian jitter, some dropped.
+    fn stamps(
+        n: usize,
+        period: f64,
+        jitter: f64,
+        drop_every: usize,
+        lat: impl Fn(usize) -> f64,
+    ) -> Vec<Nanos> {
+        let mut seed = 7u64;
+        (0..n)
+            .filter(|k| drop_every == 0 || k % drop_every != drop_every - 1)
+            .map(|k| (1e12 + k as f64 * period + lat(k) + jitter * lcg(&mut seed)) as Nanos)
+            .collect()
+    }
+
+    #[test]
+    fn exact_frames_pass_on_the_grid() {
+        let mut c = Cadence::new(CadenceParams::default());
+        let s = stamps(500, 33.333 * MS, 0.0, 0, |_| 0.0);
+        let out = run(&mut c, &s);
+        assert!(c.tracking());
+        for (a, b) in s.iter().zip(&out) {
+            assert!((a - b).abs() < 100, "{a} {b}");
+        }
+        assert_eq!(c.steps(), 0);
+    }
+
+    #[test]
+    fn a_latency_step_moves_the_level_not_the_grid() {
+        for step in [25.0, -25.0, 12.0, -8.0, 28.0] {
+            let mut c = Cadence::new(CadenceParams::default());
+            let s = stamps(600, 33.333 * MS, 0.0, 0, |k| {
+                if k >= 300 {
+                    step * MS
+                } else {
+                    0.0
+                }
+            });
+            let out = run(&mut c, &s);
+            assert_eq!(c.steps(), 1, "step {step}");
+            // every internal stamp on the grid (no step enters the correlator)
+            for (k, o) in out.iter().enumerate().skip(LEARN) {
+                let g = 1e12 + k as f64 * 33.333 * MS;
+                assert!(
+                    (*o as f64 - g).abs() < 1e3,
+                    "step {step} frame {k}: {}",
+                    *o as f64 - g
+                );
+            }
+            let (l_before, _) = c.level_at(out[299]);
+            let (l_after, _) = c.level_at(out[300]);
+            assert!(l_before.abs() < 1e3, "{l_before}");
+            assert!(
+                (l_after - l_before - step * MS).abs() < 1e3,
+                "{step}: {l_after}"
+            );
+        }
+    }
+
+    #[test]
+    fn jitter_drops_and_spikes_are_no_steps() {
+        let mut c = Cadence::new(CadenceParams::default());
+        // 1 ms jitter, every 20th frame dropped, a 15 ms late frame every 97
+        let late = |k: usize| if k % 97 == 50 { 15.0 * MS } else { 0.0 };
+        let s = stamps(3000, 33.333 * MS, 1.0 * MS, 20, late);
+        let frames: Vec<usize> = (0..3000).filter(|k| k % 20 != 19).collect();
+        let out = run(&mut c, &s);
+        assert!(c.tracking());
+        assert_eq!(c.steps(), 0);
+        assert_eq!(c.relearns(), 0);
+        // once the grid's fit has a few hundred frames, the internal stamps are the
+        // frames' grid points (up to the grid's phase, which is arbitrary), the jitter
+        // gone; a late frame stays about as late as it was (taken for a midpoint
+        // stamp spanning a dropped frame, half a period off, as a late frame after a
+        // period and a half may be)
+        let off = |(&o, &k): (&Nanos, &usize)| o as f64 - (1e12 + k as f64 * 33.333 * MS);
+        let phase = off((&out[600], &frames[600]));
+        for (o, k) in out.iter().zip(&frames).skip(600) {
+            let e = (off((o, k)) - phase).abs();
+            let bound = if late(*k) > 0.0 { 17.5 * MS } else { 0.3 * MS };
+            assert!(e < bound, "frame {k}: {:.3} ms off", e / MS);
+        }
+    }
+
+    #[test]
+    fn a_step_under_jitter_is_found_and_measured() {
+        // a LiDAR-like stream: 10 Hz, 3 ms jitter, 5 % drops, a 20 ms step
+        let mut c = Cadence::new(CadenceParams::default());
+        let s = stamps(2000, 100.0 * MS, 3.0 * MS, 20, |k| {
+            if k >= 1000 {
+                20.0 * MS
+            } else {
+                0.0
+            }
+        });
+        let (_, levels) = run_levels(&mut c, &s, 30);
+        assert_eq!(c.steps(), 1, "relearns {}", c.relearns());
+        // 40 s after the step against 10 s before it (each the mean of its 2 s,
+        // looked up 3 s later)
+        let (after, before) = (levels[1330], levels[855]);
+        assert!(
+            (after - before - 20.0 * MS).abs() < 1.5 * MS,
+            "{}",
+            (after - before) / MS
+        );
+    }
+
+    #[test]
+    fn a_stalled_driver_is_no_step() {
+        // 30 Hz frames; every 2 s the driver stops for 40-120 ms, then stamps the
+        // frames it queued meanwhile back to back (1 ms apart) until it is on time
+        let period = 33.333 * MS;
+        let mut s = Vec::new();
+        let mut next_free = 0.0f64;
+        let mut frames = Vec::new();
+        for k in 0..1800usize {
+            let ev = 1e12 + k as f64 * period;
+            let stall = [0.0, 40.0, 75.0, 120.0][(k / 60) % 4] * MS;
+            let ready = if k % 60 == 30 { ev + stall } else { ev };
+            let t = ready.max(next_free);
+            next_free = t + 1.0 * MS;
+            s.push(t as Nanos);
+            frames.push(ev);
+        }
+        let mut c = Cadence::new(CadenceParams::default());
+        let out = run(&mut c, &s);
+        assert_eq!(c.steps(), 0, "relearns {}", c.relearns());
+        assert!(c.tracking());
+        // on time again, every stamp is back on its frame's grid point
+        let phase = out[100] as f64 - frames[100];
+        for (k, (&o, &ev)) in out.iter().zip(&frames).enumerate().skip(100) {
+            if k % 60 >= 30 && k % 60 < 36 {
+                continue; // the stall and the burst after it
+            }
+            let e = (o as f64 - ev - phase).abs();
+            assert!(e < 0.01 * MS, "frame {k}: {:.3} ms off", e / MS);
+        }
+    }
+
+    #[test]
+    fn midpoint_stamps_across_skipped_frames_stay_on_the_grid() {
+        // a flow sample is stamped at the midpoint of the two frames it compares: a
+        // skipped frame puts one sample half a period off the grid (two skipped in a
+        // row: back on it); a 12 ms latency step from frame 600 on
+        let period = 33.333 * MS;
+        let lat = |k: usize| if k >= 600 { 12.0 * MS } else { 0.0 };
+        let kept: Vec<usize> = (0..1200).filter(|k| k % 23 != 7 && k % 97 != 8).collect();
+        let s: Vec<Nanos> = kept
+            .windows(2)
+            .map(|w| {
+                let t = |k: usize| 1e12 + k as f64 * period + lat(k);
+                (0.5 * (t(w[0]) + t(w[1]))) as Nanos
+            })
+            .collect();
+        let mut c = Cadence::new(CadenceParams::default());
+        let (out, levels) = run_levels(&mut c, &s, 90);
+        assert_eq!(c.relearns(), 0);
+        assert_eq!(c.steps(), 1);
+        // every internal stamp is its sample's midpoint less the level: no jitter to
+        // remove here, so internal + level is the stamp itself
+        for (i, (&o, &l)) in out.iter().zip(&levels).enumerate() {
+            let e = (o as f64 + l - s[i] as f64).abs();
+            let near_step = (kept[i] as i64 - 600).abs() < 4;
+            assert!(near_step || e < 0.05 * MS, "sample {i}: {:.3} ms", e / MS);
+        }
+    }
+
+    #[test]
+    fn steps_under_a_jitter_that_grows_with_the_load() {
+        // idle: 0.02 ms jitter; loaded (frames 400-900): 12 ms later, 1.5 ms jitter
+        let mut seed = 11u64;
+        let period = 33.333 * MS;
+        let s: Vec<Nanos> = (0..1400usize)
+            .map(|k| {
+                let loaded = (400..900).contains(&k);
+                let (lat, jit) = if loaded { (12.0, 1.5) } else { (0.0, 0.02) };
+                (1e12 + k as f64 * period + (lat + jit * lcg(&mut seed)) * MS) as Nanos
+            })
+            .collect();
+        let mut c = Cadence::new(CadenceParams::default());
+        let (_, levels) = run_levels(&mut c, &s, 90);
+        assert_eq!(c.relearns(), 0);
+        assert!((2..=4).contains(&c.steps()), "{} steps", c.steps());
+        let (idle, loaded, idle2) = (levels[300], levels[700], levels[1200]);
+        assert!(
+            ((loaded - idle) / MS - 12.0).abs() < 0.5,
+            "{}",
+            (loaded - idle) / MS
+        );
+        assert!(((idle2 - idle) / MS).abs() < 0.5, "{}", (idle2 - idle) / MS);
+    }
+
+    #[test]
+    fn an_irregular_stream_passes_through() {
+        let mut c = Cadence::new(CadenceParams::default());
+        let mut seed = 3u64;
+        let mut t = 1e12;
+        let s: Vec<Nanos> = (0..400)
+            .map(|_| {
+                t += 33.0 * MS * (1.0 + 0.4 * lcg(&mut seed).clamp(-2.0, 2.0));
+                t as Nanos
+            })
+            .collect();
+        let out = run(&mut c, &s);
+        assert!(!c.tracking());
+        assert_eq!(out, s);
+    }
+
+    #[test]
+    fn a_changed_frame_rate_is_learnt_again() {
+        let mut c = Cadence::new(CadenceParams::default());
+        let mut s = stamps(300, 33.333 * MS, 0.0, 0, |_| 0.0);
+        let t0 = *s.last().unwrap();
+        s.extend((1..400).map(|k| t0 + (k as f64 * 40.0 * MS) as Nanos));
+        let out = run(&mut c, &s);
+        assert!(c.tracking());
+        assert_eq!(c.period_ns().map(|t| (t / 1e3).round()), Some(40_000.0));
+        // the level never wandered off
+        let (l, _) = c.level_at(*out.last().unwrap());
+        assert!(l.abs() < 50.0 * MS, "{}", l / MS);
+        assert!(out.windows(2).all(|w| w[1] > w[0]));
+    }
+
+    #[test]
+    fn disabled_passes_everything() {
+        let mut c = Cadence::new(CadenceParams {
+            enabled: false,
+            ..CadenceParams::default()
+        });
+        let s = stamps(200, 33.333 * MS, 0.0, 0, |k| {
+            if k > 100 {
+                25.0 * MS
+            } else {
+                0.0
+            }
+        });
+        assert_eq!(run(&mut c, &s), s);
+        assert_eq!(c.steps(), 0);
+    }
+
+    proptest! {
+        #[test]
+        fn internal_stamps_increase_for_any_increasing_stamps(
+            gaps in proptest::collection::vec(1i64..200_000_000, 1..400),
+            start in -1_000_000_000_000i64..1_000_000_000_000,
+        ) {
+            let mut c = Cadence::new(CadenceParams::default());
+            let mut t = start;
+            let mut last = None;
+            for (i, g) in gaps.iter().enumerate() {
+                t += g;
+                let o = c.push(t, if i == 0 { Kind::First } else { Kind::Normal });
+                if let Some(l) = last {
+                    prop_assert!(o > l);
+                }
+                last = Some(o);
+                let (lv, var) = c.level_at(o);
+                prop_assert!(lv.is_finite() && var.is_finite());
+                prop_assert!(lv.abs() <= MAX_LEVEL_NS + 1.0);
+            }
+        }
+    }
+}
