@@ -43,6 +43,7 @@
 //! | `big-offset` | 30/10 | 0.45 s | exact | |
 //! | `negative-offset` | 30/10 | U[-0.25, -0.15] s | exact | |
 //! | `heavy-noise` | 30/10 | U[-0.2, 0.2] s | exact | noise std = each signature's std |
+//! | `load-jitter` | 30/10 | U[0, 0.2] s, ±20-60 ppm | as `clocks` | `load-steps`' steps, each spread over 0.3 s (a frame takes the new latency with a probability rising from 0 to 1) |
 //!
 //! For `seed` the camera samples on its own grid `k/30` and sees the event at
 //! `t_C + 0.18 + 0.012 t_C`, as in the article; in our convention that is
@@ -121,11 +122,14 @@ pub enum Family {
     NegativeOffset,
     /// Three times the robot families' noise.
     HeavyNoise,
+    /// `load-steps` on `clocks`' timing: drift, jitter, drops, a LiDAR gap, and
+    /// each step spread over 0.3 s.
+    LoadJitter,
 }
 
 impl Family {
     /// Every family, in listing order.
-    pub const ALL: [Family; 10] = [
+    pub const ALL: [Family; 11] = [
         Family::Seed,
         Family::Robot,
         Family::Clocks,
@@ -136,6 +140,7 @@ impl Family {
         Family::BigOffset,
         Family::NegativeOffset,
         Family::HeavyNoise,
+        Family::LoadJitter,
     ];
 
     /// Kebab-case name, as accepted by [`FromStr`].
@@ -151,6 +156,7 @@ impl Family {
             Family::BigOffset => "big-offset",
             Family::NegativeOffset => "negative-offset",
             Family::HeavyNoise => "heavy-noise",
+            Family::LoadJitter => "load-jitter",
         }
     }
 
@@ -167,6 +173,7 @@ impl Family {
             Family::BigOffset => "robot; offset 0.45 s",
             Family::NegativeOffset => "robot; offset in [-0.25, -0.15] s",
             Family::HeavyNoise => "robot with three times the noise of the other robot families, offset in [-0.2, 0.2] s",
+            Family::LoadJitter => "load-steps on clocks' timing: offset in [0, 0.2] s + 20-60 ppm, jitter 1 ms cam / 3 ms LiDAR, 5 % drops, a LiDAR gap; ±25 ms steps every 15-25 s, each spread over 0.3 s (frames at the old or new latency at random)",
         }
     }
 
@@ -176,6 +183,12 @@ impl Family {
             Family::Seed => 12.0,
             _ => 120.0,
         }
+    }
+
+    /// How long a load step takes to reach every frame, seconds: within this after a
+    /// step, a frame's stamp carries the old latency or the new one (0: at once).
+    pub fn step_spread_s(self) -> f64 {
+        params(self).step_spread_s
     }
 
     /// `(camera Hz, LiDAR Hz)`.
@@ -749,6 +762,9 @@ struct Params {
     lidar_gap: bool,
     standstill_s: Option<f64>,
     heavy_noise: bool,
+    /// A step's latency reaches the frames over this long: within it, each frame
+    /// carries the new latency with a probability rising linearly from 0 to 1.
+    step_spread_s: f64,
 }
 
 fn params(f: Family) -> Params {
@@ -764,6 +780,7 @@ fn params(f: Family) -> Params {
         lidar_gap: false,
         standstill_s: None,
         heavy_noise: false,
+        step_spread_s: 0.0,
     };
     match f {
         Family::Seed | Family::Robot => {}
@@ -788,6 +805,15 @@ fn params(f: Family) -> Params {
         Family::HeavyNoise => {
             p.offset_range = (-0.2, 0.2);
             p.heavy_noise = true;
+        }
+        Family::LoadJitter => {
+            p.offset_range = (0.0, 0.2);
+            p.drift_ppm = Some((20.0, 60.0));
+            p.jitter = (0.001, 0.003);
+            p.drop_p = 0.05;
+            p.lidar_gap = true;
+            p.steps = true;
+            p.step_spread_s = 0.3;
         }
     }
     p
@@ -985,7 +1011,17 @@ fn build(family: Family, seed: u64, duration: f64, noise_scale: f64) -> SimRun {
             continue;
         }
         let tau_ns = secs_to_nanos(tau);
-        let t_c = c_ns - secs_to_nanos(truth.steps_at(tau_ns)) + secs_to_nanos(jit);
+        let mut late = truth.steps_at(tau_ns);
+        if p.step_spread_s > 0.0 {
+            // the newest step reaches this frame yet only with the spread's probability
+            if let Some(&(t_s, delta)) = truth.steps.iter().rev().find(|s| s.0 <= tau_ns) {
+                let frac = nanos_to_secs(tau_ns - t_s) / p.step_spread_s;
+                if frac < 1.0 && rng.gen::<f64>() >= frac {
+                    late -= delta;
+                }
+            }
+        }
+        let t_c = c_ns - secs_to_nanos(late) + secs_to_nanos(jit);
         let clean = motion.cam(tau);
         cam.push(Sample::new(t_c, clean + noise));
         cam_clean.push(CleanPoint {
@@ -1106,8 +1142,19 @@ mod tests {
             for (s, c) in run.cam.iter().zip(&run.cam_clean) {
                 let implied = nanos_to_secs(c.tau_ns - s.t_ns);
                 let tol = 6.0 * run.jitter_cam_s + 3e-9;
+                let now = run.truth.offset_at(c.tau_ns);
+                // within a step's spread, the frame may still carry the old latency
+                let spread = secs_to_nanos(f.step_spread_s());
+                let before = run
+                    .truth
+                    .steps
+                    .iter()
+                    .rev()
+                    .find(|st| st.0 <= c.tau_ns && c.tau_ns < st.0 + spread)
+                    .map(|st| now - st.1);
                 assert!(
-                    (implied - run.truth.offset_at(c.tau_ns)).abs() <= tol,
+                    (implied - now).abs() <= tol
+                        || before.is_some_and(|b| (implied - b).abs() <= tol),
                     "{f}"
                 );
             }
@@ -1267,6 +1314,33 @@ mod tests {
     }
 
     #[test]
+    fn load_jitter_spreads_each_step_over_its_frames() {
+        let run = generate(Family::LoadJitter, 3, None);
+        assert!(run.jitter_cam_s > 0.0 && run.cam_dropped > 0 && !run.lidar_gaps.is_empty());
+        assert!(run.truth.drift != 0.0 && run.truth.steps.len() >= 4);
+        let (mut old, mut new, mut late_old) = (0, 0, 0);
+        for (s, c) in run.cam.iter().zip(&run.cam_clean) {
+            let implied = nanos_to_secs(c.tau_ns - s.t_ns);
+            for &(t, d) in &run.truth.steps {
+                let since = nanos_to_secs(c.tau_ns - t);
+                let is_old = (implied - (run.truth.offset_at(c.tau_ns) - d)).abs() < 0.006;
+                if (0.0..0.3).contains(&since) {
+                    if is_old {
+                        old += 1;
+                    } else {
+                        new += 1;
+                    }
+                } else if (0.3..1.0).contains(&since) && is_old {
+                    late_old += 1;
+                }
+            }
+        }
+        // inside the spread both latencies, after it only the new one
+        assert!(old > 5 && new > 5, "{old} old, {new} new");
+        assert_eq!(late_old, 0);
+    }
+
+    #[test]
     fn standstill_is_pure_noise() {
         let run = generate(Family::Standstill, 7, None);
         let ss: Vec<_> = run
@@ -1405,7 +1479,7 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
         #[test]
-        fn any_seed_and_duration_gives_a_sane_run(seed in any::<u64>(), d in 2.0f64..40.0, fi in 0usize..10) {
+        fn any_seed_and_duration_gives_a_sane_run(seed in any::<u64>(), d in 2.0f64..40.0, fi in 0usize..Family::ALL.len()) {
             let f = Family::ALL[fi];
             let run = generate(f, seed, Some(d));
             prop_assert!(!run.cam.is_empty() && !run.lidar.is_empty());
