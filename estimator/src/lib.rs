@@ -386,6 +386,21 @@ impl History {
     }
 }
 
+/// A step of one stream's stamping latency, found in its cadence
+/// ([`Estimator::take_latency_step`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LatencyStep {
+    /// The stream whose stamps moved.
+    pub stream: Stream,
+    /// How much later its stamps come now, seconds (negative: earlier). The offset
+    /// moves by minus this for the camera, by this for the LiDAR.
+    pub step_s: f64,
+    /// The stamp (on that stream's clock) of its first sample, ns.
+    pub t_ns: Nanos,
+    /// Whether the estimator checks it against a period less (a frame dropped at it).
+    pub checked: bool,
+}
+
 /// A cadence step is tested against a period less (a frame dropped at it) when
 /// its stream drops at least this share of frames.
 const CADENCE_AMBIGUITY_MIN: f64 = 0.002;
@@ -500,6 +515,8 @@ pub struct Estimator {
     /// start, weighed against the new segment until it is as precise alone
     /// ([`Self::hinted`]).
     seg_prior: Option<HintPrior>,
+    /// The newest latency step a cadence found, until taken.
+    latency_step: Option<LatencyStep>,
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -597,6 +614,7 @@ impl Estimator {
             known_change: None,
             hint: None,
             seg_prior: None,
+            latency_step: None,
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -777,6 +795,14 @@ impl Estimator {
     /// seconds after the step (a period is 33 ms at 30 Hz), and "no step" gives the
     /// segment its history back.
     fn cadence_step(&mut self, stream: Stream, st: cadence::CadenceStep) {
+        self.latency_step = Some(LatencyStep {
+            stream,
+            step_s: st.step_ns * 1e-9,
+            t_ns: st
+                .start
+                .saturating_add(self.cad[idx(stream)].level_at(st.start).0.round() as Nanos),
+            checked: self.mode == Mode::Locked && st.ambiguity >= CADENCE_AMBIGUITY_MIN,
+        });
         if self.mode != Mode::Locked || st.ambiguity < CADENCE_AMBIGUITY_MIN {
             return;
         }
@@ -800,6 +826,12 @@ impl Estimator {
     /// Takes the oldest pending estimate, if any.
     pub fn poll(&mut self) -> Option<Estimate> {
         self.queue.pop()
+    }
+
+    /// The stamping-latency step the last push found in a stream's cadence, if any
+    /// (taken once): for a caller that logs it.
+    pub fn take_latency_step(&mut self) -> Option<LatencyStep> {
+        self.latency_step.take()
     }
 
     /// Counters.

@@ -13,12 +13,23 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// Period of the summary line, ns (10 minutes).
 pub const SUMMARY_NS: Nanos = 600_000_000_000;
 
-/// Kinds of throttled warnings: rejections per stream and reason, losses per stream,
-/// then the switches to degraded mode (budget overruns).
-pub const KINDS: usize = 2 * REJECT_REASONS + 3;
+/// Kinds of throttled lines: rejections per stream and reason, losses per stream,
+/// the switches to degraded mode (budget overruns), then the stamping-latency steps
+/// per stream (information, not warnings: a load change).
+pub const KINDS: usize = 2 * REJECT_REASONS + 5;
 
 /// Throttle key of a switch to degraded mode.
 pub const DEGRADED_KEY: usize = 2 * REJECT_REASONS + 2;
+
+/// Throttle key of a stamping-latency step of stream `si`.
+pub fn latency_step_key(si: usize) -> usize {
+    DEGRADED_KEY + 1 + si.min(1)
+}
+
+/// Whether the kind of throttle key `key` is information (not a warning).
+pub fn is_info(key: usize) -> bool {
+    key > DEGRADED_KEY
+}
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
 pub fn rejected_key(si: usize, reason: usize) -> usize {
@@ -93,8 +104,13 @@ pub fn kind_text(key: usize) -> String {
             "{} samples lost (sequence gaps)",
             stream(key - 2 * REJECT_REASONS)
         )
-    } else {
+    } else if key == DEGRADED_KEY {
         "switches to degraded mode (processing over budget)".to_string()
+    } else {
+        format!(
+            "{} stamping-latency steps",
+            stream((key - DEGRADED_KEY - 1).min(1))
+        )
     }
 }
 
@@ -225,6 +241,13 @@ mod tests {
         assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
         assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
         assert!(kind_text(DEGRADED_KEY).contains("degraded"));
+        assert_eq!(kind_text(latency_step_key(0)), "cam stamping-latency steps");
+        assert_eq!(
+            kind_text(latency_step_key(1)),
+            "lidar stamping-latency steps"
+        );
+        assert!(latency_step_key(1) < KINDS && is_info(latency_step_key(0)));
+        assert!(!is_info(DEGRADED_KEY) && !is_info(lost_key(1)));
     }
 
     proptest! {

@@ -166,6 +166,8 @@ pub enum RtEvent {
     },
     /// A load hint arrived before any LiDAR sample: no clock to date it on.
     HintUndated,
+    /// A stream's stamping latency stepped (the estimator follows it from the stamps).
+    LatencyStep(vlsync_estimator::LatencyStep),
     /// The real-time loop ended because iceoryx2 failed (the text is static).
     Fatal(&'static str),
 }
@@ -401,6 +403,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                             t_ns: w.t_ns,
                         },
                     );
+                }
+                if let Some(st) = est.take_latency_step() {
+                    emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
                 }
                 while let Some(e) = est.poll() {
                     publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
@@ -670,16 +675,40 @@ fn log_event(
         RtEvent::HintUndated => {
             tracing::info!("load hint before any LiDAR sample: nothing to restart yet")
         }
+        RtEvent::LatencyStep(st) => {
+            let si = stream_index(st.stream);
+            if let Some(n) = throttle.admit(journal::latency_step_key(si), 1, now) {
+                tracing::info!(
+                    "{} stamps {:+.1} ms later from t={:.3} s on (its stamping latency stepped; followed from the stamps{}){}",
+                    st.stream,
+                    st.step_s * 1e3,
+                    st.t_ns as f64 * 1e-9,
+                    if st.checked {
+                        ", checked against a dropped frame"
+                    } else {
+                        ""
+                    },
+                    more(n)
+                )
+            }
+        }
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
     }
 }
 
 /// Logs the count of warnings of throttle kind `key` held back since its last line.
 fn report_suppressed(key: usize, n: u64) {
-    tracing::warn!(
-        "{n} more {} since the last such line",
-        journal::kind_text(key)
-    )
+    if journal::is_info(key) {
+        tracing::info!(
+            "{n} more {} since the last such line",
+            journal::kind_text(key)
+        )
+    } else {
+        tracing::warn!(
+            "{n} more {} since the last such line",
+            journal::kind_text(key)
+        )
+    }
 }
 
 /// How often the CPU pressure is read for load hints, ns.
