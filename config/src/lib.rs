@@ -110,9 +110,9 @@ pub struct EstimatorConfig {
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
-    /// Which streams' stamp cadence is followed: a regular stream's stamps are put
-    /// on its frame grid, and steps of its stamping latency (CPU load on a
-    /// software-stamped camera) are followed from the stamps within a few frames.
+    /// Which streams' stamp cadence is followed: steps of a regular stream's
+    /// stamping latency (CPU load on a software-stamped camera) are found in its
+    /// stamps within a few frames and kept out of the correlation.
     pub cadence: CadenceStreams,
     /// Smallest stamping-latency step the cadence follows (and the least tolerance
     /// of its grid), seconds.
@@ -165,7 +165,7 @@ impl Default for EstimatorConfig {
 pub enum CadenceStreams {
     /// Camera and LiDAR.
     Both,
-    /// The camera only (a LiDAR whose scan timing itself wanders, stamped exactly).
+    /// The camera only (the stream whose stamping moves with CPU load on most robots).
     Camera,
     /// The LiDAR only.
     Lidar,

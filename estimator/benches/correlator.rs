@@ -236,5 +236,46 @@ fn segment(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench, segment);
+/// The stamp cadence per sample: a 30 Hz stream with 1 ms of jitter, 5 % of its
+/// frames dropped and a 12 ms latency step every 20 s (what every accepted sample
+/// pays before the resampler).
+fn cadence(c: &mut Criterion) {
+    use vlsync_estimator::cadence::{Cadence, CadenceParams, Kind};
+    let mut g = c.benchmark_group("cadence");
+    let mut seed = 1u64;
+    let mut noise = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let stamps: Vec<i64> = (0..36_000i64)
+        .filter(|k| k % 20 != 7)
+        .map(|k| {
+            let step = if (k / 600) % 2 == 1 { 12e6 } else { 0.0 };
+            (1e12 + k as f64 * 33.333e6 + step + 3.4e6 * noise()) as i64
+        })
+        .collect();
+    let mut cad = Cadence::new(CadenceParams::default());
+    let mut i = 0usize;
+    g.bench_function("push_30hz_jitter_drops_steps", |b| {
+        b.iter(|| {
+            if i == stamps.len() {
+                cad = Cadence::new(CadenceParams::default());
+                i = 0;
+            }
+            let kind = if i == 0 { Kind::First } else { Kind::Normal };
+            let t = cad.push(black_box(stamps[i]), kind);
+            i += 1;
+            black_box(t)
+        })
+    });
+    g.bench_function("level_at", |b| {
+        let t = stamps[stamps.len() / 2];
+        b.iter(|| black_box(cad.level_at(black_box(t))))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, segment, cadence);
 criterion_main!(benches);
