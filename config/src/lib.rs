@@ -174,6 +174,16 @@ pub enum CadenceStreams {
 }
 
 impl CadenceStreams {
+    /// The name in the configuration file.
+    pub fn name(self) -> &'static str {
+        match self {
+            CadenceStreams::Both => "both",
+            CadenceStreams::Camera => "camera",
+            CadenceStreams::Lidar => "lidar",
+            CadenceStreams::Off => "off",
+        }
+    }
+
     /// Whether the camera's cadence is followed.
     pub fn camera(self) -> bool {
         matches!(self, CadenceStreams::Both | CadenceStreams::Camera)
