@@ -270,9 +270,17 @@ fn cadence(c: &mut Criterion) {
             black_box(t)
         })
     });
-    g.bench_function("level_at", |b| {
-        let t = stamps[stamps.len() / 2];
-        b.iter(|| black_box(cad.level_at(black_box(t))))
+    // a lookup as an estimate makes it: 3 s (90 frames) before the newest sample
+    let mut cad = Cadence::new(CadenceParams::default());
+    let mut internal = 0;
+    for (i, &s) in stamps.iter().enumerate().take(20_000) {
+        let t = cad.push(s, if i == 0 { Kind::First } else { Kind::Normal });
+        if i == 20_000 - 90 {
+            internal = t;
+        }
+    }
+    g.bench_function("level_at_3s_back", |b| {
+        b.iter(|| black_box(cad.level_at(black_box(internal))))
     });
     g.finish();
 }
