@@ -407,6 +407,10 @@ const CADENCE_AMBIGUITY_MIN: f64 = 0.002;
 /// Uncertainty of that alternative step, s (the stamps measure both to a
 /// fraction of a millisecond).
 const CADENCE_ALT_STD_S: f64 = 1e-3;
+/// ...and when it is at least this large, s ...
+const CADENCE_CHECK_MIN_STEP_S: f64 = 0.004;
+/// ...and the stream's previous cadence step is at least this long before it, ns.
+const CADENCE_ISOLATION_NS: Nanos = 5_000_000_000;
 
 /// The step a hint announces by default (1σ), seconds: the seed article's load
 /// steps were ±25 ms. `vlsyncd`'s load hints and `bench --known-steps --hinted` use it.
@@ -517,6 +521,8 @@ pub struct Estimator {
     seg_prior: Option<HintPrior>,
     /// The newest latency step a cadence found, until taken.
     latency_step: Option<LatencyStep>,
+    /// Per stream, the internal time of its cadence's last step.
+    last_cadence_step: [Option<Nanos>; 2],
     epoch_ns: Option<Nanos>,
     polarity: Polarity,
     acq: Streak,
@@ -615,6 +621,7 @@ impl Estimator {
             hint: None,
             seg_prior: None,
             latency_step: None,
+            last_cadence_step: [None; 2],
             epoch_ns: None,
             polarity: Polarity::Unknown,
             acq: Streak::default(),
@@ -795,15 +802,29 @@ impl Estimator {
     /// seconds after the step (a period is 33 ms at 30 Hz), and "no step" gives the
     /// segment its history back.
     fn cadence_step(&mut self, stream: Stream, st: cadence::CadenceStep) {
+        let si = idx(stream);
+        // only a step on its own is checked: one of a run (a pipeline falling behind
+        // and catching up steps every second or two) or a small one (its alternative
+        // would be a latency falling by nearly a period, a frame dropped just then) is
+        // taken as read, and a check still open is not restarted
+        let isolated = self.last_cadence_step[si]
+            .is_none_or(|t| st.start.saturating_sub(t) > CADENCE_ISOLATION_NS);
+        self.last_cadence_step[si] = Some(st.start);
+        let checked = self.mode == Mode::Locked
+            && st.ambiguity >= CADENCE_AMBIGUITY_MIN
+            && isolated
+            && st.step_ns.abs() * 1e-9 >= CADENCE_CHECK_MIN_STEP_S
+            && self.hint.is_none()
+            && self.seg_prior.is_none();
         self.latency_step = Some(LatencyStep {
             stream,
             step_s: st.step_ns * 1e-9,
             t_ns: st
                 .start
-                .saturating_add(self.cad[idx(stream)].level_at(st.start).0.round() as Nanos),
-            checked: self.mode == Mode::Locked && st.ambiguity >= CADENCE_AMBIGUITY_MIN,
+                .saturating_add(self.cad[si].level_at(st.start).0.round() as Nanos),
+            checked,
         });
-        if self.mode != Mode::Locked || st.ambiguity < CADENCE_AMBIGUITY_MIN {
+        if !checked {
             return;
         }
         let p = st.ambiguity.clamp(CADENCE_AMBIGUITY_MIN, 0.5);
