@@ -175,6 +175,55 @@ fn load_steps_are_followed_from_the_stamps_cadence() {
     );
 }
 
+#[test]
+fn a_camera_falling_behind_in_small_steps_is_followed_without_checks() {
+    // a camera pipeline falling behind: from 30 s on its latency grows 3 ms every 1.5 s
+    // for 15 s (30 ms in all), and it drops every 20th frame. The cadence follows each
+    // small step; none is tested against "a period less, a frame dropped" (each test
+    // would restart the segment), and the estimates follow the growing latency.
+    let mut run = generate(Family::Robot, 5, Some(90.0));
+    let lat = |t_ns: i64| {
+        let t = t_ns as f64 * 1e-9;
+        (((t - 30.0) / 1.5).floor().clamp(-1.0, 9.0) + 1.0) * 0.003
+    };
+    let mut k = 0;
+    run.cam.retain(|_| {
+        k += 1;
+        k % 20 != 0
+    });
+    for s in run.cam.iter_mut() {
+        s.t_ns += (lat(s.t_ns) * 1e9) as i64;
+    }
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let mut out = Vec::new();
+    let mut steps = Vec::new();
+    for (stream, s) in run.pushes() {
+        let _ = est.push(stream, s);
+        if let Some(st) = est.take_latency_step() {
+            steps.push(st);
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    assert!(steps.len() >= 9, "{steps:?}");
+    assert!(steps.iter().all(|s| !s.checked), "{steps:?}");
+    assert_eq!(est.stats().steps, 0, "{:?}", est.stats());
+    // the offset falls by the camera's latency (t_L - t_C, the camera stamps later)
+    let errs: Vec<f64> = out
+        .iter()
+        .filter(|e| e.state == EstimatorState::Tracking && e.t_ref_ns > 20_000_000_000)
+        .map(|e| (e.offset_s - (run.truth.offset_at(e.t_ref_ns) - lat(e.t_ref_ns))).abs())
+        .collect();
+    let mae = errs.iter().sum::<f64>() / errs.len() as f64;
+    assert!(
+        errs.len() > 80 && mae < 0.003,
+        "{} estimates, MAE {:.2} ms",
+        errs.len(),
+        mae * 1e3
+    );
+}
+
 /// Replays `run`, calling `announce(est, t)` for each of `times` (LiDAR clock)
 /// just before the first LiDAR sample at or after it.
 fn replay_announcing(
