@@ -7,6 +7,7 @@ use std::time::Duration;
 use vlsync_common::{EstimatorState, Stream};
 use vlsync_ipc::OffsetClient;
 use vlsync_tests::{collect, Rig};
+use vlsyncd::runtime::journal::latency_steps_logged;
 
 #[test]
 fn load_steps_are_followed_from_the_stamps_and_logged() {
@@ -64,17 +65,5 @@ fn load_steps_are_followed_from_the_stamps_and_logged() {
         .unwrap_or_else(|| panic!("no step line\n{log}"));
     let want = format!("{:+.1} ms later", -steps[0].1 * 1e3);
     assert!(first.contains(&want), "{first} (want {want})");
-    let held: usize = log
-        .lines()
-        .filter(|l| l.contains("more cam stamping-latency steps since the last such line"))
-        .filter_map(|l| {
-            l.split(" more ")
-                .next()?
-                .rsplit(' ')
-                .next()?
-                .parse::<usize>()
-                .ok()
-        })
-        .sum();
-    assert_eq!(1 + held, steps.len(), "{log}");
+    assert_eq!(latency_steps_logged(&log, "cam"), steps.len(), "{log}");
 }

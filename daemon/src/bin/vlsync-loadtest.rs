@@ -20,6 +20,7 @@ use vlsyncd::harness::report::{analyse, estimates_csv, svg, tables, targets, to_
 use vlsyncd::harness::session::{Role, Session, SessionOptions, Source, Stamping};
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::truth::{read_truth_csv, MeasuredTruth};
+use vlsyncd::runtime::journal;
 
 #[derive(Parser)]
 #[command(
@@ -280,27 +281,8 @@ fn run(a: &Args) -> Result<bool, String> {
     } else {
         format!("on, {hints_declared} change(s) declared")
     };
-    // the stamping-latency steps the estimator's cadence followed, as the daemon
-    // logged them (a line, then counts of those held back)
-    let latency_steps = |stream: &str| -> usize {
-        let shown = daemon_log
-            .lines()
-            .filter(|l| l.contains(&format!("{stream} stamps")) && l.contains("later from t="))
-            .count();
-        let held: usize = daemon_log
-            .lines()
-            .filter(|l| l.contains(&format!("more {stream} stamping-latency steps")))
-            .filter_map(|l| {
-                l.split(" more ")
-                    .next()?
-                    .rsplit(' ')
-                    .next()?
-                    .parse::<usize>()
-                    .ok()
-            })
-            .sum();
-        shown + held
-    };
+    // the stamping-latency steps the estimator's cadence followed, as the daemon logged them
+    let latency_steps = |stream: &str| journal::latency_steps_logged(&daemon_log, stream);
     let mut md = format!(
         "# vlsync load test: profile `{}`{}\n\nRendered seed {}, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\nLoad hints (`daemon.load_hints`): {hints}.\nCamera front-end: {}.\nLiDAR front-end: {}.\nStamp cadence (`estimator.cadence` = \"{}\"): stamping-latency steps followed from the stamps: camera {}, LiDAR {}.\n\n",
         prof.name,

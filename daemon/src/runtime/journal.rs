@@ -26,6 +26,30 @@ pub fn latency_step_key(si: usize) -> usize {
     DEGRADED_KEY + 1 + si.min(1)
 }
 
+/// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
+/// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
+/// counts the throttle held back (`3 more cam stamping-latency steps since …`).
+/// The load test's report and the tests read the log with it.
+pub fn latency_steps_logged(log: &str, stream: &str) -> usize {
+    let named = format!("{stream} stamps ");
+    let held = format!("more {stream} stamping-latency steps");
+    log.lines()
+        .map(|l| {
+            if l.contains(&named) && l.contains("later from t=") {
+                1
+            } else if l.contains(&held) {
+                l.split(" more ")
+                    .next()
+                    .and_then(|head| head.rsplit(' ').next())
+                    .and_then(|n| n.parse::<usize>().ok())
+                    .unwrap_or(0)
+            } else {
+                0
+            }
+        })
+        .sum()
+}
+
 /// Whether the kind of throttle key `key` is information (not a warning).
 pub fn is_info(key: usize) -> bool {
     key > DEGRADED_KEY
@@ -248,6 +272,19 @@ mod tests {
         );
         assert!(latency_step_key(1) < KINDS && is_info(latency_step_key(0)));
         assert!(!is_info(DEGRADED_KEY) && !is_info(lost_key(1)));
+    }
+
+    #[test]
+    fn latency_steps_are_counted_from_the_log() {
+        let log = "\
+x INFO vlsyncd::runtime: cam stamps +12.1 ms later from t=3.000 s on (its stamping latency stepped)
+x INFO vlsyncd::runtime: 3 more cam stamping-latency steps since the last such line
+x INFO vlsyncd::runtime: lidar stamps -2.0 ms later from t=9.000 s on (its stamping latency stepped)
+x WARN vlsyncd::runtime: 2 more cam samples lost (sequence gaps) since the last such line
+x INFO vlsyncd::runtime: 1 more cam stamping-latency steps since the last such line";
+        assert_eq!(latency_steps_logged(log, "cam"), 5);
+        assert_eq!(latency_steps_logged(log, "lidar"), 1);
+        assert_eq!(latency_steps_logged("", "cam"), 0);
     }
 
     proptest! {
