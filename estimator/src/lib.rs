@@ -3,8 +3,10 @@
 //! Push `(timestamp, value)` samples of the camera and LiDAR signature streams in
 //! any interleaving; poll [`Estimate`]s, one per completed hop.
 //!
-//! Pipeline: [`resample`] (validate, linear interpolation onto a uniform grid on
-//! each sensor's own clock) → [`filter`] (the same band-pass on both) →
+//! Pipeline: [`resample`] validates each sample on its stamp; [`cadence`] follows the
+//! stream's regular frame grid and takes steps of its stamping latency out of the
+//! stamp (estimates add them back) → [`resample`] (linear interpolation onto a
+//! uniform grid on each sensor's own clock) → [`filter`] (the same band-pass on both) →
 //! [`correlator`] (incremental Pearson sums per lag in blocks of one hop, O(lags) per
 //! grid sample) → [`peak`] (gated peak search, sub-sample refinement, polarity);
 //! once locked, [`segment`] (robust, drift-compensated combination of every block
