@@ -18,8 +18,10 @@
 //!
 //! * the **internal stamp** the correlator sees: `s` less the level of its piece
 //!   (the first piece's level is 0, so a stream without steps passes unchanged,
-//!   jitter and all); a stamp off the grid (a step's first samples, a late frame)
-//!   goes to its frame's grid point instead, so neither reaches the correlation; and
+//!   jitter and all, but for its late frames); a stamp off the grid (a step's first
+//!   samples, a late frame) goes to its frame's grid point instead, so neither
+//!   reaches the correlation (one that disagrees with the off-grid stamp before it,
+//!   a burst of stamps catching up after a stall, no later than its own stamp); and
 //! * its **level** `s - internal`, kept in bins per piece. [`Cadence::level_at`]
 //!   gives the level at any recent internal time (the mean of its piece's samples
 //!   within [`LEVEL_HALF_WINDOW_NS`]), so an estimate adds back exactly the latency
@@ -31,10 +33,10 @@
 //! frames sit half a period off the grid when the frame between was dropped; the
 //! grid has points there too (in half frames), used only after a period and a half.
 //!
-//! **A step** is the newest `confirm` samples off the current level by more than
-//! `max(min_step, 4σ)` (their median; σ the stamps' jitter) and within
-//! `max(twice that, half the step)` of each other; it starts at the first of them
-//! beyond half the step. A lone late stamp (a scheduling hiccup) is jitter, not a
+//! **A step** is the newest `confirm` samples all off the current level, on one
+//! side, by more than `max(min_step, 4σ)` (σ the stamps' jitter) and within
+//! `max(that, half the step)` of each other; it is their median, and starts at the
+//! first of them beyond half of it. A lone late stamp (a scheduling hiccup) is jitter, not a
 //! step. Frames are unwrapped to the nearest grid point when a stamp is within
 //! `max(min_step, 5σ)` of one (`4σ` when that means dropped frames), else with the
 //! fewest drops: a latency change of less than a period. A step to later stamps
@@ -134,7 +136,10 @@ pub struct CadenceStep {
     pub period_ns: f64,
     /// The probability that the step was a period less, with a frame dropped at it
     /// (only a step to later stamps can be: its first stamp is then a frame later
-    /// than it looks): the stream's share of dropped frames, 0 when it drops none.
+    /// than it looks): the stream's share of dropped frames, to the power of the
+    /// departures from the level just before that read the same step (each would
+    /// have needed a drop of its own); 0 when it drops none or a departure read a
+    /// period less (the step is then that).
     pub ambiguity: f64,
 }
 
@@ -163,8 +168,12 @@ enum Mode {
 /// A sample in the step test's window.
 #[derive(Debug, Clone, Copy, Default)]
 struct Pend {
-    /// Deviation from the grid at the reference level, ns.
+    /// Deviation from its grid point at the reference level, ns.
     dev: f64,
+    /// What the step test measures: its deviation from the frames' grid (a midpoint
+    /// stamp half a period off it counts half a period, unless it is one of a run two
+    /// frames apart: every other frame dropped), ns.
+    step_dev: f64,
     /// Its internal stamp.
     internal: Nanos,
     /// Its level, `stamp - internal`, ns.
@@ -257,6 +266,8 @@ pub struct Cadence {
     off_rate: f64,
     /// Consecutive samples off the grid.
     back: usize,
+    /// The step deviation of the last sample, when it was off the grid.
+    last_off_dev: Option<f64>,
     /// Weighted share of recent samples that came a frame or more late (a dropped
     /// frame before them).
     drop_rate: f64,
@@ -313,6 +324,7 @@ impl Cadence {
             sigma: 0.0,
             off_rate: 0.0,
             back: 0,
+            last_off_dev: None,
             drop_rate: 0.0,
             new_step: None,
             trans: [(0, 0.0); TRANS],
@@ -412,7 +424,8 @@ impl Cadence {
     }
 
     /// Takes one accepted stamp `s` (raw, on the sensor's clock, validated: it
-    /// increases) and returns its internal stamp (strictly increasing).
+    /// increases) and returns its internal stamp (strictly increasing, short of the
+    /// ends of the i64 range, where it saturates; the resampler then restarts there).
     pub fn push(&mut self, s: Nanos, kind: Kind) -> Nanos {
         if !self.p.enabled {
             return s;
@@ -429,6 +442,7 @@ impl Cadence {
             Kind::Gap => {
                 self.flush_window();
                 self.back = 0;
+                self.last_off_dev = None;
             }
             Kind::Normal => {}
         }
@@ -451,6 +465,7 @@ impl Cadence {
         self.mode = Mode::Learn;
         self.learn_n = 0;
         self.back = 0;
+        self.last_off_dev = None;
     }
 
     /// The window's samples on the grid go to the level bins (no step among them).
@@ -653,16 +668,36 @@ impl Cadence {
             hf.saturating_add(2 * q.floor().clamp(1.0, 1e12) as i64)
         };
         let dev = rel - self.grid(h);
+        let dh = h.saturating_sub(self.h_last);
+        // A midpoint stamp spanning one dropped frame sits half a period off the frames'
+        // grid: alone it is no step, but stamps that stay half a period off while the
+        // frames come every period are a step of half a period, which the step test must
+        // see. A run of half points two frames apart (every other frame dropped) is the
+        // samples' own timing.
+        let step_dev = if on_half && dh < 4 {
+            rel - self.grid(h.saturating_sub(1))
+        } else {
+            dev
+        };
         let departs = !on && self.back == 0;
-        // a frame or more beyond the next (half a frame beyond, for a midpoint stamp
-        // spanning a drop): frames were dropped before this one
-        let dropped = if h.saturating_sub(self.h_last) > 2 {
+        // frames were dropped before this one: it is two frames or more after the last,
+        // or lands on a frame's point a frame and a half after a midpoint stamp (the
+        // midpoint that spanned the drop counts once, on the way back)
+        let dropped = if dh >= 4 || (dh == 3 && h.rem_euclid(2) == 0) {
             1.0
         } else {
             0.0
         };
         self.drop_rate += (dropped - self.drop_rate) / 256.0;
         self.h_last = h;
+        // an off-grid sample that does not agree with the one before (a burst of stamps
+        // catching up after a stall, each earlier against its frame than the last) is
+        // not moved later than its own stamp: the next frames are on time again
+        let agrees = self
+            .last_off_dev
+            .is_some_and(|d| (step_dev - d).abs() <= tol);
+        let inconsistent = !on && self.back > 0 && !agrees;
+        self.last_off_dev = (!on).then_some(step_dev);
         if on {
             self.back = 0;
             self.off_rate -= self.off_rate / 32.0;
@@ -681,6 +716,8 @@ impl Cadence {
         // stamp) the frame's grid point, so neither reaches the correlator
         let internal = if on {
             self.pass(s)
+        } else if inconsistent {
+            self.abs(self.grid(h)).min(self.pass(s))
         } else {
             self.abs(self.grid(h))
         };
@@ -688,10 +725,11 @@ impl Cadence {
         if departs {
             self.trans_head = (self.trans_head + 1) % TRANS;
             self.trans_n = (self.trans_n + 1).min(TRANS);
-            self.trans[self.trans_head] = (internal, dev);
+            self.trans[self.trans_head] = (internal, step_dev);
         }
         self.window_push(Pend {
             dev,
+            step_dev,
             internal,
             level,
             on,
@@ -759,8 +797,8 @@ impl Cadence {
     }
 
     /// Declares a step when the step test's window (the newest `confirm` samples)
-    /// has moved off the level: its median beyond `max(min_step, 4σ)`, its samples
-    /// within `max(2·that, half the step)` of each other (a frame rate that changed
+    /// has moved off the level: every one beyond `max(min_step, 4σ)` on the same side,
+    /// within `max(that, half the step)` of each other (a frame rate that changed
     /// moves them apart). The step is the median; it starts at the window's first
     /// sample beyond half of it. Returns whether the window was used up (a step, or a
     /// relearn for an impossible one).
@@ -772,13 +810,19 @@ impl Cadence {
         let mut devs = [0f64; PENDING];
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for (d, pd) in devs.iter_mut().zip(&self.pend[..k]) {
-            *d = pd.dev;
-            lo = lo.min(pd.dev);
-            hi = hi.max(pd.dev);
+            *d = pd.step_dev;
+            lo = lo.min(pd.step_dev);
+            hi = hi.max(pd.step_dev);
         }
         let step = *devs[..k].select_nth_unstable_by(k / 2, f64::total_cmp).1;
         let thr = self.p.min_step_ns.max(4.0 * self.sigma);
-        if step.abs() <= thr || hi - lo > (2.0 * thr).max(0.5 * step.abs()) {
+        // every sample of the window beyond the threshold on the step's side (two
+        // early or late stamps among three are jitter's tail under load, not a step),
+        // and close together (a late frame, a midpoint stamp and a jittery one are not)
+        let beyond = self.pend[..k]
+            .iter()
+            .all(|pd| pd.step_dev * step.signum() > thr);
+        if !beyond || hi - lo > thr.max(0.5 * step.abs()) {
             return false;
         }
         let t = self.line.1;
@@ -790,7 +834,7 @@ impl Cadence {
         // the window's samples before the step stay with the old piece
         let first = self.pend[..k]
             .iter()
-            .position(|pd| (pd.dev - 0.5 * step) * step.signum() > 0.0)
+            .position(|pd| (pd.step_dev - 0.5 * step) * step.signum() > 0.0)
             .unwrap_or(0);
         // A step to later stamps may have been a period less, with a frame dropped at
         // the first of the window's samples (they all count from it). The departures
@@ -847,7 +891,8 @@ impl Cadence {
         self.pend_n = 0;
         self.trans_n = 0;
         self.lref = lref;
-        self.level_n = 0;
+        // the median of the confirming samples counts as that many samples
+        self.level_n = k as u32;
         // the jitter after a load change is the new load's: at least what the window
         // shows (a step of less than that would be jitter)
         self.sigma = self.sigma.max(0.25 * (hi - lo));
@@ -1041,14 +1086,22 @@ mod tests {
         let out = run(&mut c, &s);
         assert_eq!(c.steps(), 0, "relearns {}", c.relearns());
         assert!(c.tracking());
-        // on time again, every stamp is back on its frame's grid point
+        // the stalled frame and the burst after it reach the correlator no later than
+        // their own stamps, and every frame on time again exactly on its grid point
         let phase = out[100] as f64 - frames[100];
-        for (k, (&o, &ev)) in out.iter().zip(&frames).enumerate().skip(100) {
-            if k % 60 >= 30 && k % 60 < 36 {
-                continue; // the stall and the burst after it
+        for (k, ((&o, &ev), &st)) in out.iter().zip(&frames).zip(&s).enumerate().skip(100) {
+            let late = st as f64 - ev - phase;
+            let e = o as f64 - ev - phase;
+            if late > 0.01 * MS {
+                assert!(
+                    e <= late + 0.01 * MS,
+                    "frame {k}: {:.3} ms, stamp {:.3}",
+                    e / MS,
+                    late / MS
+                );
+            } else {
+                assert!(e.abs() < 0.01 * MS, "frame {k}: {:.3} ms off", e / MS);
             }
-            let e = (o as f64 - ev - phase).abs();
-            assert!(e < 0.01 * MS, "frame {k}: {:.3} ms off", e / MS);
         }
     }
 
@@ -1078,6 +1131,61 @@ mod tests {
             let near_step = (kept[i] as i64 - 600).abs() < 4;
             assert!(near_step || e < 0.05 * MS, "sample {i}: {:.3} ms", e / MS);
         }
+    }
+
+    #[test]
+    fn a_step_of_half_a_period_is_followed() {
+        // a step half a period late puts the stamps where midpoint stamps spanning a
+        // dropped frame would be; they keep coming every period, so it is a step
+        for (hz, step, jitter) in [
+            (30.0, 16.0, 0.0),
+            (30.0, 17.0, 0.0),
+            (30.0, 16.5, 1.0),
+            (60.0, 8.0, 0.0),
+        ] {
+            let period = 1e3 / hz * MS;
+            let s = stamps(1200, period, jitter * MS, 0, |k| {
+                if k >= 600 {
+                    step * MS
+                } else {
+                    0.0
+                }
+            });
+            let mut c = Cadence::new(CadenceParams::default());
+            let (out, levels) = run_levels(&mut c, &s, 90);
+            assert_eq!(c.steps(), 1, "{hz} Hz {step} ms: relearns {}", c.relearns());
+            let moved = (levels[900] - levels[300]) / MS;
+            assert!(
+                (moved - step).abs() < 0.5,
+                "{hz} Hz {step} ms: level moved {moved}"
+            );
+            // from a few frames after the step on, no stamp carries it to the correlator
+            for (k, &o) in out.iter().enumerate().skip(605) {
+                let e = (o as f64 - (1e12 + k as f64 * period)) / MS;
+                assert!(
+                    e.abs() < 4.0 * jitter + 0.5,
+                    "{hz} Hz {step} ms, frame {k}: {e:.2} ms"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn every_other_frame_dropped_is_no_step() {
+        // midpoint stamps; from frame 400 to 700 every other frame is dropped (the flow
+        // pairs frames two apart, its samples half a period off the grid, every 2 T)
+        let period = 33.333 * MS;
+        let kept: Vec<usize> = (0..1200)
+            .filter(|&k| !(400..700).contains(&k) || k % 2 == 0)
+            .collect();
+        let s: Vec<Nanos> = kept
+            .windows(2)
+            .map(|w| (1e12 + 0.5 * (w[0] + w[1]) as f64 * period) as Nanos)
+            .collect();
+        let mut c = Cadence::new(CadenceParams::default());
+        let out = run(&mut c, &s);
+        assert_eq!(c.steps(), 0, "relearns {}", c.relearns());
+        assert_eq!(out, s, "every stamp passes as it is");
     }
 
     #[test]

@@ -816,7 +816,7 @@ impl Estimator {
             && st.ambiguity >= CADENCE_AMBIGUITY_MIN
             && isolated
             && st.step_ns.abs() * 1e-9 >= CADENCE_CHECK_MIN_STEP_S
-            && self.hint.is_none()
+            && self.known_change.is_none()
             && self.seg_prior.is_none();
         self.latency_step = Some(LatencyStep {
             stream,
@@ -1011,7 +1011,7 @@ impl Estimator {
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
         while b <= target {
-            let t_ref = b * self.p.dt_ns - self.group_delay_ns - self.p.ref_lag_ns;
+            let t_ref = self.t_ref_of(b);
             let t = self.rel(t_ref);
             self.hold_to(t);
             // a silent sensor (not just a still robot) may come back with another
@@ -1040,9 +1040,19 @@ impl Estimator {
         t_ns.saturating_sub(e) as f64 * 1e-9
     }
 
+    /// Reference time (LiDAR clock, ns) of the hop ending before grid index `k_next`:
+    /// the filter's output delay and the reference lag before it (saturating: stamps
+    /// near the ends of the i64 range must not overflow).
+    fn t_ref_of(&self, k_next: i64) -> Nanos {
+        k_next
+            .saturating_mul(self.p.dt_ns)
+            .saturating_sub(self.group_delay_ns)
+            .saturating_sub(self.p.ref_lag_ns)
+    }
+
     /// Tracker time of (fractional) LiDAR grid index `k`, at the filter's output delay.
     fn rel_k(&mut self, k: f64) -> f64 {
-        let t_ns = (k * self.p.dt_ns as f64) as Nanos - self.group_delay_ns;
+        let t_ns = ((k * self.p.dt_ns as f64) as Nanos).saturating_sub(self.group_delay_ns);
         self.rel(t_ns)
     }
 
@@ -1216,7 +1226,7 @@ impl Estimator {
         let k_end = self.corr.block(count - 1).last_k;
         // estimates refer to `reference_lag_s` before the newest data: the segment
         // has that much data after the reference time on hand
-        let t_ref_ns = (k_end + 1) * self.p.dt_ns - self.group_delay_ns - self.p.ref_lag_ns;
+        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
         let t = self.rel(t_ref_ns);
         let full = self.corr.acq_count() >= self.p.acq_blocks;
         let motion = self.motion_ok(full);
@@ -1404,7 +1414,7 @@ impl Estimator {
         let epoch = self.epoch_ns?;
         let hl = self.p.hop_len;
         let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
-        let t_ref_ns = (k_end + 1) * self.p.dt_ns - self.group_delay_ns - self.p.ref_lag_ns;
+        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
         let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
         if t < self.seg_start_t {
             return None;
@@ -1421,7 +1431,7 @@ impl Estimator {
             first,
             last: n - 1,
             drift: self.drift.estimate().0,
-            k_ref: (t_ref_ns + self.group_delay_ns) as f64 / self.p.dt_ns as f64,
+            k_ref: t_ref_ns.saturating_add(self.group_delay_ns) as f64 / self.p.dt_ns as f64,
             lo,
             hi,
         };
@@ -1546,7 +1556,7 @@ impl Estimator {
             return;
         }
         let meas = self.segment_first().and_then(|first| {
-            let k_ref = (t_ref_ns + self.group_delay_ns) as f64 / self.p.dt_ns as f64;
+            let k_ref = t_ref_ns.saturating_add(self.group_delay_ns) as f64 / self.p.dt_ns as f64;
             // the peak is searched near the prediction first (a few of its sigmas: the
             // combination costs per lag), then over the whole tracking range
             let (lo, hi) = self.track_slots_around(pred_t);
