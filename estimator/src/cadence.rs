@@ -96,6 +96,9 @@ const BINS: usize = 128;
 const PENDING: usize = 16;
 /// Samples between re-anchorings of the fit's coordinates.
 const REANCHOR: u32 = 256;
+/// Samples after a step during which a return to the level before it is an
+/// excursion's end ([`Cadence::excursion_back`]).
+const EXCURSION_SAMPLES: u32 = 64;
 /// Departures from the level remembered (see [`Cadence::try_step`]).
 const TRANS: usize = 8;
 /// How far back departures count for a step, ns.
@@ -268,6 +271,12 @@ pub struct Cadence {
     back: usize,
     /// The step deviation of the last sample, when it was off the grid.
     last_off_dev: Option<f64>,
+    /// The step deviation of the last sample.
+    last_step_dev: f64,
+    /// For a while after a step: the level before it, and how many samples have come
+    /// back to it in a row (a latency excursion of a few frames, not a step: see
+    /// [`Cadence::excursion_back`]), and how many samples the chance has left.
+    prev_level: Option<(f64, u32, u32)>,
     /// Weighted share of recent samples that came a frame or more late (a dropped
     /// frame before them).
     drop_rate: f64,
@@ -325,6 +334,8 @@ impl Cadence {
             off_rate: 0.0,
             back: 0,
             last_off_dev: None,
+            last_step_dev: 0.0,
+            prev_level: None,
             drop_rate: 0.0,
             new_step: None,
             trans: [(0, 0.0); TRANS],
@@ -466,6 +477,7 @@ impl Cadence {
         self.learn_n = 0;
         self.back = 0;
         self.last_off_dev = None;
+        self.prev_level = None;
     }
 
     /// The window's samples on the grid go to the level bins (no step among them).
@@ -629,6 +641,9 @@ impl Cadence {
             return self.push_learn(s);
         }
         let tol = self.tol_for(self.sigma).min(0.2 * t);
+        if let Some(internal) = self.excursion_back(s, tol) {
+            return internal;
+        }
         // on the grid: a frame's point (normally the next frame, or one after
         // drops; after off-grid stamps also one already counted: a burst of stamps
         // after a stall was spread over the frames after it) ...
@@ -642,10 +657,12 @@ impl Cadence {
         let on_frame = if he == next {
             d_frame <= tol
         } else if he > next {
-            d_frame <= tight
+            d_frame <= tight.min(t / 6.0)
         } else {
-            // a frame already counted (a burst after a stall was spread too far)
-            he > (self.h_last - 2 * self.back as i64) as f64 && d_frame <= tight
+            // a frame already counted (a burst after a stall was spread too far): only
+            // a stamp back on its grid point, not one a fraction of a period off it
+            // (under load, the way back from a latency excursion)
+            he > (self.h_last - 2 * self.back as i64) as f64 && d_frame <= tight.min(t / 8.0)
         };
         // ... or halfway, where a midpoint stamp of two frames falls when the one
         // between was dropped: only after a period and a half (a stamp half a period
@@ -672,13 +689,16 @@ impl Cadence {
         // A midpoint stamp spanning one dropped frame sits half a period off the frames'
         // grid: alone it is no step, but stamps that stay half a period off while the
         // frames come every period are a step of half a period, which the step test must
-        // see. A run of half points two frames apart (every other frame dropped) is the
-        // samples' own timing.
-        let step_dev = if on_half && dh < 4 {
+        // see: a half point counts its half period when the sample before it was half a
+        // period off too (a run of half points two frames apart, every other frame
+        // dropped, is the samples' own timing).
+        let half_run = self.last_step_dev.abs() >= 0.5 * t - tol;
+        let step_dev = if on_half && dh < 4 && half_run {
             rel - self.grid(h.saturating_sub(1))
         } else {
             dev
         };
+        self.last_step_dev = step_dev;
         let departs = !on && self.back == 0;
         // frames were dropped before this one: it is two frames or more after the last,
         // or lands on a frame's point a frame and a half after a midpoint stamp (the
@@ -738,6 +758,72 @@ impl Cadence {
             self.on_grid(h, dev);
         }
         internal
+    }
+
+    /// Right after a step, the stamps may come back to the level before it: a latency
+    /// excursion of a few frames (the stamping thread starved for a moment), not a
+    /// step. Its way back is a step of the size just taken, which read against the
+    /// new level can be mistaken by a period (it may exceed half of one); read
+    /// against the old level it is plain: `confirm` samples in a row on the old
+    /// level's grid return to it (a step back, from the first of them). Returns the
+    /// sample's internal stamp when it did.
+    fn excursion_back(&mut self, s: Nanos, tol: f64) -> Option<Nanos> {
+        let (old, run, left) = self.prev_level?;
+        if left == 0 {
+            self.prev_level = None;
+            return None;
+        }
+        let t = self.line.1;
+        let rel = s.saturating_sub(self.s0) as f64 - old;
+        let x = 2.0 * (rel - self.line.0) / t + self.h0 as f64;
+        if !x.is_finite() || x.abs() > 1e15 {
+            self.prev_level = None;
+            return None;
+        }
+        let he = 2.0 * (0.5 * x).round();
+        // on the old level: within the tolerance, and much nearer it than the new one
+        let near = tol.min((old - self.lref).abs() / 3.0);
+        let back_on = he > self.h_last as f64 - 2.0 * (self.back as f64 + 1.0)
+            && (x - he).abs() * 0.5 * t <= near;
+        let run = if back_on { run + 1 } else { 0 };
+        self.prev_level = Some((old, run, left - 1));
+        if (run as usize) < self.p.confirm {
+            return None;
+        }
+        // back: the window's newest samples were the old level's
+        let internal = s.saturating_sub(old.round() as Nanos);
+        let k = self.p.confirm.min(self.pend_n + 1);
+        let first = self
+            .pend_n
+            .checked_sub(k - 1)
+            .filter(|&j| j < self.pend_n)
+            .map_or(internal, |j| self.pend[j].internal);
+        let step = old - self.lref;
+        self.pend_n = 0;
+        self.trans_n = 0;
+        self.prev_level = None;
+        self.piece += 1;
+        self.lref = old;
+        self.level_n = LEVEL_SAMPLES;
+        self.back = 0;
+        self.last_off_dev = None;
+        self.h_last = he as i64;
+        self.steps += 1;
+        self.new_step = Some(CadenceStep {
+            start: first,
+            step_ns: step,
+            period_ns: t,
+            ambiguity: 0.0,
+        });
+        let dev = rel - self.grid(self.h_last);
+        self.window_push(Pend {
+            dev,
+            step_dev: dev,
+            internal,
+            level: s.saturating_sub(internal) as f64,
+            on: true,
+        });
+        Some(internal)
     }
 
     /// Adds a sample to the step test's window. One leaving it was no step's: if it
@@ -890,6 +976,7 @@ impl Cadence {
         let start = self.pend[first.min(k - 1)].internal.saturating_add(sh);
         self.pend_n = 0;
         self.trans_n = 0;
+        self.prev_level = Some((self.lref, 0, EXCURSION_SAMPLES));
         self.lref = lref;
         // the median of the confirming samples counts as that many samples
         self.level_n = k as u32;
@@ -1167,6 +1254,41 @@ mod tests {
                     "{hz} Hz {step} ms, frame {k}: {e:.2} ms"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn a_latency_excursion_of_a_few_frames_comes_back() {
+        // recorded under load: the stamping thread starved for a moment, five frames
+        // 14-26 ms late, two catching up, then the latency it had (1 ms of jitter);
+        // whether it is taken for a step and a step back or for jitter, the level and
+        // the stamps afterwards are what they were before
+        let extra = [13.7, 26.0, 22.9, 21.3, 19.9, 14.7, 5.5];
+        let s = stamps(900, 33.333 * MS, 1.0 * MS, 0, |k| {
+            12.0 * MS
+                + if (300..307).contains(&k) {
+                    extra[k - 300] * MS
+                } else {
+                    0.0
+                }
+        });
+        let mut c = Cadence::new(CadenceParams::default());
+        let (out, levels) = run_levels(&mut c, &s, 90);
+        assert_eq!(c.relearns(), 0);
+        let before = levels[250];
+        for (k, &l) in levels.iter().enumerate().skip(320).take(400) {
+            assert!(
+                (l - before).abs() < 1.0 * MS,
+                "frame {k}: level {:.2} ms",
+                (l - before) / MS
+            );
+        }
+        for k in 320..out.len() {
+            assert_eq!(
+                out[k] - out[k - 1],
+                s[k] - s[k - 1],
+                "frame {k}: the stamps pass as they are"
+            );
         }
     }
 
