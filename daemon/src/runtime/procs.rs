@@ -25,8 +25,8 @@ pub fn sibling_binary(name: &str) -> Result<PathBuf, String> {
     ))
 }
 
-/// A child process that is stopped (SIGINT, then SIGKILL after a grace period)
-/// when dropped.
+/// A child process that is stopped (SIGINT, SIGTERM halfway through a grace
+/// period, SIGKILL at its end) when dropped.
 pub struct Managed {
     /// Display name.
     pub name: String,
@@ -86,22 +86,42 @@ impl Managed {
         }
     }
 
-    /// SIGINT, wait up to `grace`, then SIGKILL. Returns true on a clean exit.
+    /// SIGINT; SIGTERM after half of `grace`; SIGKILL after all of it. Returns true
+    /// on a clean exit.
+    ///
+    /// SIGTERM matters when the harness itself was started in the background by a
+    /// non-interactive shell (`cmd &`, `nohup`): its children then inherit SIGINT
+    /// ignored, and a child that installs no handler of its own would otherwise
+    /// only ever stop by SIGKILL.
     pub fn stop(&mut self, grace: Duration) -> bool {
         if !self.running() {
             return true;
         }
         let _ = self.signal("INT");
-        let t0 = Instant::now();
-        while t0.elapsed() < grace {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                return st.success();
-            }
-            std::thread::sleep(Duration::from_millis(20));
+        if let Some(st) = self.wait_up_to(grace / 2) {
+            return st.success();
+        }
+        let _ = self.signal("TERM");
+        if let Some(st) = self.wait_up_to(grace - grace / 2) {
+            return st.success();
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
         false
+    }
+
+    /// The exit status, once the process exited within `limit`.
+    fn wait_up_to(&mut self, limit: Duration) -> Option<std::process::ExitStatus> {
+        let t0 = Instant::now();
+        loop {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                return Some(st);
+            }
+            if t0.elapsed() >= limit {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }
 
@@ -188,17 +208,48 @@ mod tests {
         assert!(cpu_seconds(u32::MAX).is_err());
     }
 
+    /// The signal that ended the (stopped) child.
+    fn ended_by(m: &mut Managed) -> Option<i32> {
+        use std::os::unix::process::ExitStatusExt;
+        m.child.try_wait().ok().flatten().and_then(|st| st.signal())
+    }
+
     #[test]
     fn managed_child_is_stopped_gracefully() {
+        // `sleep` installs no handler: SIGINT ends it, unless this test runs under a
+        // shell that started it in the background (SIGINT ignored), where SIGTERM does
         let mut m = Managed::spawn("sleep", Path::new("sleep"), &["30".into()], None).unwrap();
         assert!(m.running());
-        let t0 = Instant::now();
-        // sleep dies of SIGINT: not a clean exit, but quick
-        m.stop(Duration::from_secs(2));
+        assert!(
+            !m.stop(Duration::from_secs(4)),
+            "killed by a signal: no clean exit"
+        );
         assert!(!m.running());
-        assert!(t0.elapsed() < Duration::from_secs(2));
+        let sig = ended_by(&mut m);
+        assert!(
+            sig == Some(2) || sig == Some(15),
+            "ended by {sig:?}, not SIGINT/SIGTERM"
+        );
         assert!(sibling_binary("definitely-not-a-binary")
             .unwrap_err()
             .contains("not found"));
+    }
+
+    #[test]
+    fn a_child_ignoring_sigint_is_stopped_by_sigterm_not_sigkill() {
+        // what every child of a harness started with `nohup ... &` looks like
+        let args = ["-c".to_string(), "trap '' INT; exec sleep 30".to_string()];
+        let mut m = Managed::spawn("sleep", Path::new("sh"), &args, None).unwrap();
+        // until the trap is set, SIGINT would still end it: wait for the exec
+        let t0 = Instant::now();
+        while std::fs::read_to_string(format!("/proc/{}/comm", m.pid()))
+            .is_ok_and(|c| c.trim() != "sleep")
+            && t0.elapsed() < Duration::from_secs(10)
+        {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        m.stop(Duration::from_secs(4));
+        assert!(!m.running());
+        assert_eq!(ended_by(&mut m), Some(15));
     }
 }
