@@ -472,6 +472,45 @@ fn clock_jump_in_camera_stamps_is_followed() {
     );
 }
 
+/// A regular run with latency steps (what the stamp cadence follows) moved to the
+/// ends of the i64 range: no overflow anywhere on the path (this runs in debug,
+/// where overflow panics), every estimate finite, and still locked and stepped.
+#[test]
+fn stepped_streams_at_the_ends_of_the_time_range_are_harmless() {
+    let run = generate(Family::LoadSteps, 7, Some(40.0));
+    for base in [
+        i64::MAX - 20_000_000_000,
+        i64::MAX - 45_000_000_000,
+        i64::MIN + 1,
+        i64::MIN / 2,
+    ] {
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        let moved = |s: &Sample| Sample::new(s.t_ns.saturating_add(base), s.value);
+        let (mut i, mut j) = (0, 0);
+        while i < run.cam.len() || j < run.lidar.len() {
+            if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+                let _ = est.push(Stream::Cam, moved(&run.cam[i]));
+                i += 1;
+            } else {
+                let _ = est.push(Stream::Lidar, moved(&run.lidar[j]));
+                j += 1;
+            }
+            while let Some(e) = est.poll() {
+                assert!(
+                    e.offset_s.is_finite() && e.offset_std_s.is_finite(),
+                    "base {base}: {e:?}"
+                );
+            }
+        }
+        // the path was exercised: locked, and the camera's latency steps followed
+        let st = est.stats();
+        assert!(
+            st.locks >= 1 && st.cadence_steps[0] >= 1,
+            "base {base}: {st:?}"
+        );
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
     /// Arbitrary sample sequences never panic, and every estimate is finite.
