@@ -338,12 +338,18 @@ impl Correlator {
             let src = (lo as i64 + delta) as usize;
             for v in [&mut b.xy, &mut b.y, &mut b.yy] {
                 v.copy_within(src..=src + (hi - lo), lo);
+                // the entering slots hold nothing (sums over them stay defined)
+                v[..lo].iter_mut().for_each(|x| *x = 0.0);
+                v[hi + 1..].iter_mut().for_each(|x| *x = 0.0);
             }
             b.lo = lo;
             b.hi = hi;
         }
         self.cur.clear();
-        self.restart_acq();
+        // the acquisition window keeps its blocks, valid on the slots they all hold
+        // (a re-centre must not leave the tracker without its motion gate for a
+        // window's worth of hops)
+        self.rebuild_acq();
     }
 
     /// Restricts the updated lag slots to `lo..=hi` (clamped). Stored blocks stay
@@ -389,7 +395,10 @@ impl Correlator {
         self.cam.brk();
     }
 
-    /// Totals of the acquisition window (the newest blocks, at most `acq_blocks`).
+    /// Totals of the acquisition window (the newest blocks, at most `acq_blocks`),
+    /// valid on the lag slots `lo..=hi` it names: after [`Correlator::shift_lags`] the
+    /// slots every one of its blocks holds (the whole range again once the blocks from
+    /// before the shift have left it).
     pub fn acq(&self) -> &Sums {
         &self.acq
     }
@@ -424,9 +433,7 @@ impl Correlator {
         self.cur.clear();
         self.epoch += 1;
         self.count = 0;
-        self.acq.clear();
-        self.acq_count = 0;
-        self.since_rebuild = 0;
+        self.restart_acq();
     }
 
     /// Empties the acquisition window only (the blocks stay for the segment).
@@ -434,6 +441,20 @@ impl Correlator {
         self.acq.clear();
         self.acq_count = 0;
         self.since_rebuild = 0;
+        self.acq_range();
+    }
+
+    /// Sets the acquisition window's valid slots: those every block in it holds.
+    fn acq_range(&mut self) {
+        let (mut lo, mut hi) = (0, self.n_lags - 1);
+        for i in self.count - self.acq_count..self.count {
+            let b = &self.blocks[(self.head + i) % self.blocks.len()];
+            if b.n > 0.0 {
+                lo = lo.max(b.lo);
+                hi = hi.min(b.hi);
+            }
+        }
+        (self.acq.lo, self.acq.hi) = (lo, hi);
     }
 
     /// Drops the unfinished block and moves the cursor forward to `k` (never backward).
@@ -453,6 +474,7 @@ impl Correlator {
             self.acq.last_k = self.block(self.count - 1).last_k;
         }
         self.since_rebuild = 0;
+        self.acq_range();
     }
 
     /// Whether the next [`Correlator::step`] may complete a block (conservative:
@@ -592,6 +614,7 @@ impl Correlator {
             self.acq.add(&self.blocks[pos], 1.0);
             self.acq.first_k = self.block(self.count - self.acq_count).first_k;
             self.acq.last_k = self.block(self.count - 1).last_k;
+            self.acq_range();
         }
         true
     }
@@ -730,6 +753,40 @@ mod tests {
         for s in 0..=14 {
             assert_eq!(b.xy[s], before[s + 6]);
         }
-        assert_eq!(c.acq_count(), 0);
+        // the acquisition window keeps its blocks, valid where they all are
+        assert_eq!(c.acq_count(), 4);
+        assert_eq!((c.acq().lo, c.acq().hi), (0, 14));
+        for s in 0..=14 {
+            let r = c.acq().ncc(s);
+            assert!(r.is_finite() && r.abs() <= 1.0);
+        }
+    }
+
+    #[test]
+    fn the_window_is_whole_again_once_the_blocks_before_a_shift_left_it() {
+        let sig = |k: i64| (k as f64 * 0.1).sin() + 0.3 * (k as f64 * 0.37).cos();
+        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| {
+            for k in r {
+                c.push_cam(k, sig(k));
+                c.push_lidar(k, sig(k - 3));
+                while c.step() != Step::Idle {}
+            }
+        };
+        let mut shifted = Correlator::new(21, -10, 10, 4, 8, 1024);
+        feed(&mut shifted, 0..100);
+        shifted.shift_lags(6);
+        feed(&mut shifted, 100..125);
+        // two new blocks and two from before the shift
+        assert_eq!((shifted.acq().lo, shifted.acq().hi), (0, 14));
+        feed(&mut shifted, 125..200);
+        assert_eq!((shifted.acq().lo, shifted.acq().hi), (0, 20));
+        // the same window of a correlator that had the new range all along
+        let mut direct = Correlator::new(21, -4, 10, 4, 8, 1024);
+        feed(&mut direct, 0..200);
+        let (a, b) = (shifted.acq(), direct.acq());
+        assert_eq!((a.first_k, a.last_k), (b.first_k, b.last_k));
+        for s in 0..21 {
+            assert!((a.ncc(s) - b.ncc(s)).abs() < 1e-9, "slot {s}");
+        }
     }
 }

@@ -1116,7 +1116,8 @@ impl Estimator {
         let w = self.corr.acq();
         let mid = self.corr.n_lags() / 2;
         let (a, b) = self.corr.active();
-        let slot = mid.clamp(a, b);
+        // within the slots the window holds (all of them but after a lag shift)
+        let slot = mid.clamp(a, b).clamp(w.lo, w.hi);
         let v = [w.var_y(slot), w.var_x()];
         let mut ok = true;
         for (h, &vi) in self.motion_hist.iter_mut().zip(v.iter()) {
@@ -1243,7 +1244,8 @@ impl Estimator {
     }
 
     fn hop_acquire(&mut self, t_ref_ns: Nanos, t: f64, motion: bool) {
-        let (lo, hi) = self.corr.active();
+        // the whole active range: the window restarts when the lock is lost
+        let (lo, hi) = self.acq_slots(self.corr.active());
         let m = self.measure_sums(Which::Acq, lo, hi, 0.0);
         self.hold_to(t);
         // a lock's first estimate must refer to a time its window covers
@@ -1364,6 +1366,13 @@ impl Estimator {
                 m.and_then(|m| Some((m.z, self.seg.regression(span, self.slot_of(m.z))?)));
         }
         m
+    }
+
+    /// Slots `lo..=hi` narrowed to those the acquisition window holds (see
+    /// [`Correlator::acq`]); empty (`lo > hi`) when they do not meet.
+    fn acq_slots(&self, (lo, hi): (usize, usize)) -> (usize, usize) {
+        let w = self.corr.acq();
+        (lo.max(w.lo), hi.min(w.hi))
     }
 
     /// Slots within the tracking range around offset `o`.
@@ -1996,7 +2005,7 @@ impl Estimator {
         let w = self.corr.acq();
         let t_c = self.rel_k(0.5 * (w.first_k + w.last_k) as f64);
         let (pred, _) = self.predict(t_c);
-        let (lo, hi) = self.track_slots_around(pred);
+        let (lo, hi) = self.acq_slots(self.track_slots_around(pred));
         let m = self
             .measure_sums(Which::Acq, lo, hi, sign)
             .filter(|m| m.score >= self.p.min_score)?;
