@@ -331,7 +331,8 @@ impl Correlator {
             let lo = (b.lo as i64 - delta).max(0);
             let hi = (b.hi as i64 - delta).min(n - 1);
             if lo > hi {
-                b.n = 0.0;
+                // none of its lags stays: it holds nothing (and adds nothing to a window)
+                b.clear();
                 continue;
             }
             let (lo, hi) = (lo as usize, hi as usize);
@@ -760,6 +761,39 @@ mod tests {
             let r = c.acq().ncc(s);
             assert!(r.is_finite() && r.abs() <= 1.0);
         }
+    }
+
+    #[test]
+    fn a_block_shifted_out_of_range_adds_nothing_to_the_window() {
+        let sig = |k: i64| (k as f64 * 0.13).sin() + 0.2 * (k as f64 * 0.41).cos();
+        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| {
+            for k in r {
+                c.push_cam(k, sig(k));
+                c.push_lidar(k, sig(k - 2));
+                while c.step() != Step::Idle {}
+            }
+        };
+        let mut c = Correlator::new(21, -10, 10, 4, 8, 1024);
+        feed(&mut c, 0..100);
+        c.shift_lags(15); // the old blocks keep slots 0..=5
+        feed(&mut c, 100..120); // three new blocks (90..=119), all slots
+        c.shift_lags(10); // the old blocks lose every slot, the new keep 0..=10
+        let n = c.count();
+        assert_eq!(c.acq_count(), 4);
+        assert_eq!((c.acq().lo, c.acq().hi), (0, 10));
+        assert_eq!(c.block(n - 4).n, 0.0);
+        // the window is the new blocks alone
+        let mut want = Sums::new(21);
+        for i in n - 4..n {
+            if c.block(i).n > 0.0 {
+                want.add(c.block(i), 1.0);
+            }
+        }
+        assert_eq!(want.n, 30.0);
+        for s in 0..=10 {
+            assert!((c.acq().ncc(s) - want.ncc(s)).abs() < 1e-12, "slot {s}");
+        }
+        assert_eq!(c.acq().n, want.n);
     }
 
     #[test]
