@@ -84,8 +84,16 @@ impl Sums {
         }
     }
 
-    /// Adds `sign` times the slots `lo..=hi` of `o` (and its lag-free sums).
+    /// Adds `sign` times the slots `lo..=hi` of `o` (and its lag-free sums). The slots
+    /// must be ones `o` holds (its `lo..=hi`) unless it is empty: the lag-free sums
+    /// count every pair, so a slot it lacks would make a sum of no lag.
     pub fn add_range(&mut self, o: &Sums, sign: f64, lo: usize, hi: usize) {
+        debug_assert!(
+            o.n == 0.0 || (lo >= o.lo && hi <= o.hi),
+            "slots {lo}..={hi} of a block holding {}..={}",
+            o.lo,
+            o.hi
+        );
         self.n += sign * o.n;
         self.sx += sign * o.sx;
         self.sxx += sign * o.sxx;

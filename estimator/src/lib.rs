@@ -1116,7 +1116,11 @@ impl Estimator {
         let w = self.corr.acq();
         let mid = self.corr.n_lags() / 2;
         let (a, b) = self.corr.active();
-        // within the slots the window holds (all of them but after a lag shift)
+        // within the slots the window holds (all of them but after a lag shift); a
+        // window whose blocks share none cannot tell
+        if w.lo > w.hi {
+            return false;
+        }
         let slot = mid.clamp(a, b).clamp(w.lo, w.hi);
         let v = [w.var_y(slot), w.var_x()];
         let mut ok = true;
@@ -1749,7 +1753,19 @@ impl Estimator {
             }
         }
         let len_seg = n - first;
-        let (lo, hi) = self.track_slots_around(job.pred_t);
+        // the lags every block of the segment holds (after a shift of the lag range the
+        // older blocks lack the entering ones): the test's totals add whole blocks
+        let (mut lo, mut hi) = self.track_slots_around(job.pred_t);
+        for i in first..n {
+            let b = self.corr.block(i);
+            if b.n > 0.0 {
+                lo = lo.max(b.lo);
+                hi = hi.min(b.hi);
+            }
+        }
+        if hi < lo + 2 {
+            return false;
+        }
         // the newest `short` blocks, robustly
         let refs = self.motion_refs();
         let chunk = self
