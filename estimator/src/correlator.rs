@@ -219,12 +219,66 @@ impl Ring {
     }
 }
 
+/// Most grid indices one [`Correlator::step`] adds.
+const BATCH: usize = 4;
+
+/// `xy[s] += Σ_j xs[j] · ys[hi - s + j]` for the slots `s` of `xy` (`xy[0]` is slot
+/// `lo`, `hi = lo + xy.len() - 1`), the additions of each slot in the order of `j`:
+/// the same sums, bit for bit, as adding the indices one at a time.
+#[inline]
+fn add_products(xy: &mut [f64], ys: &[f64], xs: &[f64]) {
+    let w = xy.len();
+    match *xs {
+        [a] => {
+            for (o, &p) in xy.iter_mut().rev().zip(&ys[..w]) {
+                *o += a * p;
+            }
+        }
+        [a, b] => {
+            for ((o, &p), &q) in xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]) {
+                let mut v = *o;
+                v += a * p;
+                v += b * q;
+                *o = v;
+            }
+        }
+        [a, b, c] => {
+            let it = xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]);
+            for (((o, &p), &q), &r) in it.zip(&ys[2..w + 2]) {
+                let mut v = *o;
+                v += a * p;
+                v += b * q;
+                v += c * r;
+                *o = v;
+            }
+        }
+        [a, b, c, d] => {
+            let it = xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]);
+            for ((((o, &p), &q), &r), &t) in it.zip(&ys[2..w + 2]).zip(&ys[3..w + 3]) {
+                let mut v = *o;
+                v += a * p;
+                v += b * q;
+                v += c * r;
+                v += d * t;
+                *o = v;
+            }
+        }
+        _ => {
+            for (j, &x) in xs.iter().enumerate() {
+                for (o, &p) in xy.iter_mut().rev().zip(&ys[j..j + w]) {
+                    *o += x * p;
+                }
+            }
+        }
+    }
+}
+
 /// Result of one cursor step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Step {
     /// Waiting for data.
     Idle,
-    /// One grid index was added.
+    /// Grid indices were added (one, or a few of one block).
     Added,
     /// A block (hop) completed and was stored.
     Hop,
@@ -489,12 +543,19 @@ impl Correlator {
     /// Whether the next [`Correlator::step`] may complete a block (conservative:
     /// true before the first index). Until it does, the stored blocks stay as they are.
     pub fn may_complete_block(&self) -> bool {
+        // a step adds up to BATCH indices
         self.cursor
-            .is_none_or(|k| (k + 1).rem_euclid(self.hop_len) == 0)
+            .is_none_or(|k| self.hop_len - 1 - k.rem_euclid(self.hop_len) < BATCH as i64)
     }
 
-    /// Adds at most one grid index. Call until it returns [`Step::Idle`].
+    /// Adds the next grid index, with up to three more of the same block whose data
+    /// are in. Call until it returns [`Step::Idle`].
     pub fn step(&mut self) -> Step {
+        self.step_up_to(BATCH)
+    }
+
+    /// [`Correlator::step`] adding at most `batch` (1..=[`BATCH`]) indices.
+    fn step_up_to(&mut self, batch: usize) -> Step {
         let (Some(l0), Some(c0)) = (self.lidar.seg_start, self.cam.seg_start) else {
             return Step::Idle;
         };
@@ -524,23 +585,42 @@ impl Correlator {
             self.skip_to(k + 1);
             return Step::Break;
         };
+        // up to BATCH consecutive indices of the same block at once, when their data are
+        // in (a LiDAR sample brings several grid values): each Σxy slot is then loaded
+        // and stored once for all of them, its additions in index order as one by one
+        let block_end = (k.div_euclid(self.hop_len) + 1) * self.hop_len - 1;
+        let mut xs = [x; BATCH];
+        let mut nb = 1;
+        while nb < batch.min(BATCH) {
+            let kj = k + nb as i64;
+            if kj > block_end || self.lidar.end < kj || self.cam.end < kj - m_lo {
+                break;
+            }
+            let (Some(xj), Some(_)) = (self.lidar.get(kj), self.cam.get(kj - m_lo)) else {
+                break;
+            };
+            xs[nb] = xj;
+            nb += 1;
+        }
         if self.cur.n == 0.0 {
             self.cur.first_k = k;
         }
-        self.cur.last_k = k;
-        self.cur.n += 1.0;
-        self.cur.sx += x;
-        self.cur.sxx += x * x;
+        let last = k + nb as i64 - 1;
+        self.cur.last_k = last;
+        for &xj in &xs[..nb] {
+            self.cur.n += 1.0;
+            self.cur.sx += xj;
+            self.cur.sxx += xj * xj;
+        }
         let (lo, hi) = self.active;
-        // slot s pairs x with camera index k - lag0 - s: the span, read backwards.
+        // slot s pairs index k + j with camera index k + j - lag0 - s: in the span from
+        // k - m_hi, position hi - s + j (the slots read backwards, shifted by j).
         // Only Σxy needs the pair; Σy and Σy² of a block are sliding sums over the
         // camera ring, filled in once when the block completes.
-        let ys = self.cam.span(k - m_hi, k - m_lo);
-        for (sxy, &y) in self.cur.xy[lo..=hi].iter_mut().zip(ys.iter().rev()) {
-            *sxy += x * y;
-        }
-        self.cursor = Some(k + 1);
-        if (k + 1).rem_euclid(self.hop_len) == 0 {
+        let ys = self.cam.span(k - m_hi, last - m_lo);
+        add_products(&mut self.cur.xy[lo..=hi], ys, &xs[..nb]);
+        self.cursor = Some(last + 1);
+        if (last + 1).rem_euclid(self.hop_len) == 0 {
             if self.complete_block() {
                 Step::Hop
             } else {
@@ -768,6 +848,54 @@ mod tests {
         for s in 0..=14 {
             let r = c.acq().ncc(s);
             assert!(r.is_finite() && r.abs() <= 1.0);
+        }
+    }
+
+    proptest::proptest! {
+        /// Indices added several per step (as a LiDAR sample's grid values arrive) give
+        /// the sums of adding them one per step, bit for bit: through block ends, a gap
+        /// and a narrowed active range, both fed alike.
+        #[test]
+        fn indices_added_in_bursts_give_the_sums_of_one_at_a_time(
+            bursts in proptest::collection::vec(1usize..23, 1..60),
+            gap_at in 0usize..400,
+            narrow in proptest::bool::ANY,
+        ) {
+            let sig = |k: i64| (k as f64 * 0.07).sin() + 0.4 * ((k * 7919) % 13) as f64 / 13.0;
+            let mut one = Correlator::new(31, -15, 10, 4, 12, 1024);
+            let mut burst = one.clone();
+            if narrow {
+                one.set_active(6, 24);
+                burst.set_active(6, 24);
+            }
+            let mut k = 0i64;
+            for n in bursts {
+                for _ in 0..n {
+                    for c in [&mut one, &mut burst] {
+                        if k as usize == gap_at {
+                            c.break_cam();
+                        }
+                        c.push_cam(k, sig(k));
+                        c.push_lidar(k, sig(k - 4));
+                    }
+                    k += 1;
+                }
+                while one.step_up_to(1) != Step::Idle {}
+                while burst.step() != Step::Idle {}
+            }
+            proptest::prop_assert_eq!(one.count(), burst.count());
+            for i in 0..one.count() {
+                let (a, b) = (one.block(i), burst.block(i));
+                proptest::prop_assert_eq!((a.first_k, a.last_k, a.n), (b.first_k, b.last_k, b.n));
+                proptest::prop_assert_eq!(a.sx.to_bits(), b.sx.to_bits());
+                for s in a.lo..=a.hi {
+                    proptest::prop_assert_eq!(a.xy[s].to_bits(), b.xy[s].to_bits());
+                    proptest::prop_assert_eq!(a.yy[s].to_bits(), b.yy[s].to_bits());
+                }
+            }
+            for s in one.acq().lo..=one.acq().hi {
+                proptest::prop_assert_eq!(one.acq().xy[s].to_bits(), burst.acq().xy[s].to_bits());
+            }
         }
     }
 
