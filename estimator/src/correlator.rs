@@ -899,16 +899,20 @@ mod tests {
         }
     }
 
+    /// Feeds grid indices `r` of `L[k] = C[k - lag]` (a two-tone signal), stepping
+    /// after each.
+    fn feed_tones(c: &mut Correlator, r: std::ops::Range<i64>, lag: i64) {
+        let sig = |k: i64| (k as f64 * 0.13).sin() + 0.2 * (k as f64 * 0.41).cos();
+        for k in r {
+            c.push_cam(k, sig(k));
+            c.push_lidar(k, sig(k - lag));
+            while c.step() != Step::Idle {}
+        }
+    }
+
     #[test]
     fn a_block_shifted_out_of_range_adds_nothing_to_the_window() {
-        let sig = |k: i64| (k as f64 * 0.13).sin() + 0.2 * (k as f64 * 0.41).cos();
-        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| {
-            for k in r {
-                c.push_cam(k, sig(k));
-                c.push_lidar(k, sig(k - 2));
-                while c.step() != Step::Idle {}
-            }
-        };
+        let feed = |c: &mut Correlator, r| feed_tones(c, r, 2);
         let mut c = Correlator::new(21, -10, 10, 4, 8, 1024);
         feed(&mut c, 0..100);
         c.shift_lags(15); // the old blocks keep slots 0..=5
@@ -934,14 +938,7 @@ mod tests {
 
     #[test]
     fn the_window_is_whole_again_once_the_blocks_before_a_shift_left_it() {
-        let sig = |k: i64| (k as f64 * 0.1).sin() + 0.3 * (k as f64 * 0.37).cos();
-        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| {
-            for k in r {
-                c.push_cam(k, sig(k));
-                c.push_lidar(k, sig(k - 3));
-                while c.step() != Step::Idle {}
-            }
-        };
+        let feed = |c: &mut Correlator, r| feed_tones(c, r, 3);
         let mut shifted = Correlator::new(21, -10, 10, 4, 8, 1024);
         feed(&mut shifted, 0..100);
         shifted.shift_lags(6);
