@@ -132,44 +132,30 @@ fn bench(c: &mut Criterion) {
         let wb = (s.window_s / s.hop_s) as usize;
         let win = (s.window_s * s.fs) as usize;
         // incremental: warm a correlator, then measure one hop (hop samples + block combine)
-        let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
-        let mut k = 0i64;
-        let feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
-            for _ in 0..n {
-                corr.push_cam(*k, at(&table, *k));
-                corr.push_lidar(*k, at(&table, *k - 12));
-                *k += 1;
-                while corr.step() != Step::Idle {}
-            }
-        };
-        feed(&mut corr, &mut k, win as i64 + 4 * half);
-        g.bench_function(BenchmarkId::new("incremental", s.name), |b| {
-            b.iter(|| {
-                feed(&mut corr, &mut k, hop);
-                black_box(corr.acq().ncc(n_lags / 2))
-            })
-        });
-        // the same, fed as the estimator feeds it from a 10 Hz LiDAR: each scan brings
-        // ten grid values, then the correlator steps (up to four indices per step)
-        let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
-        let mut k = 0i64;
-        let feed_bursts = |corr: &mut Correlator, k: &mut i64, n: i64| {
-            for _ in 0..n / 10 {
-                for _ in 0..10 {
-                    corr.push_cam(*k, at(&table, *k));
-                    corr.push_lidar(*k, at(&table, *k - 12));
-                    *k += 1;
+        // fed one index of each stream, then a step; and as the estimator feeds it from
+        // a 10 Hz LiDAR: each scan brings ten grid values, then the correlator steps (up
+        // to four indices per step)
+        for (name, burst) in [("incremental", 1), ("incremental_10hz_bursts", 10)] {
+            let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
+            let mut k = 0i64;
+            let feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
+                for _ in 0..n / burst {
+                    for _ in 0..burst {
+                        corr.push_cam(*k, at(&table, *k));
+                        corr.push_lidar(*k, at(&table, *k - 12));
+                        *k += 1;
+                    }
+                    while corr.step() != Step::Idle {}
                 }
-                while corr.step() != Step::Idle {}
-            }
-        };
-        feed_bursts(&mut corr, &mut k, win as i64 + 4 * half);
-        g.bench_function(BenchmarkId::new("incremental_10hz_bursts", s.name), |b| {
-            b.iter(|| {
-                feed_bursts(&mut corr, &mut k, hop);
-                black_box(corr.acq().ncc(n_lags / 2))
-            })
-        });
+            };
+            feed(&mut corr, &mut k, win as i64 + 4 * half);
+            g.bench_function(BenchmarkId::new(name, s.name), |b| {
+                b.iter(|| {
+                    feed(&mut corr, &mut k, hop);
+                    black_box(corr.acq().ncc(n_lags / 2))
+                })
+            });
+        }
         let x: Vec<f64> = (0..win as i64).map(|i| sig(i - 12)).collect();
         let y: Vec<f64> = (0..(win + n_lags) as i64).map(|i| sig(i - half)).collect();
         let mut out = vec![0.0; n_lags];

@@ -229,29 +229,6 @@ const BATCH: usize = 4;
 fn add_products(xy: &mut [f64], ys: &[f64], xs: &[f64]) {
     let w = xy.len();
     match *xs {
-        [a] => {
-            for (o, &p) in xy.iter_mut().rev().zip(&ys[..w]) {
-                *o += a * p;
-            }
-        }
-        [a, b] => {
-            for ((o, &p), &q) in xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]) {
-                let mut v = *o;
-                v += a * p;
-                v += b * q;
-                *o = v;
-            }
-        }
-        [a, b, c] => {
-            let it = xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]);
-            for (((o, &p), &q), &r) in it.zip(&ys[2..w + 2]) {
-                let mut v = *o;
-                v += a * p;
-                v += b * q;
-                v += c * r;
-                *o = v;
-            }
-        }
         [a, b, c, d] => {
             let it = xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]);
             for ((((o, &p), &q), &r), &t) in it.zip(&ys[2..w + 2]).zip(&ys[3..w + 3]) {
@@ -263,6 +240,7 @@ fn add_products(xy: &mut [f64], ys: &[f64], xs: &[f64]) {
                 *o = v;
             }
         }
+        // fewer (a block's or a burst's last indices): one pass per index, in order
         _ => {
             for (j, &x) in xs.iter().enumerate() {
                 for (o, &p) in xy.iter_mut().rev().zip(&ys[j..j + w]) {
@@ -509,15 +487,22 @@ impl Correlator {
 
     /// Sets the acquisition window's valid slots: those every block in it holds.
     fn acq_range(&mut self) {
+        (self.acq.lo, self.acq.hi) = self.slots_held(self.count - self.acq_count, self.count);
+    }
+
+    /// The lag slots every non-empty stored block `first..end` holds (all slots when
+    /// none is; `lo > hi` when they share none): after [`Correlator::shift_lags`] the
+    /// older blocks lack the entering lags.
+    pub fn slots_held(&self, first: usize, end: usize) -> (usize, usize) {
         let (mut lo, mut hi) = (0, self.n_lags - 1);
-        for i in self.count - self.acq_count..self.count {
-            let b = &self.blocks[(self.head + i) % self.blocks.len()];
+        for i in first..end.min(self.count) {
+            let b = self.block(i);
             if b.n > 0.0 {
                 lo = lo.max(b.lo);
                 hi = hi.min(b.hi);
             }
         }
-        (self.acq.lo, self.acq.hi) = (lo, hi);
+        (lo, hi)
     }
 
     /// Drops the unfinished block and moves the cursor forward to `k` (never backward).

@@ -1577,12 +1577,8 @@ impl Estimator {
             let c = pred_t * self.p.fs - self.corr.lag0() as f64;
             // lags every block of the segment holds (after a shift of the lag range the
             // older blocks lack the entering lags), one slot kept for the drift shift
-            let (mut ilo, mut ihi) = (lo, hi);
-            for i in first..n {
-                let b = self.corr.block(i);
-                ilo = ilo.max(b.lo + 1);
-                ihi = ihi.min(b.hi.saturating_sub(2));
-            }
+            let (held_lo, held_hi) = self.corr.slots_held(first, n);
+            let (ilo, ihi) = (lo.max(held_lo + 1), hi.min(held_hi.saturating_sub(2)));
             let (lo_n, hi_n) = if ihi >= ilo + 4 { (ilo, ihi) } else { (lo, hi) };
             let nlo = ((c - near).floor().max(lo_n as f64) as usize).min(hi_n);
             let nhi = ((c + near).ceil().max(0.0) as usize).clamp(nlo, hi_n);
@@ -1755,14 +1751,9 @@ impl Estimator {
         let len_seg = n - first;
         // the lags every block of the segment holds (after a shift of the lag range the
         // older blocks lack the entering ones): the test's totals add whole blocks
-        let (mut lo, mut hi) = self.track_slots_around(job.pred_t);
-        for i in first..n {
-            let b = self.corr.block(i);
-            if b.n > 0.0 {
-                lo = lo.max(b.lo);
-                hi = hi.min(b.hi);
-            }
-        }
+        let (lo, hi) = self.track_slots_around(job.pred_t);
+        let (held_lo, held_hi) = self.corr.slots_held(first, n);
+        let (lo, hi) = (lo.max(held_lo), hi.min(held_hi));
         if hi < lo + 2 {
             return false;
         }

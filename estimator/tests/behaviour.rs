@@ -10,6 +10,13 @@ fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
     replay_announcing(run, est, &[], |_, _| {})
 }
 
+/// Index of the first tracking estimate (the run must lock).
+fn first_lock(out: &[vlsync_common::Estimate]) -> usize {
+    out.iter()
+        .position(|e| e.state == EstimatorState::Tracking)
+        .expect("locks")
+}
+
 /// The defaults without the stamps' cadence: offset steps reach the correlation,
 /// whose step test (or an announcement) must find them.
 fn no_cadence() -> EstimatorConfig {
@@ -50,10 +57,7 @@ fn a_re_centred_lag_range_keeps_the_tracker_measuring() {
     let run = generate(Family::BigOffset, 1005, None);
     let mut est = Estimator::new(&EstimatorConfig::default());
     let out = replay(&run, &mut est);
-    let first = out
-        .iter()
-        .position(|e| e.state == EstimatorState::Tracking)
-        .expect("locks");
+    let first = first_lock(&out);
     // the lock is near the range's edge: the lag range must have moved for this test
     // to test anything (the acquisition range is ±0.5 s around 0)
     assert!(out[first].offset_s > 0.4, "{}", out[first].offset_s);
@@ -85,10 +89,7 @@ fn a_window_at_the_end_of_motion_is_no_step() {
     let run = generate(Family::Clocks, 2009, None);
     let mut est = Estimator::new(&EstimatorConfig::default());
     let out = replay(&run, &mut est);
-    let first_lock = out
-        .iter()
-        .position(|e| e.state == EstimatorState::Tracking)
-        .expect("locks");
+    let first_lock = first_lock(&out);
     let worst = out[first_lock..]
         .iter()
         .filter(|e| matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding))
