@@ -487,27 +487,46 @@ impl OffsetClient {
         Ok(c)
     }
 
-    /// Takes every pending estimate; returns whether a new valid one arrived.
-    /// Invalid payloads are skipped and counted ([`OffsetClient::invalid_count`]).
-    fn drain(&mut self) -> Result<bool, IpcError> {
-        let mut got = false;
+    /// The next valid pending estimate with its publish time, skipping (and
+    /// counting, [`OffsetClient::invalid_count`]) payloads validation refuses.
+    fn next_valid(&mut self) -> Result<Option<(Estimate, Nanos)>, IpcError> {
         loop {
             let s = self
                 .subscriber
                 .receive()
                 .map_err(|e| IpcError::new("receive on offset service", format!("{e:?}")))?;
-            let Some(s) = s else { break };
+            let Some(s) = s else { return Ok(None) };
             let w: OffsetEstimate = *s.payload();
             match Estimate::try_from(&w) {
                 Ok(e) => {
                     self.latest = Some(e);
                     self.latest_publish_ns = w.publish_ns;
-                    got = true;
+                    return Ok(Some((e, w.publish_ns)));
                 }
                 Err(_) => self.invalid += 1,
             }
         }
+    }
+
+    /// Takes every pending estimate; returns whether a new valid one arrived.
+    fn drain(&mut self) -> Result<bool, IpcError> {
+        let mut got = false;
+        while self.next_valid()?.is_some() {
+            got = true;
+        }
         Ok(got)
+    }
+
+    /// Sleeps on the offset event until `deadline`. `Ok(false)`: a termination
+    /// signal interrupted it (the caller returns what it has).
+    fn wait_event(&mut self, deadline: Instant) -> Result<bool, IpcError> {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match self.listener.timed_wait(|_| {}, left) {
+            Ok(_) => Ok(true),
+            // a signal interrupted the wait: let the caller decide
+            Err(_) if termination_requested() => Ok(false),
+            Err(e) => Err(IpcError::new("wait on offset event", format!("{e:?}"))),
+        }
     }
 
     /// The most recent estimate received (after draining what is pending).
@@ -550,32 +569,11 @@ impl OffsetClient {
         let deadline = Instant::now() + timeout;
         let mut out = vec![];
         loop {
-            loop {
-                let s = self
-                    .subscriber
-                    .receive()
-                    .map_err(|e| IpcError::new("receive on offset service", format!("{e:?}")))?;
-                let Some(s) = s else { break };
-                let w: OffsetEstimate = *s.payload();
-                match Estimate::try_from(&w) {
-                    Ok(e) => {
-                        self.latest = Some(e);
-                        self.latest_publish_ns = w.publish_ns;
-                        out.push((e, w.publish_ns));
-                    }
-                    Err(_) => self.invalid += 1,
-                }
+            while let Some(x) = self.next_valid()? {
+                out.push(x);
             }
-            let now = Instant::now();
-            if !out.is_empty() || now >= deadline {
+            if !out.is_empty() || Instant::now() >= deadline || !self.wait_event(deadline)? {
                 return Ok(out);
-            }
-            if let Err(e) = self.listener.timed_wait(|_| {}, deadline - now) {
-                // a signal interrupted the wait: let the caller decide
-                if termination_requested() {
-                    return Ok(out);
-                }
-                return Err(IpcError::new("wait on offset event", format!("{e:?}")));
             }
         }
     }
@@ -588,19 +586,8 @@ impl OffsetClient {
             if self.drain()? {
                 return Ok(self.latest);
             }
-            let now = Instant::now();
-            if now >= deadline {
+            if Instant::now() >= deadline || !self.wait_event(deadline)? {
                 return Ok(None);
-            }
-            match self.listener.timed_wait(|_| {}, deadline - now) {
-                Ok(_) => {}
-                Err(e) => {
-                    // a signal interrupted the wait: let the caller decide
-                    if termination_requested() {
-                        return Ok(None);
-                    }
-                    return Err(IpcError::new("wait on offset event", format!("{e:?}")));
-                }
             }
         }
     }

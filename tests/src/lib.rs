@@ -11,6 +11,20 @@ use vlsync_common::{Estimate, Stream};
 use vlsync_ipc::{monotonic_ns, OffsetClient};
 pub use vlsyncd::runtime::procs::{cpu_seconds, ipc_resources, Managed};
 
+/// Asserts that no iceoryx2 resource beyond `before` ([`ipc_resources`]) is left,
+/// after up to 3 s for the clean-up (iceoryx2 removes a service's files when its
+/// last user is gone).
+pub fn assert_nothing_left(before: &[String]) {
+    let t0 = Instant::now();
+    let mut after = ipc_resources();
+    while after != before && t0.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(100));
+        after = ipc_resources();
+    }
+    let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
+    assert!(leaked.is_empty(), "left behind: {leaked:?}");
+}
+
 /// `target/<profile>` of the running test executable.
 fn profile_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");

@@ -5,7 +5,7 @@
 use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_ipc::{OffsetClient, StatusClient};
-use vlsync_tests::{bin, collect, ipc_resources, locked_errors, Rig};
+use vlsync_tests::{assert_nothing_left, bin, collect, ipc_resources, locked_errors, Rig};
 
 #[test]
 fn three_processes_converge_to_the_truth_and_clean_up() {
@@ -106,13 +106,5 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     );
 
     drop((client, status));
-    // iceoryx2 removes a service's files when its last user is gone
-    let t0 = std::time::Instant::now();
-    let mut after = ipc_resources();
-    while after != before && t0.elapsed() < Duration::from_secs(3) {
-        std::thread::sleep(Duration::from_millis(100));
-        after = ipc_resources();
-    }
-    let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
-    assert!(leaked.is_empty(), "left behind: {leaked:?}");
+    assert_nothing_left(&before);
 }

@@ -4,7 +4,7 @@
 //! does when its reader goes away (`vlsync-demo | head`).
 
 use std::time::{Duration, Instant};
-use vlsync_tests::{bin, ipc_resources, Managed};
+use vlsync_tests::{assert_nothing_left, bin, ipc_resources, Managed};
 
 /// Runs the demo with `args` for `run_for`, interrupts it, checks the clean
 /// stop; returns its output.
@@ -45,18 +45,6 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     assert_nothing_left(&before);
     let _ = std::fs::remove_dir_all(&dir);
     out
-}
-
-/// No iceoryx2 resource beyond `before` (after up to 3 s for the clean-up).
-fn assert_nothing_left(before: &[String]) {
-    let t0 = Instant::now();
-    let mut after = ipc_resources();
-    while after != before && t0.elapsed() < Duration::from_secs(3) {
-        std::thread::sleep(Duration::from_millis(100));
-        after = ipc_resources();
-    }
-    let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
-    assert!(leaked.is_empty(), "left behind: {leaked:?}");
 }
 
 /// `vlsync-demo | head -3`: the demo reads a closed pipe as the end of its run,

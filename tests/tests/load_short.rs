@@ -8,7 +8,7 @@
 //! this test fails and says so (it never passes silently).
 
 use std::time::{Duration, Instant};
-use vlsync_tests::{bin, ipc_resources, Managed};
+use vlsync_tests::{assert_nothing_left, bin, ipc_resources, Managed};
 
 /// Error bound under full load (p95 against the measured truth). Generous: it
 /// catches broken stamping (a frame is 33 ms), a lost lock or a wrong sign, not
@@ -128,14 +128,6 @@ fn short_load_profile_keeps_error_and_loss_in_bounds() {
         );
     }
 
-    // nothing left in shared memory
-    let t0 = Instant::now();
-    let mut after = ipc_resources();
-    while after != before && t0.elapsed() < Duration::from_secs(3) {
-        std::thread::sleep(Duration::from_millis(100));
-        after = ipc_resources();
-    }
-    let leaked: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
-    assert!(leaked.is_empty(), "left behind: {leaked:?}");
+    assert_nothing_left(&before);
     let _ = std::fs::remove_dir_all(&out);
 }
