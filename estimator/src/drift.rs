@@ -1,8 +1,10 @@
 //! Drift from the short-window measurements: a weighted least-squares line with
 //! one intercept per segment and a common slope.
 //!
-//! Non-overlapping short-window measurements `(t, z, var)` that agreed with the
-//! segment estimate are accumulated. A change point (offset step, re-lock) closes
+//! Non-overlapping short-window measurements `(t, z, var)` are accumulated: peaks
+//! searched within the tracking range around the estimate, in windows where both
+//! signals move (they are not gated on their innovation: gating them at 2 or 3σ
+//! changed no family by more than 0.04 ms). A change point (offset step, re-lock) closes
 //! the segment: its centred moments keep informing the slope, its intercept is
 //! dropped, because a load step moves the offset but not the clocks' rate. Old
 //! information fades with the time constant `memory_s` (oscillators drift with
