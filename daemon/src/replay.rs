@@ -140,6 +140,13 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
         stats.steps,
         stats.locks
     );
+    if stats.recentres > 0 {
+        let _ = writeln!(
+            s,
+            "searches moved: {} (an acquisition found nothing where it searched and moved to the other centre)",
+            stats.recentres
+        );
+    }
     match ests.last() {
         Some(e) => {
             let _ = writeln!(

@@ -511,6 +511,26 @@ impl Correlator {
         self.cursor = Some(self.cursor.map_or(k, |c| c.max(k)));
     }
 
+    /// Forgets the cursor (the unfinished block with it): the next step starts at
+    /// the first index both streams cover. After the LiDAR's clock stepped back, the
+    /// grid's indices restart below the cursor, which [`Correlator::skip_to`] never
+    /// moves back.
+    pub fn restart_cursor(&mut self) {
+        self.cur.clear();
+        self.cursor = None;
+    }
+
+    /// Moves the cursor back to just after the newest LiDAR index stored, if it is
+    /// beyond (a prediction far off made the other stream look stalled, and the
+    /// cursor skipped ahead of the data): the next data are correlated again.
+    pub fn pull_cursor_back(&mut self) {
+        let next = self.lidar.end.saturating_add(1);
+        if self.lidar.seg_start.is_some() && self.cursor.is_some_and(|c| c > next) {
+            self.cur.clear();
+            self.cursor = Some(next);
+        }
+    }
+
     fn rebuild_acq(&mut self) {
         self.acq.clear();
         for i in self.count - self.acq_count..self.count {

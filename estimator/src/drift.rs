@@ -67,6 +67,11 @@ impl Moments {
     }
 }
 
+/// The largest drift the fit reports (s/s): no pair of clocks runs 10 % apart; a
+/// slope the data put beyond is a fit gone wrong (a configuration far from the
+/// defaults), and must not carry the offset away.
+pub const MAX_DRIFT: f64 = 0.1;
+
 /// Measurements younger than this many are pending: a change point found later
 /// may still move them into the new segment.
 pub const PENDING: usize = 8;
@@ -249,11 +254,12 @@ impl DriftFit {
             1.0
         };
         let var = var * scale;
-        if d * d > 25.0 * var && d * d > 9.0 * self.prior_var {
+        let (d, var) = if d * d > 25.0 * var && d * d > 9.0 * self.prior_var {
             (d, var)
         } else {
             with_prior(scale)
-        }
+        };
+        (d.clamp(-MAX_DRIFT, MAX_DRIFT), var)
     }
 }
 
@@ -299,6 +305,19 @@ mod tests {
         let (d, v) = f.estimate();
         // the prior (50 ppm) still dominates two points 2.5 s apart, but they count
         assert!(v < 50e-6 * 50e-6 && d > 0.0, "{d} ± {}", v.sqrt());
+    }
+
+    /// A slope beyond any pair of clocks (4 s/s, what a configuration far from the
+    /// defaults once produced) is capped, so the offset cannot run away with it.
+    #[test]
+    fn a_slope_beyond_max_drift_is_not_taken() {
+        let mut f = DriftFit::new(50e-6, 900.0);
+        for i in 0..20 {
+            let t = i as f64 * 2.0;
+            f.add(t, 4.0 * t, 1e-6);
+        }
+        let (d, _) = f.estimate();
+        assert!(d.abs() <= MAX_DRIFT, "{d}");
     }
 
     #[test]

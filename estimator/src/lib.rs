@@ -79,6 +79,9 @@ pub struct EstimatorStats {
     pub steps: u64,
     /// Locks acquired (first lock and re-acquisitions).
     pub locks: u64,
+    /// Times an acquisition that found nothing moved its lag range to the other
+    /// candidate centre (the start's, or the one it left).
+    pub recentres: u64,
     /// Stamping-latency steps each stream's cadence found (index: 0 cam, 1 lidar):
     /// followed from the stamps, not the correlation ([`cadence`]).
     pub cadence_steps: [u64; 2],
@@ -94,6 +97,10 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
+/// Acquisition hops with motion (or blind, the other stream silent) after which an
+/// acquisition that found nothing moves its lag range to the other candidate centre
+/// (see [`Estimator::alt_lag0`]): 30 s at the default hop.
+const RECENTRE_HOPS: usize = 60;
 /// Hops of acquisition-window variances behind the motion gate's reference (120 s at
 /// the default hop).
 const MOTION_HISTORY: usize = 240;
@@ -535,9 +542,26 @@ pub struct Estimator {
     blind_moving: usize,
     /// Recent acquisition-window variances of each signal (the motion gate's reference).
     motion_hist: [History; 2],
-    /// Per stream: the other stream's newest accepted time when this stream's newest
-    /// sample was accepted (tells a silence from a clock step).
-    other_at_last: [Option<Nanos>; 2],
+    /// Per stream: the other stream's newest accepted time, and the clock jumps it
+    /// had taken in all, when this stream's newest sample was accepted (tells a
+    /// silence from a clock step, also when both clocks step together).
+    other_at_last: [Option<(Nanos, Nanos)>; 2],
+    /// Per stream: the sum of the clock jumps taken ([`Estimator::clock_jump`]).
+    jumps: [Nanos; 2],
+    /// Where an acquisition that finds nothing searches next: the lag range's
+    /// position (`Correlator::lag0`) it left, or the start's, centred on offset 0
+    /// (after a restore, a clock jump or a lock lost far from 0: the prediction
+    /// that put the range where it is may be wrong). `None`: already at the start's.
+    alt_lag0: Option<i64>,
+    /// Acquisition hops with motion, or blind, since the range last moved (a lock
+    /// lost within [`RECENTRE_HOPS`] hops does not reset them: at a wrong centre the
+    /// signatures' own structure can lock for a few seconds).
+    acq_tries: usize,
+    /// Tracking hops since the last lock.
+    locked_hops: usize,
+    /// The LiDAR's newest time when an estimate last came out, and the estimates
+    /// counted then (see [`Estimator::check_unserved`]).
+    last_emit_lidar: Option<(Nanos, u64)>,
     degraded: bool,
     queue: Queue,
     seq: u64,
@@ -632,6 +656,11 @@ impl Estimator {
             blind_moving: 0,
             motion_hist: [History::default(), History::default()],
             other_at_last: [None; 2],
+            jumps: [0; 2],
+            alt_lag0: None,
+            acq_tries: 0,
+            locked_hops: 0,
+            last_emit_lidar: None,
             degraded: false,
             queue: Queue {
                 buf: [None; QUEUE],
@@ -668,7 +697,7 @@ impl Estimator {
         self.pushed = None;
         let hops = self.stats.estimates;
         let si = idx(stream);
-        let other_now = self.rs[1 - si].last_time();
+        let other_now = self.rs[1 - si].last_time().map(|t| (t, self.jumps[1 - si]));
         let kind = match self.rs[si].check(sample) {
             Ok(k) => k,
             Err(r) => {
@@ -702,9 +731,14 @@ impl Estimator {
             }
             Discontinuity::Reset(step) => {
                 // the other stream's progress over the same span tells a silence
-                // (both advanced alike) from a step of this stream's clock
+                // (both advanced alike) from a step of this stream's clock; a step
+                // the other clock took meanwhile is no progress (both clocks stepping
+                // together, e.g. a recording replayed again, move the offset by the
+                // difference of their steps)
                 let elapsed = match (other_now, other_then) {
-                    (Some(a), Some(b)) => a.saturating_sub(b),
+                    (Some((a, ja)), Some((b, jb))) => {
+                        a.saturating_sub(b).saturating_sub(ja.saturating_sub(jb))
+                    }
                     _ => 0,
                 };
                 let interval = (self.rs[si].mean_interval_s() * 1e9) as Nanos;
@@ -720,6 +754,9 @@ impl Estimator {
         }
         self.run_correlator();
         self.check_stall(stream, t_int);
+        if stream == Stream::Lidar {
+            self.check_unserved(t_int);
+        }
         self.pushed = Some(self.stats.estimates == hops);
         Ok(())
     }
@@ -901,7 +938,7 @@ impl Estimator {
         };
         // the last hop's step test, as it would have run at the next push
         self.finish_step();
-        let drift = est.drift.clamp(-0.1, 0.1);
+        let drift = est.drift.clamp(-drift::MAX_DRIFT, drift::MAX_DRIFT);
         let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
         // blind for `age` seconds: the offset moved by the drift, and its uncertainty
         // grew like a holding state's (plus the drift's)
@@ -921,6 +958,7 @@ impl Estimator {
         // tracking around the restored value (state `holding` until a measurement);
         // without a peak near it while moving, the estimator turns `lost` and re-acquires
         self.mode = Mode::Locked;
+        self.locked_hops = 0;
         self.info_t = f64::NEG_INFINITY;
         let lag = (self.cur.o * self.p.fs).round() as i64;
         self.corr.set_lag0(lag - self.p.half_lags);
@@ -954,6 +992,8 @@ impl Estimator {
     /// moves by the same amount (LiDAR: +, camera: -); re-acquire around the new value.
     fn clock_jump(&mut self, stream: Stream, jump_ns: Nanos) {
         self.finish_step();
+        let si = idx(stream);
+        self.jumps[si] = self.jumps[si].saturating_add(jump_ns);
         let j = jump_ns as f64 * 1e-9;
         let shift = match stream {
             Stream::Cam => -j,
@@ -966,10 +1006,55 @@ impl Estimator {
         let lag = (self.cur.o * self.p.fs).round() as i64;
         self.corr.set_lag0(lag - self.p.half_lags);
         self.corr.clear_blocks();
+        if stream == Stream::Lidar {
+            // the grid is on the LiDAR clock: its indices moved with it
+            self.corr.restart_cursor();
+        }
         self.known_change = None;
         self.mode = Mode::Acquire;
         self.acq = Streak::default();
+        self.acq_tries = 0;
+        self.alt_lag0 = self.home_alt();
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
+    }
+
+    /// The lag range's position at the start (centred on offset 0), as the
+    /// alternative of an acquisition elsewhere; `None` when the range is there.
+    fn home_alt(&self) -> Option<i64> {
+        let home = -self.p.half_lags;
+        (self.corr.lag0() != home).then_some(home)
+    }
+
+    /// Counts an acquisition hop that could have locked (motion, or blind); after
+    /// [`RECENTRE_HOPS`] of them the lag range moves to the alternative centre
+    /// ([`Estimator::alt_lag0`]), and the one it left becomes the alternative: a
+    /// wrong prediction (a restored state far off, two clocks that stepped apart)
+    /// cannot keep the search away from the offset.
+    /// Returns whether it moved.
+    fn acquisition_try(&mut self) -> bool {
+        if self.mode != Mode::Acquire {
+            return false;
+        }
+        self.acq_tries += 1;
+        if self.acq_tries < RECENTRE_HOPS {
+            return false;
+        }
+        self.acq_tries = 0;
+        let Some(to) = self.alt_lag0 else {
+            return false;
+        };
+        self.alt_lag0 = Some(self.corr.lag0());
+        self.corr.set_lag0(to);
+        self.corr.clear_blocks();
+        // the old prediction may have made the camera look far ahead of the LiDAR
+        // (check_stall), and the cursor skip past the data
+        self.corr.pull_cursor_back();
+        self.acq = Streak::default();
+        let o = (to + self.p.half_lags) as f64 * self.p.dt_s;
+        self.cur.var += (o - self.cur.o).powi(2);
+        self.cur.o = o;
+        self.stats.recentres += 1;
+        true
     }
 
     fn run_correlator(&mut self) {
@@ -991,9 +1076,25 @@ impl Estimator {
         let Some(cur) = self.corr.cursor() else {
             return;
         };
+        // how long the other stream has been silent, on this stream's clock (its own
+        // steps taken out): not from the offset, which may be far off while acquiring
+        // (a restored state, a clock step), and would make data look stalled
+        let si = idx(stream);
+        let Some((then, jumps_then)) = self.other_at_last[1 - si] else {
+            return;
+        };
+        let silent = t_ns
+            .saturating_sub(then)
+            .saturating_sub(self.jumps[si].saturating_sub(jumps_then));
+        if silent <= self.p.stall_slots.saturating_mul(self.p.dt_ns) {
+            return;
+        }
         let t_l = match stream {
             Stream::Lidar => t_ns,
-            Stream::Cam => t_ns.saturating_add((self.cur.o * 1e9) as Nanos),
+            Stream::Cam => match self.rs[1].last_time() {
+                Some(l) => l.saturating_add(silent),
+                None => return,
+            },
         };
         let k_now = t_l.div_euclid(self.p.dt_ns);
         if k_now.saturating_sub(cur) <= self.p.stall_slots {
@@ -1021,6 +1122,7 @@ impl Estimator {
             }
             let st = self.current_state(false);
             self.emit(t_ref, st, None, 0.0, 0.0);
+            let _ = self.acquisition_try();
             b += hl;
         }
         self.corr.skip_to(target);
@@ -1028,6 +1130,26 @@ impl Estimator {
         self.corr.restart_acq();
         self.acq = Streak::default();
         self.step = Streak::default();
+    }
+
+    /// Both streams deliver, yet no estimate came out for [`RECENTRE_HOPS`] hops of
+    /// LiDAR time: the lag range is so far off (a restored offset of days) that the
+    /// correlator waits for camera data it will never get. The search moves to the
+    /// start's range at once.
+    fn check_unserved(&mut self, t_lidar: Nanos) {
+        let n = self.stats.estimates;
+        let (last, n_last) = *self.last_emit_lidar.get_or_insert((t_lidar, n));
+        let limit = (RECENTRE_HOPS as i64).saturating_mul(self.p.hop_len * self.p.dt_ns);
+        if n != n_last || t_lidar < last {
+            self.last_emit_lidar = Some((t_lidar, n));
+        } else if t_lidar.saturating_sub(last) > limit {
+            self.last_emit_lidar = Some((t_lidar, n));
+            if self.mode == Mode::Locked {
+                self.lose();
+            }
+            self.acq_tries = RECENTRE_HOPS - 1;
+            let _ = self.acquisition_try();
+        }
     }
 
     /// Tracker time of LiDAR time `t_ns`. After a clock jump the epoch is
@@ -1202,6 +1324,10 @@ impl Estimator {
         self.mode = Mode::Acquire;
         self.acq = Streak::default();
         self.blind_moving = 0;
+        if self.locked_hops >= RECENTRE_HOPS || self.alt_lag0.is_none() {
+            self.acq_tries = 0;
+            self.alt_lag0 = self.home_alt();
+        }
     }
 
     fn current_state(&self, measured: bool) -> EstimatorState {
@@ -1248,6 +1374,13 @@ impl Estimator {
     }
 
     fn hop_acquire(&mut self, t_ref_ns: Nanos, t: f64, motion: bool) {
+        if motion && self.acquisition_try() {
+            // the window restarts at the new range
+            self.hold_to(t);
+            let st = self.current_state(false);
+            self.emit(t_ref_ns, st, None, 0.0, 0.0);
+            return;
+        }
         // the whole active range: the window restarts when the lock is lost
         let (lo, hi) = self.acq_slots(self.corr.active());
         let m = self.measure_sums(Which::Acq, lo, hi, 0.0);
@@ -1304,6 +1437,7 @@ impl Estimator {
         self.info_t = t;
         self.acq = Streak::default();
         self.stats.locks += 1;
+        self.locked_hops = 0;
         // the lock's own estimate comes from the segment (robust, at the reference time)
         self.hop_track(t_ref_ns, t, motion);
     }
@@ -1521,6 +1655,7 @@ impl Estimator {
     }
 
     fn hop_track(&mut self, t_ref_ns: Nanos, t: f64, motion: bool) {
+        self.locked_hops = self.locked_hops.saturating_add(1);
         let sign = self.polarity.sign();
         let n = self.corr.count();
         // keep the lag range centred on the prediction (a lock near the edge, drift

@@ -655,3 +655,126 @@ fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
     assert_eq!(last.state, EstimatorState::Tracking);
     assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
 }
+
+/// Pushes `run` in timestamp order with `cam_shift`/`lidar_shift` (ns) added to
+/// every stamp from `at_ns` on (each stream's own clock), as live drivers deliver
+/// it: interleaved by the time the samples happen, not by their shifted stamps.
+fn replay_with_clock_steps(
+    run: &SimRun,
+    est: &mut Estimator,
+    at_ns: i64,
+    cam_shift: i64,
+    lidar_shift: i64,
+) -> Vec<vlsync_common::Estimate> {
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < run.cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns) {
+            let mut s = run.cam[i];
+            if s.t_ns >= at_ns {
+                s.t_ns += cam_shift;
+            }
+            let _ = est.push(Stream::Cam, s);
+            i += 1;
+        } else {
+            let mut s = run.lidar[j];
+            if s.t_ns >= at_ns {
+                s.t_ns += lidar_shift;
+            }
+            let _ = est.push(Stream::Lidar, s);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    out
+}
+
+/// The last estimate tracks within 10 ms of the truth, `shift_s` added (what the
+/// clock steps did to the offset).
+fn assert_relocked(out: &[vlsync_common::Estimate], run: &SimRun, back_ns: i64, shift_s: f64) {
+    let last = out.last().unwrap();
+    assert_eq!(last.state, EstimatorState::Tracking, "{last:?}");
+    let truth = run.truth.offset_at(last.t_ref_ns - back_ns) + shift_s;
+    assert!(
+        (last.offset_s - truth).abs() < 0.01,
+        "{} vs {truth}",
+        last.offset_s
+    );
+}
+
+/// Both clocks step back by 60 s together (the drivers replay a recording again, or
+/// a sensor hub restarts its clock): the offset is unchanged. The second clock's
+/// step used to be measured against the first's stepped progress, so the offset
+/// came out 60 s off and the search never found the data again.
+#[test]
+fn both_clocks_stepping_together_keep_the_offset() {
+    let run = generate(Family::Robot, 9, Some(120.0));
+    let back = -60_000_000_000i64;
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay_with_clock_steps(&run, &mut est, 60_000_000_000, back, back);
+    assert_eq!(est.stats().resets, [1, 1], "{:?}", est.stats());
+    assert_relocked(&out, &run, back, 0.0);
+    // and apart: the camera 60 s back, the LiDAR 59.5 s: the offset moves by +0.5 s
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay_with_clock_steps(&run, &mut est, 60_000_000_000, back, back + 500_000_000);
+    assert_relocked(&out, &run, back + 500_000_000, 0.5);
+}
+
+/// The LiDAR's clock steps back by 30 s: the grid is on the LiDAR clock, so its
+/// indices restart below the correlator's cursor (which used to wait for the data to
+/// reach it again, emitting nothing).
+#[test]
+fn a_lidar_clock_stepping_back_is_followed() {
+    let run = generate(Family::Robot, 9, Some(120.0));
+    let back = -30_000_000_000i64;
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let out = replay_with_clock_steps(&run, &mut est, 60_000_000_000, 0, back);
+    assert_eq!(est.stats().resets[1], 1);
+    // a hop every 0.5 s over the whole run, the step included (236; 177 when the
+    // cursor waited 30 s for the data)
+    assert!(out.len() >= 225, "{} estimates", out.len());
+    assert_relocked(&out, &run, back, -30.0);
+}
+
+/// A restored estimate 5 s off (a state file from another robot or setup) puts the
+/// search where no data correlate; after 30 s of motion without a lock it moves to
+/// the start's range around 0 and locks there.
+#[test]
+fn a_restore_far_outside_the_lag_range_is_searched_away_from() {
+    let run = generate(Family::Robot, 22, Some(90.0));
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let bogus = vlsync_common::Estimate {
+        seq: 0,
+        t_ref_ns: 0,
+        offset_s: 5.0,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 1e-6,
+        state: EstimatorState::Tracking,
+        polarity: Polarity::Negative,
+        peak_score: 0.9,
+        peak_ratio: 2.0,
+        measured_offset_s: f64::NAN,
+    };
+    est.restore(&bogus, 1.0);
+    let out = replay(&run, &mut est);
+    assert!(est.stats().recentres >= 1, "{:?}", est.stats());
+    assert!(out.iter().all(|e| e.offset_s.abs() < 10.0));
+    assert_relocked(&out, &run, 0, 0.0);
+    // absurdly far, drifting at the limit: the camera looks 11 days ahead of the
+    // LiDAR, and blind estimates skip the correlator's cursor past the data; the
+    // move back to the start's range brings it back to them
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    est.restore(
+        &vlsync_common::Estimate {
+            offset_s: 1e6,
+            drift: 0.1,
+            ..bogus
+        },
+        1.0,
+    );
+    let out = replay(&run, &mut est);
+    assert_relocked(&out, &run, 0, 0.0);
+}
