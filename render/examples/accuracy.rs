@@ -69,6 +69,8 @@ fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
         .collect()
 }
 
+const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window] [--steps T_S:DELTA_MS,...]";
+
 fn parse() -> Result<Args, String> {
     let mut a = Args {
         seeds: (1..=6).collect(),
@@ -85,17 +87,18 @@ fn parse() -> Result<Args, String> {
         match flag.as_str() {
             "--seeds" => a.seeds = parse_seeds(&value()?)?,
             "--duration" => {
-                a.duration_s = value()?
-                    .parse()
-                    .map_err(|e| format!("--duration: {e}"))?
+                a.duration_s = value()?.parse().map_err(|e| format!("--duration: {e}"))?
             }
             "--threads" => a.threads = value()?.parse().map_err(|e| format!("--threads: {e}"))?,
             "--width" => width = Some(value()?.parse().map_err(|e| format!("--width: {e}"))?),
             "--height" => height = Some(value()?.parse().map_err(|e| format!("--height: {e}"))?),
             "--steps" => a.steps = parse_steps(&value()?)?,
-            "--opposite-window" => pipeline::OPPOSITE_WINDOW.store(true, std::sync::atomic::Ordering::Relaxed),
+            "--opposite-window" => {
+                pipeline::OPPOSITE_WINDOW.store(true, std::sync::atomic::Ordering::Relaxed)
+            }
             "--help" | "-h" => {
-                return Err("usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window] [--steps T_S:DELTA_MS,...]".into())
+                println!("{USAGE}");
+                std::process::exit(0);
             }
             other => return Err(format!("unknown argument `{other}` (try --help)")),
         }
