@@ -31,6 +31,7 @@
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
+pub mod file;
 #[cfg(feature = "wire")]
 pub mod wire;
 

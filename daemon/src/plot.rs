@@ -9,6 +9,10 @@ const L: f64 = 70.0;
 const R: f64 = 20.0;
 const T: f64 = 40.0;
 const B: f64 = 50.0;
+/// Largest |offset| plotted, ms (1e12 s); beyond it, and NaN/inf, values are left out.
+const MAX_PLOT_MS: f64 = 1e15;
+/// Most grid lines per axis (the tick step gives about 8).
+const MAX_TICKS: u32 = 100;
 
 fn color(s: EstimatorState) -> &'static str {
     match s {
@@ -44,9 +48,17 @@ pub fn offset_svg(
     truth: Option<&[(Nanos, f64)]>,
     shaded: &[(Nanos, Nanos, String)],
 ) -> String {
+    // values that cannot be placed (NaN, inf, beyond ±1e12 s) are left out
+    let plottable = |ms: f64| ms.abs() <= MAX_PLOT_MS;
     let locked: Vec<&Estimate> = ests
         .iter()
-        .filter(|e| e.state != EstimatorState::Acquiring && e.offset_s.is_finite())
+        .filter(|e| e.state != EstimatorState::Acquiring && plottable(e.offset_s * 1e3))
+        .collect();
+    let truth: Vec<(Nanos, f64)> = truth
+        .unwrap_or_default()
+        .iter()
+        .copied()
+        .filter(|p| plottable(p.1 * 1e3))
         .collect();
     let mut s = String::new();
     let _ = writeln!(
@@ -70,15 +82,16 @@ pub fn offset_svg(
     let t0 = nanos_to_secs(ests.first().map_or(0, |e| e.t_ref_ns));
     let t1 = nanos_to_secs(ests.last().map_or(0, |e| e.t_ref_ns)).max(t0 + 1.0);
     let mut ys: Vec<f64> = locked.iter().map(|e| e.offset_s * 1e3).collect();
-    if let Some(tr) = truth {
-        ys.extend(tr.iter().map(|p| p.1 * 1e3));
-    }
+    ys.extend(truth.iter().map(|p| p.1 * 1e3));
     ys.sort_by(f64::total_cmp);
     // robust range: ignore the extreme 1 % so one wild estimate cannot flatten the plot
     let lo_i = ys.len() / 100;
     let hi_i = ys.len() - 1 - ys.len() / 100;
     let (mut y0, mut y1) = (ys[lo_i], ys[hi_i]);
-    let pad = ((y1 - y0) * 0.15).max(5.0);
+    // at least 5 ms, and enough to stay a range at large magnitudes
+    let pad = ((y1 - y0) * 0.15)
+        .max(5.0)
+        .max(y0.abs().max(y1.abs()) * 1e-6);
     y0 -= pad;
     y1 += pad;
     let px = |t: f64| L + (t - t0) / (t1 - t0) * (W - L - R);
@@ -102,8 +115,11 @@ pub fn offset_svg(
     }
     // grid and axes
     let ts = tick_step(t1 - t0);
-    let mut t = (t0 / ts).ceil() * ts;
-    while t <= t1 {
+    let first_t = (t0 / ts).ceil() * ts;
+    for t in (0..=MAX_TICKS)
+        .map(|i| first_t + f64::from(i) * ts)
+        .take_while(|t| *t <= t1)
+    {
         let x = px(t);
         let _ = writeln!(
             s,
@@ -111,11 +127,13 @@ pub fn offset_svg(
             H - B,
             H - B + 16.0
         );
-        t += ts;
     }
     let yst = tick_step(y1 - y0);
-    let mut y = (y0 / yst).ceil() * yst;
-    while y <= y1 {
+    let first_y = (y0 / yst).ceil() * yst;
+    for y in (0..=MAX_TICKS)
+        .map(|i| first_y + f64::from(i) * yst)
+        .take_while(|y| *y <= y1)
+    {
         let yy = py(y);
         let _ = writeln!(
             s,
@@ -124,7 +142,6 @@ pub fn offset_svg(
             L - 6.0,
             yy + 4.0
         );
-        y += yst;
     }
     let _ = writeln!(
         s,
@@ -134,9 +151,13 @@ pub fn offset_svg(
         H / 2.0,
         H / 2.0
     );
-    // ±2σ band
+    // ±2σ band (of the estimates whose σ is known)
+    let banded: Vec<&&Estimate> = locked
+        .iter()
+        .filter(|e| plottable(e.offset_std_s * 2e3))
+        .collect();
     let mut band = String::new();
-    for e in &locked {
+    for e in &banded {
         let _ = write!(
             band,
             "{:.1},{:.1} ",
@@ -144,7 +165,7 @@ pub fn offset_svg(
             py((e.offset_s + 2.0 * e.offset_std_s) * 1e3)
         );
     }
-    for e in locked.iter().rev() {
+    for e in banded.iter().rev() {
         let _ = write!(
             band,
             "{:.1},{:.1} ",
@@ -170,8 +191,8 @@ pub fn offset_svg(
             py(e.measured_offset_s * 1e3)
         );
     }
-    if let Some(tr) = truth {
-        let pts: String = tr
+    if !truth.is_empty() {
+        let pts: String = truth
             .iter()
             .filter(|p| {
                 let t = nanos_to_secs(p.0);
@@ -294,6 +315,42 @@ mod tests {
         assert!(x("late") <= W - R + 0.05);
         // 50 measurements plus the legend's marker
         assert_eq!(svg.matches("<circle").count(), 50 + 1);
+    }
+
+    #[test]
+    fn non_finite_and_huge_values_are_left_out() {
+        let ests: Vec<Estimate> = (0..20)
+            .map(|i| est(i as f64, 0.1, EstimatorState::Tracking))
+            .collect();
+        let nan_truth: Vec<(Nanos, f64)> = (0..4).map(|i| (i * 40_000_000_000, f64::NAN)).collect();
+        let mut odd = ests.clone();
+        odd[3].offset_std_s = f64::NAN;
+        odd[4].offset_s = f64::INFINITY;
+        odd[5].offset_s = 1e300;
+        odd[6].measured_offset_s = f64::NEG_INFINITY;
+        let mixed = [
+            (0, f64::INFINITY),
+            (1_000_000_000, 0.1),
+            (2_000_000_000, -1e300),
+        ];
+        for (e, tr) in [
+            (&ests, &nan_truth[..]),
+            (&odd, &mixed[..]),
+            (&odd, &nan_truth[..]),
+        ] {
+            let svg = offset_svg("t", e, Some(tr), &[]);
+            assert!(svg.trim_end().ends_with("</svg>"));
+            assert!(!svg.contains("NaN") && !svg.contains("inf"), "{svg}");
+        }
+        // nothing plottable at all
+        let svg = offset_svg("t", &odd[4..6], Some(&nan_truth), &[]);
+        assert!(svg.contains("no locked estimate"));
+        // large but plottable offsets with a tiny spread still give a finite range
+        let far: Vec<Estimate> = (0..20)
+            .map(|i| est(i as f64, 1e11 + 1e-3 * i as f64, EstimatorState::Tracking))
+            .collect();
+        let svg = offset_svg("t", &far, None, &[]);
+        assert!(!svg.contains("NaN") && svg.matches("<line").count() < 300);
     }
 
     #[test]

@@ -58,6 +58,69 @@ fn wrong_sources_fail_with_a_message() {
     }
 }
 
+/// Runs a driver that must fail at once; a driver still running after 20 s
+/// (blocked opening a named pipe) is killed and fails the test.
+fn run_failing_quickly(bin: &str, args: &[&str]) -> String {
+    let mut child = Command::new(bin)
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn driver");
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(20) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{bin} {args:?} still running after 20 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(!out.status.success(), "{bin} {args:?} succeeded");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn named_pipes_are_refused_not_waited_for() {
+    let dir = std::env::temp_dir().join(format!("vlsync-driver-fifo-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("f");
+    let made = Command::new("mkfifo").arg(&fifo).status();
+    if !made.is_ok_and(|s| s.success()) {
+        return; // no mkfifo here
+    }
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(dir.join("frames/frames.csv"))
+        .status()
+        .unwrap()
+        .success());
+    let f = fifo.to_str().unwrap();
+    let frames = dir.join("frames");
+    let prefix = format!("vlsync-test/driver-fifo-{}", std::process::id());
+    let (cam, lidar) = (
+        env!("CARGO_BIN_EXE_vlsync-cam"),
+        env!("CARGO_BIN_EXE_vlsync-lidar"),
+    );
+    for (bin, args) in [
+        (cam, vec!["--csv", f]),
+        (cam, vec!["--mcap", f]),
+        (cam, vec!["--frames", frames.to_str().unwrap()]),
+        (lidar, vec!["--scans", f]),
+        (lidar, vec!["--mcap", f]),
+        (lidar, vec!["--render", "1", "--config", f]),
+    ] {
+        let mut argv = args.clone();
+        argv.extend(["--fast", "--prefix", &prefix]);
+        let err = run_failing_quickly(bin, &argv);
+        assert!(err.contains("not a regular file"), "{args:?}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn truth_files_have_one_row_per_published_sample() {
     let prefix = format!("vlsync-test/driver-truth-{}", std::process::id());

@@ -166,10 +166,11 @@ pub struct CsvScanReader<R> {
 }
 
 impl CsvScanReader<BufReader<File>> {
-    /// Opens a file; the file name is used in errors.
+    /// Opens a file (a regular file only: a named pipe would block the open); the
+    /// file name is used in errors.
     pub fn open(path: &Path) -> Result<Self, CsvError> {
         let source = path.display().to_string();
-        let f = File::open(path).map_err(|e| CsvError {
+        let f = vlsync_common::file::open_regular(path).map_err(|e| CsvError {
             source: source.clone(),
             line: 0,
             column: None,
@@ -592,6 +593,28 @@ mod tests {
         assert!(e
             .to_string()
             .starts_with("/nonexistent/scans.csv: cannot open"));
+    }
+
+    #[test]
+    fn open_refuses_anything_but_a_regular_file() {
+        let dir = std::env::temp_dir().join(format!("vlsync-lidar-csv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = CsvScanReader::open(&dir).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        // a named pipe without a writer would block the open forever
+        let fifo = dir.join("scans.csv");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = CsvScanReader::open(&fifo).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!(
+                    "{}: cannot open: not a regular file (a named pipe)",
+                    fifo.display()
+                )
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -6,11 +6,14 @@
 //! * Truth CSV: header `t,offset`, `t` in seconds on the LiDAR clock, offset `t_L - t_C`
 //!   in seconds.
 //!
-//! The reader is strict about structure and lenient about values: a malformed row is
-//! an error naming the file, the 1-based line number and what was wrong, while NaN and
-//! infinite *values* are passed through (the estimator rejects and counts them).
-//! Timestamps are parsed exactly from their decimal text, so epoch-sized stamps keep
-//! nanosecond precision.
+//! The signature reader is strict about structure and lenient about values: a malformed
+//! row is an error naming the file, the 1-based line number and what was wrong, while
+//! NaN and infinite *values* are passed through (the estimator rejects and counts them).
+//! The truth reader is strict about values too: every offset finite, times strictly
+//! increasing, at least one row (errors the same way). Timestamps are parsed exactly
+//! from their decimal text, so epoch-sized stamps keep nanosecond precision. Only
+//! regular files are read (a named pipe would block the open; see
+//! [`vlsync_common::file`]).
 //!
 //! ```
 //! use vlsync_common::Sample;
@@ -175,6 +178,22 @@ pub fn parse_signature_csv(
     bytes: &[u8],
     source: &str,
 ) -> Result<(Vec<Sample>, CsvStats), CsvError> {
+    let mut out = Vec::new();
+    let stats = parse_rows(bytes, source, "value", |s| {
+        out.push(s);
+        Ok(())
+    })?;
+    Ok((out, stats))
+}
+
+/// Parses a two-column CSV (`t,<value_name>`), handing each data row to `row`; an
+/// `Err` from `row` becomes the error of that row's line.
+fn parse_rows(
+    bytes: &[u8],
+    source: &str,
+    value_name: &str,
+    mut row: impl FnMut(Sample) -> Result<(), String>,
+) -> Result<CsvStats, CsvError> {
     let err = |line: Option<usize>, message: String| CsvError {
         path: PathBuf::from(source),
         line,
@@ -184,11 +203,10 @@ pub fn parse_signature_csv(
     if bytes.is_empty() {
         return Err(err(
             None,
-            "empty file: expected a header line such as `t,value`".into(),
+            format!("empty file: expected a header line such as `t,{value_name}`"),
         ));
     }
     let mut stats = CsvStats::default();
-    let mut out = Vec::new();
     for (idx, raw) in bytes.split(|&b| b == b'\n').enumerate() {
         let lineno = idx + 1;
         let line = std::str::from_utf8(raw).map_err(|e| {
@@ -203,14 +221,14 @@ pub fn parse_signature_csv(
             if first.is_empty() {
                 return Err(err(
                     Some(1),
-                    "expected a header line such as `t,value`, found an empty line".into(),
+                    format!("expected a header line such as `t,{value_name}`, found an empty line"),
                 ));
             }
             if first.parse::<f64>().is_ok() {
                 return Err(err(
                     Some(1),
                     format!(
-                        "expected a header line such as `t,value`, found data `{}`",
+                        "expected a header line such as `t,{value_name}`, found data `{}`",
                         clip(line)
                     ),
                 ));
@@ -230,12 +248,17 @@ pub fn parse_signature_csv(
             parse_secs(t_txt).map_err(|m| err(Some(lineno), format!("column 1 (t): {m}")))?;
         let v_txt = match cols.next() {
             Some(v) if !v.trim().is_empty() => v.trim(),
-            _ => return Err(err(Some(lineno), "missing column 2 (value)".into())),
+            _ => {
+                return Err(err(
+                    Some(lineno),
+                    format!("missing column 2 ({value_name})"),
+                ))
+            }
         };
         let value: f64 = v_txt.parse().map_err(|_| {
             err(
                 Some(lineno),
-                format!("column 2 (value): `{}` is not a number", clip(v_txt)),
+                format!("column 2 ({value_name}): `{}` is not a number", clip(v_txt)),
             )
         })?;
         if cols.next().is_some() {
@@ -245,20 +268,25 @@ pub fn parse_signature_csv(
             stats.non_finite_values += 1;
         }
         stats.rows += 1;
-        out.push(Sample::new(t_ns, value));
+        row(Sample::new(t_ns, value)).map_err(|m| err(Some(lineno), m))?;
     }
-    Ok((out, stats))
+    Ok(stats)
+}
+
+/// Reads a whole input file (a regular file only: a named pipe would block).
+fn read_input(path: &Path) -> Result<Vec<u8>, CsvError> {
+    vlsync_common::file::read_regular(path).map_err(|e| CsvError {
+        path: path.to_path_buf(),
+        line: None,
+        message: format!("cannot read: {e}"),
+    })
 }
 
 /// Reads a signature CSV file (header line, then `t,value` rows; extra columns ignored,
 /// blank lines skipped, NaN/inf values passed through).
 pub fn read_signature_csv(path: impl AsRef<Path>) -> Result<(Vec<Sample>, CsvStats), CsvError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| CsvError {
-        path: path.to_path_buf(),
-        line: None,
-        message: format!("cannot read: {e}"),
-    })?;
+    let bytes = read_input(path)?;
     parse_signature_csv(&bytes, &path.display().to_string())
 }
 
@@ -311,11 +339,53 @@ pub fn write_truth_csv(path: impl AsRef<Path>, truth: &Truth) -> Result<(), CsvE
     write_file(path.as_ref(), &truth_csv_string(truth, 10_000_000))
 }
 
-/// Reads a truth CSV (`t,offset`) as `(t_lidar_ns, offset_s)` pairs, same rules as
-/// [`read_signature_csv`].
+/// Parses a truth CSV (`t,offset`) as `(t_lidar_ns, offset_s)` pairs; `source` names
+/// it in errors. The structure rules of [`parse_signature_csv`], and besides: every
+/// offset finite, times strictly increasing, at least one row.
+///
+/// ```
+/// use vlsync_sim::io::parse_truth_csv;
+/// assert_eq!(parse_truth_csv(b"t,offset\n0,0.02\n1,0.02\n", "t.csv").unwrap().len(), 2);
+/// let e = parse_truth_csv(b"t,offset\n0,0.02\n1,nan\n", "t.csv").unwrap_err();
+/// assert_eq!(e.to_string(), "t.csv:3: column 2 (offset): NaN is not a finite number");
+/// ```
+pub fn parse_truth_csv(bytes: &[u8], source: &str) -> Result<Vec<(Nanos, f64)>, CsvError> {
+    let mut out: Vec<(Nanos, f64)> = Vec::new();
+    parse_rows(bytes, source, "offset", |s| {
+        if !s.value.is_finite() {
+            return Err(format!(
+                "column 2 (offset): {} is not a finite number",
+                s.value
+            ));
+        }
+        if let Some(&(prev, _)) = out.last() {
+            if s.t_ns <= prev {
+                return Err(format!(
+                    "column 1 (t): time {} s is not after the previous row's {} s (truth rows must be in increasing time)",
+                    format_secs(s.t_ns),
+                    format_secs(prev)
+                ));
+            }
+        }
+        out.push((s.t_ns, s.value));
+        Ok(())
+    })?;
+    if out.is_empty() {
+        return Err(CsvError {
+            path: PathBuf::from(source),
+            line: None,
+            message: "no data rows: expected `t,offset` rows after the header".into(),
+        });
+    }
+    Ok(out)
+}
+
+/// Reads a truth CSV (`t,offset`) as `(t_lidar_ns, offset_s)` pairs; see
+/// [`parse_truth_csv`].
 pub fn read_truth_csv(path: impl AsRef<Path>) -> Result<Vec<(Nanos, f64)>, CsvError> {
-    let (s, _) = read_signature_csv(path)?;
-    Ok(s.into_iter().map(|x| (x.t_ns, x.value)).collect())
+    let path = path.as_ref();
+    let bytes = read_input(path)?;
+    parse_truth_csv(&bytes, &path.display().to_string())
 }
 
 #[cfg(test)]
@@ -408,7 +478,86 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    #[test]
+    fn truth_values_order_and_emptiness_are_checked() {
+        let ok = parse_truth_csv(b"t,offset\n0,0.02\n\n40,0.025,x\n", "t.csv").unwrap();
+        assert_eq!(ok, vec![(0, 0.02), (40_000_000_000, 0.025)]);
+        let cases: [(&[u8], &str); 7] = [
+            (
+                b"t,offset\n0,nan\n40,nan\n",
+                "t.csv:2: column 2 (offset): NaN is not a finite number",
+            ),
+            (
+                b"t,offset\n0,0.02\n40,-inf\n",
+                "t.csv:3: column 2 (offset): -inf is not a finite number",
+            ),
+            (
+                b"t,offset\n0,0.02\n80,0.02\n40,0.03\n",
+                "t.csv:4: column 1 (t): time 40.000000000 s is not after the previous row's \
+                 80.000000000 s (truth rows must be in increasing time)",
+            ),
+            (
+                b"t,offset\n1,0.02\n1,0.02\n",
+                "t.csv:3: column 1 (t): time 1.000000000 s is not after the previous row's \
+                 1.000000000 s (truth rows must be in increasing time)",
+            ),
+            (
+                b"t,offset\n",
+                "t.csv: no data rows: expected `t,offset` rows after the header",
+            ),
+            (
+                b"t,offset\n\n \n",
+                "t.csv: no data rows: expected `t,offset` rows after the header",
+            ),
+            (b"t,offset\n0\n", "t.csv:2: missing column 2 (offset)"),
+        ];
+        for (input, want) in cases {
+            assert_eq!(
+                parse_truth_csv(input, "t.csv").unwrap_err().to_string(),
+                want
+            );
+        }
+        let e = parse_truth_csv(b"t,offset\ninf,0.1\n", "t.csv").unwrap_err();
+        assert!(e.to_string().starts_with("t.csv:2: column 1 (t)"), "{e}");
+        assert!(e.message.contains("not finite"), "{e}");
+        // the file reader applies the same rules and names the file
+        let dir = std::env::temp_dir().join(format!("vlsync-sim-truth-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("truth.csv");
+        std::fs::write(&p, "t,offset\n0,nan\n").unwrap();
+        let e = read_truth_csv(&p).unwrap_err();
+        assert_eq!(e.path, p);
+        assert_eq!(e.line, Some(2));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn only_regular_files_are_read() {
+        let dir = std::env::temp_dir().join(format!("vlsync-sim-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = read_signature_csv(&dir).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        // a named pipe without a writer would block the open forever
+        let fifo = dir.join("cam.csv");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            for e in [
+                read_signature_csv(&fifo).unwrap_err(),
+                read_truth_csv(&fifo).unwrap_err(),
+            ] {
+                assert_eq!(e.path, fifo);
+                assert!(e.to_string().contains("not a regular file"), "{e}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     proptest! {
+        #[test]
+        fn truth_reader_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+            let _ = parse_truth_csv(&bytes, "fuzz");
+        }
+
         #[test]
         fn reader_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
             let _ = parse_signature_csv(&bytes, "fuzz");

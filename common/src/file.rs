@@ -1,0 +1,109 @@
+//! Opening input files: regular files only.
+//!
+//! Opening a named pipe (FIFO) for reading blocks until a writer appears, forever
+//! when none does, and a directory or a device is no data file either. The readers
+//! of signature, truth, frame and scan files and of recordings check the path first
+//! (following symlinks) and refuse anything but a regular file with an error of
+//! kind [`std::io::ErrorKind::InvalidInput`] saying "not a regular file". (Serial
+//! LiDARs are character devices on purpose: they are opened elsewhere.)
+//!
+//! ```
+//! let dir = std::env::temp_dir();
+//! let e = vlsync_common::file::read_regular(&dir).unwrap_err();
+//! assert_eq!(e.to_string(), "not a regular file (a directory)");
+//! ```
+
+use std::fs::File;
+use std::io::{self, Read};
+use std::path::Path;
+
+/// What `t` is, for the error.
+fn kind_of(t: std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a named pipe";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else {
+        "not a file"
+    }
+}
+
+/// `Ok` when `path` is a regular file (following symlinks); otherwise the error of
+/// the lookup (e.g. [`io::ErrorKind::NotFound`]) or an `InvalidInput` error
+/// "not a regular file (a named pipe)".
+pub fn check_regular(path: &Path) -> io::Result<()> {
+    let m = std::fs::metadata(path)?;
+    if m.is_file() {
+        Ok(())
+    } else {
+        Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("not a regular file ({})", kind_of(m.file_type())),
+        ))
+    }
+}
+
+/// Opens `path` for reading after [`check_regular`].
+pub fn open_regular(path: &Path) -> io::Result<File> {
+    check_regular(path)?;
+    File::open(path)
+}
+
+/// Reads all of `path` after [`check_regular`].
+pub fn read_regular(path: &Path) -> io::Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    open_regular(path)?.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// Reads all of `path` as UTF-8 after [`check_regular`].
+pub fn read_regular_to_string(path: &Path) -> io::Result<String> {
+    io::read_to_string(open_regular(path)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_regular_files_are_read() {
+        let dir = std::env::temp_dir().join(format!("vlsync-common-file-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("a.txt");
+        std::fs::write(&f, "x\n").unwrap();
+        assert_eq!(read_regular(&f).unwrap(), b"x\n");
+        assert_eq!(read_regular_to_string(&f).unwrap(), "x\n");
+        let e = read_regular(&dir).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::InvalidInput);
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        let e = read_regular(&dir.join("missing")).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::NotFound);
+        // a FIFO without a writer: refused at once instead of blocking in open()
+        let fifo = dir.join("fifo");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = read_regular_to_string(&fifo).unwrap_err();
+            assert_eq!(e.to_string(), "not a regular file (a named pipe)");
+        }
+        // /dev/null is a character device
+        if Path::new("/dev/null").exists() {
+            let e = open_regular(Path::new("/dev/null")).unwrap_err();
+            assert!(e.to_string().contains("character device"), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
