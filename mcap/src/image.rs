@@ -205,15 +205,20 @@ impl McapImageSource {
 }
 
 impl FrameSource for McapImageSource {
-    /// Errors become `vlsync_signature_cam::Error::Decode` naming the file, with
-    /// the topic, message index and log time in the reason.
+    /// An image that cannot be used becomes `vlsync_signature_cam::Error::Decode`,
+    /// an error of the file itself (malformed, truncated) `Error::Read`; both name
+    /// the file, with the topic, message index and log time in the reason.
     fn next_frame(
         &mut self,
     ) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, vlsync_signature_cam::Error> {
         match self.next_image() {
             Ok(Some(f)) => Ok(Some((f.frame, f.time))),
             Ok(None) => Ok(None),
-            Err(e) => Err(vlsync_signature_cam::Error::Decode {
+            Err(e @ Error::Message { .. }) => Err(vlsync_signature_cam::Error::Decode {
+                path: e.path().to_path_buf(),
+                reason: e.detail(),
+            }),
+            Err(e) => Err(vlsync_signature_cam::Error::Read {
                 path: e.path().to_path_buf(),
                 reason: e.detail(),
             }),

@@ -142,6 +142,32 @@ fn mcap_err(path: &Path, at: impl Into<String>, source: McapError) -> Error {
     }
 }
 
+/// Opens a recording: a regular file only (a named pipe would block the open, and
+/// the reader seeks).
+fn open_file(path: &Path) -> Result<File, Error> {
+    vlsync_common::file::open_regular(path).map_err(|e| io_err(path, "opening", e))
+}
+
+/// `e` with "the file ends at byte N before its footer: truncated?" added to a topic
+/// error when the file does not end with the MCAP magic (the last bytes of a
+/// complete recording).
+fn with_truncation(e: Error, file: &mut File, file_len: u64) -> Error {
+    let mut tail = [0u8; 8];
+    let complete = file_len >= 16
+        && file.seek(SeekFrom::Start(file_len - 8)).is_ok()
+        && file.read_exact(&mut tail).is_ok()
+        && tail[..] == *mcap::MAGIC;
+    match e {
+        Error::Topic { path, reason } if !complete => Error::Topic {
+            path,
+            reason: format!(
+                "{reason}; the file ends at byte {file_len} before its footer: truncated?"
+            ),
+        },
+        e => e,
+    }
+}
+
 /// Reads the summary section; `Ok(None)` when the file has none.
 fn read_summary(
     file: &mut File,
@@ -332,7 +358,7 @@ impl McapReader {
     /// The channels of a recording (from its summary, or by reading it when it has none).
     pub fn topics(path: impl AsRef<Path>) -> Result<Vec<TopicInfo>, Error> {
         let path = path.as_ref();
-        let mut file = File::open(path).map_err(|e| io_err(path, "opening", e))?;
+        let mut file = open_file(path)?;
         let len = file
             .metadata()
             .map_err(|e| io_err(path, "reading metadata", e))?
@@ -353,7 +379,7 @@ impl McapReader {
         opts: ReaderOptions,
     ) -> Result<Self, Error> {
         let path = path.as_ref().to_path_buf();
-        let mut file = File::open(&path).map_err(|e| io_err(&path, "opening", e))?;
+        let mut file = open_file(&path)?;
         let file_len = file
             .metadata()
             .map_err(|e| io_err(&path, "reading metadata", e))?
@@ -383,10 +409,13 @@ impl McapReader {
                         Some(Err(s)) => {
                             return Err(mcap_err(&path, "reading the file from the start", s))
                         }
-                        None => return Err(e),
+                        None => return Err(with_truncation(e, &mut file, file_len)),
                     }
                 }
             }
+            // without a summary the channels come from reading the file: a cut
+            // one may lack those recorded after the cut
+            Err(e) if summary.is_none() => return Err(with_truncation(e, &mut file, file_len)),
             Err(e) => return Err(e),
         };
         let mode = match summary {

@@ -397,6 +397,81 @@ fn truncated_recording_yields_what_it_has_then_says_so() {
 }
 
 #[test]
+fn a_topic_missing_from_a_cut_file_is_blamed_on_the_cut() {
+    // the scans come after the images: a cut early in the file has seen only the camera
+    let tmp = Tmp::new("cut-topic-src");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    for k in 0..6 {
+        w.write_image("/cam", 1_000 + k, &frame(k as u8, 32, 24))
+            .unwrap();
+    }
+    for k in 0..6 {
+        w.write_scan("/scan", &scan(k)).unwrap();
+    }
+    w.finish().unwrap();
+    let bytes = std::fs::read(&tmp.0).unwrap();
+    let e = McapScanSource::open(&tmp.0, ScanSourceOptions::topic("/nope"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no topic `/nope`") && !e.contains("truncated"),
+        "{e}"
+    );
+    let cut = Tmp::new("cut-topic");
+    // just before the record of the LiDAR channel
+    let len = bytes.windows(5).position(|w| w == b"/scan").unwrap() - 8;
+    std::fs::write(&cut.0, &bytes[..len]).unwrap();
+    let e = McapScanSource::open(&cut.0, ScanSourceOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no topic with schema"), "{e}");
+    assert!(
+        e.ends_with(&format!(
+            "the file ends at byte {len} before its footer: truncated?"
+        )),
+        "{e}"
+    );
+    // the camera reads up to the cut; the error is the file's, not an image's
+    let mut src = McapImageSource::open(&cut.0, ImageSourceOptions::default()).unwrap();
+    let e = loop {
+        match src.next_frame() {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("a truncated file must end in an error"),
+            Err(e) => break e,
+        }
+    };
+    assert!(
+        matches!(e, vlsync_signature_cam::Error::Read { .. }),
+        "{e:?}"
+    );
+    let e = e.to_string();
+    assert!(
+        e.contains("truncated") && !e.contains("cannot decode"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_named_pipe_is_refused_not_waited_for() {
+    let dir = std::env::temp_dir().join(format!("vlsync-mcap-fifo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("run.mcap");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    if made.is_ok_and(|s| s.success()) {
+        let e = McapImageSource::open(&fifo, ImageSourceOptions::default()).unwrap_err();
+        assert!(
+            e.to_string().contains("not a regular file") && e.path() == fifo,
+            "{e}"
+        );
+        let e = McapReader::topics(&fifo).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+    }
+    let e = McapReader::topics(&dir).unwrap_err();
+    assert!(e.to_string().contains("not a regular file"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn corrupted_chunk_is_detected() {
     let (_tmp, mut bytes) = recording("crc-src");
     // the pixels of the first frame: 0, 7, 14, ...

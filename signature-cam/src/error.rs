@@ -73,6 +73,14 @@ pub enum Error {
         /// Decoder message.
         reason: String,
     },
+    /// A source file that cannot be read on, as a whole rather than one image (a
+    /// recording that is malformed or truncated).
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong, and where in the file.
+        reason: String,
+    },
     /// A frame time that cannot be used (e.g. a negative exposure duration).
     BadFrameTime {
         /// What is wrong.
@@ -133,6 +141,7 @@ impl fmt::Display for Error {
             Error::Decode { path, reason } => {
                 write!(f, "{}: cannot decode image: {reason}", path.display())
             }
+            Error::Read { path, reason } => write!(f, "{}: {reason}", path.display()),
             Error::BadFrameTime { reason } => write!(f, "bad frame time: {reason}"),
             Error::NoDevice { path } => write!(f, "{}: no such device", path.display()),
             Error::Device { path, reason } => write!(f, "{}: {reason}", path.display()),
@@ -172,5 +181,10 @@ mod tests {
         };
         assert!(e.to_string().contains("d/a.png"));
         assert!(e.to_string().contains("frames.csv:3"));
+        let e = Error::Read {
+            path: "r.mcap".into(),
+            reason: "the file is truncated".into(),
+        };
+        assert_eq!(e.to_string(), "r.mcap: the file is truncated");
     }
 }

@@ -161,7 +161,14 @@ pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error
     Ok(out)
 }
 
+/// Largest frame decoded from a file, pixels (64 Mpx, as for the images of a recording).
+pub const MAX_FRAME_PIXELS: u64 = 64 << 20;
+/// Largest width or height of a frame decoded from a file, pixels.
+pub const MAX_FRAME_SIDE: u32 = 1 << 15;
+
 /// Frames from a directory of PNG/JPEG files listed in a timestamps file.
+/// Frames larger than [`MAX_FRAME_PIXELS`] or [`MAX_FRAME_SIDE`] are errors naming
+/// the file, found from the image header before the pixels are decoded.
 #[derive(Debug)]
 pub struct DirSource {
     csv: PathBuf,
@@ -183,18 +190,29 @@ impl DirSource {
     /// Fails if the file is malformed or any listed frame file is missing.
     pub fn from_csv(csv: impl AsRef<Path>) -> Result<Self, Error> {
         let csv = csv.as_ref().to_path_buf();
-        let text = std::fs::read_to_string(&csv).map_err(|source| Error::Io {
-            path: csv.clone(),
-            source,
-        })?;
+        // regular files only: a named pipe would block the open
+        let text =
+            vlsync_common::file::read_regular_to_string(&csv).map_err(|source| Error::Io {
+                path: csv.clone(),
+                source,
+            })?;
         let entries = parse_frames_csv(&text, &csv)?;
         for e in &entries {
-            if !e.path.is_file() {
-                return Err(Error::MissingFrame {
-                    path: e.path.clone(),
-                    listed_in: csv,
-                    line: e.line,
-                });
+            match vlsync_common::file::check_regular(&e.path) {
+                Ok(()) => {}
+                Err(err) if err.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(Error::MissingFrame {
+                        path: e.path.clone(),
+                        listed_in: csv,
+                        line: e.line,
+                    })
+                }
+                Err(source) => {
+                    return Err(Error::Io {
+                        path: e.path.clone(),
+                        source,
+                    })
+                }
             }
         }
         Ok(Self {
@@ -222,7 +240,7 @@ impl DirSource {
             path: e.path.clone(),
             reason,
         };
-        let reader = ::image::ImageReader::open(&e.path).map_err(|source| {
+        let file = vlsync_common::file::open_regular(&e.path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
                 Error::MissingFrame {
                     path: e.path.clone(),
@@ -236,10 +254,25 @@ impl DirSource {
                 }
             }
         })?;
-        let img = reader
+        let mut reader = ::image::ImageReader::new(std::io::BufReader::new(file))
             .with_guessed_format()
-            .map_err(|err| decode_err(err.to_string()))?
-            .decode()
+            .map_err(|err| decode_err(err.to_string()))?;
+        // a small file can declare a huge image: bound the decode as MCAP images are
+        let mut limits = ::image::Limits::default();
+        limits.max_image_width = Some(MAX_FRAME_SIDE);
+        limits.max_image_height = Some(MAX_FRAME_SIDE);
+        limits.max_alloc = Some(MAX_FRAME_PIXELS.saturating_mul(8));
+        reader.limits(limits);
+        let decoder = reader
+            .into_decoder()
+            .map_err(|err| decode_err(err.to_string()))?;
+        let (w, h) = ::image::ImageDecoder::dimensions(&decoder);
+        if u64::from(w) * u64::from(h) > MAX_FRAME_PIXELS {
+            return Err(decode_err(format!(
+                "image {w}x{h} exceeds the limit of {MAX_FRAME_PIXELS} pixels"
+            )));
+        }
+        let img = ::image::DynamicImage::from_decoder(decoder)
             .map_err(|err| decode_err(err.to_string()))?;
         let gray = img.into_luma8();
         let (w, h) = (gray.width() as usize, gray.height() as usize);

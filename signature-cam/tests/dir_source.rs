@@ -114,3 +114,102 @@ fn errors_name_file_and_line() {
     assert!(src.next_frame().unwrap().is_none());
     fs::remove_dir_all(&dir).unwrap();
 }
+
+/// CRC-32 (IEEE) of PNG chunks.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 == 1 {
+                (c >> 1) ^ 0xEDB8_8320
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// A PNG of a few dozen bytes whose header declares a `w`x`h` 8-bit gray image
+/// (the pixel data is a valid but empty zlib stream).
+fn huge_png(w: u32, h: u32) -> Vec<u8> {
+    let chunk = |kind: &[u8], data: &[u8]| -> Vec<u8> {
+        let mut c = (data.len() as u32).to_be_bytes().to_vec();
+        let body = [kind, data].concat();
+        c.extend_from_slice(&body);
+        c.extend_from_slice(&crc32(&body).to_be_bytes());
+        c
+    };
+    let mut ihdr = w.to_be_bytes().to_vec();
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 0, 0, 0, 0]); // 8-bit gray, deflate, no filter, no interlace
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    png.extend(chunk(b"IHDR", &ihdr));
+    png.extend(chunk(
+        b"IDAT",
+        &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01],
+    ));
+    png.extend(chunk(b"IEND", &[]));
+    png
+}
+
+#[test]
+fn huge_declared_images_are_refused_before_decoding() {
+    let dir = scratch("huge");
+    texture(0.0).save(dir.join("a.png")).unwrap();
+    // 22000x22000 (484 Mpx: 1.5 GB resident before the limit) and a 40000 px wide strip
+    fs::write(dir.join("big.png"), huge_png(22_000, 22_000)).unwrap();
+    fs::write(dir.join("wide.png"), huge_png(40_000, 10)).unwrap();
+    fs::write(
+        dir.join("frames.csv"),
+        "a.png,1.0\nbig.png,1.1\nwide.png,1.2\na.png,1.3\n",
+    )
+    .unwrap();
+    let mut src = DirSource::open(&dir).unwrap();
+    assert!(src.next_frame().unwrap().is_some());
+    let e = src.next_frame().unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, Error::Decode { .. }), "{msg}");
+    assert!(
+        msg.contains("big.png") && msg.contains("22000x22000 exceeds the limit"),
+        "{msg}"
+    );
+    let e = src.next_frame().unwrap_err();
+    let msg = e.to_string();
+    assert!(msg.contains("wide.png") && msg.contains("limit"), "{msg}");
+    // nothing accepted is lost: the next frame decodes
+    let (f, _) = src.next_frame().unwrap().unwrap();
+    assert_eq!((f.width(), f.height()), (320, 240));
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn named_pipes_are_refused_not_waited_for() {
+    let dir = scratch("fifo");
+    let made = |p: &Path| {
+        std::process::Command::new("mkfifo")
+            .arg(p)
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    // frames.csv itself a FIFO without a writer: an error at once, not a hang
+    if !made(&dir.join("frames.csv")) {
+        return; // no mkfifo here
+    }
+    let msg = err_of(&dir).to_string();
+    assert!(
+        msg.contains("frames.csv") && msg.contains("not a regular file"),
+        "{msg}"
+    );
+    // a FIFO listed as a frame
+    fs::remove_file(dir.join("frames.csv")).unwrap();
+    assert!(made(&dir.join("pipe.png")));
+    fs::write(dir.join("frames.csv"), "pipe.png,1.0\n").unwrap();
+    let msg = err_of(&dir).to_string();
+    assert!(
+        msg.contains("pipe.png") && msg.contains("not a regular file"),
+        "{msg}"
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
