@@ -321,6 +321,57 @@ struct Checker<'a> {
     source: &'a str,
 }
 
+/// A value quoted in an error, cut at 40 characters (as the CSV readers do).
+fn clip(s: &str) -> String {
+    if s.chars().count() > 40 {
+        let mut c: String = s.chars().take(40).collect();
+        c.push('…');
+        c
+    } else {
+        s.to_string()
+    }
+}
+
+/// Most characters kept of each line of a TOML parse error (it quotes the offending
+/// line of the file, which may be megabytes long).
+const MAX_ERROR_LINE_CHARS: usize = 200;
+/// Most lines kept of a TOML parse error.
+const MAX_ERROR_LINES: usize = 12;
+
+/// The TOML parser's message, each line cut at [`MAX_ERROR_LINE_CHARS`]; the first
+/// line (`TOML parse error at line L, column C`) is kept whole when it is short.
+fn clip_toml_error(text: &str) -> String {
+    let mut out: Vec<String> = text
+        .trim_end()
+        .lines()
+        .take(MAX_ERROR_LINES)
+        .map(|l| {
+            if l.chars().count() > MAX_ERROR_LINE_CHARS {
+                let mut c: String = l.chars().take(MAX_ERROR_LINE_CHARS).collect();
+                c.push('…');
+                c
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    if text.trim_end().lines().count() > MAX_ERROR_LINES {
+        out.push("…".into());
+    }
+    out.join("\n")
+}
+
+/// A number for an error message: plain for everyday magnitudes (`0.01`, `3600`),
+/// in exponent form below 1e-3 and from 1e6 on (`1e-9`, `1e300`), so a limit such
+/// as 1e300 is not printed with 301 digits.
+fn num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 impl Checker<'_> {
     fn err(&self, message: String) -> ConfigError {
         ConfigError {
@@ -334,7 +385,10 @@ impl Checker<'_> {
             Ok(())
         } else {
             Err(self.err(format!(
-                "`{key}` = {v} is out of range: allowed {min} ..= {max}"
+                "`{key}` = {} is out of range: allowed {} ..= {}",
+                num(v),
+                num(min),
+                num(max)
             )))
         }
     }
@@ -506,7 +560,8 @@ impl ServicesConfig {
                 && !p.contains("//"),
             || {
                 format!(
-                    "`services.prefix` = {p:?} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`"
+                    "`services.prefix` = {:?} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`",
+                    clip(p)
                 )
             },
         )?;
@@ -525,19 +580,26 @@ impl Config {
     pub fn from_toml_str(text: &str, source_name: &str) -> Result<Self, ConfigError> {
         let cfg: Config = toml::from_str(text).map_err(|e| ConfigError {
             source_name: source_name.to_string(),
-            message: e.to_string().trim_end().to_string(),
+            message: clip_toml_error(&e.to_string()),
         })?;
         cfg.validate(source_name)?;
         Ok(cfg)
     }
 
-    /// Reads, parses and validates a TOML file.
+    /// Reads, parses and validates a TOML file (a regular file only: opening a named
+    /// pipe would block until a writer appears).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        let cannot_read = |e: &dyn fmt::Display| ConfigError {
             source_name: name.clone(),
             message: format!("cannot read: {e}"),
-        })?;
+        };
+        match std::fs::metadata(path) {
+            Ok(m) if m.is_file() => {}
+            Ok(_) => return Err(cannot_read(&"not a regular file")),
+            Err(e) => return Err(cannot_read(&e)),
+        }
+        let text = std::fs::read_to_string(path).map_err(|e| cannot_read(&e))?;
         Self::from_toml_str(&text, &name)
     }
 
@@ -651,6 +713,71 @@ mod tests {
         assert!(e.to_string().contains("segment_s"), "{e}");
         let e = Config::from_toml_str("[services]\nprefix = \"/a//b\"\n", "x").unwrap_err();
         assert!(e.to_string().contains("services.prefix"), "{e}");
+    }
+
+    #[test]
+    fn long_values_are_clipped_in_errors() {
+        let long = "a".repeat(10_000_000);
+        let e = Config::from_toml_str(&format!("[services]\nprefix = \"/{long}\"\n"), "x.toml")
+            .unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains("`services.prefix` = \"/aaa") && s.contains("…"),
+            "{}",
+            &s[..200]
+        );
+        assert!(s.len() < 300, "{} bytes", s.len());
+        // a parse error quotes the offending line: cut, with its line and column kept
+        let e = Config::from_toml_str(&format!("[estimator]\nwindow_s = 1 {long}\n"), "x.toml")
+            .unwrap_err();
+        let s = e.to_string();
+        assert!(s.len() < 1000, "{} bytes", s.len());
+        assert!(s.contains("line 2, column"), "{s}");
+        let e = Config::from_toml_str(&format!("[{long}]\n"), "x.toml").unwrap_err();
+        assert!(e.to_string().len() < 2000, "{} bytes", e.to_string().len());
+    }
+
+    #[test]
+    fn range_errors_print_readable_numbers() {
+        let e = Config::from_toml_str("[estimator]\nmax_abs_value = 1e301\n", "x").unwrap_err();
+        assert_eq!(
+            e.message,
+            "`estimator.max_abs_value` = 1e301 is out of range: allowed 1e-9 ..= 1e300"
+        );
+        let e = Config::from_toml_str("[estimator]\nlag_center_s = -2e6\n", "x").unwrap_err();
+        assert_eq!(
+            e.message,
+            "`estimator.lag_center_s` = -2e6 is out of range: allowed -1e6 ..= 1e6"
+        );
+        // everyday magnitudes as before (the README quotes this one)
+        let e = Config::from_toml_str("[estimator]\nmax_lag_s = 5.0\n", "my.toml").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config my.toml: `estimator.max_lag_s` = 5 is out of range: allowed 0.01 ..= 2"
+        );
+        assert_eq!(num(0.0), "0");
+        assert_eq!(num(0.001), "0.001");
+        assert_eq!(num(999_999.5), "999999.5");
+        assert_eq!(num(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn only_regular_files_are_loaded() {
+        let dir = std::env::temp_dir().join(format!("vlsync-config-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = Config::load(&dir).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        // a named pipe without a writer would block the read forever
+        let fifo = dir.join("vlsync.toml");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = Config::load(&fifo).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!("config {}: cannot read: not a regular file", fifo.display())
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     proptest! {
