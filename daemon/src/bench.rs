@@ -282,6 +282,15 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     if args.seeds == 0 {
         return Err("--seeds must be at least 1".into());
     }
+    // the last seed must exist: a wrapped range would run nothing
+    let last_seed = args.seed_base.checked_add(args.seeds - 1).ok_or_else(|| {
+        format!(
+            "--seed-base {} with --seeds {} goes past the largest seed {}",
+            args.seed_base,
+            args.seeds,
+            u64::MAX
+        )
+    })?;
     if let Some(d) = args.duration {
         if !(d.is_finite() && (5.0..=3600.0).contains(&d)) {
             return Err(format!("--duration {d}: allowed 5 ..= 3600 s"));
@@ -306,7 +315,7 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
                 let r = match run_family(
                     &cfg,
                     fam,
-                    args.seed_base..args.seed_base + args.seeds,
+                    args.seed_base..=last_seed,
                     args.duration,
                     args.plots.as_deref(),
                     match (args.known_steps, args.hinted) {
@@ -408,6 +417,15 @@ mod tests {
     fn bad_arguments_are_named() {
         let e = run_cli(&BenchArgs { seeds: 0, ..args() }).unwrap_err();
         assert!(e.contains("--seeds"), "{e}");
+        for (seed_base, seeds) in [(u64::MAX, 5), (u64::MAX - 3, 5), (u64::MAX, 2)] {
+            let e = run_cli(&BenchArgs {
+                seed_base,
+                seeds,
+                ..args()
+            })
+            .unwrap_err();
+            assert!(e.contains("--seed-base") && e.contains("--seeds"), "{e}");
+        }
         let e = run_cli(&BenchArgs {
             families: vec!["nope".into()],
             ..args()

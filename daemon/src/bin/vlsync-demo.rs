@@ -17,6 +17,7 @@ use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{Received, Role, Session, SessionOptions, Source, Stamping};
 use vlsyncd::harness::stats::ErrorStats;
+use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
 
 #[derive(Parser)]
 #[command(
@@ -77,7 +78,26 @@ fn locked(r: &Received) -> bool {
     )
 }
 
+/// Checks the numeric arguments before anything is started or created.
+fn check_args(a: &Args) -> Result<(), String> {
+    // the signature simulator runs 2 s at least, the rendering simulator 1 s
+    let min_s = if a.family.is_some() {
+        vlsync_sim::families::MIN_DURATION_S
+    } else {
+        1.0
+    };
+    check_arg(
+        "--duration",
+        a.duration,
+        min_s,
+        vlsync_sim::families::MAX_DURATION_S,
+    )?;
+    check_arg("--speed", a.speed, MIN_SPEED, MAX_SPEED)?;
+    Ok(())
+}
+
 fn run(a: Args) -> Result<(), String> {
+    check_args(&a)?;
     let mut out = Out::new();
     let source = match &a.family {
         Some(f) => Source::Sim {
@@ -238,4 +258,33 @@ fn run(a: Args) -> Result<(), String> {
         }
     ));
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> Args {
+        Args::try_parse_from(["vlsync-demo"].iter().chain(extra)).unwrap()
+    }
+
+    #[test]
+    fn bad_numbers_are_refused_naming_the_flag() {
+        assert!(check_args(&args(&[])).is_ok());
+        assert!(check_args(&args(&["--family", "robot", "--speed", "10"])).is_ok());
+        for (argv, flag) in [
+            (&["--speed", "0"][..], "--speed"),
+            (&["--speed=-1"][..], "--speed"),
+            (&["--speed", "nan"][..], "--speed"),
+            (&["--duration", "0"][..], "--duration"),
+            (&["--duration", "inf"][..], "--duration"),
+            (
+                &["--family", "robot", "--duration", "1.5"][..],
+                "--duration",
+            ),
+        ] {
+            let e = check_args(&args(argv)).unwrap_err();
+            assert!(e.starts_with(&format!("{flag} ")), "{argv:?}: {e}");
+        }
+    }
 }

@@ -14,6 +14,8 @@ use clap::Parser;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vlsync_ipc::{create_node, monotonic_ns, termination_requested, StatusClient};
+use vlsync_sim::families::{MAX_DURATION_S, MIN_DURATION_S};
+use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
 use vlsyncd::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
 
 #[derive(Parser)]
@@ -121,7 +123,20 @@ fn us(ns: u64) -> String {
     format!("{:.1} µs", ns as f64 / 1e3)
 }
 
+/// Checks the arguments before any process is started or file written: the
+/// durations are the drivers' `--duration` of the signature simulator.
+fn check_args(a: &Args) -> Result<(), String> {
+    check_arg("--fast-sim-s", a.fast_sim_s, MIN_DURATION_S, MAX_DURATION_S)?;
+    check_arg("--speed", a.speed, MIN_SPEED, MAX_SPEED)?;
+    check_arg("--nominal-s", a.nominal_s, MIN_DURATION_S, MAX_DURATION_S)?;
+    if let Some(c) = &a.config {
+        vlsync_config::Config::load(c).map_err(|e| format!("--config: {e}"))?;
+    }
+    Ok(())
+}
+
 fn run(a: &Args) -> Result<bool, String> {
+    check_args(a)?;
     let _node = create_node("vlsync-latency", true).map_err(|e| e.to_string())?;
     let prefix = format!("vlsync-latency/{}", std::process::id());
     let mut dargs = vec!["run".to_string(), "--prefix".into(), prefix.clone()];
@@ -129,21 +144,36 @@ fn run(a: &Args) -> Result<bool, String> {
         dargs.push("--config".into());
         dargs.push(c.display().to_string());
     }
+    let daemon_bin = sibling_binary("vlsyncd")?;
     let log = std::env::temp_dir().join(format!("vlsync-latency-{}.log", std::process::id()));
-    let mut daemon = Managed::spawn("vlsyncd", &sibling_binary("vlsyncd")?, &dargs, Some(&log))?;
-    let mut status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
+    let result = measure(a, &prefix, &daemon_bin, &dargs, &log);
+    if result.is_err() {
+        // the daemon is stopped by now; what its log said is in the error
+        let _ = std::fs::remove_file(&log);
+    }
+    result
+}
+
+/// Both phases on a daemon logging to `log` (removed after a clean run).
+fn measure(
+    a: &Args,
+    prefix: &str,
+    daemon_bin: &std::path::Path,
+    dargs: &[String],
+    log: &std::path::Path,
+) -> Result<bool, String> {
+    let mut daemon = Managed::spawn("vlsyncd", daemon_bin, dargs, Some(log))?;
+    let mut status = StatusClient::open(prefix).map_err(|e| e.to_string())?;
     std::thread::sleep(Duration::from_millis(300));
     if !daemon.running() {
-        return Err(format!(
-            "vlsyncd exited at start (its log: {})",
-            log.display()
-        ));
+        let said = std::fs::read_to_string(log).unwrap_or_default();
+        return Err(format!("vlsyncd exited at start: {}", said.trim()));
     }
 
     // ---- phase 1: 100x ----
     let cpu0 = cpu_seconds(daemon.pid())?;
     let t0 = Instant::now();
-    let (mut cam, mut lidar) = spawn_drivers(&prefix, 1, a.fast_sim_s, a.speed)?;
+    let (mut cam, mut lidar) = spawn_drivers(prefix, 1, a.fast_sim_s, a.speed)?;
     wait_drivers(
         &mut cam,
         &mut lidar,
@@ -184,7 +214,7 @@ fn run(a: &Args) -> Result<bool, String> {
     // ---- phase 2: nominal rates ----
     let cpu0 = cpu_seconds(daemon.pid())?;
     let t0 = Instant::now();
-    let (mut cam, mut lidar) = spawn_drivers(&prefix, 2, a.nominal_s, 1.0)?;
+    let (mut cam, mut lidar) = spawn_drivers(prefix, 2, a.nominal_s, 1.0)?;
     wait_drivers(
         &mut cam,
         &mut lidar,
@@ -203,7 +233,7 @@ fn run(a: &Args) -> Result<bool, String> {
     );
     let clean = daemon.stop(Duration::from_secs(3));
     if clean {
-        let _ = std::fs::remove_file(&log);
+        let _ = std::fs::remove_file(log);
     } else {
         println!("daemon log kept in {}", log.display());
     }
@@ -240,5 +270,37 @@ fn main() -> ExitCode {
             eprintln!("vlsync-latency: error: {e}");
             ExitCode::from(2)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> Result<Args, clap::Error> {
+        Args::try_parse_from(["vlsync-latency"].iter().chain(extra))
+    }
+
+    #[test]
+    fn bad_numbers_are_refused_naming_the_flag() {
+        assert!(check_args(&args(&[]).unwrap()).is_ok());
+        for (argv, flag) in [
+            (&["--speed", "0"][..], "--speed"),
+            (&["--speed=-1"][..], "--speed"),
+            (&["--speed", "inf"][..], "--speed"),
+            (&["--fast-sim-s", "nan"][..], "--fast-sim-s"),
+            (&["--fast-sim-s", "1e9"][..], "--fast-sim-s"),
+            (&["--nominal-s=-30"][..], "--nominal-s"),
+            (&["--nominal-s", "0"][..], "--nominal-s"),
+        ] {
+            let e = check_args(&args(argv).unwrap()).unwrap_err();
+            assert!(e.starts_with(&format!("{flag} ")), "{argv:?}: {e}");
+            assert!(e.contains("out of range"), "{e}");
+        }
+        let e = check_args(&args(&["--config", "/nonexistent/vlsync.toml"]).unwrap()).unwrap_err();
+        assert!(
+            e.contains("--config") && e.contains("/nonexistent/vlsync.toml"),
+            "{e}"
+        );
     }
 }

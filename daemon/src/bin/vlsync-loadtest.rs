@@ -105,6 +105,21 @@ fn rt_lines(log: &str) -> Vec<String> {
         .collect()
 }
 
+/// The daemon's configuration: `--config` (or the defaults) with the options on top.
+fn daemon_config(a: &Args) -> Result<vlsync_config::Config, String> {
+    let mut cfg = match &a.config {
+        Some(p) => vlsync_config::Config::load(p).map_err(|e| e.to_string())?,
+        None => vlsync_config::Config::default(),
+    };
+    cfg.daemon.core = a.core;
+    cfg.daemon.fifo_priority = a.fifo;
+    cfg.daemon.latency_per_period = true;
+    cfg.daemon.load_hints = a.load_hints;
+    cfg.validate("vlsync-loadtest options")
+        .map_err(|e| e.to_string())?;
+    Ok(cfg)
+}
+
 fn run(a: &Args) -> Result<bool, String> {
     // a reader that goes away stops the printing, not the run: the report files are
     // its result
@@ -140,24 +155,16 @@ fn run(a: &Args) -> Result<bool, String> {
     } else {
         None
     };
+    let cfg = daemon_config(a)?;
+    let text = toml::to_string(&cfg).map_err(|e| format!("daemon configuration: {e}"))?;
+    // every argument is checked: only now is the output directory made
     let pid = std::process::id();
     let out = a
         .out
         .clone()
         .unwrap_or_else(|| std::env::temp_dir().join(format!("vlsync-loadtest-{pid}")));
     std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
-    let mut cfg = match &a.config {
-        Some(p) => vlsync_config::Config::load(p).map_err(|e| e.to_string())?,
-        None => vlsync_config::Config::default(),
-    };
-    cfg.daemon.core = a.core;
-    cfg.daemon.fifo_priority = a.fifo;
-    cfg.daemon.latency_per_period = true;
-    cfg.daemon.load_hints = a.load_hints;
-    cfg.validate("vlsync-loadtest options")
-        .map_err(|e| e.to_string())?;
     let cfg_path = out.join("vlsyncd.toml");
-    let text = toml::to_string(&cfg).map_err(|e| format!("daemon configuration: {e}"))?;
     std::fs::write(&cfg_path, text).map_err(|e| format!("{}: {e}", cfg_path.display()))?;
 
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
@@ -385,4 +392,42 @@ fn run(a: &Args) -> Result<bool, String> {
         con.line(format_args!("wrote {}", p.display()));
     }
     Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_arguments_fail_before_the_output_directory_is_made() {
+        let out = std::env::temp_dir().join(format!("vlsync-loadtest-bad-{}", std::process::id()));
+        let o = out.display().to_string();
+        for (argv, want) in [
+            // (the idle profile needs no stress-ng)
+            (
+                &["--profile", "idle", "--fifo", "1000"][..],
+                "daemon.fifo_priority",
+            ),
+            (&["--profile", "idle", "--core", "99999"][..], "daemon.core"),
+            (
+                &["--profile", "idle", "--config", "/nonexistent/vlsync.toml"][..],
+                "/nonexistent/vlsync.toml",
+            ),
+            (
+                &["--profile", "idle", "--cam-frame-cpu-ms", "nan"][..],
+                "--cam-frame-cpu-ms",
+            ),
+            (&["--profile", "nope"][..], "unknown profile"),
+        ] {
+            let a = Args::try_parse_from(
+                ["vlsync-loadtest", "--quiet", "--out", o.as_str()]
+                    .iter()
+                    .chain(argv),
+            )
+            .unwrap();
+            let e = run(&a).unwrap_err();
+            assert!(e.contains(want), "{argv:?}: {e}");
+            assert!(!out.exists(), "{argv:?} made {o}");
+        }
+    }
 }

@@ -13,3 +13,30 @@ pub mod report;
 pub mod session;
 pub mod stats;
 pub mod truth;
+
+/// Largest real-time speed factor the live tools accept (`--speed`).
+pub const MAX_SPEED: f64 = 1000.0;
+/// Smallest real-time speed factor the live tools accept (`--speed`).
+pub const MIN_SPEED: f64 = 0.01;
+
+/// Checks a numeric command-line argument before anything is started or written:
+/// finite and within `min ..= max`; the error names the flag.
+///
+/// ```
+/// use vlsyncd::harness::check_arg;
+/// assert_eq!(check_arg("--speed", 2.0, 0.01, 1000.0), Ok(2.0));
+/// assert_eq!(
+///     check_arg("--speed", 0.0, 0.01, 1000.0).unwrap_err(),
+///     "--speed 0 is out of range: allowed 0.01 ..= 1000"
+/// );
+/// assert!(check_arg("--speed", f64::NAN, 0.01, 1000.0).is_err());
+/// ```
+pub fn check_arg(flag: &str, v: f64, min: f64, max: f64) -> Result<f64, String> {
+    if v.is_finite() && (min..=max).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{flag} {v} is out of range: allowed {min} ..= {max}"
+        ))
+    }
+}

@@ -275,7 +275,14 @@ impl Session {
     /// start instant `start_delay` ahead. Installs the SIGINT/SIGTERM handler of
     /// this process (see [`vlsync_ipc::termination_requested`]).
     pub fn start(o: SessionOptions) -> Result<Self, String> {
+        // what can be checked is, before a directory is created or a process started
         o.source.check()?;
+        if let Some(c) = &o.daemon_config {
+            vlsync_config::Config::load(c).map_err(|e| format!("daemon configuration: {e}"))?;
+        }
+        let bins = Role::ALL.map(|r| sibling_binary(r.name()));
+        let [daemon_bin, cam_bin, lidar_bin] = bins;
+        let (daemon_bin, driver_bins) = (daemon_bin?, [cam_bin?, lidar_bin?]);
         let pid = std::process::id();
         let prefix = o
             .prefix
@@ -295,12 +302,7 @@ impl Session {
             dargs.push(c.display().to_string());
         }
         let daemon_log = log_dir.join("vlsyncd.log");
-        let mut daemon = Managed::spawn(
-            "vlsyncd",
-            &sibling_binary("vlsyncd")?,
-            &dargs,
-            Some(&daemon_log),
-        )?;
+        let mut daemon = Managed::spawn("vlsyncd", &daemon_bin, &dargs, Some(&daemon_log))?;
         let daemon_started = Instant::now();
         let offsets = OffsetClient::open(&prefix).map_err(|e| e.to_string())?;
         let status = StatusClient::open(&prefix).map_err(|e| e.to_string())?;
@@ -324,11 +326,14 @@ impl Session {
         }
         let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
         let mut spawned = vec![];
-        for (role, stream) in [(Role::Cam, "cam"), (Role::Lidar, "lidar")] {
+        for ((role, stream), bin) in [(Role::Cam, "cam"), (Role::Lidar, "lidar")]
+            .into_iter()
+            .zip(&driver_bins)
+        {
             let args = driver_args(&o.source, &prefix, start_at, role, &log_dir);
             let m = Managed::spawn(
                 role.name(),
-                &sibling_binary(role.name())?,
+                bin,
                 &args,
                 Some(&log_dir.join(format!("vlsync-{stream}.log"))),
             )?;
@@ -655,5 +660,39 @@ mod tests {
             opposite_window: false,
         };
         assert!(sw.known_truth().unwrap().is_none());
+    }
+
+    #[test]
+    fn bad_options_fail_before_the_log_directory_is_made() {
+        let dir = std::env::temp_dir().join(format!("vlsync-session-bad-{}", std::process::id()));
+        let sim = Source::Sim {
+            family: vlsync_sim::Family::Robot,
+            seed: 1,
+            duration_s: 10.0,
+            speed: 1.0,
+        };
+        let opts = |source: Source, config: &str| SessionOptions {
+            name: "vlsync-test".into(),
+            prefix: None,
+            log_dir: Some(dir.clone()),
+            daemon_config: Some(PathBuf::from(config)),
+            source,
+            start_delay: Duration::ZERO,
+        };
+        let e = Session::start(opts(sim, "/nonexistent/vlsync.toml"))
+            .err()
+            .unwrap();
+        assert!(e.contains("/nonexistent/vlsync.toml"), "{e}");
+        let bad_speed = Source::Sim {
+            family: vlsync_sim::Family::Robot,
+            seed: 1,
+            duration_s: 10.0,
+            speed: 0.0,
+        };
+        let e = Session::start(opts(bad_speed, "/nonexistent/vlsync.toml"))
+            .err()
+            .unwrap();
+        assert!(e.contains("speed 0"), "{e}");
+        assert!(!dir.exists());
     }
 }

@@ -37,11 +37,12 @@ struct Args {
 }
 
 fn json_f64(v: f64) -> serde_json::Value {
-    // JSON has no NaN/inf: print them as strings so nothing is lost
+    // JSON has no NaN/inf: `null` (e.g. `measured_offset_s` when no measurement was
+    // accepted), so every field keeps one type, a number or null
     if v.is_finite() {
         serde_json::json!(v)
     } else {
-        serde_json::json!(v.to_string())
+        serde_json::Value::Null
     }
 }
 
@@ -196,4 +197,34 @@ fn main() -> ExitCode {
             .map(|e| e.iter().map(|e| line(e, json)).collect())
             .map_err(|e| e.to_string())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_common::{EstimatorState, Polarity};
+
+    #[test]
+    fn json_lines_write_null_for_non_finite_numbers() {
+        let e = Estimate {
+            seq: 3,
+            t_ref_ns: 5_000_000_000,
+            offset_s: 0.025,
+            drift: f64::INFINITY,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Holding,
+            polarity: Polarity::Negative,
+            peak_score: 0.0,
+            peak_ratio: f64::NEG_INFINITY,
+            measured_offset_s: f64::NAN,
+        };
+        let text = line(&e, true);
+        assert!(text.contains("\"measured_offset_s\":null"), "{text}");
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert!(v["measured_offset_s"].is_null() && v["drift"].is_null());
+        assert!(v["peak_ratio"].is_null());
+        assert_eq!(v["offset_s"].as_f64(), Some(0.025));
+        assert_eq!(v["state"], "holding");
+    }
 }
