@@ -521,8 +521,8 @@ impl Correlator {
     }
 
     /// Moves the cursor back to just after the newest LiDAR index stored, if it is
-    /// beyond (a prediction far off made the other stream look stalled, and the
-    /// cursor skipped ahead of the data): the next data are correlated again.
+    /// beyond (with a lag range far off the cursor waits at, or skipped to, indices
+    /// the data will not reach for a long time): the next data are correlated again.
     pub fn pull_cursor_back(&mut self) {
         let next = self.lidar.end.saturating_add(1);
         if self.lidar.seg_start.is_some() && self.cursor.is_some_and(|c| c > next) {

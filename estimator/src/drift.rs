@@ -259,7 +259,9 @@ impl DriftFit {
         } else {
             with_prior(scale)
         };
-        (d.clamp(-MAX_DRIFT, MAX_DRIFT), var)
+        // a capped slope is as uncertain as the cap is far from the fit
+        let capped = d.clamp(-MAX_DRIFT, MAX_DRIFT);
+        (capped, var.max((d - capped).powi(2)))
     }
 }
 

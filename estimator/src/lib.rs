@@ -97,9 +97,10 @@ fn idx(s: Stream) -> usize {
 }
 
 const QUEUE: usize = 64;
-/// Acquisition hops with motion (or blind, the other stream silent) after which an
-/// acquisition that found nothing moves its lag range to the other candidate centre
-/// (see [`Estimator::alt_lag0`]): 30 s at the default hop.
+/// Acquisition hops with motion after which an acquisition that found nothing moves
+/// its lag range to the other candidate centre (see [`Estimator::alt_lag0`]), and
+/// the LiDAR time without a correlator hop, both streams delivering, after which it
+/// moves at once ([`Estimator::check_unserved`]): 30 s at the default hop.
 const RECENTRE_HOPS: usize = 60;
 /// Hops of acquisition-window variances behind the motion gate's reference (120 s at
 /// the default hop).
@@ -548,10 +549,11 @@ pub struct Estimator {
     other_at_last: [Option<(Nanos, Nanos)>; 2],
     /// Per stream: the sum of the clock jumps taken ([`Estimator::clock_jump`]).
     jumps: [Nanos; 2],
-    /// Where an acquisition that finds nothing searches next: the lag range's
-    /// position (`Correlator::lag0`) it left, or the start's, centred on offset 0
-    /// (after a restore, a clock jump or a lock lost far from 0: the prediction
-    /// that put the range where it is may be wrong). `None`: already at the start's.
+    /// Where an acquisition that finds nothing searches next: the start's range
+    /// (centred on `lag_center_s`) when the search is elsewhere (set by a clock jump
+    /// and by losing a lock: the prediction that put the range where it is may be
+    /// wrong), then the range it left. `None`: nowhere else (at the start's range, or
+    /// the range left could not be served, [`Estimator::check_unserved`]).
     alt_lag0: Option<i64>,
     /// Acquisition hops with motion, or blind, since the range last moved (a lock
     /// lost within [`RECENTRE_HOPS`] hops does not reset them: at a wrong centre the
@@ -559,9 +561,11 @@ pub struct Estimator {
     acq_tries: usize,
     /// Tracking hops since the last lock.
     locked_hops: usize,
-    /// The LiDAR's newest time when an estimate last came out, and the estimates
-    /// counted then (see [`Estimator::check_unserved`]).
-    last_emit_lidar: Option<(Nanos, u64)>,
+    /// Where the watch of [`Estimator::check_unserved`] started: the LiDAR's and the
+    /// camera's newest times, and the correlator's hops counted then.
+    unserved_since: Option<(Nanos, Option<Nanos>, u64)>,
+    /// Hops the correlator completed (blind estimates of a stall not counted).
+    hops_done: u64,
     degraded: bool,
     queue: Queue,
     seq: u64,
@@ -660,7 +664,8 @@ impl Estimator {
             alt_lag0: None,
             acq_tries: 0,
             locked_hops: 0,
-            last_emit_lidar: None,
+            unserved_since: None,
+            hops_done: 0,
             degraded: false,
             queue: Queue {
                 buf: [None; QUEUE],
@@ -959,9 +964,13 @@ impl Estimator {
         // without a peak near it while moving, the estimator turns `lost` and re-acquires
         self.mode = Mode::Locked;
         self.locked_hops = 0;
+        // a lost restored lock searches the start's range next (see `lose`)
+        self.acq_tries = 0;
+        self.alt_lag0 = None;
+        self.unserved_since = None;
         self.info_t = f64::NEG_INFINITY;
         let lag = (self.cur.o * self.p.fs).round() as i64;
-        self.corr.set_lag0(lag - self.p.half_lags);
+        self.corr.set_lag0(lag.saturating_sub(self.p.half_lags));
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
     }
 
@@ -1004,7 +1013,7 @@ impl Estimator {
         self.cur.var += interval * interval;
         self.epoch_ns = None;
         let lag = (self.cur.o * self.p.fs).round() as i64;
-        self.corr.set_lag0(lag - self.p.half_lags);
+        self.corr.set_lag0(lag.saturating_sub(self.p.half_lags));
         self.corr.clear_blocks();
         if stream == Stream::Lidar {
             // the grid is on the LiDAR clock: its indices moved with it
@@ -1015,28 +1024,31 @@ impl Estimator {
         self.acq = Streak::default();
         self.acq_tries = 0;
         self.alt_lag0 = self.home_alt();
+        // the watch's times are on the clock before the step
+        self.unserved_since = None;
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
     }
 
     /// The lag range's position at the start (centred on offset 0), as the
     /// alternative of an acquisition elsewhere; `None` when the range is there.
     fn home_alt(&self) -> Option<i64> {
-        let home = -self.p.half_lags;
+        let home = self.p.center_lag.saturating_sub(self.p.half_lags);
         (self.corr.lag0() != home).then_some(home)
     }
 
-    /// Counts an acquisition hop that could have locked (motion, or blind); after
-    /// [`RECENTRE_HOPS`] of them the lag range moves to the alternative centre
-    /// ([`Estimator::alt_lag0`]), and the one it left becomes the alternative: a
-    /// wrong prediction (a restored state far off, two clocks that stepped apart)
-    /// cannot keep the search away from the offset.
-    /// Returns whether it moved.
+    /// Counts an acquisition hop that could have locked (the window moved); after
+    /// [`RECENTRE_HOPS`] of them, unless consistent peaks are building a lock here,
+    /// the lag range moves to the alternative centre ([`Estimator::alt_lag0`]) and
+    /// the one it left becomes the alternative: a wrong prediction (a restored state
+    /// off, two clocks that stepped apart) cannot keep the search away from the
+    /// offset. Returns whether it moved.
     fn acquisition_try(&mut self) -> bool {
         if self.mode != Mode::Acquire {
             return false;
         }
         self.acq_tries += 1;
-        if self.acq_tries < RECENTRE_HOPS {
+        // not while consistent peaks are building up to a lock here
+        if self.acq_tries < RECENTRE_HOPS || self.acq.count > 0 {
             return false;
         }
         self.acq_tries = 0;
@@ -1076,25 +1088,9 @@ impl Estimator {
         let Some(cur) = self.corr.cursor() else {
             return;
         };
-        // how long the other stream has been silent, on this stream's clock (its own
-        // steps taken out): not from the offset, which may be far off while acquiring
-        // (a restored state, a clock step), and would make data look stalled
-        let si = idx(stream);
-        let Some((then, jumps_then)) = self.other_at_last[1 - si] else {
-            return;
-        };
-        let silent = t_ns
-            .saturating_sub(then)
-            .saturating_sub(self.jumps[si].saturating_sub(jumps_then));
-        if silent <= self.p.stall_slots.saturating_mul(self.p.dt_ns) {
-            return;
-        }
         let t_l = match stream {
             Stream::Lidar => t_ns,
-            Stream::Cam => match self.rs[1].last_time() {
-                Some(l) => l.saturating_add(silent),
-                None => return,
-            },
+            Stream::Cam => t_ns.saturating_add((self.cur.o * 1e9) as Nanos),
         };
         let k_now = t_l.div_euclid(self.p.dt_ns);
         if k_now.saturating_sub(cur) <= self.p.stall_slots {
@@ -1122,7 +1118,6 @@ impl Estimator {
             }
             let st = self.current_state(false);
             self.emit(t_ref, st, None, 0.0, 0.0);
-            let _ = self.acquisition_try();
             b += hl;
         }
         self.corr.skip_to(target);
@@ -1132,23 +1127,41 @@ impl Estimator {
         self.step = Streak::default();
     }
 
-    /// Both streams deliver, yet no estimate came out for [`RECENTRE_HOPS`] hops of
-    /// LiDAR time: the lag range is so far off (a restored offset of days) that the
-    /// correlator waits for camera data it will never get. The search moves to the
-    /// start's range at once.
+    /// Both streams deliver (the camera advanced by half the watch), yet the
+    /// correlator completed no hop for [`RECENTRE_HOPS`] hops of LiDAR time (blind
+    /// estimates of a stall do not count): the lag range is so far off (a restored
+    /// offset of days) that the correlator waits for camera data it will never get,
+    /// or the offset's mapping of camera time makes the LiDAR look stalled. The lock,
+    /// if any, is lost and the search moves to [`Estimator::alt_lag0`] at once; the
+    /// range it left is not searched again.
     fn check_unserved(&mut self, t_lidar: Nanos) {
-        let n = self.stats.estimates;
-        let (last, n_last) = *self.last_emit_lidar.get_or_insert((t_lidar, n));
+        let cam = self.rs[0].last_time();
+        let now = (t_lidar, cam, self.hops_done);
+        let (t0, cam0, hops0) = *self.unserved_since.get_or_insert(now);
         let limit = (RECENTRE_HOPS as i64).saturating_mul(self.p.hop_len * self.p.dt_ns);
-        if n != n_last || t_lidar < last {
-            self.last_emit_lidar = Some((t_lidar, n));
-        } else if t_lidar.saturating_sub(last) > limit {
-            self.last_emit_lidar = Some((t_lidar, n));
+        // the camera must have delivered over the watch too (a silent camera is a
+        // stall: blind estimates, then lost, see check_stall)
+        let cam_moved = match (cam0, cam) {
+            (Some(a), Some(b)) => b.saturating_sub(a) > limit / 2,
+            _ => false,
+        };
+        if self.hops_done != hops0 || t_lidar < t0 {
+            self.unserved_since = Some(now);
+        } else if t_lidar.saturating_sub(t0) > limit {
+            self.unserved_since = Some(now);
+            if !cam_moved {
+                return;
+            }
+            self.finish_step();
             if self.mode == Mode::Locked {
                 self.lose();
             }
             self.acq_tries = RECENTRE_HOPS - 1;
-            let _ = self.acquisition_try();
+            self.acq = Streak::default();
+            if self.acquisition_try() {
+                // the range just left could not be served: no way back to it
+                self.alt_lag0 = None;
+            }
         }
     }
 
@@ -1340,6 +1353,7 @@ impl Estimator {
     }
 
     fn hop(&mut self) {
+        self.hops_done += 1;
         self.hop_inner();
         // what was prepared was for this hop (used, or its inputs changed)
         self.seg.drop_prepared();
