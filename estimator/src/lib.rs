@@ -555,7 +555,7 @@ pub struct Estimator {
     /// wrong), then the range it left. `None`: nowhere else (at the start's range, or
     /// the range left could not be served, [`Estimator::check_unserved`]).
     alt_lag0: Option<i64>,
-    /// Acquisition hops with motion, or blind, since the range last moved (a lock
+    /// Acquisition hops with motion since the range last moved (a lock
     /// lost within [`RECENTRE_HOPS`] hops does not reset them: at a wrong centre the
     /// signatures' own structure can lock for a few seconds).
     acq_tries: usize,
@@ -1029,7 +1029,7 @@ impl Estimator {
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
     }
 
-    /// The lag range's position at the start (centred on offset 0), as the
+    /// The lag range's position at the start (centred on `lag_center_s`), as the
     /// alternative of an acquisition elsewhere; `None` when the range is there.
     fn home_alt(&self) -> Option<i64> {
         let home = self.p.center_lag.saturating_sub(self.p.half_lags);
