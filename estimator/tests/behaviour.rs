@@ -630,15 +630,12 @@ fn restore_starts_holding_near_the_saved_offset_and_relocks() {
     assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
 }
 
-#[test]
-fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
-    let run = generate(Family::Robot, 22, Some(90.0));
-    let mut est = Estimator::new(&EstimatorConfig::default());
-    let truth0 = run.truth.offset_at(0);
-    let bogus = vlsync_common::Estimate {
+/// A saved tracking estimate of `offset_s` (1 ms, 1 ppm), as a state file holds one.
+fn saved_tracking(offset_s: f64) -> vlsync_common::Estimate {
+    vlsync_common::Estimate {
         seq: 0,
         t_ref_ns: 0,
-        offset_s: truth0 + 0.3,
+        offset_s,
         drift: 0.0,
         offset_std_s: 0.001,
         drift_std: 1e-6,
@@ -647,7 +644,15 @@ fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
         peak_score: 0.9,
         peak_ratio: 2.0,
         measured_offset_s: f64::NAN,
-    };
+    }
+}
+
+#[test]
+fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
+    let run = generate(Family::Robot, 22, Some(90.0));
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let truth0 = run.truth.offset_at(0);
+    let bogus = saved_tracking(truth0 + 0.3);
     est.restore(&bogus, 1.0);
     let out = replay(&run, &mut est);
     assert!(out.iter().any(|e| e.state == EstimatorState::Lost));
@@ -749,19 +754,7 @@ fn a_lidar_clock_stepping_back_is_followed() {
 fn a_restore_far_outside_the_lag_range_is_searched_away_from() {
     let run = generate(Family::Robot, 22, Some(90.0));
     let mut est = Estimator::new(&EstimatorConfig::default());
-    let bogus = vlsync_common::Estimate {
-        seq: 0,
-        t_ref_ns: 0,
-        offset_s: 5.0,
-        drift: 0.0,
-        offset_std_s: 0.001,
-        drift_std: 1e-6,
-        state: EstimatorState::Tracking,
-        polarity: Polarity::Negative,
-        peak_score: 0.9,
-        peak_ratio: 2.0,
-        measured_offset_s: f64::NAN,
-    };
+    let bogus = saved_tracking(5.0);
     est.restore(&bogus, 1.0);
     let out = replay(&run, &mut est);
     assert!(est.stats().recentres >= 1, "{:?}", est.stats());
