@@ -1052,9 +1052,17 @@ impl Estimator {
             return false;
         }
         self.acq_tries = 0;
+        self.move_search()
+    }
+
+    /// Moves the lag range to [`Estimator::alt_lag0`] (the one it leaves becomes the
+    /// alternative) and restarts the acquisition there; `false` when there is no
+    /// alternative.
+    fn move_search(&mut self) -> bool {
         let Some(to) = self.alt_lag0 else {
             return false;
         };
+        self.acq_tries = 0;
         self.alt_lag0 = Some(self.corr.lag0());
         self.corr.set_lag0(to);
         self.corr.clear_blocks();
@@ -1062,7 +1070,7 @@ impl Estimator {
         // (check_stall), and the cursor skip past the data
         self.corr.pull_cursor_back();
         self.acq = Streak::default();
-        let o = (to + self.p.half_lags) as f64 * self.p.dt_s;
+        let o = to.saturating_add(self.p.half_lags) as f64 * self.p.dt_s;
         self.cur.var += (o - self.cur.o).powi(2);
         self.cur.o = o;
         self.stats.recentres += 1;
@@ -1156,9 +1164,7 @@ impl Estimator {
             if self.mode == Mode::Locked {
                 self.lose();
             }
-            self.acq_tries = RECENTRE_HOPS - 1;
-            self.acq = Streak::default();
-            if self.acquisition_try() {
+            if self.move_search() {
                 // the range just left could not be served: no way back to it
                 self.alt_lag0 = None;
             }
