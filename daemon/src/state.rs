@@ -462,10 +462,12 @@ pub fn load(
         problem,
     };
     // a FIFO would block the open: only regular files (following a symlink) are read
-    match std::fs::metadata(path) {
-        Ok(m) if m.is_file() => {}
-        Ok(_) => return Err(err(Problem::NotAFile)),
+    match vlsync_common::file::check_regular(path) {
+        Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) if e.kind() == std::io::ErrorKind::InvalidInput => {
+            return Err(err(Problem::NotAFile))
+        }
         Err(e) => return Err(err(Problem::Io(e.to_string()))),
     }
     let f = std::fs::File::open(path).map_err(|e| err(Problem::Io(e.to_string())))?;
