@@ -396,6 +396,45 @@ impl History {
     }
 }
 
+/// Why the acquisition's lag range moved ([`SearchMove`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SearchMoveReason {
+    /// An acquisition found no lock in [`RECENTRE_HOPS`] hops with motion.
+    NothingFound,
+    /// Both streams delivered but the correlator completed no hop for
+    /// [`RECENTRE_HOPS`] hops of LiDAR time: the prediction put the camera's
+    /// data out of reach (a restored state far off, clocks that stepped apart).
+    Unserved,
+}
+
+/// A move of the acquisition's lag range to its other candidate centre
+/// ([`Estimator::take_search_move`]); counted in [`EstimatorStats::recentres`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SearchMove {
+    /// Centre of the lag range left (an offset), s.
+    pub from_s: f64,
+    /// Centre of the lag range searched from now on, s.
+    pub to_s: f64,
+    /// What made it move.
+    pub reason: SearchMoveReason,
+    /// How long it waited before moving (motion for [`SearchMoveReason::NothingFound`],
+    /// LiDAR time for [`SearchMoveReason::Unserved`]), s.
+    pub after_s: f64,
+}
+
+/// An offset step the step test found in the data (a new segment started;
+/// counted in [`EstimatorStats::steps`]); taken with [`Estimator::take_offset_step`].
+/// Changes announced from outside (load hints, cadence steps) are not reported
+/// here: their announcer knows of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OffsetStep {
+    /// Where the new segment starts, on the LiDAR clock, ns.
+    pub t_ns: Nanos,
+    /// The step's size as the test measured it (new offset less the old one's
+    /// prediction), s.
+    pub step_s: f64,
+}
+
 /// A step of one stream's stamping latency, found in its cadence
 /// ([`Estimator::take_latency_step`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -531,6 +570,10 @@ pub struct Estimator {
     seg_prior: Option<HintPrior>,
     /// The newest latency step a cadence found, until taken.
     latency_step: Option<LatencyStep>,
+    /// The newest move of the search, until taken.
+    search_move: Option<SearchMove>,
+    /// The newest offset step the step test found, until taken.
+    offset_step: Option<OffsetStep>,
     /// Per stream, the internal time of its cadence's last step.
     last_cadence_step: [Option<Nanos>; 2],
     epoch_ns: Option<Nanos>,
@@ -651,6 +694,8 @@ impl Estimator {
             hint: None,
             seg_prior: None,
             latency_step: None,
+            search_move: None,
+            offset_step: None,
             last_cadence_step: [None; 2],
             epoch_ns: None,
             polarity: Polarity::Unknown,
@@ -899,6 +944,18 @@ impl Estimator {
         self.latency_step.take()
     }
 
+    /// The newest move of the acquisition's lag range, if any since the last call
+    /// (taken once): for a caller that logs it.
+    pub fn take_search_move(&mut self) -> Option<SearchMove> {
+        self.search_move.take()
+    }
+
+    /// The newest offset step found in the data, if any since the last call (taken
+    /// once): for a caller that logs it.
+    pub fn take_offset_step(&mut self) -> Option<OffsetStep> {
+        self.offset_step.take()
+    }
+
     /// Counters.
     pub fn stats(&self) -> &EstimatorStats {
         &self.stats
@@ -1052,16 +1109,23 @@ impl Estimator {
             return false;
         }
         self.acq_tries = 0;
-        self.move_search()
+        self.move_search(SearchMoveReason::NothingFound)
     }
 
     /// Moves the lag range to [`Estimator::alt_lag0`] (the one it leaves becomes the
     /// alternative) and restarts the acquisition there; `false` when there is no
     /// alternative.
-    fn move_search(&mut self) -> bool {
+    fn move_search(&mut self, reason: SearchMoveReason) -> bool {
         let Some(to) = self.alt_lag0 else {
             return false;
         };
+        let centre = |lag0: i64| lag0.saturating_add(self.p.half_lags) as f64 * self.p.dt_s;
+        self.search_move = Some(SearchMove {
+            from_s: centre(self.corr.lag0()),
+            to_s: centre(to),
+            reason,
+            after_s: RECENTRE_HOPS as f64 * self.p.hop_len as f64 * self.p.dt_s,
+        });
         self.acq_tries = 0;
         self.alt_lag0 = Some(self.corr.lag0());
         self.corr.set_lag0(to);
@@ -1164,7 +1228,7 @@ impl Estimator {
             if self.mode == Mode::Locked {
                 self.lose();
             }
-            if self.move_search() {
+            if self.move_search(SearchMoveReason::Unserved) {
                 // the range just left could not be served: no way back to it
                 self.alt_lag0 = None;
             }
@@ -2052,6 +2116,13 @@ impl Estimator {
                 };
                 if self.step_evidence >= self.p.step_confirm as f64 * half {
                     self.change_at_block(c);
+                    let k = self.corr.block(c).first_k;
+                    self.offset_step = Some(OffsetStep {
+                        t_ns: k
+                            .saturating_mul(self.p.dt_ns)
+                            .saturating_sub(self.group_delay_ns),
+                        step_s: nu,
+                    });
                 }
             }
             _ => {

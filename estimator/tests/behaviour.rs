@@ -3,7 +3,7 @@
 use proptest::prelude::*;
 use vlsync_common::{EstimatorState, Polarity, RejectReason, Sample, Stream};
 use vlsync_config::EstimatorConfig;
-use vlsync_estimator::Estimator;
+use vlsync_estimator::{Estimator, SearchMoveReason};
 use vlsync_sim::families::{generate, Family, SimRun};
 
 fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
@@ -168,6 +168,69 @@ fn announced_changes_restart_the_segment_at_the_step() {
     );
     // every announced step restarted the segment once
     assert!(est.stats().steps >= run.truth.steps.len() as u64);
+}
+
+/// Each offset step the step test finds is reported once (`take_offset_step`, what
+/// the daemon logs): near a true step and with its sign; announced changes are not
+/// reported (their announcer knows). The size is the test's own measurement, new
+/// offset against the old segment's prediction: on this run -31 / +25 / +41 / -46 ms
+/// for steps of 25 ms (the last one after a step the test missed: -50 ms in all).
+#[test]
+fn offset_steps_found_in_the_data_are_reported_where_they_are() {
+    let run = generate(Family::LoadSteps, 2, Some(120.0));
+    let mut est = Estimator::new(&no_cadence());
+    let mut found = Vec::new();
+    for (stream, s) in run.pushes() {
+        let _ = est.push(stream, s);
+        while est.poll().is_some() {}
+        found.extend(est.take_offset_step());
+    }
+    assert!(!run.truth.steps.is_empty());
+    assert_eq!(found.len() as u64, est.stats().steps, "{found:?}");
+    assert!(found.len() >= 2, "{found:?}");
+    for f in &found {
+        let (t, delta) = *run
+            .truth
+            .steps
+            .iter()
+            .min_by_key(|(t, _)| (t - f.t_ns).abs())
+            .unwrap();
+        assert!(
+            (t - f.t_ns).abs() < 4_000_000_000,
+            "step found at {} s, nearest true one at {} s",
+            f.t_ns as f64 * 1e-9,
+            t as f64 * 1e-9
+        );
+        assert!(
+            f.step_s.signum() == delta.signum() && f.step_s.abs() < 0.06,
+            "step of {:+.1} ms found, true {:+.1} ms",
+            f.step_s * 1e3,
+            delta * 1e3
+        );
+    }
+    // announced: the segment restarts there, and no step is reported there
+    let steps: Vec<i64> = run.truth.steps.iter().map(|s| s.0).collect();
+    let mut est = Estimator::new(&no_cadence());
+    let (mut c, mut reported) = (0, Vec::new());
+    for (stream, s) in run.pushes() {
+        if stream == Stream::Lidar {
+            if let Some(&t) = steps.get(c).filter(|&&t| t <= s.t_ns) {
+                est.declare_change(t);
+                c += 1;
+            }
+        }
+        let _ = est.push(stream, s);
+        while est.poll().is_some() {}
+        reported.extend(est.take_offset_step());
+    }
+    assert_eq!(c, steps.len());
+    assert!(est.stats().steps >= steps.len() as u64 + reported.len() as u64);
+    for f in &reported {
+        assert!(
+            steps.iter().all(|&t| (t - f.t_ns).abs() > 1_000_000_000),
+            "an announced step was reported as found: {f:?}"
+        );
+    }
 }
 
 #[test]
@@ -746,18 +809,25 @@ fn a_lidar_clock_stepping_back_is_followed() {
 }
 
 /// A restored estimate 5 s off (a state file from another robot or setup) puts the
-/// search where no data correlate; after 30 s of motion without a lasting lock (the
-/// signatures' own structure can lock there for a few seconds) it moves to the
-/// start's range around 0 and locks there. No tracking estimate is then more than
-/// 100 ms off the truth.
+/// search where no data correlate: the camera data it asks for are older than the
+/// correlator keeps, no hop completes (predict-only estimates, `lost`), and after 30 s
+/// of LiDAR time it moves to the start's range around 0 and locks there. No tracking
+/// estimate is then more than 100 ms off the truth.
 #[test]
 fn a_restore_far_outside_the_lag_range_is_searched_away_from() {
     let run = generate(Family::Robot, 22, Some(90.0));
     let mut est = Estimator::new(&EstimatorConfig::default());
     let bogus = saved_tracking(5.0);
     est.restore(&bogus, 1.0);
-    let out = replay(&run, &mut est);
+    let (out, moves) = replay_moves(&run, &mut est);
     assert!(est.stats().recentres >= 1, "{:?}", est.stats());
+    // reported as it happens (what the daemon logs): from the restore's range to
+    // the start's, because no hop came out
+    assert_eq!(moves.len() as u64, est.stats().recentres, "{moves:?}");
+    assert!((moves[0].from_s - 5.0).abs() < 0.01, "{moves:?}");
+    assert!(moves[0].to_s.abs() < 0.01, "{moves:?}");
+    assert_eq!(moves[0].reason, SearchMoveReason::Unserved);
+    assert_eq!(moves[0].after_s, 30.0);
     assert!(out.iter().all(|e| e.offset_s.abs() < 10.0));
     let off = out
         .iter()
@@ -778,8 +848,30 @@ fn a_restore_far_outside_the_lag_range_is_searched_away_from() {
         },
         1.0,
     );
-    let out = replay(&run, &mut est);
+    let (out, moves) = replay_moves(&run, &mut est);
     assert_relocked(&out, &run, 0, 0.0);
+    assert_eq!(moves.len(), 1, "{moves:?}");
+    assert_eq!(moves[0].reason, SearchMoveReason::Unserved);
+    assert!((moves[0].from_s - 1e6).abs() < 1.0 && moves[0].to_s.abs() < 0.01);
+}
+
+/// [`replay`], collecting the search's moves as they are reported.
+fn replay_moves(
+    run: &SimRun,
+    est: &mut Estimator,
+) -> (
+    Vec<vlsync_common::Estimate>,
+    Vec<vlsync_estimator::SearchMove>,
+) {
+    let (mut out, mut moves) = (Vec::new(), Vec::new());
+    for (stream, s) in run.pushes() {
+        let _ = est.push(stream, s);
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+        moves.extend(est.take_search_move());
+    }
+    (out, moves)
 }
 
 /// The camera alone falls silent for 10 s while the LiDAR runs on: predict-only

@@ -183,3 +183,76 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A state file from another setup, 5 s off: the daemon starts from it, finds the
+/// camera's data out of reach, and after 30 s of LiDAR time moves its search to
+/// the configured centre, says so in its log (a warning naming both centres), and
+/// tracks the truth; no tracking estimate is far off on the way.
+#[test]
+fn a_far_off_state_file_is_searched_away_from_and_logged() {
+    // 80 simulated seconds at 8x: 10 s of wall time
+    let rig = Rig::new("statefar", "robot", 22, 80.0, 8.0);
+    let state_file = rig.logs.join("vlsync.state");
+    let far = vlsyncd::state::SavedState {
+        saved_unix_ns: unix_now_ns(),
+        estimate: vlsync_common::Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s: 5.0,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 3.0,
+            measured_offset_s: f64::NAN,
+        },
+    };
+    vlsyncd::state::save(&state_file, &far).unwrap();
+    let cfg = config(&rig.logs, &rig.prefix, &state_file);
+    let log = rig.logs.join("vlsyncd-far.log");
+    let mut d = daemon(&cfg, &log);
+    let mut client = OffsetClient::open(&rig.prefix).unwrap();
+    let _cam = rig.driver(Stream::Cam, 0);
+    let _lidar = rig.driver(Stream::Lidar, 0);
+    let t0 = Instant::now();
+    let mut all = vec![];
+    while t0.elapsed() < Duration::from_secs(25) {
+        all.extend(collect(&mut client, Duration::from_millis(300)));
+        let near = all.iter().rev().take(5).filter(|e| {
+            e.state == EstimatorState::Tracking
+                && (e.offset_s - rig.sim.truth.offset_at(e.t_ref_ns)).abs() < 0.01
+        });
+        if near.count() == 5 {
+            break;
+        }
+    }
+    assert!(d.stop(Duration::from_secs(5)), "{}", read(&log));
+    let text = read(&log);
+    assert!(text.contains("restoring offset"), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.contains("searching around"))
+        .unwrap_or_else(|| panic!("no search move logged\n{text}"));
+    assert!(
+        line.contains("WARN")
+            && line.contains("no correlation for 30 s")
+            && line.contains("around +0.0 ms now instead of +5000.0 ms"),
+        "{line}"
+    );
+    let tracking: Vec<_> = all
+        .iter()
+        .filter(|e| e.state == EstimatorState::Tracking)
+        .map(|e| (e.offset_s - rig.sim.truth.offset_at(e.t_ref_ns)).abs())
+        .collect();
+    assert!(
+        tracking.len() >= 5 && tracking.iter().rev().take(5).all(|&x| x < 0.01),
+        "not tracking the truth at the end: {:?}\n{text}",
+        &all[all.len().saturating_sub(5)..]
+    );
+    assert!(
+        tracking.iter().all(|&x| x < 0.1),
+        "a tracking estimate over 100 ms off\n{text}"
+    );
+}

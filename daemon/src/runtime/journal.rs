@@ -15,8 +15,9 @@ pub const SUMMARY_NS: Nanos = 600_000_000_000;
 
 /// Kinds of throttled lines: rejections per stream and reason, losses per stream,
 /// the switches to degraded mode (budget overruns), then the stamping-latency steps
-/// per stream (information, not warnings: a load change).
-pub const KINDS: usize = 2 * REJECT_REASONS + 5;
+/// per stream and the offset steps found in the data (information, not warnings:
+/// a load change).
+pub const KINDS: usize = 2 * REJECT_REASONS + 6;
 
 /// Throttle key of a switch to degraded mode.
 pub const DEGRADED_KEY: usize = 2 * REJECT_REASONS + 2;
@@ -25,6 +26,9 @@ pub const DEGRADED_KEY: usize = 2 * REJECT_REASONS + 2;
 pub fn latency_step_key(si: usize) -> usize {
     DEGRADED_KEY + 1 + si.min(1)
 }
+
+/// Throttle key of an offset step found in the data.
+pub const OFFSET_STEP_KEY: usize = DEGRADED_KEY + 3;
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
@@ -130,6 +134,8 @@ pub fn kind_text(key: usize) -> String {
         )
     } else if key == DEGRADED_KEY {
         "switches to degraded mode (processing over budget)".to_string()
+    } else if key >= OFFSET_STEP_KEY {
+        "offset steps found in the data".to_string()
     } else {
         format!(
             "{} stamping-latency steps",
@@ -144,6 +150,9 @@ pub struct Summary {
     period: Nanos,
     since: Option<Nanos>,
     per_state: [u64; 4],
+    /// Offset steps found in the data, and moves of the search, this period.
+    steps: u64,
+    search_moves: u64,
     last: Option<Estimate>,
     status_then: Option<Status>,
     status_now: Option<Status>,
@@ -156,6 +165,8 @@ impl Summary {
             period,
             since: None,
             per_state: [0; 4],
+            steps: 0,
+            search_moves: 0,
             last: None,
             status_then: None,
             status_now: None,
@@ -166,6 +177,16 @@ impl Summary {
     pub fn on_estimate(&mut self, e: &Estimate) {
         self.per_state[e.state as usize % 4] += 1;
         self.last = Some(*e);
+    }
+
+    /// Counts an offset step the estimator found in the data.
+    pub fn on_offset_step(&mut self) {
+        self.steps += 1;
+    }
+
+    /// Counts a move of the acquisition's search.
+    pub fn on_search_move(&mut self) {
+        self.search_moves += 1;
     }
 
     /// Keeps the newest status (its counters are totals since the daemon started).
@@ -183,6 +204,8 @@ impl Summary {
         self.since = Some(now);
         let line = self.line(now.saturating_sub(since));
         self.per_state = [0; 4];
+        self.steps = 0;
+        self.search_moves = 0;
         self.status_then = self.status_now;
         Some(line)
     }
@@ -205,6 +228,12 @@ impl Summary {
             })
             .collect();
             out.push_str(&format!(" ({})", shares.join(", ")));
+        }
+        if self.steps > 0 {
+            out.push_str(&format!(", {} offset steps", self.steps));
+        }
+        if self.search_moves > 0 {
+            out.push_str(&format!(", {} search moves", self.search_moves));
         }
         if let Some(e) = &self.last {
             out.push_str(&format!(
@@ -271,6 +300,9 @@ mod tests {
             "lidar stamping-latency steps"
         );
         assert!(latency_step_key(1) < KINDS && is_info(latency_step_key(0)));
+        assert_eq!(kind_text(OFFSET_STEP_KEY), "offset steps found in the data");
+        assert!(OFFSET_STEP_KEY < KINDS && is_info(OFFSET_STEP_KEY));
+        assert!(OFFSET_STEP_KEY > latency_step_key(1));
         assert!(!is_info(DEGRADED_KEY) && !is_info(lost_key(1)));
     }
 
@@ -345,10 +377,15 @@ x INFO vlsyncd::runtime: 1 more cam stamping-latency steps since the last such l
             };
             s.on_estimate(&est(state, 0.1234));
         }
+        s.on_offset_step();
+        s.on_offset_step();
+        s.on_search_move();
         assert_eq!(s.due(599 * S), None);
         let line = s.due(600 * S).unwrap();
         assert!(
-            line.starts_with("last 10 min: 10 estimates (tracking 90 %, holding 10 %)"),
+            line.starts_with(
+                "last 10 min: 10 estimates (tracking 90 %, holding 10 %), 2 offset steps, 1 search moves;"
+            ),
             "{line}"
         );
         assert!(
@@ -368,6 +405,7 @@ x INFO vlsyncd::runtime: 1 more cam stamping-latency steps since the last such l
         st.rejected[0][0] = 2;
         s.on_status(&st);
         let line = s.due(1200 * S).unwrap();
+        // the step and move counts are per period too
         assert!(line.starts_with("last 10 min: 0 estimates;"), "{line}");
         assert!(
             line.contains("cam 100 received, 2 rejected, 0 lost"),

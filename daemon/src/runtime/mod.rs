@@ -168,6 +168,10 @@ pub enum RtEvent {
     HintUndated,
     /// A stream's stamping latency stepped (the estimator follows it from the stamps).
     LatencyStep(vlsync_estimator::LatencyStep),
+    /// The data showed an offset step: the estimator started a new segment.
+    OffsetStep(vlsync_estimator::OffsetStep),
+    /// The acquisition moved its lag range (nothing found where it searched).
+    SearchMoved(vlsync_estimator::SearchMove),
     /// The real-time loop ended because iceoryx2 failed (the text is static).
     Fatal(&'static str),
 }
@@ -453,6 +457,13 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 // `push` alone, none of that work in the sample's latency; a sample
                 // arriving meanwhile waits for it, and its latency shows that
                 est.idle();
+                // the step test's verdict comes from either stage, a search moves in `push`
+                if let Some(st) = est.take_offset_step() {
+                    emit(&s.tx, &mut c, RtEvent::OffsetStep(st));
+                }
+                if let Some(m) = est.take_search_move() {
+                    emit(&s.tx, &mut c, RtEvent::SearchMoved(m));
+                }
             }
         }
         while let Ok(at_mono) = s.hints.try_recv() {
@@ -692,6 +703,33 @@ fn log_event(
                 )
             }
         }
+        RtEvent::OffsetStep(st) => {
+            if let Some(n) = throttle.admit(journal::OFFSET_STEP_KEY, 1, now) {
+                tracing::info!(
+                    "offset stepped by about {:+.1} ms at LiDAR t={:.3} s (found in the data; the estimate restarts from the data after it){}",
+                    st.step_s * 1e3,
+                    st.t_ns as f64 * 1e-9,
+                    more(n)
+                )
+            }
+        }
+        RtEvent::SearchMoved(m) => {
+            let why = match m.reason {
+                vlsync_estimator::SearchMoveReason::NothingFound => format!(
+                    "the acquisition found no lock in {:.0} s of motion",
+                    m.after_s
+                ),
+                vlsync_estimator::SearchMoveReason::Unserved => format!(
+                    "no correlation for {:.0} s although both streams deliver (the prediction is far from the data)",
+                    m.after_s
+                ),
+            };
+            tracing::warn!(
+                "{why}: searching around {:+.1} ms now instead of {:+.1} ms (a restored state far off, clocks that stepped apart, or an offset beyond estimator.max_lag_s of lag_center_s)",
+                m.to_s * 1e3,
+                m.from_s * 1e3
+            )
+        }
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
     }
 }
@@ -902,9 +940,14 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                 }
             }
             Ok(ev) => {
-                if let RtEvent::Status(st) = &ev {
-                    systemd.on_status(st);
-                    summary.on_status(st);
+                match &ev {
+                    RtEvent::Status(st) => {
+                        systemd.on_status(st);
+                        summary.on_status(st);
+                    }
+                    RtEvent::OffsetStep(_) => summary.on_offset_step(),
+                    RtEvent::SearchMoved(_) => summary.on_search_move(),
+                    _ => {}
                 }
                 log_event(&ev, &mut publish_status, &mut throttle, monotonic_ns())
             }
