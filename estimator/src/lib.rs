@@ -1077,7 +1077,7 @@ impl Estimator {
             self.corr.restart_cursor();
         }
         self.known_change = None;
-        self.mode = Mode::Acquire;
+        self.enter_acquisition();
         self.acq = Streak::default();
         self.acq_tries = 0;
         self.alt_lag0 = self.home_alt();
@@ -1404,13 +1404,23 @@ impl Estimator {
     fn lose(&mut self) {
         self.step_job = None;
         self.corr.restart_acq();
-        self.mode = Mode::Acquire;
+        self.enter_acquisition();
         self.acq = Streak::default();
         self.blind_moving = 0;
         if self.locked_hops >= RECENTRE_HOPS || self.alt_lag0.is_none() {
             self.acq_tries = 0;
             self.alt_lag0 = self.home_alt();
         }
+    }
+
+    /// Acquisition searches every lag of the range: degraded mode's narrowing
+    /// around the prediction ([`Estimator::set_degraded`]) is for a lock only (it
+    /// used to outlive the lock, so a daemon kept over budget searched only the
+    /// lags near the prediction it had lost, and found nothing elsewhere).
+    fn enter_acquisition(&mut self) {
+        self.mode = Mode::Acquire;
+        let n = self.corr.n_lags();
+        self.corr.set_active(0, n - 1);
     }
 
     fn current_state(&self, measured: bool) -> EstimatorState {

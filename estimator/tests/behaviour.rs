@@ -932,3 +932,43 @@ fn a_lidar_clock_stepping_forward_moves_no_search() {
         assert_relocked(&out, &run, 60_000_000_000, 60.0);
     }
 }
+
+/// Degraded mode (a daemon over its latency budget) narrows the lags a lock updates
+/// to those near the prediction; the acquisition after the lock is gone searches
+/// the whole range again. Here the drivers restart as a new session whose offset is
+/// 300 ms from the old one (both clocks back to 0): the narrowing used to outlive
+/// the lock, and a daemon kept over budget searched only the ±0.2 s around the old
+/// prediction, moving its search back and forth every 30 s without finding the
+/// offset (an hour-long soak at 200x stayed lost for 1000 s).
+#[test]
+fn degraded_mode_searches_the_whole_range_once_the_lock_is_gone() {
+    let first = generate(Family::Robot, 9, Some(120.0));
+    let mut second = generate(Family::Robot, 10, Some(120.0));
+    let shift = 300_000_000;
+    for s in &mut second.lidar {
+        s.t_ns += shift;
+    }
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    est.set_degraded(true);
+    let _ = replay(&first, &mut est);
+    let second_out = replay(&second, &mut est);
+    assert_eq!(est.stats().resets, [1, 1], "{:?}", est.stats());
+    let last = second_out
+        .iter()
+        .rev()
+        .find(|e| e.state == EstimatorState::Tracking)
+        .expect("tracks in the second session");
+    assert!(last.t_ref_ns > 100_000_000_000, "{last:?}");
+    let truth = second.truth.offset_at(last.t_ref_ns - shift) + 0.3;
+    assert!(
+        (last.offset_s - truth).abs() < 0.01,
+        "{} vs {truth}",
+        last.offset_s
+    );
+    // locked early in the second session, not after a search elsewhere
+    let lock = second_out
+        .iter()
+        .position(|e| e.state == EstimatorState::Tracking)
+        .unwrap();
+    assert!(lock < 40, "second session's first lock at hop {lock}");
+}
