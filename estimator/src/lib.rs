@@ -1069,8 +1069,18 @@ impl Estimator {
         self.cur.o += shift;
         self.cur.var += interval * interval;
         self.epoch_ns = None;
+        // the offset is kept if both clocks stepped alike (a recording replayed
+        // again) but may be anything if the sensors began a new session: when the
+        // start's range is near, search midway, covering both the prediction and
+        // the start's centre (its range stays the alternative)
         let lag = (self.cur.o * self.p.fs).round() as i64;
-        self.corr.set_lag0(lag.saturating_sub(self.p.half_lags));
+        let home = self.p.center_lag;
+        let centre = if lag.abs_diff(home) <= self.p.half_lags.unsigned_abs() {
+            home + (lag - home) / 2
+        } else {
+            lag
+        };
+        self.corr.set_lag0(centre.saturating_sub(self.p.half_lags));
         self.corr.clear_blocks();
         if stream == Stream::Lidar {
             // the grid is on the LiDAR clock: its indices moved with it

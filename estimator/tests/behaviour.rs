@@ -972,3 +972,52 @@ fn degraded_mode_searches_the_whole_range_once_the_lock_is_gone() {
         .unwrap();
     assert!(lock < 40, "second session's first lock at hop {lock}");
 }
+
+/// Replays `run` with its LiDAR stamps moved so that the offset at the start is
+/// `offset_s`; returns the estimates and the shift, ns.
+fn replay_at_offset(
+    run: &SimRun,
+    est: &mut Estimator,
+    offset_s: f64,
+) -> (Vec<vlsync_common::Estimate>, i64) {
+    let shift = ((offset_s - run.truth.offset_at(0)) * 1e9) as i64;
+    let mut moved = run.clone();
+    for s in &mut moved.lidar {
+        s.t_ns += shift;
+    }
+    (replay(&moved, est), shift)
+}
+
+/// The drivers restart as a new session (both clocks back to 0) whose offset,
+/// +250 ms, is 600 ms from the old one: outside the ±0.5 s range around the
+/// prediction, inside the start's. The search after the clock steps lies midway
+/// between the two and finds it at once (it used to search around the prediction
+/// first, for 30 s of motion); the same session replayed at its old offset is found
+/// there too.
+#[test]
+fn a_new_session_far_from_the_old_offset_is_found_without_a_search_move() {
+    let first = generate(Family::Robot, 9, Some(120.0));
+    let second = generate(Family::Robot, 10, Some(120.0));
+    for (new_offset, label) in [(0.25, "new offset"), (-0.35, "old offset")] {
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        let _ = replay_at_offset(&first, &mut est, -0.35);
+        let (out, shift) = replay_at_offset(&second, &mut est, new_offset);
+        assert_eq!(est.stats().resets, [1, 1], "{label}: {:?}", est.stats());
+        assert_eq!(est.stats().recentres, 0, "{label}: {:?}", est.stats());
+        let lock = out
+            .iter()
+            .position(|e| e.state == EstimatorState::Tracking)
+            .unwrap_or_else(|| panic!("{label}: never locked"));
+        assert!(lock < 30, "{label}: first lock at hop {lock}");
+        let e = out[lock..]
+            .iter()
+            .rev()
+            .find(|e| e.state == EstimatorState::Tracking)
+            .unwrap();
+        let truth = second.truth.offset_at(e.t_ref_ns - shift) + shift as f64 * 1e-9;
+        assert!(
+            (e.offset_s - truth).abs() < 0.01,
+            "{label}: {e:?} vs {truth}"
+        );
+    }
+}
