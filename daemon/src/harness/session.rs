@@ -256,6 +256,7 @@ pub struct Session {
     /// Every status received, in order.
     pub statuses: Vec<Status>,
     procs: [Managed; 3],
+    driver_bins: [PathBuf; 2],
     started: [Instant; 3],
     usage: [Usage; 3],
     last_usage: Instant,
@@ -325,22 +326,8 @@ impl Session {
             std::thread::sleep(Duration::from_millis(20));
         }
         let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
-        let mut spawned = vec![];
-        for ((role, stream), bin) in [(Role::Cam, "cam"), (Role::Lidar, "lidar")]
-            .into_iter()
-            .zip(&driver_bins)
-        {
-            let args = driver_args(&o.source, &prefix, start_at, role, &log_dir);
-            let m = Managed::spawn(
-                role.name(),
-                bin,
-                &args,
-                Some(&log_dir.join(format!("vlsync-{stream}.log"))),
-            )?;
-            spawned.push((m, Instant::now()));
-        }
-        let (lidar, lidar_t) = spawned.pop().ok_or("no LiDAR driver")?;
-        let (cam, cam_t) = spawned.pop().ok_or("no camera driver")?;
+        let [(cam, cam_t), (lidar, lidar_t)] =
+            spawn_drivers(&driver_bins, &o.source, &prefix, start_at, &log_dir, "")?;
         Ok(Self {
             prefix,
             log_dir,
@@ -349,6 +336,7 @@ impl Session {
             estimates: vec![],
             statuses: vec![],
             procs: [daemon, cam, lidar],
+            driver_bins,
             started: [daemon_started, cam_t, lidar_t],
             usage: [Usage::default(); 3],
             last_usage: Instant::now() - Duration::from_secs(1),
@@ -356,6 +344,45 @@ impl Session {
             status,
             _node: node,
         })
+    }
+
+    /// Replaces the driver pair with a new one publishing `source` on a common
+    /// start instant `start_delay` ahead (a driver still running is stopped
+    /// first); the daemon runs on, and `estimates` keeps what it published so far.
+    /// The new drivers log to `vlsync-cam-<tag>.log` and `vlsync-lidar-<tag>.log`.
+    pub fn next_drivers(
+        &mut self,
+        source: Source,
+        start_delay: Duration,
+        tag: &str,
+    ) -> Result<(), String> {
+        source.check()?;
+        self.sample_usage(true);
+        for i in [1, 2] {
+            if self.procs[i].running() {
+                self.procs[i].stop(Duration::from_secs(3));
+            }
+        }
+        let start_at = monotonic_ns() + start_delay.as_nanos() as Nanos;
+        let suffix = format!("-{tag}");
+        let [(cam, cam_t), (lidar, lidar_t)] = spawn_drivers(
+            &self.driver_bins,
+            &source,
+            &self.prefix,
+            start_at,
+            &self.log_dir,
+            &suffix,
+        )?;
+        let [_, old_cam, old_lidar] = &mut self.procs;
+        *old_cam = cam;
+        *old_lidar = lidar;
+        self.started[1] = cam_t;
+        self.started[2] = lidar_t;
+        self.usage[1] = Usage::default();
+        self.usage[2] = Usage::default();
+        self.start_at = start_at;
+        self.source = source;
+        Ok(())
     }
 
     /// Process id of `role`.
@@ -499,6 +526,25 @@ impl Session {
     pub fn log(&self, file: &str) -> String {
         std::fs::read_to_string(self.log_dir.join(file)).unwrap_or_default()
     }
+}
+
+/// Spawns both drivers of `src` (logs `vlsync-<stream><suffix>.log`).
+fn spawn_drivers(
+    bins: &[PathBuf; 2],
+    src: &Source,
+    prefix: &str,
+    start_at: Nanos,
+    log_dir: &Path,
+    suffix: &str,
+) -> Result<[(Managed, Instant); 2], String> {
+    let spawn = |role: Role, stream: &str, bin: &PathBuf| {
+        let args = driver_args(src, prefix, start_at, role, log_dir);
+        let log = log_dir.join(format!("vlsync-{stream}{suffix}.log"));
+        Managed::spawn(role.name(), bin, &args, Some(&log)).map(|m| (m, Instant::now()))
+    };
+    let cam = spawn(Role::Cam, "cam", &bins[0])?;
+    let lidar = spawn(Role::Lidar, "lidar", &bins[1])?;
+    Ok([cam, lidar])
 }
 
 /// Command line of a driver.
