@@ -411,9 +411,10 @@ pub enum SearchMoveReason {
 /// ([`Estimator::take_search_move`]); counted in [`EstimatorStats::recentres`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SearchMove {
-    /// Centre of the lag range left (an offset), s.
+    /// Centre of the lag range left, as an offset of the stamps as they come (like
+    /// a published estimate's), s.
     pub from_s: f64,
-    /// Centre of the lag range searched from now on, s.
+    /// Centre of the lag range searched from now on, the same way, s.
     pub to_s: f64,
     /// What made it move.
     pub reason: SearchMoveReason,
@@ -1074,7 +1075,7 @@ impl Estimator {
         // start's range is near, search midway, covering both the prediction and
         // the start's centre (its range stays the alternative)
         let lag = (self.cur.o * self.p.fs).round() as i64;
-        let home = self.p.center_lag;
+        let home = self.home_lag();
         let centre = if lag.abs_diff(home) <= self.p.half_lags.unsigned_abs() {
             home + (lag - home) / 2
         } else {
@@ -1099,8 +1100,25 @@ impl Estimator {
     /// The lag range's position at the start (centred on `lag_center_s`), as the
     /// alternative of an acquisition elsewhere; `None` when the range is there.
     fn home_alt(&self) -> Option<i64> {
-        let home = self.p.center_lag.saturating_sub(self.p.half_lags);
+        let home = self.home_lag().saturating_sub(self.p.half_lags);
         (self.corr.lag0() != home).then_some(home)
+    }
+
+    /// The start's centre (`lag_center_s`, an offset of the stamps as they come) as
+    /// a lag of the internal stamps the correlator sees: both cadences' latency
+    /// levels taken out, as from every offset it measures. The levels add up every
+    /// latency step the cadences follow, also across clock jumps: after hours of
+    /// load steps or a few restarted sessions they reach hundreds of milliseconds,
+    /// and the start's range taken as is missed the offset (a soak's fourth session
+    /// searched for an hour without a lock).
+    fn home_lag(&self) -> i64 {
+        let levels = (self.cad[1].level() - self.cad[0].level()) * 1e-9;
+        let shift = (levels * self.p.fs).round();
+        if shift.is_finite() {
+            self.p.center_lag.saturating_sub(shift as i64)
+        } else {
+            self.p.center_lag
+        }
     }
 
     /// Counts an acquisition hop that could have locked (the window moved); after
@@ -1129,7 +1147,11 @@ impl Estimator {
         let Some(to) = self.alt_lag0 else {
             return false;
         };
-        let centre = |lag0: i64| lag0.saturating_add(self.p.half_lags) as f64 * self.p.dt_s;
+        // reported as offsets of the stamps as they come (the cadences' levels added
+        // back, as to every estimate), comparable with the published offsets
+        let levels = (self.cad[1].level() - self.cad[0].level()) * 1e-9;
+        let centre =
+            |lag0: i64| lag0.saturating_add(self.p.half_lags) as f64 * self.p.dt_s + levels;
         self.search_move = Some(SearchMove {
             from_s: centre(self.corr.lag0()),
             to_s: centre(to),
