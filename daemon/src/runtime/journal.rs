@@ -16,8 +16,13 @@ pub const SUMMARY_NS: Nanos = 600_000_000_000;
 /// Kinds of throttled lines: rejections per stream and reason, losses per stream,
 /// the switches to degraded mode (budget overruns), then the stamping-latency steps
 /// per stream and the offset steps found in the data (information, not warnings:
-/// a load change).
-pub const KINDS: usize = 2 * REJECT_REASONS + 6;
+/// a load change), then the moves of the search (a warning).
+pub const KINDS: usize = 2 * REJECT_REASONS + 7;
+
+/// A search that keeps moving (an offset outside the configured lag range moves
+/// it every 30 s, for as long as the daemon runs) is logged at most once per this
+/// period, ns (10 minutes).
+pub const SEARCH_MOVE_THROTTLE_NS: Nanos = 600_000_000_000;
 
 /// Throttle key of a switch to degraded mode.
 pub const DEGRADED_KEY: usize = 2 * REJECT_REASONS + 2;
@@ -30,6 +35,9 @@ pub fn latency_step_key(si: usize) -> usize {
 /// Throttle key of an offset step found in the data.
 pub const OFFSET_STEP_KEY: usize = DEGRADED_KEY + 3;
 
+/// Throttle key of a move of the acquisition's search.
+pub const SEARCH_MOVE_KEY: usize = DEGRADED_KEY + 4;
+
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
 /// counts the throttle held back (`3 more cam stamping-latency steps since …`).
@@ -37,11 +45,31 @@ pub const OFFSET_STEP_KEY: usize = DEGRADED_KEY + 3;
 pub fn latency_steps_logged(log: &str, stream: &str) -> usize {
     let named = format!("{stream} stamps ");
     let held = format!("more {stream} stamping-latency steps");
+    events_logged(
+        log,
+        |l| l.contains(&named) && l.contains("later from t="),
+        &held,
+    )
+}
+
+/// How many moves of the search a daemon log records: the lines naming one
+/// (`... searching around +0.0 ms now instead of ...`) and the counts the
+/// throttle held back (`3 more moves of the search ... since ...`).
+pub fn search_moves_logged(log: &str) -> usize {
+    events_logged(
+        log,
+        |l| l.contains("searching around"),
+        "more moves of the search",
+    )
+}
+
+/// Lines of `log` naming one event, plus the `N more <held> ...` counts.
+fn events_logged(log: &str, named: impl Fn(&str) -> bool, held: &str) -> usize {
     log.lines()
         .map(|l| {
-            if l.contains(&named) && l.contains("later from t=") {
+            if named(l) {
                 1
-            } else if l.contains(&held) {
+            } else if l.contains(held) {
                 l.split(" more ")
                     .next()
                     .and_then(|head| head.rsplit(' ').next())
@@ -56,7 +84,7 @@ pub fn latency_steps_logged(log: &str, stream: &str) -> usize {
 
 /// Whether the kind of throttle key `key` is information (not a warning).
 pub fn is_info(key: usize) -> bool {
-    key > DEGRADED_KEY
+    key > DEGRADED_KEY && key != SEARCH_MOVE_KEY
 }
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
@@ -72,7 +100,7 @@ pub fn lost_key(si: usize) -> usize {
 /// Rate limit per kind of warning.
 #[derive(Debug, Clone)]
 pub struct Throttle {
-    period: Nanos,
+    period: [Nanos; KINDS],
     last: [Option<Nanos>; KINDS],
     /// Events (rejections: samples; losses: samples lost) suppressed since the last line.
     suppressed: [u64; KINDS],
@@ -82,10 +110,16 @@ impl Throttle {
     /// A throttle letting one line per `period` through for each kind.
     pub fn new(period: Nanos) -> Self {
         Self {
-            period,
+            period: [period; KINDS],
             last: [None; KINDS],
             suppressed: [0; KINDS],
         }
+    }
+
+    /// The same with kind `key` let through once per `period` instead.
+    pub fn with_period(mut self, key: usize, period: Nanos) -> Self {
+        self.period[key.min(KINDS - 1)] = period;
+        self
     }
 
     /// An event of kind `key` counting `n` at `now`: `Some(suppressed)` when it is to be
@@ -94,7 +128,7 @@ impl Throttle {
     pub fn admit(&mut self, key: usize, n: u64, now: Nanos) -> Option<u64> {
         let k = key.min(KINDS - 1);
         match self.last[k] {
-            Some(t) if now.saturating_sub(t) < self.period => {
+            Some(t) if now.saturating_sub(t) < self.period[k] => {
                 self.suppressed[k] = self.suppressed[k].saturating_add(n);
                 None
             }
@@ -109,7 +143,7 @@ impl Throttle {
     /// period, and starts its next period now.
     pub fn due(&mut self, now: Nanos, mut report: impl FnMut(usize, u64)) {
         for k in 0..KINDS {
-            let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.period);
+            let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.period[k]);
             if waited && self.suppressed[k] > 0 {
                 self.last[k] = Some(now);
                 report(k, std::mem::take(&mut self.suppressed[k]));
@@ -134,8 +168,10 @@ pub fn kind_text(key: usize) -> String {
         )
     } else if key == DEGRADED_KEY {
         "switches to degraded mode (processing over budget)".to_string()
-    } else if key >= OFFSET_STEP_KEY {
+    } else if key == OFFSET_STEP_KEY {
         "offset steps found in the data".to_string()
+    } else if key >= SEARCH_MOVE_KEY {
+        "moves of the search (no lock where it searched)".to_string()
     } else {
         format!(
             "{} stamping-latency steps",
@@ -303,7 +339,28 @@ mod tests {
         assert_eq!(kind_text(OFFSET_STEP_KEY), "offset steps found in the data");
         assert!(OFFSET_STEP_KEY < KINDS && is_info(OFFSET_STEP_KEY));
         assert!(OFFSET_STEP_KEY > latency_step_key(1));
+        assert_eq!(
+            kind_text(SEARCH_MOVE_KEY),
+            "moves of the search (no lock where it searched)"
+        );
+        assert!(SEARCH_MOVE_KEY < KINDS && !is_info(SEARCH_MOVE_KEY));
         assert!(!is_info(DEGRADED_KEY) && !is_info(lost_key(1)));
+    }
+
+    #[test]
+    fn a_kind_with_its_own_period_waits_that_long() {
+        // a search that keeps moving every 30 s: one line per 10 minutes
+        let mut t = Throttle::new(10 * S).with_period(SEARCH_MOVE_KEY, 600 * S);
+        let mut logged = vec![];
+        for i in 0..60 {
+            if let Some(n) = t.admit(SEARCH_MOVE_KEY, 1, i * 30 * S) {
+                logged.push((i, n));
+            }
+        }
+        assert_eq!(logged, vec![(0, 0), (20, 19), (40, 19)]);
+        // the other kinds keep the common period
+        assert_eq!(t.admit(DEGRADED_KEY, 1, 0), Some(0));
+        assert_eq!(t.admit(DEGRADED_KEY, 1, 10 * S), Some(0));
     }
 
     #[test]
@@ -317,6 +374,10 @@ x INFO vlsyncd::runtime: 1 more cam stamping-latency steps since the last such l
         assert_eq!(latency_steps_logged(log, "cam"), 5);
         assert_eq!(latency_steps_logged(log, "lidar"), 1);
         assert_eq!(latency_steps_logged("", "cam"), 0);
+        let log = "\
+x WARN vlsyncd::runtime: the acquisition found no lock in 30 s of motion: searching around +0.0 ms now instead of -310.0 ms (...)
+x WARN vlsyncd::runtime: 19 more moves of the search (no lock where it searched) since the last such line";
+        assert_eq!(search_moves_logged(log), 20);
     }
 
     proptest! {

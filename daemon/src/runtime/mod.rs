@@ -724,11 +724,14 @@ fn log_event(
                     m.after_s
                 ),
             };
-            tracing::warn!(
-                "{why}: searching around {:+.1} ms now instead of {:+.1} ms (a restored state far off, clocks that stepped apart, or an offset beyond estimator.max_lag_s of lag_center_s)",
-                m.to_s * 1e3,
-                m.from_s * 1e3
-            )
+            if let Some(n) = throttle.admit(journal::SEARCH_MOVE_KEY, 1, now) {
+                tracing::warn!(
+                    "{why}: searching around {:+.1} ms now instead of {:+.1} ms (a restored state far off, clocks that stepped apart, or an offset beyond estimator.max_lag_s of lag_center_s){}",
+                    m.to_s * 1e3,
+                    m.from_s * 1e3,
+                    more(n)
+                )
+            }
         }
         RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
     }
@@ -928,7 +931,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             st.estimates_published
         );
     };
-    let mut throttle = journal::Throttle::new(journal::THROTTLE_NS);
+    let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
+        .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
     let mut summary = journal::Summary::new(journal::SUMMARY_NS);
     loop {
         match rx.recv_timeout(WAKE_PERIOD) {
