@@ -2158,11 +2158,19 @@ impl Estimator {
                 };
                 if self.step_evidence >= self.p.step_confirm as f64 * half {
                     self.change_at_block(c);
+                    // the block's start on the internal LiDAR clock, then with the
+                    // LiDAR cadence's level added back: the LiDAR's own stamps
                     let k = self.corr.block(c).first_k;
+                    let t_int = k
+                        .saturating_mul(self.p.dt_ns)
+                        .saturating_sub(self.group_delay_ns);
+                    let level = self.cad[1].level_at(t_int).0.round();
                     self.offset_step = Some(OffsetStep {
-                        t_ns: k
-                            .saturating_mul(self.p.dt_ns)
-                            .saturating_sub(self.group_delay_ns),
+                        t_ns: t_int.saturating_add(if level.is_finite() {
+                            level as Nanos
+                        } else {
+                            0
+                        }),
                         step_s: nu,
                     });
                 }

@@ -233,6 +233,54 @@ fn offset_steps_found_in_the_data_are_reported_where_they_are() {
     }
 }
 
+/// An offset step found in the data is reported at the LiDAR's own stamps, its
+/// cadence's latency level added back (the correlator's internal clock has it taken
+/// out): the same run with the LiDAR's stamps stepping 25 ms later every 20 s (which
+/// its cadence follows) reports the same steps, each later by the LiDAR's level then.
+#[test]
+fn offset_steps_are_reported_on_the_lidars_own_stamps() {
+    let cfg = EstimatorConfig {
+        cadence: vlsync_config::CadenceStreams::Lidar,
+        ..EstimatorConfig::default()
+    };
+    let run = generate(Family::LoadSteps, 2, Some(120.0));
+    let level =
+        |t: i64| 25_000_000 * ((t - 10_000_000_000).div_euclid(20_000_000_000) + 1).clamp(0, 5);
+    let mut later = run.clone();
+    for s in &mut later.lidar {
+        s.t_ns += level(s.t_ns);
+    }
+    let found = |run: &SimRun| {
+        let mut est = Estimator::new(&cfg);
+        let mut found = Vec::new();
+        for (stream, s) in run.pushes() {
+            let _ = est.push(stream, s);
+            while est.poll().is_some() {}
+            found.extend(est.take_offset_step());
+        }
+        (found, est.stats().cadence_steps[1])
+    };
+    let ((plain, _), (stepped, lidar_steps)) = (found(&run), found(&later));
+    assert_eq!(lidar_steps, 5);
+    assert!(
+        plain.len() >= 2 && plain.len() == stepped.len(),
+        "{plain:?}\n{stepped:?}"
+    );
+    let mut moved = 0;
+    for (a, b) in plain.iter().zip(&stepped) {
+        let want = level(a.t_ns);
+        moved += usize::from(want > 0);
+        assert!(
+            (b.t_ns - a.t_ns - want).abs() <= 10_000_000,
+            "step at {} s reported at {} s, the LiDAR's level then {} ms",
+            a.t_ns as f64 * 1e-9,
+            b.t_ns as f64 * 1e-9,
+            want as f64 * 1e-6
+        );
+    }
+    assert!(moved >= 1, "no step after a LiDAR latency step: {plain:?}");
+}
+
 #[test]
 fn load_steps_are_followed_from_the_stamps_cadence() {
     // the camera's stamps carry each ±25 ms step, on a regular frame grid: the
