@@ -257,6 +257,10 @@ pub struct Session {
     pub statuses: Vec<Status>,
     procs: [Managed; 3],
     driver_bins: [PathBuf; 2],
+    /// Suffix of the current driver pair's log and truth files (`""`, then `-<tag>`).
+    suffix: String,
+    /// False once a replaced driver needed more than SIGINT to stop.
+    replaced_clean: bool,
     started: [Instant; 3],
     usage: [Usage; 3],
     last_usage: Instant,
@@ -337,6 +341,8 @@ impl Session {
             statuses: vec![],
             procs: [daemon, cam, lidar],
             driver_bins,
+            suffix: String::new(),
+            replaced_clean: true,
             started: [daemon_started, cam_t, lidar_t],
             usage: [Usage::default(); 3],
             last_usage: Instant::now() - Duration::from_secs(1),
@@ -349,7 +355,8 @@ impl Session {
     /// Replaces the driver pair with a new one publishing `source` on a common
     /// start instant `start_delay` ahead (a driver still running is stopped
     /// first); the daemon runs on, and `estimates` keeps what it published so far.
-    /// The new drivers log to `vlsync-cam-<tag>.log` and `vlsync-lidar-<tag>.log`.
+    /// The new drivers log to `vlsync-cam-<tag>.log` and `vlsync-lidar-<tag>.log`
+    /// (and write their truth files, if any, as `vlsync-cam-<tag>.truth.csv`, ...).
     pub fn next_drivers(
         &mut self,
         source: Source,
@@ -360,7 +367,7 @@ impl Session {
         self.sample_usage(true);
         for i in [1, 2] {
             if self.procs[i].running() {
-                self.procs[i].stop(Duration::from_secs(3));
+                self.replaced_clean &= self.procs[i].stop(Duration::from_secs(3));
             }
         }
         let start_at = monotonic_ns() + start_delay.as_nanos() as Nanos;
@@ -382,6 +389,7 @@ impl Session {
         self.usage[2] = Usage::default();
         self.start_at = start_at;
         self.source = source;
+        self.suffix = suffix;
         Ok(())
     }
 
@@ -417,7 +425,7 @@ impl Session {
 
     /// The truth files of a software-stamped run.
     pub fn truth_paths(&self) -> [PathBuf; 2] {
-        TRUTH_FILES.map(|f| self.log_dir.join(f))
+        TRUTH_FILES.map(|f| self.log_dir.join(truth_file(f, &self.suffix)))
     }
 
     /// Reads CPU time and memory of every running process (at most every 0.5 s
@@ -500,7 +508,7 @@ impl Session {
         );
         self.sample_usage(true);
         let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
-        Ok(clean_drivers.iter().all(|c| *c) && clean_daemon)
+        Ok(clean_drivers.iter().all(|c| *c) && clean_daemon && self.replaced_clean)
     }
 
     /// The truth of this run: the known model, or the measured one from the
@@ -538,7 +546,7 @@ fn spawn_drivers(
     suffix: &str,
 ) -> Result<[(Managed, Instant); 2], String> {
     let spawn = |role: Role, stream: &str, bin: &PathBuf| {
-        let args = driver_args(src, prefix, start_at, role, log_dir);
+        let args = driver_args(src, prefix, start_at, role, log_dir, suffix);
         let log = log_dir.join(format!("vlsync-{stream}{suffix}.log"));
         Managed::spawn(role.name(), bin, &args, Some(&log)).map(|m| (m, Instant::now()))
     };
@@ -547,13 +555,22 @@ fn spawn_drivers(
     Ok([cam, lidar])
 }
 
-/// Command line of a driver.
+/// `vlsync-cam.truth.csv` with `suffix` before its extension.
+fn truth_file(name: &str, suffix: &str) -> String {
+    match name.split_once('.') {
+        Some((stem, ext)) => format!("{stem}{suffix}.{ext}"),
+        None => format!("{name}{suffix}"),
+    }
+}
+
+/// Command line of a driver (`suffix`: of its truth file's name).
 fn driver_args(
     src: &Source,
     prefix: &str,
     start_at: Nanos,
     role: Role,
     logs: &Path,
+    suffix: &str,
 ) -> Vec<String> {
     let mut a: Vec<String> = vec!["--prefix".into(), prefix.into()];
     match src {
@@ -596,7 +613,7 @@ fn driver_args(
                 } else {
                     "mono"
                 };
-                let file = TRUTH_FILES[usize::from(role == Role::Lidar)];
+                let file = truth_file(TRUTH_FILES[usize::from(role == Role::Lidar)], suffix);
                 a.extend([
                     "--stamp".into(),
                     stamp.into(),
@@ -629,14 +646,15 @@ mod tests {
             stamping: Stamping::Software { frame_cpu_us: 0 },
             opposite_window: false,
         };
-        let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
+        let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l"), "").join(" ");
         assert_eq!(
             cam,
             "--prefix p/1 --render 3 --duration 40 --speed 1 --stamp software \
              --truth-out /l/vlsync-cam.truth.csv --start-at 77"
         );
-        let lidar = driver_args(&src, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
-        assert!(lidar.contains("--stamp mono --truth-out /l/vlsync-lidar.truth.csv"));
+        let lidar = driver_args(&src, "p/1", 77, Role::Lidar, Path::new("/l"), "-2").join(" ");
+        // a later session's truth file carries its tag
+        assert!(lidar.contains("--stamp mono --truth-out /l/vlsync-lidar-2.truth.csv"));
         // a heavier camera front-end: the camera driver only
         let heavy = Source::Render {
             seed: 3,
@@ -647,9 +665,9 @@ mod tests {
             },
             opposite_window: true,
         };
-        let cam = driver_args(&heavy, "p/1", 77, Role::Cam, Path::new("/l")).join(" ");
+        let cam = driver_args(&heavy, "p/1", 77, Role::Cam, Path::new("/l"), "").join(" ");
         assert!(cam.contains("--frame-cpu-ms 12.5 --start-at 77"), "{cam}");
-        let lidar = driver_args(&heavy, "p/1", 77, Role::Lidar, Path::new("/l")).join(" ");
+        let lidar = driver_args(&heavy, "p/1", 77, Role::Lidar, Path::new("/l"), "").join(" ");
         assert!(!lidar.contains("--frame-cpu-ms"), "{lidar}");
         // the wall behind: the LiDAR driver only
         assert!(lidar.contains("--opposite-window"), "{lidar}");
@@ -660,7 +678,7 @@ mod tests {
             duration_s: 10.0,
             speed: 2.0,
         };
-        let a = driver_args(&sim, "p", 5, Role::Cam, Path::new("/l")).join(" ");
+        let a = driver_args(&sim, "p", 5, Role::Cam, Path::new("/l"), "").join(" ");
         assert_eq!(
             a,
             "--prefix p --sim robot --seed 2 --duration 10 --speed 2 --start-at 5"

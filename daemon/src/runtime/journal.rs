@@ -63,12 +63,37 @@ pub fn search_moves_logged(log: &str) -> usize {
     )
 }
 
-/// Lines of `log` naming one event, plus the `N more <held> ...` counts.
+/// How many offset steps found in the data a daemon log records (named lines and
+/// the counts held back).
+pub fn offset_steps_logged(log: &str) -> usize {
+    events_logged(
+        log,
+        |l| l.contains("offset stepped by about"),
+        "more offset steps found in the data",
+    )
+}
+
+/// How many switches to degraded mode a daemon log records.
+pub fn degraded_switches_logged(log: &str) -> usize {
+    events_logged(
+        log,
+        |l| l.contains("over budget: estimator degraded"),
+        "more switches to degraded mode",
+    )
+}
+
+/// Lines of `log` naming one event (with the `(N more since the last such line)`
+/// a line carries when it ends a throttled period), plus the `N more <held> ...`
+/// counts the throttle reported on their own.
 fn events_logged(log: &str, named: impl Fn(&str) -> bool, held: &str) -> usize {
     log.lines()
         .map(|l| {
             if named(l) {
-                1
+                1 + l
+                    .rsplit_once(" more since the last such line)")
+                    .and_then(|(head, _)| head.rsplit_once('(').map(|(_, n)| n))
+                    .and_then(|n| n.parse::<usize>().ok())
+                    .unwrap_or(0)
             } else if l.contains(held) {
                 l.split(" more ")
                     .next()
@@ -378,6 +403,16 @@ x INFO vlsyncd::runtime: 1 more cam stamping-latency steps since the last such l
 x WARN vlsyncd::runtime: the acquisition found no lock in 30 s of motion: searching around +0.0 ms now instead of -310.0 ms (...)
 x WARN vlsyncd::runtime: 19 more moves of the search (no lock where it searched) since the last such line";
         assert_eq!(search_moves_logged(log), 20);
+        // a named line that ends a throttled period carries the count held back
+        let log = "\
+x INFO vlsyncd::runtime: offset stepped by about +24.4 ms at LiDAR t=997.878 s (found in the data; the estimate restarts from the data after it)
+x INFO vlsyncd::runtime: 4 more offset steps found in the data since the last such line
+x INFO vlsyncd::runtime: offset stepped by about -18.1 ms at LiDAR t=1184.878 s (found in the data; the estimate restarts from the data after it) (2 more since the last such line)
+x WARN vlsyncd::runtime: processing took 213 µs, over budget: estimator degraded (narrower search) until 5s pass without an overrun
+x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budget) since the last such line";
+        assert_eq!(offset_steps_logged(log), 8);
+        assert_eq!(degraded_switches_logged(log), 8);
+        assert_eq!(search_moves_logged(log), 0);
     }
 
     proptest! {
