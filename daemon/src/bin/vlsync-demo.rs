@@ -15,7 +15,9 @@ use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
-use vlsyncd::harness::session::{Received, Role, Session, SessionOptions, Source, Stamping};
+use vlsyncd::harness::session::{
+    counters_line, stop_words, Received, Role, Session, SessionOptions, Source, Stamping,
+};
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
 
@@ -230,11 +232,7 @@ fn run(a: Args) -> Result<(), String> {
     ));
     match s.last_status() {
         Some(st) => {
-            out.line(format_args!(
-                "daemon: received cam {} lidar {}, lost cam {} lidar {}, rejected cam {} lidar {}, {} estimates, {} budget overruns",
-                st.received[0], st.received[1], st.lost[0], st.lost[1], st.rejected_total(0), st.rejected_total(1),
-                st.estimates_published, st.budget_overruns
-            ));
+            out.line(format_args!("{}", counters_line(st)));
             out.line(format_args!(
                 "latency: processing p50 {:.1} µs p99 {:.1} µs max {:.1} µs; driver->daemon done p50 {:.1} µs p99 {:.1} µs max {:.1} µs ({} samples)",
                 st.processing_ns[0] as f64 / 1e3, st.processing_ns[1] as f64 / 1e3, st.processing_ns[2] as f64 / 1e3,
@@ -249,14 +247,7 @@ fn run(a: Args) -> Result<(), String> {
     for r in Role::ALL {
         out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));
     }
-    out.line(format_args!(
-        "children stopped {}",
-        if clean {
-            "cleanly"
-        } else {
-            "(some needed SIGKILL)"
-        }
-    ));
+    out.line(format_args!("children stopped {}", stop_words(clean)));
     Ok(())
 }
 

@@ -337,11 +337,7 @@ fn run(a: &Args) -> Result<bool, String> {
     }
     md.push_str(&format!(
         "\nAll processes stopped {}.\n",
-        if clean {
-            "cleanly"
-        } else {
-            "(some needed SIGKILL)"
-        }
+        vlsyncd::harness::session::stop_words(clean)
     ));
     con.line(format_args!("\n{md}"));
 

@@ -16,7 +16,9 @@ use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
-use vlsyncd::harness::session::{Received, Role, Session, SessionOptions, Source};
+use vlsyncd::harness::session::{
+    counters_line, stop_words, Received, Role, Session, SessionOptions, Source,
+};
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
 
@@ -338,11 +340,7 @@ fn run(a: Args) -> Result<bool, String> {
     }
     let lost = match s.last_status() {
         Some(st) => {
-            out.line(format_args!(
-                "daemon: received cam {} lidar {}, lost cam {} lidar {}, rejected cam {} lidar {}, {} estimates, {} budget overruns",
-                st.received[0], st.received[1], st.lost[0], st.lost[1], st.rejected_total(0), st.rejected_total(1),
-                st.estimates_published, st.budget_overruns
-            ));
+            out.line(format_args!("{}", counters_line(st)));
             Some(st.lost[0] + st.lost[1])
         }
         None => {
@@ -361,14 +359,7 @@ fn run(a: Args) -> Result<bool, String> {
         vlsyncd::runtime::journal::offset_steps_logged(&log),
         count(" ERROR ")
     ));
-    out.line(format_args!(
-        "children stopped {}",
-        if clean {
-            "cleanly"
-        } else {
-            "(some needed SIGKILL)"
-        }
-    ));
+    out.line(format_args!("children stopped {}", stop_words(clean)));
     if !a.check {
         return Ok(true);
     }

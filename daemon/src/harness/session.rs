@@ -536,6 +536,31 @@ impl Session {
     }
 }
 
+/// The daemon's counters as the live tools' summaries print them: samples
+/// received, lost and rejected per stream, estimates, budget overruns.
+pub fn counters_line(st: &Status) -> String {
+    format!(
+        "daemon: received cam {} lidar {}, lost cam {} lidar {}, rejected cam {} lidar {}, {} estimates, {} budget overruns",
+        st.received[0],
+        st.received[1],
+        st.lost[0],
+        st.lost[1],
+        st.rejected_total(0),
+        st.rejected_total(1),
+        st.estimates_published,
+        st.budget_overruns
+    )
+}
+
+/// How the children stopped, for the summaries: `cleanly` or `(some needed SIGKILL)`.
+pub fn stop_words(clean: bool) -> &'static str {
+    if clean {
+        "cleanly"
+    } else {
+        "(some needed SIGKILL)"
+    }
+}
+
 /// Spawns both drivers of `src` (logs `vlsync-<stream><suffix>.log`).
 fn spawn_drivers(
     bins: &[PathBuf; 2],
@@ -684,6 +709,23 @@ mod tests {
             "--prefix p --sim robot --seed 2 --duration 10 --speed 2 --start-at 5"
         );
         assert_eq!(sim.wall_s(), 5.0);
+    }
+
+    #[test]
+    fn summary_lines() {
+        let mut st = Status {
+            received: [300, 100],
+            lost: [0, 2],
+            estimates_published: 12,
+            ..Status::default()
+        };
+        st.rejected[0][1] = 3;
+        assert_eq!(
+            counters_line(&st),
+            "daemon: received cam 300 lidar 100, lost cam 0 lidar 2, rejected cam 3 lidar 0, 12 estimates, 0 budget overruns"
+        );
+        assert_eq!(stop_words(true), "cleanly");
+        assert_eq!(stop_words(false), "(some needed SIGKILL)");
     }
 
     #[test]
