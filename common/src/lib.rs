@@ -32,6 +32,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 
 pub mod file;
+pub mod text;
 #[cfg(feature = "wire")]
 pub mod wire;
 

@@ -15,6 +15,7 @@
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
+use vlsync_common::text::clip;
 
 /// A configuration error: where, and what was wrong.
 #[derive(Debug, Clone, PartialEq)]
@@ -321,17 +322,6 @@ struct Checker<'a> {
     source: &'a str,
 }
 
-/// A value quoted in an error, cut at 40 characters (as the CSV readers do).
-fn clip(s: &str) -> String {
-    if s.chars().count() > 40 {
-        let mut c: String = s.chars().take(40).collect();
-        c.push('…');
-        c
-    } else {
-        s.to_string()
-    }
-}
-
 /// Most characters kept of each line of a TOML parse error (it quotes the offending
 /// line of the file, which may be megabytes long).
 const MAX_ERROR_LINE_CHARS: usize = 200;
@@ -594,12 +584,8 @@ impl Config {
             source_name: name.clone(),
             message: format!("cannot read: {e}"),
         };
-        match std::fs::metadata(path) {
-            Ok(m) if m.is_file() => {}
-            Ok(_) => return Err(cannot_read(&"not a regular file")),
-            Err(e) => return Err(cannot_read(&e)),
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| cannot_read(&e))?;
+        let text =
+            vlsync_common::file::read_regular_to_string(path).map_err(|e| cannot_read(&e))?;
         Self::from_toml_str(&text, &name)
     }
 
@@ -774,7 +760,10 @@ mod tests {
             let e = Config::load(&fifo).unwrap_err();
             assert_eq!(
                 e.to_string(),
-                format!("config {}: cannot read: not a regular file", fifo.display())
+                format!(
+                    "config {}: cannot read: not a regular file (a named pipe)",
+                    fifo.display()
+                )
             );
         }
         std::fs::remove_dir_all(&dir).unwrap();

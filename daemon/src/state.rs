@@ -40,6 +40,7 @@ use std::fmt;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use vlsync_common::text::clip;
 use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity};
 
 /// First word of the file.
@@ -311,12 +312,12 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
     let first = text.split('\n').next().unwrap_or("");
     let mut words = first.split_whitespace();
     if words.next() != Some(MAGIC) {
-        return Err(Problem::BadHeader(shorten(first)));
+        return Err(Problem::BadHeader(clip(first)));
     }
     match (words.next(), words.next()) {
         (Some(v), None) if v == VERSION.to_string() => {}
-        (Some(v), None) => return Err(Problem::WrongVersion(shorten(v))),
-        _ => return Err(Problem::BadHeader(shorten(first))),
+        (Some(v), None) => return Err(Problem::WrongVersion(clip(v))),
+        _ => return Err(Problem::BadHeader(clip(first))),
     }
     // the checksum line is the last line and ends with a newline
     let Some(body_and_sum) = text.strip_suffix('\n') else {
@@ -358,7 +359,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
         let Some(slot) = KEYS.iter().position(|key| *key == k) else {
             return Err(Problem::UnknownKey {
                 line: lineno,
-                key: shorten(k),
+                key: clip(k),
             });
         };
         if values[slot].is_some() {
@@ -375,7 +376,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
         v.parse::<i64>().map_err(|_| Problem::BadValue {
             line,
             key: KEYS[slot],
-            value: shorten(v),
+            value: clip(v),
         })
     };
     let float = |slot: usize, max_abs: f64, allowed: &'static str, non_negative: bool| {
@@ -383,7 +384,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
         let x = v.parse::<f64>().map_err(|_| Problem::BadValue {
             line,
             key: KEYS[slot],
-            value: shorten(v),
+            value: clip(v),
         })?;
         if !x.is_finite() {
             return Err(Problem::NonFinite { key: KEYS[slot] });
@@ -411,7 +412,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             return Err(Problem::BadValue {
                 line,
                 key: KEYS[6],
-                value: shorten(v),
+                value: clip(v),
             })
         }
     };
@@ -424,7 +425,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             return Err(Problem::BadValue {
                 line,
                 key: KEYS[7],
-                value: shorten(v),
+                value: clip(v),
             })
         }
     };
@@ -444,10 +445,6 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             measured_offset_s: f64::NAN,
         },
     })
-}
-
-fn shorten(s: &str) -> String {
-    s.chars().take(40).collect()
 }
 
 /// Loads `path` and checks its age against `max_age_s` at wall time `now_unix_ns`.

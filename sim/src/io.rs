@@ -33,6 +33,7 @@ use crate::families::Truth;
 use std::fmt;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use vlsync_common::text::clip;
 use vlsync_common::{Nanos, Sample, NANOS_PER_SEC};
 
 /// A CSV error: which file, which line (1-based, when the error is about one line), what.
@@ -160,16 +161,6 @@ fn parse_plain_decimal(s: &str) -> Option<Result<Nanos, String>> {
         ns = -ns;
     }
     Some(i64::try_from(ns).or_else(|_| out_of_range()))
-}
-
-fn clip(s: &str) -> String {
-    if s.chars().count() > 40 {
-        let mut c: String = s.chars().take(40).collect();
-        c.push('…');
-        c
-    } else {
-        s.to_string()
-    }
 }
 
 /// Parses a signature CSV from bytes; `source` names it in errors.
