@@ -28,6 +28,26 @@ fn daemon(cfg: &Path, log: &Path) -> Managed {
     .expect("spawn vlsyncd")
 }
 
+/// A saved tracking estimate of `offset_s`, saved at `saved_unix_ns`.
+fn tracking_saved(offset_s: f64, saved_unix_ns: i64) -> vlsyncd::state::SavedState {
+    vlsyncd::state::SavedState {
+        saved_unix_ns,
+        estimate: vlsync_common::Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 3.0,
+            measured_offset_s: f64::NAN,
+        },
+    }
+}
+
 fn read(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_default()
 }
@@ -136,22 +156,7 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
     let state_file = dir.join("vlsync.state");
     let prefix = format!("vlsync-it/statebad-{}", std::process::id());
     let cfg = config(&dir, &prefix, &state_file);
-    let good = vlsyncd::state::encode(&vlsyncd::state::SavedState {
-        saved_unix_ns: unix_now_ns() - 7_200_000_000_000,
-        estimate: vlsync_common::Estimate {
-            seq: 0,
-            t_ref_ns: 0,
-            offset_s: 0.031,
-            drift: 0.0,
-            offset_std_s: 0.001,
-            drift_std: 1e-6,
-            state: EstimatorState::Tracking,
-            polarity: vlsync_common::Polarity::Negative,
-            peak_score: 0.0,
-            peak_ratio: 0.0,
-            measured_offset_s: f64::NAN,
-        },
-    });
+    let good = vlsyncd::state::encode(&tracking_saved(0.031, unix_now_ns() - 7_200_000_000_000));
     let cases = [
         (good.replace("0.031", "0.032"), "checksum mismatch"),
         (good[..good.len() - 30].to_string(), "truncated"),
@@ -193,22 +198,7 @@ fn a_far_off_state_file_is_searched_away_from_and_logged() {
     // 80 simulated seconds at 8x: 10 s of wall time
     let rig = Rig::new("statefar", "robot", 22, 80.0, 8.0);
     let state_file = rig.logs.join("vlsync.state");
-    let far = vlsyncd::state::SavedState {
-        saved_unix_ns: unix_now_ns(),
-        estimate: vlsync_common::Estimate {
-            seq: 0,
-            t_ref_ns: 0,
-            offset_s: 5.0,
-            drift: 0.0,
-            offset_std_s: 0.001,
-            drift_std: 1e-6,
-            state: EstimatorState::Tracking,
-            polarity: vlsync_common::Polarity::Negative,
-            peak_score: 0.9,
-            peak_ratio: 3.0,
-            measured_offset_s: f64::NAN,
-        },
-    };
+    let far = tracking_saved(5.0, unix_now_ns());
     vlsyncd::state::save(&state_file, &far).unwrap();
     let cfg = config(&rig.logs, &rig.prefix, &state_file);
     let log = rig.logs.join("vlsyncd-far.log");
