@@ -42,6 +42,21 @@ fn interrupt_demo(tag: &str, args: &[&str], run_for: Duration) -> String {
     assert!(status.success(), "demo exit {status}:\n{out}");
     assert!(out.contains("=== summary (interrupted) ==="), "{out}");
     assert!(out.contains("children stopped cleanly"), "{out}");
+    // an interrupted run still gets its plot, by default in the log directory
+    let plot = dir.join("children").join("demo.svg");
+    let svg = std::fs::read_to_string(&plot).unwrap_or_default();
+    assert!(
+        svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+        "{}: {svg}",
+        plot.display()
+    );
+    assert!(out.contains(&format!("plot: {}", plot.display())), "{out}");
+    if out.lines().any(|l| l.contains(" tracking ")) {
+        assert!(
+            svg.contains("<polyline"),
+            "locked estimates, but no curve: {svg}"
+        );
+    }
     assert_nothing_left(&before);
     let _ = std::fs::remove_dir_all(&dir);
     out

@@ -4,15 +4,17 @@
 //! `--family` on the signature simulator), prints offset and drift beside the
 //! truth as estimates arrive, then a summary: error statistics, convergence,
 //! latency percentiles from the status service, CPU use and memory of each
-//! process. Ctrl-C or the end of `--duration` stops every child; nothing is
-//! left in shared memory. The orchestration is `vlsyncd::harness::session`.
+//! process, and a plot of the estimates against the truth (`--plot`, by default
+//! `demo.svg` in the log directory). Ctrl-C or the end of `--duration` stops every
+//! child; nothing is left in shared memory. The orchestration is
+//! `vlsyncd::harness::session`.
 #![forbid(unsafe_code)]
 
 use clap::Parser;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
-use vlsync_common::EstimatorState;
+use vlsync_common::{Estimate, EstimatorState, Nanos};
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{
@@ -58,6 +60,10 @@ struct Args {
     /// at each end), which halves the LiDAR signature's noise variance.
     #[arg(long)]
     front_wall_only: bool,
+    /// Where to write the plot of the estimates (±2σ, raw measurements) against the
+    /// truth, SVG (default: `demo.svg` in the log directory).
+    #[arg(long)]
+    plot: Option<PathBuf>,
 }
 
 /// Error bound of the convergence figure (issue 3: within 3 ms in 15 s).
@@ -95,7 +101,39 @@ fn check_args(a: &Args) -> Result<(), String> {
         vlsync_sim::families::MAX_DURATION_S,
     )?;
     check_arg("--speed", a.speed, MIN_SPEED, MAX_SPEED)?;
+    if let Some(p) = &a.plot {
+        check_plot_path(p)?;
+    }
     Ok(())
+}
+
+/// A plot path the end of the run can write: not a directory, in a directory
+/// that exists (checked before the run, so a typo does not cost the run).
+fn check_plot_path(p: &Path) -> Result<(), String> {
+    if p.is_dir() {
+        return Err(format!("--plot {}: is a directory", p.display()));
+    }
+    let parent = p
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        return Err(format!(
+            "--plot {}: directory {} does not exist",
+            p.display(),
+            parent.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Truth sampled every 50 ms over the run, for the plot.
+fn truth_points(truth: &vlsync_sim::Truth) -> Vec<(Nanos, f64)> {
+    (0..)
+        .map(|i: i64| i * 50_000_000)
+        .take_while(|t| *t <= truth.end_ns)
+        .map(|t| (t, truth.offset_at(t)))
+        .collect()
 }
 
 fn run(a: Args) -> Result<(), String> {
@@ -248,6 +286,27 @@ fn run(a: Args) -> Result<(), String> {
         out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));
     }
     out.line(format_args!("children stopped {}", stop_words(clean)));
+    // the plot last: everything above is printed even if it cannot be written
+    let plot = a.plot.unwrap_or_else(|| s.log_dir.join("demo.svg"));
+    let ests: Vec<Estimate> = s.estimates.iter().map(|r| r.est).collect();
+    let run = match &a.family {
+        Some(f) => format!("simulated `{f}`"),
+        None => "rendered".to_string(),
+    };
+    let title = format!(
+        "vlsync-demo, {run} seed {}: MAE {:.2} ms, within {:.0} ms from {} on",
+        a.seed,
+        ErrorStats::of(&errs).mae * 1e3,
+        CONVERGED_S * 1e3,
+        secs(stays)
+    );
+    let svg = vlsyncd::plot::offset_svg(&title, &ests, Some(&truth_points(&truth)), &[]);
+    std::fs::write(&plot, svg)
+        .map_err(|e| format!("cannot write the plot {}: {e}", plot.display()))?;
+    out.line(format_args!(
+        "plot: {} (estimate ±2σ, raw measurements and truth against LiDAR time)",
+        plot.display()
+    ));
     Ok(())
 }
 
@@ -277,5 +336,26 @@ mod tests {
             let e = check_args(&args(argv)).unwrap_err();
             assert!(e.starts_with(&format!("{flag} ")), "{argv:?}: {e}");
         }
+    }
+
+    #[test]
+    fn a_plot_path_that_cannot_be_written_is_refused_before_the_run() {
+        let dir = std::env::temp_dir().join(format!("vlsync-demo-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let ok = dir.join("p.svg");
+        assert!(check_args(&args(&["--plot", ok.to_str().unwrap()])).is_ok());
+        assert!(
+            check_args(&args(&["--plot", "p.svg"])).is_ok(),
+            "the current directory"
+        );
+        let missing = dir.join("no-such-dir").join("p.svg");
+        let e = check_args(&args(&["--plot", missing.to_str().unwrap()])).unwrap_err();
+        assert!(
+            e.starts_with("--plot ") && e.contains("does not exist"),
+            "{e}"
+        );
+        let e = check_args(&args(&["--plot", dir.to_str().unwrap()])).unwrap_err();
+        assert!(e.contains("is a directory"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
