@@ -447,7 +447,9 @@ impl Status {
 
     /// Total rejected samples of stream index `i` (0 cam, 1 lidar).
     pub fn rejected_total(&self, i: usize) -> u64 {
-        self.rejected.get(i).map_or(0, |r| r.iter().sum())
+        self.rejected
+            .get(i)
+            .map_or(0, |r| r.iter().fold(0u64, |a, &x| a.saturating_add(x)))
     }
 }
 
@@ -698,5 +700,14 @@ mod tests {
         b.rejected[1] = [1, 2, 3, 4, 5];
         assert_eq!(b.rejected_total(1), 15);
         assert_eq!(b.rejected_total(5), 0);
+        // a hostile status passes validation (counters are any u64) and must still
+        // print: `vlsync-echo --status` formats what it receives
+        let mut h = s;
+        h.rejected[0] = [u64::MAX, 1, 0, 0, 0];
+        h.received = [u64::MAX; 2];
+        h.lost = [u64::MAX; 2];
+        assert!(h.validate().is_ok());
+        assert_eq!(h.rejected_total(0), u64::MAX);
+        assert!(h.to_string().contains(&u64::MAX.to_string()), "{h}");
     }
 }

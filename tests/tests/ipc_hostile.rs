@@ -1,9 +1,10 @@
 //! Hostile payloads on a signature service (NaN, huge value, time going
-//! backwards, unknown flags, non-zero padding) are rejected and counted in the
-//! status, and the estimate is not disturbed.
+//! backwards, unknown flags, non-zero padding, sequence numbers and publish times
+//! at the ends of their ranges) are rejected and counted in the status, the
+//! daemon keeps running, and the estimate is not disturbed.
 
 use std::time::Duration;
-use vlsync_common::wire::{SignatureSample, REJECT_MALFORMED};
+use vlsync_common::wire::{SignatureSample, FLAG_FIRST, REJECT_MALFORMED};
 use vlsync_common::{EstimatorState, RejectReason, Stream};
 use vlsync_ipc::{
     create_node, monotonic_ns, OffsetClient, ServiceNames, SignaturePublisher, StatusClient,
@@ -50,12 +51,39 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
             std::thread::sleep(Duration::from_millis(20));
         }
     }
+    // a second publisher with hostile bookkeeping: a sequence that jumps to the end
+    // of its range and back (a naive gap count reaches 2^64 and overflows), and
+    // publish times no clock has (a naive latency overflows); the values are NaN,
+    // so only the bookkeeping sees them
+    let evil2 = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
+    for (i, (seq, publish_ns)) in [
+        (0, monotonic_ns()),
+        (u64::MAX, i64::MIN),
+        (0, i64::MAX),
+        (5, i64::MIN + 1),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut w = SignatureSample::new(now_t + 5_000_000 + i as i64, f64::NAN, seq, publish_ns);
+        if i == 0 {
+            w.flags |= FLAG_FIRST;
+        }
+        evil2.publish_raw(w).unwrap();
+    }
 
     let after = collect(&mut client, rig.remaining() + Duration::from_millis(1000));
     std::thread::sleep(Duration::from_millis(1200));
     let st = status.latest().unwrap().expect("status");
+    assert!(
+        daemon.running(),
+        "the daemon died:\n{}",
+        rig.log("vlsyncd-0.log")
+    );
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
+    // the jump to u64::MAX is no loss, the 0 -> 5 after it four lost samples
+    assert!(st.lost[0] < 100, "{st:?}");
 
     let cam_rej = st.rejected[0];
     assert!(

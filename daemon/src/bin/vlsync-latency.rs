@@ -182,8 +182,8 @@ fn measure(
     let fast_wall = t0.elapsed().as_secs_f64();
     let fast_cpu = cpu_seconds(daemon.pid())? - cpu0;
     let s1 = latest_status(&mut status)?;
-    let received = s1.received[0] + s1.received[1];
-    let lost = s1.lost[0] + s1.lost[1];
+    let received = s1.received[0].saturating_add(s1.received[1]);
+    let lost = s1.lost[0].saturating_add(s1.lost[1]);
     println!(
         "phase 1: {}x real time, {received} samples through driver -> daemon -> estimate",
         a.speed
@@ -206,7 +206,7 @@ fn measure(
         "  lost {lost} (cam {} lidar {}), rejected {}; daemon CPU {:.1} % of a core over {:.1} s",
         s1.lost[0],
         s1.lost[1],
-        s1.rejected_total(0) + s1.rejected_total(1),
+        s1.rejected_total(0).saturating_add(s1.rejected_total(1)),
         100.0 * fast_cpu / fast_wall,
         fast_wall
     );

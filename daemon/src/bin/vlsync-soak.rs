@@ -341,7 +341,7 @@ fn run(a: Args) -> Result<bool, String> {
     let lost = match s.last_status() {
         Some(st) => {
             out.line(format_args!("{}", counters_line(st)));
-            Some(st.lost[0] + st.lost[1])
+            Some(st.lost[0].saturating_add(st.lost[1]))
         }
         None => {
             out.line(format_args!("daemon: no status received"));

@@ -228,7 +228,9 @@ pub fn analyse(d: &RunData<'_>) -> Vec<PhaseReport> {
             processing_ns: merged(&periods(|s| s.processing_ns)),
             end_to_end_ns: merged(&periods(|s| s.end_to_end_ns)),
             overruns: counter(|s| [s.budget_overruns, 0])[0],
-            latency_count: periods(|s| s.processing_ns).iter().map(|p| p.count).sum(),
+            latency_count: periods(|s| s.processing_ns)
+                .iter()
+                .fold(0u64, |a, p| a.saturating_add(p.count)),
             published,
             received: counter(|s| s.received),
             lost: counter(|s| s.lost),
@@ -373,7 +375,10 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
                 .join("; ")
         },
     });
-    let lost: u64 = reports.iter().map(|r| r.lost[0] + r.lost[1]).sum();
+    let lost = reports
+        .iter()
+        .map(|r| r.lost[0].saturating_add(r.lost[1]))
+        .fold(0u64, u64::saturating_add);
     t.push(Target {
         what: "zero samples lost".into(),
         pass: Some(lost == 0),

@@ -81,7 +81,7 @@ pub struct PeriodLatency {
 /// `<= 1 - q` is an upper bound of the merged quantile (exact when one period
 /// holds everything). `None` without values.
 pub fn merged_quantile_bound(periods: &[PeriodLatency], q: f64) -> Option<u64> {
-    let total: u64 = periods.iter().map(|p| p.count).sum();
+    let total = periods.iter().fold(0u64, |a, p| a.saturating_add(p.count));
     if total == 0 {
         return None;
     }

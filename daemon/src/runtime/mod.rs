@@ -204,8 +204,20 @@ fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
     }
 }
 
+/// What a thread's panic said (its payload is a `&str` or a `String`).
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|m| m.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown cause".to_string())
+}
+
+/// The largest sequence jump counted as lost samples (see [`sequence_gap`]).
+const MAX_COUNTED_GAP: u64 = 1 << 32;
+
 /// Tracks the sequence of each publisher of a stream; returns samples lost
-/// before `seq` (0 for the first sample of a publisher or a restart).
+/// before `seq` (0 for the first sample of a publisher or a restart, and for a
+/// jump beyond [`MAX_COUNTED_GAP`]).
 fn sequence_gap(
     slots: &mut [Option<(UniquePublisherId, u64)>; 4],
     publisher: UniquePublisherId,
@@ -218,7 +230,10 @@ fn sequence_gap(
         if first || seq <= last {
             return 0;
         }
-        return seq - last - 1;
+        let gap = seq - last - 1;
+        // no subscriber buffer loses billions of samples: a jump that far is a
+        // publisher whose counter restarted or is corrupt, not a loss
+        return if gap > MAX_COUNTED_GAP { 0 } else { gap };
     }
     // a new publisher: take a free slot, or replace the one with the oldest sequence
     let free = slots.iter().position(|s| s.is_none());
@@ -386,7 +401,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 }
                 let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
                 if lost > 0 {
-                    c.status.lost[si] += lost;
+                    c.status.lost[si] = c.status.lost[si].saturating_add(lost);
                     emit(
                         &s.tx,
                         &mut c,
@@ -432,9 +447,12 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 c.processing.record(proc_ns);
                 // driver publish -> done with the sample (estimate published if one was due);
                 // a hostile or foreign-host publish_ns outside 0..10 s is not a latency
-                let e2e = t1 - w.publish_ns;
-                if w.publish_ns > 0 && (0..10_000_000_000).contains(&e2e) {
-                    c.end_to_end.record(e2e as u64);
+                // (a positive one cannot overflow the difference)
+                if w.publish_ns > 0 {
+                    let e2e = t1 - w.publish_ns;
+                    if (0..10_000_000_000).contains(&e2e) {
+                        c.end_to_end.record(e2e as u64);
+                    }
                 }
                 if proc_ns > budget_ns {
                     c.status.budget_overruns += 1;
@@ -1001,7 +1019,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         }
     }
     systemd.stopping();
-    let _ = rt.join();
+    // a real-time thread that panicked must not look like a clean stop: the exit
+    // code is what makes systemd restart the daemon (`Restart=on-failure`)
+    let rt_panic = rt.join().err().map(|p| panic_message(p.as_ref()));
     // every warning still held back (the channel was drained: the loop ends on disconnect)
     throttle.due(Nanos::MAX, report_suppressed);
     if let Some(sv) = saver.as_mut() {
@@ -1010,6 +1030,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         }
     }
     // everything the real-time thread sent before it ended has been drained above
+    if let Some(why) = rt_panic {
+        tracing::error!("the real-time thread panicked ({why}); stopping with an error");
+        return Err(format!("the real-time thread panicked: {why}"));
+    }
     tracing::info!("stopped");
     Ok(())
 }
@@ -1036,6 +1060,18 @@ mod tests {
     }
 
     #[test]
+    fn a_panicking_thread_is_an_error_with_its_message() {
+        let h = std::thread::spawn(|| -> () { panic!("boom {}", 7) });
+        let e = h.join().unwrap_err();
+        assert_eq!(panic_message(e.as_ref()), "boom 7");
+        let h = std::thread::spawn(|| -> () { std::panic::panic_any(3u8) });
+        assert_eq!(
+            panic_message(h.join().unwrap_err().as_ref()),
+            "unknown cause"
+        );
+    }
+
+    #[test]
     fn sequence_gaps_are_counted_per_publisher() {
         let (a, b) = (pid(1), pid(2));
         let mut slots = [None; 4];
@@ -1050,6 +1086,15 @@ mod tests {
         assert_eq!(sequence_gap(&mut slots, a, 2, false), 1);
         // a duplicate/backwards sequence is not counted as lost
         assert_eq!(sequence_gap(&mut slots, a, 1, false), 0);
+        // a hostile jump to the end of the range and back: no count near u64::MAX
+        // (which the next gap would overflow)
+        assert_eq!(sequence_gap(&mut slots, a, u64::MAX, false), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 0, false), 0);
+        assert_eq!(sequence_gap(&mut slots, a, 5, false), 4);
+        assert_eq!(
+            sequence_gap(&mut slots, a, 6 + MAX_COUNTED_GAP, false),
+            MAX_COUNTED_GAP
+        );
     }
 
     #[test]
