@@ -31,6 +31,7 @@
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
+pub mod console;
 pub mod file;
 pub mod text;
 #[cfg(feature = "wire")]

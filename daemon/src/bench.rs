@@ -333,13 +333,13 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
                     }
                 };
                 let d = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-                eprintln!(
-                    "[{d}/{total}] {:<16} MAE {} ms, p95 {} ms ({:.1} ms per run)",
+                vlsync_common::console::print_err(&format!(
+                    "[{d}/{total}] {:<16} MAE {} ms, p95 {} ms ({:.1} ms per run)\n",
                     fam.name(),
                     ms(r.ours.mae_s),
                     ms(r.ours.p95_s),
                     r.time_s * 1e3
-                );
+                ));
                 if let Ok(mut v) = results.lock() {
                     v.push((i, r));
                 }
@@ -351,16 +351,19 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         .map_err(|_| "a worker panicked".to_string())?;
     results.sort_by_key(|(i, _)| *i);
     let results: Vec<FamilyResult> = results.into_iter().map(|(_, r)| r).collect();
-    print!("{}", table(&results, args.seeds, args.seed_base));
+    // the files first: a closed or full stdout must not cost them
     if let Some(p) = &args.json {
         std::fs::write(p, json(&results))
             .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
-        eprintln!("wrote {}", p.display());
+        vlsync_common::console::print_err(&format!("wrote {}\n", p.display()));
     }
     if let Some(d) = &args.plots {
-        eprintln!("wrote one SVG per family into {}", d.display());
+        vlsync_common::console::print_err(&format!(
+            "wrote one SVG per family into {}\n",
+            d.display()
+        ));
     }
-    Ok(())
+    vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base))
 }
 
 #[cfg(test)]

@@ -76,14 +76,13 @@ fn main() -> ExitCode {
         }),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
         Cmd::Run(args) => vlsyncd::runtime::run_cli(&args),
-        Cmd::Check { config, print } => {
-            vlsyncd::check::check(&config, print).map(|report| print!("{report}"))
-        }
+        Cmd::Check { config, print } => vlsyncd::check::check(&config, print)
+            .and_then(|report| vlsync_common::console::print_out(&report)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vlsyncd: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsyncd: error: {e}\n"));
             ExitCode::from(2)
         }
     }

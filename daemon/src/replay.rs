@@ -193,7 +193,12 @@ pub fn truth_at(truth: &[(Nanos, f64)], t: Nanos) -> Option<f64> {
     let i = truth.partition_point(|p| p.0 <= t);
     match (i.checked_sub(1).and_then(|j| truth.get(j)), truth.get(i)) {
         (Some(a), Some(b)) if b.0 > a.0 => {
-            Some(a.1 + (b.1 - a.1) * (t - a.0) as f64 / (b.0 - a.0) as f64)
+            // in i128: stamps far apart (a hostile truth file) must not overflow
+            let (dt, span) = (
+                i128::from(t) - i128::from(a.0),
+                i128::from(b.0) - i128::from(a.0),
+            );
+            Some(a.1 + (b.1 - a.1) * dt as f64 / span as f64)
         }
         (Some(a), _) => Some(a.1),
         (None, Some(b)) => Some(b.1),
@@ -243,9 +248,11 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
     let (ests, stats) = run_estimator(&cfg.estimator, &cam_s, &lidar_s);
     let elapsed = t0.elapsed();
     write_estimates(a.out, &ests)?;
-    eprint!("{}", summary(&stats, &ests, [cam_s.len(), lidar_s.len()]));
+    // stderr through `print_err`: a closed or full one must not panic
+    let err = vlsync_common::console::print_err;
+    err(&summary(&stats, &ests, [cam_s.len(), lidar_s.len()]));
     if let Some(tr) = &truth {
-        eprintln!("{}", error_summary(&ests, tr));
+        err(&format!("{}\n", error_summary(&ests, tr)));
     }
     if let Some(p) = a.plot {
         let title = format!(
@@ -255,13 +262,36 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
         );
         let svg = crate::plot::offset_svg(&title, &ests, truth.as_deref(), &[]);
         std::fs::write(p, svg).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
-        eprintln!("wrote plot {}", p.display());
+        err(&format!("wrote plot {}\n", p.display()));
     }
-    eprintln!(
-        "estimator time: {:.2} ms for {} samples; wrote {}",
+    err(&format!(
+        "estimator time: {:.2} ms for {} samples; wrote {}\n",
         elapsed.as_secs_f64() * 1e3,
         cam_s.len() + lidar_s.len(),
         a.out.display()
-    );
+    ));
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::truth_at;
+
+    #[test]
+    fn the_truth_is_interpolated_and_clamped_even_across_the_whole_stamp_range() {
+        let tr = [(0, 0.0), (10, 1.0)];
+        assert_eq!(truth_at(&tr, 5), Some(0.5));
+        assert_eq!(truth_at(&tr, -3), Some(0.0));
+        assert_eq!(truth_at(&tr, 30), Some(1.0));
+        assert_eq!(truth_at(&[], 30), None);
+        // rows 18 s of i64 nanoseconds apart: the differences overflow i64
+        let far = [
+            (-9_000_000_000_000_000_000, 0.0),
+            (9_000_000_000_000_000_000, 2.0),
+        ];
+        let mid = truth_at(&far, 0).unwrap();
+        assert!((mid - 1.0).abs() < 1e-9, "{mid}");
+        assert_eq!(truth_at(&far, i64::MIN), Some(0.0));
+        assert_eq!(truth_at(&far, i64::MAX), Some(2.0));
+    }
 }

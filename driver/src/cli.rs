@@ -118,6 +118,9 @@ pub enum StampArg {
 /// (the render thread fills its queue meanwhile).
 pub const DEFAULT_START_DELAY_NS: i64 = 1_000_000_000;
 
+/// How far ahead of now `--start-at` may be (a day).
+pub const MAX_START_AHEAD_NS: i64 = 86_400_000_000_000;
+
 /// A source with how to pace it.
 pub struct Selected {
     /// The source.
@@ -189,6 +192,16 @@ pub fn select_source(
             return Err(DriverError::Options(format!(
                 "--stamp {} stamps on CLOCK_MONOTONIC: it needs real time (no --fast, --speed 1)",
                 args.stamp.name()
+            )));
+        }
+    }
+    if let Some(t) = args.start_at {
+        // an instant on CLOCK_MONOTONIC: not before boot, and at most a day ahead
+        // (stamps are built on it; far out of range they would overflow)
+        let latest = vlsync_ipc::monotonic_ns().saturating_add(MAX_START_AHEAD_NS);
+        if !(0..=latest).contains(&t) {
+            return Err(DriverError::Options(format!(
+                "--start-at {t} is out of range: allowed 0 ..= {latest} (CLOCK_MONOTONIC ns, at most a day from now)"
             )));
         }
     }
@@ -398,21 +411,21 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
             start_mono_ns: start_at.or(args.start_at),
         },
     };
-    eprintln!(
-        "vlsync-{stream}: publishing {} on {}",
+    vlsync_common::console::print_err(&format!(
+        "vlsync-{stream}: publishing {} on {}\n",
         source.describe(),
         names.signature(stream)
-    );
+    ));
     let mut last = RunSummary::default();
     let mut report = |s: &RunSummary, r: Option<String>| {
-        eprintln!(
-            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}",
+        vlsync_common::console::print_err(&format!(
+            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}\n",
             PROGRESS_EVERY.as_secs() / 60,
             s.published - last.published,
             s.failed - last.failed,
             s.published,
             r.map(|r| format!("; {r}")).unwrap_or_default()
-        );
+        ));
         last = *s;
     };
     let result = run(
@@ -427,15 +440,15 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         }),
     );
     if let Some(r) = source.report() {
-        eprintln!("vlsync-{stream}: {r}");
+        vlsync_common::console::print_err(&format!("vlsync-{stream}: {r}\n"));
     }
     if let (Some(t), Some(p)) = (truth.as_mut(), &args.truth_out) {
         t.finish().map_err(DriverError::Source)?;
-        eprintln!(
-            "vlsync-{stream}: {} truth rows written to {}",
+        vlsync_common::console::print_err(&format!(
+            "vlsync-{stream}: {} truth rows written to {}\n",
             t.rows(),
             p.display()
-        );
+        ));
     }
     result
 }
@@ -459,17 +472,17 @@ pub fn main(stream: Stream) -> ExitCode {
     let args = DriverArgs::parse_from(std::env::args_os());
     match run_driver(stream, &args) {
         Ok(s) => {
-            eprintln!(
-                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}",
+            vlsync_common::console::print_err(&format!(
+                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}\n",
                 s.published,
                 s.skipped,
                 s.failed,
                 if s.interrupted { ", interrupted" } else { "" }
-            );
+            ));
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("vlsync-{stream}: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-{stream}: error: {e}\n"));
             ExitCode::from(2)
         }
     }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use vlsync_common::{Sample, Stream};
-use vlsync_driver::cli::{select_source, DriverArgs};
+use vlsync_driver::cli::{select_source, DriverArgs, StampArg};
 use vlsync_driver::raw::{self, CamSource, LidarSource, SerialKind};
 use vlsync_driver::Source;
 
@@ -398,6 +398,23 @@ fn stamping_options_are_checked() {
         Stream::Cam,
     );
     assert!(e.contains("--frame-cpu-ms 5000 is out of range"), "{e}");
+    // a start instant far outside CLOCK_MONOTONIC's range would overflow the stamps
+    for (t, s) in [
+        ("--start-at=-9223372036854775808", StampArg::Mono),
+        ("--start-at=9223372036854775807", StampArg::Mono),
+        ("--start-at=-1", StampArg::Sensor),
+    ] {
+        let stamp = if s == StampArg::Mono {
+            "mono"
+        } else {
+            "sensor"
+        };
+        let e = err(&["--render", "1", "--stamp", stamp, t], Stream::Lidar);
+        assert!(
+            e.contains("--start-at") && e.contains("out of range"),
+            "{t}: {e}"
+        );
+    }
     let e = err(
         &["--frames", "/tmp", "--truth-out", "/tmp/x.csv"],
         Stream::Cam,

@@ -140,10 +140,19 @@ pub fn parse_some_total(text: &str) -> Result<u64, String> {
         .map_err(|e| format!("`total={v}` in `{line}`: {e}"))
 }
 
+/// The most of a pressure file read (the kernel's is about 100 bytes).
+const MAX_PRESSURE_BYTES: u64 = 4096;
+
 /// Reads the `some` total (µs) of the pressure file `path`
-/// (`daemon.load_hint_source`); the error names the file.
+/// (`daemon.load_hint_source`); the error names the file. A regular file only (a
+/// named pipe would block the daemon's start for good), and its first
+/// [`MAX_PRESSURE_BYTES`].
 pub fn read_pressure(path: &str) -> Result<u64, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
+    use std::io::Read as _;
+    let mut text = String::new();
+    vlsync_common::file::open_regular(std::path::Path::new(path))
+        .and_then(|f| f.take(MAX_PRESSURE_BYTES).read_to_string(&mut text))
+        .map_err(|e| format!("{path}: {e}"))?;
     parse_some_total(&text).map_err(|e| format!("{path}: {e}"))
 }
 
@@ -153,6 +162,25 @@ mod tests {
     use proptest::prelude::*;
 
     const MS: Nanos = 1_000_000;
+
+    #[test]
+    fn the_pressure_file_is_read_and_a_named_pipe_is_refused() {
+        let dir = std::env::temp_dir().join(format!("vlsync-pressure-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("cpu");
+        std::fs::write(&f, "some avg10=1.00 avg60=0.50 avg300=0.10 total=12345\n").unwrap();
+        assert_eq!(read_pressure(f.to_str().unwrap()), Ok(12345));
+        let e = read_pressure(dir.to_str().unwrap()).unwrap_err();
+        assert!(e.contains("not a regular file (a directory)"), "{e}");
+        // a named pipe without a writer would block the daemon's start forever
+        let fifo = dir.join("fifo");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = read_pressure(fifo.to_str().unwrap()).unwrap_err();
+            assert!(e.ends_with("not a regular file (a named pipe)"), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// Feeds `levels` (share, seconds) in 250 ms readings from t = 0; returns the hints.
     fn feed(w: &mut LoadWatch, levels: &[(f64, f64)]) -> Vec<(Nanos, Hint)> {

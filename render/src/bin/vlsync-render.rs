@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 
 use clap::Parser;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -102,7 +103,7 @@ fn main() -> ExitCode {
     let mut r = match Renderer::new(cfg) {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("vlsync-render: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
             return ExitCode::from(2);
         }
     };
@@ -114,20 +115,24 @@ fn main() -> ExitCode {
     let s = match write_run_with(&mut r, &a.out, !a.no_png, mcap.as_ref()) {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("vlsync-render: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
             return ExitCode::FAILURE;
         }
     };
     let c = r.config();
     let truth = r.truth();
     let end = truth.end_ns;
-    println!(
+    // printed after the files are written: a closed or full stdout must not panic
+    let mut text = String::new();
+    let _ = writeln!(
+        text,
         "vlsync-render: seed {} duration {} s -> {}",
         c.seed,
         c.duration_s,
         a.out.display()
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  camera {}x{} @ {} Hz: {} frames written, {} dropped; LiDAR {} Hz x {} rays: {} scans",
         c.camera.width,
         c.camera.height,
@@ -139,7 +144,8 @@ fn main() -> ExitCode {
         s.scans
     );
     if let Some(m) = &mcap {
-        println!(
+        let _ = writeln!(
+            text,
             "  mcap {}: {} frames on {}, {} scans on {}",
             m.path.display(),
             s.frames,
@@ -148,24 +154,33 @@ fn main() -> ExitCode {
             vlsync_render::output::MCAP_SCAN_TOPIC
         );
     }
-    println!(
+    let _ = writeln!(
+        text,
         "  truth offset t_L - t_C: {:+.6} s at 0, {:+.6} s at end (drift {:+.1} ppm, {} steps)",
         truth.offset_at(0),
         truth.offset_at(end),
         c.clock.drift_ppm,
         truth.steps.len()
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  drive: motion starts {:.2} s, {} turns, {} stops",
         r.trajectory().motion_start_s(),
         r.trajectory().turns().len(),
         r.trajectory().stops().len()
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  time: setup {:.2} s, render {:.2} s, write {:.2} s",
         setup.as_secs_f64(),
         s.render_time.as_secs_f64(),
         s.write_time.as_secs_f64()
     );
-    ExitCode::SUCCESS
+    match vlsync_common::console::print_out(&text) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
+            ExitCode::FAILURE
+        }
+    }
 }

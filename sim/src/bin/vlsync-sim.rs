@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 
 use clap::Parser;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use vlsync_sim::{baseline, crb, families, io, score, Family};
@@ -36,18 +37,21 @@ fn main() -> ExitCode {
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vlsync-sim: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-sim: error: {e}\n"));
             ExitCode::FAILURE
         }
     }
 }
 
 fn run(args: &Args) -> Result<(), String> {
+    // printed at the end, after the files are written: a closed or full stdout
+    // must not panic (`vlsync-sim --list | head -1`)
+    let mut text = String::new();
     if args.list {
         for f in Family::ALL {
-            println!("{:<16} {}", f.name(), f.description());
+            let _ = writeln!(text, "{:<16} {}", f.name(), f.description());
         }
-        return Ok(());
+        return vlsync_common::console::print_out(&text);
     }
     let (Some(name), Some(out)) = (&args.family, &args.out) else {
         return Err("--family and --out are required (or --list)".into());
@@ -73,15 +77,17 @@ fn run(args: &Args) -> Result<(), String> {
         Err(_) => "n/a".into(),
     };
     let end = vlsync_common::secs_to_nanos(run.duration_s);
-    println!(
+    let _ = writeln!(
+        text,
         "family {} seed {} duration {:.1} s -> {}",
         family,
         run.seed,
         run.duration_s,
         out.display()
     );
-    println!("  {}", family.description());
-    println!(
+    let _ = writeln!(text, "  {}", family.description());
+    let _ = writeln!(
+        text,
         "  cam {} samples @ {} Hz ({} dropped), lidar {} samples @ {} Hz ({} dropped, gaps {})",
         run.cam.len(),
         run.cam_hz,
@@ -91,7 +97,8 @@ fn run(args: &Args) -> Result<(), String> {
         run.lidar_dropped,
         run.lidar_gaps.len()
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  truth offset {:+.2} ms at t=0 .. {:+.2} ms at end, drift {:+.1} ppm, {} steps, polarity {}",
         run.truth.offset_at(0) * 1e3,
         run.truth.offset_at(end) * 1e3,
@@ -99,7 +106,8 @@ fn run(args: &Args) -> Result<(), String> {
         run.step_times_ns.len(),
         run.polarity
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  noise cam {:.4} lidar {:.4}; jitter cam {:.1} ms lidar {:.1} ms; motion starts {:.2} s; {} standstill(s)",
         run.noise_cam,
         run.noise_lidar,
@@ -108,12 +116,13 @@ fn run(args: &Args) -> Result<(), String> {
         vlsync_common::nanos_to_secs(run.motion_start_ns),
         run.standstills.len()
     );
-    println!(
+    let _ = writeln!(
+        text,
         "  Cramér-Rao bound: {:.3} ms whole run; median per window {} (4 s), {} (6 s)",
         run.crb_std_s * 1e3,
         win(4.0),
         win(6.0)
     );
-    println!("  seed baseline (bugs fixed): {base}");
-    Ok(())
+    let _ = writeln!(text, "  seed baseline (bugs fixed): {base}");
+    vlsync_common::console::print_out(&text)
 }
