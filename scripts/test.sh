@@ -15,10 +15,27 @@ install_deb() {
 }
 
 # The Python subscriber test needs the official iceoryx2 package, pinned to the
-# same version as the Rust crate.
-if [ -f examples/python/requirements.txt ]; then
-    python3 -m pip install --quiet --disable-pip-version-check -r examples/python/requirements.txt
+# same version as the Rust crate. Installed for python3 itself where pip may; a
+# Debian/Ubuntu system Python refuses that (PEP 668: "externally-managed-environment"),
+# and the package then goes into a virtual environment under target/, which the test
+# runs (VLSYNC_PYTHON). Once this has installed it, the test must find it
+# (VLSYNC_REQUIRE_PYTHON): a missing package fails the suite instead of skipping.
+req=examples/python/requirements.txt
+pip_log="$(mktemp)"
+if python3 -m pip install --quiet --disable-pip-version-check -r "$req" 2>"$pip_log"; then
+    :
+elif grep -q externally-managed "$pip_log"; then
+    venv=target/python-venv
+    echo "python3 is externally managed: installing $req into $venv" >&2
+    python3 -m venv "$venv" 2>/dev/null || { rm -rf "$venv"; install_deb python3-venv "the Python subscriber test will fail" && python3 -m venv "$venv"; }
+    "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check -r "$req"
+    export VLSYNC_PYTHON="$PWD/$venv/bin/python3"
+else
+    cat "$pip_log" >&2
+    exit 1
 fi
+rm -f "$pip_log"
+export VLSYNC_REQUIRE_PYTHON=1
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
 command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"
 # The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang.
