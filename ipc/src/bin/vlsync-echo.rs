@@ -111,6 +111,22 @@ fn status_line(s: &Status, json: bool) -> String {
     }
 }
 
+/// After this long without a line, `vlsync-echo` says on stderr what it waits for.
+const QUIET_NOTICE: Duration = Duration::from_secs(5);
+
+/// What an echo that has received nothing yet says (once, on stderr): a daemon on
+/// another prefix is the usual cause.
+fn quiet_notice(args: &Args) -> String {
+    format!(
+        "vlsync-echo: nothing received on `{}/{}` for {} s; waiting (is a daemon running \
+         with services.prefix = \"{}\"? vlsync-demo uses its own prefix, printed at its start)\n",
+        args.prefix,
+        if args.status { "status" } else { "offset" },
+        QUIET_NOTICE.as_secs(),
+        args.prefix
+    )
+}
+
 /// Prints the lines each `next()` returns until `--count` lines, `--duration`,
 /// Ctrl-C, a closed stdout (all exit 0) or an error from `next()` (its message,
 /// exit code 1). `next()` waits a little for data itself.
@@ -120,15 +136,20 @@ fn print_until_done(
 ) -> ExitCode {
     let start = Instant::now();
     let mut n = 0u64;
+    let mut told = false;
     let mut out = std::io::stdout().lock();
     while !vlsync_ipc::termination_requested() {
         if args.duration > 0.0 && start.elapsed().as_secs_f64() >= args.duration {
             break;
         }
+        if n == 0 && !told && start.elapsed() >= QUIET_NOTICE {
+            told = true;
+            vlsync_common::console::print_err(&quiet_notice(args));
+        }
         let lines = match next() {
             Ok(lines) => lines,
             Err(e) => {
-                eprintln!("vlsync-echo: error: {e}");
+                vlsync_common::console::print_err(&format!("vlsync-echo: error: {e}\n"));
                 return ExitCode::from(1);
             }
         };
@@ -149,14 +170,16 @@ fn print_until_done(
 fn main() -> ExitCode {
     let args = Args::parse();
     if !(args.duration.is_finite() && args.duration >= 0.0) {
-        eprintln!("vlsync-echo: error: --duration must be a finite number >= 0");
+        vlsync_common::console::print_err(
+            "vlsync-echo: error: --duration must be a finite number >= 0\n",
+        );
         return ExitCode::from(2);
     }
     // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the loop cleanly
     let _signals = match vlsync_ipc::create_node("vlsync-echo", true) {
         Ok(n) => n,
         Err(e) => {
-            eprintln!("vlsync-echo: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-echo: error: {e}\n"));
             return ExitCode::from(1);
         }
     };
@@ -167,7 +190,7 @@ fn main() -> ExitCode {
         let mut client = match vlsync_ipc::StatusClient::open(&args.prefix) {
             Ok(c) => c,
             Err(e) => {
-                eprintln!("vlsync-echo: error: {e}");
+                vlsync_common::console::print_err(&format!("vlsync-echo: error: {e}\n"));
                 return ExitCode::from(1);
             }
         };
@@ -175,7 +198,9 @@ fn main() -> ExitCode {
             let lines = match client.receive_all() {
                 Ok(all) => all.iter().map(|s| status_line(s, json)).collect(),
                 Err(vlsync_ipc::WireErrorOrIpc::Wire(e)) => {
-                    eprintln!("vlsync-echo: skipped an invalid status: {e}");
+                    vlsync_common::console::print_err(&format!(
+                        "vlsync-echo: skipped an invalid status: {e}\n"
+                    ));
                     vec![]
                 }
                 Err(e) => return Err(e.to_string()),
@@ -187,7 +212,7 @@ fn main() -> ExitCode {
     let mut client = match vlsync_ipc::OffsetClient::open(&args.prefix) {
         Ok(c) => c,
         Err(e) => {
-            eprintln!("vlsync-echo: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-echo: error: {e}\n"));
             return ExitCode::from(1);
         }
     };
@@ -226,5 +251,17 @@ mod tests {
         assert!(v["peak_ratio"].is_null());
         assert_eq!(v["offset_s"].as_f64(), Some(0.025));
         assert_eq!(v["state"], "holding");
+    }
+
+    #[test]
+    fn the_quiet_notice_names_the_service_and_the_prefix_key() {
+        let a = Args::try_parse_from(["vlsync-echo", "--prefix", "bot/x"]).unwrap();
+        let n = quiet_notice(&a);
+        assert!(
+            n.contains("`bot/x/offset`") && n.contains("services.prefix = \"bot/x\""),
+            "{n}"
+        );
+        let a = Args::try_parse_from(["vlsync-echo", "--status"]).unwrap();
+        assert!(quiet_notice(&a).contains("`vlsync/robot/status`"));
     }
 }
