@@ -285,6 +285,12 @@ fn run(a: Args) -> Result<(), String> {
     for r in Role::ALL {
         out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));
     }
+    if s.implausible > 0 {
+        out.line(format_args!(
+            "left out: {} estimate(s) with times no daemon publishes (another publisher on `{}`?)",
+            s.implausible, s.prefix
+        ));
+    }
     out.line(format_args!("children stopped {}", stop_words(clean)));
     // the plot last: everything above is printed even if it cannot be written
     let plot = a.plot.unwrap_or_else(|| s.log_dir.join("demo.svg"));

@@ -241,6 +241,17 @@ pub struct Received {
     pub publish_ns: Nanos,
 }
 
+/// The largest |time| (ns) of an estimate the harness scores: 2^62 ns, 146 years. A
+/// hostile publisher on the session's prefix could send any i64, and the reports
+/// subtract start instants from these times.
+pub const MAX_HARNESS_NS: i64 = 1 << 62;
+
+/// Whether the harness scores an estimate of reference time `t_ref_ns` published at
+/// `publish_ns` (see [`MAX_HARNESS_NS`]).
+fn plausible(t_ref_ns: Nanos, publish_ns: Nanos) -> bool {
+    t_ref_ns.unsigned_abs() <= MAX_HARNESS_NS as u64 && (0..=MAX_HARNESS_NS).contains(&publish_ns)
+}
+
 /// A running session; dropping it stops every process.
 pub struct Session {
     /// Service prefix.
@@ -253,6 +264,10 @@ pub struct Session {
     pub source: Source,
     /// Every estimate received, in order.
     pub estimates: Vec<Received>,
+    /// Estimates left out of `estimates` because their times are beyond
+    /// [`MAX_HARNESS_NS`] (no daemon of ours publishes them; the harness's
+    /// arithmetic on them would overflow).
+    pub implausible: u64,
     /// Every status received, in order.
     pub statuses: Vec<Status>,
     procs: [Managed; 3],
@@ -338,6 +353,7 @@ impl Session {
             start_at,
             source: o.source,
             estimates: vec![],
+            implausible: 0,
             statuses: vec![],
             procs: [daemon, cam, lidar],
             driver_bins,
@@ -458,13 +474,14 @@ impl Session {
     /// Waits up to `timeout` for estimates; records them and every pending
     /// status; reads usage. Returns the new estimates.
     pub fn poll(&mut self, timeout: Duration) -> Result<Vec<Received>, String> {
-        let got: Vec<Received> = self
-            .offsets
-            .wait_all(timeout)
-            .map_err(|e| e.to_string())?
+        let all = self.offsets.wait_all(timeout).map_err(|e| e.to_string())?;
+        let n = all.len();
+        let got: Vec<Received> = all
             .into_iter()
+            .filter(|(est, publish_ns)| plausible(est.t_ref_ns, *publish_ns))
             .map(|(est, publish_ns)| Received { est, publish_ns })
             .collect();
+        self.implausible += (n - got.len()) as u64;
         self.estimates.extend_from_slice(&got);
         self.drain_status()?;
         self.sample_usage(false);
@@ -766,6 +783,16 @@ mod tests {
             opposite_window: false,
         };
         assert!(sw.known_truth().unwrap().is_none());
+    }
+
+    #[test]
+    fn estimates_with_times_no_daemon_publishes_are_left_out() {
+        assert!(plausible(-2_000_000_000, 5_000_000_000));
+        assert!(plausible(MAX_HARNESS_NS, MAX_HARNESS_NS));
+        assert!(!plausible(i64::MIN, 1));
+        assert!(!plausible(0, i64::MIN));
+        assert!(!plausible(0, -1));
+        assert!(!plausible(i64::MAX, 1));
     }
 
     #[test]
