@@ -15,27 +15,49 @@ install_deb() {
 }
 
 # The Python subscriber test needs the official iceoryx2 package, pinned to the
-# same version as the Rust crate. Installed for python3 itself where pip may; a
-# Debian/Ubuntu system Python refuses that (PEP 668: "externally-managed-environment"),
-# and the package then goes into a virtual environment under target/, which the test
-# runs (VLSYNC_PYTHON). Once this has installed it, the test must find it
+# same version as the Rust crate. Nothing is installed when python3 (or the venv below,
+# from an earlier run) already has it. Otherwise it is installed for python3 itself
+# where pip may; a Debian/Ubuntu system Python refuses that (PEP 668:
+# "externally-managed-environment") or has no pip, and the package then goes into a
+# virtual environment under target/ (python3-venv installed when missing), which the
+# test runs (VLSYNC_PYTHON). Once the package is there, the test must find it
 # (VLSYNC_REQUIRE_PYTHON): a missing package fails the suite instead of skipping.
 req=examples/python/requirements.txt
-pip_log="$(mktemp)"
-if python3 -m pip install --quiet --disable-pip-version-check -r "$req" 2>"$pip_log"; then
-    :
-elif grep -q externally-managed "$pip_log"; then
-    venv=target/python-venv
-    echo "python3 is externally managed: installing $req into $venv" >&2
-    python3 -m venv "$venv" 2>/dev/null || { rm -rf "$venv"; install_deb python3-venv "the Python subscriber test will fail" && python3 -m venv "$venv"; }
-    "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check -r "$req"
+venv=target/python-venv
+pinned="$(sed -n 's/^iceoryx2==//p' "$req")"
+has_pinned() {
+    "$1" -c "import importlib.metadata as m, iceoryx2; assert m.version('iceoryx2') == '$pinned'" 2>/dev/null
+}
+use_venv() {
     export VLSYNC_PYTHON="$PWD/$venv/bin/python3"
+    export VLSYNC_REQUIRE_PYTHON=1
+}
+if has_pinned python3; then
+    export VLSYNC_REQUIRE_PYTHON=1
+elif [ -x "$venv/bin/python3" ] && has_pinned "$venv/bin/python3"; then
+    use_venv
 else
-    cat "$pip_log" >&2
-    exit 1
+    pip_log="$(mktemp)"
+    trap 'rm -f "$pip_log"' EXIT
+    if python3 -m pip install --quiet --disable-pip-version-check -r "$req" 2>"$pip_log"; then
+        export VLSYNC_REQUIRE_PYTHON=1
+    elif grep -qE 'externally-managed|No module named pip' "$pip_log"; then
+        echo "python3 refuses pip installs or has no pip: installing $req into $venv" >&2
+        rm -rf "$venv"
+        if python3 -m venv "$venv" 2>/dev/null \
+            || { rm -rf "$venv"; install_deb python3-venv "no virtual environment can be made" \
+                 && python3 -m venv "$venv" 2>/dev/null; }; then
+            "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check -r "$req"
+            use_venv
+        else
+            rm -rf "$venv"
+            echo "cannot make a Python virtual environment: the Python subscriber test will be skipped" >&2
+        fi
+    else
+        cat "$pip_log" >&2
+        exit 1
+    fi
 fi
-rm -f "$pip_log"
-export VLSYNC_REQUIRE_PYTHON=1
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
 command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"
 # The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang.
