@@ -3,7 +3,11 @@
 //! closed terminal) or full (`> /dev/full`). The one-shot tools write their files
 //! first and print through these: a reader that went away ends the printing
 //! quietly (it saw what it wanted), any other failure is an error naming stdout,
-//! and a failure on stderr is ignored (there is nowhere left to report it).
+//! and a failure on stderr is ignored (there is nowhere left to report it). The
+//! live runs (demo, soak, load and latency tests) print through
+//! `vlsyncd::harness::console::Out` instead: there any failed write ends the output
+//! and the run goes on, so that it still stops its children and writes its reports;
+//! `vlsync-echo` ends on a gone reader (exit 0) and on a full stdout (exit 1).
 //!
 //! ```
 //! use vlsync_common::console::write_out;

@@ -351,10 +351,15 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         .map_err(|_| "a worker panicked".to_string())?;
     results.sort_by_key(|(i, _)| *i);
     let results: Vec<FamilyResult> = results.into_iter().map(|(_, r)| r).collect();
-    // the files first: a closed or full stdout must not cost them
-    if let Some(p) = &args.json {
+    // the JSON first, the table in any case: a closed or full stdout must not cost
+    // the file, nor an unwritable file the table
+    let written = args.json.as_ref().map(|p| {
         std::fs::write(p, json(&results))
-            .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+            .map(|()| p)
+            .map_err(|e| format!("cannot write {}: {e}", p.display()))
+    });
+    let printed = vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base));
+    if let Some(Ok(p)) = &written {
         vlsync_common::console::print_err(&format!("wrote {}\n", p.display()));
     }
     if let Some(d) = &args.plots {
@@ -363,7 +368,8 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
             d.display()
         ));
     }
-    vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base))
+    written.transpose()?;
+    printed
 }
 
 #[cfg(test)]

@@ -26,6 +26,36 @@ fn list_names_every_family() {
 }
 
 #[test]
+fn a_full_or_closed_stdout_is_no_panic() {
+    // a full disk: an error naming stdout, exit 1 (a panic would be 101)
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full");
+    if let Ok(full) = full {
+        let out = bin().arg("--list").stdout(full).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("cannot write to stdout") && !err.contains("panicked"),
+            "{err}"
+        );
+    }
+    // a reader that has gone (`| head -0`): quietly done, exit 0
+    let mut child = bin()
+        .arg("--list")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && !err.contains("panicked"),
+        "{:?}: {err}",
+        out.status
+    );
+}
+
+#[test]
 fn writes_the_generated_run() {
     let dir = tmp("write");
     let out = bin()

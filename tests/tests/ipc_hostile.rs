@@ -82,8 +82,9 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     );
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
-    // the jump to u64::MAX is no loss, the 0 -> 5 after it four lost samples
-    assert!(st.lost[0] < 100, "{st:?}");
+    // the jump to u64::MAX is no loss, the 0 -> 5 after it four lost samples (and
+    // the real camera driver, at 5x, loses none or a few)
+    assert!((4..100).contains(&st.lost[0]), "{st:?}");
 
     let cam_rej = st.rejected[0];
     assert!(

@@ -73,7 +73,7 @@ fn main() -> ExitCode {
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vlsync-demo: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-demo: error: {e}\n"));
             ExitCode::from(2)
         }
     }

@@ -162,6 +162,8 @@ fn measure(
     dargs: &[String],
     log: &std::path::Path,
 ) -> Result<bool, String> {
+    // stdout through `Out`: a reader that went away (`| head`) ends the output, not the run
+    let mut out = vlsyncd::harness::console::Out::new();
     let mut daemon = Managed::spawn("vlsyncd", daemon_bin, dargs, Some(log))?;
     let mut status = StatusClient::open(prefix).map_err(|e| e.to_string())?;
     std::thread::sleep(Duration::from_millis(300));
@@ -184,32 +186,32 @@ fn measure(
     let s1 = latest_status(&mut status)?;
     let received = s1.received[0].saturating_add(s1.received[1]);
     let lost = s1.lost[0].saturating_add(s1.lost[1]);
-    println!(
+    out.line(format_args!(
         "phase 1: {}x real time, {received} samples through driver -> daemon -> estimate",
         a.speed
-    );
-    println!(
+    ));
+    out.line(format_args!(
         "  end-to-end (driver publish -> daemon done, estimate published when due): p50 {} p99 {} max {}",
         us(s1.end_to_end_ns[0]),
         us(s1.end_to_end_ns[1]),
         us(s1.end_to_end_ns[2])
-    );
-    println!(
+    ));
+    out.line(format_args!(
         "  processing in the daemon: p50 {} p99 {} max {}; {} budget overruns; {} estimates",
         us(s1.processing_ns[0]),
         us(s1.processing_ns[1]),
         us(s1.processing_ns[2]),
         s1.budget_overruns,
         s1.estimates_published
-    );
-    println!(
+    ));
+    out.line(format_args!(
         "  lost {lost} (cam {} lidar {}), rejected {}; daemon CPU {:.1} % of a core over {:.1} s",
         s1.lost[0],
         s1.lost[1],
         s1.rejected_total(0).saturating_add(s1.rejected_total(1)),
         100.0 * fast_cpu / fast_wall,
         fast_wall
-    );
+    ));
 
     // ---- phase 2: nominal rates ----
     let cpu0 = cpu_seconds(daemon.pid())?;
@@ -224,18 +226,18 @@ fn measure(
     let nom_cpu = cpu_seconds(daemon.pid())? - cpu0;
     let nom_pct = 100.0 * nom_cpu / nom_wall;
     let rss = rss_kb(daemon.pid())?;
-    println!(
+    out.line(format_args!(
         "phase 2: nominal 30 Hz + 10 Hz for {nom_wall:.1} s: daemon CPU {nom_cpu:.3} s = {nom_pct:.2} % of a core"
-    );
-    println!(
+    ));
+    out.line(format_args!(
         "daemon resident memory (VmRSS): {:.1} MB",
         rss as f64 / 1024.0
-    );
+    ));
     let clean = daemon.stop(Duration::from_secs(3));
     if clean {
         let _ = std::fs::remove_file(log);
     } else {
-        println!("daemon log kept in {}", log.display());
+        out.line(format_args!("daemon log kept in {}", log.display()));
     }
 
     let checks = [
@@ -254,7 +256,10 @@ fn measure(
     ];
     let mut ok = true;
     for (what, pass) in checks {
-        println!("  [{}] {what}", if pass { "PASS" } else { "MISS" });
+        out.line(format_args!(
+            "  [{}] {what}",
+            if pass { "PASS" } else { "MISS" }
+        ));
         ok &= pass;
     }
     Ok(ok)
@@ -267,7 +272,7 @@ fn main() -> ExitCode {
         Ok(false) if a.check => ExitCode::from(1),
         Ok(false) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vlsync-latency: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-latency: error: {e}\n"));
             ExitCode::from(2)
         }
     }

@@ -86,7 +86,7 @@ fn main() -> ExitCode {
         Ok(false) if a.check => ExitCode::from(1),
         Ok(false) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vlsync-loadtest: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-loadtest: error: {e}\n"));
             ExitCode::from(2)
         }
     }

@@ -71,7 +71,7 @@ fn main() -> ExitCode {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
         Err(e) => {
-            eprintln!("vlsync-soak: error: {e}");
+            vlsync_common::console::print_err(&format!("vlsync-soak: error: {e}\n"));
             ExitCode::from(2)
         }
     }

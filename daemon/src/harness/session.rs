@@ -474,6 +474,15 @@ impl Session {
     /// Waits up to `timeout` for estimates; records them and every pending
     /// status; reads usage. Returns the new estimates.
     pub fn poll(&mut self, timeout: Duration) -> Result<Vec<Received>, String> {
+        let got = self.receive_estimates(timeout)?;
+        self.drain_status()?;
+        self.sample_usage(false);
+        Ok(got)
+    }
+
+    /// Waits up to `timeout` for estimates; keeps the plausible ones (recorded and
+    /// returned), counts the rest in `implausible`.
+    fn receive_estimates(&mut self, timeout: Duration) -> Result<Vec<Received>, String> {
         let all = self.offsets.wait_all(timeout).map_err(|e| e.to_string())?;
         let n = all.len();
         let got: Vec<Received> = all
@@ -483,8 +492,6 @@ impl Session {
             .collect();
         self.implausible += (n - got.len()) as u64;
         self.estimates.extend_from_slice(&got);
-        self.drain_status()?;
-        self.sample_usage(false);
         Ok(got)
     }
 
@@ -515,14 +522,7 @@ impl Session {
             std::thread::sleep(Duration::from_millis(50));
         }
         // the estimates published before the drivers stopped
-        let more = self
-            .offsets
-            .wait_all(Duration::from_millis(10))
-            .map_err(|e| e.to_string())?;
-        self.estimates.extend(
-            more.into_iter()
-                .map(|(est, publish_ns)| Received { est, publish_ns }),
-        );
+        self.receive_estimates(Duration::from_millis(10))?;
         self.sample_usage(true);
         let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
         Ok(clean_drivers.iter().all(|c| *c) && clean_daemon && self.replaced_clean)

@@ -1021,7 +1021,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     systemd.stopping();
     // a real-time thread that panicked must not look like a clean stop: the exit
     // code is what makes systemd restart the daemon (`Restart=on-failure`)
-    let rt_panic = rt.join().err().map(|p| panic_message(p.as_ref()));
+    let rt_end = rt_outcome(rt.join());
     // every warning still held back (the channel was drained: the loop ends on disconnect)
     throttle.due(Nanos::MAX, report_suppressed);
     if let Some(sv) = saver.as_mut() {
@@ -1030,12 +1030,23 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         }
     }
     // everything the real-time thread sent before it ended has been drained above
-    if let Some(why) = rt_panic {
-        tracing::error!("the real-time thread panicked ({why}); stopping with an error");
-        return Err(format!("the real-time thread panicked: {why}"));
+    if let Err(e) = &rt_end {
+        tracing::error!("{e}; stopping with an error");
+    } else {
+        tracing::info!("stopped");
     }
-    tracing::info!("stopped");
-    Ok(())
+    rt_end
+}
+
+/// How the real-time thread ended: `Err` naming its panic (the daemon then exits
+/// non-zero, so systemd restarts it).
+fn rt_outcome(joined: std::thread::Result<()>) -> Result<(), String> {
+    joined.map_err(|p| {
+        format!(
+            "the real-time thread panicked: {}",
+            panic_message(p.as_ref())
+        )
+    })
 }
 
 #[cfg(test)]
@@ -1062,8 +1073,14 @@ mod tests {
     #[test]
     fn a_panicking_thread_is_an_error_with_its_message() {
         let h = std::thread::spawn(|| -> () { panic!("boom {}", 7) });
+        assert_eq!(
+            rt_outcome(h.join()),
+            Err("the real-time thread panicked: boom 7".to_string())
+        );
+        assert_eq!(rt_outcome(std::thread::spawn(|| {}).join()), Ok(()));
+        let h = std::thread::spawn(|| -> () { panic!("plain") });
         let e = h.join().unwrap_err();
-        assert_eq!(panic_message(e.as_ref()), "boom 7");
+        assert_eq!(panic_message(e.as_ref()), "plain");
         let h = std::thread::spawn(|| -> () { std::panic::panic_any(3u8) });
         assert_eq!(
             panic_message(h.join().unwrap_err().as_ref()),

@@ -128,7 +128,7 @@ fn quiet_notice(args: &Args) -> String {
 }
 
 /// Prints the lines each `next()` returns until `--count` lines, `--duration`,
-/// Ctrl-C, a closed stdout (all exit 0) or an error from `next()` (its message,
+/// Ctrl-C, a closed stdout (all exit 0), a full stdout or an error from `next()` (its message,
 /// exit code 1). `next()` waits a little for data itself.
 fn print_until_done(
     args: &Args,
@@ -154,10 +154,17 @@ fn print_until_done(
             }
         };
         for l in lines {
-            if writeln!(out, "{l}").is_err() {
-                return ExitCode::SUCCESS; // stdout closed (e.g. piped into head)
+            // a reader that went away (`| head`) ends the run; a full stdout is an error
+            match writeln!(out, "{l}").and_then(|()| out.flush()) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return ExitCode::SUCCESS,
+                Err(e) => {
+                    vlsync_common::console::print_err(&format!(
+                        "vlsync-echo: error: cannot write to stdout: {e}\n"
+                    ));
+                    return ExitCode::from(1);
+                }
             }
-            let _ = out.flush();
             n += 1;
             if args.count > 0 && n >= args.count {
                 return ExitCode::SUCCESS;

@@ -1,0 +1,104 @@
+//! A restart of both drivers (a new session: another run, both clocks back at its
+//! start) that reaches a daemon which was not running meanwhile (SIGSTOPped: a
+//! starved or stalled process): when it resumes, both streams' new samples wait in
+//! its buffers, and it reads each stream's backlog in turn. Both clock jumps must
+//! still be read as a new session: the daemon relocks on the new offset within
+//! seconds, without a search move.
+
+use std::time::Duration;
+use vlsync_common::{EstimatorState, Stream};
+use vlsync_ipc::{monotonic_ns, OffsetClient};
+use vlsync_tests::{bin, collect, locked_errors, Managed, Rig};
+
+/// Both drivers of a new session: `seed` from `start_at`, at `speed`x.
+fn drivers(rig: &Rig, seed: u64, speed: f64, start_at: i64) -> [Managed; 2] {
+    [Stream::Cam, Stream::Lidar].map(|stream| {
+        let name = format!("vlsync-{stream}");
+        let args: Vec<String> = [
+            "--prefix",
+            &rig.prefix,
+            "--sim",
+            rig.family,
+            "--seed",
+            &seed.to_string(),
+            "--duration",
+            "60",
+            "--speed",
+            &speed.to_string(),
+            "--start-at",
+            &start_at.to_string(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        Managed::spawn(
+            &name,
+            &bin(&name),
+            &args,
+            Some(&rig.logs.join(format!("{name}-new.log"))),
+        )
+        .expect("spawn driver")
+    })
+}
+
+#[test]
+fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move() {
+    let speed = 4.0;
+    let rig = Rig::new("backlog", "robot", 7, 60.0, speed);
+    let mut daemon = rig.daemon(0);
+    let mut client = OffsetClient::open(&rig.prefix).unwrap();
+    let mut cam = rig.driver(Stream::Cam, 0);
+    let mut lidar = rig.driver(Stream::Lidar, 0);
+    let first = collect(&mut client, Duration::from_secs(6));
+    assert!(
+        !locked_errors(&first, &rig.sim).is_empty(),
+        "no lock in the first session"
+    );
+
+    // the daemon stops reading; the session ends and a new one (another seed, so
+    // another offset, both clocks back at the start) publishes about 4 s of data
+    daemon.signal("STOP").unwrap();
+    assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
+    let seed = 8;
+    let new = vlsync_sim::generate("robot".parse().unwrap(), seed, Some(60.0));
+    let mut next = drivers(&rig, seed, speed, monotonic_ns() + 300_000_000);
+    std::thread::sleep(Duration::from_millis(1300));
+    daemon.signal("CONT").unwrap();
+
+    // 10 s of wall time: 40 s of the new session
+    let after = collect(&mut client, Duration::from_secs(10));
+    for d in &mut next {
+        assert!(d.stop(Duration::from_secs(3)));
+    }
+    assert!(daemon.stop(Duration::from_secs(3)));
+    let log = rig.log("vlsyncd-0.log");
+    assert!(
+        !log.contains("searching around"),
+        "the restart needed a search move:\n{log}"
+    );
+    // the new session starts where the clock jump sent the estimator back to the
+    // acquisition, reported `lost` after a lock (the first session's last buffered
+    // samples may come before)
+    let start = after
+        .iter()
+        .position(|e| matches!(e.state, EstimatorState::Acquiring | EstimatorState::Lost))
+        .expect("the restart did not restart the acquisition");
+    let after = &after[start..];
+    // its first lock: early, and on its own offset
+    let locked: Vec<_> = after
+        .iter()
+        .filter(|e| e.state == EstimatorState::Tracking)
+        .collect();
+    let first_lock = locked.first().expect("no lock in the new session");
+    assert!(
+        first_lock.t_ref_ns < 15_000_000_000,
+        "first lock of the new session at t_ref {} s:\n{log}",
+        first_lock.t_ref_ns as f64 * 1e-9
+    );
+    let errs = locked_errors(after, &new);
+    let near = errs.iter().filter(|e| **e < 0.02).count();
+    assert!(
+        near * 10 >= errs.len() * 9,
+        "the new session's estimates are off its truth: {errs:?}"
+    );
+}
