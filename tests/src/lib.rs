@@ -150,6 +150,26 @@ impl Rig {
 
     /// Starts the driver of `stream` on the common schedule.
     pub fn driver(&self, stream: Stream, n: u32) -> Managed {
+        self.session_driver(
+            stream,
+            self.seed,
+            self.duration,
+            self.start_at,
+            &n.to_string(),
+        )
+    }
+
+    /// Starts the driver of `stream` for a session of its own on the rig's prefix and
+    /// speed: `seed`, `duration` simulated seconds from `start_at` (log file
+    /// `vlsync-<stream>-<tag>.log`).
+    pub fn session_driver(
+        &self,
+        stream: Stream,
+        seed: u64,
+        duration: f64,
+        start_at: i64,
+        tag: &str,
+    ) -> Managed {
         let name = format!("vlsync-{stream}");
         let args: Vec<String> = vec![
             "--prefix".into(),
@@ -157,19 +177,19 @@ impl Rig {
             "--sim".into(),
             self.family.into(),
             "--seed".into(),
-            self.seed.to_string(),
+            seed.to_string(),
             "--duration".into(),
-            self.duration.to_string(),
+            duration.to_string(),
             "--speed".into(),
             self.speed.to_string(),
             "--start-at".into(),
-            self.start_at.to_string(),
+            start_at.to_string(),
         ];
         Managed::spawn(
             &name,
             &bin(&name),
             &args,
-            Some(&self.logs.join(format!("{name}-{n}.log"))),
+            Some(&self.logs.join(format!("{name}-{tag}.log"))),
         )
         .expect("spawn driver")
     }

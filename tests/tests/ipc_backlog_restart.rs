@@ -8,38 +8,7 @@
 use std::time::Duration;
 use vlsync_common::{EstimatorState, Stream};
 use vlsync_ipc::{monotonic_ns, OffsetClient};
-use vlsync_tests::{bin, collect, locked_errors, Managed, Rig};
-
-/// Both drivers of a new session: `seed` from `start_at`, at `speed`x.
-fn drivers(rig: &Rig, seed: u64, speed: f64, start_at: i64) -> [Managed; 2] {
-    [Stream::Cam, Stream::Lidar].map(|stream| {
-        let name = format!("vlsync-{stream}");
-        let args: Vec<String> = [
-            "--prefix",
-            &rig.prefix,
-            "--sim",
-            rig.family,
-            "--seed",
-            &seed.to_string(),
-            "--duration",
-            "60",
-            "--speed",
-            &speed.to_string(),
-            "--start-at",
-            &start_at.to_string(),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        Managed::spawn(
-            &name,
-            &bin(&name),
-            &args,
-            Some(&rig.logs.join(format!("{name}-new.log"))),
-        )
-        .expect("spawn driver")
-    })
-}
+use vlsync_tests::{collect, locked_errors, Rig};
 
 #[test]
 fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move() {
@@ -61,7 +30,9 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     let seed = 8;
     let new = vlsync_sim::generate("robot".parse().unwrap(), seed, Some(60.0));
-    let mut next = drivers(&rig, seed, speed, monotonic_ns() + 300_000_000);
+    let start_at = monotonic_ns() + 300_000_000;
+    let mut next =
+        [Stream::Cam, Stream::Lidar].map(|st| rig.session_driver(st, seed, 60.0, start_at, "new"));
     std::thread::sleep(Duration::from_millis(1300));
     daemon.signal("CONT").unwrap();
 
