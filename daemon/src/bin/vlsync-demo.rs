@@ -18,7 +18,7 @@ use vlsync_common::{Estimate, EstimatorState, Nanos};
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{
-    counters_line, stop_words, Received, Role, Session, SessionOptions, Source, Stamping,
+    counters_line, stop_words, ProcessArgs, Received, Role, Session, Source, Stamping,
 };
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
@@ -43,15 +43,8 @@ struct Args {
     /// Real-time speed factor (1 = real time).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
-    /// Daemon configuration file.
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Service prefix (default: `vlsync-demo/<pid>`).
-    #[arg(long)]
-    prefix: Option<String>,
-    /// Directory for the children's logs (default: a temporary directory).
-    #[arg(long)]
-    log_dir: Option<PathBuf>,
+    #[command(flatten)]
+    procs: ProcessArgs,
     /// Print only the summary.
     #[arg(long)]
     quiet: bool,
@@ -157,14 +150,11 @@ fn run(a: Args) -> Result<(), String> {
     let truth = source
         .known_truth()?
         .ok_or("the demo's sources have a known truth")?;
-    let mut s = Session::start(SessionOptions {
-        name: "vlsync-demo".into(),
-        prefix: a.prefix.clone(),
-        log_dir: a.log_dir.clone(),
-        daemon_config: a.config.clone(),
+    let mut s = Session::start(a.procs.session_options(
+        "vlsync-demo",
         source,
-        start_delay: Duration::from_millis(1500),
-    })?;
+        Duration::from_millis(1500),
+    ))?;
     out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
         s.source.describe(),

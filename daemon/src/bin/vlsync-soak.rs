@@ -10,14 +10,13 @@
 #![forbid(unsafe_code)]
 
 use clap::Parser;
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 use vlsync_common::EstimatorState;
 use vlsync_ipc::termination_requested;
 use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{
-    counters_line, stop_words, Received, Role, Session, SessionOptions, Source,
+    counters_line, stop_words, ProcessArgs, Received, Role, Session, Source,
 };
 use vlsyncd::harness::stats::ErrorStats;
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
@@ -44,15 +43,8 @@ struct Args {
     /// Seed of the first session; session i runs seed `seed_base + i`.
     #[arg(long, default_value_t = 1)]
     seed_base: u64,
-    /// Daemon configuration file.
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Service prefix (default: `vlsync-soak/<pid>`).
-    #[arg(long)]
-    prefix: Option<String>,
-    /// Directory for the processes' logs (default: a temporary directory).
-    #[arg(long)]
-    log_dir: Option<PathBuf>,
+    #[command(flatten)]
+    procs: ProcessArgs,
     /// Exit 1 unless every session locked, no sample was lost and the daemon's
     /// resident memory after the last session is within `--max-growth-kb` of its
     /// memory after the first.
@@ -174,14 +166,11 @@ const MAX_GROWTH_KB: u64 = 1 << 30;
 fn run(a: Args) -> Result<bool, String> {
     let family = check_args(&a)?;
     let mut out = Out::new();
-    let mut s = Session::start(SessionOptions {
-        name: "vlsync-soak".into(),
-        prefix: a.prefix.clone(),
-        log_dir: a.log_dir.clone(),
-        daemon_config: a.config.clone(),
-        source: source(&a, family, 0),
-        start_delay: Duration::from_millis(1500),
-    })?;
+    let mut s = Session::start(a.procs.session_options(
+        "vlsync-soak",
+        source(&a, family, 0),
+        Duration::from_millis(1500),
+    ))?;
     out.line(format_args!(
         "vlsync-soak: {} sessions of {} s of `{}` at {}x ({:.1} simulated hours, about {:.0} s of wall time) on prefix `{}` (logs in {})",
         a.sessions,

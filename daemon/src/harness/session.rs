@@ -176,6 +176,40 @@ pub struct SessionOptions {
     pub start_delay: Duration,
 }
 
+/// The command-line options the live runs share: the daemon's configuration,
+/// where the processes serve and where they log (`#[command(flatten)]`).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct ProcessArgs {
+    /// Daemon configuration file.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Service prefix (default: `<program name>/<pid>`).
+    #[arg(long)]
+    pub prefix: Option<String>,
+    /// Directory for the processes' logs (default: a temporary directory).
+    #[arg(long)]
+    pub log_dir: Option<PathBuf>,
+}
+
+impl ProcessArgs {
+    /// The session options of tool `name` running `source` from `start_delay` on.
+    pub fn session_options(
+        &self,
+        name: &str,
+        source: Source,
+        start_delay: Duration,
+    ) -> SessionOptions {
+        SessionOptions {
+            name: name.into(),
+            prefix: self.prefix.clone(),
+            log_dir: self.log_dir.clone(),
+            daemon_config: self.config.clone(),
+            source,
+            start_delay,
+        }
+    }
+}
+
 /// The three processes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Role {
