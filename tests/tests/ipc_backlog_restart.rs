@@ -1,9 +1,11 @@
 //! A restart of both drivers (a new session: another run, both clocks back at its
-//! start) that reaches a daemon which was not running meanwhile (SIGSTOPped: a
-//! starved or stalled process): when it resumes, both streams' new samples wait in
-//! its buffers, and it reads each stream's backlog in turn. Both clock jumps must
-//! still be read as a new session: the daemon relocks on the new offset within
-//! seconds, without a search move.
+//! start) that the daemon reads from a backlog: it was connected to the new drivers
+//! but not running when they began (SIGSTOPped: a starved or stalled process, as a
+//! daemon descheduled for a few ms is at 200x), so when it resumes both streams'
+//! first seconds of the new session wait in its buffers. Each clock jump is judged
+//! by the other stream's progress, so the daemon must take the two backlogs in the
+//! order they were published, not one stream's after the other's: then it relocks
+//! on the new offset within seconds, without a search move.
 
 use std::time::Duration;
 use vlsync_common::{EstimatorState, Stream};
@@ -24,16 +26,21 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
         "no lock in the first session"
     );
 
-    // the daemon stops reading; the session ends and a new one (another seed, so
-    // another offset, both clocks back at the start) publishes about 4 s of data
-    daemon.signal("STOP").unwrap();
+    // the session ends; a new one (another seed, so another offset, both clocks back
+    // at the start) is to start 1.5 s from now. The daemon connects to the new
+    // drivers, then stops reading just before they begin; when it resumes, 1 s of
+    // wall time (4 s of the session) waits in both of its buffers
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     let seed = 8;
     let new = vlsync_sim::generate("robot".parse().unwrap(), seed, Some(60.0));
-    let start_at = monotonic_ns() + 300_000_000;
+    let start_at = monotonic_ns() + 1_500_000_000;
     let mut next =
         [Stream::Cam, Stream::Lidar].map(|st| rig.session_driver(st, seed, 60.0, start_at, "new"));
-    std::thread::sleep(Duration::from_millis(1300));
+    std::thread::sleep(Duration::from_millis(1200));
+    daemon.signal("STOP").unwrap();
+    let resume = start_at + 1_000_000_000 - monotonic_ns();
+    assert!(resume > 0, "the daemon was stopped too late for a backlog");
+    std::thread::sleep(Duration::from_nanos(resume as u64));
     daemon.signal("CONT").unwrap();
 
     // 10 s of wall time: 40 s of the new session

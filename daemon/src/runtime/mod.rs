@@ -4,7 +4,8 @@
 //!
 //! * the **real-time thread** (pinned to `daemon.core`, optionally SCHED_FIFO)
 //!   sleeps on one iceoryx2 listener (`<prefix>/signature/ready`) until a driver
-//!   publishes, drains both signature subscribers, validates every payload
+//!   publishes, drains both signature subscribers in the order the drivers
+//!   published (`first_published`), validates every payload
 //!   (shared memory is hostile input), pushes into the [`Estimator`], publishes
 //!   every estimate on `<prefix>/offset` and notifies; then, the sample done and
 //!   its latency recorded, it runs the estimator's background stage
@@ -212,6 +213,20 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "unknown cause".to_string())
 }
 
+/// Which held sample (0: camera, 1: LiDAR) comes next: the one its driver published
+/// first (`publish_ns`, both drivers on this host's `CLOCK_MONOTONIC`), the camera's
+/// on a tie; `None` when none is held. Only the order within one wake-up's backlog
+/// depends on it, so a foreign or hostile `publish_ns` cannot hold a sample back
+/// for longer than the other stream's backlog.
+fn first_published(pending: &[Option<(SignatureSample, UniquePublisherId)>; 2]) -> Option<usize> {
+    match (&pending[0], &pending[1]) {
+        (None, None) => None,
+        (Some(_), None) => Some(0),
+        (None, Some(_)) => Some(1),
+        (Some((cam, _)), Some((lidar, _))) => Some(usize::from(lidar.publish_ns < cam.publish_ns)),
+    }
+}
+
 /// The largest sequence jump counted as lost samples (see [`sequence_gap`]).
 const MAX_COUNTED_GAP: u64 = 1 << 32;
 
@@ -359,129 +374,139 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
         // sleeps until a driver notifies; a signal or timeout just loops
         let _ = lis.timed_wait(|_| {}, WAKE_PERIOD);
-        for (i, sub) in subs.iter().enumerate() {
-            let stream = if i == 0 { Stream::Cam } else { Stream::Lidar };
-            loop {
-                let sample = match sub.receive() {
-                    Ok(Some(x)) => x,
-                    Ok(None) => break,
+        // both streams' waiting samples in the order their drivers published them
+        // (one held per stream): after a stall the backlogs interleave as they were
+        // made, which the estimator's judgement of a clock jump relies on
+        let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
+        let mut failed = [false; 2];
+        loop {
+            for (i, sub) in subs.iter().enumerate() {
+                if pending[i].is_some() || failed[i] {
+                    continue;
+                }
+                match sub.receive() {
+                    Ok(Some(x)) => pending[i] = Some((*x.payload(), x.header().publisher_id())),
+                    Ok(None) => {}
                     Err(_) => {
+                        failed[i] = true;
                         emit(
                             &s.tx,
                             &mut c,
                             RtEvent::Fatal("receive on a signature service failed"),
                         );
-                        break;
                     }
-                };
-                let t0 = monotonic_ns();
-                let w: SignatureSample = *sample.payload();
-                let pid = sample.header().publisher_id();
-                drop(sample);
-                let si = stream_index(stream);
-                c.status.received[si] += 1;
-                if w.validate().is_err() {
-                    c.status.rejected[si][REJECT_MALFORMED] += 1;
+                }
+            }
+            let Some(si) = first_published(&pending) else {
+                break;
+            };
+            let Some((w, pid)) = pending[si].take() else {
+                break;
+            };
+            let stream = if si == 0 { Stream::Cam } else { Stream::Lidar };
+            let t0 = monotonic_ns();
+            c.status.received[si] += 1;
+            if w.validate().is_err() {
+                c.status.rejected[si][REJECT_MALFORMED] += 1;
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Rejected {
+                        stream,
+                        reason: REJECT_MALFORMED,
+                        t_ns: w.t_ns,
+                    },
+                );
+                continue;
+            }
+            if w.is_first() {
+                emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
+            }
+            if stream == Stream::Lidar && w.publish_ns > 0 {
+                lidar_clock = Some((w.t_ns, w.publish_ns));
+            }
+            let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
+            if lost > 0 {
+                c.status.lost[si] = c.status.lost[si].saturating_add(lost);
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Lost {
+                        stream,
+                        count: lost,
+                    },
+                );
+            }
+            if let Err(r) = est.push_urgent(stream, w.sample()) {
+                c.status.rejected[si][r.index()] += 1;
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Rejected {
+                        stream,
+                        reason: r.index(),
+                        t_ns: w.t_ns,
+                    },
+                );
+            }
+            if let Some(st) = est.take_latency_step() {
+                emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
+            }
+            while let Some(e) = est.poll() {
+                publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
+                emit(&s.tx, &mut c, RtEvent::Estimate(e));
+                if last_state != Some(e.state) {
                     emit(
                         &s.tx,
                         &mut c,
-                        RtEvent::Rejected {
-                            stream,
-                            reason: REJECT_MALFORMED,
-                            t_ns: w.t_ns,
+                        RtEvent::State {
+                            from: last_state,
+                            to: e.state,
                         },
                     );
-                    continue;
+                    last_state = Some(e.state);
+                    c.status.state = e.state as u8;
                 }
-                if w.is_first() {
-                    emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
+            }
+            let t1 = monotonic_ns();
+            let proc_ns = (t1 - t0).max(0) as u64;
+            c.processing.record(proc_ns);
+            // driver publish -> done with the sample (estimate published if one was due);
+            // a hostile or foreign-host publish_ns outside 0..10 s is not a latency
+            // (a positive one cannot overflow the difference)
+            if w.publish_ns > 0 {
+                let e2e = t1 - w.publish_ns;
+                if (0..10_000_000_000).contains(&e2e) {
+                    c.end_to_end.record(e2e as u64);
                 }
-                if stream == Stream::Lidar && w.publish_ns > 0 {
-                    lidar_clock = Some((w.t_ns, w.publish_ns));
-                }
-                let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
-                if lost > 0 {
-                    c.status.lost[si] = c.status.lost[si].saturating_add(lost);
+            }
+            if proc_ns > budget_ns {
+                c.status.budget_overruns += 1;
+                last_overrun = t1;
+                if !degraded {
+                    degraded = true;
+                    est.set_degraded(true);
                     emit(
                         &s.tx,
                         &mut c,
-                        RtEvent::Lost {
-                            stream,
-                            count: lost,
+                        RtEvent::Degraded {
+                            on: true,
+                            processing_ns: proc_ns,
                         },
                     );
                 }
-                if let Err(r) = est.push_urgent(stream, w.sample()) {
-                    c.status.rejected[si][r.index()] += 1;
-                    emit(
-                        &s.tx,
-                        &mut c,
-                        RtEvent::Rejected {
-                            stream,
-                            reason: r.index(),
-                            t_ns: w.t_ns,
-                        },
-                    );
-                }
-                if let Some(st) = est.take_latency_step() {
-                    emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
-                }
-                while let Some(e) = est.poll() {
-                    publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
-                    emit(&s.tx, &mut c, RtEvent::Estimate(e));
-                    if last_state != Some(e.state) {
-                        emit(
-                            &s.tx,
-                            &mut c,
-                            RtEvent::State {
-                                from: last_state,
-                                to: e.state,
-                            },
-                        );
-                        last_state = Some(e.state);
-                        c.status.state = e.state as u8;
-                    }
-                }
-                let t1 = monotonic_ns();
-                let proc_ns = (t1 - t0).max(0) as u64;
-                c.processing.record(proc_ns);
-                // driver publish -> done with the sample (estimate published if one was due);
-                // a hostile or foreign-host publish_ns outside 0..10 s is not a latency
-                // (a positive one cannot overflow the difference)
-                if w.publish_ns > 0 {
-                    let e2e = t1 - w.publish_ns;
-                    if (0..10_000_000_000).contains(&e2e) {
-                        c.end_to_end.record(e2e as u64);
-                    }
-                }
-                if proc_ns > budget_ns {
-                    c.status.budget_overruns += 1;
-                    last_overrun = t1;
-                    if !degraded {
-                        degraded = true;
-                        est.set_degraded(true);
-                        emit(
-                            &s.tx,
-                            &mut c,
-                            RtEvent::Degraded {
-                                on: true,
-                                processing_ns: proc_ns,
-                            },
-                        );
-                    }
-                }
-                // the estimator's background stage (step test, next hop's preparation)
-                // once the sample is done and its estimate out: the same estimates as
-                // `push` alone, none of that work in the sample's latency; a sample
-                // arriving meanwhile waits for it, and its latency shows that
-                est.idle();
-                // the step test's verdict comes from either stage, a search moves in `push`
-                if let Some(st) = est.take_offset_step() {
-                    emit(&s.tx, &mut c, RtEvent::OffsetStep(st));
-                }
-                if let Some(m) = est.take_search_move() {
-                    emit(&s.tx, &mut c, RtEvent::SearchMoved(m));
-                }
+            }
+            // the estimator's background stage (step test, next hop's preparation)
+            // once the sample is done and its estimate out: the same estimates as
+            // `push` alone, none of that work in the sample's latency; a sample
+            // arriving meanwhile waits for it, and its latency shows that
+            est.idle();
+            // the step test's verdict comes from either stage, a search moves in `push`
+            if let Some(st) = est.take_offset_step() {
+                emit(&s.tx, &mut c, RtEvent::OffsetStep(st));
+            }
+            if let Some(m) = est.take_search_move() {
+                emit(&s.tx, &mut c, RtEvent::SearchMoved(m));
             }
         }
         while let Ok(at_mono) = s.hints.try_recv() {
@@ -1086,6 +1111,19 @@ mod tests {
             panic_message(h.join().unwrap_err().as_ref()),
             "unknown cause"
         );
+    }
+
+    #[test]
+    fn the_held_samples_go_in_the_order_they_were_published() {
+        let at = |publish_ns| Some((SignatureSample::new(0, 0.0, 0, publish_ns), pid(1)));
+        assert_eq!(first_published(&[None, None]), None);
+        assert_eq!(first_published(&[at(9), None]), Some(0));
+        assert_eq!(first_published(&[None, at(9)]), Some(1));
+        assert_eq!(first_published(&[at(9), at(5)]), Some(1));
+        assert_eq!(first_published(&[at(5), at(9)]), Some(0));
+        // a tie: the camera's first; hostile times only reorder, never drop
+        assert_eq!(first_published(&[at(5), at(5)]), Some(0));
+        assert_eq!(first_published(&[at(i64::MAX), at(i64::MIN)]), Some(1));
     }
 
     #[test]
