@@ -399,10 +399,10 @@ impl History {
 /// Why the acquisition's lag range moved ([`SearchMove`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SearchMoveReason {
-    /// An acquisition found no lock in [`RECENTRE_HOPS`] hops with motion.
+    /// An acquisition found no lock in `RECENTRE_HOPS` hops with motion.
     NothingFound,
     /// Both streams delivered but the correlator completed no hop for
-    /// [`RECENTRE_HOPS`] hops of LiDAR time: the prediction put the camera's
+    /// `RECENTRE_HOPS` hops of LiDAR time: the prediction put the camera's
     /// data out of reach (a restored state far off, clocks that stepped apart).
     Unserved,
 }
@@ -496,6 +496,12 @@ struct HintPrior {
 
 /// Online offset/drift estimator. Push samples of both streams in any
 /// interleaving; poll estimates. Allocates nothing after [`Estimator::new`].
+///
+/// The correlation does not depend on the interleaving; the judgement of a clock
+/// jump does: a stream's jump is its step less the other stream's progress
+/// meanwhile, so push samples in the order they were made (by stamp offline, by
+/// publish time live, as `vlsyncd run` does) for a restart of both clocks to be read
+/// right. One stream's backlog pushed before the other's counts as time passed.
 #[derive(Debug, Clone)]
 pub struct Estimator {
     p: Params,
@@ -600,7 +606,7 @@ pub struct Estimator {
     /// the range left could not be served, [`Estimator::check_unserved`]).
     alt_lag0: Option<i64>,
     /// Acquisition hops with motion since the range last moved (a lock
-    /// lost within [`RECENTRE_HOPS`] hops does not reset them: at a wrong centre the
+    /// lost within `RECENTRE_HOPS` hops does not reset them: at a wrong centre the
     /// signatures' own structure can lock for a few seconds).
     acq_tries: usize,
     /// Tracking hops since the last lock.
@@ -1122,7 +1128,7 @@ impl Estimator {
     }
 
     /// Counts an acquisition hop that could have locked (the window moved); after
-    /// [`RECENTRE_HOPS`] of them, unless consistent peaks are building a lock here,
+    /// `RECENTRE_HOPS` of them, unless consistent peaks are building a lock here,
     /// the lag range moves to the alternative centre ([`Estimator::alt_lag0`]) and
     /// the one it left becomes the alternative: a wrong prediction (a restored state
     /// off, two clocks that stepped apart) cannot keep the search away from the
@@ -1232,7 +1238,7 @@ impl Estimator {
     }
 
     /// Both streams deliver (the camera advanced by half the watch), yet the
-    /// correlator completed no hop for [`RECENTRE_HOPS`] hops of LiDAR time (blind
+    /// correlator completed no hop for `RECENTRE_HOPS` hops of LiDAR time (blind
     /// estimates of a stall do not count): the lag range is so far off (a restored
     /// offset of days) that the correlator waits for camera data it will never get,
     /// or the offset's mapping of camera time makes the LiDAR look stalled. The lock,

@@ -146,7 +146,7 @@ const MAX_PRESSURE_BYTES: u64 = 4096;
 /// Reads the `some` total (µs) of the pressure file `path`
 /// (`daemon.load_hint_source`); the error names the file. A regular file only (a
 /// named pipe would block the daemon's start for good), and its first
-/// [`MAX_PRESSURE_BYTES`].
+/// `MAX_PRESSURE_BYTES`.
 pub fn read_pressure(path: &str) -> Result<u64, String> {
     use std::io::Read as _;
     let mut text = String::new();
