@@ -80,3 +80,48 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
         "the new session's estimates are off its truth: {errs:?}"
     );
 }
+
+/// A daemon stalled longer than its camera buffer holds (256 samples: 8.5 s of
+/// camera, 25.6 s of LiDAR): when it resumes, the camera's oldest samples are gone,
+/// so the camera's data resume 11.5 s after the LiDAR's, more than
+/// `estimator.reset_jump_s`. Read in publish order that is a camera gap (the LiDAR's
+/// progress covers it); read camera first, it passed for an 11.5 s step of the
+/// camera's clock. The daemon must count the lost samples and find its lock again in
+/// place, without a search move.
+#[test]
+fn a_stall_that_overflows_the_camera_buffer_is_a_gap_not_a_clock_jump() {
+    let speed = 4.0;
+    let rig = Rig::new("stall", "robot", 7, 90.0, speed);
+    let mut daemon = rig.daemon(0);
+    let mut client = OffsetClient::open(&rig.prefix).unwrap();
+    let mut drivers = [Stream::Cam, Stream::Lidar].map(|st| rig.driver(st, 0));
+    let first = collect(&mut client, Duration::from_secs(5));
+    assert!(
+        !locked_errors(&first, &rig.sim).is_empty(),
+        "no lock before the stall"
+    );
+    // 5 s of wall time: 20 s of the run, 11.5 s more than the camera's buffer holds
+    daemon.signal("STOP").unwrap();
+    std::thread::sleep(Duration::from_secs(5));
+    daemon.signal("CONT").unwrap();
+    let after = collect(&mut client, Duration::from_secs(5));
+    for d in &mut drivers {
+        assert!(d.stop(Duration::from_secs(3)));
+    }
+    assert!(daemon.stop(Duration::from_secs(3)));
+    let log = rig.log("vlsyncd-0.log");
+    assert!(
+        !log.contains("searching around"),
+        "the stall needed a search move:\n{log}"
+    );
+    assert!(
+        log.contains("cam: ") && log.contains("sample(s) lost"),
+        "the camera's overflowed samples were not counted:\n{log}"
+    );
+    let errs = locked_errors(&after, &rig.sim);
+    let near = errs.iter().filter(|e| **e < 0.02).count();
+    assert!(
+        errs.len() >= 10 && near * 10 >= errs.len() * 9,
+        "after the stall the estimates are off the truth or missing: {errs:?}\n{log}"
+    );
+}
