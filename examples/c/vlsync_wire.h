@@ -11,6 +11,11 @@
  *   <prefix>/offset                                   vlsync_offset_estimate   (publish-subscribe + event)
  *   <prefix>/status                                   vlsync_status            (publish-subscribe + event)
  *
+ * A driver publishes each sample, then notifies <prefix>/signature/ready with its
+ * stream's id; the daemon reads the samples of both streams in publish_ns order. A
+ * publisher that does not notify is read at the daemon's next wake-up (the other
+ * stream's notification, or 100 ms).
+ *
  * Times are integer nanoseconds; publish_ns fields are CLOCK_MONOTONIC.
  * Clock convention: offset = t_lidar - t_cam, so t_lidar = t_cam + offset.
  * Treat every field as untrusted: check codes and finiteness before use.

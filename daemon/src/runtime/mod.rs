@@ -82,8 +82,8 @@ use vlsync_estimator::Estimator;
 use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
 use vlsync_ipc::{
     cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
-    open_or_create_pubsub, publisher, stream_index, subscriber, termination_requested, Qos,
-    ServiceNames,
+    open_or_create_pubsub, publisher, stream_event_id, stream_index, subscriber,
+    termination_requested, Qos, ServiceNames,
 };
 
 /// Time without budget overrun after which degraded mode is cleared.
@@ -373,22 +373,39 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
         // sleeps until a driver notifies; a signal or timeout just loops
-        let _ = lis.timed_wait(|_| {}, WAKE_PERIOD);
+        // which streams notified (each driver notifies with its stream's event id);
+        // a timeout or a foreign id reads both
+        let mut ready = [false; 2];
+        let _ = lis.timed_wait(
+            |ev| match [Stream::Cam, Stream::Lidar].map(|st| ev.id == stream_event_id(st)) {
+                [true, _] => ready[0] = true,
+                [_, true] => ready[1] = true,
+                _ => ready = [true; 2],
+            },
+            WAKE_PERIOD,
+        );
+        if ready == [false; 2] {
+            ready = [true; 2];
+        }
         // both streams' waiting samples in the order their drivers published them
         // (one held per stream): after a stall the backlogs interleave as they were
-        // made, which the estimator's judgement of a clock jump relies on
+        // made, which the estimator's judgement of a clock jump relies on. Before the
+        // first sample only the streams that notified are read, so a lone sample's
+        // latency holds no read of the other subscriber; after it every stream is
+        // read until it is empty (a publisher that does not notify is still served)
         let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
-        let mut failed = [false; 2];
+        let mut empty = [false; 2];
+        let mut any = false;
         loop {
             for (i, sub) in subs.iter().enumerate() {
-                if pending[i].is_some() || failed[i] {
+                if pending[i].is_some() || empty[i] || !(ready[i] || any) {
                     continue;
                 }
                 match sub.receive() {
                     Ok(Some(x)) => pending[i] = Some((*x.payload(), x.header().publisher_id())),
-                    Ok(None) => {}
+                    Ok(None) => empty[i] = true,
                     Err(_) => {
-                        failed[i] = true;
+                        empty[i] = true;
                         emit(
                             &s.tx,
                             &mut c,
@@ -398,8 +415,14 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 }
             }
             let Some(si) = first_published(&pending) else {
-                break;
+                if any || empty == [true; 2] {
+                    break;
+                }
+                // the streams that notified had nothing: read the others
+                any = true;
+                continue;
             };
+            any = true;
             let Some((w, pid)) = pending[si].take() else {
                 break;
             };
