@@ -3,8 +3,9 @@
 #   user and group `vlsync`; vlsyncd, vlsync-cam, vlsync-lidar, vlsync-echo to
 #   /usr/local/bin; /etc/vlsync/{vlsync.toml,cam.env,lidar.env} (existing ones are
 #   kept, the new version goes next to them as *.new); the units to
-#   /etc/systemd/system; /etc/tmpfiles.d/vlsync.conf; then daemon-reload.
-# It does not enable or start anything.
+#   /etc/systemd/system; /etc/tmpfiles.d/vlsync.conf, applied at once with
+#   systemd-tmpfiles --create; deploy/README.md to /usr/local/share/doc/vlsync;
+#   then daemon-reload. It does not enable or start anything.
 #
 #   sudo deploy/install.sh [--bin-dir DIR] [--dry-run]
 #
@@ -26,7 +27,8 @@ unit_dir=/etc/systemd/system
 tmpfiles_dir=/etc/tmpfiles.d
 doc_dir=/usr/local/share/doc/vlsync
 
-usage() { sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+# the comment block above, up to its first line that is not a comment
+usage() { awk 'NR == 1 { next } !/^#/ { exit } { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 die() { echo "install.sh: error: $*" >&2; exit 1; }
 
 while [ $# -gt 0 ]; do

@@ -507,7 +507,7 @@ impl CamSource {
     pub fn v4l2(device: &Path, stop: StopFn) -> Result<Self, SourceError> {
         if !cfg!(feature = "v4l2") {
             return Err(SourceError(format!(
-                "--v4l2 {}: built without V4L2 support; rebuild with --features v4l2",
+                "--v4l2 {}: built without V4L2 support; rebuild with --features vlsync-driver/v4l2",
                 device.display()
             )));
         }

@@ -54,7 +54,10 @@ fn wrong_sources_fail_with_a_message() {
     if !cfg!(feature = "v4l2") {
         let (ok, err) = run(env!("CARGO_BIN_EXE_vlsync-cam"), &["--v4l2", "/dev/video0"]);
         assert!(!ok);
-        assert!(err.contains("rebuild with --features v4l2"), "{err}");
+        assert!(
+            err.contains("rebuild with --features vlsync-driver/v4l2"),
+            "{err}"
+        );
     }
 }
 

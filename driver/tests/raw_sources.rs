@@ -297,7 +297,7 @@ fn v4l2_errors_name_the_device_or_the_missing_feature() {
     } else {
         let e = r.unwrap_err().to_string();
         assert!(
-            e.contains("built without V4L2 support; rebuild with --features v4l2")
+            e.contains("built without V4L2 support; rebuild with --features vlsync-driver/v4l2")
                 && e.contains("/dev/video0"),
             "{e}"
         );

@@ -8,9 +8,13 @@ iceoryx2 type name, so iceoryx2 refuses to connect if the layouts diverge.
 
     python3 vlsync_subscriber.py --prefix vlsync/robot [--count N] [--timeout S] [--json]
 
-Every field read from shared memory is validated (state and polarity codes,
-finite offset/drift/deviations); invalid samples are counted and skipped.
-Exit status: 0 after --count valid estimates (or Ctrl-C), 1 on timeout, 2 on error.
+Every field read from shared memory is validated as the Rust client does
+(state and polarity codes, finite offset/drift/deviations, a peak ratio that is
+not NaN or negative, a measured offset that is not infinite, zero reserved
+bytes); invalid samples are skipped, each with a line on stderr, and how
+many were skipped is printed at exit. Exit status: 0 after --count valid estimates (or
+Ctrl-C), 1 on timeout, 2 on error (a bad argument, or iceoryx2 refusing the
+node or the service, with its error on stderr).
 """
 
 import argparse
@@ -67,6 +71,12 @@ def validate(e: OffsetEstimate) -> dict:
             raise ValueError(f"field {name} is not finite")
     if e.offset_std_s < 0 or e.drift_std < 0:
         raise ValueError("negative standard deviation")
+    # +inf is a valid ratio (no second peak); NaN or negative is not
+    if math.isnan(e.peak_ratio) or e.peak_ratio < 0:
+        raise ValueError(f"field peak_ratio is {e.peak_ratio}")
+    # NaN means "no fresh measurement in this hop"; infinite is invalid
+    if math.isinf(e.measured_offset_s):
+        raise ValueError("field measured_offset_s is infinite")
     if any(e.reserved):
         raise ValueError("reserved bytes are not zero")
     return {
@@ -79,8 +89,15 @@ def validate(e: OffsetEstimate) -> dict:
         "state": STATES[e.state],
         "polarity": POLARITIES[e.polarity],
         "peak_score": e.peak_score,
+        "peak_ratio": json_number(e.peak_ratio),
+        "measured_offset_s": json_number(e.measured_offset_s),
         "publish_ns": e.publish_ns,
     }
+
+
+def json_number(x: float):
+    """JSON has no NaN or infinity: None (null), as `vlsync-echo --json` writes."""
+    return x if math.isfinite(x) else None
 
 
 def open_service(node, name, attempts=50):
@@ -110,13 +127,18 @@ def main() -> int:
     args = ap.parse_args()
 
     iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
-    node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
     name = f"{args.prefix}/offset"
-    pubsub, event = open_service(node, name)
-    subscriber = pubsub.subscriber_builder().create()
-    listener = event.listener_builder().create()
+    try:
+        node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+        pubsub, event = open_service(node, name)
+        subscriber = pubsub.subscriber_builder().create()
+        listener = event.listener_builder().create()
+    except Exception as err:  # iceoryx2's errors (a bad service name, no shared memory, ...)
+        print(f"vlsync_subscriber: error: {name!r}: {err}", file=sys.stderr)
+        return 2
 
     got = invalid = 0
+    status = 0
     last_seen = time.monotonic()
     try:
         while args.count == 0 or got < args.count:
@@ -147,10 +169,13 @@ def main() -> int:
                     break
             if args.timeout and time.monotonic() - last_seen > args.timeout:
                 print(f"vlsync_subscriber: no estimate on {name} for {args.timeout} s", file=sys.stderr)
-                return 1
+                status = 1
+                break
     except KeyboardInterrupt:
         pass
-    return 0
+    if invalid:
+        print(f"vlsync_subscriber: {got} estimates received, {invalid} invalid ones skipped", file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

@@ -70,19 +70,49 @@ fn python_subscriber_reads_live_estimates() {
     assert_eq!(lines.len(), 5, "{stdout}");
     let mut last_seq = None;
     for l in lines {
-        assert!(
-            l.starts_with('{') && l.contains("\"offset_s\"") && l.contains("\"state\""),
-            "{l}"
-        );
-        let seq: u64 = l
-            .split("\"seq\": ")
-            .nth(1)
-            .and_then(|r| r.split(',').next())
-            .and_then(|n| n.trim().parse().ok())
-            .unwrap_or_else(|| panic!("no seq in {l}"));
+        let v: serde_json::Value =
+            serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}"));
+        assert!(v["offset_s"].is_f64() && v["state"].is_string(), "{l}");
+        // every field the Rust side validates is reported; JSON has no NaN: null
+        for key in ["peak_ratio", "measured_offset_s"] {
+            assert!(v[key].is_f64() || v[key].is_null(), "{key} in {l}");
+        }
+        let seq = v["seq"].as_u64().unwrap_or_else(|| panic!("no seq in {l}"));
         if let Some(p) = last_seq {
             assert!(seq > p, "sequence not increasing: {p} then {seq}");
         }
         last_seq = Some(seq);
     }
+}
+
+/// An iceoryx2 failure (here a service name beyond its maximum length) is exit
+/// status 2 with one line naming the service, not a traceback.
+#[test]
+fn python_subscriber_reports_an_iceoryx2_error() {
+    if !python_has_iceoryx2() {
+        assert!(
+            std::env::var_os("VLSYNC_REQUIRE_PYTHON").is_none(),
+            "{} cannot import iceoryx2, although scripts/test.sh installed it",
+            python()
+        );
+        eprintln!("SKIPPED python_subscriber_reports_an_iceoryx2_error: no iceoryx2 package");
+        return;
+    }
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/vlsync_subscriber.py");
+    let prefix = "x".repeat(300);
+    let out = Command::new("timeout")
+        .arg("30")
+        .arg(python())
+        .arg(&script)
+        .args(["--prefix", &prefix, "--count", "1"])
+        .output()
+        .expect("run the Python interpreter");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.starts_with("vlsync_subscriber: error: ") && stderr.contains(&prefix),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("Traceback"), "{stderr}");
 }
