@@ -13,17 +13,19 @@
 //! is an error naming it. A chunk decodes to at most
 //! [`crate::ReaderOptions::max_record_bytes`].
 //!
-//! Each decoder takes a whole chunk at once: through the index the reader hands
-//! over whole chunks anyway, and reading linearly the decoder's read hint asks
-//! for all of the chunk's compressed bytes (the reader caps the hint at the
-//! chunk's size and the record limit). A chunk whose frames are truncated
-//! decodes short and the reader reports that no progress was made.
+//! Each decoder takes a whole chunk at once, and its output grows with what the
+//! frames hold, never with a size a header claims. Through the index, the
+//! `mcap` crate's reader sizes its buffer by the chunk index's uncompressed
+//! size, so `check_size` first decodes the chunk into nothing and refuses it
+//! unless it holds exactly that (a lie costs a decode, not the memory); the
+//! decoders registered on that reader then decode it for real. Reading
+//! linearly (`linear.rs`), `decode_chunk` decodes each chunk once, with
+//! the same check.
 
 use mcap::sans_io::decompressor::{DecompressResult, Decompressor};
 use mcap::sans_io::indexed_reader::IndexedReader;
-use mcap::sans_io::linear_reader::LinearReader;
 use mcap::{McapError, McapResult};
-use std::io::Read;
+use std::io::{Read, Write};
 
 /// Appended to an "unsupported compression" error.
 pub const UNSUPPORTED_HINT: &str = " (supported chunk compressions: none, zstd, lz4)";
@@ -35,17 +37,26 @@ enum Codec {
 }
 
 /// Decodes all frames of `src`, appending to `out`; at most `limit` bytes in all.
-fn decode_all(codec: Codec, src: &[u8], out: &mut Vec<u8>, limit: u64) -> Result<(), String> {
-    let room = |out: &Vec<u8>| limit.saturating_sub(out.len() as u64);
+/// The output grows with what the frames actually hold, never with a size a
+/// header claims. Returns the bytes written.
+fn decode_all<W: Write>(codec: Codec, src: &[u8], out: &mut W, limit: u64) -> Result<u64, String> {
+    let mut written = 0u64;
     let too_big = || format!("decompressed chunk exceeds the limit of {limit} bytes");
+    // copies at most one byte beyond the room left, which tells "too big" from "exact"
+    let mut copy = |r: &mut dyn Read, written: &mut u64| -> Result<(), String> {
+        let room = limit.saturating_sub(*written);
+        let n =
+            std::io::copy(&mut r.take(room.saturating_add(1)), out).map_err(|e| e.to_string())?;
+        *written += n;
+        if *written > limit {
+            return Err(too_big());
+        }
+        Ok(())
+    };
     match codec {
         Codec::Lz4 => {
-            let cap = room(out);
-            let mut d = lz4_flex::frame::FrameDecoder::new(src).take(cap.saturating_add(1));
-            d.read_to_end(out).map_err(|e| e.to_string())?;
-            if out.len() as u64 > limit {
-                return Err(too_big());
-            }
+            let mut d = lz4_flex::frame::FrameDecoder::new(src);
+            copy(&mut d, &mut written)?;
         }
         Codec::Zstd => {
             use ruzstd::decoding::errors::{FrameDecoderError, ReadFrameHeaderError};
@@ -54,14 +65,7 @@ fn decode_all(codec: Codec, src: &[u8], out: &mut Vec<u8>, limit: u64) -> Result
                 let frame_start = s;
                 match ruzstd::decoding::StreamingDecoder::new(&mut s) {
                     Ok(mut d) => {
-                        let cap = room(out);
-                        (&mut d)
-                            .take(cap.saturating_add(1))
-                            .read_to_end(out)
-                            .map_err(|e| e.to_string())?;
-                        if out.len() as u64 > limit {
-                            return Err(too_big());
-                        }
+                        copy(&mut d, &mut written)?;
                         // ruzstd ends quietly at the end of its input
                         if !d.decoder.is_finished() {
                             return Err("zstd frame is truncated".into());
@@ -80,6 +84,100 @@ fn decode_all(codec: Codec, src: &[u8], out: &mut Vec<u8>, limit: u64) -> Result
                 }
             }
         }
+    }
+    Ok(written)
+}
+
+fn codec(compression: &str) -> Option<Codec> {
+    match compression {
+        "zstd" => Some(Codec::Zstd),
+        "lz4" => Some(Codec::Lz4),
+        _ => None,
+    }
+}
+
+/// Why a chunk's content cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum ChunkError {
+    /// A compression this crate does not decode (the name).
+    Unsupported(String),
+    /// The content is corrupt or disagrees with the chunk's header.
+    Corrupt(String),
+}
+
+/// Checks that a compressed chunk decodes to exactly the `uncompressed_size` its
+/// header (or chunk index) declares, at most `limit`, without keeping the output:
+/// the indexed reader sizes its buffer by that declaration, so it is checked
+/// before the reader sees the chunk (a lie costs one decode, not the memory).
+pub(crate) fn check_size(
+    compression: &str,
+    src: &[u8],
+    uncompressed_size: u64,
+    limit: usize,
+) -> Result<(), ChunkError> {
+    if compression.is_empty() {
+        return Ok(());
+    }
+    let c = codec(compression).ok_or_else(|| ChunkError::Unsupported(compression.to_string()))?;
+    let cap = declared_within(uncompressed_size, limit)?;
+    let n = decode_all(c, src, &mut std::io::sink(), cap)
+        .map_err(|e| declared_err(e, compression, cap))?;
+    exact(n, uncompressed_size, compression)
+}
+
+/// The records of a chunk, decoded into `out` (cleared first): a copy of `src` when
+/// uncompressed, else its frames, which must hold exactly `uncompressed_size` bytes
+/// (at most `limit`).
+pub(crate) fn decode_chunk(
+    compression: &str,
+    src: &[u8],
+    uncompressed_size: u64,
+    limit: usize,
+    out: &mut Vec<u8>,
+) -> Result<(), ChunkError> {
+    out.clear();
+    if compression.is_empty() {
+        exact(src.len() as u64, uncompressed_size, "uncompressed")?;
+        out.extend_from_slice(src);
+        return Ok(());
+    }
+    let c = codec(compression).ok_or_else(|| ChunkError::Unsupported(compression.to_string()))?;
+    let cap = declared_within(uncompressed_size, limit)?;
+    let r = decode_all(c, src, out, cap).map_err(|e| declared_err(e, compression, cap));
+    let n = match r {
+        Ok(n) => n,
+        Err(e) => {
+            out.clear();
+            return Err(e);
+        }
+    };
+    exact(n, uncompressed_size, compression)
+}
+
+fn declared_within(uncompressed_size: u64, limit: usize) -> Result<u64, ChunkError> {
+    if uncompressed_size > limit as u64 {
+        return Err(ChunkError::Corrupt(format!(
+            "the chunk declares {uncompressed_size} uncompressed bytes, over the limit of {limit}"
+        )));
+    }
+    Ok(uncompressed_size)
+}
+
+fn declared_err(e: String, compression: &str, cap: u64) -> ChunkError {
+    if e.starts_with("decompressed chunk exceeds") {
+        ChunkError::Corrupt(format!(
+            "the {compression} chunk decodes to more than the {cap} bytes its header declares"
+        ))
+    } else {
+        ChunkError::Corrupt(format!("{compression}: {e}"))
+    }
+}
+
+fn exact(n: u64, declared: u64, what: &str) -> Result<(), ChunkError> {
+    if n != declared {
+        return Err(ChunkError::Corrupt(format!(
+            "the {what} chunk holds {n} bytes, its header declares {declared}"
+        )));
     }
     Ok(())
 }
@@ -119,7 +217,7 @@ impl Decompressor for WholeChunk {
             self.out.clear();
             self.pos = 0;
             match decode_all(self.codec, src, &mut self.out, self.limit) {
-                Ok(()) => consumed = src.len(),
+                Ok(_) => consumed = src.len(),
                 Err(e) => {
                     self.out.clear();
                     return Err(McapError::DecompressionError(format!(
@@ -147,12 +245,6 @@ impl Decompressor for WholeChunk {
             Codec::Lz4 => "lz4",
         }
     }
-}
-
-/// Registers this crate's decompressors on a linear reader.
-pub(crate) fn register_linear(reader: &mut LinearReader, limit: usize) -> McapResult<()> {
-    reader.add_decompressor(WholeChunk::new(Codec::Zstd, limit))?;
-    reader.add_decompressor(WholeChunk::new(Codec::Lz4, limit))
 }
 
 /// Registers this crate's decompressors on an indexed reader.
@@ -243,6 +335,67 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_chunk_must_hold_what_its_header_declares() {
+        let data: Vec<u8> = (0..5000u32).map(|i| (i % 7) as u8).collect();
+        for (name, src) in [("zstd", zstd(&data)), ("lz4", lz4(&data))] {
+            let n = data.len() as u64;
+            assert_eq!(check_size(name, &src, n, 1 << 20), Ok(()));
+            let mut out = Vec::new();
+            assert_eq!(decode_chunk(name, &src, n, 1 << 20, &mut out), Ok(()));
+            assert_eq!(out, data);
+            // a header that lies either way, or declares more than the limit
+            for (declared, limit, want) in [
+                (
+                    n + 1,
+                    1 << 20,
+                    format!("the {name} chunk holds 5000 bytes, its header declares 5001"),
+                ),
+                (
+                    n - 1,
+                    1 << 20,
+                    format!(
+                        "the {name} chunk decodes to more than the 4999 bytes its header declares"
+                    ),
+                ),
+                (
+                    (1 << 30) - 1,
+                    1 << 30,
+                    format!("the {name} chunk holds 5000 bytes, its header declares 1073741823"),
+                ),
+                (
+                    n,
+                    100,
+                    "the chunk declares 5000 uncompressed bytes, over the limit of 100".to_string(),
+                ),
+            ] {
+                assert_eq!(
+                    check_size(name, &src, declared, limit),
+                    Err(ChunkError::Corrupt(want.clone()))
+                );
+                assert_eq!(
+                    decode_chunk(name, &src, declared, limit, &mut out),
+                    Err(ChunkError::Corrupt(want))
+                );
+                assert!(out.is_empty() || out.len() as u64 == n.min(declared));
+                // the output never grew toward the declared size
+                assert!(out.capacity() < 1 << 20, "{}", out.capacity());
+            }
+        }
+        let mut out = Vec::new();
+        assert_eq!(decode_chunk("", b"abc", 3, 10, &mut out), Ok(()));
+        assert_eq!(
+            decode_chunk("", b"abc", 4, 10, &mut out),
+            Err(ChunkError::Corrupt(
+                "the uncompressed chunk holds 3 bytes, its header declares 4".into()
+            ))
+        );
+        assert_eq!(
+            check_size("bz2", b"abc", 3, 10),
+            Err(ChunkError::Unsupported("bz2".into()))
+        );
     }
 
     proptest! {

@@ -73,6 +73,16 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
+    /// The file's content is inconsistent (a chunk's records overrun it, its
+    /// declared size is not what it holds, ...).
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// Where in the file (the topic's position and the chunk).
+        at: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 impl Error {
@@ -94,6 +104,7 @@ impl Error {
             Error::Topic { reason, .. } => reason.clone(),
             Error::Message { at, reason, .. } => format!("{at}: {reason}"),
             Error::Write { topic, reason, .. } => format!("writing topic `{topic}`: {reason}"),
+            Error::Corrupt { at, reason, .. } => format!("corrupt MCAP {at}: {reason}"),
         }
     }
 
@@ -104,7 +115,8 @@ impl Error {
             | Error::Mcap { path, .. }
             | Error::Topic { path, .. }
             | Error::Message { path, .. }
-            | Error::Write { path, .. } => path,
+            | Error::Write { path, .. }
+            | Error::Corrupt { path, .. } => path,
         }
     }
 }

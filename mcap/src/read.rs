@@ -17,17 +17,20 @@
 //! topics of the file. Messages must be `cdr`-encoded.
 //!
 //! A recording is hostile input: record lengths are bounded by the file size and
-//! [`ReaderOptions::max_record_bytes`], and every error names the file and, past
-//! the start, the topic, message index and log time.
+//! [`ReaderOptions::max_record_bytes`], a chunk must hold exactly the size it
+//! declares before any buffer is sized by it, the records inside a chunk are
+//! bounded by the chunk (the linear walk is this crate's own, `linear.rs`), and
+//! every error names the file and, past the start, the topic, message index and
+//! log time, and the chunk.
 //!
 //! Chunk compression: see [`crate::decompress`]; an unsupported compression is
 //! an error naming it.
 
 use crate::decompress;
 use crate::error::Error;
+use crate::linear::{Fault, LinearWalk, Place};
 use mcap::records::op;
 use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 use mcap::{McapError, Summary};
 use std::collections::BTreeMap;
@@ -91,11 +94,12 @@ pub struct MessageRef<'a> {
 enum Mode {
     Indexed {
         reader: Box<IndexedReader>,
-        /// compressed-data offset -> (chunk start, compression)
-        chunks: BTreeMap<u64, (u64, String)>,
+        /// compressed-data offset -> (chunk start, compression, declared uncompressed size)
+        chunks: BTreeMap<u64, (u64, String, u64)>,
+        limit: usize,
     },
     Linear {
-        reader: Box<LinearReader>,
+        walk: Box<LinearWalk>,
     },
 }
 
@@ -194,58 +198,52 @@ fn read_summary(
     Ok(reader.finish())
 }
 
-fn linear_reader(opts: ReaderOptions) -> Result<LinearReader, McapError> {
-    let mut r = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_validate_chunk_crcs(true)
-            .with_record_length_limit(opts.max_record_bytes),
-    );
-    decompress::register_linear(&mut r, opts.max_record_bytes)?;
-    Ok(r)
+fn fault_err(path: &Path, at: String, walk: &LinearWalk, fault: Fault) -> Error {
+    let at = match walk.place() {
+        Place::InChunk(n) => format!("{at}, in chunk #{n} (file order)"),
+        Place::AfterChunk(0) => at,
+        Place::AfterChunk(n) => format!("{at}, after chunk #{n} (file order)"),
+    };
+    match fault {
+        Fault::Mcap(source) => mcap_err(path, at, source),
+        Fault::Unsupported(c) => mcap_err(path, at, McapError::UnsupportedCompression(c)),
+        Fault::Corrupt(reason) => Error::Corrupt {
+            path: path.to_path_buf(),
+            at,
+            reason,
+        },
+        Fault::Io(e) => io_err(path, "reading", e),
+    }
 }
 
 /// Channels found by reading the file from the start (for files without a
 /// summary). Stops quietly at the first error: the main pass reports it.
-fn scan_channels(file: &mut File, opts: ReaderOptions) -> Vec<(u16, TopicInfo)> {
-    let mut out = Vec::new();
+fn scan_channels(file: &mut File, file_len: u64, opts: ReaderOptions) -> Vec<(u16, TopicInfo)> {
+    let mut out: Vec<(u16, TopicInfo)> = Vec::new();
     let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    if file.seek(SeekFrom::Start(0)).is_err() {
-        return out;
-    }
-    let Ok(mut reader) = linear_reader(opts) else {
-        return out;
-    };
-    while let Some(Ok(event)) = reader.next_event() {
-        match event {
-            LinearReadEvent::ReadRequest(need) => match file.read(reader.insert(need)) {
-                Ok(n) => reader.notify_read(n),
-                Err(_) => break,
-            },
-            LinearReadEvent::Record { opcode, data } => {
-                if opcode != op::SCHEMA && opcode != op::CHANNEL {
-                    continue;
-                }
-                match mcap::parse_record(opcode, data) {
-                    Ok(mcap::records::Record::Schema { header, .. }) => {
-                        schemas.insert(header.id, header.name);
-                    }
-                    Ok(mcap::records::Record::Channel(c)) => {
-                        if out.iter().any(|(id, _)| *id == c.id) {
-                            continue;
-                        }
-                        out.push((
-                            c.id,
-                            TopicInfo {
-                                topic: c.topic,
-                                schema_name: schemas.get(&c.schema_id).cloned().unwrap_or_default(),
-                                message_encoding: c.message_encoding,
-                                message_count: None,
-                            },
-                        ));
-                    }
-                    _ => break,
+    let mut walk = LinearWalk::new(opts.max_record_bytes);
+    while let Ok(Some((opcode, data))) = walk.next(file, file_len) {
+        if opcode != op::SCHEMA && opcode != op::CHANNEL {
+            continue;
+        }
+        match mcap::parse_record(opcode, data) {
+            Ok(mcap::records::Record::Schema { header, .. }) => {
+                schemas.insert(header.id, header.name);
+            }
+            Ok(mcap::records::Record::Channel(c)) => {
+                if !out.iter().any(|(id, _)| *id == c.id) {
+                    out.push((
+                        c.id,
+                        TopicInfo {
+                            topic: c.topic,
+                            schema_name: schemas.get(&c.schema_id).cloned().unwrap_or_default(),
+                            message_encoding: c.message_encoding,
+                            message_count: None,
+                        },
+                    ));
                 }
             }
+            _ => break,
         }
     }
     out
@@ -366,7 +364,7 @@ impl McapReader {
         let opts = ReaderOptions::default();
         let ch = match read_summary(&mut file, len, opts) {
             Ok(Some(s)) => summary_channels(&s),
-            _ => scan_channels(&mut file, opts),
+            _ => scan_channels(&mut file, len, opts),
         };
         Ok(ch.into_iter().map(|(_, t)| t).collect())
     }
@@ -388,28 +386,21 @@ impl McapReader {
         let summary = read_summary(&mut file, file_len, opts).ok().flatten();
         let channels = match &summary {
             Some(s) => summary_channels(s),
-            None => scan_channels(&mut file, opts),
+            None => scan_channels(&mut file, file_len, opts),
         };
         let (topic, channel_ids) = match resolve(&path, &channels, select, schemas) {
             Ok(t) => t,
             Err(e) if channels.is_empty() && summary.is_none() => {
                 // nothing readable at all: report why, from the start of the file
-                let mut r = linear_reader(opts).map_err(|s| mcap_err(&path, "opening", s))?;
-                file.seek(SeekFrom::Start(0))
-                    .map_err(|e| io_err(&path, "seeking", e))?;
+                let mut walk = LinearWalk::new(opts.max_record_bytes);
                 loop {
-                    match r.next_event() {
-                        Some(Ok(LinearReadEvent::ReadRequest(need))) => {
-                            let n = file
-                                .read(r.insert(need))
-                                .map_err(|e| io_err(&path, "reading", e))?;
-                            r.notify_read(n);
+                    match walk.next(&mut file, file_len) {
+                        Ok(Some(_)) => {}
+                        Err(f) => {
+                            let at = "reading the file from the start".to_string();
+                            return Err(fault_err(&path, at, &walk, f));
                         }
-                        Some(Ok(_)) => {}
-                        Some(Err(s)) => {
-                            return Err(mcap_err(&path, "reading the file from the start", s))
-                        }
-                        None => return Err(with_truncation(e, &mut file, file_len)),
+                        Ok(None) => return Err(with_truncation(e, &mut file, file_len)),
                     }
                 }
             }
@@ -432,21 +423,27 @@ impl McapReader {
                     .iter()
                     .filter_map(|c| {
                         let off = c.compressed_data_offset().ok()?;
-                        Some((off, (c.chunk_start_offset, c.compression.clone())))
+                        Some((
+                            off,
+                            (
+                                c.chunk_start_offset,
+                                c.compression.clone(),
+                                c.uncompressed_size,
+                            ),
+                        ))
                     })
                     .collect();
                 Mode::Indexed {
                     reader: Box::new(reader),
                     chunks,
+                    limit: opts.max_record_bytes,
                 }
             }
             _ => {
                 file.seek(SeekFrom::Start(0))
                     .map_err(|e| io_err(&path, "seeking", e))?;
                 Mode::Linear {
-                    reader: Box::new(
-                        linear_reader(opts).map_err(|e| mcap_err(&path, "opening", e))?,
-                    ),
+                    walk: Box::new(LinearWalk::new(opts.max_record_bytes)),
                 }
             }
         };
@@ -534,7 +531,11 @@ impl McapReader {
             ..
         } = self;
         match mode {
-            Mode::Indexed { reader, chunks } => loop {
+            Mode::Indexed {
+                reader,
+                chunks,
+                limit,
+            } => loop {
                 let event = match reader.next_event() {
                     None => return Ok(None),
                     Some(Ok(e)) => e,
@@ -552,11 +553,31 @@ impl McapReader {
                         read_chunk(file, *file_len, offset, length, chunk_buf).map_err(|e| {
                             mcap_err(path, format!("{at}, reading the chunk at byte {offset}"), e)
                         })?;
-                        if let Some((start, compression)) = chunks.get(&offset) {
+                        if let Some((start, compression, size)) = chunks.get(&offset) {
                             if compression.is_empty() {
                                 check_chunk_crc(file, *start, chunk_buf).map_err(|e| {
                                     mcap_err(path, format!("{at}, chunk at byte {start}"), e)
                                 })?;
+                            } else {
+                                // the reader sizes its buffer by the declared size: check it first
+                                decompress::check_size(compression, chunk_buf, *size, *limit)
+                                    .map_err(|f| {
+                                        let at = format!("{at}, chunk at byte {start}");
+                                        match f {
+                                            decompress::ChunkError::Unsupported(c) => mcap_err(
+                                                path,
+                                                at,
+                                                McapError::UnsupportedCompression(c),
+                                            ),
+                                            decompress::ChunkError::Corrupt(reason) => {
+                                                Error::Corrupt {
+                                                    path: path.to_path_buf(),
+                                                    at,
+                                                    reason,
+                                                }
+                                            }
+                                        }
+                                    })?;
                             }
                         }
                         reader
@@ -578,61 +599,59 @@ impl McapReader {
                     }
                 }
             },
-            Mode::Linear { reader } => loop {
-                let event = match reader.next_event() {
-                    None => return Ok(None),
-                    Some(Ok(e)) => e,
-                    Some(Err(e)) => {
-                        return Err(mcap_err(
-                            path,
-                            self_position(&self.topic, self.next_index, self.last_log_time),
-                            e,
-                        ))
-                    }
+            Mode::Linear { walk } => loop {
+                let at = || self_position(&self.topic, self.next_index, self.last_log_time);
+                let (opcode, data) = match walk.next(file, *file_len) {
+                    Ok(Some(r)) => r,
+                    Ok(None) => return Ok(None),
+                    Err(f) => return Err(fault_err(path, at(), walk, f)),
                 };
-                match event {
-                    LinearReadEvent::ReadRequest(need) => {
-                        let n = file
-                            .read(reader.insert(need))
-                            .map_err(|e| io_err(path, "reading", e))?;
-                        reader.notify_read(n);
-                    }
-                    LinearReadEvent::Record { opcode, data } => match opcode {
-                        op::CHANNEL => {
-                            if let Ok(mcap::records::Record::Channel(c)) =
-                                mcap::parse_record(opcode, data)
-                            {
-                                if c.topic == self.topic.topic && !channel_ids.contains(&c.id) {
-                                    channel_ids.push(c.id);
-                                }
-                            }
-                        }
-                        op::MESSAGE => {
-                            let rec = mcap::parse_record(opcode, data).map_err(|e| {
-                                mcap_err(
-                                    path,
-                                    self_position(&self.topic, self.next_index, self.last_log_time),
-                                    e,
-                                )
-                            })?;
-                            if let mcap::records::Record::Message { header, data } = rec {
-                                if channel_ids.contains(&header.channel_id) {
-                                    msg_buf.clear();
-                                    msg_buf.extend_from_slice(&data);
-                                    return Ok(Some((
-                                        header.log_time,
-                                        header.publish_time,
-                                        header.sequence,
-                                    )));
-                                }
-                            }
-                        }
-                        _ => {}
-                    },
+                match linear_record(opcode, data, &self.topic, channel_ids, msg_buf) {
+                    Ok(Some(found)) => return Ok(Some(found)),
+                    Ok(None) => {}
+                    Err(e) => return Err(fault_err(path, at(), walk, Fault::Mcap(e))),
                 }
             },
         }
     }
+}
+
+/// One record read linearly (outside a chunk or inside one): a channel of the
+/// topic is added to `channel_ids`; a message on one of them is copied to
+/// `msg_buf` and its times returned.
+fn linear_record(
+    opcode: u8,
+    data: &[u8],
+    topic: &TopicInfo,
+    channel_ids: &mut Vec<u16>,
+    msg_buf: &mut Vec<u8>,
+) -> Result<Option<(u64, u64, u32)>, McapError> {
+    match opcode {
+        op::CHANNEL => {
+            if let Ok(mcap::records::Record::Channel(c)) = mcap::parse_record(opcode, data) {
+                if c.topic == topic.topic && !channel_ids.contains(&c.id) {
+                    channel_ids.push(c.id);
+                }
+            }
+        }
+        op::MESSAGE => {
+            if let mcap::records::Record::Message { header, data } =
+                mcap::parse_record(opcode, data)?
+            {
+                if channel_ids.contains(&header.channel_id) {
+                    msg_buf.clear();
+                    msg_buf.extend_from_slice(&data);
+                    return Ok(Some((
+                        header.log_time,
+                        header.publish_time,
+                        header.sequence,
+                    )));
+                }
+            }
+        }
+        _ => {}
+    }
+    Ok(None)
 }
 
 fn self_position(topic: &TopicInfo, next_index: u64, last: Option<u64>) -> String {

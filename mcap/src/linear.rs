@@ -1,0 +1,567 @@
+//! Reading an MCAP file from its start, record by record, for files without a
+//! usable summary (a recording that was cut off, or one written without chunk
+//! indexes).
+//!
+//! This crate walks the file itself rather than through the `mcap` crate's
+//! linear reader, because a recording is hostile input and every length in it
+//! is checked against what holds it:
+//!
+//! * a top-level record may claim at most the bytes the file has left (a longer
+//!   claim is the cut of a truncated file, never a buffer of that size) and at
+//!   most [`crate::ReaderOptions::max_record_bytes`];
+//! * a chunk is decoded whole ([`crate::decompress`]), must hold exactly the
+//!   uncompressed size its header declares, and its CRC (when not 0) is checked
+//!   before any of its records is used;
+//! * a record inside a chunk may claim at most what its chunk has left: a longer
+//!   claim is an error naming the record's place in the chunk (the `mcap` crate's
+//!   walk overflows a counter there);
+//! * an uncompressed chunk cut by the end of the file yields the complete records
+//!   it holds, then the file's truncation is reported (their CRC cannot be checked:
+//!   it covers the whole chunk).
+//!
+//! The walk yields records in file order, those inside chunks in place of their
+//! chunk; the chunk records themselves are not yielded.
+
+use crate::decompress::{self, ChunkError};
+use mcap::records::op;
+use mcap::McapError;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+
+/// opcode and length of a record
+const HEAD: usize = 9;
+/// a chunk record's fixed fields before its compression string: start and end
+/// time, uncompressed size, CRC
+const CHUNK_FIXED: usize = 8 + 8 + 8 + 4;
+
+/// Why the walk stopped.
+#[derive(Debug)]
+pub(crate) enum Fault {
+    /// The `mcap` crate's error (a record's body, the file's magic, a truncation).
+    Mcap(McapError),
+    /// A chunk compression this crate does not decode.
+    Unsupported(String),
+    /// A chunk whose content is inconsistent.
+    Corrupt(String),
+    /// Reading the file failed.
+    Io(std::io::Error),
+}
+
+impl From<McapError> for Fault {
+    fn from(e: McapError) -> Self {
+        Fault::Mcap(e)
+    }
+}
+
+impl From<ChunkError> for Fault {
+    fn from(e: ChunkError) -> Self {
+        match e {
+            ChunkError::Unsupported(c) => Fault::Unsupported(c),
+            ChunkError::Corrupt(r) => Fault::Corrupt(r),
+        }
+    }
+}
+
+impl From<std::io::Error> for Fault {
+    fn from(e: std::io::Error) -> Self {
+        Fault::Io(e)
+    }
+}
+
+/// The decoded records of one chunk.
+#[derive(Debug, Default)]
+struct Chunk {
+    content: Vec<u8>,
+    pos: usize,
+}
+
+impl Chunk {
+    fn has_more(&self) -> bool {
+        self.pos < self.content.len()
+    }
+
+    /// The next record (opcode, body); call only while [`Chunk::has_more`].
+    fn next_record(&mut self) -> Result<(u8, &[u8]), Fault> {
+        let at = self.pos;
+        let rest = self.content.get(at..).unwrap_or_default();
+        match split_record(rest) {
+            Ok((opcode, body)) => {
+                self.pos = at + HEAD + body.len();
+                Ok((opcode, body))
+            }
+            Err(reason) => {
+                self.pos = self.content.len();
+                Err(Fault::Corrupt(format!(
+                    "the record at byte {at} of the chunk's records {reason}"
+                )))
+            }
+        }
+    }
+}
+
+/// Splits the record at the start of `rest`: opcode and body, or what is wrong.
+fn split_record(rest: &[u8]) -> Result<(u8, &[u8]), String> {
+    let Some((head, tail)) = rest.split_first_chunk::<HEAD>() else {
+        return Err(format!(
+            "is cut off in its header ({} of {HEAD} bytes)",
+            rest.len()
+        ));
+    };
+    let opcode = head[0];
+    let len = u64::from_le_bytes(le8(&head[1..]));
+    match usize::try_from(len).ok().and_then(|n| tail.get(..n)) {
+        Some(body) => Ok((opcode, body)),
+        None => Err(format!(
+            "(opcode {opcode:#04x}) claims {len} bytes, its chunk holds {} more",
+            tail.len()
+        )),
+    }
+}
+
+fn le8(b: &[u8]) -> [u8; 8] {
+    let mut a = [0u8; 8];
+    let n = b.len().min(8);
+    a[..n].copy_from_slice(&b[..n]);
+    a
+}
+
+/// See [`LinearWalk::place`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Place {
+    InChunk(u64),
+    AfterChunk(u64),
+}
+
+/// The walk over one file (see the module docs).
+#[derive(Debug)]
+pub(crate) struct LinearWalk {
+    limit: usize,
+    /// offset of the next top-level record; 0 before the magic is checked
+    pos: u64,
+    ended: bool,
+    body: Vec<u8>,
+    chunk: Chunk,
+    /// chunks met so far (1-based number of the current one)
+    chunks: u64,
+    /// set when the current chunk is cut by the end of the file: reported after
+    /// its complete records
+    cut: bool,
+    /// whether the last record or fault came from inside chunk `chunks`
+    inside: bool,
+}
+
+impl LinearWalk {
+    /// A walk from the start of the file, records at most `limit` bytes.
+    pub(crate) fn new(limit: usize) -> Self {
+        Self {
+            limit,
+            pos: 0,
+            ended: false,
+            body: Vec::new(),
+            chunk: Chunk::default(),
+            chunks: 0,
+            cut: false,
+            inside: false,
+        }
+    }
+
+    /// Where the last record came from, or the last fault happened: inside chunk
+    /// N (1-based, in file order), or after chunk N at the top level (N = 0:
+    /// before the first chunk).
+    pub(crate) fn place(&self) -> Place {
+        if self.inside {
+            Place::InChunk(self.chunks)
+        } else {
+            Place::AfterChunk(self.chunks)
+        }
+    }
+
+    /// The next record, `Ok(None)` after the footer. After a fault the walk ends.
+    pub(crate) fn next(
+        &mut self,
+        file: &mut File,
+        file_len: u64,
+    ) -> Result<Option<(u8, &[u8])>, Fault> {
+        let r = self.advance(file, file_len);
+        match r {
+            Ok(true) => {}
+            Ok(false) => return Ok(None),
+            Err(e) => {
+                self.ended = true;
+                self.chunk = Chunk::default();
+                return Err(e);
+            }
+        }
+        if self.chunk.has_more() {
+            return self.chunk.next_record().map(Some).inspect_err(|_| {
+                self.ended = true;
+            });
+        }
+        Ok(Some((self.body_opcode(), &self.body[HEAD..])))
+    }
+
+    /// The opcode of the top-level record in `body`.
+    fn body_opcode(&self) -> u8 {
+        self.body.first().copied().unwrap_or_default()
+    }
+
+    /// Moves to the next record: `Ok(true)` when one is ready (in the chunk, else
+    /// in `body`), `Ok(false)` at the end.
+    fn advance(&mut self, file: &mut File, file_len: u64) -> Result<bool, Fault> {
+        loop {
+            if self.ended {
+                return Ok(false);
+            }
+            self.inside = true;
+            if self.chunk.has_more() {
+                return Ok(true);
+            }
+            if self.cut {
+                // the complete records of the cut chunk are done
+                self.cut = false;
+                return Err(Fault::Mcap(McapError::UnexpectedEof));
+            }
+            self.inside = false;
+            if self.pos == 0 {
+                let mut magic = [0u8; 8];
+                if file_len < 8 {
+                    return Err(Fault::Mcap(McapError::UnexpectedEof));
+                }
+                read_at(file, 0, &mut magic)?;
+                if magic[..] != *mcap::MAGIC {
+                    return Err(Fault::Mcap(McapError::BadMagic));
+                }
+                self.pos = 8;
+            }
+            let left = file_len.saturating_sub(self.pos);
+            if left < HEAD as u64 {
+                // no footer: the file was cut (at or inside a record's header)
+                return Err(Fault::Mcap(McapError::UnexpectedEof));
+            }
+            let mut head = [0u8; HEAD];
+            read_at(file, self.pos, &mut head)?;
+            let opcode = head[0];
+            let len = u64::from_le_bytes(le8(&head[1..]));
+            let body_left = left - HEAD as u64;
+            if opcode == op::FOOTER {
+                self.ended = true;
+                return Ok(false);
+            }
+            if len > body_left {
+                if opcode == op::CHUNK {
+                    // a chunk cut by the end of the file: its complete records first
+                    self.chunks += 1;
+                    let n = usize::try_from(body_left)
+                        .unwrap_or(usize::MAX)
+                        .min(self.limit);
+                    self.read_body(file, head, n)?;
+                    self.load_cut_chunk();
+                    self.cut = true;
+                    self.pos = file_len;
+                    continue;
+                }
+                return Err(Fault::Mcap(McapError::UnexpectedEof));
+            }
+            if len > self.limit as u64 {
+                return Err(Fault::Mcap(McapError::RecordTooLarge { opcode, len }));
+            }
+            // len <= body_left and <= limit: fits in usize
+            let n = len as usize;
+            self.read_body(file, head, n)?;
+            self.pos += HEAD as u64 + len;
+            if opcode == op::CHUNK {
+                self.chunks += 1;
+                self.inside = true;
+                self.load_chunk()?;
+                continue;
+            }
+            return Ok(true);
+        }
+    }
+
+    /// Reads a record's header and `n` bytes of its body into `body`.
+    fn read_body(&mut self, file: &mut File, head: [u8; HEAD], n: usize) -> Result<(), Fault> {
+        self.body.clear();
+        self.body.extend_from_slice(&head);
+        self.body.resize(HEAD + n, 0);
+        read_at(file, self.pos + HEAD as u64, &mut self.body[HEAD..])?;
+        Ok(())
+    }
+
+    /// Decodes the complete chunk record in `body`.
+    fn load_chunk(&mut self) -> Result<(), Fault> {
+        self.chunk = Chunk {
+            content: std::mem::take(&mut self.chunk.content),
+            pos: 0,
+        };
+        self.chunk.content.clear();
+        let (header, data) = match mcap::parse_record(op::CHUNK, &self.body[HEAD..])? {
+            mcap::records::Record::Chunk { header, data } => (header, data),
+            _ => return Err(Fault::Mcap(McapError::BadIndex)),
+        };
+        decompress::decode_chunk(
+            &header.compression,
+            &data,
+            header.uncompressed_size,
+            self.limit,
+            &mut self.chunk.content,
+        )?;
+        if header.uncompressed_crc != 0 {
+            let calculated = crc32fast::hash(&self.chunk.content);
+            if calculated != header.uncompressed_crc {
+                self.chunk.content.clear();
+                return Err(Fault::Mcap(McapError::BadChunkCrc {
+                    saved: header.uncompressed_crc,
+                    calculated,
+                }));
+            }
+        }
+        Ok(())
+    }
+
+    /// The complete records of the cut chunk in `body`, when it is uncompressed
+    /// (a compressed one cannot be decoded in part: nothing).
+    fn load_cut_chunk(&mut self) {
+        self.chunk.content.clear();
+        self.chunk.pos = 0;
+        let b = &self.body[HEAD..];
+        let Some(name_len) = b.get(CHUNK_FIXED..CHUNK_FIXED + 4) else {
+            return;
+        };
+        if name_len != [0, 0, 0, 0] {
+            return;
+        }
+        // the compressed size, then the records
+        let records_at = CHUNK_FIXED + 4 + 8;
+        let (Some(size), Some(rest)) = (b.get(CHUNK_FIXED + 4..records_at), b.get(records_at..))
+        else {
+            return;
+        };
+        let size = usize::try_from(u64::from_le_bytes(le8(size))).unwrap_or(usize::MAX);
+        let records = &rest[..size.min(rest.len())];
+        let mut complete = 0;
+        while let Some(Ok((_, body))) = records.get(complete..).map(split_record) {
+            complete += HEAD + body.len();
+        }
+        self.chunk.content.extend_from_slice(&records[..complete]);
+    }
+}
+
+fn read_at(file: &mut File, pos: u64, buf: &mut [u8]) -> Result<(), Fault> {
+    file.seek(SeekFrom::Start(pos))?;
+    file.read_exact(buf).map_err(|e| match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => Fault::Mcap(McapError::UnexpectedEof),
+        _ => Fault::Io(e),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+        let mut r = vec![opcode];
+        r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        r.extend_from_slice(body);
+        r
+    }
+
+    /// A chunk record around `records`, uncompressed, with this CRC and declared size.
+    fn chunk(records: &[u8], crc: u32, uncompressed_size: u64) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.extend_from_slice(&0u64.to_le_bytes());
+        b.extend_from_slice(&0u64.to_le_bytes());
+        b.extend_from_slice(&uncompressed_size.to_le_bytes());
+        b.extend_from_slice(&crc.to_le_bytes());
+        b.extend_from_slice(&0u32.to_le_bytes()); // compression ""
+        b.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        b.extend_from_slice(records);
+        record(op::CHUNK, &b)
+    }
+
+    /// Removes its file when dropped.
+    struct TmpPath(std::path::PathBuf);
+
+    impl Drop for TmpPath {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_file(&self.0);
+        }
+    }
+
+    fn file(parts: &[&[u8]]) -> (TmpPath, File, u64) {
+        use std::sync::atomic::{AtomicU32, Ordering};
+        static N: AtomicU32 = AtomicU32::new(0);
+        let path = std::env::temp_dir().join(format!(
+            "vlsync-mcap-linear-{}-{}.mcap",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let mut bytes = mcap::MAGIC.to_vec();
+        for p in parts {
+            bytes.extend_from_slice(p);
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        let file = File::open(&path).unwrap();
+        (TmpPath(path), file, bytes.len() as u64)
+    }
+
+    fn walk_all(w: &mut LinearWalk, f: &mut File, len: u64) -> (Vec<(u8, Vec<u8>)>, Option<Fault>) {
+        let mut out = vec![];
+        loop {
+            match w.next(f, len) {
+                Ok(Some((op, b))) => out.push((op, b.to_vec())),
+                Ok(None) => return (out, None),
+                Err(e) => return (out, Some(e)),
+            }
+        }
+    }
+
+    fn footer() -> Vec<u8> {
+        let mut f = record(op::FOOTER, &[0u8; 20]);
+        f.extend_from_slice(mcap::MAGIC);
+        f
+    }
+
+    #[test]
+    fn records_in_and_out_of_chunks_in_file_order() {
+        let inner = [record(op::MESSAGE, b"one"), record(op::MESSAGE, b"two")].concat();
+        let crc = crc32fast::hash(&inner);
+        let c = chunk(&inner, crc, inner.len() as u64);
+        let (_p, mut f, len) = file(&[
+            &record(op::SCHEMA, b"s"),
+            &c,
+            &record(op::MESSAGE, b"3"),
+            &footer(),
+        ]);
+        let mut w = LinearWalk::new(1 << 20);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert!(fault.is_none(), "{fault:?}");
+        let bodies: Vec<&[u8]> = recs.iter().map(|(_, b)| b.as_slice()).collect();
+        assert_eq!(bodies, [&b"s"[..], b"one", b"two", b"3"]);
+    }
+
+    /// The `mcap` crate's own walk overflows a counter on this chunk (CRC 0: not checked).
+    #[test]
+    fn a_record_overrunning_its_chunk_is_an_error_after_the_good_ones() {
+        let mut inner = record(op::MESSAGE, b"good");
+        let mut bad = record(op::MESSAGE, b"short");
+        bad[1..9].copy_from_slice(&55u64.to_le_bytes());
+        inner.extend_from_slice(&bad);
+        let c = chunk(&inner, 0, inner.len() as u64);
+        let (_p, mut f, len) = file(&[&c, &record(op::MESSAGE, b"after"), &footer()]);
+        let mut w = LinearWalk::new(1 << 20);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert_eq!(recs.len(), 1);
+        match fault {
+            Some(Fault::Corrupt(r)) => assert_eq!(
+                r,
+                "the record at byte 13 of the chunk's records (opcode 0x05) claims 55 bytes, \
+                 its chunk holds 5 more"
+            ),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(w.place(), Place::InChunk(1));
+        // the walk has ended
+        assert!(matches!(w.next(&mut f, len), Ok(None)));
+    }
+
+    #[test]
+    fn a_length_beyond_the_file_is_its_cut_without_a_buffer_of_that_size() {
+        let mut huge = record(op::MESSAGE, b"x");
+        huge[1..9].copy_from_slice(&((1u64 << 30) - 16).to_le_bytes());
+        let (_p, mut f, len) = file(&[&record(op::SCHEMA, b"s"), &huge]);
+        let mut w = LinearWalk::new(1 << 30);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert_eq!(recs.len(), 1);
+        assert!(
+            matches!(fault, Some(Fault::Mcap(McapError::UnexpectedEof))),
+            "{fault:?}"
+        );
+        assert!(w.body.capacity() < 4096, "{}", w.body.capacity());
+        assert_eq!(w.place(), Place::AfterChunk(0));
+    }
+
+    #[test]
+    fn a_record_over_the_limit_is_refused() {
+        let (_p, mut f, len) = file(&[&record(op::MESSAGE, &[0u8; 100]), &footer()]);
+        let mut w = LinearWalk::new(50);
+        let (_, fault) = walk_all(&mut w, &mut f, len);
+        assert!(
+            matches!(
+                fault,
+                Some(Fault::Mcap(McapError::RecordTooLarge {
+                    opcode: op::MESSAGE,
+                    len: 100
+                }))
+            ),
+            "{fault:?}"
+        );
+    }
+
+    #[test]
+    fn a_cut_chunk_yields_its_complete_records_then_the_cut() {
+        let inner = [
+            record(op::MESSAGE, b"one"),
+            record(op::MESSAGE, b"two"),
+            record(op::MESSAGE, b"three"),
+        ]
+        .concat();
+        let c = chunk(&inner, crc32fast::hash(&inner), inner.len() as u64);
+        // cut inside the third record
+        let cut = &c[..c.len() - 3];
+        let (_p, mut f, len) = file(&[cut]);
+        let mut w = LinearWalk::new(1 << 20);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        let bodies: Vec<&[u8]> = recs.iter().map(|(_, b)| b.as_slice()).collect();
+        assert_eq!(bodies, [&b"one"[..], b"two"]);
+        assert!(
+            matches!(fault, Some(Fault::Mcap(McapError::UnexpectedEof))),
+            "{fault:?}"
+        );
+        assert_eq!(w.place(), Place::InChunk(1));
+    }
+
+    #[test]
+    fn a_chunk_whose_size_or_crc_disagrees_is_refused_before_its_records() {
+        let inner = record(op::MESSAGE, b"one");
+        let c = chunk(&inner, crc32fast::hash(&inner) ^ 1, inner.len() as u64);
+        let (_p, mut f, len) = file(&[&c, &footer()]);
+        let (recs, fault) = walk_all(&mut LinearWalk::new(1 << 20), &mut f, len);
+        assert!(recs.is_empty());
+        assert!(
+            matches!(fault, Some(Fault::Mcap(McapError::BadChunkCrc { .. }))),
+            "{fault:?}"
+        );
+        let c = chunk(&inner, 0, 1 << 29);
+        let (_p, mut f, len) = file(&[&c, &footer()]);
+        let (recs, fault) = walk_all(&mut LinearWalk::new(1 << 30), &mut f, len);
+        assert!(recs.is_empty());
+        match fault {
+            Some(Fault::Corrupt(r)) => assert!(
+                r.contains("holds 12 bytes, its header declares 536870912"),
+                "{r}"
+            ),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    proptest! {
+        /// Any bytes after the magic: no panic, no buffer beyond the file, and the
+        /// walk ends.
+        #[test]
+        fn arbitrary_files_never_panic(tail in proptest::collection::vec(any::<u8>(), 0..400),
+                                       chunked in any::<bool>()) {
+            let bytes = if chunked { chunk(&tail, 0, tail.len() as u64) } else { tail.clone() };
+            let (_p, mut f, len) = file(&[&bytes]);
+            let mut w = LinearWalk::new(1 << 30);
+            for _ in 0..1000 {
+                match w.next(&mut f, len) {
+                    Ok(Some(_)) => {}
+                    Ok(None) | Err(_) => break,
+                }
+            }
+            prop_assert!(w.body.capacity() <= (len as usize).max(64) + HEAD);
+            prop_assert!(w.chunk.content.capacity() <= (len as usize).max(64));
+        }
+    }
+}
