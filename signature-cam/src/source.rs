@@ -37,6 +37,7 @@ use crate::image::GrayFrame;
 use crate::signature::FrameTime;
 use crate::Error;
 use std::path::{Path, PathBuf};
+use vlsync_common::text::clip;
 use vlsync_common::Nanos;
 
 /// A source of gray frames with their times.
@@ -63,9 +64,9 @@ pub fn parse_seconds(s: &str) -> Result<Nanos, String> {
     };
     let digits = |p: &str| p.bytes().all(|b| b.is_ascii_digit());
     if int.is_empty() && frac.is_empty() || !digits(int) || !digits(frac) {
-        return Err(format!("`{s}` is not a decimal number of seconds"));
+        return Err(format!("`{}` is not a decimal number of seconds", clip(s)));
     }
-    let overflow = || format!("`{s}` seconds is out of range");
+    let overflow = || format!("`{}` seconds is out of range", clip(s));
     let mut ns: i128 = 0;
     for b in int.bytes() {
         ns = ns * 10 + i128::from(b - b'0');
@@ -106,17 +107,26 @@ pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error
     let base = csv.parent().unwrap_or(Path::new(""));
     let mut out = Vec::new();
     let mut seen_data = false;
+    // a byte-order mark (as some spreadsheet exports write) is not part of the header
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let l = raw.trim();
-        if l.is_empty() || l.starts_with('#') {
-            continue;
-        }
         let err = |reason: String| Error::Parse {
             path: csv.to_path_buf(),
             line,
             reason,
         };
+        if l.contains('\r') {
+            return Err(err(
+                "a carriage return inside the line: CR-only line endings? (lines must end in \
+                 LF or CRLF)"
+                    .into(),
+            ));
+        }
+        if l.is_empty() || l.starts_with('#') {
+            continue;
+        }
         let fields: Vec<&str> = l.split(',').map(str::trim).collect();
         if !seen_data && fields[0] == "file" {
             seen_data = true;
@@ -142,7 +152,7 @@ pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error
             if duration_ns < 0 {
                 return Err(err(format!(
                     "field 4 (exposure_s): negative duration `{}`",
-                    fields[3]
+                    clip(fields[3])
                 )));
             }
             FrameTime::Exposure {
@@ -356,7 +366,15 @@ mod tests {
             ("a.png,1,x,0.1\n", 1, "exposure_start_s"),
             (",1\n", 1, "empty file name"),
             ("a.png,1\nfile,t_s\n", 2, "t_s"),
+            ("file,t_s\ra.png,1\r", 1, "CR-only line endings?"),
         ];
+        // a byte-order mark is not part of the header; a long value is quoted clipped
+        let e = parse_frames_csv("\u{feff}file,t_s\r\na.png,1.5\r\n", csv).unwrap();
+        assert_eq!(e.len(), 1);
+        assert_eq!(e[0].time, FrameTime::Instant(1_500_000_000));
+        let long = format!("a.png,{}\n", "7x".repeat(30_000));
+        let msg = parse_frames_csv(&long, csv).unwrap_err().to_string();
+        assert!(msg.len() < 200, "{} bytes", msg.len());
         for (text, line, what) in cases {
             let err = parse_frames_csv(text, csv).unwrap_err();
             let msg = err.to_string();

@@ -46,6 +46,10 @@ use std::fmt;
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read, Write};
 use std::path::Path;
+use vlsync_common::text::clip;
+
+/// Appended to an error about a carriage return inside a line.
+const CR_ONLY: &str = ": CR-only line endings? (lines must end in LF or CRLF)";
 use vlsync_common::Nanos;
 
 /// Longest accepted line, bytes.
@@ -98,12 +102,15 @@ pub fn parse_seconds(s: &str) -> Result<Nanos, String> {
     };
     let digits = |x: &str| x.bytes().all(|c| c.is_ascii_digit());
     if (int.is_empty() && frac.is_empty()) || !digits(int) || !digits(frac) {
-        return Err(format!("not a decimal number of seconds: {t:?}"));
+        return Err(format!("not a decimal number of seconds: {:?}", clip(t)));
     }
     if frac.len() > 9 {
-        return Err(format!("more than 9 decimals (finer than 1 ns) in {t:?}"));
+        return Err(format!(
+            "more than 9 decimals (finer than 1 ns) in {:?}",
+            clip(t)
+        ));
     }
-    let too_large = || format!("out of range for i64 nanoseconds: {t:?}");
+    let too_large = || format!("out of range for i64 nanoseconds: {:?}", clip(t));
     let mut ns: i64 = 0;
     for c in int.bytes() {
         ns = ns
@@ -206,7 +213,7 @@ impl<R: BufRead> CsvScanReader<R> {
         CsvError {
             source: self.source.clone(),
             line: self.line_no,
-            column: column.map(str::to_string),
+            column: column.map(clip),
             message,
         }
     }
@@ -224,7 +231,15 @@ impl<R: BufRead> CsvScanReader<R> {
                 return Ok(None);
             }
             if self.buf.len() > MAX_LINE_BYTES {
-                return Err(self.err(None, format!("line longer than {MAX_LINE_BYTES} bytes")));
+                let hint = if self.buf.contains(&b'\r') {
+                    CR_ONLY
+                } else {
+                    ""
+                };
+                return Err(self.err(
+                    None,
+                    format!("line longer than {MAX_LINE_BYTES} bytes{hint}"),
+                ));
             }
             let line = std::str::from_utf8(&self.buf).map_err(|e| {
                 self.err(
@@ -232,7 +247,15 @@ impl<R: BufRead> CsvScanReader<R> {
                     format!("not UTF-8 (byte {} of the line)", e.valid_up_to() + 1),
                 )
             })?;
+            // a byte-order mark (as some spreadsheet exports write) is not part of the header
+            let line = match self.line_no {
+                1 => line.strip_prefix('\u{feff}').unwrap_or(line),
+                _ => line,
+            };
             let line = line.trim();
+            if line.contains('\r') {
+                return Err(self.err(None, format!("a carriage return inside the line{CR_ONLY}")));
+            }
             if line.is_empty() || line.starts_with('#') {
                 continue;
             }
@@ -293,21 +316,21 @@ impl<R: BufRead> CsvScanReader<R> {
         let number = |i: usize, name: &str| {
             cells[i]
                 .parse::<f64>()
-                .map_err(|_| self.err(Some(name), format!("not a number: {:?}", cells[i])))
+                .map_err(|_| self.err(Some(name), format!("not a number: {:?}", clip(cells[i]))))
         };
         let start_ns = seconds(self.cols.scan_start, "scan_start_s")?;
         let period_ns = seconds(self.cols.period, "period_s")?;
         if period_ns <= 0 {
             return Err(self.err(
                 Some("period_s"),
-                format!("must be > 0, got {:?}", cells[self.cols.period]),
+                format!("must be > 0, got {:?}", clip(cells[self.cols.period])),
             ));
         }
         let bearing_deg = number(self.cols.bearing, "bearing_deg")?;
         if !bearing_deg.is_finite() {
             return Err(self.err(
                 Some("bearing_deg"),
-                format!("must be finite, got {:?}", cells[self.cols.bearing]),
+                format!("must be finite, got {:?}", clip(cells[self.cols.bearing])),
             ));
         }
         let range_m = number(self.cols.range, "range_m")?;
@@ -315,7 +338,7 @@ impl<R: BufRead> CsvScanReader<R> {
             Some(i) => Rotation::from_name(cells[i]).ok_or_else(|| {
                 self.err(
                     Some("rotation"),
-                    format!("expected `cw` or `ccw`, got {:?}", cells[i]),
+                    format!("expected `cw` or `ccw`, got {:?}", clip(cells[i])),
                 )
             })?,
             None => Rotation::Ccw,
@@ -326,7 +349,7 @@ impl<R: BufRead> CsvScanReader<R> {
                 if !v.is_finite() {
                     return Err(self.err(
                         Some("start_bearing_deg"),
-                        format!("must be finite, got {:?}", cells[i]),
+                        format!("must be finite, got {:?}", clip(cells[i])),
                     ));
                 }
                 v
@@ -344,7 +367,7 @@ impl<R: BufRead> CsvScanReader<R> {
                 other => {
                     return Err(self.err(
                         Some("valid"),
-                        format!("expected 1, 0, true or false, got {other:?}"),
+                        format!("expected 1, 0, true or false, got {:?}", clip(other)),
                     ))
                 }
             },
@@ -571,6 +594,10 @@ mod tests {
                 "scan_start_s,period_s,bearing_deg,range_m\n0,0.1,inf,1\n",
                 "t.csv:2: column `bearing_deg`: must be finite",
             ),
+            (
+                "scan_start_s,period_s,bearing_deg,range_m\r0,0.1,0,1\r",
+                "t.csv:1: a carriage return inside the line: CR-only line endings?",
+            ),
         ];
         for (text, want) in cases {
             let e = read(text).unwrap_err().to_string();
@@ -585,6 +612,30 @@ mod tests {
             .unwrap_err();
         assert_eq!(e.line, 2);
         assert!(e.message.contains("UTF-8"));
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_no_part_of_the_header_and_quoted_values_are_clipped() {
+        let text = "\u{feff}scan_start_s,period_s,bearing_deg,range_m\r\n0,0.1,0,1\r\n";
+        let scans: Vec<_> = read(text).unwrap();
+        assert_eq!(scans.len(), 1);
+        let long = "9x".repeat(30_000);
+        let e = read(&format!(
+            "scan_start_s,period_s,bearing_deg,range_m\n0,0.1,{long},1\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.len() < 200, "{} bytes: {}", e.len(), &e[..200]);
+        let e = read(&format!(
+            "scan_start_s,period_s,bearing_deg,range_m,{long}\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.len() < 300 && e.contains("unknown column"),
+            "{}",
+            &e[..300]
+        );
     }
 
     #[test]

@@ -207,6 +207,14 @@ fn parse_rows(
             )
         })?;
         let line = line.strip_suffix('\r').unwrap_or(line);
+        if line.contains('\r') {
+            return Err(err(
+                Some(lineno),
+                "a carriage return inside the line: CR-only line endings? (lines must end in \
+                 LF or CRLF)"
+                    .into(),
+            ));
+        }
         if idx == 0 {
             let first = line.split(',').next().unwrap_or("").trim();
             if first.is_empty() {
@@ -386,7 +394,12 @@ mod tests {
 
     #[test]
     fn errors_name_line_and_problem() {
-        let cases: [(&[u8], &str); 6] = [
+        let cases: [(&[u8], &str); 7] = [
+            (
+                b"t,value\r0.1,1.0\r0.2,1.5\r",
+                "f:1: a carriage return inside the line: CR-only line endings? (lines must end \
+                 in LF or CRLF)",
+            ),
             (
                 b"t,value\n0.1,x\n",
                 "f:2: column 2 (value): `x` is not a number",
