@@ -20,3 +20,24 @@ pub fn clip(s: &str) -> String {
         s.to_string()
     }
 }
+
+/// A number as an error quotes it: plain for everyday magnitudes (`0.01`, `3600`),
+/// in exponent form below 1e-3 and from 1e6 on, so an input such as 1e300 is not
+/// printed with 301 digits.
+///
+/// ```
+/// use vlsync_common::text::number;
+/// assert_eq!(number(0.01), "0.01");
+/// assert_eq!(number(3600.0), "3600");
+/// assert_eq!(number(1e300), "1e300");
+/// assert_eq!(number(-2.5e-9), "-2.5e-9");
+/// assert_eq!(number(0.0), "0");
+/// assert_eq!(number(f64::NAN), "NaN");
+/// ```
+pub fn number(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}

@@ -351,15 +351,9 @@ fn clip_toml_error(text: &str) -> String {
     out.join("\n")
 }
 
-/// A number for an error message: plain for everyday magnitudes (`0.01`, `3600`),
-/// in exponent form below 1e-3 and from 1e6 on (`1e-9`, `1e300`), so a limit such
-/// as 1e300 is not printed with 301 digits.
+/// A number for an error message (`vlsync_common::text::number`).
 fn num(v: f64) -> String {
-    if v != 0.0 && v.is_finite() && !(1e-3..1e6).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
-    }
+    vlsync_common::text::number(v)
 }
 
 impl Checker<'_> {

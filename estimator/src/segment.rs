@@ -452,6 +452,12 @@ impl Segment {
         }
         let last = span.last.min(corr.count().saturating_sub(1));
         let from = span.first + self.prep.next;
+        if from > last || corr.count() == 0 {
+            // the blocks it was preparing have left the window (a reset, a restore):
+            // nothing to prepare, the hop combines directly
+            self.prep.key = None;
+            return;
+        }
         let to = (from + PREP_BLOCKS - 1).min(last);
         for i in from..=to {
             let b = corr.block(i);
@@ -841,6 +847,23 @@ mod tests {
             moved_total > 0,
             "no block changed side: the test does not reach that path"
         );
+    }
+
+    /// A reset or a restore empties the block store while a preparation is under
+    /// way: the next stage drops it (it once computed its progress as `to + 1 -
+    /// first` with `to` below `first`, an overflow).
+    #[test]
+    fn a_preparation_whose_blocks_left_the_store_is_dropped() {
+        let mut c = store(0.0, None);
+        let fit = Some((35.0, (1.0, 0.0)));
+        let (full, pre, key) = hop_spans(&c, 5, (0.0, 0.0), (20, 50), fit);
+        let mut seg = Segment::new(61, 40);
+        assert!(seg.prepare_residuals(&c, &pre, key));
+        assert!(seg.preparing() && !seg.prepared_ready());
+        c.clear_blocks();
+        seg.prepare_sums(&c);
+        assert!(!seg.preparing());
+        assert!(seg.finish_prepared(&c, &full, &key).is_none());
     }
 
     #[test]

@@ -25,6 +25,7 @@ use crate::motion::Pose;
 use crate::scene::Scene;
 use crate::world::Surface;
 use crate::RenderError;
+use vlsync_common::text::number;
 
 /// Camera intrinsics, mounting and sensor parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -99,7 +100,10 @@ impl CameraConfig {
         ];
         for (field, v, lo, hi) in ranges {
             if !(v.is_finite() && v >= lo && v <= hi) {
-                return bad(field, format!("{v} is outside {lo}..={hi}"));
+                return bad(
+                    field,
+                    format!("{} is outside {}..={}", number(v), number(lo), number(hi)),
+                );
             }
         }
         if self.exposure_s >= 1.0 / self.fps {
@@ -338,6 +342,21 @@ mod tests {
 
     fn scene() -> Scene {
         Scene::new(Room::new(8.0, 5.0, 2.5).unwrap(), 3)
+    }
+
+    #[test]
+    fn a_range_error_quotes_a_huge_value_in_exponent_form() {
+        let e = CameraConfig {
+            fps: 1e300,
+            ..CameraConfig::default()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("camera.fps") && e.contains("1e300 is outside 1..=1000"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -18,6 +18,7 @@
 //! ```
 
 use crate::RenderError;
+use vlsync_common::text::number;
 use vlsync_common::{secs_to_nanos, Nanos};
 use vlsync_sim::Truth;
 
@@ -61,7 +62,7 @@ impl ClockConfig {
             } else {
                 Err(RenderError::config(
                     field,
-                    format!("{v} is outside {lo}..={hi}"),
+                    format!("{} is outside {}..={}", number(v), number(lo), number(hi)),
                 ))
             }
         };

@@ -72,6 +72,7 @@ use rand_distr::StandardNormal;
 use scene::Scene;
 use std::fmt;
 use std::path::PathBuf;
+use vlsync_common::text::number;
 use vlsync_common::{nanos_to_secs, secs_to_nanos, Nanos};
 use vlsync_sim::Truth;
 use world::{BoxObstacle, Room};
@@ -185,7 +186,7 @@ impl RenderConfig {
         if !(self.duration_s.is_finite() && (1.0..=3600.0).contains(&self.duration_s)) {
             return Err(RenderError::config(
                 "duration_s",
-                format!("{} is outside 1..=3600", self.duration_s),
+                format!("{} is outside 1..=3600", number(self.duration_s)),
             ));
         }
         if self.boxes > 8 {
@@ -197,7 +198,10 @@ impl RenderConfig {
         if !(0.0..0.5).contains(&self.frame_drop_probability) {
             return Err(RenderError::config(
                 "frame_drop_probability",
-                format!("{} is outside 0 <= p < 0.5", self.frame_drop_probability),
+                format!(
+                    "{} is outside 0 <= p < 0.5",
+                    number(self.frame_drop_probability)
+                ),
             ));
         }
         self.motion.validate()?;

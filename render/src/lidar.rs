@@ -24,6 +24,7 @@ use crate::world::Room;
 use crate::RenderError;
 use rand::Rng;
 use rand_distr::StandardNormal;
+use vlsync_common::text::number;
 use vlsync_signature_lidar::Rotation;
 
 /// LiDAR parameters.
@@ -86,7 +87,7 @@ impl LidarConfig {
             if !(v.is_finite() && v >= lo && v <= hi) {
                 return Err(RenderError::config(
                     field,
-                    format!("{v} is outside {lo}..={hi}"),
+                    format!("{} is outside {}..={}", number(v), number(lo), number(hi)),
                 ));
             }
         }

@@ -35,6 +35,7 @@ use crate::RenderError;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
+use vlsync_common::text::number;
 use vlsync_sim::families::DriveProfile;
 
 /// Integration step of the pose grid, seconds.
@@ -147,7 +148,7 @@ impl Trajectory {
         if !(duration_s.is_finite() && duration_s > 0.0 && duration_s <= 3600.0) {
             return Err(RenderError::config(
                 "duration_s",
-                format!("{duration_s} is outside (0, 3600]"),
+                format!("{} is outside (0, 3600]", number(duration_s)),
             ));
         }
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6d6f_7469_6f6e); // "motion"

@@ -15,6 +15,7 @@
 //! ```
 
 use crate::RenderError;
+use vlsync_common::text::number;
 
 /// An axis-aligned box standing on the floor.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -82,7 +83,7 @@ impl Room {
             if !(v.is_finite() && (0.5..=100.0).contains(&v)) {
                 return Err(RenderError::config(
                     field,
-                    format!("{v} m is outside 0.5..=100"),
+                    format!("{} m is outside 0.5..=100", number(v)),
                 ));
             }
         }
