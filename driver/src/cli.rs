@@ -136,6 +136,10 @@ pub struct Selected {
 /// How long a serial LiDAR may stay silent before the driver gives up.
 const SERIAL_SILENCE: std::time::Duration = std::time::Duration::from_secs(10);
 
+/// Serial rates `--baud` accepts (the LD06's 230400 and the RPLIDARs' 115200 to
+/// 1000000 among them).
+pub const BAUD_RANGE: std::ops::RangeInclusive<u32> = 1200..=4_000_000;
+
 /// Builds the source `args` select for `stream`; `stop` is polled by live sources while they wait.
 pub fn select_source(
     args: &DriverArgs,
@@ -232,6 +236,24 @@ pub fn select_source(
         return Err(DriverError::Options(
             "--baud applies to --ld06 and --rplidar only".into(),
         ));
+    }
+    if let Some(b) = args.baud {
+        // host stamps are corrected by the bytes' transfer time at this rate
+        if !BAUD_RANGE.contains(&b) {
+            return Err(DriverError::Options(format!(
+                "--baud {b} is outside {}..={}",
+                BAUD_RANGE.start(),
+                BAUD_RANGE.end()
+            )));
+        }
+    }
+    let live = ["--v4l2", "--ld06", "--rplidar"];
+    if live.contains(&flag) && (args.fast || args.speed.is_some()) {
+        return Err(DriverError::Options(format!(
+            "{} applies to recorded and simulated sources; {flag} is a live device, published \
+             as its data arrives",
+            if args.fast { "--fast" } else { "--speed" }
+        )));
     }
     let scan_flags = ["--render", "--mcap", "--scans", "--ld06", "--rplidar"];
     if args.opposite_window && !(stream == Stream::Lidar && scan_flags.contains(&flag)) {

@@ -331,6 +331,24 @@ fn option_errors_name_the_flags() {
     );
     let e = err(&["--render", "1", "--baud", "9600"], Stream::Lidar);
     assert!(e.contains("--baud"), "{e}");
+    // the transfer-time correction of host stamps needs a plausible rate
+    let e = err(&["--ld06", "/dev/ttyUSB0", "--baud", "1"], Stream::Lidar);
+    assert!(e.contains("--baud 1 is outside 1200..=4000000"), "{e}");
+    // a live device is published as its data arrives
+    for (extra, flag) in [
+        (&["--fast"][..], "--fast"),
+        (&["--speed", "2"][..], "--speed"),
+    ] {
+        let mut a = vec!["--ld06", "/dev/ttyUSB0"];
+        a.extend_from_slice(extra);
+        let e = err(&a, Stream::Lidar);
+        assert!(
+            e.contains(&format!(
+                "{flag} applies to recorded and simulated sources; --ld06 is a live device"
+            )),
+            "{e}"
+        );
+    }
     let e = err(&["--render", "1", "--duration", "0.1"], Stream::Lidar);
     assert!(e.contains("duration"), "{e}");
     // the rendered pair shares one anchor

@@ -111,21 +111,22 @@ pub fn parse_seconds(s: &str) -> Result<Nanos, String> {
         ));
     }
     let too_large = || format!("out of range for i64 nanoseconds: {:?}", clip(t));
-    let mut ns: i64 = 0;
+    // the magnitude in i128, so that i64::MIN (one more than i64::MAX) reads back
+    let mut ns: i128 = 0;
     for c in int.bytes() {
-        ns = ns
-            .checked_mul(10)
-            .and_then(|v| v.checked_add((c - b'0') as i64))
-            .ok_or_else(too_large)?;
+        ns = ns * 10 + i128::from(c - b'0');
+        if ns > i128::from(i64::MAX) / 1_000_000_000 + 1 {
+            return Err(too_large());
+        }
     }
-    ns = ns.checked_mul(1_000_000_000).ok_or_else(too_large)?;
-    let mut f: i64 = 0;
+    ns *= 1_000_000_000;
+    let mut f: i128 = 0;
     for i in 0..9 {
-        let d = frac.as_bytes().get(i).map_or(0, |c| (c - b'0') as i64);
+        let d = frac.as_bytes().get(i).map_or(0, |c| i128::from(c - b'0'));
         f = f * 10 + d;
     }
-    ns = ns.checked_add(f).ok_or_else(too_large)?;
-    Ok(if neg { -ns } else { ns })
+    ns += f;
+    Nanos::try_from(if neg { -ns } else { ns }).map_err(|_| too_large())
 }
 
 /// Formats nanoseconds as decimal seconds with 9 decimals (exact inverse of [`parse_seconds`]).
@@ -707,8 +708,10 @@ mod tests {
 
     proptest! {
         #[test]
-        fn seconds_roundtrip(ns in any::<i64>().prop_filter("not min", |v| *v != i64::MIN)) {
+        fn seconds_roundtrip(ns in any::<i64>()) {
             prop_assert_eq!(parse_seconds(&format_seconds(ns)), Ok(ns));
+            prop_assert_eq!(parse_seconds(&format_seconds(i64::MIN)), Ok(i64::MIN));
+            prop_assert_eq!(parse_seconds(&format_seconds(i64::MAX)), Ok(i64::MAX));
         }
 
         #[test]

@@ -56,14 +56,15 @@ pub struct TruthRow {
 impl TruthRow {
     /// Stamping error `stamp - event`, ns.
     pub fn delay_ns(&self) -> Nanos {
-        self.stamp_ns - self.event_ns
+        self.stamp_ns.saturating_sub(self.event_ns)
     }
 }
 
 /// Reads a truth file; errors name the file and line.
 pub fn read_truth_csv(path: &Path) -> Result<Vec<TruthRow>, String> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| format!("truth file {}: {e}", path.display()))?;
+    // a regular file only: a named pipe would block the read
+    let text = vlsync_common::file::read_regular_to_string(path)
+        .map_err(|e| format!("truth file {}: {e}", path.display()))?;
     parse_truth_csv(&text, &path.display().to_string())
 }
 
@@ -108,8 +109,9 @@ pub fn parse_truth_csv(text: &str, what: &str) -> Result<Vec<TruthRow>, String> 
             _ if !complete => break,
             _ => {
                 return Err(format!(
-                    "{what}:{}: expected 7 integers (seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns), got {l:?}",
-                    i + 1
+                    "{what}:{}: expected 7 integers (seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns), got {:?}",
+                    i + 1,
+                    vlsync_common::text::clip(l)
                 ))
             }
         }
@@ -141,7 +143,8 @@ impl Delays {
     /// Linear interpolation at `e`; the end values outside (within `reach`); `None` beyond.
     fn at(&self, e: Nanos, reach: Nanos) -> Option<f64> {
         let n = self.e.len();
-        if n == 0 || e < self.e[0] - reach || e > self.e[n - 1] + reach {
+        if n == 0 || e < self.e[0].saturating_sub(reach) || e > self.e[n - 1].saturating_add(reach)
+        {
             return None;
         }
         let i = self.e.partition_point(|&x| x <= e);
@@ -152,9 +155,9 @@ impl Delays {
             return Some(self.d[n - 1]);
         }
         let (e0, e1) = (self.e[i - 1], self.e[i]);
-        if e1 - e0 > reach {
+        if e1.saturating_sub(e0) > reach {
             // a gap: the nearer side
-            return Some(if e - e0 <= e1 - e {
+            return Some(if e.saturating_sub(e0) <= e1.saturating_sub(e) {
                 self.d[i - 1]
             } else {
                 self.d[i]
@@ -210,7 +213,11 @@ impl MeasuredTruth {
             o_sum.push(o_sum[o_sum.len() - 1] + v);
         }
         // the median camera sample spacing (the nominal frame period)
-        let mut gaps: Vec<Nanos> = cam.e.windows(2).map(|w| w[1] - w[0]).collect();
+        let mut gaps: Vec<Nanos> = cam
+            .e
+            .windows(2)
+            .map(|w| w[1].saturating_sub(w[0]))
+            .collect();
         gaps.sort_unstable();
         let cam_period_ns = gaps.get(gaps.len() / 2).copied().unwrap_or(1).max(1);
         Ok(Self {
@@ -228,9 +235,9 @@ impl MeasuredTruth {
     pub fn event_of_lidar(&self, t_l: Nanos) -> Option<Nanos> {
         // d_L is small and slow: one fixed-point step is exact to well below a ns
         let d0 = self.lidar.at(t_l, REACH_NS)?;
-        let e = t_l - (d0 * 1e9) as Nanos;
+        let e = t_l.saturating_sub((d0 * 1e9) as Nanos);
         let d = self.lidar.at(e, REACH_NS)?;
-        Some(t_l - (d * 1e9) as Nanos)
+        Some(t_l.saturating_sub((d * 1e9) as Nanos))
     }
 
     /// Instantaneous true offset at event time `e`, seconds.
@@ -240,7 +247,10 @@ impl MeasuredTruth {
 
     /// Mean of the instantaneous offset over the window centred on event `e`.
     pub fn smoothed_at_event(&self, e: Nanos) -> Option<f64> {
-        let (a, b) = (e - self.window_ns / 2, e + self.window_ns / 2);
+        let (a, b) = (
+            e.saturating_sub(self.window_ns / 2),
+            e.saturating_add(self.window_ns / 2),
+        );
         let i0 = self.o_e.partition_point(|&x| x < a);
         let i1 = self.o_e.partition_point(|&x| x <= b);
         let n = i1.saturating_sub(i0);
@@ -396,5 +406,18 @@ mod tests {
         let e = read_truth_csv(Path::new("/nonexistent/vlsync/t.csv")).unwrap_err();
         assert!(e.contains("/nonexistent/vlsync/t.csv"), "{e}");
         assert!(MeasuredTruth::new(&[], &[], 6.0).is_err());
+        // hostile values: extreme stamps score as nothing, never overflow
+        let e =
+            parse_truth_csv(&format!("{h}\n0,1,2,3,4,{}\n", "9".repeat(5000)), "f").unwrap_err();
+        assert!(e.len() < 300, "{} bytes", e.len());
+        let (lo, hi) = (i64::MIN, i64::MAX);
+        let text = format!("{h}\n0,0,{lo},{hi},0,0,0\n1,0,{hi},{lo},0,0,0\n2,0,0,0,0,0,0\n");
+        let rows = parse_truth_csv(&text, "f").unwrap();
+        assert_eq!(rows[0].delay_ns(), hi);
+        let m = MeasuredTruth::new(&rows, &rows, 6.0).unwrap();
+        for t in [lo, -1, 0, 1, hi] {
+            let _ = m.offset_at(t);
+            let _ = m.instant_at_event(t);
+        }
     }
 }
