@@ -20,24 +20,31 @@ fn python_has_iceoryx2() -> bool {
         .is_ok_and(|o| o.status.success())
 }
 
-#[test]
-fn python_subscriber_reads_live_estimates() {
+/// The subscriber script, or `None` (the test skips) when the interpreter lacks the
+/// iceoryx2 package outside `scripts/test.sh`; under it (`VLSYNC_REQUIRE_PYTHON`),
+/// which installed the package, a missing one fails the test.
+fn subscriber_or_skip(test: &str) -> Option<std::path::PathBuf> {
     if !python_has_iceoryx2() {
-        // the suite's script installed the package: not finding it is a failure there
         assert!(
             std::env::var_os("VLSYNC_REQUIRE_PYTHON").is_none(),
             "{} cannot import iceoryx2, although scripts/test.sh installed it",
             python()
         );
         eprintln!(
-            "SKIPPED python_subscriber_reads_live_estimates: {} cannot import iceoryx2 \
+            "SKIPPED {test}: {} cannot import iceoryx2 \
              (pip install -r examples/python/requirements.txt)",
             python()
         );
-        return;
+        return None;
     }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/vlsync_subscriber.py");
+    Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/vlsync_subscriber.py"))
+}
+
+#[test]
+fn python_subscriber_reads_live_estimates() {
+    let Some(script) = subscriber_or_skip("python_subscriber_reads_live_estimates") else {
+        return;
+    };
     let rig = Rig::new("python", "robot", 3, 40.0, 5.0);
     let mut daemon = rig.daemon(0);
     let mut cam = rig.driver(Stream::Cam, 0);
@@ -89,17 +96,9 @@ fn python_subscriber_reads_live_estimates() {
 /// status 2 with one line naming the service, not a traceback.
 #[test]
 fn python_subscriber_reports_an_iceoryx2_error() {
-    if !python_has_iceoryx2() {
-        assert!(
-            std::env::var_os("VLSYNC_REQUIRE_PYTHON").is_none(),
-            "{} cannot import iceoryx2, although scripts/test.sh installed it",
-            python()
-        );
-        eprintln!("SKIPPED python_subscriber_reports_an_iceoryx2_error: no iceoryx2 package");
+    let Some(script) = subscriber_or_skip("python_subscriber_reports_an_iceoryx2_error") else {
         return;
-    }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/vlsync_subscriber.py");
+    };
     let prefix = "x".repeat(300);
     let out = Command::new("timeout")
         .arg("30")
