@@ -109,20 +109,37 @@ pub(crate) enum ChunkError {
 /// header (or chunk index) declares, at most `limit`, without keeping the output:
 /// the indexed reader sizes its buffer by that declaration, so it is checked
 /// before the reader sees the chunk (a lie costs one decode, not the memory).
+/// Returns the CRC-32 of the decoded records, for the chunk header's CRC.
 pub(crate) fn check_size(
     compression: &str,
     src: &[u8],
     uncompressed_size: u64,
     limit: usize,
-) -> Result<(), ChunkError> {
+) -> Result<u32, ChunkError> {
     if compression.is_empty() {
-        return Ok(());
+        exact(src.len() as u64, uncompressed_size, "uncompressed")?;
+        return Ok(crc32fast::hash(src));
     }
     let c = codec(compression).ok_or_else(|| ChunkError::Unsupported(compression.to_string()))?;
     let cap = declared_within(uncompressed_size, limit)?;
-    let n = decode_all(c, src, &mut std::io::sink(), cap)
-        .map_err(|e| declared_err(e, compression, cap))?;
-    exact(n, uncompressed_size, compression)
+    let mut crc = CrcSink(crc32fast::Hasher::new());
+    let n = decode_all(c, src, &mut crc, cap).map_err(|e| declared_err(e, compression, cap))?;
+    exact(n, uncompressed_size, compression)?;
+    Ok(crc.0.finalize())
+}
+
+/// A writer that keeps only the CRC of what it is given.
+struct CrcSink(crc32fast::Hasher);
+
+impl Write for CrcSink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.update(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// The records of a chunk, decoded into `out` (cleared first): a copy of `src` when
@@ -342,7 +359,10 @@ mod tests {
         let data: Vec<u8> = (0..5000u32).map(|i| (i % 7) as u8).collect();
         for (name, src) in [("zstd", zstd(&data)), ("lz4", lz4(&data))] {
             let n = data.len() as u64;
-            assert_eq!(check_size(name, &src, n, 1 << 20), Ok(()));
+            assert_eq!(
+                check_size(name, &src, n, 1 << 20),
+                Ok(crc32fast::hash(&data))
+            );
             let mut out = Vec::new();
             assert_eq!(decode_chunk(name, &src, n, 1 << 20, &mut out), Ok(()));
             assert_eq!(out, data);
@@ -386,6 +406,7 @@ mod tests {
         }
         let mut out = Vec::new();
         assert_eq!(decode_chunk("", b"abc", 3, 10, &mut out), Ok(()));
+        assert_eq!(check_size("", b"abc", 3, 10), Ok(crc32fast::hash(b"abc")));
         assert_eq!(
             decode_chunk("", b"abc", 4, 10, &mut out),
             Err(ChunkError::Corrupt(

@@ -554,31 +554,24 @@ impl McapReader {
                             mcap_err(path, format!("{at}, reading the chunk at byte {offset}"), e)
                         })?;
                         if let Some((start, compression, size)) = chunks.get(&offset) {
-                            if compression.is_empty() {
-                                check_chunk_crc(file, *start, chunk_buf).map_err(|e| {
-                                    mcap_err(path, format!("{at}, chunk at byte {start}"), e)
+                            // the reader sizes its buffer by the declared size and checks no
+                            // CRC: both are checked here first
+                            let at = format!("{at}, chunk at byte {start}");
+                            let crc = decompress::check_size(compression, chunk_buf, *size, *limit)
+                                .map_err(|f| match f {
+                                    decompress::ChunkError::Unsupported(c) => mcap_err(
+                                        path,
+                                        at.clone(),
+                                        McapError::UnsupportedCompression(c),
+                                    ),
+                                    decompress::ChunkError::Corrupt(reason) => Error::Corrupt {
+                                        path: path.to_path_buf(),
+                                        at: at.clone(),
+                                        reason,
+                                    },
                                 })?;
-                            } else {
-                                // the reader sizes its buffer by the declared size: check it first
-                                decompress::check_size(compression, chunk_buf, *size, *limit)
-                                    .map_err(|f| {
-                                        let at = format!("{at}, chunk at byte {start}");
-                                        match f {
-                                            decompress::ChunkError::Unsupported(c) => mcap_err(
-                                                path,
-                                                at,
-                                                McapError::UnsupportedCompression(c),
-                                            ),
-                                            decompress::ChunkError::Corrupt(reason) => {
-                                                Error::Corrupt {
-                                                    path: path.to_path_buf(),
-                                                    at,
-                                                    reason,
-                                                }
-                                            }
-                                        }
-                                    })?;
-                            }
+                            check_chunk_crc(file, *start, crc)
+                                .map_err(|e| mcap_err(path, at.clone(), e))?;
                         }
                         reader
                             .insert_chunk_record_data(offset, chunk_buf)
@@ -686,9 +679,10 @@ fn read_chunk(
     Ok(())
 }
 
-/// Checks an uncompressed chunk's data against the CRC in its record header
-/// (the indexed reader does not see that header). A CRC of 0 means "not computed".
-fn check_chunk_crc(file: &mut File, chunk_start: u64, data: &[u8]) -> Result<(), McapError> {
+/// Checks a chunk's records (their CRC-32, `calculated`) against the CRC in its
+/// record header, which the indexed reader does not see. A CRC of 0 means "not
+/// computed".
+fn check_chunk_crc(file: &mut File, chunk_start: u64, calculated: u32) -> Result<(), McapError> {
     // opcode, record length, start time, end time, uncompressed size, CRC
     let mut head = [0u8; 1 + 8 + 8 + 8 + 8 + 4];
     file.seek(SeekFrom::Start(chunk_start))?;
@@ -697,11 +691,8 @@ fn check_chunk_crc(file: &mut File, chunk_start: u64, data: &[u8]) -> Result<(),
         return Err(McapError::BadIndex);
     }
     let saved = u32::from_le_bytes([head[33], head[34], head[35], head[36]]);
-    if saved != 0 {
-        let calculated = crc32fast::hash(data);
-        if calculated != saved {
-            return Err(McapError::BadChunkCrc { saved, calculated });
-        }
+    if saved != 0 && calculated != saved {
+        return Err(McapError::BadChunkCrc { saved, calculated });
     }
     Ok(())
 }

@@ -610,6 +610,37 @@ fn write_compressed_recording(path: &std::path::Path, compression: mcap::Compres
     w.finish().unwrap();
 }
 
+/// The CRC in a compressed chunk's header is checked, read through the index (the
+/// `mcap` crate's indexed reader checks none) and linearly.
+#[test]
+fn a_compressed_chunk_with_a_wrong_crc_is_refused() {
+    for name in ["zstd", "lz4"] {
+        let mut bytes = std::fs::read(fixture(name)).unwrap();
+        // the first chunk record at the top level (after the 8-byte magic)
+        let mut at = 8;
+        while bytes[at] != 0x06 {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap());
+            at += 9 + len as usize;
+        }
+        // opcode, length, start, end, uncompressed size, then the CRC
+        bytes[at + 33] ^= 0x5A;
+        let bad = Tmp::new(&format!("{name}-crc"));
+        std::fs::write(&bad.0, &bytes).unwrap();
+        let cut = Tmp::new(&format!("{name}-crc-cut"));
+        std::fs::write(&cut.0, &bytes[..bytes.len() - 200]).unwrap();
+        for (path, indexed) in [(&bad.0, true), (&cut.0, false)] {
+            let (n, err) = drain(path);
+            let err =
+                err.unwrap_or_else(|| panic!("{name} indexed {indexed}: no error, {n} frames"));
+            assert!(
+                err.contains("Chunk CRC failed"),
+                "{name} indexed {indexed}: {err}"
+            );
+            assert!(n < 8, "{name} {n}");
+        }
+    }
+}
+
 #[test]
 fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
     for name in ["zstd", "lz4"] {
