@@ -116,15 +116,16 @@ pub(crate) fn check_size(
     uncompressed_size: u64,
     limit: usize,
 ) -> Result<u32, ChunkError> {
+    const BY: &str = "its chunk index";
     if compression.is_empty() {
-        exact(src.len() as u64, uncompressed_size, "uncompressed")?;
+        exact(src.len() as u64, uncompressed_size, "uncompressed", BY)?;
         return Ok(crc32fast::hash(src));
     }
     let c = codec(compression).ok_or_else(|| ChunkError::Unsupported(compression.to_string()))?;
-    let cap = declared_within(uncompressed_size, limit)?;
+    let cap = declared_within(uncompressed_size, limit, BY)?;
     let mut crc = CrcSink(crc32fast::Hasher::new());
-    let n = decode_all(c, src, &mut crc, cap).map_err(|e| declared_err(e, compression, cap))?;
-    exact(n, uncompressed_size, compression)?;
+    let n = decode_all(c, src, &mut crc, cap).map_err(|e| declared_err(e, compression, cap, BY))?;
+    exact(n, uncompressed_size, compression, BY)?;
     Ok(crc.0.finalize())
 }
 
@@ -143,8 +144,9 @@ impl Write for CrcSink {
 }
 
 /// The records of a chunk, decoded into `out` (cleared first): a copy of `src` when
-/// uncompressed, else its frames, which must hold exactly `uncompressed_size` bytes
-/// (at most `limit`).
+/// uncompressed (whatever its header's uncompressed size says: the records are
+/// there, and the buffer is no bigger than they are), else its frames, which must
+/// hold exactly `uncompressed_size` bytes (at most `limit`).
 pub(crate) fn decode_chunk(
     compression: &str,
     src: &[u8],
@@ -152,15 +154,15 @@ pub(crate) fn decode_chunk(
     limit: usize,
     out: &mut Vec<u8>,
 ) -> Result<(), ChunkError> {
+    const BY: &str = "its header";
     out.clear();
     if compression.is_empty() {
-        exact(src.len() as u64, uncompressed_size, "uncompressed")?;
         out.extend_from_slice(src);
         return Ok(());
     }
     let c = codec(compression).ok_or_else(|| ChunkError::Unsupported(compression.to_string()))?;
-    let cap = declared_within(uncompressed_size, limit)?;
-    let r = decode_all(c, src, out, cap).map_err(|e| declared_err(e, compression, cap));
+    let cap = declared_within(uncompressed_size, limit, BY)?;
+    let r = decode_all(c, src, out, cap).map_err(|e| declared_err(e, compression, cap, BY));
     let n = match r {
         Ok(n) => n,
         Err(e) => {
@@ -168,32 +170,32 @@ pub(crate) fn decode_chunk(
             return Err(e);
         }
     };
-    exact(n, uncompressed_size, compression)
+    exact(n, uncompressed_size, compression, BY)
 }
 
-fn declared_within(uncompressed_size: u64, limit: usize) -> Result<u64, ChunkError> {
+fn declared_within(uncompressed_size: u64, limit: usize, by: &str) -> Result<u64, ChunkError> {
     if uncompressed_size > limit as u64 {
         return Err(ChunkError::Corrupt(format!(
-            "the chunk declares {uncompressed_size} uncompressed bytes, over the limit of {limit}"
+            "{by} declares {uncompressed_size} uncompressed bytes, over the limit of {limit}"
         )));
     }
     Ok(uncompressed_size)
 }
 
-fn declared_err(e: String, compression: &str, cap: u64) -> ChunkError {
+fn declared_err(e: String, compression: &str, cap: u64, by: &str) -> ChunkError {
     if e.starts_with("decompressed chunk exceeds") {
         ChunkError::Corrupt(format!(
-            "the {compression} chunk decodes to more than the {cap} bytes its header declares"
+            "the {compression} chunk decodes to more than the {cap} bytes {by} declares"
         ))
     } else {
         ChunkError::Corrupt(format!("{compression}: {e}"))
     }
 }
 
-fn exact(n: u64, declared: u64, what: &str) -> Result<(), ChunkError> {
+fn exact(n: u64, declared: u64, what: &str, by: &str) -> Result<(), ChunkError> {
     if n != declared {
         return Err(ChunkError::Corrupt(format!(
-            "the {what} chunk holds {n} bytes, its header declares {declared}"
+            "the {what} chunk holds {n} bytes, {by} declares {declared}"
         )));
     }
     Ok(())
@@ -366,38 +368,36 @@ mod tests {
             let mut out = Vec::new();
             assert_eq!(decode_chunk(name, &src, n, 1 << 20, &mut out), Ok(()));
             assert_eq!(out, data);
-            // a header that lies either way, or declares more than the limit
+            // a header (or chunk index) that lies either way, or declares more than the limit
             for (declared, limit, want) in [
                 (
                     n + 1,
                     1 << 20,
-                    format!("the {name} chunk holds 5000 bytes, its header declares 5001"),
+                    format!("the {name} chunk holds 5000 bytes, BY declares 5001"),
                 ),
                 (
                     n - 1,
                     1 << 20,
-                    format!(
-                        "the {name} chunk decodes to more than the 4999 bytes its header declares"
-                    ),
+                    format!("the {name} chunk decodes to more than the 4999 bytes BY declares"),
                 ),
                 (
                     (1 << 30) - 1,
                     1 << 30,
-                    format!("the {name} chunk holds 5000 bytes, its header declares 1073741823"),
+                    format!("the {name} chunk holds 5000 bytes, BY declares 1073741823"),
                 ),
                 (
                     n,
                     100,
-                    "the chunk declares 5000 uncompressed bytes, over the limit of 100".to_string(),
+                    "BY declares 5000 uncompressed bytes, over the limit of 100".to_string(),
                 ),
             ] {
                 assert_eq!(
                     check_size(name, &src, declared, limit),
-                    Err(ChunkError::Corrupt(want.clone()))
+                    Err(ChunkError::Corrupt(want.replace("BY", "its chunk index")))
                 );
                 assert_eq!(
                     decode_chunk(name, &src, declared, limit, &mut out),
-                    Err(ChunkError::Corrupt(want))
+                    Err(ChunkError::Corrupt(want.replace("BY", "its header")))
                 );
                 assert!(out.is_empty() || out.len() as u64 == n.min(declared));
                 // the output never grew toward the declared size
@@ -407,10 +407,13 @@ mod tests {
         let mut out = Vec::new();
         assert_eq!(decode_chunk("", b"abc", 3, 10, &mut out), Ok(()));
         assert_eq!(check_size("", b"abc", 3, 10), Ok(crc32fast::hash(b"abc")));
+        // uncompressed: the records are what the chunk holds, whatever its header says
+        assert_eq!(decode_chunk("", b"abc", 4, 10, &mut out), Ok(()));
+        assert_eq!(out, b"abc");
         assert_eq!(
-            decode_chunk("", b"abc", 4, 10, &mut out),
+            check_size("", b"abc", 4, 10),
             Err(ChunkError::Corrupt(
-                "the uncompressed chunk holds 3 bytes, its header declares 4".into()
+                "the uncompressed chunk holds 3 bytes, its chunk index declares 4".into()
             ))
         );
         assert_eq!(

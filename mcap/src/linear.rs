@@ -7,10 +7,15 @@
 //! is checked against what holds it:
 //!
 //! * a top-level record may claim at most the bytes the file has left (a longer
-//!   claim is the cut of a truncated file, never a buffer of that size) and at
+//!   claim is the cut of a truncated file, or corruption when the file ends with
+//!   the magic as a whole recording does; never a buffer of that size) and at
 //!   most [`crate::ReaderOptions::max_record_bytes`];
-//! * a chunk is decoded whole ([`crate::decompress`]), must hold exactly the
-//!   uncompressed size its header declares, and its CRC (when not 0) is checked
+//! * the walk ends only at a footer of a footer's 20 bytes followed by the magic
+//!   (a record whose opcode was flipped to the footer's is corruption, a cut in
+//!   the last bytes is a truncation);
+//! * a chunk is decoded whole ([`crate::decompress`]); a compressed one must hold
+//!   exactly the uncompressed size its header declares (an uncompressed one is
+//!   what it holds, its buffer no bigger), and its CRC (when not 0) is checked
 //!   before any of its records is used;
 //! * a record inside a chunk may claim at most what its chunk has left: a longer
 //!   claim is an error naming the record's place in the chunk (the `mcap` crate's
@@ -30,6 +35,8 @@ use std::io::{Read, Seek, SeekFrom};
 
 /// opcode and length of a record
 const HEAD: usize = 9;
+/// a footer's body: summary start, summary offset start, summary CRC
+const FOOTER_BODY: usize = 8 + 8 + 4;
 /// a chunk record's fixed fields before its compression string: start and end
 /// time, uncompressed size, CRC
 const CHUNK_FIXED: usize = 8 + 8 + 8 + 4;
@@ -148,6 +155,8 @@ pub(crate) struct LinearWalk {
     cut: bool,
     /// whether the last record or fault came from inside chunk `chunks`
     inside: bool,
+    /// whether the file ends with the magic (`None`: not read yet)
+    ends_with_magic: Option<bool>,
 }
 
 impl LinearWalk {
@@ -162,6 +171,7 @@ impl LinearWalk {
             chunks: 0,
             cut: false,
             inside: false,
+            ends_with_magic: None,
         }
     }
 
@@ -244,13 +254,34 @@ impl LinearWalk {
             let len = u64::from_le_bytes(le8(&head[1..]));
             let body_left = left - HEAD as u64;
             if opcode == op::FOOTER {
+                // the footer is 20 bytes and the magic follows it: anything else is a
+                // corrupt record (say, a chunk's opcode flipped) or a cut in the last bytes
+                let end = self.pos + (HEAD + FOOTER_BODY + 8) as u64;
+                if len != FOOTER_BODY as u64 {
+                    return Err(Fault::Corrupt(format!(
+                        "the footer at byte {} claims {len} bytes, a footer has {FOOTER_BODY}",
+                        self.pos
+                    )));
+                }
+                if end > file_len {
+                    return Err(Fault::Mcap(McapError::UnexpectedEof));
+                }
+                let mut magic = [0u8; 8];
+                read_at(file, end - 8, &mut magic)?;
+                if magic[..] != *mcap::MAGIC {
+                    return Err(Fault::Mcap(McapError::BadMagic));
+                }
                 self.ended = true;
                 return Ok(false);
             }
+            if opcode == op::CHUNK {
+                // numbered before any check, so a fault names this chunk
+                self.chunks += 1;
+                self.inside = true;
+            }
             if len > body_left {
-                if opcode == op::CHUNK {
+                if opcode == op::CHUNK && !self.complete(file, file_len)? {
                     // a chunk cut by the end of the file: its complete records first
-                    self.chunks += 1;
                     let n = usize::try_from(body_left)
                         .unwrap_or(usize::MAX)
                         .min(self.limit);
@@ -259,6 +290,14 @@ impl LinearWalk {
                     self.cut = true;
                     self.pos = file_len;
                     continue;
+                }
+                if self.complete(file, file_len)? {
+                    // the file ends as a whole recording does: this length is corrupt
+                    return Err(Fault::Corrupt(format!(
+                        "the record at byte {} (opcode {opcode:#04x}) claims {len} bytes, the \
+                         file has {body_left} more",
+                        self.pos
+                    )));
                 }
                 return Err(Fault::Mcap(McapError::UnexpectedEof));
             }
@@ -270,13 +309,24 @@ impl LinearWalk {
             self.read_body(file, head, n)?;
             self.pos += HEAD as u64 + len;
             if opcode == op::CHUNK {
-                self.chunks += 1;
-                self.inside = true;
                 self.load_chunk()?;
                 continue;
             }
             return Ok(true);
         }
+    }
+
+    /// Whether the file ends with the magic, as a whole recording does (read once).
+    fn complete(&mut self, file: &mut File, file_len: u64) -> Result<bool, Fault> {
+        if self.ends_with_magic.is_none() {
+            let mut tail = [0u8; 8];
+            let ok = file_len >= 16 && {
+                read_at(file, file_len - 8, &mut tail)?;
+                tail[..] == *mcap::MAGIC
+            };
+            self.ends_with_magic = Some(ok);
+        }
+        Ok(self.ends_with_magic == Some(true))
     }
 
     /// Reads a record's header and `n` bytes of its body into `body`.
@@ -532,17 +582,72 @@ mod tests {
             matches!(fault, Some(Fault::Mcap(McapError::BadChunkCrc { .. }))),
             "{fault:?}"
         );
+        // uncompressed, the records are what the chunk holds, whatever its header's
+        // uncompressed size says (the buffer is never bigger than they are)
         let c = chunk(&inner, 0, 1 << 29);
         let (_p, mut f, len) = file(&[&c, &footer()]);
-        let (recs, fault) = walk_all(&mut LinearWalk::new(1 << 30), &mut f, len);
+        let mut w = LinearWalk::new(1 << 30);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert_eq!(recs.len(), 1);
+        assert!(fault.is_none(), "{fault:?}");
+        assert!(w.chunk.content.capacity() < 4096);
+    }
+
+    #[test]
+    fn the_end_is_a_whole_footer_and_the_magic() {
+        let one = record(op::MESSAGE, b"one");
+        let whole = footer();
+        // a flipped opcode that reads as a footer: its length is not a footer's
+        let mut flipped = chunk(&one, 0, one.len() as u64);
+        flipped[0] = op::FOOTER;
+        let (_p, mut f, len) = file(&[&one, &flipped, &one, &whole]);
+        let (recs, fault) = walk_all(&mut LinearWalk::new(1 << 20), &mut f, len);
+        assert_eq!(recs.len(), 1);
+        match fault {
+            Some(Fault::Corrupt(r)) => assert!(r.contains("a footer has 20"), "{r}"),
+            other => panic!("{other:?}"),
+        }
+        // cut anywhere in the footer or the magic after it
+        for cut in 1..whole.len() {
+            let (_p, mut f, len) = file(&[&one, &whole[..cut]]);
+            let (recs, fault) = walk_all(&mut LinearWalk::new(1 << 20), &mut f, len);
+            assert_eq!(recs.len(), 1);
+            assert!(
+                matches!(fault, Some(Fault::Mcap(McapError::UnexpectedEof))),
+                "{cut}: {fault:?}"
+            );
+        }
+        // the magic replaced
+        let mut bad = whole.clone();
+        let n = bad.len();
+        bad[n - 1] ^= 1;
+        let (_p, mut f, len) = file(&[&one, &bad]);
+        let (_, fault) = walk_all(&mut LinearWalk::new(1 << 20), &mut f, len);
+        assert!(
+            matches!(fault, Some(Fault::Mcap(McapError::BadMagic))),
+            "{fault:?}"
+        );
+    }
+
+    /// In a file that ends as a whole recording does, a length past its end is
+    /// corruption, not a cut: no records of that chunk are used.
+    #[test]
+    fn a_length_past_the_end_of_a_whole_file_is_corrupt() {
+        let inner = record(op::MESSAGE, b"one");
+        let mut c = chunk(&inner, 0, inner.len() as u64);
+        c[1..9].copy_from_slice(&(1u64 << 20).to_le_bytes());
+        let (_p, mut f, len) = file(&[&c, &footer()]);
+        let mut w = LinearWalk::new(1 << 30);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
         assert!(recs.is_empty());
         match fault {
             Some(Fault::Corrupt(r)) => assert!(
-                r.contains("holds 12 bytes, its header declares 536870912"),
+                r.contains("(opcode 0x06) claims 1048576 bytes, the file has"),
                 "{r}"
             ),
             other => panic!("{other:?}"),
         }
+        assert_eq!(w.place(), Place::InChunk(1));
     }
 
     proptest! {

@@ -418,21 +418,41 @@ impl McapReader {
                     .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
                 decompress::register_indexed(&mut reader, opts.max_record_bytes)
                     .map_err(|e| mcap_err(&path, "opening", e))?;
-                let chunks = s
-                    .chunk_indexes
-                    .iter()
-                    .filter_map(|c| {
-                        let off = c.compressed_data_offset().ok()?;
-                        Some((
-                            off,
-                            (
-                                c.chunk_start_offset,
-                                c.compression.clone(),
-                                c.uncompressed_size,
-                            ),
-                        ))
-                    })
-                    .collect();
+                // the checks before a chunk is handed to the reader use these entries: two
+                // indexes of one chunk that disagree would let one pass the check and the
+                // other size the reader's buffer
+                let mut chunks: BTreeMap<u64, (u64, String, u64)> = BTreeMap::new();
+                for c in &s.chunk_indexes {
+                    let Ok(off) = c.compressed_data_offset() else {
+                        continue;
+                    };
+                    let entry = (
+                        c.chunk_start_offset,
+                        c.compression.clone(),
+                        c.uncompressed_size,
+                    );
+                    match chunks.get(&off) {
+                        Some(seen) if *seen != entry => {
+                            return Err(Error::Corrupt {
+                                path,
+                                at: "in the summary's chunk indexes".into(),
+                                reason: format!(
+                                    "two indexes of the chunk at byte {} disagree \
+                                     (uncompressed size {} and {}, compression `{}` and `{}`)",
+                                    c.chunk_start_offset,
+                                    seen.2,
+                                    entry.2,
+                                    vlsync_common::text::clip(&seen.1),
+                                    vlsync_common::text::clip(&entry.1)
+                                ),
+                            })
+                        }
+                        Some(_) => {}
+                        None => {
+                            chunks.insert(off, entry);
+                        }
+                    }
+                }
                 Mode::Indexed {
                     reader: Box::new(reader),
                     chunks,

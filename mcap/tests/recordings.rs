@@ -641,6 +641,59 @@ fn a_compressed_chunk_with_a_wrong_crc_is_refused() {
     }
 }
 
+/// A summary with two indexes of one chunk that disagree (the first, earliest in log
+/// time, declaring 1 GiB uncompressed) is refused at open: the size check must see
+/// the index the reader uses.
+#[test]
+fn conflicting_indexes_of_one_chunk_are_refused() {
+    for name in ["zstd", "lz4"] {
+        let bytes = std::fs::read(fixture(name)).unwrap();
+        // the top-level records after the magic, up to the end magic
+        let mut recs: Vec<(u8, Vec<u8>)> = vec![];
+        let mut at = 8;
+        while at + 9 <= bytes.len() - 8 {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            recs.push((bytes[at], bytes[at + 9..at + 9 + len].to_vec()));
+            at += 9 + len;
+        }
+        let mut out = mcap::MAGIC.to_vec();
+        let mut lied = false;
+        for (op, mut body) in recs {
+            if op == 0x08 && !lied {
+                // chunk index: message start time first, uncompressed size last
+                let mut liar = body.clone();
+                liar[..8].copy_from_slice(&0u64.to_le_bytes());
+                let n = liar.len();
+                liar[n - 8..].copy_from_slice(&((1u64 << 30) - 1).to_le_bytes());
+                out.push(0x08);
+                out.extend_from_slice(&(liar.len() as u64).to_le_bytes());
+                out.extend_from_slice(&liar);
+                lied = true;
+            }
+            if op == 0x02 {
+                // footer: no summary offsets, no summary CRC (the summary moved)
+                body[8..20].fill(0);
+            }
+            out.push(op);
+            out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+            out.extend_from_slice(&body);
+        }
+        out.extend_from_slice(mcap::MAGIC);
+        assert!(lied);
+        let bad = Tmp::new(&format!("{name}-dup-index"));
+        std::fs::write(&bad.0, &out).unwrap();
+        let e = McapImageSource::open(&bad.0, ImageSourceOptions::topic("/cam"))
+            .err()
+            .unwrap_or_else(|| panic!("{name}: opened"))
+            .to_string();
+        assert!(
+            e.contains("two indexes of the chunk at byte")
+                && e.contains("uncompressed size 1073741823 and"),
+            "{name}: {e}"
+        );
+    }
+}
+
 #[test]
 fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
     for name in ["zstd", "lz4"] {
