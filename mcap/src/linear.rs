@@ -157,6 +157,59 @@ pub(crate) struct LinearWalk {
     inside: bool,
     /// whether the file ends with the magic (`None`: not read yet)
     ends_with_magic: Option<bool>,
+    ahead: Ahead,
+}
+
+/// Bytes read ahead at once: a file of small records (an unchunked recording) is
+/// read in a few large reads instead of two small ones per record.
+const AHEAD: usize = 64 * 1024;
+
+/// A read-ahead window over the file (allocated once, with the walk).
+#[derive(Debug)]
+struct Ahead {
+    start: u64,
+    len: usize,
+    buf: Box<[u8]>,
+}
+
+impl Ahead {
+    fn new() -> Self {
+        Self {
+            start: 0,
+            len: 0,
+            buf: vec![0; AHEAD].into_boxed_slice(),
+        }
+    }
+
+    /// Fills `out` with the file's bytes at `pos`: from the window when it holds
+    /// them, else a large request directly, else the window refilled from `pos`.
+    fn read(
+        &mut self,
+        file: &mut File,
+        file_len: u64,
+        pos: u64,
+        out: &mut [u8],
+    ) -> Result<(), Fault> {
+        let want = out.len() as u64;
+        let held = pos >= self.start && pos - self.start + want <= self.len as u64;
+        if !held {
+            if out.len() > AHEAD / 2 {
+                return read_at(file, pos, out);
+            }
+            let n =
+                usize::try_from(file_len.saturating_sub(pos).min(AHEAD as u64)).unwrap_or(AHEAD);
+            if n < out.len() {
+                return Err(Fault::Mcap(McapError::UnexpectedEof));
+            }
+            self.len = 0;
+            read_at(file, pos, &mut self.buf[..n])?;
+            self.start = pos;
+            self.len = n;
+        }
+        let off = (pos - self.start) as usize;
+        out.copy_from_slice(&self.buf[off..off + out.len()]);
+        Ok(())
+    }
 }
 
 impl LinearWalk {
@@ -172,6 +225,7 @@ impl LinearWalk {
             cut: false,
             inside: false,
             ends_with_magic: None,
+            ahead: Ahead::new(),
         }
     }
 
@@ -249,7 +303,7 @@ impl LinearWalk {
                 return Err(Fault::Mcap(McapError::UnexpectedEof));
             }
             let mut head = [0u8; HEAD];
-            read_at(file, self.pos, &mut head)?;
+            self.ahead.read(file, file_len, self.pos, &mut head)?;
             let opcode = head[0];
             let len = u64::from_le_bytes(le8(&head[1..]));
             let body_left = left - HEAD as u64;
@@ -285,7 +339,7 @@ impl LinearWalk {
                     let n = usize::try_from(body_left)
                         .unwrap_or(usize::MAX)
                         .min(self.limit);
-                    self.read_body(file, head, n)?;
+                    self.read_body(file, file_len, head, n)?;
                     self.load_cut_chunk();
                     self.cut = true;
                     self.pos = file_len;
@@ -306,7 +360,7 @@ impl LinearWalk {
             }
             // len <= body_left and <= limit: fits in usize
             let n = len as usize;
-            self.read_body(file, head, n)?;
+            self.read_body(file, file_len, head, n)?;
             self.pos += HEAD as u64 + len;
             if opcode == op::CHUNK {
                 self.load_chunk()?;
@@ -330,12 +384,18 @@ impl LinearWalk {
     }
 
     /// Reads a record's header and `n` bytes of its body into `body`.
-    fn read_body(&mut self, file: &mut File, head: [u8; HEAD], n: usize) -> Result<(), Fault> {
+    fn read_body(
+        &mut self,
+        file: &mut File,
+        file_len: u64,
+        head: [u8; HEAD],
+        n: usize,
+    ) -> Result<(), Fault> {
         self.body.clear();
         self.body.extend_from_slice(&head);
         self.body.resize(HEAD + n, 0);
-        read_at(file, self.pos + HEAD as u64, &mut self.body[HEAD..])?;
-        Ok(())
+        let at = self.pos + HEAD as u64;
+        self.ahead.read(file, file_len, at, &mut self.body[HEAD..])
     }
 
     /// Decodes the complete chunk record in `body`.
