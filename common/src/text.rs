@@ -21,6 +21,12 @@ pub fn clip(s: &str) -> String {
     }
 }
 
+/// The error for a line that still holds a carriage return once its line ending
+/// is taken off: a file with CR-only line endings reads as one line, and every
+/// CSV reader says so instead of reading it as a header and no rows.
+pub const CR_INSIDE_LINE: &str =
+    "a carriage return inside the line: CR-only line endings? (lines must end in LF or CRLF)";
+
 /// A number as an error quotes it: plain for everyday magnitudes (`0.01`, `3600`),
 /// in exponent form below 1e-3 and from 1e6 on, so an input such as 1e300 is not
 /// printed with 301 digits.

@@ -36,20 +36,45 @@ enum Codec {
     Lz4,
 }
 
+/// Why frames did not decode.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum DecodeError {
+    /// They hold more than the limit.
+    TooBig,
+    /// They are not valid frames of the codec (the decoder's message).
+    Invalid(String),
+}
+
+impl From<String> for DecodeError {
+    fn from(e: String) -> Self {
+        DecodeError::Invalid(e)
+    }
+}
+
+impl From<&str> for DecodeError {
+    fn from(e: &str) -> Self {
+        DecodeError::Invalid(e.to_string())
+    }
+}
+
 /// Decodes all frames of `src`, appending to `out`; at most `limit` bytes in all.
 /// The output grows with what the frames actually hold, never with a size a
 /// header claims. Returns the bytes written.
-fn decode_all<W: Write>(codec: Codec, src: &[u8], out: &mut W, limit: u64) -> Result<u64, String> {
+fn decode_all<W: Write>(
+    codec: Codec,
+    src: &[u8],
+    out: &mut W,
+    limit: u64,
+) -> Result<u64, DecodeError> {
     let mut written = 0u64;
-    let too_big = || format!("decompressed chunk exceeds the limit of {limit} bytes");
     // copies at most one byte beyond the room left, which tells "too big" from "exact"
-    let mut copy = |r: &mut dyn Read, written: &mut u64| -> Result<(), String> {
+    let mut copy = |r: &mut dyn Read, written: &mut u64| -> Result<(), DecodeError> {
         let room = limit.saturating_sub(*written);
         let n =
             std::io::copy(&mut r.take(room.saturating_add(1)), out).map_err(|e| e.to_string())?;
         *written += n;
         if *written > limit {
-            return Err(too_big());
+            return Err(DecodeError::TooBig);
         }
         Ok(())
     };
@@ -80,7 +105,7 @@ fn decode_all<W: Write>(codec: Codec, src: &[u8], out: &mut W, limit: u64) -> Re
                             .get(n.saturating_add(8)..)
                             .ok_or("skippable zstd frame runs past the chunk")?;
                     }
-                    Err(e) => return Err(e.to_string()),
+                    Err(e) => return Err(e.to_string().into()),
                 }
             }
         }
@@ -182,14 +207,13 @@ fn declared_within(uncompressed_size: u64, limit: usize, by: &str) -> Result<u64
     Ok(uncompressed_size)
 }
 
-fn declared_err(e: String, compression: &str, cap: u64, by: &str) -> ChunkError {
-    if e.starts_with("decompressed chunk exceeds") {
-        ChunkError::Corrupt(format!(
-            "the {compression} chunk decodes to more than the {cap} bytes {by} declares"
-        ))
-    } else {
-        ChunkError::Corrupt(format!("{compression}: {e}"))
-    }
+fn declared_err(e: DecodeError, compression: &str, cap: u64, by: &str) -> ChunkError {
+    ChunkError::Corrupt(match e {
+        DecodeError::TooBig => {
+            format!("the {compression} chunk decodes to more than the {cap} bytes {by} declares")
+        }
+        DecodeError::Invalid(e) => format!("{compression}: {e}"),
+    })
 }
 
 fn exact(n: u64, declared: u64, what: &str, by: &str) -> Result<(), ChunkError> {
@@ -239,6 +263,15 @@ impl Decompressor for WholeChunk {
                 Ok(_) => consumed = src.len(),
                 Err(e) => {
                     self.out.clear();
+                    let e = match e {
+                        DecodeError::TooBig => {
+                            format!(
+                                "decompressed chunk exceeds the limit of {} bytes",
+                                self.limit
+                            )
+                        }
+                        DecodeError::Invalid(e) => e,
+                    };
                     return Err(McapError::DecompressionError(format!(
                         "{}: {e}",
                         self.name()

@@ -400,10 +400,7 @@ impl LinearWalk {
 
     /// Decodes the complete chunk record in `body`.
     fn load_chunk(&mut self) -> Result<(), Fault> {
-        self.chunk = Chunk {
-            content: std::mem::take(&mut self.chunk.content),
-            pos: 0,
-        };
+        self.chunk.pos = 0;
         self.chunk.content.clear();
         let (header, data) = match mcap::parse_record(op::CHUNK, &self.body[HEAD..])? {
             mcap::records::Record::Chunk { header, data } => (header, data),

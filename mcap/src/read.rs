@@ -198,12 +198,20 @@ fn read_summary(
     Ok(reader.finish())
 }
 
+/// A fault of the linear walk as this crate's error, `at` completed with the
+/// walk's place in the file.
 fn fault_err(path: &Path, at: String, walk: &LinearWalk, fault: Fault) -> Error {
     let at = match walk.place() {
         Place::InChunk(n) => format!("{at}, in chunk #{n} (file order)"),
         Place::AfterChunk(0) => at,
         Place::AfterChunk(n) => format!("{at}, after chunk #{n} (file order)"),
     };
+    chunk_err(path, at, fault)
+}
+
+/// A fault (of the linear walk, or of a chunk's checks through the index) as this
+/// crate's error at `at`.
+fn chunk_err(path: &Path, at: String, fault: Fault) -> Error {
     match fault {
         Fault::Mcap(source) => mcap_err(path, at, source),
         Fault::Unsupported(c) => mcap_err(path, at, McapError::UnsupportedCompression(c)),
@@ -459,13 +467,9 @@ impl McapReader {
                     limit: opts.max_record_bytes,
                 }
             }
-            _ => {
-                file.seek(SeekFrom::Start(0))
-                    .map_err(|e| io_err(&path, "seeking", e))?;
-                Mode::Linear {
-                    walk: Box::new(LinearWalk::new(opts.max_record_bytes)),
-                }
-            }
+            _ => Mode::Linear {
+                walk: Box::new(LinearWalk::new(opts.max_record_bytes)),
+            },
         };
         Ok(Self {
             path,
@@ -578,18 +582,7 @@ impl McapReader {
                             // CRC: both are checked here first
                             let at = format!("{at}, chunk at byte {start}");
                             let crc = decompress::check_size(compression, chunk_buf, *size, *limit)
-                                .map_err(|f| match f {
-                                    decompress::ChunkError::Unsupported(c) => mcap_err(
-                                        path,
-                                        at.clone(),
-                                        McapError::UnsupportedCompression(c),
-                                    ),
-                                    decompress::ChunkError::Corrupt(reason) => Error::Corrupt {
-                                        path: path.to_path_buf(),
-                                        at: at.clone(),
-                                        reason,
-                                    },
-                                })?;
+                                .map_err(|f| chunk_err(path, at.clone(), f.into()))?;
                             check_chunk_crc(file, *start, crc)
                                 .map_err(|e| mcap_err(path, at.clone(), e))?;
                         }

@@ -118,11 +118,7 @@ pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error
             reason,
         };
         if l.contains('\r') {
-            return Err(err(
-                "a carriage return inside the line: CR-only line endings? (lines must end in \
-                 LF or CRLF)"
-                    .into(),
-            ));
+            return Err(err(vlsync_common::text::CR_INSIDE_LINE.into()));
         }
         if l.is_empty() || l.starts_with('#') {
             continue;

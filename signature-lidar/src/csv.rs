@@ -46,10 +46,7 @@ use std::fmt;
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read, Write};
 use std::path::Path;
-use vlsync_common::text::clip;
-
-/// Appended to an error about a carriage return inside a line.
-const CR_ONLY: &str = ": CR-only line endings? (lines must end in LF or CRLF)";
+use vlsync_common::text::{clip, CR_INSIDE_LINE};
 use vlsync_common::Nanos;
 
 /// Longest accepted line, bytes.
@@ -232,14 +229,15 @@ impl<R: BufRead> CsvScanReader<R> {
                 return Ok(None);
             }
             if self.buf.len() > MAX_LINE_BYTES {
-                let hint = if self.buf.contains(&b'\r') {
-                    CR_ONLY
+                // a CR-only file is one long line: say so
+                let why = if self.buf.contains(&b'\r') {
+                    format!(": {CR_INSIDE_LINE}")
                 } else {
-                    ""
+                    String::new()
                 };
                 return Err(self.err(
                     None,
-                    format!("line longer than {MAX_LINE_BYTES} bytes{hint}"),
+                    format!("line longer than {MAX_LINE_BYTES} bytes{why}"),
                 ));
             }
             let line = std::str::from_utf8(&self.buf).map_err(|e| {
@@ -255,7 +253,7 @@ impl<R: BufRead> CsvScanReader<R> {
             };
             let line = line.trim();
             if line.contains('\r') {
-                return Err(self.err(None, format!("a carriage return inside the line{CR_ONLY}")));
+                return Err(self.err(None, CR_INSIDE_LINE.into()));
             }
             if line.is_empty() || line.starts_with('#') {
                 continue;

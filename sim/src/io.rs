@@ -210,9 +210,7 @@ fn parse_rows(
         if line.contains('\r') {
             return Err(err(
                 Some(lineno),
-                "a carriage return inside the line: CR-only line endings? (lines must end in \
-                 LF or CRLF)"
-                    .into(),
+                vlsync_common::text::CR_INSIDE_LINE.into(),
             ));
         }
         if idx == 0 {
