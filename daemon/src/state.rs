@@ -3,9 +3,12 @@
 //!
 //! The service thread (never the real-time thread) keeps the newest estimate
 //! worth saving ([`worth_saving`]: tracking, or holding with a small standard
-//! deviation) and writes it at most every [`SAVE_PERIOD`] while it moves, at
+//! deviation) and writes it at most every [`SAVE_PERIOD`] while it tells a restart
+//! something new (its offset off what the saved one predicts by more than its
+//! standard deviation, a standard deviation shrunk by a fifth, another polarity), at
 //! least every [`REFRESH_PERIOD`] while it does not (fewer fsyncs wear an SD card
-//! less), and once more on shutdown ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
+//! less: about one save a minute while tracking steadily), and once more on shutdown
+//! ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
 //! same directory, is fsynced, renamed over the file, and the directory is
 //! fsynced, so a crash at any point leaves either the old or the new file.
 //!
@@ -51,9 +54,16 @@ pub const VERSION: u32 = 1;
 pub const MAX_FILE_BYTES: u64 = 16 * 1024;
 /// Minimum time between two saves.
 pub const SAVE_PERIOD: Duration = Duration::from_secs(5);
-/// An estimate within this of the last saved one (offset and its standard
-/// deviation, seconds; same state and polarity) is not saved again before [`REFRESH_PERIOD`].
+/// An estimate whose offset is within this (seconds), or within [`UNCHANGED_SIGMAS`]
+/// of its standard deviation, of what the last saved one predicts for it, with the
+/// same polarity and a standard deviation not below [`SHRUNK_STD`] of the saved one,
+/// is not saved again before [`REFRESH_PERIOD`]: a restart from the saved one would
+/// start within its uncertainty of it.
 pub const UNCHANGED_S: f64 = 1e-4;
+/// See [`UNCHANGED_S`].
+pub const UNCHANGED_SIGMAS: f64 = 1.0;
+/// A standard deviation below this share of the saved one is news worth saving soon.
+pub const SHRUNK_STD: f64 = 0.8;
 /// The longest time between two saves while a good estimate keeps arriving.
 pub const REFRESH_PERIOD: Duration = Duration::from_secs(60);
 /// A holding estimate is saved only while its standard deviation is at most this, seconds.
@@ -585,11 +595,19 @@ pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f
     }
 }
 
-fn unchanged(a: &Estimate, b: &Estimate) -> bool {
-    a.state == b.state
-        && a.polarity == b.polarity
-        && (a.offset_s - b.offset_s).abs() <= UNCHANGED_S
-        && (a.offset_std_s - b.offset_std_s).abs() <= UNCHANGED_S
+/// Whether `new` tells a restart nothing `saved` does not: the same polarity, the
+/// offset within [`UNCHANGED_S`] or [`UNCHANGED_SIGMAS`] of its own standard
+/// deviation of what `saved` predicts for it (its offset moved on by its drift:
+/// what a restore from it would start from), and a standard deviation not below
+/// [`SHRUNK_STD`] of the saved one. The state does not count: a restore starts in
+/// `holding` either way.
+fn unchanged(saved: &Estimate, new: &Estimate) -> bool {
+    let dt_s = new.t_ref_ns.saturating_sub(saved.t_ref_ns) as f64 * 1e-9;
+    let predicted = saved.offset_s + saved.drift * dt_s;
+    let tolerance = UNCHANGED_S.max(UNCHANGED_SIGMAS * new.offset_std_s);
+    saved.polarity == new.polarity
+        && (new.offset_s - predicted).abs() <= tolerance
+        && new.offset_std_s >= SHRUNK_STD * saved.offset_std_s
 }
 
 /// Saves the newest estimate worth saving at most every `period` (service thread).
@@ -637,7 +655,7 @@ impl Saver {
     }
 
     /// Saves the pending estimate if the period since the last save has passed
-    /// (the refresh period if it equals the last saved one). Returns whether it
+    /// (the refresh period if it tells nothing new: [`UNCHANGED_S`]). Returns whether it
     /// saved; an error is logged once until a save succeeds.
     pub fn tick(&mut self, now: Instant) -> bool {
         let Some(p) = self.pending else {
@@ -986,6 +1004,89 @@ mod tests {
         assert!(sv.flush());
         let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
         assert_eq!(s.estimate.offset_s, 0.125);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn what_a_restart_would_learn_is_saved_soon_the_rest_once_a_minute() {
+        let saved = est(); // offset -12.35 ms, drift +12.3 ppm, σ 0.81 ms
+        let later = |dt_s: f64, offset_s: f64, std_s: f64| Estimate {
+            t_ref_ns: saved.t_ref_ns + (dt_s * 1e9) as i64,
+            offset_s,
+            offset_std_s: std_s,
+            state: EstimatorState::Holding,
+            ..saved
+        };
+        let predicted = |dt_s: f64| saved.offset_s + saved.drift * dt_s;
+        // the drift carries the offset on by 1.5 ms in 120 s: that is what the saved one says
+        assert!(unchanged(&saved, &later(120.0, predicted(120.0), 0.0008)));
+        assert!(!unchanged(&saved, &later(120.0, saved.offset_s, 0.0008)));
+        // within the new σ of the prediction (the state does not count)
+        assert!(unchanged(
+            &saved,
+            &later(5.0, predicted(5.0) + 0.00079, 0.0008)
+        ));
+        assert!(!unchanged(
+            &saved,
+            &later(5.0, predicted(5.0) - 0.00081, 0.0008)
+        ));
+        // a σ shrunk by more than a fifth is news, a grown one is not
+        assert!(!unchanged(&saved, &later(5.0, predicted(5.0), 0.0006)));
+        assert!(unchanged(&saved, &later(5.0, predicted(5.0), 0.0030)));
+        // another polarity is news
+        let flipped = Estimate {
+            polarity: Polarity::Positive,
+            ..later(5.0, predicted(5.0), 0.0008)
+        };
+        assert!(!unchanged(&saved, &flipped));
+        // a tiny σ still allows 0.1 ms
+        let sharp = Estimate {
+            offset_std_s: 0.00001,
+            ..saved
+        };
+        assert!(unchanged(
+            &sharp,
+            &later(5.0, predicted(5.0) + 0.00009, 0.00001)
+        ));
+        assert!(!unchanged(
+            &sharp,
+            &later(5.0, predicted(5.0) + 0.00011, 0.00001)
+        ));
+        // absurd times saturate instead of overflowing
+        let far = Estimate {
+            t_ref_ns: i64::MIN,
+            ..saved
+        };
+        let _ = unchanged(&far, &saved);
+    }
+
+    #[test]
+    fn steady_tracking_saves_about_once_a_minute() {
+        // an hour of estimates every 0.5 s on a drifting offset, each off the line by
+        // up to 0.3 of its σ (1 ms): the rule before saved every 5 s (720 in the hour)
+        let d = dir("steady");
+        let mut sv = Saver::new(d.join("s"), SAVE_PERIOD);
+        let t0 = Instant::now();
+        let mut saves = 0;
+        for k in 0..7200u32 {
+            let t_s = f64::from(k) * 0.5;
+            let wobble = 0.0003 * (f64::from(k) * 0.7).sin();
+            sv.offer(&Estimate {
+                seq: u64::from(k),
+                t_ref_ns: (t_s * 1e9) as i64,
+                offset_s: 0.05 + 30e-6 * t_s + wobble,
+                drift: 30e-6,
+                offset_std_s: 0.001,
+                drift_std: 2e-6,
+                state: EstimatorState::Tracking,
+                polarity: Polarity::Negative,
+                ..est()
+            });
+            if sv.tick(t0 + Duration::from_secs_f64(t_s)) {
+                saves += 1;
+            }
+        }
+        assert!((55..=70).contains(&saves), "{saves} saves in an hour");
         std::fs::remove_dir_all(&d).unwrap();
     }
 
