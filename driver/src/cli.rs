@@ -71,10 +71,11 @@ pub struct DriverArgs {
     /// Render this seed's run with the rendering simulator (both drivers of a pair use the same).
     #[arg(long, value_name = "SEED")]
     pub render: Option<u64>,
-    /// Publish as fast as possible instead of in real time.
+    /// Publish as fast as possible instead of in real time (recorded and simulated
+    /// sources; a live device publishes as its data arrives).
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
-    /// Real-time speed factor (1 = real time, 100 = 100x).
+    /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
     #[arg(long)]
     pub speed: Option<f64>,
     /// Common start instant on CLOCK_MONOTONIC in ns (the demo gives both drivers
@@ -248,11 +249,16 @@ pub fn select_source(
         }
     }
     let live = ["--v4l2", "--ld06", "--rplidar"];
-    if live.contains(&flag) && (args.fast || args.speed.is_some()) {
+    // `--speed 1` is what a live device does anyway: accepted, as `--stamp` accepts it
+    if live.contains(&flag) && (args.fast || args.speed.is_some_and(|s| s != 1.0)) {
         return Err(DriverError::Options(format!(
             "{} applies to recorded and simulated sources; {flag} is a live device, published \
-             as its data arrives",
-            if args.fast { "--fast" } else { "--speed" }
+             as its data arrives (in real time)",
+            if args.fast {
+                "--fast"
+            } else {
+                "--speed other than 1"
+            }
         )));
     }
     let scan_flags = ["--render", "--mcap", "--scans", "--ld06", "--rplidar"];
