@@ -161,6 +161,10 @@ trait Frames {
     fn live(&self) -> Option<(LiveCounts, String)> {
         None
     }
+    /// Frames the source skipped as unusable, and the last one's reason.
+    fn unusable(&self) -> Option<(u64, &str)> {
+        None
+    }
 }
 
 /// A front-end frame source: no truth.
@@ -169,6 +173,9 @@ struct Plain(Box<dyn FrameSource>);
 impl Frames for Plain {
     fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
         Ok(self.0.next_frame()?.map(|(f, t)| (f, t, None)))
+    }
+    fn unusable(&self) -> Option<(u64, &str)> {
+        self.0.unusable()
     }
 }
 
@@ -705,6 +712,9 @@ impl Source for CamSource {
         );
         if let Some(r) = &self.last_refusal {
             s.push_str(&format!(" (last: {r})"));
+        }
+        if let Some((n, last)) = self.frames.unusable() {
+            s.push_str(&format!("; {n} unusable frames skipped (last: {last})"));
         }
         if let Some((l, nice)) = self.frames.live() {
             s.push_str(&format!(

@@ -45,6 +45,12 @@ pub trait FrameSource {
     /// The next frame, `Ok(None)` at the end of the stream. The frame borrows the
     /// source's buffer until the next call.
     fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error>;
+
+    /// Frames the source received but skipped as unusable (a live camera's corrupt
+    /// or short buffer), and the last one's reason; `None` while there were none.
+    fn unusable(&self) -> Option<(u64, &str)> {
+        None
+    }
 }
 
 /// Parses a decimal number of seconds exactly into nanoseconds.

@@ -14,6 +14,13 @@
 //! (`V4L2_BUF_FLAG_TSTAMP_SRC_*`), so the constant part of that difference shows
 //! up in the estimated offset.
 //!
+//! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
+//! when a transfer is cut) or one too short for its frame is skipped and counted
+//! ([`FrameSource::unusable`]), as a dropped frame is: the next frame pairs with the
+//! last good one, over their true interval. Only [`MAX_UNUSABLE_IN_ROW`] such buffers in a row (a
+//! second of video: a device that delivers nothing usable) end the stream with an
+//! error saying why.
+//!
 //! ```
 //! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
 //! let cfg = V4l2Config { device: "/dev/video-does-not-exist".into(), ..V4l2Config::default() };
@@ -50,6 +57,48 @@ impl Default for V4l2Config {
             height: 480,
             buffers: 4,
         }
+    }
+}
+
+/// Unusable buffers in a row after which the stream ends with an error.
+pub const MAX_UNUSABLE_IN_ROW: u32 = 30;
+
+/// Counts the unusable buffers of a stream and ends it after
+/// [`MAX_UNUSABLE_IN_ROW`] in a row.
+#[derive(Debug, Clone, Default)]
+pub struct UnusableFrames {
+    total: u64,
+    in_row: u32,
+    last: String,
+}
+
+impl UnusableFrames {
+    /// A buffer that could not be used, and why: `Ok` to go on with the next one,
+    /// the error once [`MAX_UNUSABLE_IN_ROW`] came in a row.
+    pub fn skip(&mut self, path: &std::path::Path, reason: String) -> Result<(), Error> {
+        self.total = self.total.saturating_add(1);
+        self.in_row = self.in_row.saturating_add(1);
+        self.last = reason;
+        if self.in_row >= MAX_UNUSABLE_IN_ROW {
+            return Err(Error::Device {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "{} buffers in a row unusable, the last: {}",
+                    self.in_row, self.last
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// A buffer that was used.
+    pub fn used(&mut self) {
+        self.in_row = 0;
+    }
+
+    /// Buffers skipped so far and the last one's reason (`None` before the first).
+    pub fn counts(&self) -> Option<(u64, &str)> {
+        (self.total > 0).then_some((self.total, self.last.as_str()))
     }
 }
 
@@ -118,6 +167,17 @@ impl FrameSource for V4l2Source {
             match self._never {}
         }
     }
+
+    fn unusable(&self) -> Option<(u64, &str)> {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.unusable.counts()
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
 }
 
 #[cfg(feature = "v4l2")]
@@ -139,6 +199,7 @@ mod imp {
         stride: usize,
         format: PixelFormat,
         gray: Vec<u8>,
+        pub(super) unusable: UnusableFrames,
     }
 
     impl Inner {
@@ -180,24 +241,40 @@ mod imp {
                 stride: fmt.stride as usize,
                 format,
                 gray: Vec::new(),
+                unusable: UnusableFrames::default(),
             })
         }
 
         pub(super) fn next(&mut self) -> Result<(GrayFrame<'_, u8>, FrameTime), Error> {
-            let (buf, meta) = self.stream.next().map_err(|e| Error::Device {
-                path: self.path.clone(),
-                reason: format!("dequeue buffer: {e}"),
-            })?;
-            let used = (meta.bytesused as usize).min(buf.len());
             let stride = if self.stride == 0 {
                 self.width.saturating_mul(self.format.bytes_per_pixel())
             } else {
                 self.stride
             };
-            let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
-                .with_stride(stride);
-            raw.to_gray_into(&mut self.gray)?;
-            let ts = meta.timestamp;
+            let ts = loop {
+                let (buf, meta) = self.stream.next().map_err(|e| Error::Device {
+                    path: self.path.clone(),
+                    reason: format!("dequeue buffer: {e}"),
+                })?;
+                if meta.flags.contains(v4l::buffer::Flags::ERROR) {
+                    let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
+                    self.unusable.skip(&self.path, why)?;
+                    continue;
+                }
+                let used = (meta.bytesused as usize).min(buf.len());
+                let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
+                    .with_stride(stride);
+                match raw.to_gray_into(&mut self.gray) {
+                    Ok(()) => {
+                        self.unusable.used();
+                        break meta.timestamp;
+                    }
+                    Err(e) => {
+                        let why = format!("buffer {}: {e}", meta.sequence);
+                        self.unusable.skip(&self.path, why)?;
+                    }
+                }
+            };
             // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
             #[allow(clippy::unnecessary_cast)]
             let t_ns = (ts.sec as i64)
@@ -225,6 +302,35 @@ mod tests {
             e.to_string(),
             "/dev/video-vlsync-test-missing: no such device"
         );
+    }
+
+    #[test]
+    fn unusable_buffers_are_skipped_until_a_second_of_them_in_a_row() {
+        let dev = std::path::Path::new("/dev/video7");
+        let mut u = UnusableFrames::default();
+        assert_eq!(u.counts(), None);
+        // sporadic bad buffers never end the stream
+        for k in 0..1000 {
+            if k % 7 == 0 {
+                u.skip(dev, format!("buffer {k} flagged corrupt by the driver"))
+                    .unwrap();
+            } else {
+                u.used();
+            }
+        }
+        let (n, last) = u.counts().unwrap();
+        assert_eq!(n, 143);
+        assert_eq!(last, "buffer 994 flagged corrupt by the driver");
+        // a device that delivers nothing usable does, naming why
+        for k in 1..MAX_UNUSABLE_IN_ROW {
+            u.skip(dev, format!("short {k}")).unwrap();
+        }
+        let e = u.skip(dev, "buffer 9: too short".into()).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "/dev/video7: 30 buffers in a row unusable, the last: buffer 9: too short"
+        );
+        assert_eq!(u.counts().unwrap().0, 173);
     }
 
     #[cfg(not(feature = "v4l2"))]
