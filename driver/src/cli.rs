@@ -255,9 +255,9 @@ pub fn select_source(
             "{} applies to recorded and simulated sources; {flag} is a live device, published \
              as its data arrives (in real time)",
             if args.fast {
-                "--fast"
+                "--fast".to_string()
             } else {
-                "--speed other than 1"
+                format!("--speed {}", args.speed.unwrap_or(1.0))
             }
         )));
     }

@@ -337,7 +337,7 @@ fn option_errors_name_the_flags() {
     // a live device is published as its data arrives
     for (extra, flag) in [
         (&["--fast"][..], "--fast"),
-        (&["--speed", "2"][..], "--speed other than 1"),
+        (&["--speed", "2"][..], "--speed 2"),
     ] {
         let mut a = vec!["--ld06", "/dev/ttyUSB0"];
         a.extend_from_slice(extra);
@@ -350,12 +350,24 @@ fn option_errors_name_the_flags() {
         );
     }
     // `--speed 1` is real time, what a live device does: past the options to the device
-    let e = err(
-        &["--ld06", "/nonexistent/tty", "--speed", "1"],
-        Stream::Lidar,
-    );
-    assert!(!e.contains("applies to"), "{e}");
-    assert!(e.contains("/nonexistent/tty"), "{e}");
+    for (a, stream) in [
+        (
+            &["--ld06", "/nonexistent/tty", "--speed", "1"][..],
+            Stream::Lidar,
+        ),
+        (
+            &["--rplidar", "/nonexistent/tty", "--speed", "1.0"][..],
+            Stream::Lidar,
+        ),
+        (
+            &["--v4l2", "/nonexistent/tty", "--speed", "1"][..],
+            Stream::Cam,
+        ),
+    ] {
+        let e = err(a, stream);
+        assert!(!e.contains("applies to"), "{a:?}: {e}");
+        assert!(e.contains("/nonexistent/tty"), "{a:?}: {e}");
+    }
     let e = err(&["--render", "1", "--duration", "0.1"], Stream::Lidar);
     assert!(e.contains("duration"), "{e}");
     // the rendered pair shares one anchor

@@ -16,10 +16,13 @@
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
 //! when a transfer is cut) or one too short for its frame is skipped and counted
-//! ([`FrameSource::unusable`]), as a dropped frame is: the next frame pairs with the
-//! last good one, over their true interval. Only [`MAX_UNUSABLE_IN_ROW`] such buffers in a row (a
-//! second of video: a device that delivers nothing usable) end the stream with an
-//! error saying why.
+//! ([`FrameSource::unusable`]); the signature then treats it as a dropped frame: the
+//! next frame pairs with the last good one over their true interval, or, past the
+//! signature's `max_gap_ns`, restarts the pair (a counted gap). Only
+//! [`MAX_UNUSABLE_IN_ROW`] such buffers in a row (a second at 30 Hz: a device that
+//! delivers nothing usable) end the stream with an error saying why; a frame format
+//! the converter cannot read at all (an odd YUYV width, a stride shorter than a row)
+//! ends it at the first frame.
 //!
 //! ```
 //! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
@@ -100,6 +103,12 @@ impl UnusableFrames {
     pub fn counts(&self) -> Option<(u64, &str)> {
         (self.total > 0).then_some((self.total, self.last.as_str()))
     }
+}
+
+/// Whether a conversion error is one buffer's (a short transfer), to be skipped,
+/// rather than the stream's format, which every frame would repeat.
+pub fn skippable(e: &Error) -> bool {
+    matches!(e, Error::BufferSize { .. })
 }
 
 /// A V4L2 capture stream converted to gray.
@@ -269,10 +278,12 @@ mod imp {
                         self.unusable.used();
                         break meta.timestamp;
                     }
-                    Err(e) => {
+                    Err(e) if skippable(&e) => {
                         let why = format!("buffer {}: {e}", meta.sequence);
                         self.unusable.skip(&self.path, why)?;
                     }
+                    // the frame's geometry, not one buffer: every frame would fail
+                    Err(e) => return Err(e),
                 }
             };
             // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
@@ -331,6 +342,21 @@ mod tests {
             "/dev/video7: 30 buffers in a row unusable, the last: buffer 9: too short"
         );
         assert_eq!(u.counts().unwrap().0, 173);
+    }
+
+    #[test]
+    fn only_a_short_buffer_is_skippable() {
+        use crate::image::{PixelFormat, RawFrame};
+        // a short transfer: one buffer's fault
+        let short = RawFrame::new(&[0u8; 100], 16, 8, PixelFormat::Yuyv)
+            .to_gray_into(&mut Vec::new())
+            .unwrap_err();
+        assert!(skippable(&short), "{short}");
+        // an odd YUYV width: the stream's format, every frame would fail
+        let odd = RawFrame::new(&[0u8; 15 * 2 * 8], 15, 8, PixelFormat::Yuyv)
+            .to_gray_into(&mut Vec::new())
+            .unwrap_err();
+        assert!(!skippable(&odd), "{odd}");
     }
 
     #[cfg(not(feature = "v4l2"))]
