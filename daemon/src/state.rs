@@ -8,7 +8,7 @@
 //! smaller of their standard deviations, its drift off the saved one by more than
 //! the smaller drift deviation, a standard deviation shrunk by more than a fifth,
 //! another polarity), at least every [`REFRESH_PERIOD`] while it does not (fewer
-//! fsyncs wear an SD card less: 96-114 saves in a simulated hour of steady tracking,
+//! fsyncs wear an SD card less: 99-114 saves in a simulated hour of steady tracking,
 //! against 704-712 at one every 5 s), and once more on shutdown
 //! ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
 //! same directory, is fsynced, renamed over the file, and the directory is
