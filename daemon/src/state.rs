@@ -1114,6 +1114,36 @@ mod tests {
         std::fs::remove_dir_all(&d).unwrap();
     }
 
+    #[test]
+    fn an_hour_of_the_estimators_output_saves_a_fraction_of_one_every_5_s() {
+        // the estimates of simulated one-hour runs through the saver, the saver's clock
+        // following the estimates' reference time: one save every 5 s would be 720
+        use vlsync_sim::families::{generate, Family};
+        let d = dir("hour");
+        let cfg = vlsync_config::Config::default();
+        for (family, most) in [
+            (Family::Robot, 150),
+            (Family::Clocks, 150),
+            (Family::LoadJitter, 360),
+        ] {
+            let run = generate(family, 3, Some(3600.0));
+            let (ests, _) = crate::replay::run_estimator(&cfg.estimator, &run.cam, &run.lidar);
+            let mut sv = Saver::new(d.join("s"), SAVE_PERIOD);
+            let (t0, ns0) = (Instant::now(), ests[0].t_ref_ns);
+            let saves = ests
+                .iter()
+                .filter(|e| {
+                    sv.offer(e);
+                    let since = Duration::from_nanos((e.t_ref_ns - ns0).max(0) as u64);
+                    sv.tick(t0 + since)
+                })
+                .count();
+            eprintln!("{}: {} estimates, {saves} saves", family.name(), ests.len());
+            assert!((60..=most).contains(&saves), "{}: {saves}", family.name());
+        }
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
 
