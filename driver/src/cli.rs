@@ -78,6 +78,12 @@ pub struct DriverArgs {
     /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
     #[arg(long)]
     pub speed: Option<f64>,
+    /// Live devices (--v4l2, --ld06, --rplidar): wait for the device node to appear
+    /// instead of failing at once, saying so then and every 10 minutes (what the
+    /// systemd units do, so an unplugged sensor is picked up again when it returns).
+    /// Other sources have no device node and start at once.
+    #[arg(long)]
+    pub wait_device: bool,
     /// Common start instant on CLOCK_MONOTONIC in ns (the demo gives both drivers
     /// the same one; a restarted driver given the same resumes at the current position).
     #[arg(long)]
@@ -364,6 +370,9 @@ pub fn select_source(
         }
         ("--v4l2", Stream::Cam) => {
             let d = args.v4l2.as_deref().unwrap_or(Path::new(""));
+            if args.wait_device && !wait_for_device(d, stream, stop, DEVICE_POLL) {
+                return Ok(stopped_while_waiting(d));
+            }
             Ok(Selected {
                 source: Box::new(raw::CamSource::v4l2(d, stop).map_err(src)?),
                 anchor_ns: None,
@@ -375,6 +384,9 @@ pub fn select_source(
                 (Some(d), _) => (raw::SerialKind::Ld06, d.as_str()),
                 (None, d) => (raw::SerialKind::Rplidar, d.as_deref().unwrap_or_default()),
             };
+            if args.wait_device && !wait_for_device(Path::new(dev), stream, stop, DEVICE_POLL) {
+                return Ok(stopped_while_waiting(Path::new(dev)));
+            }
             Ok(Selected {
                 source: Box::new(fronted(
                     raw::LidarSource::serial(kind, dev, args.baud, SERIAL_SILENCE, stop)
@@ -385,6 +397,63 @@ pub fn select_source(
             })
         }
         (f, _) => Err(wrong_stream(f)),
+    }
+}
+
+/// How often `--wait-device` looks for the device node.
+pub const DEVICE_POLL: Duration = Duration::from_millis(500);
+
+/// Waits until `dev` exists, checking every `poll` and saying so on stderr at the
+/// start and every [`PROGRESS_EVERY`]. False when `stop` asked to stop first.
+pub fn wait_for_device(dev: &Path, stream: Stream, stop: raw::StopFn, poll: Duration) -> bool {
+    if dev.exists() {
+        return true;
+    }
+    vlsync_common::console::print_err(&format!(
+        "vlsync-{stream}: waiting for {} to appear (unplugged, or not enumerated yet); \
+         checking every {} ms\n",
+        dev.display(),
+        poll.as_millis()
+    ));
+    let t0 = std::time::Instant::now();
+    let mut next_note = PROGRESS_EVERY;
+    loop {
+        // sleep in short steps so a stop request is seen at once
+        let until = std::time::Instant::now() + poll;
+        while std::time::Instant::now() < until {
+            if stop() {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20).min(poll));
+        }
+        if dev.exists() {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-{stream}: {} appeared after {:.1} s\n",
+                dev.display(),
+                t0.elapsed().as_secs_f64()
+            ));
+            return true;
+        }
+        if t0.elapsed() >= next_note {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-{stream}: still waiting for {} ({} min)\n",
+                dev.display(),
+                t0.elapsed().as_secs() / 60
+            ));
+            next_note += PROGRESS_EVERY;
+        }
+    }
+}
+
+/// A source with nothing to publish: stopped while waiting for `dev`.
+fn stopped_while_waiting(dev: &Path) -> Selected {
+    Selected {
+        source: Box::new(VecSource::new(
+            Vec::new(),
+            format!("nothing: stopped while waiting for {}", dev.display()),
+        )),
+        anchor_ns: None,
+        start_at: None,
     }
 }
 

@@ -222,3 +222,102 @@ fn a_heavier_camera_front_end_delays_the_software_stamps() {
     );
     std::fs::remove_file(&file).unwrap();
 }
+
+/// Reads `child`'s stderr on a thread into a shared string.
+fn collect_stderr(child: &mut std::process::Child) -> std::sync::Arc<std::sync::Mutex<String>> {
+    use std::io::Read;
+    let out = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let mut pipe = child.stderr.take().unwrap();
+    let o = out.clone();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 512];
+        while let Ok(n) = pipe.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            o.lock()
+                .unwrap()
+                .push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+    });
+    out
+}
+
+fn wait_for_text(text: &std::sync::Mutex<String>, what: &str) {
+    let t0 = std::time::Instant::now();
+    while !text.lock().unwrap().contains(what) {
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(20),
+            "no `{what}` in: {}",
+            text.lock().unwrap()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
+    let t0 = std::time::Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if t0.elapsed() > std::time::Duration::from_secs(20) {
+            let _ = child.kill();
+            panic!("driver still running after 20 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn wait_device_waits_for_the_node_then_opens_it_and_stops_cleanly_meanwhile() {
+    let dir = std::env::temp_dir().join(format!("vlsync-driver-wait-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let dev = dir.join("ttyUSB9");
+    let d = dev.to_str().unwrap();
+    let prefix = format!("vlsync-test/driver-wait-{}", std::process::id());
+    let spawn = || {
+        Command::new(env!("CARGO_BIN_EXE_vlsync-lidar"))
+            .args(["--ld06", d, "--wait-device", "--prefix", &prefix])
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("spawn driver")
+    };
+    // without the flag a missing device fails at once
+    let err = run_failing_quickly(env!("CARGO_BIN_EXE_vlsync-lidar"), &["--ld06", d]);
+    assert!(err.contains(d), "{err}");
+    // with it the driver waits, and SIGTERM meanwhile is a clean stop
+    let mut child = spawn();
+    let err = collect_stderr(&mut child);
+    wait_for_text(&err, &format!("waiting for {d} to appear"));
+    std::thread::sleep(std::time::Duration::from_millis(600));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "{}",
+        err.lock().unwrap()
+    );
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = wait_exit(&mut child);
+    assert!(status.success(), "{status}: {}", err.lock().unwrap());
+    // the node appears (a regular file here, not a tty): the driver goes on to open it
+    let mut child = spawn();
+    let err = collect_stderr(&mut child);
+    wait_for_text(&err, &format!("waiting for {d} to appear"));
+    std::fs::write(&dev, b"").unwrap();
+    let status = wait_exit(&mut child);
+    let text = err.lock().unwrap().clone();
+    assert!(text.contains(&format!("{d} appeared after")), "{text}");
+    assert!(
+        !status.success(),
+        "a regular file is no serial port: {text}"
+    );
+    assert!(text.contains("error:") && text.contains(d), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

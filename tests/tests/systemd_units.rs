@@ -188,6 +188,9 @@ fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
     for n in ["vlsync-cam.service", "vlsync-lidar.service"] {
         let u = parse(n);
         assert_eq!(get(&u, n, "Service", "Restart"), "always");
+        // never given up on: systemd's default start limit would leave a driver dead
+        // after 5 quick failures; an unplugged sensor is waited for in the driver
+        assert_eq!(get(&u, n, "Unit", "StartLimitIntervalSec"), "0");
         assert!(words(&u, "Unit", "After").contains(&"vlsyncd.service".to_string()));
         assert!(words(&u, "Unit", "Wants").contains(&"vlsyncd.service".to_string()));
         assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
@@ -196,7 +199,7 @@ fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
         let stream = if n.contains("cam") { "cam" } else { "lidar" };
         assert!(
             exec.starts_with(&format!(
-                "/usr/local/bin/vlsync-{stream} --config /etc/vlsync/vlsync.toml"
+                "/usr/local/bin/vlsync-{stream} --config /etc/vlsync/vlsync.toml --wait-device "
             )),
             "{n}: {exec}"
         );
