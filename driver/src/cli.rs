@@ -370,7 +370,9 @@ pub fn select_source(
         }
         ("--v4l2", Stream::Cam) => {
             let d = args.v4l2.as_deref().unwrap_or(Path::new(""));
-            if args.wait_device && !wait_for_device(d, stream, stop, DEVICE_POLL) {
+            // a build without V4L2 says so at once instead of waiting for a camera
+            let waits = args.wait_device && cfg!(feature = "v4l2");
+            if waits && !wait_for_device(d, stream, stop, DEVICE_POLL) {
                 return Ok(stopped_while_waiting(d));
             }
             Ok(Selected {

@@ -52,12 +52,16 @@ fn wrong_sources_fail_with_a_message() {
     assert!(!ok);
     assert!(err.contains("/nonexistent/vlsync/scans.csv"), "{err}");
     if !cfg!(feature = "v4l2") {
-        let (ok, err) = run(env!("CARGO_BIN_EXE_vlsync-cam"), &["--v4l2", "/dev/video0"]);
-        assert!(!ok);
-        assert!(
-            err.contains("rebuild with --features vlsync-driver/v4l2"),
-            "{err}"
-        );
+        // also with --wait-device: a build without V4L2 does not wait for a camera
+        for extra in [&[][..], &["--wait-device"][..]] {
+            let mut a = vec!["--v4l2", "/dev/video-vlsync-none"];
+            a.extend_from_slice(extra);
+            let err = run_failing_quickly(env!("CARGO_BIN_EXE_vlsync-cam"), &a);
+            assert!(
+                err.contains("rebuild with --features vlsync-driver/v4l2"),
+                "{err}"
+            );
+        }
     }
 }
 
