@@ -434,7 +434,9 @@ pub fn wait_for_device(dev: &Path, stream: Stream, stop: raw::StopFn, poll: Dura
                 dev.display(),
                 t0.elapsed().as_secs_f64()
             ));
-            return true;
+            // a new node gets its group and mode from udev just after it appears
+            std::thread::sleep(poll);
+            return !stop();
         }
         if t0.elapsed() >= next_note {
             vlsync_common::console::print_err(&format!(
