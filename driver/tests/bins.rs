@@ -75,15 +75,7 @@ fn run_failing_quickly(bin: &str, args: &[&str]) -> String {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("spawn driver");
-    let t0 = std::time::Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > std::time::Duration::from_secs(20) {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{bin} {args:?} still running after 20 s");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    wait_exit(&mut child, &format!("{bin} {args:?}"));
     let out = child.wait_with_output().unwrap();
     assert!(!out.status.success(), "{bin} {args:?} succeeded");
     String::from_utf8_lossy(&out.stderr).into_owned()
@@ -259,7 +251,8 @@ fn wait_for_text(text: &std::sync::Mutex<String>, what: &str) {
     }
 }
 
-fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
+/// Waits up to 20 s for `child` (`what`) to exit; kills it and fails the test after that.
+fn wait_exit(child: &mut std::process::Child, what: &str) -> std::process::ExitStatus {
     let t0 = std::time::Instant::now();
     loop {
         if let Some(s) = child.try_wait().unwrap() {
@@ -267,7 +260,8 @@ fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
         }
         if t0.elapsed() > std::time::Duration::from_secs(20) {
             let _ = child.kill();
-            panic!("driver still running after 20 s");
+            let _ = child.wait();
+            panic!("{what} still running after 20 s");
         }
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
@@ -308,14 +302,14 @@ fn wait_device_waits_for_the_node_then_opens_it_and_stops_cleanly_meanwhile() {
         .status()
         .unwrap();
     assert!(killed.success());
-    let status = wait_exit(&mut child);
+    let status = wait_exit(&mut child, "vlsync-lidar --wait-device");
     assert!(status.success(), "{status}: {}", err.lock().unwrap());
     // the node appears (a regular file here, not a tty): the driver goes on to open it
     let mut child = spawn();
     let err = collect_stderr(&mut child);
     wait_for_text(&err, &format!("waiting for {d} to appear"));
     std::fs::write(&dev, b"").unwrap();
-    let status = wait_exit(&mut child);
+    let status = wait_exit(&mut child, "vlsync-lidar --wait-device");
     let text = err.lock().unwrap().clone();
     assert!(text.contains(&format!("{d} appeared after")), "{text}");
     assert!(
