@@ -442,6 +442,9 @@ pub struct CamSource {
     last_truth: Option<SampleTruth>,
     /// CPU time each frame costs before it is stamped, ns (0: the front-end's own).
     frame_cpu_ns: Nanos,
+    /// Frames of a recording that could not be read (an undecodable or missing
+    /// image): skipped as dropped frames, until too many come in a row.
+    skipped: cam::UnusableFrames,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -477,6 +480,7 @@ impl CamSource {
             prev: None,
             last_truth: None,
             frame_cpu_ns: 0,
+            skipped: cam::UnusableFrames::default(),
         })
     }
 
@@ -605,14 +609,24 @@ impl Source for CamSource {
                 prev,
                 last_truth,
                 frame_cpu_ns,
+                skipped,
                 ..
             } = self;
-            let Some((frame, time, truth)) = frames
-                .next()
-                .map_err(|e| SourceError(format!("{what}: {e}")))?
-            else {
+            let next = match frames.next() {
+                Ok(next) => next,
+                // one bad image of a recording is a dropped frame, not the end of it
+                Err(e) if e.is_one_frame() => {
+                    skipped
+                        .skip(e.to_string())
+                        .map_err(|m| SourceError(format!("{what}: {m}")))?;
+                    continue;
+                }
+                Err(e) => return Err(SourceError(format!("{what}: {e}"))),
+            };
+            let Some((frame, time, truth)) = next else {
                 return Ok(None);
             };
+            skipped.used();
             counts.frames += 1;
             let t_in = monotonic_ns();
             let cpu_in = (*frame_cpu_ns > 0)
@@ -713,7 +727,11 @@ impl Source for CamSource {
         if let Some(r) = &self.last_refusal {
             s.push_str(&format!(" (last: {r})"));
         }
-        if let Some((n, last)) = self.frames.unusable() {
+        // a live camera's bad buffers (its source counts them), a recording's bad images
+        for (n, last) in [self.frames.unusable(), self.skipped.counts()]
+            .into_iter()
+            .flatten()
+        {
             s.push_str(&format!("; {n} unusable frames skipped (last: {last})"));
         }
         if let Some((l, nice)) = self.frames.live() {
@@ -806,6 +824,9 @@ pub struct LidarSource {
     what: String,
     scans: u64,
     last_truth: Option<SampleTruth>,
+    /// Scans of a recording that could not be used (a malformed `LaserScan`):
+    /// skipped as missed revolutions, until too many come in a row.
+    skipped: cam::UnusableFrames,
 }
 
 impl std::fmt::Debug for LidarSource {
@@ -828,6 +849,7 @@ impl LidarSource {
             what,
             scans: 0,
             last_truth: None,
+            skipped: cam::UnusableFrames::named("scans"),
         })
     }
 
@@ -975,6 +997,7 @@ impl LidarSource {
             queue,
             what,
             scans,
+            skipped,
             ..
         } = self;
         // returns how many samples were queued
@@ -1000,8 +1023,16 @@ impl LidarSource {
             },
             ScanInput::Mcap(m) => match m.next_scan() {
                 Ok(None) => Ok(false),
+                // one malformed message is a missed revolution, not the end of the recording
+                Err(e @ vlsync_mcap::Error::Message { .. }) => {
+                    skipped
+                        .skip(e.to_string())
+                        .map_err(|m| SourceError(format!("--mcap: {m}")))?;
+                    Ok(true)
+                }
                 Err(e) => Err(SourceError(format!("--mcap: {e}"))),
                 Ok(Some(scan)) => {
+                    skipped.used();
                     push(scan);
                     Ok(true)
                 }
@@ -1130,6 +1161,9 @@ impl Source for LidarSource {
             s.push_str(&format!(" {} {},", r.name(), c.dropped(r)));
         }
         s.push_str(&format!(" invalid returns {}", c.invalid_returns));
+        if let Some((n, last)) = self.skipped.counts() {
+            s.push_str(&format!("; {n} unusable scans skipped (last: {last})"));
+        }
         if let Some(w) = self.proc.opposite() {
             let c = w.behind().counters();
             s.push_str(&format!(

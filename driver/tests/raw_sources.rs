@@ -630,3 +630,151 @@ fn lidar_window_options_are_checked() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// One bad image (undecodable, missing) or malformed scan of a recording is a
+/// dropped frame or a missed revolution, counted in the report; 30 in a row end
+/// the driver with the reason.
+#[test]
+fn an_unusable_image_or_scan_in_a_recording_is_skipped_and_counted() {
+    use vlsync_mcap::cdr::CdrMessage;
+    let dir = temp_dir("unusable");
+    let mut r = raw::renderer(SEED, DURATION_S).unwrap();
+    vlsync_render::output::write_run(&mut r, &dir, true).expect("write run");
+    let cam_ref = drain(&mut CamSource::frames_dir(&dir).unwrap());
+    let end = |src: &mut dyn Source| loop {
+        match src.next_sample() {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("the bad input did not end the stream"),
+            Err(e) => break e.to_string(),
+        }
+    };
+    let frame = |k: usize| dir.join("frames").join(format!("frame_{k:06}.png"));
+
+    // one frame that is not an image, one deleted after the directory was opened
+    std::fs::write(frame(20), b"not a png").unwrap();
+    let mut src = CamSource::frames_dir(&dir).unwrap();
+    std::fs::remove_file(frame(40)).unwrap();
+    let out = drain(&mut src);
+    // each bad frame is a dropped frame: its two samples become one across it, the
+    // rest keep their times and (the flow's prediction aside) their values
+    assert_eq!(out.len() + 2, cam_ref.len());
+    let mut across = 0;
+    for s in &out {
+        match cam_ref.iter().find(|r| r.t_ns == s.t_ns) {
+            Some(r) => assert!(
+                (s.value - r.value).abs() <= 1e-3 + 2e-3 * r.value.abs(),
+                "{s:?} vs {r:?}"
+            ),
+            None => across += 1,
+        }
+    }
+    assert_eq!(across, 2);
+    let report = src.report().unwrap();
+    assert!(
+        report.contains("; 2 unusable frames skipped (last: ")
+            && report.contains("frame_000040.png: frame file not found"),
+        "{report}"
+    );
+
+    // 30 bad images in a row end the stream with the reason
+    let n = std::fs::read_dir(dir.join("frames")).unwrap().count();
+    assert!(n > 60, "{n} frames");
+    std::fs::write(frame(40), b"").unwrap();
+    for k in 41..71 {
+        std::fs::write(frame(k), b"\x89PNG but cut").unwrap();
+    }
+    let e = end(&mut CamSource::frames_dir(&dir).unwrap());
+    assert!(
+        e.contains("30 frames in a row unusable, the last: ") && e.contains("frame_000069.png"),
+        "{e}"
+    );
+
+    // a recording with `bad` unusable images after its 10th frame and as many
+    // malformed LaserScans after its 10th scan
+    let mcap = |bad: u64| {
+        let path = dir.join(format!("run-{bad}.mcap"));
+        let mut w = vlsync_mcap::McapWriter::create(&path).unwrap();
+        let delay = 1_000_000_000;
+        w.set_log_delay_ns(delay);
+        let mut malformed = Vec::new();
+        vlsync_mcap::cdr::LaserScan {
+            ranges: vlsync_mcap::cdr::F32Seq::from_slice(&[1.0; 4]),
+            ..vlsync_mcap::cdr::LaserScan::default()
+        }
+        .encode(&mut malformed)
+        .unwrap();
+        malformed.truncate(malformed.len() - 6);
+        let bayer = vlsync_mcap::cdr::Image {
+            encoding: "bayer_rggb8",
+            width: 2,
+            height: 2,
+            step: 2,
+            data: &[0; 4],
+            ..vlsync_mcap::cdr::Image::default()
+        };
+        let (mut frames, mut scans) = (0, 0);
+        let mut r = raw::renderer(SEED, DURATION_S).unwrap();
+        for ev in r.events() {
+            // each bad message is logged just after the 10th good one of its topic
+            match ev.unwrap() {
+                vlsync_render::Event::Frame(f) => {
+                    w.write_image("/camera/image_raw", f.stamp_ns, &f.image)
+                        .unwrap();
+                    if frames == 10 {
+                        let log = u64::try_from(f.stamp_ns + delay).unwrap();
+                        for j in 1..=bad {
+                            w.write_message("/camera/image_raw", log + j, &bayer)
+                                .unwrap();
+                        }
+                    }
+                    frames += 1;
+                }
+                vlsync_render::Event::Scan(s) => {
+                    w.write_scan("/scan", &s.scan).unwrap();
+                    if scans == 10 {
+                        let log = u64::try_from(s.scan.rays()[0].t_ns + delay).unwrap();
+                        for j in 1..=bad {
+                            w.write_serialized::<vlsync_mcap::cdr::LaserScan>(
+                                "/scan",
+                                log + j,
+                                &malformed,
+                            )
+                            .unwrap();
+                        }
+                    }
+                    scans += 1;
+                }
+            }
+        }
+        w.finish().unwrap();
+        path
+    };
+    let lidar_ref = drain(&mut LidarSource::mcap(&mcap(0), None).unwrap());
+    let one = mcap(1);
+    // the bad messages came between good ones: nothing of theirs is lost
+    let mut src = CamSource::mcap(&one, None).unwrap();
+    assert_eq!(drain(&mut src), cam_ref);
+    let report = src.report().unwrap();
+    assert!(
+        report.contains("; 1 unusable frames skipped (last: ")
+            && report.contains("unsupported image encoding `bayer_rggb8`"),
+        "{report}"
+    );
+    let mut src = LidarSource::mcap(&one, None).unwrap();
+    assert_eq!(drain(&mut src), lidar_ref);
+    let report = src.report().unwrap();
+    assert!(
+        report.contains("; 1 unusable scans skipped (last: ")
+            && report.contains("CDR field `ranges`"),
+        "{report}"
+    );
+    let thirty = mcap(30);
+    let e = end(&mut CamSource::mcap(&thirty, None).unwrap());
+    assert!(
+        e.contains("30 frames in a row unusable, the last: ") && e.contains("bayer_rggb8"),
+        "{e}"
+    );
+    let e = end(&mut LidarSource::mcap(&thirty, None).unwrap());
+    assert!(e.contains("30 scans in a row unusable, the last: "), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

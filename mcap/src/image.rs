@@ -205,7 +205,8 @@ impl McapImageSource {
 }
 
 impl FrameSource for McapImageSource {
-    /// An image that cannot be used becomes `vlsync_signature_cam::Error::Decode`,
+    /// An image that cannot be used becomes `vlsync_signature_cam::Error::Decode`
+    /// (one frame's error, `is_one_frame`: the next call reads the next message),
     /// an error of the file itself (malformed, truncated) `Error::Read`; both name
     /// the file, with the topic, message index and log time in the reason.
     fn next_frame(

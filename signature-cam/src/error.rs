@@ -100,6 +100,21 @@ pub enum Error {
     },
 }
 
+impl Error {
+    /// Whether the error is one frame's, so that a stream can go on with the next
+    /// one: an image that cannot be decoded or used (a recording's corrupt file or
+    /// message, [`Error::Decode`]), a frame file that went missing or cannot be read
+    /// ([`Error::MissingFrame`], [`Error::Io`]: sources raise them only for frame
+    /// files once open). A stream's own faults (a device error, a malformed or
+    /// truncated recording, a pixel format that cannot be converted) are not.
+    pub fn is_one_frame(&self) -> bool {
+        matches!(
+            self,
+            Error::Decode { .. } | Error::MissingFrame { .. } | Error::Io { .. }
+        )
+    }
+}
+
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {

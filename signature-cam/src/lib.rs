@@ -59,5 +59,5 @@ pub use signature::{
     CamSample, FramePeriod, FrameTime, SignatureConfig, SignatureProcessor, Stamping, StartReason,
     Step,
 };
-pub use source::{DirSource, FrameSource};
+pub use source::{DirSource, FrameSource, UnusableFrames, MAX_UNUSABLE_IN_ROW};
 pub use v4l2::{V4l2Config, V4l2Source};

@@ -53,6 +53,75 @@ pub trait FrameSource {
     }
 }
 
+/// Unusable frames in a row after which a stream ends with an error (a second at
+/// 30 Hz).
+pub const MAX_UNUSABLE_IN_ROW: u32 = 30;
+
+/// Counts the frames of a stream that could not be used (a live camera's corrupt
+/// buffer, a recording's undecodable image, a recording's malformed scan) and ends
+/// the stream after [`MAX_UNUSABLE_IN_ROW`] of them in a row: sporadic bad frames
+/// are dropped frames, a stream of nothing but bad frames is a fault.
+///
+/// ```
+/// use vlsync_signature_cam::source::UnusableFrames;
+/// let mut u = UnusableFrames::named("buffers");
+/// u.skip("buffer 3 flagged corrupt".into()).unwrap();
+/// u.used();
+/// assert_eq!(u.counts(), Some((1, "buffer 3 flagged corrupt")));
+/// ```
+#[derive(Debug, Clone)]
+pub struct UnusableFrames {
+    unit: &'static str,
+    total: u64,
+    in_row: u32,
+    last: String,
+}
+
+impl Default for UnusableFrames {
+    fn default() -> Self {
+        Self::named("frames")
+    }
+}
+
+impl UnusableFrames {
+    /// A counter whose error calls the stream's units `unit` (`frames`, `buffers`,
+    /// `scans`).
+    pub fn named(unit: &'static str) -> Self {
+        Self {
+            unit,
+            total: 0,
+            in_row: 0,
+            last: String::new(),
+        }
+    }
+
+    /// A frame that could not be used, and why: `Ok` to go on with the next one;
+    /// once [`MAX_UNUSABLE_IN_ROW`] came in a row, `Err` with the message that ends
+    /// the stream (how many, and the last reason).
+    pub fn skip(&mut self, reason: String) -> Result<(), String> {
+        self.total = self.total.saturating_add(1);
+        self.in_row = self.in_row.saturating_add(1);
+        self.last = reason;
+        if self.in_row >= MAX_UNUSABLE_IN_ROW {
+            return Err(format!(
+                "{} {} in a row unusable, the last: {}",
+                self.in_row, self.unit, self.last
+            ));
+        }
+        Ok(())
+    }
+
+    /// A frame that was used.
+    pub fn used(&mut self) {
+        self.in_row = 0;
+    }
+
+    /// Frames skipped so far and the last one's reason (`None` before the first).
+    pub fn counts(&self) -> Option<(u64, &str)> {
+        (self.total > 0).then_some((self.total, self.last.as_str()))
+    }
+}
+
 /// Parses a decimal number of seconds exactly into nanoseconds.
 ///
 /// Accepts an optional sign, digits, and an optional `.` with digits (at least one
@@ -385,6 +454,43 @@ mod tests {
                 "{text:?}: {msg}"
             );
         }
+    }
+
+    #[test]
+    fn unusable_frames_are_skipped_until_a_second_of_them_in_a_row() {
+        let mut u = UnusableFrames::named("buffers");
+        assert_eq!(u.counts(), None);
+        // sporadic bad frames never end the stream
+        for k in 0..1000 {
+            if k % 7 == 0 {
+                u.skip(format!("buffer {k} flagged corrupt by the driver"))
+                    .unwrap();
+            } else {
+                u.used();
+            }
+        }
+        let (n, last) = u.counts().unwrap();
+        assert_eq!(n, 143);
+        assert_eq!(last, "buffer 994 flagged corrupt by the driver");
+        // a stream of nothing usable does, naming why
+        for k in 1..MAX_UNUSABLE_IN_ROW {
+            u.skip(format!("short {k}")).unwrap();
+        }
+        let e = u.skip("buffer 9: too short".into()).unwrap_err();
+        assert_eq!(
+            e,
+            "30 buffers in a row unusable, the last: buffer 9: too short"
+        );
+        assert_eq!(u.counts().unwrap().0, 173);
+        // the default unit
+        let mut f = UnusableFrames::default();
+        for _ in 1..MAX_UNUSABLE_IN_ROW {
+            f.skip("x".into()).unwrap();
+        }
+        assert!(f
+            .skip("y".into())
+            .unwrap_err()
+            .starts_with("30 frames in a row"));
     }
 
     proptest! {

@@ -19,10 +19,10 @@
 //! ([`FrameSource::unusable`]); the signature then treats it as a dropped frame: the
 //! next frame pairs with the last good one over their true interval, or, past the
 //! signature's `max_gap_ns`, restarts the pair (a counted gap). Only
-//! [`MAX_UNUSABLE_IN_ROW`] such buffers in a row (a second at 30 Hz: a device that
-//! delivers nothing usable) end the stream with an error saying why; a frame format
-//! the converter cannot read at all (an odd YUYV width, a stride shorter than a row)
-//! ends it at the first frame.
+//! [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) such buffers in a
+//! row (a second at 30 Hz: a device that delivers nothing usable) end the stream
+//! with an error saying why; a frame format the converter cannot read at all (an
+//! odd YUYV width, a stride shorter than a row) ends it at the first frame.
 //!
 //! ```
 //! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
@@ -60,48 +60,6 @@ impl Default for V4l2Config {
             height: 480,
             buffers: 4,
         }
-    }
-}
-
-/// Unusable buffers in a row after which the stream ends with an error.
-pub const MAX_UNUSABLE_IN_ROW: u32 = 30;
-
-/// Counts the unusable buffers of a stream and ends it after
-/// [`MAX_UNUSABLE_IN_ROW`] in a row.
-#[derive(Debug, Clone, Default)]
-pub struct UnusableFrames {
-    total: u64,
-    in_row: u32,
-    last: String,
-}
-
-impl UnusableFrames {
-    /// A buffer that could not be used, and why: `Ok` to go on with the next one,
-    /// the error once [`MAX_UNUSABLE_IN_ROW`] came in a row.
-    pub fn skip(&mut self, path: &std::path::Path, reason: String) -> Result<(), Error> {
-        self.total = self.total.saturating_add(1);
-        self.in_row = self.in_row.saturating_add(1);
-        self.last = reason;
-        if self.in_row >= MAX_UNUSABLE_IN_ROW {
-            return Err(Error::Device {
-                path: path.to_path_buf(),
-                reason: format!(
-                    "{} buffers in a row unusable, the last: {}",
-                    self.in_row, self.last
-                ),
-            });
-        }
-        Ok(())
-    }
-
-    /// A buffer that was used.
-    pub fn used(&mut self) {
-        self.in_row = 0;
-    }
-
-    /// Buffers skipped so far and the last one's reason (`None` before the first).
-    pub fn counts(&self) -> Option<(u64, &str)> {
-        (self.total > 0).then_some((self.total, self.last.as_str()))
     }
 }
 
@@ -192,6 +150,7 @@ impl FrameSource for V4l2Source {
 #[cfg(feature = "v4l2")]
 mod imp {
     use super::*;
+    use crate::source::UnusableFrames;
     use v4l::buffer::Type;
     use v4l::io::mmap::Stream;
     use v4l::io::traits::CaptureStream;
@@ -250,8 +209,15 @@ mod imp {
                 stride: fmt.stride as usize,
                 format,
                 gray: Vec::new(),
-                unusable: UnusableFrames::default(),
+                unusable: UnusableFrames::named("buffers"),
             })
+        }
+
+        fn device_error(&self, reason: String) -> Error {
+            Error::Device {
+                path: self.path.clone(),
+                reason,
+            }
         }
 
         pub(super) fn next(&mut self) -> Result<(GrayFrame<'_, u8>, FrameTime), Error> {
@@ -267,7 +233,9 @@ mod imp {
                 })?;
                 if meta.flags.contains(v4l::buffer::Flags::ERROR) {
                     let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
-                    self.unusable.skip(&self.path, why)?;
+                    self.unusable
+                        .skip(why)
+                        .map_err(|reason| self.device_error(reason))?;
                     continue;
                 }
                 let used = (meta.bytesused as usize).min(buf.len());
@@ -280,7 +248,9 @@ mod imp {
                     }
                     Err(e) if skippable(&e) => {
                         let why = format!("buffer {}: {e}", meta.sequence);
-                        self.unusable.skip(&self.path, why)?;
+                        self.unusable
+                            .skip(why)
+                            .map_err(|reason| self.device_error(reason))?;
                     }
                     // the frame's geometry, not one buffer: every frame would fail
                     Err(e) => return Err(e),
@@ -313,35 +283,6 @@ mod tests {
             e.to_string(),
             "/dev/video-vlsync-test-missing: no such device"
         );
-    }
-
-    #[test]
-    fn unusable_buffers_are_skipped_until_a_second_of_them_in_a_row() {
-        let dev = std::path::Path::new("/dev/video7");
-        let mut u = UnusableFrames::default();
-        assert_eq!(u.counts(), None);
-        // sporadic bad buffers never end the stream
-        for k in 0..1000 {
-            if k % 7 == 0 {
-                u.skip(dev, format!("buffer {k} flagged corrupt by the driver"))
-                    .unwrap();
-            } else {
-                u.used();
-            }
-        }
-        let (n, last) = u.counts().unwrap();
-        assert_eq!(n, 143);
-        assert_eq!(last, "buffer 994 flagged corrupt by the driver");
-        // a device that delivers nothing usable does, naming why
-        for k in 1..MAX_UNUSABLE_IN_ROW {
-            u.skip(dev, format!("short {k}")).unwrap();
-        }
-        let e = u.skip(dev, "buffer 9: too short".into()).unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "/dev/video7: 30 buffers in a row unusable, the last: buffer 9: too short"
-        );
-        assert_eq!(u.counts().unwrap().0, 173);
     }
 
     #[test]
