@@ -75,7 +75,13 @@ fn main() -> ExitCode {
             plot: plot.as_deref(),
         }),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
-        Cmd::Run(args) => vlsyncd::runtime::run_cli(&args),
+        Cmd::Run(args) => match vlsyncd::runtime::load_config(&args) {
+            Ok(cfg) => vlsyncd::runtime::run_cli(cfg),
+            Err(e) => {
+                vlsync_common::console::print_err(&format!("vlsyncd: error: {e}\n"));
+                return ExitCode::from(vlsyncd::runtime::EXIT_CONFIG);
+            }
+        },
         Cmd::Check { config, print } => vlsyncd::check::check(&config, print)
             .and_then(|report| vlsync_common::console::print_out(&report)),
     };

@@ -50,3 +50,38 @@ fn every_binary_has_help_and_rejects_an_unknown_argument() {
     assert_eq!(code, 2);
     assert!(err.contains("frobnicate"), "{err}");
 }
+
+/// `vlsyncd run` with a configuration it cannot load exits 78 (EX_CONFIG), which the
+/// systemd unit does not restart (`RestartPreventExitStatus=78`), naming the file and
+/// the key; a bad `--prefix` is the configuration's too. It exits before it opens
+/// anything, so no daemon is started here.
+#[test]
+fn a_configuration_it_cannot_load_exits_78() {
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-cfg-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "[daemon]\ncore = -3\n").unwrap();
+    let missing = dir.join("missing.toml");
+    let vlsyncd = env!("CARGO_BIN_EXE_vlsyncd");
+    for (args, names) in [
+        (
+            vec!["run", "--config", bad.to_str().unwrap()],
+            vec!["bad.toml", "core"],
+        ),
+        (
+            vec!["run", "--config", missing.to_str().unwrap()],
+            vec!["missing.toml"],
+        ),
+        (vec!["run", "--prefix", "no spaces/allowed"], vec!["prefix"]),
+    ] {
+        let (code, _, err) = run(vlsyncd, &args);
+        assert_eq!(code, 78, "{args:?}: {err}");
+        for n in names {
+            assert!(err.contains(n), "{args:?}: {err}");
+        }
+    }
+    // `check` keeps its documented exit code 2 for the same file
+    let (code, _, err) = run(vlsyncd, &["check", "--config", bad.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

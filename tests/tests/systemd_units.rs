@@ -88,7 +88,11 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
         ("NotifyAccess", "main"),
         ("WatchdogSec", "5s"),
         ("Restart", "on-failure"),
-        ("RestartSec", "1"),
+        ("RestartSec", "2"),
+        // a configuration the daemon cannot load is not retried (`vlsyncd run` exits
+        // 78 then, `a_configuration_it_cannot_load_exits_78`); everything else is,
+        // without a start limit
+        ("RestartPreventExitStatus", "78"),
         ("User", "vlsync"),
         ("Group", "vlsync"),
         ("StateDirectory", "vlsync"),
@@ -105,6 +109,7 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
     ] {
         assert_eq!(get(&u, n, "Service", k), want, "{n}: {k}=");
     }
+    assert_eq!(get(&u, n, "Unit", "StartLimitIntervalSec"), "0");
     assert_eq!(
         get(&u, n, "Service", "ExecStart"),
         "/usr/local/bin/vlsyncd run --config /etc/vlsync/vlsync.toml"

@@ -863,8 +863,15 @@ pub fn load_config(args: &RunArgs) -> Result<Config, String> {
     Ok(cfg)
 }
 
-/// `vlsyncd run`: runs until SIGINT/SIGTERM.
-pub fn run_cli(args: &RunArgs) -> Result<(), String> {
+/// Exit status of `vlsyncd run` when its configuration cannot be loaded (sysexits'
+/// `EX_CONFIG`, which systemd shows as `status=78/CONFIG`): the unit's
+/// `RestartPreventExitStatus=78` leaves it failed instead of restarting a daemon
+/// that would fail the same way. Every other error exits 2 and is restarted.
+pub const EXIT_CONFIG: u8 = 78;
+
+/// `vlsyncd run` with the configuration [`load_config`] gave: runs until
+/// SIGINT/SIGTERM.
+pub fn run_cli(cfg: Config) -> Result<(), String> {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -873,7 +880,6 @@ pub fn run_cli(args: &RunArgs) -> Result<(), String> {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
-    let cfg = load_config(args)?;
     run(cfg, Arc::new(AtomicBool::new(false)))
 }
 
