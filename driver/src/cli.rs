@@ -565,12 +565,31 @@ impl StampArg {
     }
 }
 
+/// Exit status of a driver whose options or configuration file are wrong (sysexits'
+/// `EX_CONFIG`, `status=78/CONFIG` under systemd): the driver units do not restart
+/// it (`RestartPreventExitStatus=78`), since it would fail the same way. A source
+/// or iceoryx2 error exits 2 and is restarted (a sensor unplugged, a daemon
+/// restarting). A command line that cannot be parsed is an options error too.
+pub const EXIT_CONFIG: u8 = 78;
+
 /// How often a driver writes a progress line (journald under systemd).
 pub const PROGRESS_EVERY: Duration = Duration::from_secs(600);
 
 /// `main` of a driver binary.
 pub fn main(stream: Stream) -> ExitCode {
-    let args = DriverArgs::parse_from(std::env::args_os());
+    let args = match DriverArgs::try_parse_from(std::env::args_os()) {
+        Ok(a) => a,
+        Err(e) => {
+            // --help and --version print and succeed; a command line that cannot be
+            // parsed is an options error like the others (not restarted under systemd)
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(EXIT_CONFIG)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
     match run_driver(stream, &args) {
         Ok(s) => {
             vlsync_common::console::print_err(&format!(
@@ -584,7 +603,10 @@ pub fn main(stream: Stream) -> ExitCode {
         }
         Err(e) => {
             vlsync_common::console::print_err(&format!("vlsync-{stream}: error: {e}\n"));
-            ExitCode::from(2)
+            ExitCode::from(match e {
+                DriverError::Options(_) => EXIT_CONFIG,
+                _ => 2,
+            })
         }
     }
 }

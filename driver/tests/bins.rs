@@ -319,3 +319,47 @@ fn wait_device_waits_for_the_node_then_opens_it_and_stops_cleanly_meanwhile() {
     assert!(text.contains("error:") && text.contains(d), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Wrong options, a configuration file that does not load and a command line that
+/// cannot be parsed exit 78 (EX_CONFIG), which the driver units do not restart; a
+/// source that fails (here a missing file) exits 2 and is restarted. `--help` exits 0.
+#[test]
+fn option_and_configuration_errors_exit_78_source_errors_2() {
+    let code = |bin: &str, args: &[&str]| {
+        let out = Command::new(bin).args(args).output().expect("spawn driver");
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let dir = std::env::temp_dir().join(format!("vlsync-driver-exit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "[lidar]\nwindow_half_width_deg = 400\n").unwrap();
+    let (cam, lidar) = (
+        env!("CARGO_BIN_EXE_vlsync-cam"),
+        env!("CARGO_BIN_EXE_vlsync-lidar"),
+    );
+    for (bin, args, want, names) in [
+        (lidar, vec!["--frames", "/tmp"], 78, "--frames"),
+        (cam, vec!["--no-such-flag"], 78, "--no-such-flag"),
+        (
+            lidar,
+            vec!["--sim", "robot", "--config", bad.to_str().unwrap()],
+            78,
+            "window_half_width_deg",
+        ),
+        (
+            lidar,
+            vec!["--scans", "/nonexistent/vlsync/s.csv"],
+            2,
+            "/nonexistent/vlsync/s.csv",
+        ),
+        (cam, vec!["--help"], 0, ""),
+    ] {
+        let (c, err) = code(bin, &args);
+        assert_eq!(c, Some(want), "{bin} {args:?}: {err}");
+        assert!(err.contains(names), "{bin} {args:?}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -196,6 +196,9 @@ fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
         // never given up on: systemd's default start limit would leave a driver dead
         // after 5 quick failures; an unplugged sensor is waited for in the driver
         assert_eq!(get(&u, n, "Unit", "StartLimitIntervalSec"), "0");
+        // but not after wrong options or configuration (the drivers exit 78 then,
+        // `option_and_configuration_errors_exit_78_source_errors_2`)
+        assert_eq!(get(&u, n, "Service", "RestartPreventExitStatus"), "78");
         assert!(words(&u, "Unit", "After").contains(&"vlsyncd.service".to_string()));
         assert!(words(&u, "Unit", "Wants").contains(&"vlsyncd.service".to_string()));
         assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
