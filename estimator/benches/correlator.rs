@@ -10,7 +10,8 @@
 //! `cargo bench -p vlsync-estimator --bench correlator`; the ratio is what matters.
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
-use rustfft::{num_complex::Complex, FftPlanner};
+use realfft::{num_complex::Complex, ComplexToReal, RealFftPlanner, RealToComplex};
+use std::sync::Arc;
 use vlsync_common::Stream;
 use vlsync_config::EstimatorConfig;
 use vlsync_estimator::correlator::{Correlator, Step};
@@ -87,38 +88,83 @@ fn batch_direct(x: &[f64], y: &[f64], n_lags: usize, out: &mut [f64]) {
     }
 }
 
-/// FFT batch: cross-correlation by FFT plus prefix sums for the per-lag moments.
-fn batch_fft(x: &[f64], y: &[f64], n_lags: usize, planner: &mut FftPlanner<f64>, out: &mut [f64]) {
-    let n = x.len();
-    let len = (n + y.len()).next_power_of_two();
-    let fft = planner.plan_fft_forward(len);
-    let ifft = planner.plan_fft_inverse(len);
-    let mut a: Vec<Complex<f64>> = (0..len)
-        .map(|i| Complex::new(if i < n { x[i] } else { 0.0 }, 0.0))
-        .collect();
-    let mut b: Vec<Complex<f64>> = (0..len)
-        .map(|i| Complex::new(if i < y.len() { y[i] } else { 0.0 }, 0.0))
-        .collect();
-    fft.process(&mut a);
-    fft.process(&mut b);
-    for (p, q) in a.iter_mut().zip(&b) {
-        *p = p.conj() * q;
+/// FFT batch: the cross-correlation of the window at every lag by real FFTs, the
+/// per-lag moments by prefix sums. Planned once, its buffers allocated once, at the
+/// shortest power of two that holds the linear correlation (`y.len()`, which is at
+/// least `x.len() + n_lags - 1`: no lag wraps around): what a careful batch
+/// implementation would do. Until 2026-12-03 the bench used complex FFTs of twice that
+/// length and allocated its buffers per call, which made the FFT about three times
+/// slower than it needs to be (docs/performance.md).
+struct BatchFft {
+    len: usize,
+    r2c: Arc<dyn RealToComplex<f64>>,
+    c2r: Arc<dyn ComplexToReal<f64>>,
+    a: Vec<f64>,
+    b: Vec<f64>,
+    sa: Vec<Complex<f64>>,
+    sb: Vec<Complex<f64>>,
+    scratch: Vec<Complex<f64>>,
+    pre: Vec<f64>,
+    pre2: Vec<f64>,
+}
+
+impl BatchFft {
+    fn new(x_len: usize, y_len: usize, n_lags: usize) -> Self {
+        assert!(y_len + 1 >= x_len + n_lags, "y must cover every lag");
+        let len = y_len.next_power_of_two();
+        let mut planner = RealFftPlanner::<f64>::new();
+        let r2c = planner.plan_fft_forward(len);
+        let c2r = planner.plan_fft_inverse(len);
+        let scratch_len = r2c.get_scratch_len().max(c2r.get_scratch_len());
+        Self {
+            len,
+            a: r2c.make_input_vec(),
+            b: r2c.make_input_vec(),
+            sa: r2c.make_output_vec(),
+            sb: r2c.make_output_vec(),
+            scratch: vec![Complex::new(0.0, 0.0); scratch_len],
+            pre: vec![0.0; y_len + 1],
+            pre2: vec![0.0; y_len + 1],
+            r2c,
+            c2r,
+        }
     }
-    ifft.process(&mut a);
-    let mut pre = vec![0.0; y.len() + 1];
-    let mut pre2 = vec![0.0; y.len() + 1];
-    for i in 0..y.len() {
-        pre[i + 1] = pre[i] + y[i];
-        pre2[i + 1] = pre2[i] + y[i] * y[i];
-    }
-    let sx: f64 = x.iter().sum();
-    let sxx: f64 = x.iter().map(|v| v * v).sum();
-    let nf = n as f64;
-    for (m, o) in out.iter_mut().enumerate().take(n_lags) {
-        let sxy = a[m].re / len as f64;
-        let sy = pre[m + n] - pre[m];
-        let syy = pre2[m + n] - pre2[m];
-        *o = (sxy - sx * sy / nf) / ((sxx - sx * sx / nf) * (syy - sy * sy / nf)).sqrt();
+
+    fn run(&mut self, x: &[f64], y: &[f64], n_lags: usize, out: &mut [f64]) {
+        let n = x.len();
+        self.a.fill(0.0);
+        self.a[..n].copy_from_slice(x);
+        self.b.fill(0.0);
+        self.b[..y.len()].copy_from_slice(y);
+        self.r2c
+            .process_with_scratch(&mut self.a, &mut self.sa, &mut self.scratch)
+            .expect("forward FFT of x");
+        self.r2c
+            .process_with_scratch(&mut self.b, &mut self.sb, &mut self.scratch)
+            .expect("forward FFT of y");
+        for (p, q) in self.sa.iter_mut().zip(&self.sb) {
+            *p = p.conj() * q;
+        }
+        // the spectrum of a real correlation: real at DC and at the Nyquist bin
+        let last = self.sa.len() - 1;
+        self.sa[0].im = 0.0;
+        self.sa[last].im = 0.0;
+        self.c2r
+            .process_with_scratch(&mut self.sa, &mut self.a, &mut self.scratch)
+            .expect("inverse FFT");
+        for (i, &v) in y.iter().enumerate() {
+            self.pre[i + 1] = self.pre[i] + v;
+            self.pre2[i + 1] = self.pre2[i] + v * v;
+        }
+        let sx: f64 = x.iter().sum();
+        let sxx: f64 = x.iter().map(|v| v * v).sum();
+        let nf = n as f64;
+        for (m, o) in out.iter_mut().enumerate().take(n_lags) {
+            let sxy = self.a[m] / self.len as f64;
+            let sy = self.pre[m + n] - self.pre[m];
+            let syy = self.pre2[m + n] - self.pre2[m];
+            *o = (sxy - sx * sy / nf) / ((sxx - sx * sx / nf) * (syy - sy * sy / nf)).sqrt();
+        }
     }
 }
 
@@ -165,10 +211,15 @@ fn bench(c: &mut Criterion) {
                 black_box(out[0])
             })
         });
-        let mut planner = FftPlanner::new();
+        let mut fft = BatchFft::new(x.len(), y.len(), n_lags);
+        // the same correlation as the direct recompute
+        let mut check = vec![0.0; n_lags];
+        batch_direct(&x, &y, n_lags, &mut check);
+        fft.run(&x, &y, n_lags, &mut out);
+        assert!(out.iter().zip(&check).all(|(a, b)| (a - b).abs() < 1e-9));
         g.bench_function(BenchmarkId::new("batch_fft", s.name), |b| {
             b.iter(|| {
-                batch_fft(black_box(&x), black_box(&y), n_lags, &mut planner, &mut out);
+                fft.run(black_box(&x), black_box(&y), n_lags, &mut out);
                 black_box(out[0])
             })
         });
@@ -244,16 +295,10 @@ fn segment(c: &mut Criterion) {
             black_box(out[0])
         })
     });
-    let mut planner = FftPlanner::new();
+    let mut fft = BatchFft::new(x.len(), y.len(), 2 * half + 1);
     g.bench_function("batch_fft_all_lags", |b| {
         b.iter(|| {
-            batch_fft(
-                black_box(&x),
-                black_box(&y),
-                2 * half + 1,
-                &mut planner,
-                &mut out,
-            );
+            fft.run(black_box(&x), black_box(&y), 2 * half + 1, &mut out);
             black_box(out[0])
         })
     });
