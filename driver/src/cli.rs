@@ -489,7 +489,8 @@ fn prefix(args: &DriverArgs) -> Result<String, DriverError> {
 /// Runs a driver for `stream` with `args`; prints what the source dropped at the end.
 pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary, DriverError> {
     let prefix = prefix(args)?;
-    let names = ServiceNames::new(&prefix).map_err(DriverError::Ipc)?;
+    // an invalid prefix is an options error (exit 78, not restarted), wherever it came from
+    let names = ServiceNames::new(&prefix).map_err(|e| DriverError::Options(e.to_string()))?;
     let Selected {
         mut source,
         anchor_ns,

@@ -343,6 +343,14 @@ fn option_and_configuration_errors_exit_78_source_errors_2() {
     for (bin, args, want, names) in [
         (lidar, vec!["--frames", "/tmp"], 78, "--frames"),
         (cam, vec!["--no-such-flag"], 78, "--no-such-flag"),
+        // a prefix iceoryx2 cannot name services with, on the command line (it used to
+        // exit 2, so a mistyped prefix in the unit's environment was restarted forever)
+        (
+            cam,
+            vec!["--sim", "robot", "--prefix", "/bad//x"],
+            78,
+            "--prefix",
+        ),
         (
             lidar,
             vec!["--sim", "robot", "--config", bad.to_str().unwrap()],
