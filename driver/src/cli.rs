@@ -72,7 +72,9 @@ pub struct DriverArgs {
     #[arg(long, value_name = "SEED")]
     pub render: Option<u64>,
     /// Publish as fast as possible instead of in real time (recorded and simulated
-    /// sources; a live device publishes as its data arrives).
+    /// sources; a live device publishes as its data arrives). Nothing slows the
+    /// driver down for the daemon: a running daemon keeps what its 256-sample buffer
+    /// holds when it cannot keep up; --speed 100 is lossless.
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
     /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
@@ -544,6 +546,15 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     if let Some(r) = source.report() {
         vlsync_common::console::print_err(&format!("vlsync-{stream}: {r}\n"));
     }
+    // the samples live in this process's shared memory until the daemon has taken
+    // them: leaving right after the last send (a fast replay above all) would take
+    // the newest ones away with the publisher before the daemon woke to read them
+    if matches!(&result, Ok(s) if !s.interrupted && s.published > s.unreached) {
+        let until = std::time::Instant::now() + LINGER;
+        while std::time::Instant::now() < until && !termination_requested() {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
     if let (Some(t), Some(p)) = (truth.as_mut(), &args.truth_out) {
         t.finish().map_err(DriverError::Source)?;
         vlsync_common::console::print_err(&format!(
@@ -573,6 +584,10 @@ impl StampArg {
 /// restarting). A command line that cannot be parsed is an options error too.
 pub const EXIT_CONFIG: u8 = 78;
 
+/// How long a driver keeps its publisher after its source ended, so the daemon can
+/// take the last samples (it needs well under a millisecond once woken).
+pub const LINGER: Duration = Duration::from_millis(500);
+
 /// How often a driver writes a progress line (journald under systemd).
 pub const PROGRESS_EVERY: Duration = Duration::from_secs(600);
 
@@ -594,10 +609,18 @@ pub fn main(stream: Stream) -> ExitCode {
     match run_driver(stream, &args) {
         Ok(s) => {
             vlsync_common::console::print_err(&format!(
-                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}\n",
+                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}\n",
                 s.published,
                 s.skipped,
                 s.failed,
+                if s.unreached > 0 {
+                    format!(
+                        "; {} reached no subscriber (no daemon running on this prefix then)",
+                        s.unreached
+                    )
+                } else {
+                    String::new()
+                },
                 if s.interrupted { ", interrupted" } else { "" }
             ));
             ExitCode::SUCCESS

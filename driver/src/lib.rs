@@ -249,6 +249,9 @@ pub struct RunSummary {
     pub failed: u64,
     /// True when stopped by a signal (or the stop callback) before the source ended.
     pub interrupted: bool,
+    /// Published samples no subscriber was connected for (no daemon running): nobody
+    /// received them.
+    pub unreached: u64,
 }
 
 /// A progress report of a long run: every `every`, [`run`] calls `report` with the
@@ -331,6 +334,7 @@ pub fn run(
         }
         if stop() {
             sum.interrupted = true;
+            sum.unreached = publisher.unreached();
             return Ok(sum);
         }
         if let Some(speed) = speed {
@@ -347,6 +351,7 @@ pub fn run(
                 }
                 if stop() {
                     sum.interrupted = true;
+                    sum.unreached = publisher.unreached();
                     return Ok(sum);
                 }
                 let wait = Duration::from_nanos((due - now) as u64).min(MAX_SLEEP);
@@ -371,6 +376,7 @@ pub fn run(
             }
         }
     }
+    sum.unreached = publisher.unreached();
     Ok(sum)
 }
 

@@ -389,6 +389,7 @@ pub struct SignaturePublisher {
     publisher: Publisher<Svc, SignatureSample, ()>,
     notifier: Notifier<Svc>,
     next_seq: u64,
+    unreached: u64,
     _services: (PubSubFactory<Svc, SignatureSample, ()>, EventFactory<Svc>),
 }
 
@@ -409,39 +410,50 @@ impl SignaturePublisher {
             publisher,
             notifier,
             next_seq: 0,
+            unreached: 0,
             _services: (svc, ev),
         })
     }
 
     /// Publishes one sample stamped with the next sequence number and now
     /// (`CLOCK_MONOTONIC`), then wakes the daemon. The first sample carries
-    /// [`vlsync_common::wire::FLAG_FIRST`]. Returns the sequence number used.
+    /// [`vlsync_common::wire::FLAG_FIRST`]. Returns the sequence number used; a
+    /// sample no subscriber was connected for is counted ([`Self::unreached`]).
     pub fn publish(&mut self, t_ns: Nanos, value: f64) -> Result<u64, IpcError> {
         let seq = self.next_seq;
         let mut s = SignatureSample::new(t_ns, value, seq, monotonic_ns());
         if seq == 0 {
             s.flags |= vlsync_common::wire::FLAG_FIRST;
         }
-        self.publish_raw(s)?;
+        if self.publish_raw(s)? == 0 {
+            self.unreached += 1;
+        }
         self.next_seq += 1;
         Ok(seq)
     }
 
+    /// Samples [`Self::publish`] sent while no subscriber (no daemon) was connected:
+    /// nobody received them.
+    pub fn unreached(&self) -> u64 {
+        self.unreached
+    }
+
     /// Publishes a payload exactly as given (tests use it to send hostile samples).
-    pub fn publish_raw(&self, s: SignatureSample) -> Result<(), IpcError> {
+    /// Returns how many subscribers it was delivered to (0: no daemon connected).
+    pub fn publish_raw(&self, s: SignatureSample) -> Result<usize, IpcError> {
         let what = || format!("publish {} signature", self.stream);
         let sample = self
             .publisher
             .loan_uninit()
             .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
-        sample
+        let recipients = sample
             .write_payload(s)
             .send()
             .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
         self.notifier
             .notify_with_custom_event_id(stream_event_id(self.stream))
             .map_err(|e| IpcError::new(format!("notify {}", what()), format!("{e:?}")))?;
-        Ok(())
+        Ok(recipients)
     }
 }
 

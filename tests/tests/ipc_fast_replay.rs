@@ -1,0 +1,85 @@
+//! A driver replaying as fast as it can (`--fast`) hands every sample to a running
+//! daemon when they fit its subscriber buffer: the driver keeps its publisher (whose
+//! shared memory holds the samples) until the daemon has had time to take them,
+//! where it used to exit right after the last send and take them all away (the
+//! daemon received none of them). Without a daemon, the driver says that nobody
+//! received its samples instead of reporting them as published and nothing else.
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+use vlsync_ipc::StatusClient;
+use vlsync_tests::{bin, Rig};
+
+fn fast_cam(prefix: &str, duration_s: &str) -> (Option<i32>, String) {
+    let out = Command::new(bin("vlsync-cam"))
+        .args([
+            "--prefix",
+            prefix,
+            "--sim",
+            "robot",
+            "--seed",
+            "2",
+            "--duration",
+            duration_s,
+            "--fast",
+        ])
+        .output()
+        .expect("run vlsync-cam");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_fast_replay_reaches_the_daemon_and_an_unheard_one_says_so() {
+    let rig = Rig::new("fast", "robot", 2, 6.0, 1.0);
+    let mut daemon = rig.daemon(0);
+    let mut status = StatusClient::open(&rig.prefix).unwrap();
+    // the daemon is serving once it publishes a status
+    let t0 = Instant::now();
+    while status.latest().unwrap().is_none() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "no status from the daemon:\n{}",
+            rig.log("vlsyncd-0.log")
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // 6 s at 30 Hz: fewer samples than the daemon's 256-sample buffer holds
+    let (code, err) = fast_cam(&rig.prefix, "6");
+    assert_eq!(code, Some(0), "{err}");
+    let published: u64 = err
+        .lines()
+        .find_map(|l| {
+            let n = l
+                .strip_prefix("vlsync-cam: ")?
+                .split(" published,")
+                .next()?;
+            n.parse().ok()
+        })
+        .unwrap_or_else(|| panic!("no summary line:\n{err}"));
+    assert!((150..256).contains(&published), "{err}");
+    assert!(!err.contains("reached no subscriber"), "{err}");
+    // the next status counts them
+    let t1 = Instant::now();
+    let st = loop {
+        let st = status.latest().unwrap().expect("a status");
+        if st.received[0] >= published || t1.elapsed() > Duration::from_secs(5) {
+            break st;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(daemon.stop(Duration::from_secs(3)));
+    assert_eq!(
+        st.received[0],
+        published,
+        "{st:?}\n{}",
+        rig.log("vlsyncd-0.log")
+    );
+
+    // no daemon on this prefix: published, and said to have reached nobody
+    let (code, err) = fast_cam(&format!("{}-nobody", rig.prefix), "2");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("reached no subscriber"), "{err}");
+}
