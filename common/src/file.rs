@@ -75,6 +75,43 @@ pub fn read_regular_to_string(path: &Path) -> io::Result<String> {
     io::read_to_string(open_regular(path)?)
 }
 
+/// Whether `a` and `b` name the same file: the same inode when both exist (hard and
+/// symbolic links, `./` and `../` spellings included), the same file name in the same
+/// (canonical) directory when neither does yet. A writer checks its outputs with it
+/// before it truncates anything: an output named like an input would destroy it.
+///
+/// ```
+/// use std::path::Path;
+/// let dir = std::env::temp_dir();
+/// let f = dir.join(format!("vlsync-same-file-doc-{}", std::process::id()));
+/// std::fs::write(&f, "x").unwrap();
+/// let spelled = dir.join(".").join(f.file_name().unwrap());
+/// assert!(vlsync_common::file::same_file(&f, &spelled));
+/// assert!(!vlsync_common::file::same_file(&f, &dir.join("vlsync-no-such-file")));
+/// std::fs::remove_file(&f).unwrap();
+/// ```
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        (Err(_), Err(_)) => match (resolved(a), resolved(b)) {
+            (Some(x), Some(y)) => x == y,
+            _ => a == b,
+        },
+        _ => false,
+    }
+}
+
+/// `p`'s directory made canonical, joined with its file name.
+fn resolved(p: &Path) -> Option<std::path::PathBuf> {
+    let name = p.file_name()?;
+    let dir = match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    Some(std::fs::canonicalize(dir).ok()?.join(name))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

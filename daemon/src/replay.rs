@@ -188,6 +188,32 @@ pub struct ReplayArgs<'a> {
     pub plot: Option<&'a Path>,
 }
 
+/// Refuses outputs that name an input or each other: `--out` and `--plot` are
+/// truncated when written, and an estimates file written over `--cam` (or a plot over
+/// the estimates) destroys what the run was made from.
+fn check_outputs(a: &ReplayArgs<'_>) -> Result<(), String> {
+    let files = [
+        ("--out", Some(a.out)),
+        ("--plot", a.plot),
+        ("--cam", Some(a.cam)),
+        ("--lidar", Some(a.lidar)),
+        ("--truth", a.truth),
+        ("--config", a.config),
+    ];
+    for (i, (out_flag, out)) in files.iter().take(2).enumerate() {
+        let Some(out) = out else { continue };
+        for (flag, other) in &files[i + 1..] {
+            if other.is_some_and(|p| vlsync_common::file::same_file(out, p)) {
+                return Err(format!(
+                    "{out_flag} {} is the same file as {flag}: refusing to overwrite it",
+                    out.display()
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Truth offset at `t`, linearly interpolated (clamped at the ends); `None` when empty.
 pub fn truth_at(truth: &[(Nanos, f64)], t: Nanos) -> Option<f64> {
     let i = truth.partition_point(|p| p.0 <= t);
@@ -234,6 +260,7 @@ pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
 
 /// The `replay` command.
 pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
+    check_outputs(a)?;
     let cfg = match a.config {
         Some(p) => Config::load(p).map_err(|e| e.to_string())?,
         None => Config::default(),

@@ -85,3 +85,49 @@ fn a_configuration_it_cannot_load_exits_78() {
     assert_eq!(code, 2, "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (cam, lidar) = (dir.join("cam.csv"), dir.join("lidar.csv"));
+    let rows = "t,value\n0.0,1.0\n0.1,2.0\n0.2,1.5\n";
+    std::fs::write(&cam, rows).unwrap();
+    std::fs::write(&lidar, rows).unwrap();
+    let p = |x: &std::path::Path| x.to_str().unwrap().to_string();
+    // the same file spelled another way still is the same file
+    let cam_spelled = p(&dir.join(".").join("cam.csv"));
+    let est = p(&dir.join("est.csv"));
+    let (cam_s, lidar_s) = (p(&cam), p(&lidar));
+    let vlsyncd = env!("CARGO_BIN_EXE_vlsyncd");
+    for (extra, names) in [
+        (vec!["--out", cam_spelled.as_str()], ["--out", "--cam"]),
+        (
+            vec!["--out", &est, "--plot", &lidar_s],
+            ["--plot", "--lidar"],
+        ),
+        (vec!["--out", &est, "--plot", &est], ["--out", "--plot"]),
+    ] {
+        let mut args = vec!["replay", "--cam", &cam_s, "--lidar", &lidar_s];
+        args.extend(extra.iter().copied());
+        let (code, _, err) = run(vlsyncd, &args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("refusing to overwrite"), "{args:?}: {err}");
+        for n in names {
+            assert!(err.contains(n), "{args:?}: {err}");
+        }
+        // nothing was written: the inputs are as they were, no estimates file
+        assert_eq!(std::fs::read_to_string(&cam).unwrap(), rows);
+        assert_eq!(std::fs::read_to_string(&lidar).unwrap(), rows);
+        assert!(!dir.join("est.csv").exists(), "{args:?}");
+    }
+    // distinct files: accepted
+    let (code, _, err) = run(
+        vlsyncd,
+        &[
+            "replay", "--cam", &cam_s, "--lidar", &lidar_s, "--out", &est,
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
