@@ -256,6 +256,18 @@ pub fn select_source(
             )));
         }
     }
+    if let Some(v) = args.speed {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(DriverError::Options(format!(
+                "--speed {v} must be a finite number > 0"
+            )));
+        }
+    }
+    if args.duration.is_some() && !["--sim", "--render"].contains(&flag) {
+        return Err(DriverError::Options(format!(
+            "--duration applies to --sim and --render only; {flag} lasts as long as its data"
+        )));
+    }
     let live = ["--v4l2", "--ld06", "--rplidar"];
     // `--speed 1` is what a live device does anyway: accepted, as `--stamp` accepts it
     if live.contains(&flag) && (args.fast || args.speed.is_some_and(|s| s != 1.0)) {
@@ -314,7 +326,9 @@ pub fn select_source(
         ("--render", _) => {
             let seed = args.render.unwrap_or_default();
             let duration = args.duration.unwrap_or(raw::DEFAULT_RENDER_DURATION_S);
-            let r = raw::renderer(seed, duration).map_err(src)?;
+            // the renderer's configuration is the command line's: an options error
+            let r = raw::renderer(seed, duration)
+                .map_err(|e| DriverError::Options(format!("--duration {duration}: {e}")))?;
             let anchor = raw::render_anchor_ns(&r);
             // mono stamps are built on the start instant: pick one now if none was given
             let start_at = match args.stamp {

@@ -343,6 +343,25 @@ fn option_and_configuration_errors_exit_78_source_errors_2() {
     for (bin, args, want, names) in [
         (lidar, vec!["--frames", "/tmp"], 78, "--frames"),
         (cam, vec!["--no-such-flag"], 78, "--no-such-flag"),
+        // checked before any source is opened, each naming its flag
+        (
+            cam,
+            vec!["--render", "1", "--duration", "nan"],
+            78,
+            "--duration",
+        ),
+        (
+            cam,
+            vec!["--csv", "/nonexistent/c.csv", "--speed", "0"],
+            78,
+            "--speed",
+        ),
+        (
+            cam,
+            vec!["--csv", "/nonexistent/c.csv", "--duration", "5"],
+            78,
+            "--duration",
+        ),
         // a prefix iceoryx2 cannot name services with, on the command line (it used to
         // exit 2, so a mistyped prefix in the unit's environment was restarted forever)
         (
