@@ -150,16 +150,18 @@ pub fn write_run_with(
 ) -> Result<Summary, RenderError> {
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
+    // the recording first: a path it cannot create must fail before the CSVs of an
+    // earlier run in `dir` are truncated
+    let mut rec = match mcap {
+        Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
+        None => None,
+    };
     let frames_csv = dir.join("frames.csv");
     let scans_csv = dir.join("scans.csv");
     let mut fcsv = create(&frames_csv)?;
     let mut scsv = create(&scans_csv)?;
     writeln!(fcsv, "file,t_s,exposure_start_s,exposure_s").map_err(io_err(&frames_csv))?;
     write_header(&mut scsv).map_err(io_err(&scans_csv))?;
-    let mut rec = match mcap {
-        Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
-        None => None,
-    };
     let mut s = Summary {
         frames: 0,
         frames_dropped: r.frames_dropped(),

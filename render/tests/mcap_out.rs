@@ -190,7 +190,13 @@ fn binary_writes_png_mcap_by_default_in_the_output_directory_and_names_bad_paths
         "sensor_msgs/msg/CompressedImage"
     );
 
-    // an explicit FILE that cannot be created: a clear error naming it, no panic
+    // an explicit FILE that cannot be created: a clear error naming it, no panic,
+    // and the run already in the directory left as it was (its CSVs used to be cut
+    // to their headers before the recording failed to open)
+    let before = [
+        std::fs::read(dir.join("frames.csv")).unwrap(),
+        std::fs::read(dir.join("scans.csv")).unwrap(),
+    ];
     let bad = "/proc/no/such/dir/run.mcap";
     let out = render_bin(&[&common[..], &["--mcap", bad]].concat());
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -200,6 +206,11 @@ fn binary_writes_png_mcap_by_default_in_the_output_directory_and_names_bad_paths
         "{stderr}"
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
+    let after = [
+        std::fs::read(dir.join("frames.csv")).unwrap(),
+        std::fs::read(dir.join("scans.csv")).unwrap(),
+    ];
+    assert!(before == after, "the earlier run's CSVs were rewritten");
 
     // --mcap-png alone is a usage error
     let out = render_bin(&[&common[..], &["--mcap-png"]].concat());
