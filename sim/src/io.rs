@@ -230,6 +230,26 @@ fn parse_rows(
                     ),
                 ));
             }
+            // the columns are read by position: a header that names them the other
+            // way round would be read swapped, without a word
+            let name = |c: Option<&str>| {
+                c.unwrap_or("")
+                    .trim()
+                    .trim_matches('"')
+                    .to_ascii_lowercase()
+            };
+            let mut names = line.split(',');
+            let (c1, c2) = (name(names.next()), name(names.next()));
+            if c1 == value_name || c2 == "t" {
+                return Err(err(
+                    Some(1),
+                    format!(
+                        "the header `{}` names the columns in another order: they are read \
+                         by position, `t` (seconds) first, then `{value_name}`",
+                        clip(line)
+                    ),
+                ));
+            }
             continue;
         }
         if line.trim().is_empty() {
@@ -423,6 +443,20 @@ mod tests {
                 want
             );
         }
+        // columns named the other way round are refused, not read swapped; other
+        // names are fine (the columns are positional)
+        for header in ["value,t", "\"Value\",T", "flow,t", "value,time"] {
+            let text = format!("{header}\n0.1,1.0\n");
+            let e = parse_signature_csv(text.as_bytes(), "f").unwrap_err();
+            assert_eq!(e.line, Some(1), "{header}: {e}");
+            assert!(e.message.contains("another order"), "{header}: {e}");
+        }
+        assert!(parse_signature_csv(b"time_s,flow\n0.1,1.0\n", "f").is_ok());
+        let e = parse_truth_csv(b"offset,t\n0.1,0.2\n", "f").unwrap_err();
+        assert!(
+            e.to_string().contains("`t` (seconds) first, then `offset`"),
+            "{e}"
+        );
         let e = parse_signature_csv(b"t,value\n1,2\n\xff,1\n", "f").unwrap_err();
         assert_eq!(e.line, Some(3));
         let e = parse_signature_csv(b"t,value\ninf,1\n", "f").unwrap_err();
