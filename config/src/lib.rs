@@ -578,8 +578,16 @@ impl Config {
             source_name: name.clone(),
             message: format!("cannot read: {e}"),
         };
-        let text =
-            vlsync_common::file::read_regular_to_string(path).map_err(|e| cannot_read(&e))?;
+        let bytes = vlsync_common::file::read_regular(path).map_err(|e| cannot_read(&e))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            // where: TOML is UTF-8, and an editor's Latin-1 character is one byte
+            let at = e.utf8_error().valid_up_to();
+            let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
+            ConfigError {
+                source_name: name.clone(),
+                message: format!("line {line}: not UTF-8 (at byte offset {at})"),
+            }
+        })?;
         Self::from_toml_str(&text, &name)
     }
 
@@ -739,6 +747,24 @@ mod tests {
         assert_eq!(num(0.001), "0.001");
         assert_eq!(num(999_999.5), "999999.5");
         assert_eq!(num(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn a_file_that_is_not_utf8_is_refused_at_its_line() {
+        let dir = std::env::temp_dir().join(format!("vlsync-config-utf8-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("latin1.toml");
+        // `# Caf\xe9` as an editor set to Latin-1 writes it
+        std::fs::write(&f, b"[daemon]\n# Caf\xe9\ncore = 1\n").unwrap();
+        let e = Config::load(&f).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "config {}: line 2: not UTF-8 (at byte offset 14)",
+                f.display()
+            )
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

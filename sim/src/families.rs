@@ -268,11 +268,13 @@ impl fmt::Display for SimError {
         match self {
             SimError::InvalidDuration { duration_s } => write!(
                 f,
-                "duration {duration_s} s is invalid: expected a finite number in [{MIN_DURATION_S}, {MAX_DURATION_S}] s"
+                "duration {} s is invalid: expected a finite number in [{MIN_DURATION_S}, {MAX_DURATION_S}] s",
+                vlsync_common::text::number(*duration_s)
             ),
             SimError::InvalidNoiseScale { noise_scale } => write!(
                 f,
-                "noise scale {noise_scale} is invalid: expected a finite number >= 0"
+                "noise scale {} is invalid: expected a finite number >= 0",
+                vlsync_common::text::number(*noise_scale)
             ),
             SimError::InvalidWindow { window_s, duration_s } => write!(
                 f,
