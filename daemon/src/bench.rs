@@ -279,8 +279,33 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
             .map(|n| n.parse::<Family>().map_err(|e| format!("--families: {e}")))
             .collect::<Result<_, _>>()?
     };
+    if let Some(dup) = families
+        .iter()
+        .enumerate()
+        .find_map(|(i, f)| families[..i].contains(f).then_some(f))
+    {
+        return Err(format!("--families: {} given twice", dup.name()));
+    }
     if args.seeds == 0 {
         return Err("--seeds must be at least 1".into());
+    }
+    // a --json that cannot be written is found now, not after the whole run
+    if let Some(p) = &args.json {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => std::path::Path::new("."),
+        };
+        if p.is_dir() || !dir.is_dir() {
+            return Err(format!(
+                "--json {}: {}",
+                p.display(),
+                if p.is_dir() {
+                    "is a directory"
+                } else {
+                    "its directory does not exist"
+                }
+            ));
+        }
     }
     // the last seed must exist: a wrapped range would run nothing
     let last_seed = args.seed_base.checked_add(args.seeds - 1).ok_or_else(|| {
@@ -441,6 +466,20 @@ mod tests {
         })
         .unwrap_err();
         assert!(e.contains("--families") && e.contains("nope"), "{e}");
+        let e = run_cli(&BenchArgs {
+            families: vec!["robot".into(), "clocks".into(), "robot".into()],
+            ..args()
+        })
+        .unwrap_err();
+        assert_eq!(e, "--families: robot given twice");
+        for bad in ["/nonexistent/vlsync/bench.json", "/tmp"] {
+            let e = run_cli(&BenchArgs {
+                json: Some(bad.into()),
+                ..args()
+            })
+            .unwrap_err();
+            assert!(e.starts_with(&format!("--json {bad}: ")), "{e}");
+        }
         let e = run_cli(&BenchArgs {
             duration: Some(1.0),
             ..args()

@@ -207,7 +207,19 @@ impl RenderConfig {
         self.motion.validate()?;
         self.camera.validate()?;
         self.lidar.validate()?;
-        self.clock.validate()
+        self.clock.validate()?;
+        // a step the run never reaches would be reported as one it has
+        if let Some(&(t, _)) = self.clock.steps.iter().find(|s| s.0 >= self.duration_s) {
+            return Err(RenderError::config(
+                "clock.steps.time",
+                format!(
+                    "{} is not before the run's end ({} s)",
+                    number(t),
+                    number(self.duration_s)
+                ),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -648,6 +660,11 @@ mod tests {
             (
                 Box::new(|c: &mut RenderConfig| c.room.0 = -1.0),
                 "room.length",
+            ),
+            // the run is 5 s: a step at 100 s never happens
+            (
+                Box::new(|c: &mut RenderConfig| c.clock.steps = vec![(100.0, 0.01)]),
+                "clock.steps.time",
             ),
         ] {
             let mut c = small(1, 5.0);
