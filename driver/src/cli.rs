@@ -536,12 +536,18 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     ));
     let mut last = RunSummary::default();
     let mut report = |s: &RunSummary, r: Option<String>| {
+        let unreached = s.unreached - last.unreached;
         vlsync_common::console::print_err(&format!(
-            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}\n",
+            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}{}\n",
             PROGRESS_EVERY.as_secs() / 60,
             s.published - last.published,
             s.failed - last.failed,
             s.published,
+            if unreached > 0 {
+                format!(", {unreached} of them reached no subscriber (no daemon running)")
+            } else {
+                String::new()
+            },
             r.map(|r| format!("; {r}")).unwrap_or_default()
         ));
         last = *s;

@@ -361,6 +361,7 @@ pub fn run(
         match publisher.publish(s.t_ns, s.value) {
             Ok(seq) => {
                 sum.published += 1;
+                sum.unreached = publisher.unreached();
                 consecutive = 0;
                 if let (Some(log), Some(t)) = (truth.as_deref_mut(), source.truth()) {
                     log.record(seq, monotonic_ns(), s.t_ns, &t)
