@@ -149,7 +149,19 @@ fn mcap_err(path: &Path, at: impl Into<String>, source: McapError) -> Error {
 /// Opens a recording: a regular file only (a named pipe would block the open, and
 /// the reader seeks).
 fn open_file(path: &Path) -> Result<File, Error> {
-    vlsync_common::file::open_regular(path).map_err(|e| io_err(path, "opening", e))
+    let f = vlsync_common::file::open_regular(path).map_err(|e| io_err(path, "opening", e))?;
+    // said as it is: a 0-byte file read as a recording would be "truncated"
+    if f.metadata().is_ok_and(|m| m.len() == 0) {
+        return Err(io_err(
+            path,
+            "reading",
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                "the file is empty (0 bytes), not an MCAP recording",
+            ),
+        ));
+    }
+    Ok(f)
 }
 
 /// `e` with "the file ends at byte N before its footer: truncated?" added to a topic

@@ -468,6 +468,19 @@ fn a_named_pipe_is_refused_not_waited_for() {
     }
     let e = McapReader::topics(&dir).unwrap_err();
     assert!(e.to_string().contains("not a regular file"), "{e}");
+    // a 0-byte file is said to be empty, not a truncated recording
+    let empty = dir.join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    for e in [
+        McapReader::topics(&empty).unwrap_err(),
+        McapImageSource::open(&empty, ImageSourceOptions::default()).unwrap_err(),
+    ] {
+        let t = e.to_string();
+        assert!(
+            t.contains("empty (0 bytes)") && !t.contains("truncated"),
+            "{t}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
