@@ -334,7 +334,6 @@ pub fn run(
         }
         if stop() {
             sum.interrupted = true;
-            sum.unreached = publisher.unreached();
             return Ok(sum);
         }
         if let Some(speed) = speed {
@@ -351,7 +350,6 @@ pub fn run(
                 }
                 if stop() {
                     sum.interrupted = true;
-                    sum.unreached = publisher.unreached();
                     return Ok(sum);
                 }
                 let wait = Duration::from_nanos((due - now) as u64).min(MAX_SLEEP);
@@ -361,6 +359,7 @@ pub fn run(
         match publisher.publish(s.t_ns, s.value) {
             Ok(seq) => {
                 sum.published += 1;
+                // only a publish moves it: current at every return and progress report
                 sum.unreached = publisher.unreached();
                 consecutive = 0;
                 if let (Some(log), Some(t)) = (truth.as_deref_mut(), source.truth()) {
@@ -377,7 +376,6 @@ pub fn run(
             }
         }
     }
-    sum.unreached = publisher.unreached();
     Ok(sum)
 }
 
