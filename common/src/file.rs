@@ -102,14 +102,19 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
+/// The directory `p` is in: its parent, or `.` for a bare file name (whose
+/// `Path::parent` is the empty path).
+pub fn dir_of(p: &Path) -> &Path {
+    match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
 /// `p`'s directory made canonical, joined with its file name.
 fn resolved(p: &Path) -> Option<std::path::PathBuf> {
     let name = p.file_name()?;
-    let dir = match p.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    Some(std::fs::canonicalize(dir).ok()?.join(name))
+    Some(std::fs::canonicalize(dir_of(p)).ok()?.join(name))
 }
 
 #[cfg(test)]

@@ -291,20 +291,15 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     }
     // a --json that cannot be written is found now, not after the whole run
     if let Some(p) = &args.json {
-        let dir = match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => std::path::Path::new("."),
+        let why = if p.is_dir() {
+            Some("is a directory")
+        } else if !vlsync_common::file::dir_of(p).is_dir() {
+            Some("its directory does not exist")
+        } else {
+            None
         };
-        if p.is_dir() || !dir.is_dir() {
-            return Err(format!(
-                "--json {}: {}",
-                p.display(),
-                if p.is_dir() {
-                    "is a directory"
-                } else {
-                    "its directory does not exist"
-                }
-            ));
+        if let Some(why) = why {
+            return Err(format!("--json {}: {why}", p.display()));
         }
     }
     // the last seed must exist: a wrapped range would run nothing
