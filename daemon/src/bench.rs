@@ -17,13 +17,13 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',')]
     pub families: Vec<String>,
     /// Seeds per family.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 5)]
     pub seeds: u64,
     /// First seed (held-out seeds: the defaults were tuned on seeds below 1000).
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1000)]
     pub seed_base: u64,
     /// Run duration in seconds (default: each family's own, 120 s; the seed family 12 s).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub duration: Option<f64>,
     /// Configuration file (TOML); defaults are used without it.
     #[arg(long)]

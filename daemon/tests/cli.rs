@@ -51,6 +51,38 @@ fn every_binary_has_help_and_rejects_an_unknown_argument() {
     assert!(err.contains("frobnicate"), "{err}");
 }
 
+/// A negative number given to a numeric flag is that flag's value: the error names the
+/// flag and says why the value is refused (clap alone calls `-1` an unexpected argument
+/// and suggests `-- -1`, which would not help).
+#[test]
+fn a_negative_number_is_the_flags_value_and_its_error_names_the_flag() {
+    for (bin, args, names) in [
+        (
+            env!("CARGO_BIN_EXE_vlsync-demo"),
+            &["--speed", "-1"][..],
+            "--speed -1 is out of range",
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsyncd"),
+            &["bench", "--seeds", "-3"][..],
+            "'-3' for '--seeds",
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsync-latency"),
+            &["--speed", "-100"][..],
+            "--speed",
+        ),
+    ] {
+        let (code, _, err) = run(bin, args);
+        assert_ne!(code, 0, "{bin} {args:?}");
+        assert!(err.contains(names), "{bin} {args:?}: {err}");
+        assert!(
+            !err.contains("unexpected argument"),
+            "{bin} {args:?}: {err}"
+        );
+    }
+}
+
 /// `vlsyncd run` with a configuration it cannot load exits 78 (EX_CONFIG), which the
 /// systemd unit does not restart (`RestartPreventExitStatus=78`), naming the file and
 /// the key; a bad `--prefix` is the configuration's too. It exits before it opens

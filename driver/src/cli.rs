@@ -39,10 +39,10 @@ pub struct DriverArgs {
     #[arg(long)]
     pub sim: Option<String>,
     /// Simulator seed (both drivers of a pair must use the same).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
     /// Simulated or rendered duration in seconds (default: the family's; 60 s rendered).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub duration: Option<f64>,
     /// Camera: a directory of PNG/JPEG frames with `frames.csv` (what `vlsync-render` writes).
     #[arg(long, value_name = "DIR")]
@@ -57,7 +57,7 @@ pub struct DriverArgs {
     #[arg(long, value_name = "DEVICE")]
     pub rplidar: Option<String>,
     /// Serial baud rate (default: LD06 230400, RPLIDAR 115200).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub baud: Option<u32>,
     /// LiDAR: a scan CSV, one row per ray (what `vlsync-render` writes as scans.csv).
     #[arg(long, value_name = "FILE")]
@@ -69,7 +69,7 @@ pub struct DriverArgs {
     #[arg(long, requires = "mcap")]
     pub topic: Option<String>,
     /// Render this seed's run with the rendering simulator (both drivers of a pair use the same).
-    #[arg(long, value_name = "SEED")]
+    #[arg(long, allow_negative_numbers = true, value_name = "SEED")]
     pub render: Option<u64>,
     /// Publish as fast as possible instead of in real time (recorded and simulated
     /// sources; a live device publishes as its data arrives). Nothing slows the
@@ -78,7 +78,7 @@ pub struct DriverArgs {
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
     /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub speed: Option<f64>,
     /// Live devices (--v4l2, --ld06, --rplidar): wait for the device node to appear
     /// instead of failing at once, saying so then and every 10 minutes (what the
@@ -88,7 +88,7 @@ pub struct DriverArgs {
     pub wait_device: bool,
     /// Common start instant on CLOCK_MONOTONIC in ns (the demo gives both drivers
     /// the same one; a restarted driver given the same resumes at the current position).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub start_at: Option<i64>,
     /// How a rendered run is stamped: `sensor` (the rendered sensor clocks),
     /// `mono` (the same stamps carried onto CLOCK_MONOTONIC from --start-at),
@@ -103,7 +103,12 @@ pub struct DriverArgs {
     /// the frame, then stamps it: a heavier front-end (a slower board, a bigger image,
     /// a JPEG decode) on this machine, whose stamps CPU load delays accordingly.
     /// 0: the front-end's own cost only.
-    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        value_name = "MS",
+        default_value_t = 0.0
+    )]
     pub frame_cpu_ms: f64,
     /// Write one truth row per published sample of a rendered run to FILE:
     /// `seq,publish_ns,event_ns,stamp_ns,late_ns,process_ns,render_late_ns`

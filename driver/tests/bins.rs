@@ -356,6 +356,14 @@ fn option_and_configuration_errors_exit_78_source_errors_2() {
             78,
             "--speed",
         ),
+        // a negative number is the flag's value, refused by its range check (clap
+        // used to call it an unexpected argument, naming no flag)
+        (
+            cam,
+            vec!["--csv", "/nonexistent/c.csv", "--speed", "-2"],
+            78,
+            "--speed -2",
+        ),
         (
             cam,
             vec!["--csv", "/nonexistent/c.csv", "--duration", "5"],

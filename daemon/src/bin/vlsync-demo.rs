@@ -35,13 +35,13 @@ struct Args {
     #[arg(long)]
     family: Option<String>,
     /// Seed of the run.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Run length, seconds.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 60.0)]
     duration: f64,
     /// Real-time speed factor (1 = real time).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     speed: f64,
     #[command(flatten)]
     procs: ProcessArgs,

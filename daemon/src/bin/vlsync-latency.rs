@@ -26,13 +26,13 @@ use vlsyncd::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
 )]
 struct Args {
     /// Simulated seconds replayed at 100x (300 s = 12,000 samples).
-    #[arg(long, default_value_t = 300.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 300.0)]
     fast_sim_s: f64,
     /// Speed factor of the fast phase.
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 100.0)]
     speed: f64,
     /// Wall seconds of the nominal-rate phase.
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 20.0)]
     nominal_s: f64,
     /// Daemon configuration file (e.g. with `daemon.fifo_priority` set).
     #[arg(long)]

@@ -36,7 +36,7 @@ struct Args {
     #[arg(long)]
     list: bool,
     /// Rendering simulator seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Directory for the report and the processes' logs (default: a temporary directory).
     #[arg(long)]
@@ -47,16 +47,21 @@ struct Args {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Core the daemon's real-time thread is pinned to.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     core: i64,
     /// SCHED_FIFO priority of the daemon's real-time thread (0: normal scheduler).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 50)]
     fifo: i64,
     /// CPU the camera front-end spends per frame before stamping it, ms
     /// (`vlsync-cam --frame-cpu-ms`): a heavier front-end than this machine's
     /// 320x240 flow (about 1 ms), so that CPU load delays the stamps measurably.
     /// 0: the front-end's own cost.
-    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        value_name = "MS",
+        default_value_t = 0.0
+    )]
     cam_frame_cpu_ms: f64,
     /// Run the daemon with `daemon.load_hints` (a change of CPU pressure tells the
     /// estimator that the offset may have stepped); without it, the estimator finds

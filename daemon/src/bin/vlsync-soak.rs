@@ -32,16 +32,16 @@ struct Args {
     #[arg(long, default_value = "clocks")]
     family: String,
     /// Number of sessions (a new driver pair and seed each).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10)]
     sessions: u32,
     /// Simulated length of each session, seconds.
-    #[arg(long, default_value_t = 3600.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3600.0)]
     session_s: f64,
     /// Real-time speed factor.
-    #[arg(long, default_value_t = 200.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 200.0)]
     speed: f64,
     /// Seed of the first session; session i runs seed `seed_base + i`.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed_base: u64,
     #[command(flatten)]
     procs: ProcessArgs,
@@ -51,7 +51,7 @@ struct Args {
     #[arg(long)]
     check: bool,
     /// Memory growth `--check` allows, kB.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1024)]
     max_growth_kb: u64,
 }
 

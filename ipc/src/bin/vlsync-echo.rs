@@ -29,10 +29,10 @@ struct Args {
     #[arg(long)]
     status: bool,
     /// Exit after this many estimates (statuses with --status; 0: run until Ctrl-C).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     count: u64,
     /// Exit after this many seconds (0: no limit).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     duration: f64,
 }
 

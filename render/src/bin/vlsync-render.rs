@@ -19,28 +19,28 @@ use vlsync_render::{RenderConfig, Renderer};
 #[command(name = "vlsync-render", version)]
 struct Args {
     /// Seed of every random choice.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Run length, seconds.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 60.0)]
     duration: f64,
     /// Output directory (created if needed).
     #[arg(long)]
     out: PathBuf,
     /// Image width, pixels.
-    #[arg(long, default_value_t = 320)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 320)]
     width: usize,
     /// Image height, pixels.
-    #[arg(long, default_value_t = 240)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 240)]
     height: usize,
     /// Camera frame rate, Hz.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 30.0)]
     fps: f64,
     /// LiDAR revolutions per second.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
     lidar_hz: f64,
     /// LiDAR rays per revolution.
-    #[arg(long, default_value_t = 450)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 450)]
     rays: usize,
     /// Offset t_L - t_C at t = 0, seconds (default: drawn from the seed).
     #[arg(long, allow_hyphen_values = true)]
@@ -52,7 +52,7 @@ struct Args {
     #[arg(long = "step", value_parser = parse_step, allow_hyphen_values = true)]
     steps: Vec<(f64, f64)>,
     /// Camera frame drop probability.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.02)]
     drop: f64,
     /// Render but do not write PNG files (timing).
     #[arg(long)]

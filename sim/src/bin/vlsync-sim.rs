@@ -18,14 +18,14 @@ struct Args {
     #[arg(long, required_unless_present = "list")]
     family: Option<String>,
     /// Random seed.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     seed: u64,
     /// Duration in seconds (default: 12 for seed, 120 otherwise).
     #[arg(long, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Multiplier of the family's signature noise (0: noiseless values; jitter, drops
     /// and gaps unchanged). Useful to tell estimator bias from noise.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     noise_scale: f64,
     /// Output directory (created if missing).
     #[arg(long, required_unless_present = "list")]
