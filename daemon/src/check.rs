@@ -10,7 +10,19 @@ use vlsync_config::Config;
 /// line then a TOML comment so that the whole output is a valid file.
 pub fn check(path: &Path, print: bool) -> Result<String, String> {
     let cfg = Config::load(path).map_err(|e| e.to_string())?;
-    let mut out = format!("{}{}: ok\n", if print { "# " } else { "" }, path.display());
+    let comment = if print { "# " } else { "" };
+    let mut out = format!("{comment}{}: ok\n", path.display());
+    if !cfg.daemon.state_file.is_empty() {
+        if let Some(problem) = crate::state::directory_problem(Path::new(&cfg.daemon.state_file)) {
+            // a note, not an error: the check often runs on another machine than the
+            // robot, and systemd creates the unit's StateDirectory when it starts it
+            out.push_str(&format!(
+                "{comment}note: daemon.state_file: {problem} on this machine; `vlsyncd run` \
+                 warns at start and saves once it exists (the systemd unit's \
+                 StateDirectory=vlsync creates /var/lib/vlsync)\n"
+            ));
+        }
+    }
     if print {
         let text = toml::to_string(&cfg)
             .map_err(|e| format!("cannot print the configuration of {}: {e}", path.display()))?;
@@ -43,6 +55,40 @@ mod tests {
         assert_eq!(back, Config::load(&p).unwrap());
         assert!(out.contains("hop_s") && out.contains("[daemon]") && out.contains("prefix"));
         assert_eq!(check(&p, false).unwrap(), format!("{}: ok\n", p.display()));
+        let _ = std::fs::remove_file(p);
+    }
+
+    #[test]
+    fn a_state_file_whose_directory_is_missing_gets_a_note_not_an_error() {
+        let missing =
+            std::env::temp_dir().join(format!("vlsync-check-nodir-{}", std::process::id()));
+        let state = missing.join("vlsync.state");
+        let p = file(
+            "state.toml",
+            &format!("[daemon]\nstate_file = \"{}\"\n", state.display()),
+        );
+        let out = check(&p, false).unwrap();
+        assert!(out.starts_with(&format!("{}: ok\n", p.display())), "{out}");
+        assert!(
+            out.contains("note: daemon.state_file") && out.contains(&missing.display().to_string()),
+            "{out}"
+        );
+        // with --print the note is a comment: the output stays a valid file
+        let printed = check(&p, true).unwrap();
+        assert!(printed.contains("# note: daemon.state_file"), "{printed}");
+        assert_eq!(
+            Config::from_toml_str(&printed, "printed").unwrap(),
+            Config::load(&p).unwrap()
+        );
+        // the directory there: no note
+        std::fs::create_dir_all(&missing).unwrap();
+        assert_eq!(check(&p, false).unwrap(), format!("{}: ok\n", p.display()));
+        // a file where the directory should be
+        std::fs::remove_dir(&missing).unwrap();
+        std::fs::write(&missing, "").unwrap();
+        let out = check(&p, false).unwrap();
+        assert!(out.contains("is not a directory"), "{out}");
+        let _ = std::fs::remove_file(&missing);
         let _ = std::fs::remove_file(p);
     }
 

@@ -506,12 +506,33 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Why a save to `path` cannot work on this machine as it is now, checked without
+/// writing anything: not a file name, or a directory that is missing or not a
+/// directory. `None` when nothing is known to be wrong (permissions show only when a
+/// save is tried: the daemon may run as another user than whoever checks).
+pub fn directory_problem(path: &Path) -> Option<String> {
+    if path.file_name().is_none() {
+        return Some(format!("state file {}: not a file name", path.display()));
+    }
+    let dir = vlsync_common::file::dir_of(path);
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => None,
+        Ok(_) => Some(format!(
+            "state file {}: {} is not a directory",
+            path.display(),
+            dir.display()
+        )),
+        Err(e) => Some(format!(
+            "state file {}: directory {}: {e}",
+            path.display(),
+            dir.display()
+        )),
+    }
+}
+
 /// Saves `s` to `path` atomically (temp file, fsync, rename, fsync of the directory).
 pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
+    let dir = vlsync_common::file::dir_of(path);
     if path.file_name().is_none() {
         return Err(format!("state file {}: not a file name", path.display()));
     }
@@ -535,7 +556,7 @@ pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
             path.display()
         ));
     }
-    std::fs::File::open(&dir)
+    std::fs::File::open(dir)
         .and_then(|d| d.sync_all())
         .map_err(|e| {
             format!(
@@ -575,6 +596,10 @@ pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f
         return None;
     }
     let path = Path::new(&cfg.state_file);
+    if let Some(problem) = directory_problem(path) {
+        // said now rather than at the first save, minutes after the lock
+        tracing::warn!("{problem}; estimates are not saved until it is fixed (each save retries)");
+    }
     match load(path, unix_now_ns(), cfg.state_max_age_s) {
         Ok(Some((s, age_s))) => {
             tracing::info!(
