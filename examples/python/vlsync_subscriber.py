@@ -4,7 +4,12 @@
 Uses the official iceoryx2 Python package (see requirements.txt; the version
 must equal the Rust side's). `OffsetEstimate` mirrors the `#[repr(C)]` Rust
 type `vlsync_common::wire::OffsetEstimate` field by field and carries the same
-iceoryx2 type name, so iceoryx2 refuses to connect if the layouts diverge.
+iceoryx2 type name. iceoryx2 compares the type name, size and alignment, not the
+fields: the `.v1` in the name is what guards the layout (a change of layout gets
+a new name), and the asserts below pin every offset against the Rust one.
+Started before the daemon, it creates the services with the daemon's settings
+(the last estimate kept for late subscribers, 16 buffered), as every vlsync
+process does, so any start order works.
 
     python3 vlsync_subscriber.py --prefix vlsync/robot [--count N] [--timeout S] [--json]
 
@@ -12,15 +17,20 @@ Every field read from shared memory is validated as the Rust client does
 (state and polarity codes, finite offset/drift/deviations, a peak ratio that is
 not NaN or negative, a measured offset that is not infinite, zero reserved
 bytes); invalid samples are skipped, each with a line on stderr, and how
-many were skipped is printed at exit. Exit status: 0 after --count valid estimates (or
-Ctrl-C), 1 on timeout, 2 on error (a bad argument, or iceoryx2 refusing the
-node or the service, with its error on stderr).
+many were skipped is printed at exit. With nothing received for 5 s it says once on
+stderr what it waits for (a daemon on another prefix is the usual cause). Exit
+status: 0 after --count valid estimates, or on Ctrl-C (SIGINT) or SIGTERM; 1 on
+timeout; 2 on error (a bad argument, such as a prefix the daemon would refuse or a
+negative count, or iceoryx2 refusing the node or the service, with its error on
+stderr).
 """
 
 import argparse
 import ctypes
 import json
 import math
+import re
+import signal
 import sys
 import time
 
@@ -57,7 +67,39 @@ class OffsetEstimate(ctypes.Structure):
 
 assert ctypes.sizeof(OffsetEstimate) == 88
 assert ctypes.alignment(OffsetEstimate) == 8
-assert OffsetEstimate.state.offset == 80 and OffsetEstimate.publish_ns.offset == 72
+# every field at the offset the Rust layout test pins (common/src/wire.rs)
+assert [(name, getattr(OffsetEstimate, name).offset) for name, _ in OffsetEstimate._fields_] == [
+    ("seq", 0),
+    ("t_ref_ns", 8),
+    ("offset_s", 16),
+    ("drift", 24),
+    ("offset_std_s", 32),
+    ("drift_std", 40),
+    ("peak_score", 48),
+    ("peak_ratio", 56),
+    ("measured_offset_s", 64),
+    ("publish_ns", 72),
+    ("state", 80),
+    ("polarity", 81),
+    ("reserved", 82),
+]
+
+# The daemon's settings of the offset services (vlsync_ipc::Qos::latest and
+# open_or_create_event): whoever starts first creates them, and the others use them.
+PUBSUB_SETTINGS = {
+    "history_size": 1,
+    "subscriber_max_buffer_size": 16,
+    "max_publishers": 2,
+    "max_subscribers": 16,
+    "max_nodes": 32,
+}
+EVENT_SETTINGS = {"max_nodes": 48, "max_notifiers": 16, "max_listeners": 16}
+
+# The rule of `services.prefix` (vlsync_config::ServicesConfig::validate).
+PREFIX_RULE = re.compile(r"[A-Za-z0-9_.\-/]{1,200}")
+
+# With nothing received for this long, say once what is waited for.
+QUIET_NOTICE_S = 5.0
 
 
 def validate(e: OffsetEstimate) -> dict:
@@ -100,17 +142,48 @@ def json_number(x: float):
     return x if math.isfinite(x) else None
 
 
+def prefix_problem(prefix: str):
+    """Why the daemon would refuse `prefix` as `services.prefix`, or None."""
+    if (
+        not PREFIX_RULE.fullmatch(prefix)
+        or prefix.startswith("/")
+        or prefix.endswith("/")
+        or "//" in prefix
+    ):
+        return (
+            f"--prefix {prefix!r} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], "
+            "no leading, trailing or double `/` (the rule of services.prefix)"
+        )
+    return None
+
+
+def open_or_create(builder, settings):
+    """Opens the service `builder(open=True)` names, or creates it with `settings`."""
+    try:
+        return builder().open()
+    except Exception as err:  # iceoryx2's typed errors: only a missing service is created
+        if "DoesNotExist" not in repr(err):
+            raise
+    b = builder()
+    for key, value in settings.items():
+        b = getattr(b, key)(value)
+    if hasattr(b, "enable_safe_overflow"):
+        b = b.enable_safe_overflow(True)
+    return b.create()
+
+
 def open_service(node, name, attempts=50):
-    """Opens (or creates) the offset services; retries while another process sets them up."""
+    """Opens the offset services, or creates them with the daemon's settings; retries
+    while another process sets them up (both may try to create them at once)."""
+    service = iox2.ServiceName.new(name)
     last = None
     for _ in range(attempts):
         try:
-            pubsub = (
-                node.service_builder(iox2.ServiceName.new(name))
-                .publish_subscribe(OffsetEstimate)
-                .open_or_create()
+            pubsub = open_or_create(
+                lambda: node.service_builder(service).publish_subscribe(OffsetEstimate),
+                PUBSUB_SETTINGS,
             )
-            event = node.service_builder(iox2.ServiceName.new(name)).event().open_or_create()
+            event = open_or_create(lambda: node.service_builder(service).event(), EVENT_SETTINGS)
             return pubsub, event
         except Exception as err:  # iceoryx2 raises typed errors; retry transient ones
             last = err
@@ -125,11 +198,29 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=0.0, help="fail if no estimate for S seconds (0: never)")
     ap.add_argument("--json", action="store_true", help="one JSON object per line")
     args = ap.parse_args()
+    problem = prefix_problem(args.prefix)
+    if problem:
+        ap.error(problem)  # exit status 2
+    if args.count < 0:
+        ap.error(f"--count {args.count} is negative (0: run until Ctrl-C)")
+    if not math.isfinite(args.timeout) or args.timeout < 0:
+        ap.error(f"--timeout {args.timeout} must be a finite number >= 0 (0: never)")
+
+    # SIGINT and SIGTERM only set a flag: iceoryx2's wait returns on the signal, and the
+    # loop ends as after --count (a KeyboardInterrupt raised inside iceoryx2's call
+    # would surface as a traceback instead)
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
 
     iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
     name = f"{args.prefix}/offset"
     try:
-        node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+        node = (
+            iox2.NodeBuilder.new()
+            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .create(iox2.ServiceType.Ipc)
+        )
         pubsub, event = open_service(node, name)
         subscriber = pubsub.subscriber_builder().create()
         listener = event.listener_builder().create()
@@ -139,11 +230,15 @@ def main() -> int:
 
     got = invalid = 0
     status = 0
-    last_seen = time.monotonic()
+    started = last_seen = time.monotonic()
+    noticed = False
     try:
-        while args.count == 0 or got < args.count:
-            # sleep until the daemon notifies (or 200 ms pass)
-            listener.timed_wait(iox2.Duration.from_millis(200))
+        while not stop and (args.count == 0 or got < args.count):
+            # sleep until the daemon notifies (or 200 ms pass, or a signal arrives)
+            try:
+                listener.timed_wait(iox2.Duration.from_millis(200))
+            except iox2.ListenerWaitError:
+                continue  # interrupted by a signal: the loop's condition decides
             while True:
                 sample = subscriber.receive()
                 if sample is None:
@@ -167,11 +262,21 @@ def main() -> int:
                     )
                 if args.count and got >= args.count:
                     break
-            if args.timeout and time.monotonic() - last_seen > args.timeout:
+            now = time.monotonic()
+            if not got and not noticed and now - started >= QUIET_NOTICE_S:
+                noticed = True
+                print(
+                    f"vlsync_subscriber: nothing received on `{name}` for {QUIET_NOTICE_S:.0f} s; "
+                    f"waiting (is a daemon running with services.prefix = \"{args.prefix}\"? "
+                    "vlsync-demo uses its own prefix, printed at its start)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            if args.timeout and now - last_seen > args.timeout:
                 print(f"vlsync_subscriber: no estimate on {name} for {args.timeout} s", file=sys.stderr)
                 status = 1
                 break
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # a SIGINT before the handlers were installed
         pass
     if invalid:
         print(f"vlsync_subscriber: {got} estimates received, {invalid} invalid ones skipped", file=sys.stderr)

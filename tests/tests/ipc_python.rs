@@ -3,9 +3,12 @@
 
 use std::path::Path;
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+use vlsync_common::wire::OffsetEstimate;
 use vlsync_common::Stream;
-use vlsync_tests::Rig;
+use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
+use vlsync_ipc::{create_node, open_or_create_event, open_or_create_pubsub, Qos};
+use vlsync_tests::{Managed, Rig};
 
 /// The interpreter: `VLSYNC_PYTHON` (`scripts/test.sh` sets it when it installed the
 /// package into a virtual environment), else `python3`.
@@ -92,26 +95,183 @@ fn python_subscriber_reads_live_estimates() {
     }
 }
 
-/// An iceoryx2 failure (here a service name beyond its maximum length) is exit
-/// status 2 with one line naming the service, not a traceback.
+/// A bad argument is exit status 2 with a line naming it, not a traceback: a prefix
+/// the daemon would refuse (it used to create `/bad/offset` and wait there forever),
+/// a negative count (it used to exit 0 at once) or timeout.
 #[test]
-fn python_subscriber_reports_an_iceoryx2_error() {
-    let Some(script) = subscriber_or_skip("python_subscriber_reports_an_iceoryx2_error") else {
+fn python_subscriber_refuses_bad_arguments() {
+    let Some(script) = subscriber_or_skip("python_subscriber_refuses_bad_arguments") else {
         return;
     };
-    let prefix = "x".repeat(300);
-    let out = Command::new("timeout")
-        .arg("30")
-        .arg(python())
-        .arg(&script)
-        .args(["--prefix", &prefix, "--count", "1"])
-        .output()
-        .expect("run the Python interpreter");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    let long = "x".repeat(300);
+    for (args, names) in [
+        (["--prefix", long.as_str()], "--prefix"),
+        (["--prefix", "/bad"], "--prefix '/bad' is invalid"),
+        (["--prefix", "robot/"], "--prefix 'robot/' is invalid"),
+        (["--count", "-1"], "--count -1"),
+        (["--timeout", "-1"], "--timeout -1"),
+    ] {
+        let out = Command::new("timeout")
+            .arg("30")
+            .arg(python())
+            .arg(&script)
+            .args(args)
+            .output()
+            .expect("run the Python interpreter");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(names), "{args:?}: {stderr}");
+        assert!(!stderr.contains("Traceback"), "{args:?}: {stderr}");
+    }
+}
+
+/// Waits up to `limit` for `p` to exit; its exit code (None: still running, killed).
+fn exit_code_within(p: &mut Managed, limit: Duration) -> Option<i32> {
+    let t0 = Instant::now();
+    while t0.elapsed() < limit {
+        if let Ok(Some(st)) = p.child.try_wait() {
+            return st.code();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    None
+}
+
+/// Started before any daemon, the subscriber says what it waits for after 5 s, and
+/// has created the offset services with the daemon's settings (it used to create
+/// them with iceoryx2's defaults, which a daemon started later adopts: no estimate
+/// kept for late subscribers, every client's buffer cut to 2). The daemon and the
+/// drivers then start and it receives their estimates.
+#[test]
+fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
+    let Some(script) = subscriber_or_skip(
+        "python_subscriber_started_first_creates_the_services_as_the_daemon_would",
+    ) else {
+        return;
+    };
+    let tag = "python-first";
+    // the prefix Rig::new will choose, needed before the rig's schedule starts
+    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
+    let log = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}.log", std::process::id()));
+    let mut py = Managed::spawn(
+        "python subscriber",
+        Path::new(&python()),
+        &[
+            script.display().to_string(),
+            "--prefix".into(),
+            prefix.clone(),
+            "--count".into(),
+            "3".into(),
+            "--timeout".into(),
+            "60".into(),
+            "--json".into(),
+        ],
+        Some(&log),
+    )
+    .expect("spawn the Python subscriber");
+    let read_log = || std::fs::read_to_string(&log).unwrap_or_default();
+    let t0 = Instant::now();
+    while !read_log().contains("nothing received") {
+        assert!(py.running(), "the subscriber exited:\n{}", read_log());
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "no notice:\n{}",
+            read_log()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     assert!(
-        stderr.starts_with("vlsync_subscriber: error: ") && stderr.contains(&prefix),
-        "{stderr}"
+        read_log().contains(&format!("`{prefix}/offset`")),
+        "{}",
+        read_log()
     );
-    assert!(!stderr.contains("Traceback"), "{stderr}");
+    {
+        // the services exist by now (the notice comes after they were opened): this opens them
+        let node = create_node("python-first-check", false).unwrap();
+        let name = format!("{prefix}/offset");
+        let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &name, Qos::latest()).unwrap();
+        let c = svc.static_config();
+        let want = Qos::latest();
+        assert_eq!(
+            (
+                c.history_size(),
+                c.subscriber_max_buffer_size(),
+                c.max_publishers(),
+                c.max_subscribers(),
+                c.max_nodes()
+            ),
+            (
+                want.history,
+                want.max_buffer,
+                want.max_publishers,
+                want.max_subscribers,
+                want.max_nodes
+            ),
+            "the Python subscriber created {name} with other settings than the daemon's"
+        );
+        let ev = open_or_create_event(&node, &name).unwrap();
+        let e = ev.static_config();
+        assert_eq!(
+            (e.max_nodes(), e.max_notifiers(), e.max_listeners()),
+            (48, 16, 16)
+        );
+    }
+    let rig = Rig::new(tag, "robot", 3, 40.0, 5.0);
+    assert_eq!(rig.prefix, prefix);
+    let mut daemon = rig.daemon(0);
+    let mut cam = rig.driver(Stream::Cam, 0);
+    let mut lidar = rig.driver(Stream::Lidar, 0);
+    let code = exit_code_within(&mut py, Duration::from_secs(40));
+    assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
+    assert!(daemon.stop(Duration::from_secs(3)));
+    let out = read_log();
+    assert_eq!(code, Some(0), "{out}\n{}", rig.log("vlsyncd-0.log"));
+    let estimates = out.lines().filter(|l| l.starts_with('{')).count();
+    assert_eq!(estimates, 3, "{out}");
+    let _ = std::fs::remove_file(&log);
+}
+
+/// Ctrl-C (SIGINT) and SIGTERM end the subscriber with exit status 0 and no
+/// traceback (iceoryx2's wait raised its own error on the signal, which escaped the
+/// `KeyboardInterrupt` handler: exit 1 and a traceback, 143 on SIGTERM).
+#[test]
+fn python_subscriber_stops_cleanly_on_sigint_and_sigterm() {
+    let Some(script) = subscriber_or_skip("python_subscriber_stops_cleanly_on_sigint_and_sigterm")
+    else {
+        return;
+    };
+    for sig in ["INT", "TERM"] {
+        let prefix = format!("vlsync-it/python-{sig}-{}", std::process::id());
+        let log =
+            std::env::temp_dir().join(format!("vlsync-it-python-{sig}-{}.log", std::process::id()));
+        let mut py = Managed::spawn(
+            "python subscriber",
+            Path::new(&python()),
+            &[script.display().to_string(), "--prefix".into(), prefix],
+            Some(&log),
+        )
+        .expect("spawn the Python subscriber");
+        // in its wait loop once it gives its notice (a signal before its handlers are
+        // installed would be Python's default KeyboardInterrupt)
+        let t0 = Instant::now();
+        let read_log = || std::fs::read_to_string(&log).unwrap_or_default();
+        while !read_log().contains("nothing received") {
+            assert!(py.running(), "the subscriber exited:\n{}", read_log());
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "no notice:\n{}",
+                read_log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        py.signal(sig).unwrap();
+        let code = exit_code_within(&mut py, Duration::from_secs(10));
+        let out = read_log();
+        assert_eq!(code, Some(0), "SIG{sig}: {out}");
+        assert!(
+            !out.contains("Traceback") && !out.contains("KeyboardInterrupt"),
+            "SIG{sig}: {out}"
+        );
+        let _ = std::fs::remove_file(&log);
+    }
 }
