@@ -336,9 +336,11 @@ pub const STATE_NONE: u8 = 0xFF;
 
 /// Daemon counters on the wire (`<prefix>/status`), published every
 /// `daemon.status_period_s`. Per-stream arrays are indexed 0 = cam, 1 = lidar.
-/// Latency arrays hold `[p50, p99, max]` in ns since the daemon started
-/// (percentiles are bucket upper bounds of a fixed log-linear histogram,
-/// within 1/16 of the true value).
+/// Latency arrays hold `[p50, p99, max]` in ns, and `latency_count` how many
+/// measurements they cover: since the daemon started, or with
+/// `daemon.latency_per_period = true` over the last status period only (the
+/// histograms restart after each status). Percentiles are bucket upper bounds of a
+/// fixed log-linear histogram, within 1/16 of the true value.
 ///
 /// Layout (size 224, alignment 8):
 ///
@@ -428,6 +430,11 @@ impl Status {
         }
         if self.uptime_ns < 0 {
             return Err(WireError::OutOfRange { field: "uptime_ns" });
+        }
+        if self.publish_ns < 0 {
+            return Err(WireError::OutOfRange {
+                field: "publish_ns",
+            });
         }
         for (name, l) in [
             ("processing_ns", &self.processing_ns),
@@ -696,6 +703,13 @@ mod tests {
         let mut b = s;
         b.degraded = 2;
         assert!(b.validate().is_err());
+        // an uptime and a CLOCK_MONOTONIC time: never negative
+        let mut b = s;
+        b.uptime_ns = -1;
+        assert!(b.validate().unwrap_err().to_string().contains("uptime_ns"));
+        let mut b = s;
+        b.publish_ns = -1;
+        assert!(b.validate().unwrap_err().to_string().contains("publish_ns"));
         let mut b = s;
         b.rejected[1] = [1, 2, 3, 4, 5];
         assert_eq!(b.rejected_total(1), 15);

@@ -4,6 +4,8 @@
  * Mirrors vlsync_common::wire (Rust, #[repr(C)]) field by field. Open the
  * services with the iceoryx2 C/C++ bindings using the type names below; the
  * static asserts pin every size and offset, exactly like the Rust layout tests.
+ * iceoryx2 itself compares only the type name, size and alignment: the ".v1" in
+ * each name is what guards the fields (a change of layout gets a new name).
  *
  * Services (one robot per prefix):
  *   <prefix>/cam/signature, <prefix>/lidar/signature  vlsync_signature_sample  (publish-subscribe)
@@ -15,6 +17,12 @@
  * stream's id; the daemon reads the samples of both streams in publish_ns order. A
  * publisher that does not notify is read at the daemon's next wake-up (the other
  * stream's notification, or 100 ms).
+ *
+ * Open the services; create one only if it does not exist yet (a client started
+ * before the daemon), and then with the daemon's settings, which every later
+ * process gets: offset and status: history 1, subscriber buffer 16, 2 publishers,
+ * 16 subscribers, 32 nodes, safe overflow; their event services: 48 nodes,
+ * 16 notifiers, 16 listeners.
  *
  * Times are integer nanoseconds; publish_ns fields are CLOCK_MONOTONIC.
  * Clock convention: offset = t_lidar - t_cam, so t_lidar = t_cam + offset.
@@ -82,7 +90,9 @@ typedef struct vlsync_offset_estimate {
 } vlsync_offset_estimate;
 
 /* vlsync.Status.v1: 224 bytes, alignment 8; per-stream arrays: 0 cam, 1 lidar;
- * latency arrays: {p50, p99, max} in ns */
+ * latency arrays: {p50, p99, max} in ns over latency_count measurements: since the
+ * daemon started, or with daemon.latency_per_period = true over the last status
+ * period only (the histograms restart after each status) */
 typedef struct vlsync_status {
     int64_t uptime_ns;                             /*   0 */
     int64_t publish_ns;                            /*   8 */
@@ -110,12 +120,23 @@ typedef struct vlsync_status {
 
 VLSYNC_STATIC_ASSERT(sizeof(vlsync_signature_sample) == 40, "SignatureSample size");
 VLSYNC_STATIC_ASSERT(VLSYNC_ALIGNOF(vlsync_signature_sample) == 8, "SignatureSample alignment");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, t_ns) == 0, "SignatureSample.t_ns");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, value) == 8, "SignatureSample.value");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, seq) == 16, "SignatureSample.seq");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, publish_ns) == 24, "SignatureSample.publish_ns");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, flags) == 32, "SignatureSample.flags");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_signature_sample, reserved) == 36, "SignatureSample.reserved");
 
 VLSYNC_STATIC_ASSERT(sizeof(vlsync_offset_estimate) == 88, "OffsetEstimate size");
 VLSYNC_STATIC_ASSERT(VLSYNC_ALIGNOF(vlsync_offset_estimate) == 8, "OffsetEstimate alignment");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, seq) == 0, "OffsetEstimate.seq");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, t_ref_ns) == 8, "OffsetEstimate.t_ref_ns");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, offset_s) == 16, "OffsetEstimate.offset_s");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, drift) == 24, "OffsetEstimate.drift");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, offset_std_s) == 32, "OffsetEstimate.offset_std_s");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, drift_std) == 40, "OffsetEstimate.drift_std");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, peak_score) == 48, "OffsetEstimate.peak_score");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, peak_ratio) == 56, "OffsetEstimate.peak_ratio");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, measured_offset_s) == 64, "OffsetEstimate.measured_offset_s");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, publish_ns) == 72, "OffsetEstimate.publish_ns");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, state) == 80, "OffsetEstimate.state");
@@ -124,12 +145,18 @@ VLSYNC_STATIC_ASSERT(offsetof(vlsync_offset_estimate, reserved) == 82, "OffsetEs
 
 VLSYNC_STATIC_ASSERT(sizeof(vlsync_status) == 224, "Status size");
 VLSYNC_STATIC_ASSERT(VLSYNC_ALIGNOF(vlsync_status) == 8, "Status alignment");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, uptime_ns) == 0, "Status.uptime_ns");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, publish_ns) == 8, "Status.publish_ns");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, received) == 16, "Status.received");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, rejected) == 32, "Status.rejected");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, lost) == 112, "Status.lost");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, budget_overruns) == 128, "Status.budget_overruns");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, estimates_published) == 136, "Status.estimates_published");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, events_dropped) == 144, "Status.events_dropped");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, processing_ns) == 152, "Status.processing_ns");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, end_to_end_ns) == 176, "Status.end_to_end_ns");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, latency_count) == 200, "Status.latency_count");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, state) == 208, "Status.state");
+VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, degraded) == 209, "Status.degraded");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, reserved) == 210, "Status.reserved");
-
 #endif /* VLSYNC_WIRE_H */
