@@ -46,10 +46,10 @@ struct Args {
     /// (from `--load-hints`) on top.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Core the daemon's real-time thread is pinned to.
+    /// Core the daemon's real-time thread is pinned to (-1: not pinned), -1..=1023.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     core: i64,
-    /// SCHED_FIFO priority of the daemon's real-time thread (0: normal scheduler).
+    /// SCHED_FIFO priority of the daemon's real-time thread (0: normal scheduler), 0..=99.
     #[arg(long, allow_negative_numbers = true, default_value_t = 50)]
     fifo: i64,
     /// CPU the camera front-end spends per frame before stamping it, ms
@@ -116,14 +116,44 @@ fn daemon_config(a: &Args) -> Result<vlsync_config::Config, String> {
         Some(p) => vlsync_config::Config::load(p).map_err(|e| e.to_string())?,
         None => vlsync_config::Config::default(),
     };
+    // each option checked on its own, so that its error names it
     cfg.daemon.core = a.core;
+    cfg.daemon
+        .validate("")
+        .map_err(|e| format!("--core {}: {}", a.core, e.message))?;
     cfg.daemon.fifo_priority = a.fifo;
+    cfg.daemon
+        .validate("")
+        .map_err(|e| format!("--fifo {}: {}", a.fifo, e.message))?;
     cfg.daemon.latency_per_period = true;
     cfg.daemon.load_hints = a.load_hints;
     cfg.validate("vlsync-loadtest options")
         .map_err(|e| e.to_string())?;
     Ok(cfg)
 }
+
+/// The report files a run writes into `--out`, at its end.
+const REPORTS: [&str; 4] = [
+    "loadtest.md",
+    "loadtest.json",
+    "loadtest.svg",
+    "estimates.csv",
+];
+
+/// Every file a run writes into `--out`: the daemon's configuration, the report, the
+/// processes' logs and the drivers' truth files.
+const WRITTEN: [&str; 10] = [
+    "vlsyncd.toml",
+    REPORTS[0],
+    REPORTS[1],
+    REPORTS[2],
+    REPORTS[3],
+    "vlsyncd.log",
+    "vlsync-cam.log",
+    "vlsync-lidar.log",
+    vlsyncd::harness::session::TRUTH_FILES[0],
+    vlsyncd::harness::session::TRUTH_FILES[1],
+];
 
 fn run(a: &Args) -> Result<bool, String> {
     // a reader that goes away stops the printing, not the run: the report files are
@@ -162,13 +192,41 @@ fn run(a: &Args) -> Result<bool, String> {
     };
     let cfg = daemon_config(a)?;
     let text = toml::to_string(&cfg).map_err(|e| format!("daemon configuration: {e}"))?;
-    // every argument is checked: only now is the output directory made
     let pid = std::process::id();
     let out = a
         .out
         .clone()
         .unwrap_or_else(|| std::env::temp_dir().join(format!("vlsync-loadtest-{pid}")));
+    if let Some(c) = &a.config {
+        // the harness writes these into --out: one of them must not be the input
+        for name in WRITTEN {
+            if vlsync_common::file::same_file(c, &out.join(name)) {
+                return Err(format!(
+                    "--config {} is the {name} this run writes into --out {}: give another --out \
+                     (or copy the configuration elsewhere)",
+                    c.display(),
+                    out.display()
+                ));
+            }
+        }
+    }
+    for r in Role::ALL {
+        vlsyncd::runtime::procs::sibling_binary(r.name())?;
+    }
+    // every argument is checked: only now is the output directory made
     std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    // an earlier run's report must not stand beside this run's logs if this one fails
+    for name in REPORTS {
+        match std::fs::remove_file(out.join(name)) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(format!(
+                    "cannot remove the old {}: {e}",
+                    out.join(name).display()
+                ))
+            }
+            _ => {}
+        }
+    }
     let cfg_path = out.join("vlsyncd.toml");
     std::fs::write(&cfg_path, text).map_err(|e| format!("{}: {e}", cfg_path.display()))?;
 
@@ -249,7 +307,8 @@ fn run(a: &Args) -> Result<bool, String> {
     };
     let reports = analyse(&data);
     let budget = cfg.daemon.latency_budget_us;
-    let tg = targets(&reports, &records, budget);
+    let tg = targets(&reports, &records, budget, session.statuses.last());
+    let stress_failed = records.iter().any(|r| r.stress_failure.is_some());
 
     // whole run after the warm-up
     let after_warmup = records.get(1).map_or(i64::MAX, |r| r.start_ns);
@@ -364,11 +423,12 @@ fn run(a: &Args) -> Result<bool, String> {
             "load_hints": {"on": cfg.daemon.load_hints, "declared": hints_declared},
             "cam_frame_cpu_ms": a.cam_frame_cpu_ms,
             "lidar_opposite_window": !a.front_wall_only,
+            // nothing scored (an interrupted warm-up): null, as the phases' figures
             "after_warmup": {
                 "scored": overall.n,
-                "mae_ms": overall.mae * 1e3,
-                "p95_ms": overall.p95 * 1e3,
-                "max_ms": overall.max * 1e3,
+                "mae_ms": (overall.n > 0).then_some(overall.mae * 1e3),
+                "p95_ms": (overall.n > 0).then_some(overall.p95 * 1e3),
+                "max_ms": (overall.n > 0).then_some(overall.max * 1e3),
             },
             "processes": usage.iter().map(|(r, u)| json!({"name": r.name(), "usage": u})).collect::<Vec<_>>(),
             "camera_driver": cam_report.trim(),
@@ -392,7 +452,7 @@ fn run(a: &Args) -> Result<bool, String> {
         std::fs::write(&p, body).map_err(|e| format!("{}: {e}", p.display()))?;
         con.line(format_args!("wrote {}", p.display()));
     }
-    Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted)
+    Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted && !stress_failed)
 }
 
 #[cfg(test)]
@@ -407,9 +467,12 @@ mod tests {
             // (the idle profile needs no stress-ng)
             (
                 &["--profile", "idle", "--fifo", "1000"][..],
-                "daemon.fifo_priority",
+                "--fifo 1000: `daemon.fifo_priority`",
             ),
-            (&["--profile", "idle", "--core", "99999"][..], "daemon.core"),
+            (
+                &["--profile", "idle", "--core", "99999"][..],
+                "--core 99999: `daemon.core`",
+            ),
             (
                 &["--profile", "idle", "--config", "/nonexistent/vlsync.toml"][..],
                 "/nonexistent/vlsync.toml",
@@ -430,5 +493,32 @@ mod tests {
             assert!(e.contains(want), "{argv:?}: {e}");
             assert!(!out.exists(), "{argv:?} made {o}");
         }
+    }
+
+    /// `--config D/vlsyncd.toml --out D` used to replace the user's file with the
+    /// generated one; it is refused before anything is written.
+    #[test]
+    fn a_config_the_run_would_overwrite_is_refused() {
+        let out = std::env::temp_dir().join(format!("vlsync-loadtest-same-{}", std::process::id()));
+        std::fs::create_dir_all(&out).unwrap();
+        let cfg = out.join("vlsyncd.toml");
+        let text = "# mine\n[daemon]\nlatency_budget_us = 300.0\n";
+        std::fs::write(&cfg, text).unwrap();
+        let (o, c) = (out.display().to_string(), cfg.display().to_string());
+        let a = Args::try_parse_from([
+            "vlsync-loadtest",
+            "--quiet",
+            "--profile",
+            "idle",
+            "--out",
+            o.as_str(),
+            "--config",
+            c.as_str(),
+        ])
+        .unwrap();
+        let e = run(&a).unwrap_err();
+        assert!(e.contains("--config") && e.contains("vlsyncd.toml"), "{e}");
+        assert_eq!(std::fs::read_to_string(&cfg).unwrap(), text);
+        std::fs::remove_dir_all(&out).unwrap();
     }
 }

@@ -89,9 +89,11 @@ fn check_args(a: &Args) -> Result<vlsync_sim::Family, String> {
             a.max_growth_kb
         ));
     }
-    if a.seed_base.checked_add(u64::from(a.sessions)).is_none() {
+    // the sessions' seeds are seed_base ..= seed_base + sessions - 1
+    let last = u64::MAX - (u64::from(a.sessions) - 1);
+    if a.seed_base > last {
         return Err(format!(
-            "--seed-base {} leaves no room for {} sessions' seeds",
+            "--seed-base {} leaves no room for {} sessions' seeds: allowed 0 ..= {last}",
             a.seed_base, a.sessions
         ));
     }
@@ -151,13 +153,19 @@ fn score(got: &[Received], truth: &vlsync_sim::Truth) -> (Option<f64>, Vec<f64>)
     (Some(got[first].est.t_ref_ns as f64 * 1e-9), errs)
 }
 
-/// Share of `errs` beyond [`FAR_S`], %; a non-finite error counts as far.
-fn far_share(errs: &[f64]) -> f64 {
+/// Share of `errs` beyond [`FAR_S`], %; a non-finite error counts as far. `None`
+/// with nothing scored (a session that never locked is not "0 % beyond").
+fn far_share(errs: &[f64]) -> Option<f64> {
     if errs.is_empty() {
-        return 0.0;
+        return None;
     }
     let far = |e: &&f64| e.is_nan() || e.abs() > FAR_S;
-    100.0 * errs.iter().filter(far).count() as f64 / errs.len() as f64
+    Some(100.0 * errs.iter().filter(far).count() as f64 / errs.len() as f64)
+}
+
+/// [`far_share`] as printed: `-` when nothing was scored.
+fn far_text(errs: &[f64], decimals: usize) -> String {
+    far_share(errs).map_or("-".into(), |p| format!("{p:.decimals$} %"))
 }
 
 /// Largest `--max-growth-kb` (1 TiB).
@@ -251,7 +259,7 @@ fn run(a: Args) -> Result<bool, String> {
         };
         let st = ErrorStats::of(&r.errs);
         out.line(format_args!(
-            "session {}/{} (seed {}): {} estimates, {}, {}; {:.2} % beyond 20 ms; daemon RSS {}, CPU {}",
+            "session {}/{} (seed {}): {} estimates, {}, {}; {} beyond 20 ms; daemon RSS {}, CPU {}",
             i + 1,
             a.sessions,
             r.seed,
@@ -259,7 +267,7 @@ fn run(a: Args) -> Result<bool, String> {
             r.lock_s
                 .map_or("never locked".into(), |t| format!("locked at {t:.1} s")),
             st.describe(),
-            far_share(&r.errs),
+            far_text(&r.errs, 2),
             r.rss_kb
                 .map_or("?".into(), |k| format!("{:.1} MB", k as f64 / 1024.0)),
             r.cpu_s.map_or("?".into(), |c| format!("{c:.1} s"))
@@ -282,11 +290,11 @@ fn run(a: Args) -> Result<bool, String> {
         .collect();
     let locks: Vec<f64> = results.iter().filter_map(|r| r.lock_s).collect();
     out.line(format_args!(
-        "accuracy over {} sessions ({:.1} simulated hours; tracking and holding estimates from each session's first lock, the 3 s after each load step left out): {}; {:.3} % beyond 20 ms",
+        "accuracy over {} sessions ({:.1} simulated hours; tracking and holding estimates from each session's first lock, the 3 s after each load step left out): {}; {} beyond 20 ms",
         results.len(),
         covered_s / 3600.0,
         ErrorStats::of(&all).describe(),
-        far_share(&all)
+        far_text(&all, 3)
     ));
     let never = results.len() - locks.len();
     out.line(format_args!(
@@ -304,8 +312,9 @@ fn run(a: Args) -> Result<bool, String> {
         }
     ));
     let rss: Vec<u64> = results.iter().filter_map(|r| r.rss_kb).collect();
+    // growth between the first session's end and the last's: one reading measures none
     let growth = match (rss.first(), rss.last()) {
-        (Some(f), Some(l)) => Some(*l as i64 - *f as i64),
+        (Some(f), Some(l)) if rss.len() >= 2 => Some(*l as i64 - *f as i64),
         _ => None,
     };
     out.line(format_args!(
@@ -314,17 +323,28 @@ fn run(a: Args) -> Result<bool, String> {
             .map_or("?".into(), |k| format!("{:.1} MB", *k as f64 / 1024.0)),
         rss.last()
             .map_or("?".into(), |k| format!("{:.1} MB", *k as f64 / 1024.0)),
-        growth.map_or("?".into(), |g| format!("{g:+} kB")),
+        growth.map_or(
+            if rss.len() == 1 {
+                "not measured: one session".to_string()
+            } else {
+                "?".into()
+            },
+            |g| format!("{g:+} kB")
+        ),
         rss.iter()
             .max()
             .map_or("?".into(), |k| format!("{:.1} MB", *k as f64 / 1024.0))
     ));
     if let Some(c) = results.last().and_then(|r| r.cpu_s) {
         out.line(format_args!(
-            "daemon CPU: {c:.1} s for {:.1} simulated hours at {}x ({:.2} s per simulated hour)",
+            "daemon CPU: {c:.1} s for {:.1} simulated hours at {}x ({})",
             covered_s / 3600.0,
             a.speed,
-            c / (covered_s / 3600.0).max(1e-9)
+            if covered_s > 0.0 {
+                format!("{:.2} s per simulated hour", c / (covered_s / 3600.0))
+            } else {
+                "no estimate, so no simulated time to divide by".into()
+            }
         ));
     }
     let lost = match s.last_status() {
@@ -364,16 +384,20 @@ fn run(a: Args) -> Result<bool, String> {
         Some(n) => failed.push(format!("{n} samples lost")),
         None => failed.push("no status received".into()),
     }
+    let mut not_judged = "";
     match growth {
         Some(g) if g <= a.max_growth_kb as i64 => {}
         Some(g) => failed.push(format!(
             "daemon memory grew {g} kB (allowed {} kB)",
             a.max_growth_kb
         )),
+        None if rss.len() == 1 => {
+            not_judged = " (memory growth not judged: it needs two sessions)";
+        }
         None => failed.push("daemon memory not read".into()),
     }
     if failed.is_empty() {
-        out.line(format_args!("check: passed"));
+        out.line(format_args!("check: passed{not_judged}"));
         Ok(true)
     } else {
         out.line(format_args!("check: FAILED: {}", failed.join("; ")));
@@ -408,6 +432,16 @@ mod tests {
             let e = check_args(&args(argv)).unwrap_err();
             assert!(e.starts_with(flag), "{argv:?}: {e}");
         }
+        // the last seeds are usable: seed_base ..= seed_base + sessions - 1
+        let max = u64::MAX.to_string();
+        assert!(check_args(&args(&["--seed-base", &max, "--sessions", "1"])).is_ok());
+        let room = (u64::MAX - 9).to_string();
+        assert!(check_args(&args(&["--seed-base", &room, "--sessions", "10"])).is_ok());
+        let e = check_args(&args(&["--seed-base", &max, "--sessions", "2"])).unwrap_err();
+        assert!(
+            e.contains(&format!("allowed 0 ..= {}", u64::MAX - 1)),
+            "{e}"
+        );
     }
 
     #[test]
@@ -440,8 +474,11 @@ mod tests {
         let (lock, errs) = score(&got, &truth);
         assert_eq!(lock, Some(3.0));
         assert_eq!(errs.len(), 3);
-        assert!((far_share(&errs) - 100.0 / 3.0).abs() < 1e-9);
-        assert_eq!(far_share(&[0.001, f64::NAN]), 50.0);
+        assert!((far_share(&errs).unwrap() - 100.0 / 3.0).abs() < 1e-9);
+        assert_eq!(far_share(&[0.001, f64::NAN]), Some(50.0));
+        // nothing scored (never locked) is not "0 % beyond"
+        assert_eq!(far_share(&[]), None);
+        assert_eq!(far_text(&[], 2), "-");
         assert_eq!(score(&got[..2], &truth), (None, vec![]));
         // a load step at 3.5 s: the estimates of the 3 s after it are not scored
         let stepped = vlsync_sim::Truth {

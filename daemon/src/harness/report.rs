@@ -317,9 +317,21 @@ pub struct Target {
 }
 
 /// Targets: under steady full CPU load error p95 <= 5 ms; load steps followed
-/// within 5 s; zero samples lost; processing p99 within the budget.
-pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) -> Vec<Target> {
+/// within 5 s; zero samples lost (over the whole run: the daemon's last status,
+/// `final_status`, counts the samples after the last phase too); processing p99
+/// within the budget. A load target whose stress-ng did not run throughout is not
+/// judged (`None`), with the failure as its figure.
+pub fn targets(
+    reports: &[PhaseReport],
+    phases: &[PhaseRecord],
+    budget_us: f64,
+    final_status: Option<&Status>,
+) -> Vec<Target> {
     let mut t = vec![];
+    // the load was not what the phase says: its figures prove nothing
+    let stress_failed = phases
+        .iter()
+        .find_map(|p| Some((&p.phase.name, p.stress_failure.as_ref()?)));
     let full: Vec<&PhaseReport> = reports
         .iter()
         .zip(phases)
@@ -332,18 +344,22 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
         .map(|r| r.steady.p95)
         .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
     let no_est = full.iter().any(|r| r.steady.n == 0);
+    let unloaded = |figure: String| match stress_failed {
+        Some((name, f)) => format!("not judged: in phase `{name}` {f} (besides: {figure})"),
+        None => figure,
+    };
     t.push(Target {
         what: "steady full CPU load (5 s after the change on, the time given to follow it): error p95 <= 5 ms against the measured truth".into(),
-        pass: if full.is_empty() {
+        pass: if full.is_empty() || stress_failed.is_some() {
             None
         } else {
             Some(!no_est && worst_p95.is_some_and(|p| p <= 0.005))
         },
-        figure: match (worst_p95, no_est) {
+        figure: unloaded(match (worst_p95, no_est) {
             (_, true) => "a full-load phase has no scored estimate".into(),
             (Some(p), _) => format!("worst p95 {:.2} ms", p * 1e3),
             (None, _) => "no full-load phase".into(),
-        },
+        }),
     });
     let steps: Vec<&Follow> = reports
         .iter()
@@ -360,12 +376,12 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
         .collect();
     t.push(Target {
         what: "load steps followed within 5 s".into(),
-        pass: if scored.is_empty() {
+        pass: if scored.is_empty() || stress_failed.is_some() {
             None
         } else {
             Some(scored.iter().all(|s| s.is_some_and(|v| v <= SETTLE_S)))
         },
-        figure: if steps.is_empty() {
+        figure: unloaded(if steps.is_empty() {
             "no load step".into()
         } else {
             steps
@@ -373,16 +389,15 @@ pub fn targets(reports: &[PhaseReport], phases: &[PhaseRecord], budget_us: f64) 
                 .map(|f| follow_text(f))
                 .collect::<Vec<_>>()
                 .join("; ")
-        },
+        }),
     });
-    let lost = reports
-        .iter()
-        .map(|r| r.lost[0].saturating_add(r.lost[1]))
-        .fold(0u64, u64::saturating_add);
+    let lost = final_status.map(|s| s.lost[0].saturating_add(s.lost[1]));
     t.push(Target {
         what: "zero samples lost".into(),
-        pass: Some(lost == 0),
-        figure: format!("{lost} lost"),
+        pass: lost.map(|l| l == 0),
+        figure: lost.map_or("no status received from the daemon".into(), |l| {
+            format!("{l} lost")
+        }),
     });
     // a phase's p99 is within the budget exactly when at most 1 % of its
     // samples overran it (the overrun counter is exact; the percentiles are bounds)
@@ -798,12 +813,37 @@ mod tests {
         assert_eq!(r[2].stalls.0, 1);
         assert!((r[2].stalls.1 - 42.0).abs() < 1e-6);
 
-        let t = targets(&r, &phases, 200.0);
+        let t = targets(&r, &phases, 200.0, statuses.last());
         assert_eq!(t.len(), 4);
         assert_eq!(t[0].pass, Some(true), "{t:?}");
         assert_eq!(t[1].pass, Some(true), "{t:?}");
         assert_eq!(t[2].pass, Some(false), "{t:?}"); // one LiDAR sample lost
         assert_eq!(t[3].pass, Some(true), "{t:?}");
+        // losses after the last phase count (the last status is the whole run's),
+        // and with no status there is nothing to judge
+        let mut clean = statuses.last().copied().unwrap();
+        clean.lost = [0, 0];
+        assert_eq!(
+            targets(&r, &phases, 200.0, Some(&clean))[2].pass,
+            Some(true)
+        );
+        let mut late = clean;
+        late.lost = [0, 3];
+        let t_late = targets(&r, &phases, 200.0, Some(&late));
+        assert_eq!(t_late[2].pass, Some(false));
+        assert_eq!(t_late[2].figure, "3 lost");
+        let none = targets(&r, &phases, 200.0, None);
+        assert_eq!(none[2].pass, None, "{none:?}");
+        // a stress-ng that did not run throughout: the load targets are not judged
+        let mut failed = phases.clone();
+        failed[1].stress_failure =
+            Some("stress-ng ended before its phase did (exit status: 1)".into());
+        let tf = targets(&r, &failed, 200.0, statuses.last());
+        assert_eq!((tf[0].pass, tf[1].pass), (None, None), "{tf:?}");
+        assert!(
+            tf[0].figure.contains("not judged: in phase `full`"),
+            "{tf:?}"
+        );
         let md = tables(&r);
         assert!(
             md.contains("| full | cpu, every core |") && md.contains("followed in 3."),
@@ -838,7 +878,7 @@ mod tests {
                 ..d
             };
             let r = analyse(&d);
-            let t = targets(&r, &phases, 200.0);
+            let t = targets(&r, &phases, 200.0, statuses.last());
             assert_eq!(t[1].pass, Some(false), "{t:?}");
             if overruns > 0 {
                 assert!(

@@ -334,14 +334,16 @@ impl Session {
         if let Some(c) = &o.daemon_config {
             vlsync_config::Config::load(c).map_err(|e| format!("daemon configuration: {e}"))?;
         }
-        let bins = Role::ALL.map(|r| sibling_binary(r.name()));
-        let [daemon_bin, cam_bin, lidar_bin] = bins;
-        let (daemon_bin, driver_bins) = (daemon_bin?, [cam_bin?, lidar_bin?]);
         let pid = std::process::id();
         let prefix = o
             .prefix
             .clone()
             .unwrap_or_else(|| format!("{}/{pid}", o.name));
+        // a prefix no service can be named with fails here, not after the daemon started
+        vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
+        let bins = Role::ALL.map(|r| sibling_binary(r.name()));
+        let [daemon_bin, cam_bin, lidar_bin] = bins;
+        let (daemon_bin, driver_bins) = (daemon_bin?, [cam_bin?, lidar_bin?]);
         let log_dir = o
             .log_dir
             .clone()
@@ -712,6 +714,32 @@ fn driver_args(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A prefix no service can be named with is refused before the log directory is
+    /// made or a process started (it used to surface from the client's open, after
+    /// `vlsyncd` had been spawned into the new directory).
+    #[test]
+    fn a_bad_prefix_fails_before_anything_starts() {
+        let dir =
+            std::env::temp_dir().join(format!("vlsync-session-prefix-{}", std::process::id()));
+        let e = Session::start(SessionOptions {
+            name: "t".into(),
+            prefix: Some("a b".into()),
+            log_dir: Some(dir.clone()),
+            daemon_config: None,
+            source: Source::Sim {
+                family: vlsync_sim::Family::Robot,
+                seed: 1,
+                duration_s: 10.0,
+                speed: 1.0,
+            },
+            start_delay: Duration::from_secs(1),
+        })
+        .err()
+        .expect("a bad prefix starts no session");
+        assert!(e.contains("services.prefix") && e.contains("a b"), "{e}");
+        assert!(!dir.exists(), "{e}");
+    }
 
     #[test]
     fn driver_command_lines() {
