@@ -314,9 +314,14 @@ fn start_stress(bin: &Path, args: &[String], log: &Path) -> Result<Stress, Strin
     })
 }
 
+/// How long past its phase (or burst) a stress-ng run's own `--timeout` lies: the
+/// harness stops it at the phase's end, so the timeout only ends a run the harness
+/// could not stop, and an exit seen before the stop is an early one.
+const STRESS_MARGIN_S: f64 = 5.0;
+
 /// Stops a stress-ng run; an error text when it had ended on its own: its timeout
-/// is a second past its phase, so any exit before the phase ends, even with status
-/// 0, means the load was not applied throughout.
+/// is [`STRESS_MARGIN_S`] past its phase, so any exit before the phase ends, even
+/// with status 0, means the load was not applied throughout.
 fn stop_stress(mut s: Stress) -> Option<String> {
     let failed_early = match s.m.child.try_wait() {
         Ok(Some(st)) => Some(st.to_string()),
@@ -420,7 +425,7 @@ pub fn run_profile(
             Load::Cpu { workers } => {
                 let s = start_stress(
                     stress_bin()?,
-                    &cpu_args(*workers, ph.duration_s + 1.0),
+                    &cpu_args(*workers, ph.duration_s + STRESS_MARGIN_S),
                     &log,
                 )?;
                 rec.stress_runs += 1;
@@ -434,7 +439,7 @@ pub fn run_profile(
                     "--vm-bytes".into(),
                     bytes.clone(),
                     "--timeout".into(),
-                    format!("{}s", (ph.duration_s + 1.0).ceil() as u64),
+                    format!("{}s", (ph.duration_s + STRESS_MARGIN_S).ceil() as u64),
                     "--quiet".into(),
                 ];
                 let s = start_stress(stress_bin()?, &args, &log)?;
@@ -451,7 +456,11 @@ pub fn run_profile(
                 while b < end && !termination_requested() {
                     let on_end = (b + (on_s * 1e9) as Nanos).min(end);
                     poll_until(session, b, progress)?;
-                    let s = start_stress(stress_bin()?, &cpu_args(*workers, *on_s + 1.0), &log)?;
+                    let s = start_stress(
+                        stress_bin()?,
+                        &cpu_args(*workers, *on_s + STRESS_MARGIN_S),
+                        &log,
+                    )?;
                     rec.stress_runs += 1;
                     poll_until(session, on_end, progress)?;
                     if let Some(f) = stop_stress(s) {
