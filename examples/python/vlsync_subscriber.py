@@ -158,7 +158,8 @@ def prefix_problem(prefix: str):
 
 
 def open_or_create(builder, settings):
-    """Opens the service `builder(open=True)` names, or creates it with `settings`."""
+    """Opens the service a fresh `builder()` describes, or creates it with `settings`
+    (a service that exists keeps its own: whoever created it first set them)."""
     try:
         return builder().open()
     except Exception as err:  # iceoryx2's typed errors: only a missing service is created
