@@ -137,6 +137,22 @@ fn exit_code_within(p: &mut Managed, limit: Duration) -> Option<i32> {
     None
 }
 
+/// Waits until the subscriber logging to `log` gives its 5 s notice of waiting (it is
+/// then in its wait loop, its services opened and its signal handlers installed);
+/// returns the log so far. Fails if it exits first or gives none within 20 s.
+fn wait_for_quiet_notice(py: &mut Managed, log: &Path) -> String {
+    let t0 = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        if text.contains("nothing received") {
+            return text;
+        }
+        assert!(py.running(), "the subscriber exited:\n{text}");
+        assert!(t0.elapsed() < Duration::from_secs(20), "no notice:\n{text}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 /// Started before any daemon, the subscriber says what it waits for after 5 s, and
 /// has created the offset services with the daemon's settings (it used to create
 /// them with iceoryx2's defaults, which a daemon started later adopts: no estimate
@@ -169,22 +185,8 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
         Some(&log),
     )
     .expect("spawn the Python subscriber");
-    let read_log = || std::fs::read_to_string(&log).unwrap_or_default();
-    let t0 = Instant::now();
-    while !read_log().contains("nothing received") {
-        assert!(py.running(), "the subscriber exited:\n{}", read_log());
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "no notice:\n{}",
-            read_log()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    assert!(
-        read_log().contains(&format!("`{prefix}/offset`")),
-        "{}",
-        read_log()
-    );
+    let notice = wait_for_quiet_notice(&mut py, &log);
+    assert!(notice.contains(&format!("`{prefix}/offset`")), "{notice}");
     {
         // the services exist by now (the notice comes after they were opened): this opens them
         let node = create_node("python-first-check", false).unwrap();
@@ -224,7 +226,7 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
     let code = exit_code_within(&mut py, Duration::from_secs(40));
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
-    let out = read_log();
+    let out = std::fs::read_to_string(&log).unwrap_or_default();
     assert_eq!(code, Some(0), "{out}\n{}", rig.log("vlsyncd-0.log"));
     let estimates = out.lines().filter(|l| l.starts_with('{')).count();
     assert_eq!(estimates, 3, "{out}");
@@ -251,22 +253,12 @@ fn python_subscriber_stops_cleanly_on_sigint_and_sigterm() {
             Some(&log),
         )
         .expect("spawn the Python subscriber");
-        // in its wait loop once it gives its notice (a signal before its handlers are
-        // installed would be Python's default KeyboardInterrupt)
-        let t0 = Instant::now();
-        let read_log = || std::fs::read_to_string(&log).unwrap_or_default();
-        while !read_log().contains("nothing received") {
-            assert!(py.running(), "the subscriber exited:\n{}", read_log());
-            assert!(
-                t0.elapsed() < Duration::from_secs(20),
-                "no notice:\n{}",
-                read_log()
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        // a signal before its handlers are installed would be Python's default
+        // KeyboardInterrupt: wait until it is in its wait loop
+        wait_for_quiet_notice(&mut py, &log);
         py.signal(sig).unwrap();
         let code = exit_code_within(&mut py, Duration::from_secs(10));
-        let out = read_log();
+        let out = std::fs::read_to_string(&log).unwrap_or_default();
         assert_eq!(code, Some(0), "SIG{sig}: {out}");
         assert!(
             !out.contains("Traceback") && !out.contains("KeyboardInterrupt"),
