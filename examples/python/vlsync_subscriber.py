@@ -19,9 +19,10 @@ not NaN or negative, a measured offset that is not infinite, zero reserved
 bytes); invalid samples are skipped, each with a line on stderr, and how
 many were skipped is printed at exit. With nothing received for 5 s it says once on
 stderr what it waits for (a daemon on another prefix is the usual cause). Exit
-status: 0 after --count valid estimates, or on Ctrl-C (SIGINT) or SIGTERM; 1 on
-timeout; 2 on error (a bad argument, such as a prefix the daemon would refuse or a
-negative count, or iceoryx2 refusing the node or the service, with its error on
+status: 0 after --count valid estimates, on Ctrl-C (SIGINT) or SIGTERM, or when
+the reader of its output goes away (`| head -1`); 1 on timeout; 2 on error (a bad
+argument, such as a prefix the daemon would refuse or a negative count, iceoryx2
+refusing the node or the service, or a write error on stdout, with its error on
 stderr).
 """
 
@@ -29,6 +30,7 @@ import argparse
 import ctypes
 import json
 import math
+import os
 import re
 import signal
 import sys
@@ -244,8 +246,11 @@ def main() -> int:
                 sample = subscriber.receive()
                 if sample is None:
                     break
+                # a copy first: validated and printed is then the same bytes, even
+                # if a publisher rewrote the shared sample after sending it
+                copy = OffsetEstimate.from_buffer_copy(sample.payload().contents)
                 try:
-                    e = validate(sample.payload().contents)
+                    e = validate(copy)
                 except ValueError as err:
                     invalid += 1
                     print(f"vlsync_subscriber: skipped invalid estimate: {err}", file=sys.stderr)
@@ -279,6 +284,13 @@ def main() -> int:
                 break
     except KeyboardInterrupt:  # a SIGINT before the handlers were installed
         pass
+    except BrokenPipeError:
+        # the reader went away (`| head -1`): done, as vlsync-echo is; stdout points
+        # at /dev/null so the interpreter's own flush at exit does not fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except OSError as err:  # a full disk or another write error on stdout
+        print(f"vlsync_subscriber: error: cannot write to stdout: {err}", file=sys.stderr)
+        status = 2
     if invalid:
         print(f"vlsync_subscriber: {got} estimates received, {invalid} invalid ones skipped", file=sys.stderr)
     return status

@@ -67,8 +67,47 @@ fn python_subscriber_reads_live_estimates() {
         ])
         .output()
         .expect("run the Python interpreter");
+    // a reader that goes away after one line (`| head -1`): exit 0, no traceback
+    // (it used to die on BrokenPipeError with exit 1, the code of a timeout)
+    let mut piped = std::process::Command::new(python())
+        .arg(&script)
+        .args(["--prefix", &rig.prefix, "--timeout", "10", "--json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run the Python interpreter");
+    let mut first = String::new();
+    {
+        use std::io::BufRead;
+        let mut reader = std::io::BufReader::new(piped.stdout.take().unwrap());
+        reader.read_line(&mut first).unwrap();
+    } // the read end closes here
+    let t0 = Instant::now();
+    let piped_status = loop {
+        if let Some(st) = piped.try_wait().unwrap() {
+            break Some(st);
+        }
+        if t0.elapsed() > Duration::from_secs(15) {
+            let _ = piped.kill();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let piped_err = {
+        use std::io::Read;
+        let mut e = String::new();
+        let _ = piped.stderr.take().unwrap().read_to_string(&mut e);
+        e
+    };
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
+    assert!(first.starts_with('{'), "first line {first:?}: {piped_err}");
+    assert_eq!(
+        piped_status.and_then(|s| s.code()),
+        Some(0),
+        "after its reader went away: {piped_err}"
+    );
+    assert!(!piped_err.contains("Traceback"), "{piped_err}");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
