@@ -257,11 +257,55 @@ impl Estimate {
         self.offset_s + self.drift * nanos_to_secs(t_ns.saturating_sub(self.t_ref_ns))
     }
 
-    /// Standard deviation of [`Estimate::offset_at`] ignoring the offset/drift covariance
-    /// (conservative for extrapolation forward in time).
+    /// Standard deviation of [`Estimate::offset_at`] from the offset's and the drift's
+    /// standard deviations alone: `sqrt(offset_std² + (drift_std · dt)²)`, `dt = |t - t_ref|`.
+    /// The estimator tracks no offset/drift covariance, so none is added; nor is the
+    /// offset's random walk between `t_ref` and `t`, which the estimator's own
+    /// prediction adds (see [`Estimate::offset_std_with_walk`]).
     pub fn offset_std_at(&self, t_ns: Nanos) -> f64 {
+        self.offset_std_with_walk(t_ns, 0.0)
+    }
+
+    /// LiDAR time of the camera stamp `t_cam_ns`: `t_L = t_C + offset(t_L)`, the offset
+    /// extrapolated with the drift to the LiDAR time it is for (two fixed-point steps:
+    /// the error is below `drift³ · |t_L - t_ref|`, nanoseconds at any real drift).
+    ///
+    /// ```
+    /// # use vlsync_common::{Estimate, EstimatorState, Polarity};
+    /// // offset 0.1 s at LiDAR time 10 s, drifting 100 ppm
+    /// let e = Estimate { seq: 0, t_ref_ns: 10_000_000_000, offset_s: 0.1, drift: 1e-4,
+    ///     offset_std_s: 0.001, drift_std: 1e-6, state: EstimatorState::Tracking,
+    ///     polarity: Polarity::Positive, peak_score: 0.9, peak_ratio: 2.0,
+    ///     measured_offset_s: f64::NAN };
+    /// let t_l = e.camera_to_lidar(19_900_000_000);
+    /// // 10 s after t_ref on the LiDAR clock the offset is 0.101 s
+    /// assert!((t_l - 20_001_000_100).abs() <= 1, "{t_l}");
+    /// ```
+    pub fn camera_to_lidar(&self, t_cam_ns: Nanos) -> Nanos {
+        let first = camera_to_lidar_ns(t_cam_ns, self.offset_s);
+        let second = camera_to_lidar_ns(t_cam_ns, self.offset_at(first));
+        camera_to_lidar_ns(t_cam_ns, self.offset_at(second))
+    }
+
+    /// [`Estimate::offset_std_at`] plus the offset's random walk of `walk` s/√s over
+    /// `dt`, as the estimator predicts: `sqrt(offset_std² + (drift_std · dt)² + walk² · dt)`.
+    /// The estimator's walk is `estimator.offset_process_noise` (2e-4 by default) while
+    /// it tracks and `estimator.hold_process_noise` (3e-3) once a hold outlasts a window:
+    /// at the 3 s between `t_ref` and a live stamp, 0.35 ms and 5.2 ms added in quadrature.
+    ///
+    /// ```
+    /// # use vlsync_common::{Estimate, EstimatorState, Polarity};
+    /// let e = Estimate { seq: 0, t_ref_ns: 0, offset_s: 0.1, drift: 0.0, offset_std_s: 0.001,
+    ///     drift_std: 0.0, state: EstimatorState::Tracking, polarity: Polarity::Positive,
+    ///     peak_score: 0.9, peak_ratio: 2.0, measured_offset_s: f64::NAN };
+    /// let three_s = 3_000_000_000;
+    /// assert_eq!(e.offset_std_at(three_s), 0.001);
+    /// let with_walk = e.offset_std_with_walk(three_s, 2e-4);
+    /// assert!((with_walk - (1e-6f64 + 4e-8 * 3.0).sqrt()).abs() < 1e-12);
+    /// ```
+    pub fn offset_std_with_walk(&self, t_ns: Nanos, walk: f64) -> f64 {
         let dt = nanos_to_secs(t_ns.saturating_sub(self.t_ref_ns)).abs();
-        (self.offset_std_s.powi(2) + (self.drift_std * dt).powi(2)).sqrt()
+        (self.offset_std_s.powi(2) + (self.drift_std * dt).powi(2) + walk * walk * dt).sqrt()
     }
 }
 

@@ -509,6 +509,9 @@ fn prefix(args: &DriverArgs) -> Result<String, DriverError> {
 
 /// Runs a driver for `stream` with `args`; prints what the source dropped at the end.
 pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary, DriverError> {
+    // before a source opens (a serial port or a camera may take a while): a stop
+    // from then on ends the driver cleanly
+    vlsync_ipc::handle_termination_signals();
     let prefix = prefix(args)?;
     // an invalid prefix is an options error (exit 78, not restarted), wherever it came from
     let names = ServiceNames::new(&prefix).map_err(|e| DriverError::Options(e.to_string()))?;

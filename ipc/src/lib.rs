@@ -29,8 +29,9 @@
 #![deny(unsafe_code)]
 
 pub mod rt;
+pub mod signals;
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -42,9 +43,10 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFac
 use std::fmt;
 use std::time::{Duration, Instant};
 use vlsync_common::wire::{OffsetEstimate, SignatureSample, Status, WireError};
-use vlsync_common::{camera_to_lidar_ns, Estimate, Nanos, Stream};
+use vlsync_common::{Estimate, EstimatorState, Nanos, Stream};
 
 pub use iceoryx2;
+pub use signals::{handle_termination_signals, termination_requested};
 pub use vlsync_common::wire;
 
 /// The iceoryx2 service variant used everywhere (inter-process).
@@ -183,20 +185,28 @@ pub const DEFAULT_SIGNATURE_BUFFER: usize = 256;
 /// the resources of dead nodes whenever a node is created, so a process
 /// restarted after a crash cleans up behind its predecessor; [`cleanup_dead_nodes`]
 /// does it explicitly and reports the count.
+///
+/// `handle_signals`: install vlsync's SIGINT/SIGTERM handler
+/// ([`handle_termination_signals`]; the process then polls
+/// [`termination_requested`]); without it the process's signal handling is left as
+/// it was (a client library must not take an application's signals). Either way
+/// iceoryx2's own signal handlers are undone ([`signals::tame_iceoryx2_signals`]).
 pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError> {
     let node_name = NodeName::new(name)
         .map_err(|e| IpcError::new(format!("node name {name:?}"), format!("{e:?}")))?;
     // iceoryx2 logs at Info by default (e.g. "no config file loaded"); keep its
     // warnings quiet unless IOX2_LOG_LEVEL asks otherwise
     set_log_level_from_env_or(LogLevel::Error);
-    let mode = if handle_signals {
-        SignalHandlingMode::HandleTerminationRequests
+    // before any shared memory: iceoryx2's own handlers would take twelve signals
+    // and keep only the last one (see `signals`)
+    if handle_signals {
+        handle_termination_signals();
     } else {
-        SignalHandlingMode::Disabled
-    };
+        signals::tame_iceoryx2_signals();
+    }
     NodeBuilder::new()
         .name(&node_name)
-        .signal_handling_mode(mode)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Svc>()
         .map_err(|e| IpcError::new(format!("create iceoryx2 node {name:?}"), format!("{e:?}")))
 }
@@ -206,24 +216,6 @@ pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError
 pub fn cleanup_dead_nodes(node: &IpcNode) -> (u64, u64) {
     let s = node.try_cleanup_dead_nodes();
     (s.cleanups, s.failed_cleanups)
-}
-
-/// True once SIGINT or SIGTERM arrived (iceoryx2's handler, installed by a node
-/// created with `handle_signals`), and from then on.
-///
-/// iceoryx2's `SignalHandler::termination_requested` consumes the signal (the
-/// first caller sees it, later ones do not); this wrapper latches it so every
-/// thread and loop of the process sees the request.
-pub fn termination_requested() -> bool {
-    static LATCHED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-    if LATCHED.load(std::sync::atomic::Ordering::Relaxed) {
-        return true;
-    }
-    let now = iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
-    if now {
-        LATCHED.store(true, std::sync::atomic::Ordering::Relaxed);
-    }
-    now
 }
 
 /// Now on `CLOCK_MONOTONIC`, ns (the clock of every `publish_ns` field).
@@ -457,6 +449,28 @@ impl SignaturePublisher {
     }
 }
 
+/// The longest single sleep of [`OffsetClient::wait_next`] and
+/// [`OffsetClient::wait_all`]; a longer timeout sleeps again. The last estimate
+/// handed to a new subscriber (history 1) comes without an event, so a client that
+/// opened while the daemon publishes nothing sees it within this time.
+const MAX_WAIT_SLICE: Duration = Duration::from_secs(1);
+
+/// Whether `deadline` (`None`: none) has passed.
+fn passed(deadline: Option<Instant>) -> bool {
+    deadline.is_some_and(|d| Instant::now() >= d)
+}
+
+/// A camera stamp on the LiDAR time base ([`OffsetClient::camera_to_lidar`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Conversion {
+    /// The stamp on the LiDAR clock, ns.
+    pub t_lidar_ns: Nanos,
+    /// One standard deviation of `t_lidar_ns`, seconds: the offset's at that time.
+    pub std_s: f64,
+    /// The estimate it was converted with (its state, reference time, sequence number).
+    pub estimate: Estimate,
+}
+
 /// Subscribes to the daemon's estimates: the client API.
 ///
 /// ```no_run
@@ -464,7 +478,11 @@ impl SignaturePublisher {
 /// if let Some(e) = c.wait_next(std::time::Duration::from_secs(1)).unwrap() {
 ///     println!("offset {} s", e.offset_s);
 /// }
-/// let t_lidar = c.camera_to_lidar(1_000_000_000);
+/// if let Some(c) = c.camera_to_lidar(1_000_000_000) {
+///     if c.estimate.state == vlsync_common::EstimatorState::Tracking {
+///         println!("LiDAR time {} ns ± {} s", c.t_lidar_ns, c.std_s);
+///     }
+/// }
 /// ```
 pub struct OffsetClient {
     subscriber: Subscriber<Svc, OffsetEstimate, ()>,
@@ -472,6 +490,10 @@ pub struct OffsetClient {
     latest: Option<Estimate>,
     latest_publish_ns: Nanos,
     invalid: u64,
+    /// `<prefix>/offset`, for error messages.
+    service: String,
+    /// Offset random walk (s/√s) while tracking and otherwise, for conversions.
+    walk: (f64, f64),
     _services: (PubSubFactory<Svc, OffsetEstimate, ()>, EventFactory<Svc>),
     _node: IpcNode,
 }
@@ -492,6 +514,11 @@ impl OffsetClient {
             latest: None,
             latest_publish_ns: 0,
             invalid: 0,
+            service: names.offset(),
+            walk: {
+                let d = vlsync_config::EstimatorConfig::default();
+                (d.offset_process_noise, d.hold_process_noise)
+            },
             _services: (svc, ev),
             _node: node,
         };
@@ -503,10 +530,9 @@ impl OffsetClient {
     /// counting, [`OffsetClient::invalid_count`]) payloads validation refuses.
     fn next_valid(&mut self) -> Result<Option<(Estimate, Nanos)>, IpcError> {
         loop {
-            let s = self
-                .subscriber
-                .receive()
-                .map_err(|e| IpcError::new("receive on offset service", format!("{e:?}")))?;
+            let s = self.subscriber.receive().map_err(|e| {
+                IpcError::new(format!("receive on `{}`", self.service), format!("{e:?}"))
+            })?;
             let Some(s) = s else { return Ok(None) };
             let w: OffsetEstimate = *s.payload();
             match Estimate::try_from(&w) {
@@ -529,15 +555,24 @@ impl OffsetClient {
         Ok(got)
     }
 
-    /// Sleeps on the offset event until `deadline`. `Ok(false)`: a termination
-    /// signal interrupted it (the caller returns what it has).
-    fn wait_event(&mut self, deadline: Instant) -> Result<bool, IpcError> {
-        let left = deadline.saturating_duration_since(Instant::now());
+    /// Sleeps on the offset event until `deadline` (`None`: no deadline), at most
+    /// [`MAX_WAIT_SLICE`] at a time. `Ok(false)`: a signal interrupted it, and the
+    /// caller returns what it has, so the application's own handler (Ctrl-C, a job
+    /// control stop) is acted on at once. It never asks iceoryx2 whether a
+    /// termination was requested: that would install iceoryx2's signal handlers in
+    /// an application that owns its signals.
+    fn wait_event(&mut self, deadline: Option<Instant>) -> Result<bool, IpcError> {
+        let left = deadline.map_or(MAX_WAIT_SLICE, |d| {
+            d.saturating_duration_since(Instant::now())
+                .min(MAX_WAIT_SLICE)
+        });
         match self.listener.timed_wait(|_| {}, left) {
             Ok(_) => Ok(true),
-            // a signal interrupted the wait: let the caller decide
-            Err(_) if termination_requested() => Ok(false),
-            Err(e) => Err(IpcError::new("wait on offset event", format!("{e:?}"))),
+            Err(ListenerWaitError::InterruptSignal) => Ok(false),
+            Err(e) => Err(IpcError::new(
+                format!("wait on the event of `{}`", self.service),
+                format!("{e:?}"),
+            )),
         }
     }
 
@@ -558,18 +593,49 @@ impl OffsetClient {
         self.invalid
     }
 
-    /// Converts a camera timestamp to the LiDAR time base with the latest estimate,
-    /// extrapolated with its drift; returns the LiDAR time and the standard
-    /// deviation (s) of the offset used. `None` before the first estimate.
-    pub fn camera_to_lidar(&mut self, t_cam_ns: Nanos) -> Option<(Nanos, f64)> {
+    /// Converts a camera timestamp to the LiDAR time base with the latest estimate
+    /// (after draining what is pending), extrapolated with its drift
+    /// ([`Estimate::camera_to_lidar`]). `None` before the first estimate.
+    ///
+    /// The standard deviation includes the offset's random walk from the estimate's
+    /// reference time to the stamp ([`Estimate::offset_std_with_walk`]) at the
+    /// shipped `estimator.offset_process_noise` while tracking and
+    /// `estimator.hold_process_noise` in every other state; a daemon configured
+    /// otherwise is matched with [`OffsetClient::set_process_noise`]. The
+    /// estimate used comes with the result: check its `state` (a `lost` or
+    /// `acquiring` estimate is no lock) and `t_ref_ns` (how old it is) before
+    /// trusting the stamp. Draining here means a recorder that also calls
+    /// [`OffsetClient::wait_all`] misses the estimates this call took.
+    pub fn camera_to_lidar(&mut self, t_cam_ns: Nanos) -> Option<Conversion> {
         let e = self.latest()?;
-        // the offset is a function of LiDAR time; t_cam is within |offset| of it
-        let approx_lidar = camera_to_lidar_ns(t_cam_ns, e.offset_s);
-        let off = e.offset_at(approx_lidar);
-        Some((
-            camera_to_lidar_ns(t_cam_ns, off),
-            e.offset_std_at(approx_lidar),
-        ))
+        let t_lidar_ns = e.camera_to_lidar(t_cam_ns);
+        let walk = if e.state == EstimatorState::Tracking {
+            self.walk.0
+        } else {
+            self.walk.1
+        };
+        Some(Conversion {
+            t_lidar_ns,
+            std_s: e.offset_std_with_walk(t_lidar_ns, walk),
+            estimate: e,
+        })
+    }
+
+    /// The offset's random walk (s/√s) [`OffsetClient::camera_to_lidar`] assumes while
+    /// tracking and otherwise: the daemon's `estimator.offset_process_noise` and
+    /// `estimator.hold_process_noise` (shipped: 2e-4 and 3e-3). Values that are not
+    /// finite and >= 0 are refused and leave the setting as it was.
+    pub fn set_process_noise(&mut self, tracking: f64, holding: f64) -> Result<(), IpcError> {
+        for (name, v) in [("tracking", tracking), ("holding", holding)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(IpcError::new(
+                    "set_process_noise",
+                    format!("{name} walk {v} is not a finite number >= 0"),
+                ));
+            }
+        }
+        self.walk = (tracking, holding);
+        Ok(())
     }
 
     /// Every valid estimate pending, in order, each with the `CLOCK_MONOTONIC` time
@@ -578,29 +644,35 @@ impl OffsetClient {
     /// is pending; an empty vector on timeout. The subscriber buffers 16 estimates
     /// (8 s at the default hop): a caller that sleeps longer loses the oldest.
     pub fn wait_all(&mut self, timeout: Duration) -> Result<Vec<(Estimate, Nanos)>, IpcError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = Instant::now().checked_add(timeout);
         let mut out = vec![];
+        let mut interrupted = false;
         loop {
             while let Some(x) = self.next_valid()? {
                 out.push(x);
             }
-            if !out.is_empty() || Instant::now() >= deadline || !self.wait_event(deadline)? {
+            if !out.is_empty() || interrupted || passed(deadline) {
                 return Ok(out);
             }
+            interrupted = !self.wait_event(deadline)?;
         }
     }
 
     /// Waits up to `timeout` for the next estimate; sleeps on the offset event.
-    /// `Ok(None)` on timeout.
+    /// `Ok(None)` on timeout, and early when a signal interrupts the wait (the
+    /// caller checks its own stop flag and calls again). A `timeout` too long for
+    /// the clock (`Duration::MAX`) waits with no deadline.
     pub fn wait_next(&mut self, timeout: Duration) -> Result<Option<Estimate>, IpcError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = Instant::now().checked_add(timeout);
+        let mut interrupted = false;
         loop {
             if self.drain()? {
                 return Ok(self.latest);
             }
-            if Instant::now() >= deadline || !self.wait_event(deadline)? {
+            if interrupted || passed(deadline) {
                 return Ok(None);
             }
+            interrupted = !self.wait_event(deadline)?;
         }
     }
 }
@@ -609,6 +681,8 @@ impl OffsetClient {
 pub struct StatusClient {
     subscriber: Subscriber<Svc, Status, ()>,
     latest: Option<Status>,
+    /// `<prefix>/status`, for error messages.
+    service: String,
     _service: PubSubFactory<Svc, Status, ()>,
     _node: IpcNode,
 }
@@ -623,6 +697,7 @@ impl StatusClient {
         Ok(Self {
             subscriber,
             latest: None,
+            service: names.status(),
             _service: svc,
             _node: node,
         })
@@ -636,7 +711,10 @@ impl StatusClient {
         let mut last_err = None;
         loop {
             let s = self.subscriber.receive().map_err(|e| {
-                WireErrorOrIpc::Ipc(IpcError::new("receive on status service", format!("{e:?}")))
+                WireErrorOrIpc::Ipc(IpcError::new(
+                    format!("receive on `{}`", self.service),
+                    format!("{e:?}"),
+                ))
             })?;
             let Some(s) = s else { break };
             let st: Status = *s.payload();
@@ -659,7 +737,10 @@ impl StatusClient {
         let mut last_err = None;
         loop {
             let s = self.subscriber.receive().map_err(|e| {
-                WireErrorOrIpc::Ipc(IpcError::new("receive on status service", format!("{e:?}")))
+                WireErrorOrIpc::Ipc(IpcError::new(
+                    format!("receive on `{}`", self.service),
+                    format!("{e:?}"),
+                ))
             })?;
             let Some(s) = s else { break };
             let st: Status = *s.payload();
@@ -784,15 +865,37 @@ mod tests {
         let got = c.wait_next(Duration::from_secs(1)).unwrap().unwrap();
         assert_eq!(got.seq, 3);
         assert_eq!(c.invalid_count(), 1);
-        let (t, std) = c.camera_to_lidar(5_000_000_000).unwrap();
-        assert_eq!(t, 5_020_000_000);
-        assert!((std - 0.001).abs() < 1e-12);
+        let conv = c.camera_to_lidar(5_000_000_000).unwrap();
+        assert_eq!(conv.t_lidar_ns, 5_020_000_000);
+        assert_eq!(conv.estimate.seq, 3);
+        // 4.98 s from t_ref at the shipped tracking walk of 2e-4 s/√s
+        let want = (1e-6f64 + 4e-8 * 4.98).sqrt();
+        assert!((conv.std_s - want).abs() < 1e-12, "{}", conv.std_s);
+        // a holding estimate walks at the holding rate; a refused rate changes nothing
+        assert!(c.set_process_noise(f64::NAN, 1.0).is_err());
+        c.set_process_noise(0.0, 1e-3).unwrap();
+        let held = Estimate {
+            seq: 4,
+            state: vlsync_common::EstimatorState::Holding,
+            ..e
+        };
+        publ.send_copy(OffsetEstimate::from_estimate(&held, 3).unwrap())
+            .unwrap();
+        let conv = c.camera_to_lidar(5_000_000_000).unwrap();
+        assert_eq!(conv.estimate.state, vlsync_common::EstimatorState::Holding);
+        let want = (1e-6f64 + 1e-6 * 4.98).sqrt();
+        assert!((conv.std_s - want).abs() < 1e-12, "{}", conv.std_s);
+        // "wait forever" is a timeout too long for the clock, not a panic
+        publ.send_copy(OffsetEstimate::from_estimate(&Estimate { seq: 5, ..e }, 4).unwrap())
+            .unwrap();
+        let got = c.wait_next(Duration::MAX).unwrap().unwrap();
+        assert_eq!(got.seq, 5);
         // nothing more: times out
         let t0 = Instant::now();
         assert!(c.wait_next(Duration::from_millis(100)).unwrap().is_none());
         assert!(t0.elapsed() >= Duration::from_millis(90));
         // wait_all keeps every estimate, in order, with its publish time
-        for (seq, publish) in [(4, 30), (5, 40)] {
+        for (seq, publish) in [(6, 30), (7, 40)] {
             let e = Estimate { seq, ..e };
             publ.send_copy(OffsetEstimate::from_estimate(&e, publish).unwrap())
                 .unwrap();
@@ -801,7 +904,7 @@ mod tests {
         noti.notify().unwrap();
         let all = c.wait_all(Duration::from_secs(1)).unwrap();
         let seqs: Vec<(u64, i64)> = all.iter().map(|(e, p)| (e.seq, *p)).collect();
-        assert_eq!(seqs, vec![(4, 30), (5, 40)]);
+        assert_eq!(seqs, vec![(6, 30), (7, 40)]);
         assert_eq!(c.invalid_count(), 2);
         assert!(c.wait_all(Duration::from_millis(50)).unwrap().is_empty());
     }

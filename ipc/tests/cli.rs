@@ -18,3 +18,75 @@ fn echo_has_help_and_rejects_an_unknown_argument() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--bogus"));
 }
+
+/// The state letter of process `pid` (`R`, `S`, `T` stopped, ...) from /proc.
+fn proc_state(pid: &str) -> Option<char> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // "pid (comm) S ...": the state follows the last ')'
+    stat.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
+/// Job control works on the echo: Ctrl-Z (SIGTSTP) stops it and SIGCONT resumes
+/// it, and it goes on waiting. iceoryx2's handlers used to catch both: SIGTSTP did
+/// not stop it, and the interrupted wait ended it with exit 1 ("wait on offset
+/// event: InterruptSignal"). SIGINT then ends it with 0.
+#[test]
+fn echo_survives_job_control_and_stops_on_sigint() {
+    use std::time::{Duration, Instant};
+    let bin = env!("CARGO_BIN_EXE_vlsync-echo");
+    let prefix = format!("vlsync-test/echo-sig-{}", std::process::id());
+    let mut child = Command::new(bin)
+        .args(["--prefix", &prefix])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id().to_string();
+    let kill = |sig: &str| {
+        let ok = Command::new("kill")
+            .args([sig, &pid])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill {sig} {pid}");
+    };
+    let wait_state = |want: char| {
+        let t0 = Instant::now();
+        while proc_state(&pid) != Some(want) && t0.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        proc_state(&pid)
+    };
+    std::thread::sleep(Duration::from_millis(700));
+    kill("-TSTP");
+    let stopped = wait_state('T');
+    kill("-CONT");
+    std::thread::sleep(Duration::from_millis(300));
+    if let Some(st) = child.try_wait().unwrap() {
+        let out = child.wait_with_output().unwrap();
+        panic!(
+            "the echo ended on SIGTSTP/SIGCONT: {st:?}, stderr: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(stopped, Some('T'), "SIGTSTP did not stop the echo");
+    kill("-INT");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "no exit after SIGINT"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(
+        status.code(),
+        Some(0),
+        "stderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

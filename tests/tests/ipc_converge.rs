@@ -1,6 +1,7 @@
 //! The three processes (daemon, camera driver, LiDAR driver) converge to the
 //! simulated truth, `vlsync-echo` prints the estimates and (`--status`) the daemon's
-//! counters, and a clean shutdown leaves no shared-memory resource behind.
+//! counters, a client that opens when the daemon is idle gets the last estimate, and
+//! a clean shutdown leaves no shared-memory resource behind.
 
 use std::time::Duration;
 use vlsync_common::Stream;
@@ -42,6 +43,20 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let est_out = est_echo.wait_with_output().unwrap();
     let st = status.latest().unwrap().expect("a status from the daemon");
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
+    // a client that opens now, the drivers gone and the daemon publishing nothing,
+    // gets the last estimate (history 1) from the daemon's next idle wake-up, not
+    // never; a conversion with it says which estimate it used
+    let mut late = OffsetClient::open(&rig.prefix).unwrap();
+    let last = late
+        .wait_next(Duration::from_secs(3))
+        .unwrap()
+        .expect("a late subscriber of an idle daemon gets its last estimate");
+    let newest = client.latest().expect("estimates before");
+    assert_eq!(last.seq, newest.seq);
+    let conv = late.camera_to_lidar(newest.t_ref_ns).unwrap();
+    assert_eq!(conv.estimate.seq, newest.seq);
+    assert!(conv.std_s >= newest.offset_std_s);
+    drop(late);
     assert!(
         daemon.stop(Duration::from_secs(3)),
         "daemon did not exit cleanly:\n{}",

@@ -1,6 +1,7 @@
 //! `vlsyncd run` under a simulated systemd: the test plays the service manager's
 //! notification socket and checks READY=1, the watchdog petting at half of
-//! WATCHDOG_USEC, and STOPPING=1 plus a clean exit on SIGTERM.
+//! WATCHDOG_USEC, and STOPPING=1 plus a clean exit on SIGTERM (followed by SIGCONT,
+//! as systemd sends them); a stop during start-up is a clean stop too.
 
 use std::os::unix::net::UnixDatagram;
 use std::path::PathBuf;
@@ -124,11 +125,22 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
         "no periodic STATUS line: {seen:?}"
     );
 
-    daemon.signal("TERM").unwrap();
+    // as systemd stops a unit (KillMode's "kill_and_sigcont"): SIGTERM, then
+    // SIGCONT at once. iceoryx2's handler kept only the last signal, so the SIGCONT
+    // hid the SIGTERM and the daemon ran on until SIGKILL
+    // both from one shell, its `kill` builtins microseconds apart as systemd's
+    // two kill(2) calls are (two `kill` processes are milliseconds apart and rarely
+    // lost the race; these lost it in 5 of 10 tries before the fix)
+    let sent = Command::new("sh")
+        .args(["-c", "kill -TERM $1 && kill -CONT $1", "sh"])
+        .arg(daemon.pid().to_string())
+        .status()
+        .unwrap();
+    assert!(sent.success(), "kill -TERM/-CONT {}", daemon.pid());
     let mut after = vec![];
     assert!(
         wait_for(&sock, "STOPPING=1", Duration::from_secs(5), &mut after),
-        "no STOPPING=1 after SIGTERM; got {after:?}\n{}",
+        "no STOPPING=1 after SIGTERM + SIGCONT; got {after:?}\n{}",
         logtext()
     );
     let t0 = Instant::now();
@@ -209,4 +221,69 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(!text.contains("systemd notification"), "{text}");
     assert!(!text.contains("WARN"), "{text}");
+}
+
+/// SIGINT as soon as the daemon holds its prefix's lock (start-up is not over: the
+/// services, the real-time thread and the state file come after): a clean exit 0
+/// that removes the lock file. Before, the handler came with the first wait of the
+/// real-time loop, and such a signal killed the daemon (signal 2), the lock file
+/// left behind.
+#[test]
+fn a_stop_during_start_up_is_a_clean_stop() {
+    let dir = std::env::temp_dir().join(format!("vlsync-it-sdearly-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let _scratch = Scratch(dir.clone());
+    let prefix = format!("vlsync-it/sdearly-{}", std::process::id());
+    let lock = vlsyncd::runtime::lock_path(&prefix);
+    let _ = std::fs::remove_file(&lock);
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
+    )
+    .unwrap();
+    let log = dir.join("vlsyncd.log");
+    let child = Command::new(bin("vlsyncd"))
+        .args(["run", "--config"])
+        .arg(&cfg)
+        .env_remove("NOTIFY_SOCKET")
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let mut daemon = Managed {
+        name: "vlsyncd".into(),
+        child,
+    };
+    let t0 = Instant::now();
+    while !lock.exists() {
+        assert!(
+            daemon.running(),
+            "{}",
+            std::fs::read_to_string(&log).unwrap()
+        );
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "no lock file {}",
+            lock.display()
+        );
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    daemon.signal("INT").unwrap();
+    let status = loop {
+        if let Some(st) = daemon.child.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(25),
+            "vlsyncd still running after SIGINT at start-up\n{}",
+            std::fs::read_to_string(&log).unwrap()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(status.code(), Some(0), "exit {status:?}\n{text}");
+    assert!(!lock.exists(), "lock file left: {}\n{text}", lock.display());
 }

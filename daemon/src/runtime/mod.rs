@@ -80,6 +80,7 @@ use vlsync_common::{Estimate, EstimatorState, Nanos, Stream};
 use vlsync_config::Config;
 use vlsync_estimator::Estimator;
 use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
+use vlsync_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use vlsync_ipc::{
     cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
     open_or_create_pubsub, publisher, stream_event_id, stream_index, subscriber,
@@ -386,6 +387,11 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         );
         if ready == [false; 2] {
             ready = [true; 2];
+            // no driver notified (idle, or a driver that does not notify): connect
+            // subscribers that came since the last estimate, which hands them the
+            // last one (history 1) now instead of at the next estimate, which an
+            // idle daemon may never publish
+            let _ = off_pub.update_connections();
         }
         // both streams' waiting samples in the order their drivers published them
         // (one held per stream): after a stall the backlogs interleave as they were
@@ -885,10 +891,12 @@ pub fn run_cli(cfg: Config) -> Result<(), String> {
 
 /// Runs the daemon with `cfg` until SIGINT/SIGTERM or `stop` is set.
 pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
+    // first of all, so a stop that comes during start-up is a clean stop (the
+    // lock file removed, STOPPING=1) and not the default action's death
+    vlsync_ipc::handle_termination_signals();
     let start_ns = monotonic_ns();
     let names = ServiceNames::new(&cfg.services.prefix).map_err(|e| e.to_string())?;
     let _lock = single_instance_lock(&names.prefix)?;
-    // the first node installs the SIGINT/SIGTERM handler for the process
     let node = create_node("vlsyncd", true).map_err(|e| e.to_string())?;
     let (cleaned, failed) = cleanup_dead_nodes(&node);
     if cleaned > 0 || failed > 0 {
