@@ -213,7 +213,8 @@ pub struct DaemonConfig {
     pub cpu_latency_us: i64,
     /// Processing budget per sample, microseconds.
     pub latency_budget_us: f64,
-    /// Status publication period, seconds.
+    /// Status publication period, seconds (while no samples arrive the real-time
+    /// loop wakes every 0.1 s, so no faster than that then).
     pub status_period_s: f64,
     /// When true, the latency percentiles of each status cover only the last
     /// status period (the histograms restart after each status) instead of the
@@ -221,7 +222,8 @@ pub struct DaemonConfig {
     pub latency_per_period: bool,
     /// Where the last good estimate is saved; empty: no persistence.
     pub state_file: String,
-    /// A saved state older than this is ignored at start, seconds.
+    /// A saved state older than this is ignored at start, seconds (one saved up to
+    /// 60 s in the future counts as age 0).
     pub state_max_age_s: f64,
     /// Watch the kernel's CPU pressure (`/proc/pressure/cpu`) and tell the estimator
     /// that the offset may have stepped where it changes (software-stamped sensors

@@ -22,11 +22,20 @@
  * before the daemon), and then with the daemon's settings, which every later
  * process gets: offset and status: history 1, subscriber buffer 16, 2 publishers,
  * 16 subscribers, 32 nodes, safe overflow; their event services: 48 nodes,
- * 16 notifiers, 16 listeners.
+ * 16 notifiers, 16 listeners. The signature services (what a C driver opens):
+ * history 0, subscriber buffer 256 (or services.subscriber_buffer of the daemon's
+ * configuration, if larger), 4 publishers, 4 subscribers, 16 nodes, safe overflow;
+ * <prefix>/signature/ready: 48 nodes, 16 notifiers, 16 listeners.
  *
  * Times are integer nanoseconds; publish_ns fields are CLOCK_MONOTONIC.
  * Clock convention: offset = t_lidar - t_cam, so t_lidar = t_cam + offset.
- * Treat every field as untrusted: check codes and finiteness before use.
+ * Treat every field as untrusted. The Rust and Python clients refuse an estimate
+ * unless: state and polarity are known codes; offset_s, drift, offset_std_s,
+ * drift_std and peak_score are finite and both deviations >= 0; peak_ratio is not
+ * NaN and >= 0 (+inf: no second peak); measured_offset_s is finite or NaN (no
+ * measurement this hop), never infinite; the reserved bytes are 0. The daemon
+ * refuses a signature sample with unknown flag bits or non-zero padding, and
+ * rejects (and counts) non-finite or too large values and stamps that go back.
  */
 #ifndef VLSYNC_WIRE_H
 #define VLSYNC_WIRE_H

@@ -42,11 +42,13 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     let mut bad_pad = at(now_t, 1.0);
     bad_pad.reserved = 7;
     evil.publish_raw(bad_pad).unwrap();
-    // a flood: counted, but the log names it once and then counts it
+    // a flood: counted, but the log names it once and then counts it; each sample
+    // also claims to be its driver's first (a restart), which is logged the same way
     const FLOOD: u64 = 300;
     for i in 0..FLOOD as i64 {
-        evil.publish_raw(at(now_t + 4_000_000 + i, f64::NAN))
-            .unwrap();
+        let mut w = at(now_t + 4_000_000 + i, f64::NAN);
+        w.flags |= FLAG_FIRST;
+        evil.publish_raw(w).unwrap();
         if i % 50 == 49 {
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -112,6 +114,13 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     assert!(
         held < n && held + 1 + st.events_dropped >= n,
         "{n} {st:?}\n{log}"
+    );
+    // the real driver's start, the flood's first claim, and at most a count of the
+    // rest (it used to be a line per sample)
+    let restarts = log.matches("cam driver (re)started").count();
+    assert!(
+        (1..=3).contains(&restarts),
+        "{restarts} restart lines:\n{log}"
     );
     assert!(cam_rej[RejectReason::TooLarge.index()] >= 1, "{st:?}");
     assert!(cam_rej[RejectReason::Backwards.index()] >= 1, "{st:?}");

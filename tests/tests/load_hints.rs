@@ -2,7 +2,8 @@
 //! the test writes, in the kernel's PSI format, through
 //! `daemon.load_hint_source`), sees the CPU pressure jump, and tells the
 //! estimator on its real-time thread, dated on the LiDAR clock near the
-//! simulated time of the jump. A pressure file that goes bad is named in the log
+//! simulated time of the jump, even with refused LiDAR samples stamped far in the
+//! future arriving around it. A pressure file that goes bad is named in the log
 //! and turns the hints off without stopping the daemon.
 
 use std::path::{Path, PathBuf};
@@ -63,6 +64,39 @@ fn a_pressure_jump_becomes_a_dated_change_of_the_estimator() {
     .expect("spawn vlsyncd");
     let _cam = rig.driver(Stream::Cam, 0);
     let _lidar = rig.driver(Stream::Lidar, 0);
+    // around the jump, a hostile LiDAR publisher every 5 ms: stamps far in the
+    // future with values the estimator refuses (too large). They must not date the
+    // hint: it used to take the newest LiDAR stamp whether or not the estimator
+    // took the sample, and declared the step at LiDAR t=9000000000 s
+    let hostile = {
+        let prefix = rig.prefix.clone();
+        std::thread::spawn(move || {
+            use vlsync_common::wire::SignatureSample;
+            let node = vlsync_ipc::create_node("hostile-lidar", false).unwrap();
+            let names = vlsync_ipc::ServiceNames::new(&prefix).unwrap();
+            let name = names.signature(Stream::Lidar);
+            let f = vlsync_ipc::open_or_create_pubsub::<SignatureSample>(
+                &node,
+                &name,
+                vlsync_ipc::Qos::signature(256),
+            )
+            .unwrap();
+            let p = vlsync_ipc::publisher(&f, &name).unwrap();
+            let mut seq = 0;
+            while monotonic_ns() < jump_at + 1_500_000_000 {
+                if monotonic_ns() > jump_at - 500_000_000 {
+                    let w =
+                        SignatureSample::new(9_000_000_000_000_000_000, 1e300, seq, monotonic_ns());
+                    if let Ok(s) = p.loan_uninit() {
+                        let _ = s.write_payload(w).send();
+                    }
+                    seq += 1;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            seq
+        })
+    };
     // the simulated LiDAR time at the jump
     let sim_at_jump = {
         let anchor = rig.sim.cam[0].t_ns.min(rig.sim.lidar[0].t_ns);
@@ -88,6 +122,10 @@ fn a_pressure_jump_becomes_a_dated_change_of_the_estimator() {
         );
         std::thread::sleep(Duration::from_millis(200));
     };
+    assert!(
+        hostile.join().unwrap() > 100,
+        "the hostile publisher sent too little"
+    );
     let text = read();
     assert!(
         text.contains("load hints on") && text.contains("CPU pressure 0 % -> "),

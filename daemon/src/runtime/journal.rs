@@ -16,8 +16,10 @@ pub const SUMMARY_NS: Nanos = 600_000_000_000;
 /// Kinds of throttled lines: rejections per stream and reason, losses per stream,
 /// the switches to degraded mode (budget overruns), then the stamping-latency steps
 /// per stream and the offset steps found in the data (information, not warnings:
-/// a load change), then the moves of the search (a warning).
-pub const KINDS: usize = 2 * REJECT_REASONS + 7;
+/// a load change), then the moves of the search (a warning), the (re)starts of each
+/// stream's driver (information: a publisher that flags every sample as its first
+/// would log one a sample) and the errors of the real-time loop.
+pub const KINDS: usize = 2 * REJECT_REASONS + 10;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -37,6 +39,14 @@ pub const OFFSET_STEP_KEY: usize = DEGRADED_KEY + 3;
 
 /// Throttle key of a move of the acquisition's search.
 pub const SEARCH_MOVE_KEY: usize = DEGRADED_KEY + 4;
+
+/// Throttle key of a (re)start of the driver of stream `si`.
+pub fn driver_started_key(si: usize) -> usize {
+    DEGRADED_KEY + 5 + si.min(1)
+}
+
+/// Throttle key of an error of the real-time loop (a failed receive).
+pub const RT_ERROR_KEY: usize = DEGRADED_KEY + 7;
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
@@ -109,7 +119,7 @@ fn events_logged(log: &str, named: impl Fn(&str) -> bool, held: &str) -> usize {
 
 /// Whether the kind of throttle key `key` is information (not a warning).
 pub fn is_info(key: usize) -> bool {
-    key > DEGRADED_KEY && key != SEARCH_MOVE_KEY
+    key > DEGRADED_KEY && key != SEARCH_MOVE_KEY && key != RT_ERROR_KEY
 }
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
@@ -195,8 +205,15 @@ pub fn kind_text(key: usize) -> String {
         "switches to degraded mode (processing over budget)".to_string()
     } else if key == OFFSET_STEP_KEY {
         "offset steps found in the data".to_string()
-    } else if key >= SEARCH_MOVE_KEY {
+    } else if key == SEARCH_MOVE_KEY {
         "moves of the search (no lock where it searched)".to_string()
+    } else if key == RT_ERROR_KEY {
+        "errors of the real-time loop".to_string()
+    } else if key >= driver_started_key(0) {
+        format!(
+            "{} driver (re)starts",
+            stream((key - driver_started_key(0)).min(1))
+        )
     } else {
         format!(
             "{} stamping-latency steps",
@@ -369,6 +386,14 @@ mod tests {
             "moves of the search (no lock where it searched)"
         );
         assert!(SEARCH_MOVE_KEY < KINDS && !is_info(SEARCH_MOVE_KEY));
+        assert_eq!(kind_text(driver_started_key(0)), "cam driver (re)starts");
+        assert_eq!(kind_text(driver_started_key(1)), "lidar driver (re)starts");
+        assert!(is_info(driver_started_key(1)) && driver_started_key(1) < KINDS);
+        assert_eq!(kind_text(RT_ERROR_KEY), "errors of the real-time loop");
+        assert!(RT_ERROR_KEY < KINDS && !is_info(RT_ERROR_KEY));
+        // every key has its own text
+        let texts: std::collections::HashSet<String> = (0..KINDS).map(kind_text).collect();
+        assert_eq!(texts.len(), KINDS);
         assert!(!is_info(DEGRADED_KEY) && !is_info(lost_key(1)));
     }
 

@@ -54,7 +54,8 @@
 //! while the real-time thread's heartbeat (incremented every loop) moves;
 //! `STOPPING=1` on shutdown. With `daemon.state_file` set ([`crate::state`]) the
 //! service thread saves the last good estimate (handed over as
-//! [`RtEvent::Estimate`]) atomically every few seconds and on shutdown, and a
+//! [`RtEvent::Estimate`]) atomically (at most every 5 s while it changes, every 60 s
+//! while it does not: `state::SAVE_PERIOD`, `state::REFRESH_PERIOD`) and on shutdown, and a
 //! fresh enough saved estimate is restored into the estimator before the
 //! real-time loop starts.
 #![forbid(unsafe_code)]
@@ -91,6 +92,11 @@ use vlsync_ipc::{
 pub const DEGRADED_QUIET: Duration = Duration::from_secs(5);
 /// Longest sleep of the real-time thread (to notice a stop request and publish status).
 pub const WAKE_PERIOD: Duration = Duration::from_millis(100);
+
+/// Samples the real-time loop reads per wake-up at most before it checks for a stop,
+/// beats its heartbeat and hands a status over (then it goes on without sleeping):
+/// two default subscriber buffers, a few milliseconds of work.
+pub const MAX_SAMPLES_PER_WAKE: usize = 512;
 /// Capacity of the event channel between the threads.
 pub const EVENT_CAPACITY: usize = 1024;
 
@@ -174,7 +180,9 @@ pub enum RtEvent {
     OffsetStep(vlsync_estimator::OffsetStep),
     /// The acquisition moved its lag range (nothing found where it searched).
     SearchMoved(vlsync_estimator::SearchMove),
-    /// The real-time loop ended because iceoryx2 failed (the text is static).
+    /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
+    /// goes on (a failed receive marks that stream empty until the next wake-up).
+    /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
     Fatal(&'static str),
 }
 
@@ -370,6 +378,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     let mut lidar_clock: Option<(Nanos, Nanos)> = None;
     let _ = ready.send(Ok(report));
 
+    // a wake-up that served MAX_SAMPLES_PER_WAKE left samples waiting: the next one
+    // does not sleep
+    let mut backlog = false;
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
@@ -377,15 +388,22 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         // which streams notified (each driver notifies with its stream's event id);
         // a timeout or a foreign id reads both
         let mut ready = [false; 2];
-        let _ = lis.timed_wait(
-            |ev| match [Stream::Cam, Stream::Lidar].map(|st| ev.id == stream_event_id(st)) {
+        let on_event =
+            |ev: vlsync_ipc::iceoryx2::port::EventActivation| match [Stream::Cam, Stream::Lidar]
+                .map(|st| ev.id == stream_event_id(st))
+            {
                 [true, _] => ready[0] = true,
                 [_, true] => ready[1] = true,
                 _ => ready = [true; 2],
-            },
-            WAKE_PERIOD,
-        );
-        if ready == [false; 2] {
+            };
+        if backlog {
+            let _ = lis.try_wait(on_event);
+        } else {
+            let _ = lis.timed_wait(on_event, WAKE_PERIOD);
+        }
+        if backlog {
+            ready = [true; 2];
+        } else if ready == [false; 2] {
             ready = [true; 2];
             // no driver notified (idle, or a driver that does not notify): connect
             // subscribers that came since the last estimate, which hands them the
@@ -402,11 +420,21 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
         let mut empty = [false; 2];
         let mut any = false;
+        // at most MAX_SAMPLES_PER_WAKE read per wake-up: a publisher faster than the
+        // daemon (or one that floods without notifying) cannot keep it from its stop
+        // check, its heartbeat (the watchdog), statuses and the end of degraded mode
+        let mut served = 0usize;
+        backlog = false;
         loop {
             for (i, sub) in subs.iter().enumerate() {
                 if pending[i].is_some() || empty[i] || !(ready[i] || any) {
                     continue;
                 }
+                if served >= MAX_SAMPLES_PER_WAKE {
+                    backlog = true;
+                    continue;
+                }
+                served += 1;
                 match sub.receive() {
                     Ok(Some(x)) => pending[i] = Some((*x.payload(), x.header().publisher_id())),
                     Ok(None) => empty[i] = true,
@@ -451,9 +479,8 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             if w.is_first() {
                 emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
             }
-            if stream == Stream::Lidar && w.publish_ns > 0 {
-                lidar_clock = Some((w.t_ns, w.publish_ns));
-            }
+            let clock_reading =
+                (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
             let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
             if lost > 0 {
                 c.status.lost[si] = c.status.lost[si].saturating_add(lost);
@@ -477,6 +504,14 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                         t_ns: w.t_ns,
                     },
                 );
+            } else if let Some((t_l, pub_ns)) = clock_reading {
+                // only a sample the estimator took dates load hints, and only with a
+                // publish time that is a latency (0..10 s before now, as below): a
+                // rejected far-future stamp or a foreign publish_ns would put a hint's
+                // change where no data ever comes
+                if (0..10_000_000_000).contains(&(t0 - pub_ns)) {
+                    lidar_clock = Some((t_l, pub_ns));
+                }
             }
             if let Some(st) = est.take_latency_step() {
                 emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
@@ -719,7 +754,12 @@ fn log_event(
                 tracing::warn!("{stream}: {count} sample(s) lost (sequence gap){}", more(n))
             }
         }
-        RtEvent::DriverStarted { stream } => tracing::info!("{stream} driver (re)started"),
+        RtEvent::DriverStarted { stream } => {
+            let key = journal::driver_started_key(stream_index(*stream));
+            if let Some(n) = throttle.admit(key, 1, now) {
+                tracing::info!("{stream} driver (re)started{}", more(n))
+            }
+        }
         RtEvent::State { from, to } => {
             let from_name = from.map_or("none", |s| s.name());
             // every stop of the robot holds and every start tracks again: routine
@@ -805,7 +845,11 @@ fn log_event(
                 )
             }
         }
-        RtEvent::Fatal(what) => tracing::error!("real-time loop: {what}"),
+        RtEvent::Fatal(what) => {
+            if let Some(n) = throttle.admit(journal::RT_ERROR_KEY, 1, now) {
+                tracing::error!("real-time loop: {what}{}", more(n))
+            }
+        }
     }
 }
 

@@ -1,0 +1,86 @@
+//! Signature publishers faster than the daemon (here: both streams flooded without
+//! notifying, as fast as iceoryx2 sends) does not take the daemon's real-time loop
+//! away from everything else: it reads at most `MAX_SAMPLES_PER_WAKE` samples per
+//! wake-up, so statuses keep coming during the flood and SIGINT stops it at once.
+//! Before, the loop left only when both streams were empty at the same time, which a
+//! flood never allows: no status, no stop, and a frozen heartbeat (the watchdog's
+//! restart of a working daemon).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use vlsync_common::wire::{SignatureSample, FLAG_FIRST};
+use vlsync_common::Stream;
+use vlsync_ipc::{
+    create_node, monotonic_ns, open_or_create_pubsub, publisher, Qos, ServiceNames, StatusClient,
+};
+use vlsync_tests::Rig;
+
+#[test]
+fn a_flood_leaves_the_daemon_its_statuses_and_its_stop() {
+    let rig = Rig::new("flood", "robot", 1, 10.0, 1.0);
+    let mut daemon = rig.daemon(0);
+    let mut status = StatusClient::open(&rig.prefix).unwrap();
+    let flooding = Arc::new(AtomicBool::new(true));
+    let (prefix, run) = (rig.prefix.clone(), flooding.clone());
+    let flood = std::thread::spawn(move || {
+        let node = create_node("flood", false).unwrap();
+        let names = ServiceNames::new(&prefix).unwrap();
+        let ports: Vec<_> = [Stream::Cam, Stream::Lidar]
+            .iter()
+            .map(|&st| {
+                let name = names.signature(st);
+                let f = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(256))
+                    .unwrap();
+                let p = publisher(&f, &name).unwrap();
+                (f, p)
+            })
+            .collect();
+        let mut seq = 0u64;
+        while run.load(Ordering::Relaxed) {
+            // both streams at 10 Hz of their clocks, moving: every sample is ten grid
+            // steps of correlator work and every fifth one a hop, far more work for the
+            // daemon than a send is for this thread
+            let t_ns = 1_000_000_000 + seq as i64 * 100_000_000;
+            let v = (seq as f64 * 0.7).sin() + (seq as f64 * 0.23).cos();
+            for (_, p) in &ports {
+                let mut w = SignatureSample::new(t_ns, v, seq, monotonic_ns());
+                if seq == 0 {
+                    w.flags |= FLAG_FIRST;
+                }
+                if let Ok(s) = p.loan_uninit() {
+                    let _ = s.write_payload(w).send();
+                }
+            }
+            seq += 1;
+        }
+        seq
+    });
+    // statuses (one a second) while the flood runs
+    std::thread::sleep(Duration::from_millis(500));
+    let t0 = Instant::now();
+    let mut seen = vec![];
+    while t0.elapsed() < Duration::from_millis(3500) {
+        if let Ok(all) = status.receive_all() {
+            seen.extend(all.into_iter().map(|s| s.received[1]));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // SIGINT during the flood: a clean stop within a second
+    let t_stop = Instant::now();
+    let stopped = daemon.stop(Duration::from_secs(4));
+    let took = t_stop.elapsed();
+    flooding.store(false, Ordering::Relaxed);
+    let sent = flood.join().unwrap();
+    let log = rig.log("vlsyncd-0.log");
+    assert!(
+        sent > 10_000,
+        "the flood sent only {sent} samples per stream"
+    );
+    assert!(
+        seen.len() >= 2 && seen.windows(2).all(|w| w[1] >= w[0]) && seen[seen.len() - 1] > 0,
+        "statuses during the flood (LiDAR samples received): {seen:?}\n{log}"
+    );
+    assert!(stopped, "no clean stop during the flood\n{log}");
+    assert!(took < Duration::from_secs(2), "stop took {took:?}\n{log}");
+}
