@@ -21,11 +21,18 @@
 //! naming the file and the reason, and the daemon starts cold. A good one is
 //! handed to `Estimator::restore` with its age.
 //!
-//! # Format (version 1)
+//! The file names the `services.prefix` of the daemon that saved it. A daemon on
+//! another prefix (a second robot's daemon started with `--prefix` and the same
+//! configuration file) neither restores it (another robot's offset) nor saves over
+//! it: it says so and runs without persistence ([`startup`]). A version-1 file,
+//! from before the prefix was written, is read as any prefix's.
+//!
+//! # Format (version 2)
 //!
 //! ```text
-//! vlsync-state 1
+//! vlsync-state 2
 //! # saved 2026-11-23T13:53:12Z by vlsyncd; written atomically, do not edit
+//! prefix = vlsync/robot
 //! saved_unix_ns = 1795442000000000000
 //! t_ref_ns = 120000000000
 //! offset_s = 0.0123
@@ -50,8 +57,8 @@ use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity};
 
 /// First word of the file.
 pub const MAGIC: &str = "vlsync-state";
-/// Format version written and accepted.
-pub const VERSION: u32 = 1;
+/// Format version written (version 1, without `prefix`, is read too).
+pub const VERSION: u32 = 2;
 /// A state file is a few hundred bytes; anything larger than this is not one.
 pub const MAX_FILE_BYTES: u64 = 16 * 1024;
 /// Minimum time between two saves.
@@ -83,7 +90,7 @@ pub const MAX_OFFSET_STD_S: f64 = 10.0;
 /// Largest accepted drift standard deviation.
 pub const MAX_DRIFT_STD: f64 = 1.0;
 
-const KEYS: [&str; 8] = [
+const KEYS: [&str; 9] = [
     "saved_unix_ns",
     "t_ref_ns",
     "offset_s",
@@ -92,11 +99,17 @@ const KEYS: [&str; 8] = [
     "drift_std",
     "state",
     "polarity",
+    "prefix",
 ];
 
+/// Slot of `prefix` in `KEYS`: required from version 2 on.
+const PREFIX_SLOT: usize = 8;
+
 /// A saved estimate and when it was saved.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SavedState {
+    /// `services.prefix` of the daemon that saved it (`None`: a version-1 file).
+    pub prefix: Option<String>,
     /// Wall-clock save time, ns since the Unix epoch.
     pub saved_unix_ns: i64,
     /// The estimate (`seq`, peak fields and the measurement are not saved: 0, 0,
@@ -189,6 +202,13 @@ pub enum Problem {
         /// How far ahead, seconds.
         ahead_s: f64,
     },
+    /// Saved by the daemon of another `services.prefix`.
+    OtherPrefix {
+        /// The file's prefix (clipped).
+        saved: String,
+        /// This daemon's.
+        ours: String,
+    },
 }
 
 impl fmt::Display for Problem {
@@ -205,7 +225,7 @@ impl fmt::Display for Problem {
             ),
             Problem::WrongVersion(v) => write!(
                 f,
-                "line 1: format version {v:?}, this vlsyncd reads version {VERSION}"
+                "line 1: format version {v:?}, this vlsyncd reads versions 1 and {VERSION}"
             ),
             Problem::Truncated => write!(
                 f,
@@ -241,6 +261,11 @@ impl fmt::Display for Problem {
             Problem::InTheFuture { ahead_s } => write!(
                 f,
                 "saved {ahead_s:.0} s in the future: the wall clock moved back, age unknown"
+            ),
+            Problem::OtherPrefix { saved, ours } => write!(
+                f,
+                "saved by the daemon of prefix `{saved}`, not of `{ours}`: another robot's \
+                 estimate (give each daemon its own daemon.state_file)"
             ),
         }
     }
@@ -299,9 +324,13 @@ pub fn worth_saving(e: &Estimate) -> bool {
 pub fn encode(s: &SavedState) -> String {
     let e = &s.estimate;
     let mut body = format!(
-        "{MAGIC} {VERSION}\n# saved {} by vlsyncd; written atomically, do not edit\n",
+        "{MAGIC} {}\n# saved {} by vlsyncd; written atomically, do not edit\n",
+        if s.prefix.is_some() { VERSION } else { 1 },
         utc_text(s.saved_unix_ns)
     );
+    if let Some(p) = &s.prefix {
+        body.push_str(&format!("prefix = {p}\n"));
+    }
     body.push_str(&format!(
         "saved_unix_ns = {}\nt_ref_ns = {}\noffset_s = {:?}\ndrift = {:?}\noffset_std_s = {:?}\ndrift_std = {:?}\nstate = {}\npolarity = {}\n",
         s.saved_unix_ns,
@@ -327,11 +356,12 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
     if words.next() != Some(MAGIC) {
         return Err(Problem::BadHeader(clip(first)));
     }
-    match (words.next(), words.next()) {
-        (Some(v), None) if v == VERSION.to_string() => {}
+    let version = match (words.next(), words.next()) {
+        (Some("1"), None) => 1,
+        (Some(v), None) if v == VERSION.to_string() => VERSION,
         (Some(v), None) => return Err(Problem::WrongVersion(clip(v))),
         _ => return Err(Problem::BadHeader(clip(first))),
-    }
+    };
     // the checksum line is the last line and ends with a newline
     let Some(body_and_sum) = text.strip_suffix('\n') else {
         return Err(Problem::Truncated);
@@ -442,7 +472,26 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             })
         }
     };
+    // a prefix is what the daemon accepted: [A-Za-z0-9_.-/], 1-200 characters
+    let prefix = match values[PREFIX_SLOT] {
+        None if version == 1 => None,
+        None => return Err(Problem::MissingKey(KEYS[PREFIX_SLOT])),
+        Some((line, v)) => {
+            let ok = (1..=200).contains(&v.len())
+                && v.bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b"_.-/".contains(&b));
+            if !ok {
+                return Err(Problem::BadValue {
+                    line,
+                    key: KEYS[PREFIX_SLOT],
+                    value: clip(v),
+                });
+            }
+            Some(v.to_string())
+        }
+    };
     Ok(SavedState {
+        prefix,
         saved_unix_ns,
         estimate: Estimate {
             seq: 0,
@@ -460,10 +509,13 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
     })
 }
 
-/// Loads `path` and checks its age against `max_age_s` at wall time `now_unix_ns`.
-/// `Ok(None)`: no file (a first start). `Ok(Some((state, age_s)))`: usable.
+/// Loads `path` for the daemon of `prefix` and checks its age against `max_age_s` at
+/// wall time `now_unix_ns`. `Ok(None)`: no file (a first start).
+/// `Ok(Some((state, age_s)))`: usable. A file of another prefix is
+/// [`Problem::OtherPrefix`], whatever its age.
 pub fn load(
     path: &Path,
+    prefix: &str,
     now_unix_ns: i64,
     max_age_s: f64,
 ) -> Result<Option<(SavedState, f64)>, StateError> {
@@ -489,6 +541,12 @@ pub fn load(
         return Err(err(Problem::TooLarge));
     }
     let s = decode(&bytes).map_err(err)?;
+    if let Some(saved) = s.prefix.as_deref().filter(|p| *p != prefix) {
+        return Err(err(Problem::OtherPrefix {
+            saved: clip(saved),
+            ours: clip(prefix),
+        }));
+    }
     let age_s = (now_unix_ns as f64 - s.saved_unix_ns as f64) * 1e-9;
     if age_s < -FUTURE_TOLERANCE_S {
         return Err(err(Problem::InTheFuture { ahead_s: -age_s }));
@@ -589,18 +647,28 @@ pub fn utc_text(unix_ns: i64) -> String {
     )
 }
 
-/// Reads the state file of the configuration at start-up and logs the outcome:
-/// `Some((estimate, age_s))` to restore, `None` for a cold start.
-pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f64)> {
+/// Reads the state file of the configuration at start-up for the daemon of `prefix`
+/// and logs the outcome: the estimate to restore with its age (`None`: a cold
+/// start), and the saver (`None`: persistence off, or the file is another prefix's,
+/// which this daemon must not overwrite).
+pub fn startup(
+    cfg: &vlsync_config::DaemonConfig,
+    prefix: &str,
+) -> (Option<(Estimate, f64)>, Option<Saver>) {
     if cfg.state_file.is_empty() {
-        return None;
+        return (None, None);
     }
     let path = Path::new(&cfg.state_file);
     if let Some(problem) = directory_problem(path) {
         // said now rather than at the first save, minutes after the lock
         tracing::warn!("{problem}; estimates are not saved until it is fixed (each save retries)");
     }
-    match load(path, unix_now_ns(), cfg.state_max_age_s) {
+    let saver = Some(Saver::new(
+        PathBuf::from(&cfg.state_file),
+        prefix,
+        SAVE_PERIOD,
+    ));
+    match load(path, prefix, unix_now_ns(), cfg.state_max_age_s) {
         Ok(Some((s, age_s))) => {
             tracing::info!(
                 "state file {}: restoring offset {:+.3} ms ± {:.3} ms (drift {:+.2} ppm, {}) saved {age_s:.0} s ago",
@@ -610,15 +678,19 @@ pub fn startup_restore(cfg: &vlsync_config::DaemonConfig) -> Option<(Estimate, f
                 s.estimate.drift * 1e6,
                 s.estimate.state
             );
-            Some((s.estimate, age_s))
+            (Some((s.estimate, age_s)), saver)
         }
         Ok(None) => {
             tracing::info!("state file {}: none yet; cold start", path.display());
-            None
+            (None, saver)
+        }
+        Err(e) if matches!(e.problem, Problem::OtherPrefix { .. }) => {
+            tracing::warn!("{e}; cold start, and estimates are not saved there");
+            (None, None)
         }
         Err(e) => {
             tracing::warn!("{e}; ignoring it, cold start");
-            None
+            (None, saver)
         }
     }
 }
@@ -646,6 +718,7 @@ fn unchanged(saved: &Estimate, new: &Estimate) -> bool {
 #[derive(Debug)]
 pub struct Saver {
     path: PathBuf,
+    prefix: String,
     period: Duration,
     refresh: Duration,
     pending: Option<Estimate>,
@@ -655,16 +728,13 @@ pub struct Saver {
 }
 
 impl Saver {
-    /// A saver for the configured file; `None` when persistence is off.
-    pub fn from_config(cfg: &vlsync_config::DaemonConfig) -> Option<Self> {
-        (!cfg.state_file.is_empty()).then(|| Self::new(PathBuf::from(&cfg.state_file), SAVE_PERIOD))
-    }
-
-    /// A saver for `path`, at most one save per `period`; an unchanged estimate
-    /// (see [`UNCHANGED_S`]) only every [`REFRESH_PERIOD`].
-    pub fn new(path: PathBuf, period: Duration) -> Self {
+    /// A saver for `path` of the daemon of `prefix` (written into the file), at most
+    /// one save per `period`; an unchanged estimate (see [`UNCHANGED_S`]) only every
+    /// [`REFRESH_PERIOD`].
+    pub fn new(path: PathBuf, prefix: &str, period: Duration) -> Self {
         Self {
             path,
+            prefix: prefix.to_string(),
             period,
             refresh: REFRESH_PERIOD.max(period),
             pending: None,
@@ -711,6 +781,7 @@ impl Saver {
             return false;
         };
         let s = SavedState {
+            prefix: Some(self.prefix.clone()),
             saved_unix_ns: unix_now_ns(),
             estimate: e,
         };
@@ -756,6 +827,7 @@ mod tests {
 
     fn state() -> SavedState {
         SavedState {
+            prefix: Some("vlsync/robot".to_string()),
             saved_unix_ns: 1_795_442_000_123_456_789,
             estimate: est(),
         }
@@ -784,11 +856,12 @@ mod tests {
         let s = state();
         let text = encode(&s);
         assert!(
-            text.starts_with("vlsync-state 1\n# saved 2026-11-23T"),
+            text.starts_with("vlsync-state 2\n# saved 2026-11-23T"),
             "{text}"
         );
         let back = decode(text.as_bytes()).unwrap();
         assert_eq!(back.saved_unix_ns, s.saved_unix_ns);
+        assert_eq!(back.prefix, s.prefix);
         let (a, b) = (back.estimate, s.estimate);
         assert_eq!(a.t_ref_ns, b.t_ref_ns);
         assert_eq!(a.offset_s.to_bits(), b.offset_s.to_bits());
@@ -827,18 +900,18 @@ mod tests {
             .map(|l| format!("{l}\n"))
             .collect();
         let cases: Vec<(String, &str)> = vec![
-            ("".into(), "expected `vlsync-state 1`"),
+            ("".into(), "expected `vlsync-state 2`"),
             (
                 good.replacen("vlsync-state", "other-state", 1),
                 "not a vlsync state file",
             ),
             (
-                good.replacen("vlsync-state 1", "vlsync-state 2", 1),
-                "format version \"2\"",
+                good.replacen("vlsync-state 2", "vlsync-state 3", 1),
+                "format version \"3\", this vlsyncd reads versions 1 and 2",
             ),
             (
-                good.replacen("vlsync-state 1", "vlsync-state 1 x", 1),
-                "expected `vlsync-state 1`",
+                good.replacen("vlsync-state 2", "vlsync-state 2 x", 1),
+                "expected `vlsync-state 2`",
             ),
             (good[..good.len() / 2].to_string(), "truncated"),
             (good.trim_end_matches('\n').to_string(), "truncated"),
@@ -899,18 +972,91 @@ mod tests {
         assert!(matches!(e, Problem::ChecksumMismatch { .. }), "{e:?}");
     }
 
+    /// The file names its daemon's prefix: another prefix's file is refused by name
+    /// whatever its age, and `startup` then neither restores nor saves; a
+    /// version-1 file (no prefix) is anyone's; version 2 without a prefix, or
+    /// with one no daemon accepts, is corrupt.
+    #[test]
+    fn the_prefix_binds_a_file_to_its_daemon() {
+        let d = dir("prefix");
+        let p = d.join("vlsync.state");
+        let s = state();
+        save(&p, &s).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            text.starts_with("vlsync-state 2\n") && text.contains("\nprefix = vlsync/robot\n"),
+            "{text}"
+        );
+        let e = load(&p, "vlsync/robot2", s.saved_unix_ns, 1e9).unwrap_err();
+        assert_eq!(
+            e.problem,
+            Problem::OtherPrefix {
+                saved: "vlsync/robot".into(),
+                ours: "vlsync/robot2".into()
+            }
+        );
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&p.display().to_string()) && msg.contains("own daemon.state_file"),
+            "{msg}"
+        );
+        let cfg = vlsync_config::DaemonConfig {
+            state_file: p.display().to_string(),
+            state_max_age_s: 1e9,
+            ..Default::default()
+        };
+        let (restore, saver) = startup(&cfg, "vlsync/robot2");
+        assert!(restore.is_none() && saver.is_none());
+        let (restore, saver) = startup(&cfg, "vlsync/robot");
+        assert!(restore.is_some() && saver.is_some());
+        // version 1: no prefix line, read as this daemon's
+        let v1 = encode(&SavedState {
+            prefix: None,
+            ..state()
+        });
+        assert!(
+            v1.starts_with("vlsync-state 1\n") && !v1.contains("prefix"),
+            "{v1}"
+        );
+        let back = decode(v1.as_bytes()).unwrap();
+        assert_eq!(back.prefix, None);
+        std::fs::write(&p, &v1).unwrap();
+        assert!(load(&p, "any/robot", s.saved_unix_ns, 1e9)
+            .unwrap()
+            .is_some());
+        // version 2 needs its prefix, a valid one
+        let v2_without = encode(&SavedState {
+            prefix: Some("x".into()),
+            ..state()
+        })
+        .replace("prefix = x\n", "");
+        let v2_without = resign(&v2_without);
+        assert_eq!(
+            decode(v2_without.as_bytes()).unwrap_err(),
+            Problem::MissingKey("prefix")
+        );
+        let bad = resign(&text.replace("prefix = vlsync/robot", "prefix = a b"));
+        assert!(
+            matches!(
+                decode(bad.as_bytes()).unwrap_err(),
+                Problem::BadValue { key: "prefix", .. }
+            ),
+            "{bad}"
+        );
+    }
+
     #[test]
     fn load_names_the_file_and_checks_age() {
         let d = dir("age");
         let p = d.join("vlsync.state");
-        assert_eq!(load(&p, 0, 10.0), Ok(None));
+        assert_eq!(load(&p, "vlsync/robot", 0, 10.0), Ok(None));
         let s = state();
         save(&p, &s).unwrap();
         let now = s.saved_unix_ns + 30_000_000_000;
-        let (back, age) = load(&p, now, 3600.0).unwrap().unwrap();
+        let (back, age) = load(&p, "vlsync/robot", now, 3600.0).unwrap().unwrap();
         assert_eq!(back.estimate.offset_s, s.estimate.offset_s);
         assert!((age - 30.0).abs() < 1e-6, "{age}");
-        let e = load(&p, now, 10.0).unwrap_err();
+        let e = load(&p, "vlsync/robot", now, 10.0).unwrap_err();
         assert!(matches!(e.problem, Problem::Stale { .. }), "{e}");
         let msg = e.to_string();
         assert!(
@@ -918,16 +1064,25 @@ mod tests {
             "{msg}"
         );
         // slightly in the future (clock adjustments) is fine, far is not
-        let (_, age) = load(&p, s.saved_unix_ns - 5_000_000_000, 10.0)
+        let (_, age) = load(&p, "vlsync/robot", s.saved_unix_ns - 5_000_000_000, 10.0)
             .unwrap()
             .unwrap();
         assert_eq!(age, 0.0);
-        let e = load(&p, s.saved_unix_ns - 3_600_000_000_000, 10.0).unwrap_err();
+        let e = load(
+            &p,
+            "vlsync/robot",
+            s.saved_unix_ns - 3_600_000_000_000,
+            10.0,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("in the future"), "{e}");
         // oversized and unreadable files
         std::fs::write(&p, vec![b'#'; MAX_FILE_BYTES as usize + 1]).unwrap();
-        assert_eq!(load(&p, now, 10.0).unwrap_err().problem, Problem::TooLarge);
-        let e = load(&d, now, 10.0).unwrap_err();
+        assert_eq!(
+            load(&p, "vlsync/robot", now, 10.0).unwrap_err().problem,
+            Problem::TooLarge
+        );
+        let e = load(&d, "vlsync/robot", now, 10.0).unwrap_err();
         assert_eq!(e.problem, Problem::NotAFile, "{e}");
         assert!(e.to_string().contains("not a regular file"), "{e}");
         // a FIFO is refused without blocking
@@ -935,7 +1090,7 @@ mod tests {
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         if made.is_ok_and(|s| s.success()) {
             assert_eq!(
-                load(&fifo, now, 10.0).unwrap_err().problem,
+                load(&fifo, "vlsync/robot", now, 10.0).unwrap_err().problem,
                 Problem::NotAFile
             );
         }
@@ -950,16 +1105,20 @@ mod tests {
         save(&p, &old).unwrap();
         assert!(!temp_path(&p).exists(), "temp file left after a save");
         // a crash after part of the new text reached the temp file
-        let mut new = old;
+        let mut new = old.clone();
         new.estimate.offset_s = 0.5;
         let text = encode(&new);
         std::fs::write(temp_path(&p), &text[..text.len() / 3]).unwrap();
-        let (back, _) = load(&p, old.saved_unix_ns, 60.0).unwrap().unwrap();
+        let (back, _) = load(&p, "vlsync/robot", old.saved_unix_ns, 60.0)
+            .unwrap()
+            .unwrap();
         assert_eq!(back.estimate.offset_s, old.estimate.offset_s);
         // the next save overwrites the leftover and replaces the file
         save(&p, &new).unwrap();
         assert!(!temp_path(&p).exists());
-        let (back, _) = load(&p, new.saved_unix_ns, 60.0).unwrap().unwrap();
+        let (back, _) = load(&p, "vlsync/robot", new.saved_unix_ns, 60.0)
+            .unwrap()
+            .unwrap();
         assert_eq!(back.estimate.offset_s, 0.5);
         // a failed save (directory gone) reports the path and leaves nothing
         let gone = d.join("missing").join("vlsync.state");
@@ -972,7 +1131,7 @@ mod tests {
     fn only_good_estimates_are_saved_and_at_most_every_period() {
         let d = dir("saver");
         let p = d.join("s");
-        let mut sv = Saver::new(p.clone(), Duration::from_secs(5));
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5));
         let t0 = Instant::now();
         let acquiring = Estimate {
             state: EstimatorState::Acquiring,
@@ -1004,7 +1163,9 @@ mod tests {
             "saved within the period"
         );
         assert!(sv.tick(t0 + Duration::from_secs(5)));
-        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        let (s, _) = load(&p, "vlsync/robot", unix_now_ns(), 60.0)
+            .unwrap()
+            .unwrap();
         assert_eq!(s.estimate.offset_s, 0.25);
         assert_eq!(s.estimate.state, EstimatorState::Holding);
         // nothing new: no save
@@ -1026,7 +1187,9 @@ mod tests {
         });
         assert!(!sv.tick(t0 + Duration::from_secs(69)));
         assert!(sv.tick(t0 + Duration::from_secs(70)));
-        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        let (s, _) = load(&p, "vlsync/robot", unix_now_ns(), 60.0)
+            .unwrap()
+            .unwrap();
         assert_eq!(s.estimate.offset_s, 0.26);
         // flush saves what is pending regardless of the period
         sv.offer(&Estimate {
@@ -1034,7 +1197,9 @@ mod tests {
             ..est()
         });
         assert!(sv.flush());
-        let (s, _) = load(&p, unix_now_ns(), 60.0).unwrap().unwrap();
+        let (s, _) = load(&p, "vlsync/robot", unix_now_ns(), 60.0)
+            .unwrap()
+            .unwrap();
         assert_eq!(s.estimate.offset_s, 0.125);
         std::fs::remove_dir_all(&d).unwrap();
     }
@@ -1114,7 +1279,7 @@ mod tests {
         // an hour of estimates every 0.5 s on a drifting offset, each off the line by
         // up to 0.3 of its σ (1 ms): the rule before saved every 5 s (720 in the hour)
         let d = dir("steady");
-        let mut sv = Saver::new(d.join("s"), SAVE_PERIOD);
+        let mut sv = Saver::new(d.join("s"), "vlsync/robot", SAVE_PERIOD);
         let t0 = Instant::now();
         let mut saves = 0;
         for k in 0..7200u32 {
@@ -1153,7 +1318,7 @@ mod tests {
         ] {
             let run = generate(family, 3, Some(3600.0));
             let (ests, _) = crate::replay::run_estimator(&cfg.estimator, &run.cam, &run.lidar);
-            let mut sv = Saver::new(d.join("s"), SAVE_PERIOD);
+            let mut sv = Saver::new(d.join("s"), "vlsync/robot", SAVE_PERIOD);
             let (t0, ns0) = (Instant::now(), ests[0].t_ref_ns);
             let saves = ests
                 .iter()

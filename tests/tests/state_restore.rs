@@ -28,9 +28,11 @@ fn daemon(cfg: &Path, log: &Path) -> Managed {
     .expect("spawn vlsyncd")
 }
 
-/// A saved tracking estimate of `offset_s`, saved at `saved_unix_ns`.
-fn tracking_saved(offset_s: f64, saved_unix_ns: i64) -> vlsyncd::state::SavedState {
+/// A saved tracking estimate of `offset_s`, saved at `saved_unix_ns` by the daemon
+/// of `prefix`.
+fn tracking_saved(prefix: &str, offset_s: f64, saved_unix_ns: i64) -> vlsyncd::state::SavedState {
     vlsyncd::state::SavedState {
+        prefix: Some(prefix.to_string()),
         saved_unix_ns,
         estimate: vlsync_common::Estimate {
             seq: 0,
@@ -85,7 +87,7 @@ fn saved_estimate_survives_a_restart() {
     let last = *tracking.last().unwrap();
 
     // the file holds a good estimate near the truth, saved just now
-    let (saved, age_s) = load(&state_file, unix_now_ns(), 600.0)
+    let (saved, age_s) = load(&state_file, &rig.prefix, unix_now_ns(), 600.0)
         .unwrap_or_else(|e| panic!("{e}\n{}", read(&log0)))
         .unwrap_or_else(|| panic!("no state file after the stop\n{}", read(&log0)));
     assert!(age_s < 10.0, "saved {age_s} s ago");
@@ -156,11 +158,19 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
     let state_file = dir.join("vlsync.state");
     let prefix = format!("vlsync-it/statebad-{}", std::process::id());
     let cfg = config(&dir, &prefix, &state_file);
-    let good = vlsyncd::state::encode(&tracking_saved(0.031, unix_now_ns() - 7_200_000_000_000));
+    let good = vlsyncd::state::encode(&tracking_saved(
+        &prefix,
+        0.031,
+        unix_now_ns() - 7_200_000_000_000,
+    ));
+    // a fresh file of another robot's daemon (the same configuration file, another
+    // --prefix): neither restored nor saved over
+    let other = vlsyncd::state::encode(&tracking_saved("other/robot", 0.031, unix_now_ns()));
     let cases = [
         (good.replace("0.031", "0.032"), "checksum mismatch"),
         (good[..good.len() - 30].to_string(), "truncated"),
         (good.clone(), "stale"),
+        (other, "saved by the daemon of prefix `other/robot`"),
     ];
     for (i, (content, reason)) in cases.iter().enumerate() {
         std::fs::write(&state_file, content).unwrap();
@@ -198,7 +208,7 @@ fn a_far_off_state_file_is_searched_away_from_and_logged() {
     // 80 simulated seconds at 8x: 10 s of wall time
     let rig = Rig::new("statefar", "robot", 22, 80.0, 8.0);
     let state_file = rig.logs.join("vlsync.state");
-    let far = tracking_saved(5.0, unix_now_ns());
+    let far = tracking_saved(&rig.prefix, 5.0, unix_now_ns());
     vlsyncd::state::save(&state_file, &far).unwrap();
     let cfg = config(&rig.logs, &rig.prefix, &state_file);
     let log = rig.logs.join("vlsyncd-far.log");

@@ -981,8 +981,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let status_ev = open_or_create_event(&node, &names.status()).map_err(|e| e.to_string())?;
     let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
 
-    let restore = crate::state::startup_restore(&cfg.daemon);
-    let mut saver = crate::state::Saver::from_config(&cfg.daemon);
+    let (restore, mut saver) = crate::state::startup(&cfg.daemon, &names.prefix);
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
