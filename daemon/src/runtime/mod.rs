@@ -381,6 +381,10 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     // a wake-up that served MAX_SAMPLES_PER_WAKE left samples waiting: the next one
     // does not sleep
     let mut backlog = false;
+    // the sample held per stream for the publish-order merge below; kept across
+    // wake-ups, so a wake-up that ends at MAX_SAMPLES_PER_WAKE resumes the merge
+    // where it stopped (the order does not break at the boundary)
+    let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
@@ -417,24 +421,23 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         // first sample only the streams that notified are read, so a lone sample's
         // latency holds no read of the other subscriber; after it every stream is
         // read until it is empty (a publisher that does not notify is still served)
-        let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
         let mut empty = [false; 2];
-        let mut any = false;
-        // at most MAX_SAMPLES_PER_WAKE read per wake-up: a publisher faster than the
-        // daemon (or one that floods without notifying) cannot keep it from its stop
-        // check, its heartbeat (the watchdog), statuses and the end of degraded mode
+        let mut any = pending.iter().any(Option::is_some);
+        // at most MAX_SAMPLES_PER_WAKE handled per wake-up: a publisher faster than
+        // the daemon (or one that floods without notifying) cannot keep it from its
+        // stop check, its heartbeat (the watchdog), statuses and the end of degraded
+        // mode
         let mut served = 0usize;
         backlog = false;
         loop {
+            if served >= MAX_SAMPLES_PER_WAKE {
+                backlog = true;
+                break;
+            }
             for (i, sub) in subs.iter().enumerate() {
                 if pending[i].is_some() || empty[i] || !(ready[i] || any) {
                     continue;
                 }
-                if served >= MAX_SAMPLES_PER_WAKE {
-                    backlog = true;
-                    continue;
-                }
-                served += 1;
                 match sub.receive() {
                     Ok(Some(x)) => pending[i] = Some((*x.payload(), x.header().publisher_id())),
                     Ok(None) => empty[i] = true,
@@ -460,6 +463,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             let Some((w, pid)) = pending[si].take() else {
                 break;
             };
+            served += 1;
             let stream = if si == 0 { Stream::Cam } else { Stream::Lidar };
             let t0 = monotonic_ns();
             c.status.received[si] += 1;
