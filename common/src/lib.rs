@@ -290,8 +290,9 @@ impl Estimate {
     /// [`Estimate::offset_std_at`] plus the offset's random walk of `walk` s/√s over
     /// `dt`, as the estimator predicts: `sqrt(offset_std² + (drift_std · dt)² + walk² · dt)`.
     /// The estimator's walk is `estimator.offset_process_noise` (2e-4 by default) while
-    /// it tracks and `estimator.hold_process_noise` (3e-3) once a hold outlasts a window:
-    /// at the 3 s between `t_ref` and a live stamp, 0.35 ms and 5.2 ms added in quadrature.
+    /// measurements come and `estimator.hold_process_noise` (3e-3) once a whole window
+    /// passed without one: at the 3 s between `t_ref` and a live stamp, 0.35 ms and
+    /// 5.2 ms added in quadrature.
     ///
     /// ```
     /// # use vlsync_common::{Estimate, EstimatorState, Polarity};

@@ -980,7 +980,11 @@ mod tests {
     fn the_prefix_binds_a_file_to_its_daemon() {
         let d = dir("prefix");
         let p = d.join("vlsync.state");
-        let s = state();
+        // saved now: `startup` below judges its age by this machine's wall clock
+        let s = SavedState {
+            saved_unix_ns: unix_now_ns(),
+            ..state()
+        };
         save(&p, &s).unwrap();
         let text = std::fs::read_to_string(&p).unwrap();
         assert!(

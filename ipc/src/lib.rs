@@ -197,7 +197,7 @@ pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError
     // iceoryx2 logs at Info by default (e.g. "no config file loaded"); keep its
     // warnings quiet unless IOX2_LOG_LEVEL asks otherwise
     set_log_level_from_env_or(LogLevel::Error);
-    // before any shared memory: iceoryx2's own handlers would take twelve signals
+    // before any shared memory: iceoryx2's own handlers would take thirteen signals
     // and keep only the last one (see `signals`)
     if handle_signals {
         handle_termination_signals();
@@ -452,8 +452,9 @@ impl SignaturePublisher {
 /// The longest single sleep of [`OffsetClient::wait_next`] and
 /// [`OffsetClient::wait_all`]; a longer timeout sleeps again. The last estimate
 /// handed to a new subscriber (history 1) comes without an event, so a client that
-/// opened while the daemon publishes nothing sees it within this time.
-const MAX_WAIT_SLICE: Duration = Duration::from_secs(1);
+/// opened while the daemon publishes nothing sees it within this time (the daemon
+/// hands it over within 0.1 s).
+const MAX_WAIT_SLICE: Duration = Duration::from_millis(250);
 
 /// Whether `deadline` (`None`: none) has passed.
 fn passed(deadline: Option<Instant>) -> bool {
@@ -600,8 +601,10 @@ impl OffsetClient {
     /// The standard deviation includes the offset's random walk from the estimate's
     /// reference time to the stamp ([`Estimate::offset_std_with_walk`]) at the
     /// shipped `estimator.offset_process_noise` while tracking and
-    /// `estimator.hold_process_noise` in every other state; a daemon configured
-    /// otherwise is matched with [`OffsetClient::set_process_noise`]. The
+    /// `estimator.hold_process_noise` in every other state (an upper bound in a
+    /// short hold: the estimator itself switches to the hold walk only once a whole
+    /// window passed without a measurement); a daemon configured otherwise is
+    /// matched with [`OffsetClient::set_process_noise`]. The
     /// estimate used comes with the result: check its `state` (a `lost` or
     /// `acquiring` estimate is no lock) and `t_ref_ns` (how old it is) before
     /// trusting the stamp. Draining here means a recorder that also calls
@@ -641,8 +644,9 @@ impl OffsetClient {
     /// Every valid estimate pending, in order, each with the `CLOCK_MONOTONIC` time
     /// the daemon published it (what a recorder needs: [`OffsetClient::wait_next`]
     /// keeps only the newest). Waits up to `timeout` on the offset event when none
-    /// is pending; an empty vector on timeout. The subscriber buffers 16 estimates
-    /// (8 s at the default hop): a caller that sleeps longer loses the oldest.
+    /// is pending; an empty vector on timeout, and early when a signal interrupts the
+    /// wait. The subscriber buffers 16 estimates (8 s at the default hop): a caller
+    /// that sleeps longer loses the oldest.
     pub fn wait_all(&mut self, timeout: Duration) -> Result<Vec<(Estimate, Nanos)>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut out = vec![];

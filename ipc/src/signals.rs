@@ -2,16 +2,17 @@
 //!
 //! iceoryx2 0.10 installs, the first time its POSIX layer's `SignalHandler` is
 //! used (creating a zeroed shared-memory segment does it, so does asking it whether
-//! a termination was requested), a handler for twelve signals (SIGCONT, SIGABRT,
-//! SIGINT, SIGQUIT, SIGTERM, SIGTSTP, SIGTTIN, SIGTTOU, SIGUSR1, SIGPROF, SIGURG,
-//! SIGVTALRM) that only stores the *last* signal in one slot. That loses a stop:
+//! a termination was requested), a handler for thirteen signals (SIGCONT, SIGABRT,
+//! SIGINT, SIGQUIT, SIGTERM, SIGTSTP, SIGTTIN, SIGTTOU, SIGUSR1, SIGUSR2, SIGPROF,
+//! SIGURG, SIGVTALRM) that only stores the *last* signal in one slot. That loses a stop:
 //! systemd stops a unit with SIGTERM followed at once by SIGCONT, which overwrote the
 //! SIGTERM before the daemon looked; the watchdog's SIGABRT and Ctrl-Z did nothing;
 //! an application using the client library had its own handlers replaced.
 //!
 //! [`tame_iceoryx2_signals`] (called by every `create_node`) lets iceoryx2 set its
-//! handlers up once, then puts back the actions those twelve signals had before, so
-//! a process keeps its signal dispositions. [`handle_termination_signals`] installs
+//! handlers up once, then puts back the action every signal had before (all of
+//! them are compared, not only iceoryx2's list), so a process keeps its signal
+//! dispositions; a signal that arrived meanwhile is raised again for that action. [`handle_termination_signals`] installs
 //! vlsync's own SIGINT/SIGTERM handler, which sets a flag that stays set:
 //! [`termination_requested`] reads it.
 #![allow(unsafe_code)]
@@ -22,21 +23,11 @@ use std::sync::Once;
 /// Set by [`on_termination`], never cleared.
 static TERMINATION: AtomicBool = AtomicBool::new(false);
 
-/// The signals iceoryx2's `SignalHandler` takes over (its "non-fatal fetchable" list).
-const TAKEN: [libc::c_int; 12] = [
-    libc::SIGCONT,
-    libc::SIGABRT,
-    libc::SIGINT,
-    libc::SIGQUIT,
-    libc::SIGTERM,
-    libc::SIGTSTP,
-    libc::SIGTTIN,
-    libc::SIGTTOU,
-    libc::SIGUSR1,
-    libc::SIGPROF,
-    libc::SIGURG,
-    libc::SIGVTALRM,
-];
+/// Every signal whose action can be set: 1..=SIGRTMAX but SIGKILL and SIGSTOP (the
+/// C library's reserved ones refuse `sigaction` and are skipped).
+fn settable() -> impl Iterator<Item = libc::c_int> {
+    (1..=libc::SIGRTMAX()).filter(|&s| s != libc::SIGKILL && s != libc::SIGSTOP)
+}
 
 extern "C" fn on_termination(_signal: libc::c_int) {
     // an atomic store is async-signal-safe
@@ -62,33 +53,46 @@ fn set_action(signal: libc::c_int, action: &libc::sigaction) -> bool {
 }
 
 /// Lets iceoryx2 install its signal handlers now (once per process), then restores
-/// the actions every signal it took had before: the process keeps its own signal
-/// handling (default actions, an application's handlers, vlsync's own). Called by
-/// [`crate::create_node`] before any iceoryx2 resource exists; later calls do
-/// nothing.
+/// the action of every signal whose action it changed: the process keeps its own
+/// signal handling (default actions, an application's handlers, vlsync's own). A
+/// signal iceoryx2's handler caught meanwhile is raised again, for the restored
+/// action. Called by [`crate::create_node`] before any iceoryx2 resource exists;
+/// later calls do nothing.
 pub fn tame_iceoryx2_signals() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
-        let before = TAKEN.map(current_action);
+        use iceoryx2_bb_posix::signal::{Signal, SignalHandler};
+        let before: Vec<(libc::c_int, libc::sigaction)> = settable()
+            .filter_map(|s| current_action(s).map(|a| (s, a)))
+            .collect();
         // the first use of iceoryx2's SignalHandler creates it, which installs its
         // handlers; it never installs them again
-        let _ = iceoryx2_bb_posix::signal::SignalHandler::call_and_fetch(|| ());
-        for (signal, action) in TAKEN.iter().zip(before.iter()) {
-            if let Some(a) = action {
-                set_action(*signal, a);
+        let _ = SignalHandler::call_and_fetch(|| ());
+        for (signal, action) in &before {
+            if current_action(*signal).is_some_and(|now| now.sa_sigaction != action.sa_sigaction) {
+                set_action(*signal, action);
+            }
+        }
+        if let Some(caught) = SignalHandler::last_signal() {
+            let signal = Signal::from(caught) as libc::c_int;
+            // SAFETY: raise(3) of a signal number iceoryx2 took from the system; its
+            // action is the restored one (vlsync's flag for SIGINT/SIGTERM once
+            // `handle_termination_signals` ran)
+            unsafe {
+                libc::raise(signal);
             }
         }
     });
 }
 
-/// Installs vlsync's SIGINT/SIGTERM handler (once per process): from then on a stop
-/// request sets the flag [`termination_requested`] reads, and no later signal (the
-/// SIGCONT systemd sends after SIGTERM) clears it. `SA_RESTART`, so other system
-/// calls carry on; waits with a timeout still return early (Linux does not restart
-/// them), and the loops check the flag at least every 100 ms.
+/// Installs vlsync's SIGINT/SIGTERM handler (once per process), then
+/// [`tame_iceoryx2_signals`]: from then on a stop request sets the flag
+/// [`termination_requested`] reads, and no later signal (the SIGCONT systemd sends
+/// after SIGTERM) clears it. `SA_RESTART`, so other system calls carry on; waits
+/// with a timeout still return early (Linux does not restart them), and the loops
+/// check the flag at least every 100 ms.
 pub fn handle_termination_signals() {
     static ONCE: Once = Once::new();
-    tame_iceoryx2_signals();
     ONCE.call_once(|| {
         // SAFETY: a zeroed `libc::sigaction` is a valid "no flags, empty mask" value;
         // `sigemptyset` initialises the mask it is given, which lives in `action`.
@@ -103,6 +107,8 @@ pub fn handle_termination_signals() {
             set_action(signal, &action);
         }
     });
+    // after ours, so a stop iceoryx2's handler caught in between reaches the flag
+    tame_iceoryx2_signals();
 }
 
 /// True once SIGINT or SIGTERM arrived after [`handle_termination_signals`] (which
@@ -115,31 +121,32 @@ pub fn termination_requested() -> bool {
 mod tests {
     use super::*;
 
-    /// The process keeps the actions its signals had: iceoryx2's set-up (here
-    /// forced, as a node's first shared memory does) leaves SIGUSR2's and SIGCONT's
-    /// as they were, and SIGTERM reaches vlsync's flag even when SIGCONT follows
-    /// at once, as systemd sends them.
+    /// The process keeps the actions its signals had: after iceoryx2's set-up (here
+    /// forced, as a node's first shared memory does; asked again, as shared-memory
+    /// creation does later) no signal but SIGINT and SIGTERM has a handler of
+    /// iceoryx2's (a test process has default or ignored actions, and std's own
+    /// handlers for SIGSEGV and SIGBUS); and SIGTERM reaches vlsync's flag even when
+    /// SIGCONT follows at once, as systemd sends them.
     #[test]
     fn iceoryx2_keeps_its_hands_off_and_a_stop_survives_sigcont() {
-        let usr1_before = current_action(libc::SIGUSR1).unwrap().sa_sigaction;
-        let cont_before = current_action(libc::SIGCONT).unwrap().sa_sigaction;
-        tame_iceoryx2_signals();
-        // iceoryx2 asked again (it would, inside shared-memory creation): no new handler
-        let _ = iceoryx2_bb_posix::signal::SignalHandler::call_and_fetch(|| ());
-        assert_eq!(
-            current_action(libc::SIGUSR1).unwrap().sa_sigaction,
-            usr1_before
-        );
-        assert_eq!(
-            current_action(libc::SIGCONT).unwrap().sa_sigaction,
-            cont_before
-        );
         handle_termination_signals();
-        assert_eq!(
-            current_action(libc::SIGTERM).unwrap().sa_sigaction,
-            on_termination as extern "C" fn(libc::c_int) as libc::sighandler_t
-        );
-        assert!(!termination_requested());
+        let _ = iceoryx2_bb_posix::signal::SignalHandler::call_and_fetch(|| ());
+        let ours = on_termination as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        for signal in settable() {
+            let Some(a) = current_action(signal) else {
+                continue;
+            };
+            let want_ours = signal == libc::SIGINT || signal == libc::SIGTERM;
+            let std_own = signal == libc::SIGSEGV || signal == libc::SIGBUS;
+            if want_ours {
+                assert_eq!(a.sa_sigaction, ours, "signal {signal}");
+            } else if !std_own {
+                assert!(
+                    a.sa_sigaction == libc::SIG_DFL || a.sa_sigaction == libc::SIG_IGN,
+                    "signal {signal} has a handler"
+                );
+            }
+        }
         // SAFETY: raising a signal whose handler is `on_termination` (SIGTERM) or
         // whose action is the default "continue" (SIGCONT) in a running process.
         unsafe {

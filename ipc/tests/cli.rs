@@ -35,10 +35,15 @@ fn echo_survives_job_control_and_stops_on_sigint() {
     use std::time::{Duration, Instant};
     let bin = env!("CARGO_BIN_EXE_vlsync-echo");
     let prefix = format!("vlsync-test/echo-sig-{}", std::process::id());
+    // its own process group, whose parent (this test) is in the same session: the
+    // kernel ignores SIGTSTP in an orphaned group, which the test binary's may be
+    // under a CI runner without job control
+    use std::os::unix::process::CommandExt;
     let mut child = Command::new(bin)
         .args(["--prefix", &prefix])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
+        .process_group(0)
         .spawn()
         .unwrap();
     let pid = child.id().to_string();

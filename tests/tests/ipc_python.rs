@@ -52,6 +52,16 @@ fn python_subscriber_reads_live_estimates() {
     let mut daemon = rig.daemon(0);
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
+    // beside it, a reader that goes away after one line (`| head -1`): exit 0, no
+    // traceback (it used to die on BrokenPipeError with exit 1, the code of a
+    // timeout); started first, so its lines wait in the pipe while the run lasts
+    let mut piped = std::process::Command::new(python())
+        .arg(&script)
+        .args(["--prefix", &rig.prefix, "--timeout", "10", "--json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run the Python interpreter");
     let out = Command::new("timeout")
         .arg("30")
         .arg(python())
@@ -66,15 +76,6 @@ fn python_subscriber_reads_live_estimates() {
             "--json",
         ])
         .output()
-        .expect("run the Python interpreter");
-    // a reader that goes away after one line (`| head -1`): exit 0, no traceback
-    // (it used to die on BrokenPipeError with exit 1, the code of a timeout)
-    let mut piped = std::process::Command::new(python())
-        .arg(&script)
-        .args(["--prefix", &rig.prefix, "--timeout", "10", "--json"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
         .expect("run the Python interpreter");
     let mut first = String::new();
     {

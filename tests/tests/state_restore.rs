@@ -164,7 +164,9 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
         unix_now_ns() - 7_200_000_000_000,
     ));
     // a fresh file of another robot's daemon (the same configuration file, another
-    // --prefix): neither restored nor saved over
+    // --prefix): refused by name, not restored (that such a daemon does not save over
+    // it is `state::tests::the_prefix_binds_a_file_to_its_daemon`; here nothing is
+    // ever worth saving)
     let other = vlsyncd::state::encode(&tracking_saved("other/robot", 0.031, unix_now_ns()));
     let cases = [
         (good.replace("0.031", "0.032"), "checksum mismatch"),

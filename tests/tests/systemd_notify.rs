@@ -217,6 +217,22 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
         std::thread::sleep(Duration::from_millis(50));
     }
     std::thread::sleep(Duration::from_millis(300));
+    // the running daemon catches SIGINT and SIGTERM (vlsync's flag) and no other
+    // signal but std's stack-overflow guards (SIGSEGV, SIGBUS) and the C library's
+    // own (32 and up): iceoryx2's handlers took thirteen, SIGCONT and SIGABRT among
+    // them (the watchdog's SIGABRT did nothing)
+    let status = std::fs::read_to_string(format!("/proc/{}/status", daemon.pid())).unwrap();
+    let caught = status
+        .lines()
+        .find_map(|l| l.strip_prefix("SigCgt:"))
+        .map(|h| u64::from_str_radix(h.trim(), 16).unwrap())
+        .unwrap();
+    let signals: Vec<u32> = (1..=64).filter(|s| caught >> (s - 1) & 1 == 1).collect();
+    let allowed = |s: &u32| matches!(s, 2 | 15 | 7 | 11) || *s >= 32;
+    assert!(
+        signals.iter().all(allowed) && signals.contains(&2) && signals.contains(&15),
+        "signals with a handler: {signals:?}"
+    );
     assert!(daemon.stop(Duration::from_secs(5)));
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(!text.contains("systemd notification"), "{text}");

@@ -224,9 +224,10 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
 
 /// Which held sample (0: camera, 1: LiDAR) comes next: the one its driver published
 /// first (`publish_ns`, both drivers on this host's `CLOCK_MONOTONIC`), the camera's
-/// on a tie; `None` when none is held. Only the order within one wake-up's backlog
-/// depends on it, so a foreign or hostile `publish_ns` cannot hold a sample back
-/// for longer than the other stream's backlog.
+/// on a tie; `None` when none is held. Only the order within the backlog depends on
+/// it, so a foreign or hostile `publish_ns` cannot hold a sample back for longer
+/// than the other stream's backlog takes to drain (over several wake-ups when it is
+/// longer than [`MAX_SAMPLES_PER_WAKE`]).
 fn first_published(pending: &[Option<(SignatureSample, UniquePublisherId)>; 2]) -> Option<usize> {
     match (&pending[0], &pending[1]) {
         (None, None) => None,
