@@ -17,6 +17,59 @@ impl Drop for Scratch {
     }
 }
 
+/// A scratch directory with a configuration for a prefix of its own, and where the
+/// daemon's log goes.
+struct Setup {
+    _scratch: Scratch,
+    dir: PathBuf,
+    prefix: String,
+    cfg: PathBuf,
+    log: PathBuf,
+}
+
+fn setup(tag: &str) -> Setup {
+    let dir = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
+    let cfg = dir.join("vlsync.toml");
+    std::fs::write(
+        &cfg,
+        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
+    )
+    .unwrap();
+    Setup {
+        _scratch: Scratch(dir.clone()),
+        log: dir.join("vlsyncd.log"),
+        dir,
+        prefix,
+        cfg,
+    }
+}
+
+/// `vlsyncd run --config` of `s`, its output in `s.log`, with `env` set (`Some`) or
+/// removed (`None`).
+fn spawn_daemon(s: &Setup, env: &[(&str, Option<&std::ffi::OsStr>)]) -> Managed {
+    let mut cmd = Command::new(bin("vlsyncd"));
+    cmd.args(["run", "--config"]).arg(&s.cfg);
+    for (key, value) in env {
+        match value {
+            Some(v) => cmd.env(key, v),
+            None => cmd.env_remove(key),
+        };
+    }
+    let child = cmd
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&s.log).unwrap())
+        .stderr(std::fs::File::create(&s.log).unwrap())
+        .spawn()
+        .unwrap();
+    Managed {
+        name: "vlsyncd".into(),
+        child,
+    }
+}
+
 /// Receives datagrams until one contains `line` (as a whole line) or `within` passes.
 fn wait_for(sock: &UnixDatagram, line: &str, within: Duration, seen: &mut Vec<String>) -> bool {
     let t0 = Instant::now();
@@ -44,39 +97,21 @@ fn wait_for(sock: &UnixDatagram, line: &str, within: Duration, seen: &mut Vec<St
 
 #[test]
 fn ready_watchdog_and_stopping_reach_the_service_manager() {
-    let dir = std::env::temp_dir().join(format!("vlsync-it-sdnotify-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let _scratch = Scratch(dir.clone());
-    let sock_path = dir.join("notify.sock");
+    let s = setup("sdnotify");
+    let (prefix, log) = (&s.prefix, &s.log);
+    let sock_path = s.dir.join("notify.sock");
     let sock = UnixDatagram::bind(&sock_path).unwrap();
     sock.set_read_timeout(Some(Duration::from_millis(100)))
         .unwrap();
-    let prefix = format!("vlsync-it/sdnotify-{}", std::process::id());
-    let cfg = dir.join("vlsync.toml");
-    std::fs::write(
-        &cfg,
-        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
-    )
-    .unwrap();
-    let log = dir.join("vlsyncd.log");
-    let daemon_bin = bin("vlsyncd");
-    let child = Command::new(&daemon_bin)
-        .args(["run", "--config"])
-        .arg(&cfg)
-        .env("NOTIFY_SOCKET", &sock_path)
-        .env("WATCHDOG_USEC", "1000000")
-        .env_remove("WATCHDOG_PID")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&log).unwrap())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
-    let mut daemon = Managed {
-        name: "vlsyncd".into(),
-        child,
-    };
-    let logtext = || std::fs::read_to_string(&log).unwrap_or_default();
+    let mut daemon = spawn_daemon(
+        &s,
+        &[
+            ("NOTIFY_SOCKET", Some(sock_path.as_os_str())),
+            ("WATCHDOG_USEC", Some("1000000".as_ref())),
+            ("WATCHDOG_PID", None),
+        ],
+    );
+    let logtext = || std::fs::read_to_string(log).unwrap_or_default();
 
     let mut seen = vec![];
     assert!(
@@ -88,7 +123,7 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
     assert!(
         ready
             .lines()
-            .any(|l| l.starts_with("STATUS=") && l.contains(&prefix)),
+            .any(|l| l.starts_with("STATUS=") && l.contains(prefix.as_str())),
         "READY without a status naming the prefix: {ready:?}"
     );
 
@@ -174,41 +209,24 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
 
 #[test]
 fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
-    let dir = std::env::temp_dir().join(format!("vlsync-it-sdnone-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let _scratch = Scratch(dir.clone());
-    let prefix = format!("vlsync-it/sdnone-{}", std::process::id());
-    let cfg = dir.join("vlsync.toml");
-    std::fs::write(
-        &cfg,
-        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
-    )
-    .unwrap();
-    let log = dir.join("vlsyncd.log");
-    let child = Command::new(bin("vlsyncd"))
-        .args(["run", "--config"])
-        .arg(&cfg)
-        .env_remove("NOTIFY_SOCKET")
-        .env("WATCHDOG_USEC", "1000000")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&log).unwrap())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
-    let mut daemon = Managed {
-        name: "vlsyncd".into(),
-        child,
-    };
+    let s = setup("sdnone");
+    let log = &s.log;
+    let mut daemon = spawn_daemon(
+        &s,
+        &[
+            ("NOTIFY_SOCKET", None),
+            ("WATCHDOG_USEC", Some("1000000".as_ref())),
+        ],
+    );
     let t0 = Instant::now();
-    while !std::fs::read_to_string(&log)
+    while !std::fs::read_to_string(log)
         .unwrap_or_default()
         .contains("serving prefix")
     {
         assert!(
             daemon.running(),
             "{}",
-            std::fs::read_to_string(&log).unwrap()
+            std::fs::read_to_string(log).unwrap()
         );
         assert!(
             t0.elapsed() < Duration::from_secs(20),
@@ -234,7 +252,7 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
         "signals with a handler: {signals:?}"
     );
     assert!(daemon.stop(Duration::from_secs(5)));
-    let text = std::fs::read_to_string(&log).unwrap();
+    let text = std::fs::read_to_string(log).unwrap();
     assert!(!text.contains("systemd notification"), "{text}");
     assert!(!text.contains("WARN"), "{text}");
 }
@@ -246,39 +264,17 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
 /// left behind.
 #[test]
 fn a_stop_during_start_up_is_a_clean_stop() {
-    let dir = std::env::temp_dir().join(format!("vlsync-it-sdearly-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let _scratch = Scratch(dir.clone());
-    let prefix = format!("vlsync-it/sdearly-{}", std::process::id());
-    let lock = vlsyncd::runtime::lock_path(&prefix);
+    let s = setup("sdearly");
+    let log = &s.log;
+    let lock = vlsyncd::runtime::lock_path(&s.prefix);
     let _ = std::fs::remove_file(&lock);
-    let cfg = dir.join("vlsync.toml");
-    std::fs::write(
-        &cfg,
-        format!("[daemon]\ncore = -1\n\n[services]\nprefix = \"{prefix}\"\n"),
-    )
-    .unwrap();
-    let log = dir.join("vlsyncd.log");
-    let child = Command::new(bin("vlsyncd"))
-        .args(["run", "--config"])
-        .arg(&cfg)
-        .env_remove("NOTIFY_SOCKET")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&log).unwrap())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
-    let mut daemon = Managed {
-        name: "vlsyncd".into(),
-        child,
-    };
+    let mut daemon = spawn_daemon(&s, &[("NOTIFY_SOCKET", None)]);
     let t0 = Instant::now();
     while !lock.exists() {
         assert!(
             daemon.running(),
             "{}",
-            std::fs::read_to_string(&log).unwrap()
+            std::fs::read_to_string(log).unwrap()
         );
         assert!(
             t0.elapsed() < Duration::from_secs(20),
@@ -295,11 +291,11 @@ fn a_stop_during_start_up_is_a_clean_stop() {
         assert!(
             t0.elapsed() < Duration::from_secs(25),
             "vlsyncd still running after SIGINT at start-up\n{}",
-            std::fs::read_to_string(&log).unwrap()
+            std::fs::read_to_string(log).unwrap()
         );
         std::thread::sleep(Duration::from_millis(20));
     };
-    let text = std::fs::read_to_string(&log).unwrap();
+    let text = std::fs::read_to_string(log).unwrap();
     assert_eq!(status.code(), Some(0), "exit {status:?}\n{text}");
     assert!(!lock.exists(), "lock file left: {}\n{text}", lock.display());
 }
