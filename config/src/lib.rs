@@ -528,22 +528,26 @@ impl DaemonConfig {
     }
 }
 
+/// Whether `p` is a `services.prefix` a daemon accepts: non-empty, at most 200
+/// bytes, only ASCII letters, digits, `_`, `-`, `.` and `/`, no leading or trailing
+/// `/`, no `//`.
+pub fn prefix_is_valid(p: &str) -> bool {
+    !p.is_empty()
+        && p.len() <= 200
+        && p.chars()
+            .all(|ch| ch.is_ascii_alphanumeric() || "_-./".contains(ch))
+        && !p.starts_with('/')
+        && !p.ends_with('/')
+        && !p.contains("//")
+}
+
 impl ServicesConfig {
-    /// Checks every value. The prefix must be non-empty, at most 200 bytes, and use
-    /// only ASCII letters, digits, `_`, `-`, `.` and `/` (no leading/trailing `/`, no `//`).
+    /// Checks every value; the prefix by [`prefix_is_valid`].
     pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
         let c = Checker { source };
         let p = &self.prefix;
-        let chars_ok = p
-            .chars()
-            .all(|ch| ch.is_ascii_alphanumeric() || "_-./".contains(ch));
         c.rule(
-            !p.is_empty()
-                && p.len() <= 200
-                && chars_ok
-                && !p.starts_with('/')
-                && !p.ends_with('/')
-                && !p.contains("//"),
+            prefix_is_valid(p),
             || {
                 format!(
                     "`services.prefix` = {:?} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`",

@@ -472,15 +472,12 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             })
         }
     };
-    // a prefix is what the daemon accepted: [A-Za-z0-9_.-/], 1-200 characters
+    // a prefix is one a daemon accepts (`services.prefix`'s rule)
     let prefix = match values[PREFIX_SLOT] {
         None if version == 1 => None,
         None => return Err(Problem::MissingKey(KEYS[PREFIX_SLOT])),
         Some((line, v)) => {
-            let ok = (1..=200).contains(&v.len())
-                && v.bytes()
-                    .all(|b| b.is_ascii_alphanumeric() || b"_.-/".contains(&b));
-            if !ok {
+            if !vlsync_config::prefix_is_valid(v) {
                 return Err(Problem::BadValue {
                     line,
                     key: KEYS[PREFIX_SLOT],
@@ -1039,14 +1036,18 @@ mod tests {
             decode(v2_without.as_bytes()).unwrap_err(),
             Problem::MissingKey("prefix")
         );
-        let bad = resign(&text.replace("prefix = vlsync/robot", "prefix = a b"));
-        assert!(
-            matches!(
-                decode(bad.as_bytes()).unwrap_err(),
-                Problem::BadValue { key: "prefix", .. }
-            ),
-            "{bad}"
-        );
+        // the daemon's own rule for services.prefix: a space, a double or a leading `/`
+        for refused in ["a b", "vlsync//robot", "/vlsync"] {
+            let bad =
+                resign(&text.replace("prefix = vlsync/robot", &format!("prefix = {refused}")));
+            assert!(
+                matches!(
+                    decode(bad.as_bytes()).unwrap_err(),
+                    Problem::BadValue { key: "prefix", .. }
+                ),
+                "{bad}"
+            );
+        }
     }
 
     #[test]
