@@ -97,6 +97,10 @@ pub const WAKE_PERIOD: Duration = Duration::from_millis(100);
 /// beats its heartbeat and hands a status over (then it goes on without sleeping):
 /// two default subscriber buffers, a few milliseconds of work.
 pub const MAX_SAMPLES_PER_WAKE: usize = 512;
+/// A sample's publish time further back than this (ns), or in the future, is not a
+/// latency: a foreign host's or a hostile `publish_ns`. Such a sample is neither in
+/// the end-to-end histogram nor dates a load hint.
+pub const MAX_LATENCY_NS: Nanos = 10_000_000_000;
 /// Capacity of the event channel between the threads.
 pub const EVENT_CAPACITY: usize = 1024;
 
@@ -403,18 +407,17 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             };
         if backlog {
             let _ = lis.try_wait(on_event);
+            ready = [true; 2];
         } else {
             let _ = lis.timed_wait(on_event, WAKE_PERIOD);
-        }
-        if backlog {
-            ready = [true; 2];
-        } else if ready == [false; 2] {
-            ready = [true; 2];
-            // no driver notified (idle, or a driver that does not notify): connect
-            // subscribers that came since the last estimate, which hands them the
-            // last one (history 1) now instead of at the next estimate, which an
-            // idle daemon may never publish
-            let _ = off_pub.update_connections();
+            if ready == [false; 2] {
+                ready = [true; 2];
+                // no driver notified (idle, or a driver that does not notify):
+                // connect subscribers that came since the last estimate, which hands
+                // them the last one (history 1) now instead of at the next estimate,
+                // which an idle daemon may never publish
+                let _ = off_pub.update_connections();
+            }
         }
         // both streams' waiting samples in the order their drivers published them
         // (one held per stream): after a stall the backlogs interleave as they were
@@ -511,10 +514,10 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
                 );
             } else if let Some((t_l, pub_ns)) = clock_reading {
                 // only a sample the estimator took dates load hints, and only with a
-                // publish time that is a latency (0..10 s before now, as below): a
-                // rejected far-future stamp or a foreign publish_ns would put a hint's
-                // change where no data ever comes
-                if (0..10_000_000_000).contains(&(t0 - pub_ns)) {
+                // publish time that is a latency (as below): a rejected far-future
+                // stamp or a foreign publish_ns would put a hint's change where no
+                // data ever comes
+                if (0..MAX_LATENCY_NS).contains(&(t0 - pub_ns)) {
                     lidar_clock = Some((t_l, pub_ns));
                 }
             }
@@ -541,11 +544,11 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
             let proc_ns = (t1 - t0).max(0) as u64;
             c.processing.record(proc_ns);
             // driver publish -> done with the sample (estimate published if one was due);
-            // a hostile or foreign-host publish_ns outside 0..10 s is not a latency
-            // (a positive one cannot overflow the difference)
+            // a hostile or foreign-host publish_ns outside 0..MAX_LATENCY_NS is not a
+            // latency (a positive one cannot overflow the difference)
             if w.publish_ns > 0 {
                 let e2e = t1 - w.publish_ns;
-                if (0..10_000_000_000).contains(&e2e) {
+                if (0..MAX_LATENCY_NS).contains(&e2e) {
                     c.end_to_end.record(e2e as u64);
                 }
             }
