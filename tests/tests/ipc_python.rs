@@ -55,13 +55,16 @@ fn python_subscriber_reads_live_estimates() {
     // beside it, a reader that goes away after one line (`| head -1`): exit 0, no
     // traceback (it used to die on BrokenPipeError with exit 1, the code of a
     // timeout); started first, so its lines wait in the pipe while the run lasts
-    let mut piped = std::process::Command::new(python())
-        .arg(&script)
-        .args(["--prefix", &rig.prefix, "--timeout", "10", "--json"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("run the Python interpreter");
+    let mut piped = Managed {
+        name: "vlsync_subscriber.py".into(),
+        child: Command::new(python())
+            .arg(&script)
+            .args(["--prefix", &rig.prefix, "--timeout", "10", "--json"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("run the Python interpreter"),
+    };
     let out = Command::new("timeout")
         .arg("30")
         .arg(python())
@@ -80,31 +83,22 @@ fn python_subscriber_reads_live_estimates() {
     let mut first = String::new();
     {
         use std::io::BufRead;
-        let mut reader = std::io::BufReader::new(piped.stdout.take().unwrap());
+        let mut reader = std::io::BufReader::new(piped.child.stdout.take().unwrap());
         reader.read_line(&mut first).unwrap();
     } // the read end closes here
-    let t0 = Instant::now();
-    let piped_status = loop {
-        if let Some(st) = piped.try_wait().unwrap() {
-            break Some(st);
-        }
-        if t0.elapsed() > Duration::from_secs(15) {
-            let _ = piped.kill();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let piped_code = exit_code_within(&mut piped, Duration::from_secs(15));
+    let _ = piped.child.kill();
     let piped_err = {
         use std::io::Read;
         let mut e = String::new();
-        let _ = piped.stderr.take().unwrap().read_to_string(&mut e);
+        let _ = piped.child.stderr.take().unwrap().read_to_string(&mut e);
         e
     };
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
     assert!(first.starts_with('{'), "first line {first:?}: {piped_err}");
     assert_eq!(
-        piped_status.and_then(|s| s.code()),
+        piped_code,
         Some(0),
         "after its reader went away: {piped_err}"
     );

@@ -70,6 +70,27 @@ fn spawn_daemon(s: &Setup, env: &[(&str, Option<&std::ffi::OsStr>)]) -> Managed 
     }
 }
 
+/// Polls `ready` every `every` until it holds, for at most 20 s, while the daemon runs
+/// (the test fails with its log when it exits first, or with `what` at 20 s).
+fn wait_while_running(
+    daemon: &mut Managed,
+    log: &std::path::Path,
+    what: &str,
+    every: Duration,
+    ready: impl Fn() -> bool,
+) {
+    let t0 = Instant::now();
+    while !ready() {
+        assert!(
+            daemon.running(),
+            "vlsyncd exited:\n{}",
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+        assert!(t0.elapsed() < Duration::from_secs(20), "{what} within 20 s");
+        std::thread::sleep(every);
+    }
+}
+
 /// Receives datagrams until one contains `line` (as a whole line) or `within` passes.
 fn wait_for(sock: &UnixDatagram, line: &str, within: Duration, seen: &mut Vec<String>) -> bool {
     let t0 = Instant::now();
@@ -162,10 +183,10 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
 
     // as systemd stops a unit (KillMode's "kill_and_sigcont"): SIGTERM, then
     // SIGCONT at once. iceoryx2's handler kept only the last signal, so the SIGCONT
-    // hid the SIGTERM and the daemon ran on until SIGKILL
-    // both from one shell, its `kill` builtins microseconds apart as systemd's
-    // two kill(2) calls are (two `kill` processes are milliseconds apart and rarely
-    // lost the race; these lost it in 5 of 10 tries before the fix)
+    // hid the SIGTERM and the daemon ran on until SIGKILL. Both come from one
+    // shell, its `kill` builtins microseconds apart as systemd's two kill(2) calls
+    // are (two `kill` processes are milliseconds apart and rarely lost the race;
+    // these lost it in 5 of 10 tries before the fix)
     let sent = Command::new("sh")
         .args(["-c", "kill -TERM $1 && kill -CONT $1", "sh"])
         .arg(daemon.pid().to_string())
@@ -178,18 +199,9 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
         "no STOPPING=1 after SIGTERM + SIGCONT; got {after:?}\n{}",
         logtext()
     );
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(st) = daemon.child.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(5),
-            "vlsyncd still running 5 s after SIGTERM\n{}",
-            logtext()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = daemon
+        .wait_up_to(Duration::from_secs(5))
+        .unwrap_or_else(|| panic!("vlsyncd still running 5 s after SIGTERM\n{}", logtext()));
     assert!(status.success(), "exit {status:?}\n{}", logtext());
     // no watchdog pet after STOPPING=1
     let mut late = vec![];
@@ -218,22 +230,17 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
             ("WATCHDOG_USEC", Some("1000000".as_ref())),
         ],
     );
-    let t0 = Instant::now();
-    while !std::fs::read_to_string(log)
-        .unwrap_or_default()
-        .contains("serving prefix")
-    {
-        assert!(
-            daemon.running(),
-            "{}",
-            std::fs::read_to_string(log).unwrap()
-        );
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "daemon did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_while_running(
+        &mut daemon,
+        log,
+        "serving prefix",
+        Duration::from_millis(50),
+        || {
+            std::fs::read_to_string(log)
+                .unwrap_or_default()
+                .contains("serving prefix")
+        },
+    );
     std::thread::sleep(Duration::from_millis(300));
     // the running daemon catches SIGINT and SIGTERM (vlsync's flag) and no other
     // signal but std's stack-overflow guards (SIGSEGV, SIGBUS) and the C library's
@@ -269,33 +276,24 @@ fn a_stop_during_start_up_is_a_clean_stop() {
     let lock = vlsyncd::runtime::lock_path(&s.prefix);
     let _ = std::fs::remove_file(&lock);
     let mut daemon = spawn_daemon(&s, &[("NOTIFY_SOCKET", None)]);
-    let t0 = Instant::now();
-    while !lock.exists() {
-        assert!(
-            daemon.running(),
-            "{}",
-            std::fs::read_to_string(log).unwrap()
-        );
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "no lock file {}",
-            lock.display()
-        );
-        std::thread::sleep(Duration::from_micros(200));
-    }
+    wait_while_running(
+        &mut daemon,
+        log,
+        &format!("lock file {}", lock.display()),
+        Duration::from_micros(200),
+        || lock.exists(),
+    );
     daemon.signal("INT").unwrap();
-    let status = loop {
-        if let Some(st) = daemon.child.try_wait().unwrap() {
-            break st;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(25),
-            "vlsyncd still running after SIGINT at start-up\n{}",
-            std::fs::read_to_string(log).unwrap()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let text = std::fs::read_to_string(log).unwrap();
+    let text = || std::fs::read_to_string(log).unwrap();
+    let status = daemon
+        .wait_up_to(Duration::from_secs(5))
+        .unwrap_or_else(|| {
+            panic!(
+                "vlsyncd still running 5 s after SIGINT at start-up\n{}",
+                text()
+            )
+        });
+    let text = text();
     assert_eq!(status.code(), Some(0), "exit {status:?}\n{text}");
     assert!(!lock.exists(), "lock file left: {}\n{text}", lock.display());
 }

@@ -110,8 +110,8 @@ impl Managed {
         false
     }
 
-    /// The exit status, once the process exited within `limit`.
-    fn wait_up_to(&mut self, limit: Duration) -> Option<std::process::ExitStatus> {
+    /// The exit status, once the process exited within `limit` (`None`: it still runs).
+    pub fn wait_up_to(&mut self, limit: Duration) -> Option<std::process::ExitStatus> {
         let t0 = Instant::now();
         loop {
             if let Ok(Some(st)) = self.child.try_wait() {
