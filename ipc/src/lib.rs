@@ -736,26 +736,13 @@ impl StatusClient {
         }
     }
 
-    /// The most recent valid status; invalid payloads are skipped.
+    /// The most recent valid status; invalid payloads are skipped (the validation
+    /// error is returned only while no valid status ever arrived).
     pub fn latest(&mut self) -> Result<Option<Status>, WireErrorOrIpc> {
-        let mut last_err = None;
-        loop {
-            let s = self.subscriber.receive().map_err(|e| {
-                WireErrorOrIpc::Ipc(IpcError::new(
-                    format!("receive on `{}`", self.service),
-                    format!("{e:?}"),
-                ))
-            })?;
-            let Some(s) = s else { break };
-            let st: Status = *s.payload();
-            match st.validate() {
-                Ok(()) => self.latest = Some(st),
-                Err(e) => last_err = Some(e),
-            }
-        }
-        match (self.latest, last_err) {
-            (None, Some(e)) => Err(WireErrorOrIpc::Wire(e)),
-            (l, _) => Ok(l),
+        match self.receive_all() {
+            Err(WireErrorOrIpc::Wire(e)) if self.latest.is_none() => Err(WireErrorOrIpc::Wire(e)),
+            Ok(_) | Err(WireErrorOrIpc::Wire(_)) => Ok(self.latest),
+            Err(e) => Err(e),
         }
     }
 }
@@ -942,5 +929,12 @@ mod tests {
         })
         .unwrap();
         assert!(matches!(c.receive_all(), Err(WireErrorOrIpc::Wire(_))));
+        // latest() skips an invalid one and keeps the last good status
+        publ.send_copy(Status {
+            degraded: 9,
+            ..Status::default()
+        })
+        .unwrap();
+        assert_eq!(c.latest().unwrap().unwrap().estimates_published, 3);
     }
 }
