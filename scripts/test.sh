@@ -71,4 +71,4 @@ fi
 # instead of building the workspace a second time.
 export VLSYNC_CARGO_FEATURES="vlsync-driver/v4l2"
 export VLSYNC_PREBUILT_BINS=1
-cargo test --workspace --features "$VLSYNC_CARGO_FEATURES"
+cargo test --workspace --no-fail-fast --features "$VLSYNC_CARGO_FEATURES"

@@ -18,8 +18,10 @@ pub const SUMMARY_NS: Nanos = 600_000_000_000;
 /// per stream and the offset steps found in the data (information, not warnings:
 /// a load change), then the moves of the search (a warning), the (re)starts of each
 /// stream's driver (information: a publisher that flags every sample as its first
-/// would log one a sample) and the errors of the real-time loop.
-pub const KINDS: usize = 2 * REJECT_REASONS + 10;
+/// would log one a sample), the errors of the real-time loop, and the changes of the
+/// estimator state per new state (information: a flapping estimator would log two
+/// lines a hop).
+pub const KINDS: usize = 2 * REJECT_REASONS + 14;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -47,6 +49,12 @@ pub fn driver_started_key(si: usize) -> usize {
 
 /// Throttle key of an error of the real-time loop (a failed receive).
 pub const RT_ERROR_KEY: usize = DEGRADED_KEY + 7;
+
+/// Throttle key of a change of the estimator state to `to` (the routine changes
+/// between tracking and holding are logged at debug level, outside the throttle).
+pub fn state_key(to: EstimatorState) -> usize {
+    DEGRADED_KEY + 8 + to as usize % 4
+}
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
@@ -209,6 +217,14 @@ pub fn kind_text(key: usize) -> String {
         "moves of the search (no lock where it searched)".to_string()
     } else if key == RT_ERROR_KEY {
         "errors of the real-time loop".to_string()
+    } else if key >= state_key(EstimatorState::Acquiring) {
+        let to = [
+            EstimatorState::Acquiring,
+            EstimatorState::Tracking,
+            EstimatorState::Holding,
+            EstimatorState::Lost,
+        ][(key - state_key(EstimatorState::Acquiring)).min(3)];
+        format!("changes of the estimator state to {}", to.name())
     } else if key >= driver_started_key(0) {
         format!(
             "{} driver (re)starts",
@@ -390,6 +406,16 @@ mod tests {
         assert_eq!(kind_text(driver_started_key(1)), "lidar driver (re)starts");
         assert!(is_info(driver_started_key(1)) && driver_started_key(1) < KINDS);
         assert_eq!(kind_text(RT_ERROR_KEY), "errors of the real-time loop");
+        assert_eq!(
+            kind_text(state_key(EstimatorState::Lost)),
+            "changes of the estimator state to lost"
+        );
+        assert_eq!(
+            kind_text(state_key(EstimatorState::Acquiring)),
+            "changes of the estimator state to acquiring"
+        );
+        assert_eq!(state_key(EstimatorState::Lost), KINDS - 1);
+        assert!(is_info(state_key(EstimatorState::Tracking)));
         assert!(RT_ERROR_KEY < KINDS && !is_info(RT_ERROR_KEY));
         // every key has its own text
         let texts: std::collections::HashSet<String> = (0..KINDS).map(kind_text).collect();

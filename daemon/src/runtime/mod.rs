@@ -20,7 +20,10 @@
 //!   pins that bound;
 //! * the **service thread** (the main thread) logs those events with tracing
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
-//!   `daemon.status_period_s`.
+//!   `daemon.status_period_s`. Statuses have a channel of their own (capacity
+//!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
+//!   flood of events that fills the event channel (a publisher faster than the
+//!   daemon) drops events, never the statuses that report it.
 //!
 //! The latency percentiles of a status cover the whole run, or only the last
 //! status period with `daemon.latency_per_period` (the load harness reads them
@@ -103,6 +106,9 @@ pub const MAX_SAMPLES_PER_WAKE: usize = 512;
 pub const MAX_LATENCY_NS: Nanos = 10_000_000_000;
 /// Capacity of the event channel between the threads.
 pub const EVENT_CAPACITY: usize = 1024;
+/// Capacity of the status channel between the threads: statuses the service thread
+/// may fall behind by before one is dropped (and counted in `events_dropped`).
+pub const STATUS_CAPACITY: usize = 4;
 
 /// Arguments of `vlsyncd run`.
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -118,9 +124,6 @@ pub struct RunArgs {
 /// What the real-time thread tells the service thread. `Copy`, no heap: sending
 /// one never allocates.
 #[derive(Debug, Clone, Copy, PartialEq)]
-// `Status` is 224 bytes; boxing it would allocate on the real-time thread, while
-// the channel's fixed slots are allocated once at start-up
-#[allow(clippy::large_enum_variant)]
 pub enum RtEvent {
     /// A sample failed structural validation or was rejected by the estimator.
     Rejected {
@@ -167,8 +170,6 @@ pub enum RtEvent {
         /// The processing time that switched it on, ns (0 when off).
         processing_ns: u64,
     },
-    /// The periodic status snapshot.
-    Status(Status),
     /// A published estimate (persisted and shown by the service thread).
     Estimate(Estimate),
     /// A load hint became a declared change point of the estimator.
@@ -285,6 +286,9 @@ struct RtSetup {
     names: ServiceNames,
     stop: Arc<AtomicBool>,
     tx: Sender<RtEvent>,
+    /// The periodic status snapshots (their own channel: a full event channel
+    /// does not drop them).
+    status_tx: Sender<Status>,
     start_ns: Nanos,
     /// Incremented every loop: the watchdog's proof of progress.
     heartbeat: Arc<AtomicU64>,
@@ -607,7 +611,7 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
         if now >= next_status {
             next_status = now + status_period_ns;
             let st = snapshot(&mut c, degraded, s.start_ns, now);
-            emit(&s.tx, &mut c, RtEvent::Status(st));
+            hand_status(&s.status_tx, &mut c, st);
             if s.cfg.daemon.latency_per_period {
                 c.processing.clear();
                 c.end_to_end.clear();
@@ -617,7 +621,15 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     // final status so the last counters are not lost
     let now = monotonic_ns();
     let st = snapshot(&mut c, degraded, s.start_ns, now);
-    emit(&s.tx, &mut c, RtEvent::Status(st));
+    hand_status(&s.status_tx, &mut c, st);
+}
+
+/// Hands a status snapshot to the service thread; a full status channel (a service
+/// thread that has fallen [`STATUS_CAPACITY`] statuses behind) counts a drop.
+fn hand_status(tx: &Sender<Status>, c: &mut RtCounters, st: Status) {
+    if tx.try_send(st).is_err() {
+        c.events_dropped += 1;
+    }
 }
 
 fn snapshot(c: &mut RtCounters, degraded: bool, start_ns: Nanos, now: Nanos) -> Status {
@@ -728,12 +740,7 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
     ))
 }
 
-fn log_event(
-    ev: &RtEvent,
-    status_pub: &mut dyn FnMut(&Status),
-    throttle: &mut journal::Throttle,
-    now: Nanos,
-) {
+fn log_event(ev: &RtEvent, throttle: &mut journal::Throttle, now: Nanos) {
     let more = |n: u64| {
         if n > 0 {
             format!(" ({n} more since the last such line)")
@@ -777,8 +784,10 @@ fn log_event(
                     | (Some(EstimatorState::Holding), EstimatorState::Tracking)
             ) {
                 tracing::debug!("estimator state {from_name} -> {to}")
-            } else {
-                tracing::info!("estimator state {from_name} -> {to}")
+            } else if let Some(n) = throttle.admit(journal::state_key(*to), 1, now) {
+                // an estimator that flaps (a hostile or flooding publisher resets it
+                // every hop) logs each kind of change once per period, with the count
+                tracing::info!("estimator state {from_name} -> {to}{}", more(n))
             }
         }
         RtEvent::InvalidEstimate { seq } => {
@@ -796,7 +805,6 @@ fn log_event(
                 )
             }
         }
-        RtEvent::Status(st) => status_pub(st),
         // persisted and shown by the service loop itself
         RtEvent::Estimate(_) => {}
         RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
@@ -993,6 +1001,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
+    let (status_tx, status_rx) = bounded::<Status>(STATUS_CAPACITY);
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (hint_tx, hint_rx) = bounded::<Nanos>(4);
     let mut load = load_watch(&cfg);
@@ -1001,6 +1010,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         names: names.clone(),
         stop: stop.clone(),
         tx,
+        status_tx,
         start_ns,
         heartbeat,
         restore,
@@ -1048,7 +1058,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         names.prefix
     ));
 
-    let mut publish_status = |st: &Status| {
+    let publish_status = |st: &Status| {
         if let Ok(s) = status_pub.loan_uninit() {
             if s.write_payload(*st).send().is_ok() {
                 let _ = status_not.notify();
@@ -1065,29 +1075,39 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
     let mut summary = journal::Summary::new(journal::SUMMARY_NS);
+    // wakes on an event or a status, whichever comes first (or after WAKE_PERIOD)
+    let mut wake = crossbeam::channel::Select::new();
+    let event_op = wake.recv(&rx);
+    wake.recv(&status_rx);
     loop {
-        match rx.recv_timeout(WAKE_PERIOD) {
-            Ok(RtEvent::Estimate(e)) => {
-                systemd.on_estimate(&e);
-                summary.on_estimate(&e);
-                if let Some(sv) = saver.as_mut() {
-                    sv.offer(&e);
-                }
-            }
-            Ok(ev) => {
-                match &ev {
-                    RtEvent::Status(st) => {
-                        systemd.on_status(st);
-                        summary.on_status(st);
+        // statuses before each event: a flood of events cannot hold one back
+        while let Ok(st) = status_rx.try_recv() {
+            systemd.on_status(&st);
+            summary.on_status(&st);
+            publish_status(&st);
+        }
+        match wake.ready_timeout(WAKE_PERIOD) {
+            Ok(op) if op == event_op => match rx.try_recv() {
+                Ok(RtEvent::Estimate(e)) => {
+                    systemd.on_estimate(&e);
+                    summary.on_estimate(&e);
+                    if let Some(sv) = saver.as_mut() {
+                        sv.offer(&e);
                     }
-                    RtEvent::OffsetStep(_) => summary.on_offset_step(),
-                    RtEvent::SearchMoved(_) => summary.on_search_move(),
-                    _ => {}
                 }
-                log_event(&ev, &mut publish_status, &mut throttle, monotonic_ns())
-            }
-            Err(crossbeam::channel::RecvTimeoutError::Timeout) => {}
-            Err(crossbeam::channel::RecvTimeoutError::Disconnected) => break,
+                Ok(ev) => {
+                    match &ev {
+                        RtEvent::OffsetStep(_) => summary.on_offset_step(),
+                        RtEvent::SearchMoved(_) => summary.on_search_move(),
+                        _ => {}
+                    }
+                    log_event(&ev, &mut throttle, monotonic_ns())
+                }
+                Err(crossbeam::channel::TryRecvError::Empty) => {}
+                Err(crossbeam::channel::TryRecvError::Disconnected) => break,
+            },
+            // a status (read at the top) or the timeout
+            _ => {}
         }
         let mono = monotonic_ns();
         throttle.due(mono, report_suppressed);
@@ -1132,6 +1152,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         }
     }
     systemd.stopping();
+    // the real-time thread's last status, handed over before its event channel closed
+    while let Ok(st) = status_rx.try_recv() {
+        publish_status(&st);
+    }
     // a real-time thread that panicked must not look like a clean stop: the exit
     // code is what makes systemd restart the daemon (`Restart=on-failure`)
     let rt_end = rt_outcome(rt.join());
