@@ -26,6 +26,18 @@ fn proc_state(pid: &str) -> Option<char> {
     stat.rsplit_once(')')?.1.trim_start().chars().next()
 }
 
+/// Whether process `pid` has a handler on SIGINT (`SigCgt` of its status).
+fn catches_sigint(pid: &str) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|st| {
+            st.lines()
+                .find_map(|l| l.strip_prefix("SigCgt:"))
+                .and_then(|h| u64::from_str_radix(h.trim(), 16).ok())
+        })
+        .is_some_and(|mask| mask & (1 << (2 - 1)) != 0)
+}
+
 /// Job control works on the echo: Ctrl-Z (SIGTSTP) stops it and SIGCONT resumes
 /// it, and it goes on waiting. iceoryx2's handlers used to catch both: SIGTSTP did
 /// not stop it, and the interrupted wait ended it with exit 1 ("wait on offset
@@ -75,6 +87,12 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         );
     }
     assert_eq!(stopped, Some('T'), "SIGTSTP did not stop the echo");
+    // its SIGINT handler is in place (on a loaded machine its start-up may outlast
+    // the wait above: a SIGINT before the handler kills it, which is not the point)
+    let t0 = Instant::now();
+    while !catches_sigint(&pid) && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     kill("-INT");
     let start = Instant::now();
     let status = loop {

@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
+use vlsync_common::wire::Status;
 use vlsync_common::{Estimate, Stream};
-use vlsync_ipc::{monotonic_ns, OffsetClient};
+use vlsync_ipc::{monotonic_ns, OffsetClient, StatusClient};
 pub use vlsyncd::runtime::procs::{cpu_seconds, ipc_resources, Managed};
 
 /// Asserts that no iceoryx2 resource beyond `before` ([`ipc_resources`]) is left,
@@ -96,6 +97,9 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
+/// Longest wait of [`Rig::daemon`] for the daemon to serve.
+pub const DAEMON_READY_WAIT: Duration = Duration::from_secs(20);
+
 /// Daemon + drivers on one prefix, with the simulated truth.
 pub struct Rig {
     /// Unique prefix.
@@ -137,15 +141,43 @@ impl Rig {
         }
     }
 
-    /// Starts `vlsyncd run` on the prefix (log file `vlsyncd-<n>.log`).
+    /// Starts `vlsyncd run` on the prefix (log file `vlsyncd-<n>.log`) and waits (up
+    /// to [`DAEMON_READY_WAIT`]) until it serves: its log's "serving prefix" line,
+    /// written once its subscribers exist. Signature services keep no history, so a
+    /// sample published before that is lost; on a loaded machine a daemon's start-up
+    /// can outlast the drivers' start lead, and waiting here makes that a clear
+    /// failure instead of counts that come up short.
     pub fn daemon(&self, n: u32) -> Managed {
-        Managed::spawn(
+        let log = self.logs.join(format!("vlsyncd-{n}.log"));
+        let mut m = Managed::spawn(
             "vlsyncd",
             &bin("vlsyncd"),
             &["run".into(), "--prefix".into(), self.prefix.clone()],
-            Some(&self.logs.join(format!("vlsyncd-{n}.log"))),
+            Some(&log),
         )
-        .expect("spawn vlsyncd")
+        .expect("spawn vlsyncd");
+        let t0 = Instant::now();
+        let serving = || {
+            std::fs::read_to_string(&log)
+                .unwrap_or_default()
+                .contains("serving prefix")
+        };
+        while !serving() && m.running() && t0.elapsed() < DAEMON_READY_WAIT {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        assert!(
+            text.contains("serving prefix"),
+            "vlsyncd did not serve `{}` within {DAEMON_READY_WAIT:?}:\n{text}",
+            self.prefix
+        );
+        if n == 0 && monotonic_ns() > self.start_at {
+            eprintln!(
+                "note: vlsyncd served {:.1} s after the drivers' start instant (a loaded machine): their first samples may be lost",
+                (monotonic_ns() - self.start_at) as f64 * 1e-9
+            );
+        }
+        m
     }
 
     /// Starts the driver of `stream` on the common schedule.
@@ -246,6 +278,26 @@ pub fn collect(client: &mut OffsetClient, wall: Duration) -> Vec<Estimate> {
         }
     }
     out
+}
+
+/// The newest status once one satisfies `done`, polling every 100 ms for up to
+/// `deadline` (statuses come every `daemon.status_period_s`, later on a loaded
+/// machine: a fixed wait judged the counters of a status that was not yet out);
+/// after the deadline the newest status there is, which the caller's assertion
+/// then shows. `None` when no status ever came.
+pub fn status_when(
+    status: &mut StatusClient,
+    deadline: Duration,
+    done: impl Fn(&Status) -> bool,
+) -> Option<Status> {
+    let t0 = Instant::now();
+    loop {
+        let st = status.latest().ok().flatten();
+        if st.as_ref().is_some_and(&done) || t0.elapsed() >= deadline {
+            return st;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// |estimate - truth| of the locked (tracking/holding) estimates, seconds.

@@ -6,7 +6,9 @@
 use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_ipc::{OffsetClient, StatusClient};
-use vlsync_tests::{assert_nothing_left, bin, collect, ipc_resources, locked_errors, Rig};
+use vlsync_tests::{
+    assert_nothing_left, bin, collect, ipc_resources, locked_errors, status_when, Rig,
+};
 
 #[test]
 fn three_processes_converge_to_the_truth_and_clean_up() {
@@ -41,7 +43,12 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let json_out = json_echo.wait_with_output().unwrap();
     let text_out = text_echo.wait_with_output().unwrap();
     let est_out = est_echo.wait_with_output().unwrap();
-    let st = status.latest().unwrap().expect("a status from the daemon");
+    // the status that counts the last samples (it may come a period later)
+    let all = [rig.sim.cam.len() as u64, rig.sim.lidar.len() as u64];
+    let st = status_when(&mut status, Duration::from_secs(10), |st| {
+        st.received == all
+    })
+    .expect("a status from the daemon");
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     // a client that opens now, the drivers gone and the daemon publishing nothing,
     // gets the last estimate (history 1) from the daemon's next idle wake-up, not
@@ -76,10 +83,7 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let worst = tail.iter().cloned().fold(0.0, f64::max);
     assert!(worst < 0.015, "late errors up to {:.1} ms", worst * 1e3);
     // every sample arrived, none lost or rejected
-    assert_eq!(
-        st.received,
-        [rig.sim.cam.len() as u64, rig.sim.lidar.len() as u64]
-    );
+    assert_eq!(st.received, all);
     assert_eq!(st.lost, [0, 0]);
     assert_eq!(st.rejected_total(0) + st.rejected_total(1), 0);
     assert!(st.estimates_published >= est.len() as u64);

@@ -8,7 +8,7 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 use vlsync_ipc::StatusClient;
-use vlsync_tests::{bin, Rig};
+use vlsync_tests::{bin, status_when, Rig};
 
 fn fast_cam(prefix: &str, duration_s: &str) -> (Option<i32>, String) {
     let out = Command::new(bin("vlsync-cam"))
@@ -62,14 +62,10 @@ fn a_fast_replay_reaches_the_daemon_and_an_unheard_one_says_so() {
     assert!((150..256).contains(&published), "{err}");
     assert!(!err.contains("reached no subscriber"), "{err}");
     // the next status counts them
-    let t1 = Instant::now();
-    let st = loop {
-        let st = status.latest().unwrap().expect("a status");
-        if st.received[0] >= published || t1.elapsed() > Duration::from_secs(5) {
-            break st;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
+    let st = status_when(&mut status, Duration::from_secs(10), |st| {
+        st.received[0] >= published
+    })
+    .expect("a status");
     assert!(daemon.stop(Duration::from_secs(3)));
     assert_eq!(
         st.received[0],

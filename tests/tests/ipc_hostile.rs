@@ -34,8 +34,9 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     evil.publish_raw(at(now_t + 2_000_000, f64::INFINITY))
         .unwrap();
     evil.publish_raw(at(now_t + 3_000_000, 1e300)).unwrap();
-    // 2 s back in sensor time: behind the stream, within the reset distance
-    evil.publish_raw(at(now_t - 2_000_000_000, 1.0)).unwrap();
+    // 3.5 s back in sensor time: behind the stream even if its driver runs 0.7 s of
+    // wall time late (5x), within the reset distance (estimator.reset_jump_s = 5)
+    evil.publish_raw(at(now_t - 3_500_000_000, 1.0)).unwrap();
     let mut bad_flags = at(now_t, 1.0);
     bad_flags.flags = 0x8000_0000;
     evil.publish_raw(bad_flags).unwrap();

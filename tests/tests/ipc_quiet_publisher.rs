@@ -11,7 +11,7 @@ use vlsync_ipc::{
     create_node, monotonic_ns, open_or_create_pubsub, publisher, OffsetClient, Qos, ServiceNames,
     StatusClient,
 };
-use vlsync_tests::{collect, locked_errors, Rig};
+use vlsync_tests::{collect, locked_errors, status_when, Rig};
 
 #[test]
 fn a_publisher_that_does_not_notify_is_served() {
@@ -49,8 +49,10 @@ fn a_publisher_that_does_not_notify_is_served() {
 
     let est = collect(&mut client, rig.remaining() + Duration::from_millis(1000));
     let published = lidar.join().unwrap();
-    std::thread::sleep(Duration::from_millis(1200));
-    let st = status.latest().unwrap().expect("a status from the daemon");
+    let st = status_when(&mut status, Duration::from_secs(10), |st| {
+        st.received[1] >= published
+    })
+    .expect("a status from the daemon");
     assert!(cam.stop(Duration::from_secs(3)));
     assert!(daemon.stop(Duration::from_secs(3)));
     let log = rig.log("vlsyncd-0.log");

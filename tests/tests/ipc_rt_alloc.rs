@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use vlsync_common::Stream;
-use vlsync_tests::Rig;
+use vlsync_tests::{status_when, Rig};
 
 #[global_allocator]
 static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
@@ -31,15 +31,18 @@ fn daemon_allocates_nothing_in_steady_state() {
     // warm-up: services connected, estimator locked, degraded mode settled
     std::thread::sleep(Duration::from_secs(5));
     let mut status = vlsync_ipc::StatusClient::open(&rig.prefix).unwrap();
-    std::thread::sleep(Duration::from_millis(1200));
-    let s0 = status.latest().unwrap().expect("status");
+    let s0 = status_when(&mut status, Duration::from_secs(10), |_| true).expect("status");
     let rt0 = vlsync_alloc_count::watched();
     vlsync_alloc_count::watch_thread("vlsync-rt", std::env::var_os("VLSYNC_ALLOC_BT").is_some());
     std::thread::sleep(Duration::from_secs(4));
     vlsync_alloc_count::unwatch_thread();
     let rt = vlsync_alloc_count::watched() - rt0;
-    std::thread::sleep(Duration::from_millis(1200));
-    let s1 = status.latest().unwrap().expect("status");
+    // a status made after the window, so that its counts cover all of it
+    let t_end = vlsync_ipc::monotonic_ns();
+    let s1 = status_when(&mut status, Duration::from_secs(10), |st| {
+        st.publish_ns > t_end
+    })
+    .expect("status");
     let samples = s1.received.iter().sum::<u64>() - s0.received.iter().sum::<u64>();
     let estimates = s1.estimates_published - s0.estimates_published;
     let running = cam.running() && lidar.running();

@@ -131,10 +131,12 @@ fn a_pressure_jump_becomes_a_dated_change_of_the_estimator() {
         text.contains("load hints on") && text.contains("CPU pressure 0 % -> "),
         "{text}"
     );
-    // dated where the pressure jumped (the readings are 250 ms apart; the LiDAR
-    // stamp-to-publish delay of the simulated driver is small)
+    // dated where the pressure jumped (the readings are 250 ms apart, the writer's
+    // 50 ms, and the LiDAR stamp-to-publish delay of the simulated driver is small:
+    // about 0.3 s nominal; 1 s leaves a loaded machine's scheduling room and still
+    // catches a hint dated by a refused far-future stamp, at 9e9 s)
     assert!(
-        (declared - sim_at_jump).abs() < 0.6,
+        (declared - sim_at_jump).abs() < 1.0,
         "declared at {declared:.3} s, the jump was at {sim_at_jump:.3} s\n{text}"
     );
 
