@@ -417,10 +417,14 @@ impl SignaturePublisher {
         if seq == 0 {
             s.flags |= vlsync_common::wire::FLAG_FIRST;
         }
-        if self.publish_raw(s)? == 0 {
+        // the sequence number is used once the sample is out, whether or not the
+        // wake-up after it fails: reusing it would repeat a number (and a second
+        // FLAG_FIRST would look like a driver restart)
+        if self.send(s)? == 0 {
             self.unreached += 1;
         }
         self.next_seq += 1;
+        self.notify()?;
         Ok(seq)
     }
 
@@ -433,19 +437,35 @@ impl SignaturePublisher {
     /// Publishes a payload exactly as given (tests use it to send hostile samples).
     /// Returns how many subscribers it was delivered to (0: no daemon connected).
     pub fn publish_raw(&self, s: SignatureSample) -> Result<usize, IpcError> {
+        let recipients = self.send(s)?;
+        self.notify()?;
+        Ok(recipients)
+    }
+
+    /// Sends `s`; returns how many subscribers it reached.
+    fn send(&self, s: SignatureSample) -> Result<usize, IpcError> {
         let what = || format!("publish {} signature", self.stream);
         let sample = self
             .publisher
             .loan_uninit()
             .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
-        let recipients = sample
+        sample
             .write_payload(s)
             .send()
-            .map_err(|e| IpcError::new(what(), format!("{e:?}")))?;
+            .map_err(|e| IpcError::new(what(), format!("{e:?}")))
+    }
+
+    /// Wakes the daemon with this stream's event id.
+    fn notify(&self) -> Result<(), IpcError> {
         self.notifier
             .notify_with_custom_event_id(stream_event_id(self.stream))
-            .map_err(|e| IpcError::new(format!("notify {}", what()), format!("{e:?}")))?;
-        Ok(recipients)
+            .map(|_| ())
+            .map_err(|e| {
+                IpcError::new(
+                    format!("notify publish {} signature", self.stream),
+                    format!("{e:?}"),
+                )
+            })
     }
 }
 
