@@ -205,7 +205,12 @@ impl Frames for RenderFrames {
         let i = self.next;
         match self.r.render_frame(i) {
             None => Ok(None),
-            Some(Err(e)) => Err(render_error(self.r.config().seed, i as u64, &e)),
+            // a frame that failed is skipped like one the camera dropped: the
+            // next call renders the frame after it, not this one again
+            Some(Err(e)) => {
+                self.next += 1;
+                Err(render_error(self.r.config().seed, i as u64, &e))
+            }
             Some(Ok(f)) => {
                 self.next += 1;
                 let time = match f.time {
@@ -238,6 +243,8 @@ pub const RENDER_AHEAD_FRAMES: usize = 30;
 pub const RENDER_THREAD_NICE: i32 = -10;
 
 struct Rendered {
+    /// The frame's index in the run (named by an error).
+    index: usize,
     frame: Result<vlsync_render::RenderedFrame, vlsync_render::RenderError>,
     /// `CLOCK_MONOTONIC` when rendering finished.
     done_ns: Nanos,
@@ -308,9 +315,17 @@ impl LiveRender {
                 }
                 let mut i = first;
                 while let Some(frame) = r.render_frame(i) {
+                    let index = i;
                     i += 1;
                     let done_ns = monotonic_ns();
-                    if tx.send(Rendered { frame, done_ns }).is_err() {
+                    if tx
+                        .send(Rendered {
+                            index,
+                            frame,
+                            done_ns,
+                        })
+                        .is_err()
+                    {
                         break; // the driver is gone
                     }
                 }
@@ -348,7 +363,9 @@ impl Frames for LiveRender {
                 Err(RecvTimeoutError::Timeout) => continue,
                 Err(RecvTimeoutError::Disconnected) => return Ok(None),
             };
-            let f = r.frame.map_err(|e| render_error(self.seed, 0, &e))?;
+            let f = r
+                .frame
+                .map_err(|e| render_error(self.seed, r.index as u64, &e))?;
             let due = f.tau_available_ns + self.shift;
             if due < self.skip_before {
                 self.live.skipped += 1;
@@ -526,7 +543,11 @@ impl CamSource {
             device: device.to_path_buf(),
             ..cam::V4l2Config::default()
         };
-        let src = cam::V4l2Source::open(&cfg).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
+        let mut src =
+            cam::V4l2Source::open(&cfg).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
+        // a stalled camera's wait wakes to check the stop (and ends in an error after
+        // `V4l2Config::stall`), instead of blocking the driver for good
+        src.set_stop(stop);
         let (w, h) = src.frame_size();
         Self::new(
             Box::new(src),
@@ -797,9 +818,24 @@ struct Serial {
 impl Drop for Serial {
     fn drop(&mut self) {
         if matches!(self.parser, Parser::Rplidar(_)) {
-            // stop the motor's scan stream; nothing to do if the device is gone
+            // stop the scan stream, then the A1/A2 motor (DTR asserted; closing the
+            // port would release it and leave the motor spinning); nothing to do if
+            // the device is gone
             let _ = self.port.write_request(&lidar::rplidar::stop_request());
+            let _ = self.port.set_dtr(true);
         }
+    }
+}
+
+/// Nodes per second an RPLIDAR sends in standard scan mode at `baud`: the C1
+/// (460800 baud) 5000, the A1/A2 (115200) 2000. It dates a revolution's start from
+/// the bytes that came after its start node in the same read, so a wrong rate
+/// biases every stamp by up to a read's worth of bytes (tens of ms at 460800).
+pub fn rplidar_node_rate_hz(baud: u32) -> u32 {
+    if baud >= 460_800 {
+        5000
+    } else {
+        2000
     }
 }
 
@@ -955,10 +991,15 @@ impl LidarSource {
                 ..Ld06Config::default()
             })),
             SerialKind::Rplidar => {
+                // the A1/A2 USB adapter runs the motor while DTR is released, and
+                // Linux asserted it on open; a C1 or a port without modem lines
+                // ignores or refuses this, which does not matter to the scan
+                let _ = port.set_dtr(false);
                 port.write_request(&lidar::rplidar::scan_request())
                     .map_err(|e| SourceError(format!("{flag}: scan request: {e}")))?;
                 Parser::Rplidar(RplidarParser::new(RplidarConfig {
                     baud,
+                    sample_rate_hz: rplidar_node_rate_hz(baud),
                     ..RplidarConfig::default()
                 }))
             }

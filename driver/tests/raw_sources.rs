@@ -257,6 +257,14 @@ fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
 }
 
 #[test]
+fn the_rplidar_node_rate_follows_the_model_the_baud_rate_names() {
+    // the C1's 460800 baud carries 5000 nodes/s: at the A1's 2000 a revolution start
+    // followed by 500 bytes in one read would be dated 30 ms too early
+    assert_eq!(vlsync_driver::raw::rplidar_node_rate_hz(460_800), 5000);
+    assert_eq!(vlsync_driver::raw::rplidar_node_rate_hz(115_200), 2000);
+}
+
+#[test]
 fn a_silent_serial_device_is_an_error_naming_it() {
     use serialport::SerialPort;
     let (_master, slave) = serialport::TTYPort::pair().expect("pty pair");

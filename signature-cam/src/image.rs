@@ -175,7 +175,7 @@ impl PixelFormat {
         }
     }
 
-    fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             PixelFormat::Gray8 => "GRAY8",
             PixelFormat::Rgb8 => "RGB8",

@@ -22,7 +22,15 @@
 //! [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) such buffers in a
 //! row (a second at 30 Hz: a device that delivers nothing usable) end the stream
 //! with an error saying why; a frame format the converter cannot read at all (an
-//! odd YUYV width, a stride shorter than a row) ends it at the first frame.
+//! odd YUYV width) ends it at the first frame, and a negotiated stride shorter than
+//! a row is refused at [`V4l2Source::open`].
+//!
+//! A camera that stops delivering without an error (a hung USB link) does not hang
+//! the driver: the wait for a buffer wakes every [`POLL_SLICE`], checks the stop
+//! function ([`V4l2Source::set_stop`]: a stop ends the stream, `Ok(None)`), and after
+//! [`V4l2Config::stall`] without a frame the stream ends with an error naming the
+//! device (the driver exits non-zero; systemd restarts it, which reopens the
+//! device). A signal that interrupts the wait is a wake-up like a timeout.
 //!
 //! ```
 //! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
@@ -50,7 +58,13 @@ pub struct V4l2Config {
     pub height: u32,
     /// Driver buffers (default 4).
     pub buffers: u32,
+    /// No frame for this long is an error (default 10 s, as the serial LiDARs'
+    /// silence).
+    pub stall: std::time::Duration,
 }
+
+/// The longest single wait for a buffer: the stop function is checked this often.
+pub const POLL_SLICE: std::time::Duration = std::time::Duration::from_millis(500);
 
 impl Default for V4l2Config {
     fn default() -> Self {
@@ -59,6 +73,7 @@ impl Default for V4l2Config {
             width: 640,
             height: 480,
             buffers: 4,
+            stall: std::time::Duration::from_secs(10),
         }
     }
 }
@@ -110,6 +125,21 @@ impl V4l2Source {
         }
     }
 
+    /// Checked while waiting for a frame: `true` ends the stream (`Ok(None)`), e.g.
+    /// the driver's SIGINT/SIGTERM flag. Without one only a frame or the stall
+    /// limit ends a wait.
+    pub fn set_stop(&mut self, stop: fn() -> bool) {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.stop = stop;
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            let _ = stop;
+            match self._never {}
+        }
+    }
+
     /// The frame size delivered, (width, height).
     pub fn frame_size(&self) -> (usize, usize) {
         #[cfg(feature = "v4l2")]
@@ -127,7 +157,7 @@ impl FrameSource for V4l2Source {
     fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
         #[cfg(feature = "v4l2")]
         {
-            self.inner.next().map(Some)
+            self.inner.next()
         }
         #[cfg(not(feature = "v4l2"))]
         {
@@ -168,6 +198,23 @@ mod imp {
         format: PixelFormat,
         gray: Vec<u8>,
         pub(super) unusable: UnusableFrames,
+        pub(super) stop: fn() -> bool,
+        stall: std::time::Duration,
+        /// A `next` whose wait for a buffer timed out (or was interrupted) left the
+        /// buffer it handed back queued: the next wait is a plain dequeue (a second
+        /// `next` would queue that buffer again, which the driver refuses).
+        waiting: bool,
+    }
+
+    fn transient(e: &std::io::Error) -> bool {
+        matches!(
+            e.kind(),
+            std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+        )
+    }
+
+    fn never() -> bool {
+        false
     }
 
     impl Inner {
@@ -198,8 +245,22 @@ mod imp {
                     })
                 }
             };
-            let stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(1))
+            let row = (fmt.width as usize).saturating_mul(format.bytes_per_pixel());
+            if fmt.stride != 0 && (fmt.stride as usize) < row {
+                return Err(Error::Device {
+                    path,
+                    reason: format!(
+                        "the driver's stride {} is shorter than a {}x{} {} row ({row} bytes)",
+                        fmt.stride,
+                        fmt.width,
+                        fmt.height,
+                        format.name()
+                    ),
+                });
+            }
+            let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(1))
                 .map_err(|e| dev_err("start mmap stream", e))?;
+            stream.set_timeout(POLL_SLICE);
             Ok(Self {
                 path,
                 stream,
@@ -210,6 +271,9 @@ mod imp {
                 format,
                 gray: Vec::new(),
                 unusable: UnusableFrames::named("buffers"),
+                stop: never,
+                stall: cfg.stall,
+                waiting: false,
             })
         }
 
@@ -220,17 +284,46 @@ mod imp {
             }
         }
 
-        pub(super) fn next(&mut self) -> Result<(GrayFrame<'_, u8>, FrameTime), Error> {
+        pub(super) fn next(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
             let stride = if self.stride == 0 {
                 self.width.saturating_mul(self.format.bytes_per_pixel())
             } else {
                 self.stride
             };
+            let since = std::time::Instant::now();
             let ts = loop {
-                let (buf, meta) = self.stream.next().map_err(|e| Error::Device {
-                    path: self.path.clone(),
-                    reason: format!("dequeue buffer: {e}"),
-                })?;
+                if (self.stop)() {
+                    return Ok(None);
+                }
+                if since.elapsed() >= self.stall {
+                    return Err(self.device_error(format!(
+                        "no frame for {:.1} s (the camera stalled: unplugged, or its USB link hung)",
+                        self.stall.as_secs_f64()
+                    )));
+                }
+                if self.waiting {
+                    // the buffer still out: once it is back, `next` below hands it
+                    // straight to the driver again (its bytes are reachable only
+                    // through `next`) and waits for the frame after it
+                    match CaptureStream::dequeue(&mut self.stream) {
+                        Ok(_) => self.waiting = false,
+                        Err(e) if transient(&e) => continue,
+                        Err(e) => return Err(self.device_error(format!("dequeue buffer: {e}"))),
+                    }
+                }
+                let (buf, meta) = match self.stream.next() {
+                    Ok(x) => x,
+                    Err(e) if transient(&e) => {
+                        self.waiting = true;
+                        continue;
+                    }
+                    Err(e) => {
+                        return Err(Error::Device {
+                            path: self.path.clone(),
+                            reason: format!("dequeue buffer: {e}"),
+                        })
+                    }
+                };
                 if meta.flags.contains(v4l::buffer::Flags::ERROR) {
                     let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
                     self.unusable
@@ -262,7 +355,7 @@ mod imp {
                 .saturating_mul(1_000_000_000)
                 .saturating_add((ts.usec as i64).saturating_mul(1_000));
             let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
-            Ok((frame, FrameTime::Instant(t_ns)))
+            Ok(Some((frame, FrameTime::Instant(t_ns))))
         }
     }
 }

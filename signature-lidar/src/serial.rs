@@ -194,6 +194,20 @@ impl SerialLidar {
         }
     }
 
+    /// Sets the DTR line (`true`: asserted). The USB adapter of the RPLIDAR A1/A2
+    /// drives the motor from it: asserted stops the motor, released spins it
+    /// (Linux asserts DTR when a port opens). A port without modem lines (a pty)
+    /// refuses; the caller decides whether that matters.
+    pub fn set_dtr(&mut self, asserted: bool) -> Result<(), SerialError> {
+        self.port
+            .write_data_terminal_ready(asserted)
+            .map_err(|e| SerialError {
+                path: self.path.clone(),
+                kind: SerialErrorKind::Io,
+                message: format!("set DTR {}: {e}", if asserted { "on" } else { "off" }),
+            })
+    }
+
     /// Writes a request (e.g. [`crate::rplidar::SCAN_REQUEST`]).
     pub fn write_request(&mut self, bytes: &[u8]) -> Result<(), SerialError> {
         self.port
