@@ -26,7 +26,8 @@
 //! a row is refused at [`V4l2Source::open`].
 //!
 //! A camera that stops delivering without an error (a hung USB link) does not hang
-//! the driver: the wait for a buffer wakes every [`POLL_SLICE`], checks the stop
+//! the driver: the wait for a buffer (a `poll` of the device before each dequeue, so a
+//! camera slower than the slice loses no frame) wakes every [`POLL_SLICE`], checks the stop
 //! function ([`V4l2Source::set_stop`]: a stop ends the stream, `Ok(None)`), and after
 //! [`V4l2Config::stall`] without a frame the stream ends with an error naming the
 //! device (the driver exits non-zero; systemd restarts it, which reopens the
@@ -200,11 +201,18 @@ mod imp {
         pub(super) unusable: UnusableFrames,
         pub(super) stop: fn() -> bool,
         stall: std::time::Duration,
+        /// The stream runs (the first `next` queued every buffer and started it).
+        started: bool,
         /// A `next` whose wait for a buffer timed out (or was interrupted) left the
-        /// buffer it handed back queued: the next wait is a plain dequeue (a second
-        /// `next` would queue that buffer again, which the driver refuses).
+        /// buffer it handed back queued, and holds none: the next filled buffer is
+        /// taken with a plain dequeue and handed back unread (a second `next` would
+        /// queue that buffer again, which the driver refuses). Only the first frame
+        /// can end so: later waits poll before `next`, which then does not wait.
         waiting: bool,
     }
+
+    /// `POLLIN` (Linux): a filled buffer is ready to dequeue.
+    const POLLIN: i16 = 0x001;
 
     fn transient(e: &std::io::Error) -> bool {
         matches!(
@@ -258,7 +266,8 @@ mod imp {
                     ),
                 });
             }
-            let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(1))
+            // two at least: one the driver fills while the other is read
+            let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(2))
                 .map_err(|e| dev_err("start mmap stream", e))?;
             stream.set_timeout(POLL_SLICE);
             Ok(Self {
@@ -273,6 +282,7 @@ mod imp {
                 unusable: UnusableFrames::named("buffers"),
                 stop: never,
                 stall: cfg.stall,
+                started: false,
                 waiting: false,
             })
         }
@@ -301,17 +311,35 @@ mod imp {
                         self.stall.as_secs_f64()
                     )));
                 }
-                if self.waiting {
-                    // the buffer still out: once it is back, `next` below hands it
-                    // straight to the driver again (its bytes are reachable only
-                    // through `next`) and waits for the frame after it
-                    match CaptureStream::dequeue(&mut self.stream) {
-                        Ok(_) => self.waiting = false,
+                if self.started {
+                    // wait here, a slice at a time, for a filled buffer: the others
+                    // are queued, so `next` below (which hands the last one back and
+                    // dequeues) finds one at once and never times out with a buffer
+                    // of ours queued unread; a slow camera's frames are all read
+                    let slice = POLL_SLICE.as_millis() as i32;
+                    match self.stream.handle().poll(POLLIN, slice) {
+                        Ok(0) => continue,
+                        Ok(_) => {}
                         Err(e) if transient(&e) => continue,
-                        Err(e) => return Err(self.device_error(format!("dequeue buffer: {e}"))),
+                        Err(e) => return Err(self.device_error(format!("wait for a buffer: {e}"))),
+                    }
+                    if self.waiting {
+                        // the first `next` gave up: take this buffer with a plain
+                        // dequeue; the next `next` hands it back (unread: its bytes are
+                        // reachable only through `next`) and reads the frame after it
+                        match CaptureStream::dequeue(&mut self.stream) {
+                            Ok(_) => self.waiting = false,
+                            Err(e) if transient(&e) => {}
+                            Err(e) => return Err(self.device_error(format!("dequeue buffer: {e}"))),
+                        }
+                        continue;
                     }
                 }
-                let (buf, meta) = match self.stream.next() {
+                let result = self.stream.next();
+                // the first call queued every buffer and started the stream, whether
+                // or not its wait then timed out
+                self.started = true;
+                let (buf, meta) = match result {
                     Ok(x) => x,
                     Err(e) if transient(&e) => {
                         self.waiting = true;
