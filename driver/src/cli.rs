@@ -637,7 +637,7 @@ pub fn main(stream: Stream) -> ExitCode {
     match run_driver(stream, &args) {
         Ok(s) => {
             vlsync_common::console::print_err(&format!(
-                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}\n",
+                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}{}\n",
                 s.published,
                 s.skipped,
                 s.failed,
@@ -645,6 +645,14 @@ pub fn main(stream: Stream) -> ExitCode {
                     format!(
                         "; {} reached no subscriber (no daemon running on this prefix then)",
                         s.unreached
+                    )
+                } else {
+                    String::new()
+                },
+                if s.unwoken > 0 {
+                    format!(
+                        "; {} without a wake-up of the daemon (its notify failed; read up to 0.1 s late)",
+                        s.unwoken
                     )
                 } else {
                     String::new()

@@ -252,6 +252,9 @@ pub struct RunSummary {
     /// Published samples no subscriber was connected for (no daemon running): nobody
     /// received them.
     pub unreached: u64,
+    /// Published samples whose wake-up of the daemon failed: it read them at its next
+    /// periodic wake-up, up to 0.1 s late.
+    pub unwoken: u64,
 }
 
 /// A progress report of a long run: every `every`, [`run`] calls `report` with the
@@ -361,6 +364,7 @@ pub fn run(
                 sum.published += 1;
                 // only a publish moves it: current at every return and progress report
                 sum.unreached = publisher.unreached();
+                sum.unwoken = publisher.unwoken();
                 consecutive = 0;
                 if let (Some(log), Some(t)) = (truth.as_deref_mut(), source.truth()) {
                     log.record(seq, monotonic_ns(), s.t_ns, &t)

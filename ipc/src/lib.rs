@@ -382,6 +382,7 @@ pub struct SignaturePublisher {
     notifier: Notifier<Svc>,
     next_seq: u64,
     unreached: u64,
+    unwoken: u64,
     _services: (PubSubFactory<Svc, SignatureSample, ()>, EventFactory<Svc>),
 }
 
@@ -403,6 +404,7 @@ impl SignaturePublisher {
             notifier,
             next_seq: 0,
             unreached: 0,
+            unwoken: 0,
             _services: (svc, ev),
         })
     }
@@ -417,15 +419,25 @@ impl SignaturePublisher {
         if seq == 0 {
             s.flags |= vlsync_common::wire::FLAG_FIRST;
         }
-        // the sequence number is used once the sample is out, whether or not the
-        // wake-up after it fails: reusing it would repeat a number (and a second
-        // FLAG_FIRST would look like a driver restart)
+        // the sample is out once sent, whether or not the wake-up after it fails:
+        // its sequence number is used (reusing it would repeat a number, and a second
+        // FLAG_FIRST would look like a driver restart), and it is published (the
+        // daemon reads it at its next wake-up, within 0.1 s); a failed wake-up is
+        // counted ([`Self::unwoken`])
         if self.send(s)? == 0 {
             self.unreached += 1;
         }
         self.next_seq += 1;
-        self.notify()?;
+        if self.notify().is_err() {
+            self.unwoken += 1;
+        }
         Ok(seq)
+    }
+
+    /// Samples [`Self::publish`] sent whose wake-up of the daemon failed (it read
+    /// them at its next periodic wake-up instead).
+    pub fn unwoken(&self) -> u64 {
+        self.unwoken
     }
 
     /// Samples [`Self::publish`] sent while no subscriber (no daemon) was connected:
