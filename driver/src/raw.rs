@@ -818,11 +818,10 @@ struct Serial {
 impl Drop for Serial {
     fn drop(&mut self) {
         if matches!(self.parser, Parser::Rplidar(_)) {
-            // stop the scan stream, then the A1/A2 motor (DTR asserted; closing the
-            // port would release it and leave the motor spinning); nothing to do if
-            // the device is gone
+            // stop the scan stream; nothing to do if the device is gone. The A1/A2
+            // motor keeps spinning: asserting DTR here would not outlast the close,
+            // whose hang-up (HUPCL, which serialport leaves set) releases it again
             let _ = self.port.write_request(&lidar::rplidar::stop_request());
-            let _ = self.port.set_dtr(true);
         }
     }
 }
