@@ -74,7 +74,14 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         }
         proc_state(&pid)
     };
-    std::thread::sleep(Duration::from_millis(700));
+    // its own SIGINT handler is installed first thing, then the iceoryx2 node (whose
+    // set-up used to take over SIGTSTP); a loaded machine's start-up may outlast a
+    // fixed wait, and a SIGTSTP before the node would prove nothing
+    let t0 = Instant::now();
+    while !catches_sigint(&pid) && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
     kill("-TSTP");
     let stopped = wait_state('T');
     kill("-CONT");
@@ -87,12 +94,6 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         );
     }
     assert_eq!(stopped, Some('T'), "SIGTSTP did not stop the echo");
-    // its SIGINT handler is in place (on a loaded machine its start-up may outlast
-    // the wait above: a SIGINT before the handler kills it, which is not the point)
-    let t0 = Instant::now();
-    while !catches_sigint(&pid) && t0.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
     kill("-INT");
     let start = Instant::now();
     let status = loop {

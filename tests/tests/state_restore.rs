@@ -119,10 +119,10 @@ fn saved_estimate_survives_a_restart() {
     // the first estimate of the restarted daemon (its start-up may take seconds on a
     // loaded machine), then what follows it
     let mut first: Vec<_> = client
-        .wait_next(Duration::from_secs(15))
-        .ok()
-        .flatten()
+        .wait_all(Duration::from_secs(15))
+        .unwrap_or_default()
         .into_iter()
+        .map(|(e, _)| e)
         .collect();
     if !first.is_empty() {
         first.extend(collect(&mut client, Duration::from_millis(500)));

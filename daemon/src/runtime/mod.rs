@@ -621,7 +621,9 @@ fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>
     // final status so the last counters are not lost
     let now = monotonic_ns();
     let st = snapshot(&mut c, degraded, s.start_ns, now);
-    hand_status(&s.status_tx, &mut c, st);
+    // the thread is ending: it may wait for a slot (a service thread that fell
+    // STATUS_CAPACITY statuses behind) rather than lose the last counters
+    let _ = s.status_tx.send_timeout(st, Duration::from_secs(1));
 }
 
 /// Hands a status snapshot to the service thread; a full status channel (a service
