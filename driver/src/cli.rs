@@ -551,11 +551,9 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
             s.published - last.published,
             s.failed - last.failed,
             s.published,
-            if unreached > 0 {
-                format!(", {unreached} of them reached no subscriber (no daemon running)")
-            } else {
-                String::new()
-            },
+            when_any(unreached, |n| format!(
+                ", {n} of them reached no subscriber (no daemon running)"
+            )),
             r.map(|r| format!("; {r}")).unwrap_or_default()
         ));
         last = *s;
@@ -641,22 +639,14 @@ pub fn main(stream: Stream) -> ExitCode {
                 s.published,
                 s.skipped,
                 s.failed,
-                if s.unreached > 0 {
+                when_any(s.unreached, |n| format!(
+                    "; {n} reached no subscriber (no daemon running on this prefix then)"
+                )),
+                when_any(s.unwoken, |n| {
                     format!(
-                        "; {} reached no subscriber (no daemon running on this prefix then)",
-                        s.unreached
-                    )
-                } else {
-                    String::new()
-                },
-                if s.unwoken > 0 {
-                    format!(
-                        "; {} without a wake-up of the daemon (its notify failed; read up to 0.1 s late)",
-                        s.unwoken
-                    )
-                } else {
-                    String::new()
-                },
+                    "; {n} without a wake-up of the daemon (its notify failed; read up to 0.1 s late)"
+                )
+                }),
                 if s.interrupted { ", interrupted" } else { "" }
             ));
             ExitCode::SUCCESS
@@ -668,5 +658,15 @@ pub fn main(stream: Stream) -> ExitCode {
                 _ => 2,
             })
         }
+    }
+}
+
+/// `text(n)` when `n` counts something, else nothing: the optional parts of the
+/// drivers' summary and progress lines.
+fn when_any(n: u64, text: impl FnOnce(u64) -> String) -> String {
+    if n > 0 {
+        text(n)
+    } else {
+        String::new()
     }
 }
