@@ -474,7 +474,7 @@ impl SignaturePublisher {
             .map(|_| ())
             .map_err(|e| {
                 IpcError::new(
-                    format!("notify publish {} signature", self.stream),
+                    format!("wake the daemon after a {} signature", self.stream),
                     format!("{e:?}"),
                 )
             })
