@@ -97,8 +97,22 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
-/// Longest wait of [`Rig::daemon`] for the daemon to serve.
+/// Longest wait of [`assert_serving`] for a daemon to serve.
 pub const DAEMON_READY_WAIT: Duration = Duration::from_secs(20);
+
+/// Waits up to [`DAEMON_READY_WAIT`] for the daemon `m` (log file `log`) to serve:
+/// its "serving prefix" line, written once its subscribers exist; panics with its
+/// log when it exits first or never serves.
+pub fn assert_serving(m: &mut Managed, log: &Path) {
+    match m.wait_for_log(log, "serving prefix", DAEMON_READY_WAIT) {
+        Ok(true) => {}
+        Ok(false) => panic!(
+            "vlsyncd did not serve within {DAEMON_READY_WAIT:?}:\n{}",
+            std::fs::read_to_string(log).unwrap_or_default()
+        ),
+        Err(text) => panic!("vlsyncd exited before it served:\n{text}"),
+    }
+}
 
 /// Daemon + drivers on one prefix, with the simulated truth.
 pub struct Rig {
@@ -156,21 +170,7 @@ impl Rig {
             Some(&log),
         )
         .expect("spawn vlsyncd");
-        let t0 = Instant::now();
-        let serving = || {
-            std::fs::read_to_string(&log)
-                .unwrap_or_default()
-                .contains("serving prefix")
-        };
-        while !serving() && m.running() && t0.elapsed() < DAEMON_READY_WAIT {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let text = std::fs::read_to_string(&log).unwrap_or_default();
-        assert!(
-            text.contains("serving prefix"),
-            "vlsyncd did not serve `{}` within {DAEMON_READY_WAIT:?}:\n{text}",
-            self.prefix
-        );
+        assert_serving(&mut m, &log);
         if n == 0 && monotonic_ns() > self.start_at {
             eprintln!(
                 "note: vlsyncd served {:.1} s after the drivers' start instant (a loaded machine): their first samples may be lost",

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use vlsync_common::{EstimatorState, Stream};
 use vlsync_ipc::OffsetClient;
-use vlsync_tests::{bin, collect, write_daemon_config, Managed, Rig};
+use vlsync_tests::{assert_serving, bin, collect, write_daemon_config, Managed, Rig};
 use vlsyncd::state::{load, unix_now_ns};
 
 fn config(dir: &Path, prefix: &str, state_file: &Path) -> PathBuf {
@@ -188,12 +188,7 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
         std::fs::write(&state_file, content).unwrap();
         let log = dir.join(format!("vlsyncd-{i}.log"));
         let mut d = daemon(&cfg, &log);
-        let t0 = Instant::now();
-        while !read(&log).contains("serving prefix") {
-            assert!(d.running(), "daemon exited:\n{}", read(&log));
-            assert!(t0.elapsed() < Duration::from_secs(20), "{}", read(&log));
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        assert_serving(&mut d, &log);
         assert!(d.stop(Duration::from_secs(5)));
         let text = read(&log);
         let want = format!("state file {}:", state_file.display());

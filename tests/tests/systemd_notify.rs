@@ -7,7 +7,7 @@ use std::os::unix::net::UnixDatagram;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-use vlsync_tests::{bin, Managed};
+use vlsync_tests::{assert_serving, bin, Managed};
 
 struct Scratch(PathBuf);
 
@@ -232,17 +232,7 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
             ("WATCHDOG_USEC", Some("1000000".as_ref())),
         ],
     );
-    wait_while_running(
-        &mut daemon,
-        log,
-        "serving prefix",
-        Duration::from_millis(50),
-        || {
-            std::fs::read_to_string(log)
-                .unwrap_or_default()
-                .contains("serving prefix")
-        },
-    );
+    assert_serving(&mut daemon, log);
     std::thread::sleep(Duration::from_millis(300));
     // the running daemon catches SIGINT and SIGTERM (vlsync's flag) and no other
     // signal but std's stack-overflow guards (SIGSEGV, SIGBUS) and the C library's

@@ -365,20 +365,11 @@ impl Session {
         // the daemon logs "serving prefix" once its real-time thread runs; a
         // quieter RUST_LOG hides the line, so a daemon still running after
         // DAEMON_READY_WAIT is taken as serving
-        let t0 = Instant::now();
-        loop {
-            if !daemon.running() {
-                return Err(format!(
-                    "vlsyncd exited at start; see {}:\n{}",
-                    daemon_log.display(),
-                    std::fs::read_to_string(&daemon_log).unwrap_or_default()
-                ));
-            }
-            let log = std::fs::read_to_string(&daemon_log).unwrap_or_default();
-            if log.contains("serving prefix") || t0.elapsed() > DAEMON_READY_WAIT {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(20));
+        if let Err(log) = daemon.wait_for_log(&daemon_log, "serving prefix", DAEMON_READY_WAIT) {
+            return Err(format!(
+                "vlsyncd exited at start; see {}:\n{log}",
+                daemon_log.display()
+            ));
         }
         let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
         let [(cam, cam_t), (lidar, lidar_t)] =

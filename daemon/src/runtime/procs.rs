@@ -71,6 +71,32 @@ impl Managed {
         matches!(self.child.try_wait(), Ok(None))
     }
 
+    /// Waits up to `within` until the file `log` (this process's log) contains
+    /// `needle`, e.g. the daemon's "serving prefix": `Ok(true)` when it does,
+    /// `Ok(false)` when the time passed with the process still running, `Err` with
+    /// the log's text when the process exited first.
+    pub fn wait_for_log(
+        &mut self,
+        log: &Path,
+        needle: &str,
+        within: Duration,
+    ) -> Result<bool, String> {
+        let t0 = Instant::now();
+        loop {
+            let text = std::fs::read_to_string(log).unwrap_or_default();
+            if text.contains(needle) {
+                return Ok(true);
+            }
+            if !self.running() {
+                return Err(text);
+            }
+            if t0.elapsed() >= within {
+                return Ok(false);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Sends `signal` (e.g. "INT", "KILL") with kill(1).
     pub fn signal(&self, signal: &str) -> Result<(), String> {
         let st = Command::new("kill")
