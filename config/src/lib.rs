@@ -90,6 +90,7 @@ pub struct EstimatorConfig {
     /// Minimum window variance of each signal relative to its recent typical motion variance.
     pub min_motion_ratio: f64,
     /// Consecutive consistent acquisition measurements needed to lock.
+    #[serde(deserialize_with = "count::<1, 100, _>")]
     pub acquire_confirm: u32,
     /// Scale applied to the peak-sharpness measurement noise.
     pub measurement_noise_scale: f64,
@@ -108,6 +109,7 @@ pub struct EstimatorConfig {
     /// accumulate evidence.
     pub step_gate_sigma: f64,
     /// A step is declared once the evidence reaches `step_confirm · step_gate_sigma² / 2`.
+    #[serde(deserialize_with = "count::<1, 100, _>")]
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
@@ -120,7 +122,23 @@ pub struct EstimatorConfig {
     pub cadence_min_step_s: f64,
     /// Consecutive samples off the grid, on the same side and agreeing, that
     /// confirm a latency step.
+    #[serde(deserialize_with = "count::<1, 15, _>")]
     pub cadence_confirm: u32,
+}
+
+/// A count key read from TOML as any integer, so a negative or huge value gets the
+/// key's range in its error (TOML's own message for a `u32` names no range); the
+/// parse error quotes the line with the key.
+fn count<'de, const MIN: u32, const MAX: u32, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<u32, D::Error> {
+    let v = i64::deserialize(d)?;
+    match u32::try_from(v) {
+        Ok(n) if (MIN..=MAX).contains(&n) => Ok(n),
+        _ => Err(serde::de::Error::custom(format!(
+            "{v} is out of range: allowed {MIN} ..= {MAX}"
+        ))),
+    }
 }
 
 impl Default for EstimatorConfig {
@@ -398,7 +416,25 @@ impl Checker<'_> {
     }
 }
 
+/// Largest accepted `estimator.max_abs_value`: a value's square and the correlation
+/// sums stay far from overflow (a single accepted 1e200 overflows them and blinds the
+/// estimator for a minute; signatures are of order 1-1000).
+pub const MAX_ABS_VALUE: f64 = 1e12;
+
 impl EstimatorConfig {
+    /// The hop the estimator runs: `hop_s` in whole steps of the grid (at least one).
+    pub fn effective_hop_s(&self) -> f64 {
+        let dt_ns = (1e9 / self.grid_hz).round().max(1.0);
+        let fs = 1e9 / dt_ns;
+        (self.hop_s * fs).round().max(1.0) / fs
+    }
+
+    /// The acquisition window the estimator runs: `window_s` in whole hops (at least one).
+    pub fn effective_window_s(&self) -> f64 {
+        let hop = self.effective_hop_s();
+        (self.window_s / hop).round().max(1.0) * hop
+    }
+
     /// Checks every value; the error names the key, value and allowed range.
     pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
         let c = Checker { source };
@@ -416,7 +452,7 @@ impl EstimatorConfig {
         c.range(&k("reset_jump_s"), self.reset_jump_s, 0.1, 1e6)?;
         c.range(&k("lowpass_hz"), self.lowpass_hz, 0.05, 500.0)?;
         c.range(&k("highpass_hz"), self.highpass_hz, 0.0, 100.0)?;
-        c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, 1e300)?;
+        c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, MAX_ABS_VALUE)?;
         c.range(&k("min_peak_score"), self.min_peak_score, 0.0, 1.0)?;
         c.range(&k("min_peak_ratio"), self.min_peak_ratio, 1.0, 100.0)?;
         c.range(&k("min_motion_ratio"), self.min_motion_ratio, 0.0, 1.0)?;
@@ -454,10 +490,13 @@ impl EstimatorConfig {
                 self.window_s, self.segment_s
             )
         })?;
-        c.rule(self.reference_lag_s <= self.segment_s, || {
+        // the lock's first estimate refers to a time its acquisition window covers:
+        // a reference further back than the window never locks
+        let window = self.effective_window_s();
+        c.rule(self.reference_lag_s <= window + 1e-9, || {
             format!(
-                "`estimator.reference_lag_s` = {} must not exceed `estimator.segment_s` = {}",
-                self.reference_lag_s, self.segment_s
+                "`estimator.reference_lag_s` = {} must not exceed the acquisition window: `estimator.window_s` = {} in whole hops of {} s is {} s",
+                self.reference_lag_s, self.window_s, num(self.effective_hop_s()), num(window)
             )
         })?;
         c.rule(self.step_window_s <= self.window_s, || {
@@ -473,19 +512,38 @@ impl EstimatorConfig {
                 1.0 / self.grid_hz
             )
         })?;
-        c.rule(self.lowpass_hz < self.grid_hz / 2.0, || {
+        c.rule(self.lowpass_hz <= 0.45 * self.grid_hz, || {
             format!(
-                "`estimator.lowpass_hz` = {} must be below half of `estimator.grid_hz` ({})",
+                "`estimator.lowpass_hz` = {} must not exceed 0.45 × `estimator.grid_hz` ({})",
                 self.lowpass_hz,
-                self.grid_hz / 2.0
+                num(0.45 * self.grid_hz)
             )
         })?;
-        c.rule(self.highpass_hz < self.lowpass_hz, || {
+        c.rule(self.highpass_hz <= 0.9 * self.lowpass_hz, || {
             format!(
-                "`estimator.highpass_hz` = {} must be below `estimator.lowpass_hz` = {}",
-                self.highpass_hz, self.lowpass_hz
+                "`estimator.highpass_hz` = {} must not exceed 0.9 × `estimator.lowpass_hz` ({})",
+                self.highpass_hz,
+                num(0.9 * self.lowpass_hz)
             )
         })?;
+        c.rule(self.reset_jump_s > self.max_gap_s, || {
+            format!(
+                "`estimator.reset_jump_s` = {} must exceed `estimator.max_gap_s` = {} (a gap longer than the reset jump resets the stream instead)",
+                self.reset_jump_s, self.max_gap_s
+            )
+        })?;
+        let step = 1.0 / self.grid_hz;
+        for (key, v) in [
+            ("max_lag_s", self.max_lag_s),
+            ("track_range_s", self.track_range_s),
+        ] {
+            c.rule(v >= 2.0 * step - 1e-12, || {
+                format!(
+                    "`estimator.{key}` = {v} is narrower than two grid steps (2/`estimator.grid_hz` = {} s)",
+                    num(2.0 * step)
+                )
+            })?;
+        }
         let lags = 2.0 * self.max_lag_s * self.grid_hz + 1.0;
         let blocks = (self.segment_s / self.hop_s).ceil() + 1.0;
         c.rule(lags * blocks <= 4.0e6, || {
@@ -680,7 +738,7 @@ mod tests {
         let e = Config::from_toml_str("[estimator]\ncadence_confirm = 0\n", "x").unwrap_err();
         let s = e.to_string();
         assert!(
-            s.contains("estimator.cadence_confirm") && s.contains("1 ..= 15"),
+            s.contains("cadence_confirm = 0") && s.contains("1 ..= 15"),
             "{s}"
         );
         let e = Config::from_toml_str("[estimator]\ncadence_min_step_s = 0.5\n", "x").unwrap_err();
@@ -707,6 +765,69 @@ mod tests {
         assert!(e.to_string().contains("segment_s"), "{e}");
         let e = Config::from_toml_str("[services]\nprefix = \"/a//b\"\n", "x").unwrap_err();
         assert!(e.to_string().contains("services.prefix"), "{e}");
+    }
+
+    /// Values each in range whose combination the estimator could not run as written:
+    /// refused, not silently run otherwise (or never locking).
+    #[test]
+    fn combinations_the_estimator_cannot_run_are_refused() {
+        let err = |t: &str| Config::from_toml_str(t, "x.toml").unwrap_err().message;
+        // a reference time the acquisition window never covers: no lock, ever
+        assert_eq!(
+            err("[estimator]\nwindow_s = 2.0\n"),
+            "`estimator.reference_lag_s` = 3 must not exceed the acquisition window: `estimator.window_s` = 2 in whole hops of 0.5 s is 2 s"
+        );
+        let e = err("[estimator]\nreference_lag_s = 6.5\n");
+        assert!(e.contains("is 6 s"), "{e}");
+        // in whole hops: 2.75 s runs as 3 s, which covers the 3 s reference
+        assert!(Config::from_toml_str("[estimator]\nwindow_s = 2.75\n", "x").is_ok());
+        assert!(Config::from_toml_str("[estimator]\nwindow_s = 2.7\n", "x").is_err());
+        // every gap longer than the reset jump resets the stream
+        let e = err("[estimator]\nreset_jump_s = 0.5\n");
+        assert!(
+            e.contains("`estimator.reset_jump_s` = 0.5 must exceed `estimator.max_gap_s` = 0.75"),
+            "{e}"
+        );
+        // the estimator would clamp these to other values
+        let e = err("[estimator]\ngrid_hz = 10.0\nlowpass_hz = 4.9\n");
+        assert!(e.contains("0.45 × `estimator.grid_hz` (4.5)"), "{e}");
+        let e = err("[estimator]\nlowpass_hz = 2.0\nhighpass_hz = 1.99\n");
+        assert!(e.contains("0.9 × `estimator.lowpass_hz` (1.8)"), "{e}");
+        let e = err("[estimator]\ngrid_hz = 10.0\nmax_lag_s = 0.1\ntrack_range_s = 0.05\n");
+        assert!(e.contains("`estimator.max_lag_s` = 0.1 is narrower than two grid steps (2/`estimator.grid_hz` = 0.2 s)"), "{e}");
+        let e = err("[estimator]\ntrack_range_s = 0.01\n");
+        assert!(e.contains("`estimator.track_range_s` = 0.01"), "{e}");
+        // the limits themselves are accepted
+        let ok = "[estimator]\ngrid_hz = 10.0\nlowpass_hz = 4.5\nhighpass_hz = 4.05\nmax_lag_s = 0.2\ntrack_range_s = 0.2\nreset_jump_s = 0.76\n";
+        Config::from_toml_str(ok, "x").unwrap();
+    }
+
+    #[test]
+    fn count_keys_name_their_range_whatever_the_integer() {
+        for (text, range) in [
+            (
+                "acquire_confirm = -1",
+                "-1 is out of range: allowed 1 ..= 100",
+            ),
+            (
+                "step_confirm = 4294967296",
+                "4294967296 is out of range: allowed 1 ..= 100",
+            ),
+            (
+                "cadence_confirm = 16",
+                "16 is out of range: allowed 1 ..= 15",
+            ),
+        ] {
+            let e = Config::from_toml_str(&format!("[estimator]\n{text}\n"), "x.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(range) && e.contains(text) && e.contains("line 2"),
+                "{e}"
+            );
+        }
+        let c = Config::from_toml_str("[estimator]\nacquire_confirm = 100\n", "x").unwrap();
+        assert_eq!(c.estimator.acquire_confirm, 100);
     }
 
     #[test]
@@ -736,7 +857,7 @@ mod tests {
         let e = Config::from_toml_str("[estimator]\nmax_abs_value = 1e301\n", "x").unwrap_err();
         assert_eq!(
             e.message,
-            "`estimator.max_abs_value` = 1e301 is out of range: allowed 1e-9 ..= 1e300"
+            "`estimator.max_abs_value` = 1e301 is out of range: allowed 1e-9 ..= 1e12"
         );
         let e = Config::from_toml_str("[estimator]\nlag_center_s = -2e6\n", "x").unwrap_err();
         assert_eq!(
@@ -808,8 +929,9 @@ mod tests {
         fn window_values_accepted_iff_in_range(w in -10.0f64..200.0) {
             let text = format!("[estimator]\nwindow_s = {w:?}\n");
             let r = Config::from_toml_str(&text, "p");
-            // the default step window (2 s) and segment (60 s) are the binding limits
-            let in_range = (2.0..=60.0).contains(&w);
+            // the default reference lag (3 s, covered by a window of 2.75 s or more: it
+            // runs in whole 0.5 s hops) and segment (60 s) are the binding limits
+            let in_range = (2.75..=60.0).contains(&w);
             prop_assert_eq!(r.is_ok(), in_range, "w={}", w);
         }
     }

@@ -1010,9 +1010,10 @@ impl Estimator {
         let drift = est.drift.clamp(-drift::MAX_DRIFT, drift::MAX_DRIFT);
         let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
         // blind for `age` seconds: the offset moved by the drift, and its uncertainty
-        // grew like a holding state's (plus the drift's)
-        let var =
-            est.offset_std_s.powi(2) + self.p.q_hold.powi(2) * age + (drift_std * age).powi(2);
+        // grew like a holding state's (plus the drift's); never surer than one
+        // measurement can be (a saved 0 would gate out every measurement against it)
+        let std = est.offset_std_s.max(MIN_MEAS_STD_S);
+        let var = std * std + self.p.q_hold.powi(2) * age + (drift_std * age).powi(2);
         // the offset between the internal stamps (both cadences' levels taken out)
         let levels = (self.cad[1].level() - self.cad[0].level()) * 1e-9;
         self.cur = Current {

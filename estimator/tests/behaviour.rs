@@ -772,6 +772,71 @@ fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
     assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
 }
 
+/// The configuration's cross-key limits are where the estimator still works: the
+/// shortest window that covers the reference time (2.75 s runs as 3 s in whole hops)
+/// and a reset jump just beyond the longest gap both lock, validated as they are.
+#[test]
+fn configurations_at_the_validated_limits_lock() {
+    for (family, cfg) in [
+        (
+            Family::Robot,
+            EstimatorConfig {
+                window_s: 2.75,
+                step_window_s: 2.0,
+                ..EstimatorConfig::default()
+            },
+        ),
+        (
+            Family::Clocks,
+            EstimatorConfig {
+                reset_jump_s: 0.76,
+                ..EstimatorConfig::default()
+            },
+        ),
+    ] {
+        cfg.validate("limits").unwrap();
+        let run = generate(family, 3, Some(60.0));
+        let out = replay(&run, &mut Estimator::new(&cfg));
+        let tracking = out
+            .iter()
+            .filter(|e| e.state == EstimatorState::Tracking)
+            .count();
+        assert!(
+            tracking > out.len() / 2,
+            "{family:?}: {tracking} of {}",
+            out.len()
+        );
+    }
+}
+
+/// A saved standard deviation of 0 (a hand-edited or foreign state file; the estimator
+/// never publishes one) is read as the floor of one measurement's: a wrong restored
+/// offset is left as soon as with an honest σ.
+#[test]
+fn a_restored_zero_sigma_is_no_surer_than_one_measurement() {
+    let run = generate(Family::Robot, 22, Some(90.0));
+    let truth0 = run.truth.offset_at(0);
+    let hops_until_lost = |std: f64| {
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        let bogus = vlsync_common::Estimate {
+            offset_std_s: std,
+            drift_std: 0.0,
+            ..saved_tracking(truth0 + 0.3)
+        };
+        est.restore(&bogus, 0.0);
+        let out = replay(&run, &mut est);
+        assert!(out[0].offset_std_s >= 2e-4, "σ {}", out[0].offset_std_s);
+        out.iter()
+            .position(|e| e.state == EstimatorState::Lost)
+            .expect("the wrong offset is left")
+    };
+    assert_eq!(hops_until_lost(0.0), hops_until_lost(2e-4));
+    assert!(
+        hops_until_lost(0.0) <= hops_until_lost(1e-3),
+        "as soon as with 1 ms"
+    );
+}
+
 /// Pushes `run` in timestamp order with `cam_shift`/`lidar_shift` (ns) added to
 /// every stamp from `at_ns` on (each stream's own clock), as live drivers deliver
 /// it: interleaved by the time the samples happen, not by their shifted stamps.
