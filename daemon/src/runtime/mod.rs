@@ -14,13 +14,18 @@
 //!   nothing, does no I/O and allocates nothing per sample: counters live in
 //!   fixed arrays and [`Histogram`]s, and events go to the other thread over a
 //!   bounded crossbeam channel with `try_send` (a full channel counts a drop).
+//!   The service thread polls that channel and never blocks on it, so no receiver
+//!   is ever registered with the channel's waker and a `try_send` is a lock-free
+//!   slot write: no mutex (a blocked receiver's waker is one, without priority
+//!   inheritance) and no futex wake-up on the real-time path.
 //!   The one heap allocation left is inside iceoryx2 0.10: each
 //!   `Publisher::loan_uninit` allocates a small shared-state object, i.e. one
 //!   per published estimate (2/s by default); `tests/tests/ipc_rt_alloc.rs`
 //!   pins that bound;
 //! * the **service thread** (the main thread) logs those events with tracing
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
-//!   `daemon.status_period_s`. Statuses have a channel of their own (capacity
+//!   `daemon.status_period_s`, polling both channels every [`SERVICE_POLL_BUSY`]
+//!   while events come and every [`SERVICE_POLL_IDLE`] when they do not. Statuses have a channel of their own (capacity
 //!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
 //!   flood of events that fills the event channel (a publisher faster than the
 //!   daemon) drops events, never the statuses that report it.
@@ -109,6 +114,14 @@ pub const EVENT_CAPACITY: usize = 1024;
 /// Capacity of the status channel between the threads: statuses the service thread
 /// may fall behind by before one is dropped (and counted in `events_dropped`).
 pub const STATUS_CAPACITY: usize = 4;
+/// Poll period of the service thread while the real-time thread hands it events.
+pub const SERVICE_POLL_BUSY: Duration = Duration::from_millis(10);
+/// Poll period of the service thread when its last poll found nothing (what an idle
+/// daemon wakes for, as the real-time thread's [`WAKE_PERIOD`]).
+pub const SERVICE_POLL_IDLE: Duration = WAKE_PERIOD;
+/// Events (and statuses) the service thread handles per poll at most before it
+/// runs its periodic duties (watchdog, state file, load watch) again.
+pub const EVENTS_PER_POLL: usize = EVENT_CAPACITY;
 
 /// Arguments of `vlsyncd run`.
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -216,6 +229,17 @@ fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
     match tx.try_send(ev) {
         Ok(()) => {}
         Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => c.events_dropped += 1,
+    }
+}
+
+/// The service thread's wait before its next poll of the channels: short while the
+/// real-time thread hands it events (found on this poll or the one before), then
+/// [`SERVICE_POLL_IDLE`].
+fn service_poll_period(found_last: bool, found_now: bool) -> Duration {
+    if found_now || found_last {
+        SERVICE_POLL_BUSY
+    } else {
+        SERVICE_POLL_IDLE
     }
 }
 
@@ -1077,19 +1101,24 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
     let mut summary = journal::Summary::new(journal::SUMMARY_NS);
-    // wakes on an event or a status, whichever comes first (or after WAKE_PERIOD)
-    let mut wake = crossbeam::channel::Select::new();
-    let event_op = wake.recv(&rx);
-    wake.recv(&status_rx);
+    // The service thread polls its channels and never blocks on them: a receiver
+    // blocked in `recv`/`Select` registers with the channel's waker, and every
+    // `try_send` of the real-time thread would then take the waker's mutex (no
+    // priority inheritance) and make a futex wake-up call. Polled, a send is a
+    // lock-free slot write and nothing more (`service_poll`).
+    let mut busy = false;
     loop {
         // statuses before each event: a flood of events cannot hold one back
-        while let Ok(st) = status_rx.try_recv() {
-            systemd.on_status(&st);
-            summary.on_status(&st);
-            publish_status(&st);
-        }
-        match wake.ready_timeout(WAKE_PERIOD) {
-            Ok(op) if op == event_op => match rx.try_recv() {
+        let mut got = 0usize;
+        let mut disconnected = false;
+        while got < EVENTS_PER_POLL {
+            while let Ok(st) = status_rx.try_recv() {
+                systemd.on_status(&st);
+                summary.on_status(&st);
+                publish_status(&st);
+                got += 1;
+            }
+            match rx.try_recv() {
                 Ok(RtEvent::Estimate(e)) => {
                     systemd.on_estimate(&e);
                     summary.on_estimate(&e);
@@ -1105,12 +1134,19 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                     }
                     log_event(&ev, &mut throttle, monotonic_ns())
                 }
-                Err(crossbeam::channel::TryRecvError::Empty) => {}
-                Err(crossbeam::channel::TryRecvError::Disconnected) => break,
-            },
-            // a status (read at the top) or the timeout
-            _ => {}
+                Err(crossbeam::channel::TryRecvError::Empty) => break,
+                Err(crossbeam::channel::TryRecvError::Disconnected) => {
+                    disconnected = true;
+                    break;
+                }
+            }
+            got += 1;
         }
+        if disconnected {
+            break;
+        }
+        std::thread::sleep(service_poll_period(busy, got > 0));
+        busy = got > 0;
         let mono = monotonic_ns();
         throttle.due(mono, report_suppressed);
         if let Some(line) = summary.due(mono) {
@@ -1207,6 +1243,17 @@ mod tests {
         .unwrap();
         let p = publisher(&f, "x").unwrap();
         p.id()
+    }
+
+    /// The service thread polls fast while events come and for one poll after, then
+    /// as seldom as the real-time thread wakes when idle.
+    #[test]
+    fn the_service_poll_is_short_only_while_events_come() {
+        assert_eq!(service_poll_period(false, true), SERVICE_POLL_BUSY);
+        assert_eq!(service_poll_period(true, false), SERVICE_POLL_BUSY);
+        assert_eq!(service_poll_period(false, false), SERVICE_POLL_IDLE);
+        assert!(SERVICE_POLL_BUSY < SERVICE_POLL_IDLE);
+        assert_eq!(SERVICE_POLL_IDLE, WAKE_PERIOD);
     }
 
     #[test]
