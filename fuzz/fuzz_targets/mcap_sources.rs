@@ -9,7 +9,7 @@ use vlsync_mcap::{
 };
 
 fuzz_target!(|data: &[u8]| {
-    // the readers take a path: one scratch file per fuzzing process, in memory
+    // the readers take a path: one scratch file per fuzzing process, in the temp directory
     let path = std::env::temp_dir().join(format!("vlsync-fuzz-{}.mcap", std::process::id()));
     {
         let mut f = std::fs::File::create(&path).expect("scratch file");
