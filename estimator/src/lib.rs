@@ -119,6 +119,12 @@ const BIAS_WINDOWS: usize = 4;
 /// over from hop to hop, so it needs one pass per hop).
 const IRLS_PASSES: usize = 1;
 
+/// Slots by which the joint maximum's drift hypotheses shift the segment's far end
+/// ([`Estimator::joint_drift`]).
+const JOINT_SHIFT: f64 = 3.0;
+/// Re-centrings of the joint maximum's hypotheses per hop at most.
+const JOINT_ROUNDS: usize = 3;
+
 /// Numbers derived once from the configuration.
 #[derive(Debug, Clone)]
 struct Params {
@@ -539,6 +545,9 @@ pub struct Estimator {
     /// While a step test's later stage runs: the sample rate its first stage saw
     /// (every push moves the streams' mean intervals).
     step_rate: Option<f64>,
+    /// The segment's last joint (offset, drift) maximum's drift, where the next
+    /// hop's drift hypotheses centre ([`Estimator::joint_drift`]).
+    joint_d: Option<f64>,
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
     split_step: bool,
@@ -688,6 +697,7 @@ impl Estimator {
             seg_fit: None,
             step_job: None,
             step_rate: None,
+            joint_d: None,
             split_step: true,
             prepare: true,
             prepared_hops: (0, 0),
@@ -1575,6 +1585,85 @@ impl Estimator {
         self.hop_track(t_ref_ns, t, motion);
     }
 
+    /// The segment's joint (offset, drift) maximum: its blocks combined (with their
+    /// current weights) under three drift hypotheses around the last one, each
+    /// hypothesis's peak maximised over the lag, a parabola through the three
+    /// heights. Its vertex is the segment's own slope, measured from all its data at
+    /// once; the parabola's curvature gives its variance as the lag's curvature
+    /// gives the offset's ([`Estimator::meas_var`]). It informs the drift fit as
+    /// the segment's slope measurement ([`DriftFit::set_joint`]).
+    fn joint_drift(&mut self, t_ref_ns: Nanos, pred_t: f64, sign: f64) -> bool {
+        let Some(first) = self.segment_first() else {
+            return false;
+        };
+        let n = self.corr.count();
+        let (k0, k1) = (
+            self.corr.block(first).first_k,
+            self.corr.block(n - 1).last_k,
+        );
+        let len = (k1 - k0) as f64;
+        if len < (2 * self.p.short_blocks as i64 * self.p.hop_len) as f64 - 1.0 {
+            return false;
+        }
+        let (lo, hi) = self.track_slots_around(pred_t);
+        let (held_lo, held_hi) = self.corr.slots_held(first, n);
+        let (lo, hi) = (lo.max(held_lo + 4), hi.min(held_hi.saturating_sub(5)));
+        if hi < lo + 4 {
+            return false;
+        }
+        let k_ref = t_ref_ns.saturating_add(self.group_delay_ns) as f64 / self.p.dt_ns as f64;
+        // hypotheses shifting the segment's far end by JOINT_SHIFT slots
+        let far = (k_ref - k0 as f64)
+            .abs()
+            .max((k1 as f64 - k_ref).abs())
+            .max(1.0);
+        let delta = JOINT_SHIFT / far;
+        let mut c = self.joint_d.unwrap_or(self.d.0);
+        self.joint_d = None;
+        for _round in 0..JOINT_ROUNDS {
+            let mut h = [0.0; 3];
+            let mut nsum = 0.0;
+            for (j, hj) in h.iter_mut().enumerate() {
+                let span = Span {
+                    first,
+                    last: n - 1,
+                    drift: c + (j as f64 - 1.0) * delta,
+                    k_ref,
+                    lo,
+                    hi,
+                };
+                nsum = self.seg.combine(&self.corr, &span);
+                let Some(pk) = peak::find(&self.seg.sums, lo, hi, sign, &mut self.scratch) else {
+                    return false;
+                };
+                *hj = pk.score;
+            }
+            let den = h[0] - 2.0 * h[1] + h[2];
+            let curv = -den / (delta * delta);
+            if !(curv > 0.0 && curv.is_finite()) {
+                return false;
+            }
+            let x = (0.5 * (h[0] - h[2]) / den * delta).clamp(-2.0 * delta, 2.0 * delta);
+            if x.abs() > delta {
+                // too far from the hypotheses for the parabola: centre there, again
+                c += x;
+                continue;
+            }
+            let d = c + x;
+            let rho = (h[1] + 0.25 * (h[0] - h[2]) * x / delta).clamp(1e-3, 0.999);
+            let band = (self.p.lowpass_hz.min(0.5 * self.min_rate()) - self.p.highpass_hz).max(0.1);
+            let n_eff = (2.0 * band * nsum / self.p.fs).max(1.0);
+            let secs = (nsum / self.p.fs).max(1e-3);
+            let var = self.p.noise_scale * (1.0 - rho * rho) / (rho * curv * n_eff)
+                * (CAL_WINDOW_S / secs).sqrt();
+            self.joint_d = Some(d);
+            let t_end = self.rel_k(k1 as f64);
+            self.drift.set_joint(t_end, d, var);
+            return true;
+        }
+        false
+    }
+
     /// The two halves of the acquisition window measure the offset at two times
     /// from disjoint data: their difference informs the drift (what lets a fast
     /// drift, far outside the prior, win early).
@@ -1826,6 +1915,14 @@ impl Estimator {
         } else {
             None
         };
+        if !(motion
+            && raw.is_some()
+            && t >= self.seg_start_t
+            && self.joint_drift(t_ref_ns, pred_t, sign))
+        {
+            self.joint_d = None;
+            self.drift.set_joint(t, f64::NAN, f64::INFINITY);
+        }
         self.d = self.drift.estimate();
         // 2. the segment's offset at the reference time
         if t < self.seg_start_t {
