@@ -14,6 +14,10 @@
 //! ppm), and a free slope for runs whose data say overwhelmingly that the rate
 //! differs more (the seed article's 12 ms/s). The free slope wins when it is more
 //! than 5 of its own standard deviations and 3 prior standard deviations from 0.
+//! Besides the short windows, the segment's joint (offset, drift) maximum
+//! ([`DriftFit::set_joint`]) measures the slope from all the segment's data at once;
+//! it stands in for the segment's windows only when it makes the free slope win
+//! (confirmed by the hop before), so the prior's regime is the windows' alone.
 //!
 //! ```
 //! use vlsync_estimator::drift::DriftFit;
@@ -401,6 +405,35 @@ mod tests {
         }
         let (d, _) = f.estimate();
         assert!(d.abs() <= MAX_DRIFT, "{d}");
+    }
+
+    /// A joint slope measurement decides for a free slope only when the one of the
+    /// hop before agrees; a hop without one breaks the run; a change point keeps the
+    /// newest decisive one whose data end before it.
+    #[test]
+    fn a_joint_slope_wins_when_the_hop_before_confirms_it() {
+        let mut f = DriftFit::new(50e-6, 900.0);
+        f.set_joint(5.0, 0.012, 4e-6);
+        assert!(f.estimate().0.abs() < 1e-4, "one hop decided");
+        f.set_joint(5.5, f64::NAN, f64::INFINITY);
+        f.set_joint(6.0, 0.012, 4e-6);
+        assert!(f.estimate().0.abs() < 1e-4, "a gap did not break the run");
+        f.set_joint(6.5, 0.0118, 3e-6);
+        let (d, v) = f.estimate();
+        assert!(
+            (d - 0.0118).abs() < 1e-9 && (v - 3e-6).abs() < 1e-12,
+            "{d} {v}"
+        );
+        // a change after both: the segment's slope information stays
+        f.set_joint(7.0, 0.0119, 2.5e-6);
+        f.change_at(6.8);
+        let (d, _) = f.estimate();
+        assert!((d - 0.0118).abs() < 1e-9, "{d}");
+        // a joint measurement far from the one before does not decide
+        let mut g = DriftFit::new(50e-6, 900.0);
+        g.set_joint(5.0, -0.012, 4e-6);
+        g.set_joint(5.5, 0.012, 4e-6);
+        assert!(g.estimate().0.abs() < 1e-4);
     }
 
     #[test]
