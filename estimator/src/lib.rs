@@ -120,7 +120,7 @@ const BIAS_WINDOWS: usize = 4;
 const IRLS_PASSES: usize = 1;
 
 /// Slots by which the joint maximum's drift hypotheses shift the segment's far end
-/// ([`Estimator::joint_drift`]).
+/// ([`Estimator::joint_stage`]).
 const JOINT_SHIFT: f64 = 3.0;
 /// Re-centrings of the joint maximum's hypotheses per hop at most.
 const JOINT_ROUNDS: usize = 3;
@@ -269,6 +269,35 @@ struct Meas {
     score: f64,
     ratio: f64,
     sign: f64,
+}
+
+/// The segment's joint (offset, drift) maximum of a tracking hop
+/// ([`Estimator::joint_stage`]), run one combination per pushed sample after the
+/// hop, with the weights the hop found (kept by [`Segment::snapshot_weights`]):
+/// its result informs the drift fit from the next hop on.
+#[derive(Debug, Clone, Copy)]
+struct JointJob {
+    /// The hop's segment at its start: its blocks, slots and reference index.
+    first: usize,
+    last: usize,
+    k_ref: f64,
+    lo: usize,
+    hi: usize,
+    sign: f64,
+    /// Hypotheses' spacing and centre.
+    delta: f64,
+    c: f64,
+    /// Re-centrings done, and the hypothesis the next stage combines.
+    round: usize,
+    j: usize,
+    /// Peak heights of the round's hypotheses so far, and the pairs combined.
+    h: [f64; 3],
+    nsum: f64,
+    /// The sample rate the hop saw (every push moves the streams' mean intervals).
+    rate: f64,
+    /// Tracker times of the hop and of its segment's end.
+    t: f64,
+    t_end: f64,
 }
 
 /// Where a step test in progress stands.
@@ -546,8 +575,14 @@ pub struct Estimator {
     /// (every push moves the streams' mean intervals).
     step_rate: Option<f64>,
     /// The segment's last joint (offset, drift) maximum's drift, where the next
-    /// hop's drift hypotheses centre ([`Estimator::joint_drift`]).
+    /// hop's drift hypotheses centre ([`Estimator::start_joint`]).
     joint_d: Option<f64>,
+    /// The last tracking hop's joint maximum, run in stages by the next pushes once
+    /// its step test is done.
+    joint_job: Option<JointJob>,
+    /// Whether the joint maximum runs one stage per push (always, except in the test
+    /// that compares it with the whole maximum at the next hop).
+    split_joint: bool,
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
     split_step: bool,
@@ -698,6 +733,8 @@ impl Estimator {
             step_job: None,
             step_rate: None,
             joint_d: None,
+            joint_job: None,
+            split_joint: true,
             split_step: true,
             prepare: true,
             prepared_hops: (0, 0),
@@ -839,18 +876,27 @@ impl Estimator {
     /// The stage a push runs before its sample: the last hop's step test (the whole
     /// test at once in the test that compares the two).
     fn stage_before_push(&mut self) {
-        self.staged = self.step_job.is_some();
-        if self.split_step {
-            self.step_stage();
-        } else {
+        self.staged = self.step_job.is_some() || self.joint_job.is_some();
+        if !self.split_step {
             self.finish_step();
+        } else if self.step_job.is_some() {
+            self.step_stage();
+            return;
+        }
+        // then the joint maximum's combinations
+        if self.split_joint {
+            self.joint_stage();
         }
     }
 
     /// The stage a push runs after its sample: once the step test is done, and if the
     /// sample was accepted and completed no hop, the next hop's preparation.
     fn stage_after_push(&mut self) {
-        if self.pushed.take() == Some(true) && !self.staged && self.step_job.is_none() {
+        if self.pushed.take() == Some(true)
+            && !self.staged
+            && self.step_job.is_none()
+            && self.joint_job.is_none()
+        {
             self.prepare_stage();
         }
     }
@@ -1017,6 +1063,7 @@ impl Estimator {
         };
         // the last hop's step test, as it would have run at the next push
         self.finish_step();
+        self.finish_joint();
         let drift = est.drift.clamp(-drift::MAX_DRIFT, drift::MAX_DRIFT);
         let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
         // blind for `age` seconds: the offset moved by the drift, and its uncertainty
@@ -1076,6 +1123,7 @@ impl Estimator {
     /// moves by the same amount (LiDAR: +, camera: -); re-acquire around the new value.
     fn clock_jump(&mut self, stream: Stream, jump_ns: Nanos) {
         self.finish_step();
+        self.finish_joint();
         let si = idx(stream);
         self.jumps[si] = self.jumps[si].saturating_add(jump_ns);
         let j = jump_ns as f64 * 1e-9;
@@ -1192,8 +1240,11 @@ impl Estimator {
 
     fn run_correlator(&mut self) {
         loop {
-            if self.step_job.is_some() && self.corr.may_complete_block() {
+            if (self.step_job.is_some() || self.joint_job.is_some())
+                && self.corr.may_complete_block()
+            {
                 self.finish_step();
+                self.finish_joint();
             }
             match self.corr.step() {
                 Step::Idle => break,
@@ -1225,6 +1276,7 @@ impl Estimator {
             return;
         }
         self.finish_step();
+        self.finish_joint();
         // at most one queue's worth of blind estimates
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
@@ -1274,6 +1326,7 @@ impl Estimator {
                 return;
             }
             self.finish_step();
+            self.finish_joint();
             if self.mode == Mode::Locked {
                 self.lose();
             }
@@ -1491,6 +1544,7 @@ impl Estimator {
     fn hop_inner(&mut self) {
         // normally finished already, before the block that makes this hop completed
         self.finish_step();
+        self.finish_joint();
         let count = self.corr.count();
         if count == 0 {
             return;
@@ -1585,14 +1639,17 @@ impl Estimator {
         self.hop_track(t_ref_ns, t, motion);
     }
 
-    /// The segment's joint (offset, drift) maximum: its blocks combined (with their
-    /// current weights) under three drift hypotheses around the last one, each
-    /// hypothesis's peak maximised over the lag, a parabola through the three
-    /// heights. Its vertex is the segment's own slope, measured from all its data at
-    /// once; the parabola's curvature gives its variance as the lag's curvature
-    /// gives the offset's ([`Estimator::meas_var`]). It informs the drift fit as
-    /// the segment's slope measurement ([`DriftFit::set_joint`]).
-    fn joint_drift(&mut self, t_ref_ns: Nanos, pred_t: f64, sign: f64) -> bool {
+    /// Starts the segment's joint (offset, drift) maximum of this hop: its blocks
+    /// combined (with the weights they have now) under three drift hypotheses
+    /// around the last one, each hypothesis's peak maximised over the lag, a
+    /// parabola through the three heights. Its vertex is the segment's own slope,
+    /// measured from all its data at once; the parabola's curvature gives its
+    /// variance as the lag's curvature gives the offset's ([`Estimator::meas_var`]).
+    /// It informs the drift fit as the segment's slope measurement
+    /// ([`DriftFit::set_joint`]). The combinations run one per pushed sample after
+    /// the hop ([`Estimator::joint_stage`]), so its result informs the next hop's
+    /// drift. Returns whether the segment can be measured.
+    fn start_joint(&mut self, t_ref_ns: Nanos, t: f64, pred_t: f64, sign: f64) -> bool {
         let Some(first) = self.segment_first() else {
             return false;
         };
@@ -1617,51 +1674,99 @@ impl Estimator {
             .abs()
             .max((k1 as f64 - k_ref).abs())
             .max(1.0);
-        let delta = JOINT_SHIFT / far;
-        let mut c = self.joint_d.unwrap_or(self.d.0);
+        let c = self.joint_d.unwrap_or(self.d.0);
         self.joint_d = None;
-        for _round in 0..JOINT_ROUNDS {
-            let mut h = [0.0; 3];
-            let mut nsum = 0.0;
-            for (j, hj) in h.iter_mut().enumerate() {
-                let span = Span {
-                    first,
-                    last: n - 1,
-                    drift: c + (j as f64 - 1.0) * delta,
-                    k_ref,
-                    lo,
-                    hi,
-                };
-                nsum = self.seg.combine(&self.corr, &span);
-                let Some(pk) = peak::find(&self.seg.sums, lo, hi, sign, &mut self.scratch) else {
-                    return false;
-                };
-                *hj = pk.score;
-            }
-            let den = h[0] - 2.0 * h[1] + h[2];
-            let curv = -den / (delta * delta);
-            if !(curv > 0.0 && curv.is_finite()) {
-                return false;
-            }
-            let x = (0.5 * (h[0] - h[2]) / den * delta).clamp(-2.0 * delta, 2.0 * delta);
-            if x.abs() > delta {
-                // too far from the hypotheses for the parabola: centre there, again
-                c += x;
-                continue;
-            }
-            let d = c + x;
-            let rho = (h[1] + 0.25 * (h[0] - h[2]) * x / delta).clamp(1e-3, 0.999);
-            let band = (self.p.lowpass_hz.min(0.5 * self.min_rate()) - self.p.highpass_hz).max(0.1);
-            let n_eff = (2.0 * band * nsum / self.p.fs).max(1.0);
-            let secs = (nsum / self.p.fs).max(1e-3);
-            let var = self.p.noise_scale * (1.0 - rho * rho) / (rho * curv * n_eff)
-                * (CAL_WINDOW_S / secs).sqrt();
-            self.joint_d = Some(d);
-            let t_end = self.rel_k(k1 as f64);
-            self.drift.set_joint(t_end, d, var);
-            return true;
+        self.seg.snapshot_weights();
+        self.joint_job = Some(JointJob {
+            first,
+            last: n - 1,
+            k_ref,
+            lo,
+            hi,
+            sign,
+            delta: JOINT_SHIFT / far,
+            c,
+            round: 0,
+            j: 0,
+            h: [0.0; 3],
+            nsum: 0.0,
+            rate: self.min_rate(),
+            t,
+            t_end: self.rel_k(k1 as f64),
+        });
+        true
+    }
+
+    /// One stage of the pending joint maximum, if any: one hypothesis's combination
+    /// and peak; the third of a round fits the parabola and either gives the
+    /// measurement or re-centres the next round. A joint maximum that fails gives
+    /// the drift fit its hop without one (it breaks the run a free slope needs).
+    fn joint_stage(&mut self) {
+        let Some(mut job) = self.joint_job.take() else {
+            return;
+        };
+        let span = Span {
+            first: job.first,
+            last: job.last,
+            drift: job.c + (job.j as f64 - 1.0) * job.delta,
+            k_ref: job.k_ref,
+            lo: job.lo,
+            hi: job.hi,
+        };
+        job.nsum = self.seg.combine_snapshot(&self.corr, &span);
+        let Some(pk) = peak::find(&self.seg.sums, job.lo, job.hi, job.sign, &mut self.scratch)
+        else {
+            self.joint_failed(&job);
+            return;
+        };
+        job.h[job.j] = pk.score;
+        job.j += 1;
+        if job.j < 3 {
+            self.joint_job = Some(job);
+            return;
         }
-        false
+        let (h, delta) = (job.h, job.delta);
+        let den = h[0] - 2.0 * h[1] + h[2];
+        let curv = -den / (delta * delta);
+        if !(curv > 0.0 && curv.is_finite()) {
+            self.joint_failed(&job);
+            return;
+        }
+        let x = (0.5 * (h[0] - h[2]) / den * delta).clamp(-2.0 * delta, 2.0 * delta);
+        if x.abs() > delta {
+            // too far from the hypotheses for the parabola: centre there, again
+            job.round += 1;
+            if job.round == JOINT_ROUNDS {
+                self.joint_failed(&job);
+                return;
+            }
+            job.c += x;
+            job.j = 0;
+            self.joint_job = Some(job);
+            return;
+        }
+        let d = job.c + x;
+        let rho = (h[1] + 0.25 * (h[0] - h[2]) * x / delta).clamp(1e-3, 0.999);
+        let band = (self.p.lowpass_hz.min(0.5 * job.rate) - self.p.highpass_hz).max(0.1);
+        let n_eff = (2.0 * band * job.nsum / self.p.fs).max(1.0);
+        let secs = (job.nsum / self.p.fs).max(1e-3);
+        let var = self.p.noise_scale * (1.0 - rho * rho) / (rho * curv * n_eff)
+            * (CAL_WINDOW_S / secs).sqrt();
+        self.joint_d = Some(d);
+        self.drift.set_joint(job.t_end, d, var);
+    }
+
+    fn joint_failed(&mut self, job: &JointJob) {
+        self.joint_d = None;
+        self.drift.set_joint(job.t, f64::NAN, f64::INFINITY);
+    }
+
+    /// Runs the pending joint maximum to its end: before anything changes the stored
+    /// blocks (a block completing, a stall, a clock jump) and at the next hop.
+    fn finish_joint(&mut self) {
+        while self.joint_job.is_some() {
+            self.joint_stage();
+        }
     }
 
     /// The two halves of the acquisition window measure the offset at two times
@@ -1915,10 +2020,12 @@ impl Estimator {
         } else {
             None
         };
+        // the joint maximum runs on the next pushes (after the step test): its slope
+        // informs the drift from the next hop on
         if !(motion
             && raw.is_some()
             && t >= self.seg_start_t
-            && self.joint_drift(t_ref_ns, pred_t, sign))
+            && self.start_joint(t_ref_ns, t, pred_t, sign))
         {
             self.joint_d = None;
             self.drift.set_joint(t, f64::NAN, f64::INFINITY);
@@ -2380,6 +2487,8 @@ impl Estimator {
         self.fresh = true;
         self.seg_start_k = k;
         self.seg_start_t = t_c;
+        // the joint maximum under way measured the old segment through the change
+        self.joint_job = None;
         self.step = Streak::default();
         self.step_evidence = 0.0;
         self.since_chunk = 0;
@@ -2503,6 +2612,74 @@ mod tests {
             b.extend(std::iter::from_fn(|| whole.poll()));
         }
         (a, b, split.stats().steps, pending)
+    }
+
+    /// Estimates with the joint maximum staged over the pushes after its hop and with
+    /// it run whole when the next block completes; the pushes during which a staged
+    /// one stood part-done, and the hops whose joint maximum measured.
+    fn joint_staged_and_whole(
+        family: Family,
+        seed: u64,
+        cfg: &EstimatorConfig,
+    ) -> (Vec<Estimate>, Vec<Estimate>, usize) {
+        let all = generate(family, seed, None).pushes();
+        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
+        whole.split_joint = false;
+        // both combine directly: the whole one leaves no pushes for the preparation
+        split.prepare = false;
+        whole.prepare = false;
+        let (mut a, mut b, mut part_done) = (Vec::new(), Vec::new(), 0);
+        for &(stream, s) in &all {
+            let _ = split.push(stream, s);
+            let _ = whole.push(stream, s);
+            part_done += usize::from(split.joint_job.is_some_and(|j| j.j > 0 || j.round > 0));
+            a.extend(std::iter::from_fn(|| split.poll()));
+            b.extend(std::iter::from_fn(|| whole.poll()));
+        }
+        (a, b, part_done)
+    }
+
+    /// The joint maximum run one combination per push after its hop gives the
+    /// estimates of the whole maximum run before the next hop (the weights it
+    /// combines with are kept at its hop, so the step test's re-weighting meanwhile
+    /// does not reach it), with steps that drop it and 0.1 s hops that finish it on
+    /// the sample completing the next block.
+    #[test]
+    fn the_joint_maximum_in_stages_gives_the_estimates_of_the_whole_one() {
+        let short_hops = EstimatorConfig {
+            hop_s: 0.1,
+            ..EstimatorConfig::default()
+        };
+        let no_cadence = EstimatorConfig {
+            cadence: vlsync_config::CadenceStreams::Off,
+            ..EstimatorConfig::default()
+        };
+        for (family, seed, cfg) in [
+            (Family::Seed, 1000, EstimatorConfig::default()),
+            (Family::Seed, 1003, short_hops),
+            (Family::LoadSteps, 3, no_cadence),
+            (Family::Clocks, 1000, EstimatorConfig::default()),
+        ] {
+            let (split, whole, part_done) = joint_staged_and_whole(family, seed, &cfg);
+            assert!(
+                split.len() > 15,
+                "{family:?} {seed}: {} estimates",
+                split.len()
+            );
+            // (0.1 s hops leave the pushes between hops to the step test)
+            if cfg.hop_s >= 0.5 {
+                assert!(part_done > 20, "{family:?}: {part_done} pushes part-done");
+            }
+            assert_eq!(split.len(), whole.len());
+            for (x, y) in split.iter().zip(&whole) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?} {seed}");
+            }
+            if family == Family::Seed {
+                // the joint slope decided: the seed's 12 ms/s drift is learnt
+                let d = split.last().unwrap().drift;
+                assert!((d - 0.012).abs() < 0.002, "{family:?} {seed}: drift {d}");
+            }
+        }
     }
 
     #[test]

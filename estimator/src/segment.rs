@@ -38,6 +38,10 @@ pub struct Segment {
     /// Weight per stored block (by [`Correlator::phys`] position, so weights stay
     /// with their blocks as the store turns).
     w: Vec<f64>,
+    /// The weights as [`Segment::snapshot_weights`] kept them, for combinations
+    /// staged over later samples while the live weights move
+    /// ([`Segment::combine_snapshot`]).
+    w_snap: Vec<f64>,
     /// Residual energy per sample per stored block.
     e: Vec<f64>,
     sort: Vec<f64>,
@@ -152,6 +156,7 @@ impl Segment {
         Self {
             sums: Sums::new(n_lags),
             w: vec![1.0; cap_blocks],
+            w_snap: vec![1.0; cap_blocks],
             e: vec![0.0; cap_blocks],
             sort: vec![0.0; cap_blocks],
             prep: Prepared {
@@ -213,27 +218,43 @@ impl Segment {
     /// Combines the blocks of `span` with the current weights into [`Segment::sums`].
     /// Returns the weighted number of pairs.
     pub fn combine(&mut self, corr: &Correlator, span: &Span) -> f64 {
-        let s = &mut self.sums;
-        zero(s, span.lo, span.hi);
-        let mut first = true;
-        for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
-            let w = self.w[corr.phys(i)];
-            let b = corr.block(i);
-            if w <= 0.0 || b.n <= 0.0 {
-                continue;
-            }
-            let Some(sh) = Self::shift(b, span) else {
-                continue;
-            };
-            if first {
-                s.first_k = b.first_k;
-                first = false;
-            }
-            s.last_k = b.last_k;
-            accumulate(s, b, w, span, sh);
-        }
-        s.n
+        combine_into(&mut self.sums, &self.w, corr, span)
     }
+
+    /// Keeps the current weights for [`Segment::combine_snapshot`] (valid until a
+    /// block completes: the weights are by stored position).
+    pub fn snapshot_weights(&mut self) {
+        self.w_snap.copy_from_slice(&self.w);
+    }
+
+    /// [`Segment::combine`] with the weights [`Segment::snapshot_weights`] kept.
+    pub fn combine_snapshot(&mut self, corr: &Correlator, span: &Span) -> f64 {
+        combine_into(&mut self.sums, &self.w_snap, corr, span)
+    }
+}
+
+/// Combines the blocks of `span` with weights `w` (by stored position) into `s`.
+/// Returns the weighted number of pairs.
+fn combine_into(s: &mut Sums, w: &[f64], corr: &Correlator, span: &Span) -> f64 {
+    zero(s, span.lo, span.hi);
+    let mut first = true;
+    for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
+        let w = w[corr.phys(i)];
+        let b = corr.block(i);
+        if w <= 0.0 || b.n <= 0.0 {
+            continue;
+        }
+        let Some(sh) = Segment::shift(b, span) else {
+            continue;
+        };
+        if first {
+            s.first_k = b.first_k;
+            first = false;
+        }
+        s.last_k = b.last_k;
+        accumulate(s, b, w, span, sh);
+    }
+    s.n
 }
 
 /// Zeroes the lag-free sums of `s` and its slots `lo..=hi`.
