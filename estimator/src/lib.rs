@@ -581,7 +581,7 @@ pub struct Estimator {
     /// its step test is done.
     joint_job: Option<JointJob>,
     /// Whether the joint maximum runs one stage per push (always, except in the test
-    /// that compares it with the whole maximum at the next hop).
+    /// that compares it with the whole maximum at the end of its hop).
     split_joint: bool,
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
@@ -1537,6 +1537,9 @@ impl Estimator {
     fn hop(&mut self) {
         self.hops_done += 1;
         self.hop_inner();
+        if !self.split_joint {
+            self.finish_joint();
+        }
         // what was prepared was for this hop (used, or its inputs changed)
         self.seg.drop_prepared();
     }
@@ -2487,8 +2490,10 @@ impl Estimator {
         self.fresh = true;
         self.seg_start_k = k;
         self.seg_start_t = t_c;
-        // the joint maximum under way measured the old segment through the change
+        // the joint maximum under way measured the old segment through the change: the
+        // new segment's hypotheses centre on the drift estimate
         self.joint_job = None;
+        self.joint_d = None;
         self.step = Streak::default();
         self.step_evidence = 0.0;
         self.since_chunk = 0;
@@ -2615,8 +2620,8 @@ mod tests {
     }
 
     /// Estimates with the joint maximum staged over the pushes after its hop and with
-    /// it run whole when the next block completes; the pushes during which a staged
-    /// one stood part-done, and the hops whose joint maximum measured.
+    /// it run whole at the end of its hop; the pushes during which a staged one stood
+    /// part-done.
     fn joint_staged_and_whole(
         family: Family,
         seed: u64,
@@ -2639,11 +2644,11 @@ mod tests {
         (a, b, part_done)
     }
 
-    /// The joint maximum run one combination per push after its hop gives the
-    /// estimates of the whole maximum run before the next hop (the weights it
-    /// combines with are kept at its hop, so the step test's re-weighting meanwhile
-    /// does not reach it), with steps that drop it and 0.1 s hops that finish it on
-    /// the sample completing the next block.
+    /// The joint maximum run one combination per push after its hop, once the step
+    /// test is done, gives the estimates of the whole maximum run at the end of its
+    /// hop (the weights it combines with are kept at its start: the hop's and the
+    /// step test's re-weighting in between do not reach it), with steps that drop
+    /// it and 0.1 s hops that finish it on the sample completing the next block.
     #[test]
     fn the_joint_maximum_in_stages_gives_the_estimates_of_the_whole_one() {
         let short_hops = EstimatorConfig {
