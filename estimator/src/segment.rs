@@ -42,6 +42,9 @@ pub struct Segment {
     /// staged over later samples while the live weights move
     /// ([`Segment::combine_snapshot`]).
     w_snap: Vec<f64>,
+    /// The next hop's joint maximum's first three hypotheses, prepared before its
+    /// block completes ([`Segment::prepare_joint`]).
+    joint: [Sums; 3],
     /// Residual energy per sample per stored block.
     e: Vec<f64>,
     sort: Vec<f64>,
@@ -157,6 +160,7 @@ impl Segment {
             sums: Sums::new(n_lags),
             w: vec![1.0; cap_blocks],
             w_snap: vec![1.0; cap_blocks],
+            joint: [Sums::new(n_lags), Sums::new(n_lags), Sums::new(n_lags)],
             e: vec![0.0; cap_blocks],
             sort: vec![0.0; cap_blocks],
             prep: Prepared {
@@ -225,6 +229,32 @@ impl Segment {
     /// block completes: the weights are by stored position).
     pub fn snapshot_weights(&mut self) {
         self.w_snap.copy_from_slice(&self.w);
+    }
+
+    /// Combines the blocks of `span` with the current weights into joint hypothesis
+    /// `j`'s sums, as [`Segment::combine`] does: the next hop adds its new block
+    /// ([`Segment::finish_joint`]). Returns the weighted number of pairs.
+    pub fn prepare_joint(&mut self, corr: &Correlator, span: &Span, j: usize) -> f64 {
+        combine_into(&mut self.joint[j], &self.w, corr, span)
+    }
+
+    /// Adds stored block `i` (with its current weight) to joint hypothesis `j`'s
+    /// prepared sums, shifted as `span` asks: what [`Segment::combine`] of the span
+    /// through `i` would hold, summed in the same order. Returns those sums.
+    pub fn finish_joint(&mut self, corr: &Correlator, span: &Span, j: usize, i: usize) -> &Sums {
+        let s = &mut self.joint[j];
+        let w = self.w[corr.phys(i)];
+        let b = corr.block(i);
+        if w > 0.0 && b.n > 0.0 {
+            if let Some(sh) = Self::shift(b, span) {
+                if s.n == 0.0 {
+                    s.first_k = b.first_k;
+                }
+                s.last_k = b.last_k;
+                accumulate(s, b, w, span, sh);
+            }
+        }
+        &self.joint[j]
     }
 
     /// [`Segment::combine`] with the weights [`Segment::snapshot_weights`] kept.
