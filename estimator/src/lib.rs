@@ -2867,16 +2867,21 @@ mod tests {
             cadence: vlsync_config::CadenceStreams::Off,
             ..EstimatorConfig::default()
         };
-        // (family, seed, configuration, share of joint maxima prepared at least)
-        for (family, seed, cfg, share) in [
-            (Family::Seed, 1000, EstimatorConfig::default(), 0.9),
-            (Family::Seed, 4001, EstimatorConfig::default(), 0.9),
-            (Family::Robot, 1000, EstimatorConfig::default(), 0.9),
-            (Family::LoadSteps, 3, no_cadence, 0.8),
-            (Family::Clocks, 1000, EstimatorConfig::default(), 0.9),
+        // (family, seed, configuration, degraded mode, share of joint maxima prepared
+        // at least)
+        for (family, seed, cfg, degraded, share) in [
+            (Family::Seed, 1000, EstimatorConfig::default(), false, 0.9),
+            (Family::Seed, 4001, EstimatorConfig::default(), false, 0.9),
+            (Family::Robot, 1000, EstimatorConfig::default(), false, 0.9),
+            (Family::LoadSteps, 3, no_cadence, false, 0.9),
+            (Family::Clocks, 1000, EstimatorConfig::default(), false, 0.9),
+            // the tracking range narrowed around each hop's prediction
+            (Family::Robot, 1001, EstimatorConfig::default(), true, 0.9),
         ] {
             let all = generate(family, seed, None).pushes();
             let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            prep.set_degraded(degraded);
+            direct.set_degraded(degraded);
             direct.prepare_joint = false;
             let (mut a, mut b) = (Vec::new(), Vec::new());
             for &(stream, s) in &all {
