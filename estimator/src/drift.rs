@@ -14,6 +14,10 @@
 //! ppm), and a free slope for runs whose data say overwhelmingly that the rate
 //! differs more (the seed article's 12 ms/s). The free slope wins when it is more
 //! than 5 of its own standard deviations and 3 prior standard deviations from 0.
+//! Besides the short windows, the segment's joint (offset, drift) maximum
+//! ([`DriftFit::set_joint`]) measures the slope from all the segment's data at once;
+//! it stands in for the segment's windows only when it makes the free slope win
+//! (confirmed by the hop before), so the prior's regime is the windows' alone.
 //!
 //! ```
 //! use vlsync_estimator::drift::DriftFit;
@@ -76,6 +80,14 @@ pub const MAX_DRIFT: f64 = 0.1;
 /// may still move them into the new segment.
 pub const PENDING: usize = 8;
 
+/// Joint (offset, drift) measurements of the current segment kept, newest last: a
+/// change point found later takes the newest one whose data end before it.
+pub const JOINT_HISTORY: usize = 20;
+
+/// Sigmas from 0 of the joint measurement before the one that lets a free slope
+/// win (at 5 sigmas) ([`DriftFit::set_joint`]).
+pub const JOINT_CONFIRM_SIGMA: f64 = 3.0;
+
 /// The drift estimator.
 #[derive(Debug, Clone)]
 pub struct DriftFit {
@@ -94,6 +106,10 @@ pub struct DriftFit {
     closed_zz: f64,
     closed_n: f64,
     closed_segments: f64,
+    /// The current segment's joint slope measurements `(t_end, drift, var)`, oldest
+    /// first: each measures the slope from all the segment's data up to `t_end`.
+    joint: [(f64, f64, f64); JOINT_HISTORY],
+    n_joint: usize,
 }
 
 impl DriftFit {
@@ -113,7 +129,32 @@ impl DriftFit {
             closed_zz: 0.0,
             closed_n: 0.0,
             closed_segments: 0.0,
+            joint: [(0.0, 0.0, 0.0); JOINT_HISTORY],
+            n_joint: 0,
         }
+    }
+
+    /// A slope measurement `drift` (variance `var`) from the current segment's data
+    /// up to time `t_end` as a whole (the joint maximum over offset and drift). It
+    /// does not add to the segment's short-window measurements, which hold the same
+    /// data: the more informative of the two informs the slope.
+    /// A hop without a joint measurement passes `var = ∞` (it breaks the run of
+    /// consecutive ones a free slope needs).
+    pub fn set_joint(&mut self, t_end: f64, drift: f64, var: f64) {
+        if !(t_end.is_finite() && var > 0.0) {
+            return;
+        }
+        let (drift, var) = if drift.is_finite() && var.is_finite() {
+            (drift, var)
+        } else {
+            (0.0, f64::INFINITY)
+        };
+        if self.n_joint == JOINT_HISTORY {
+            self.joint.copy_within(1.., 0);
+            self.n_joint -= 1;
+        }
+        self.joint[self.n_joint] = (t_end, drift, var);
+        self.n_joint += 1;
     }
 
     /// Forgets everything.
@@ -146,7 +187,13 @@ impl DriftFit {
             let (a, b, c) = self.pending[i];
             self.commit(a, b, c);
         }
-        self.close_committed();
+        // the newest joint measurement whose data end before the change
+        let j = (0..self.n_joint)
+            .rev()
+            .find(|&i| self.joint[i].0 <= t)
+            .and_then(|i| self.free_joint(i));
+        self.n_joint = 0;
+        self.close_committed(j);
         self.pending.copy_within(split..n, 0);
         self.n_pending = n - split;
     }
@@ -186,17 +233,47 @@ impl DriftFit {
             self.commit(a, b, c);
         }
         self.n_pending = 0;
-        self.close_committed();
+        let j = self.n_joint.checked_sub(1).and_then(|i| self.free_joint(i));
+        self.n_joint = 0;
+        self.close_committed(j);
     }
 
-    fn close_committed(&mut self) {
-        if self.cur.count >= 2 {
-            let (tt, tz, zz) = self.cur.centred();
-            self.closed_tt += tt;
-            self.closed_tz += tz;
-            self.closed_zz += zz;
-            self.closed_n += self.cur.n;
-            self.closed_segments += 1.0;
+    /// Joint measurement `i` if it makes a free slope win on its own (as
+    /// [`DriftFit::estimate`] lets one win), and the one before it, from the hop
+    /// before, agrees and is at least [`JOINT_CONFIRM_SIGMA`] from 0: a joint measurement decides between the prior and a
+    /// free slope, never moves a slope the prior rules, and one hop's surface (a
+    /// stretch where the signatures disagree) does not decide alone.
+    fn free_joint(&self, i: usize) -> Option<(f64, f64, f64)> {
+        let free = |(_, d, v): (f64, f64, f64), k: f64| {
+            v.is_finite() && d * d > k * k * v && d * d > 9.0 * self.prior_var
+        };
+        let (j, p) = (self.joint[i], self.joint[i.checked_sub(1)?]);
+        (free(j, 5.0)
+            && free(p, JOINT_CONFIRM_SIGMA)
+            && (j.1 - p.1).abs() <= 3.0 * (j.2 + p.2).sqrt())
+        .then_some(j)
+    }
+
+    /// Closes the committed segment: its slope information (its short windows', or
+    /// the joint measurement `joint` of it when that informs the slope more) stays.
+    fn close_committed(&mut self, joint: Option<(f64, f64, f64)>) {
+        let (tt, _, _) = self.cur.centred();
+        match joint {
+            Some((_, d, v)) if 1.0 / v > tt => {
+                self.closed_tt += 1.0 / v;
+                self.closed_tz += d / v;
+                self.closed_zz += d * d / v;
+                self.closed_n += 1.0;
+            }
+            _ if self.cur.count >= 2 => {
+                let (tt, tz, zz) = self.cur.centred();
+                self.closed_tt += tt;
+                self.closed_tz += tz;
+                self.closed_zz += zz;
+                self.closed_n += self.cur.n;
+                self.closed_segments += 1.0;
+            }
+            _ => {}
         }
         self.cur = Moments::default();
     }
@@ -207,6 +284,14 @@ impl DriftFit {
         for i in 0..self.n_pending {
             let (a, b, c) = self.pending[i];
             all.commit(a, b, c);
+        }
+        // the current segment's joint measurement, when it informs the slope more
+        // than its short windows, stands in for them (their intercept does not
+        // inform the slope)
+        if let Some(j) = self.n_joint.checked_sub(1).and_then(|i| self.free_joint(i)) {
+            if 1.0 / j.2 > all.cur.centred().0 {
+                all.close_committed(Some(j));
+            }
         }
         all.estimate_committed()
     }
@@ -320,6 +405,35 @@ mod tests {
         }
         let (d, _) = f.estimate();
         assert!(d.abs() <= MAX_DRIFT, "{d}");
+    }
+
+    /// A joint slope measurement decides for a free slope only when the one of the
+    /// hop before agrees; a hop without one breaks the run; a change point keeps the
+    /// newest decisive one whose data end before it.
+    #[test]
+    fn a_joint_slope_wins_when_the_hop_before_confirms_it() {
+        let mut f = DriftFit::new(50e-6, 900.0);
+        f.set_joint(5.0, 0.012, 4e-6);
+        assert!(f.estimate().0.abs() < 1e-4, "one hop decided");
+        f.set_joint(5.5, f64::NAN, f64::INFINITY);
+        f.set_joint(6.0, 0.012, 4e-6);
+        assert!(f.estimate().0.abs() < 1e-4, "a gap did not break the run");
+        f.set_joint(6.5, 0.0118, 3e-6);
+        let (d, v) = f.estimate();
+        assert!(
+            (d - 0.0118).abs() < 1e-9 && (v - 3e-6).abs() < 1e-12,
+            "{d} {v}"
+        );
+        // a change after both: the segment's slope information stays
+        f.set_joint(7.0, 0.0119, 2.5e-6);
+        f.change_at(6.8);
+        let (d, _) = f.estimate();
+        assert!((d - 0.0118).abs() < 1e-9, "{d}");
+        // a joint measurement far from the one before does not decide
+        let mut g = DriftFit::new(50e-6, 900.0);
+        g.set_joint(5.0, -0.012, 4e-6);
+        g.set_joint(5.5, 0.012, 4e-6);
+        assert!(g.estimate().0.abs() < 1e-4);
     }
 
     #[test]

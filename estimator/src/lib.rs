@@ -119,6 +119,12 @@ const BIAS_WINDOWS: usize = 4;
 /// over from hop to hop, so it needs one pass per hop).
 const IRLS_PASSES: usize = 1;
 
+/// Slots by which the joint maximum's drift hypotheses shift the segment's far end
+/// ([`Estimator::joint_stage`]).
+const JOINT_SHIFT: f64 = 3.0;
+/// Re-centrings of the joint maximum's hypotheses per hop at most.
+const JOINT_ROUNDS: usize = 3;
+
 /// Numbers derived once from the configuration.
 #[derive(Debug, Clone)]
 struct Params {
@@ -263,6 +269,67 @@ struct Meas {
     score: f64,
     ratio: f64,
     sign: f64,
+}
+
+/// The segment's joint (offset, drift) maximum of a tracking hop
+/// ([`Estimator::joint_stage`]), run one combination per pushed sample after the
+/// hop, with the weights the hop found (kept by [`Segment::snapshot_weights`]):
+/// its result informs the drift fit from the next hop on.
+#[derive(Debug, Clone, Copy)]
+struct JointJob {
+    /// The hop's segment at its start: its blocks, slots and reference index.
+    first: usize,
+    last: usize,
+    k_ref: f64,
+    lo: usize,
+    hi: usize,
+    sign: f64,
+    /// Hypotheses' spacing and centre.
+    delta: f64,
+    c: f64,
+    /// Re-centrings done, and the hypothesis the next stage combines.
+    round: usize,
+    j: usize,
+    /// Peak heights of the round's hypotheses so far, and the pairs combined.
+    h: [f64; 3],
+    nsum: f64,
+    /// The sample rate the hop saw (every push moves the streams' mean intervals).
+    rate: f64,
+    /// Tracker times of the hop and of its segment's end.
+    t: f64,
+    t_end: f64,
+}
+
+impl JointJob {
+    /// The segment under hypothesis `j` of the current round.
+    fn span(&self, j: usize) -> Span {
+        Span {
+            first: self.first,
+            last: self.last,
+            drift: self.c + (j as f64 - 1.0) * self.delta,
+            k_ref: self.k_ref,
+            lo: self.lo,
+            hi: self.hi,
+        }
+    }
+}
+
+/// The inputs of the next hop's joint maximum its first round was prepared for
+/// ([`Estimator::prepare_joint_stage`]): the hop uses the preparation when it
+/// finds them unchanged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct JointKey {
+    epoch: u64,
+    /// The blocks the preparation holds (the hop adds its new one), by grid index:
+    /// their store indices move when the store is full.
+    blocks: usize,
+    first_k: i64,
+    last_k: i64,
+    k_ref: f64,
+    lo: usize,
+    hi: usize,
+    c: f64,
+    delta: f64,
 }
 
 /// Where a step test in progress stands.
@@ -539,6 +606,24 @@ pub struct Estimator {
     /// While a step test's later stage runs: the sample rate its first stage saw
     /// (every push moves the streams' mean intervals).
     step_rate: Option<f64>,
+    /// The segment's last joint (offset, drift) maximum's drift, where the next
+    /// hop's drift hypotheses centre ([`Estimator::start_joint`]).
+    joint_d: Option<f64>,
+    /// The last tracking hop's joint maximum, run in stages by the next pushes once
+    /// its step test is done.
+    joint_job: Option<JointJob>,
+    /// The next hop's joint maximum's first round, prepared for these inputs, and
+    /// its hypotheses done.
+    /// (Key, its first block's store index, hypotheses done.)
+    joint_prep: Option<(JointKey, usize, usize)>,
+    /// Whether the first round of the joint maximum is prepared before its hop
+    /// (always, except in the test that compares it with the direct one).
+    prepare_joint: bool,
+    /// Joint maxima started, and those whose first round was prepared.
+    joint_hops: (u64, u64),
+    /// Whether the joint maximum runs one stage per push (always, except in the test
+    /// that compares it with the whole maximum at the end of its hop).
+    split_joint: bool,
     /// Whether the step test runs one stage per push (always, except in the test
     /// that compares it with the whole test at once).
     split_step: bool,
@@ -688,6 +773,12 @@ impl Estimator {
             seg_fit: None,
             step_job: None,
             step_rate: None,
+            joint_d: None,
+            joint_job: None,
+            joint_prep: None,
+            prepare_joint: true,
+            joint_hops: (0, 0),
+            split_joint: true,
             split_step: true,
             prepare: true,
             prepared_hops: (0, 0),
@@ -829,19 +920,29 @@ impl Estimator {
     /// The stage a push runs before its sample: the last hop's step test (the whole
     /// test at once in the test that compares the two).
     fn stage_before_push(&mut self) {
-        self.staged = self.step_job.is_some();
-        if self.split_step {
-            self.step_stage();
-        } else {
+        self.staged = self.step_job.is_some() || self.joint_job.is_some();
+        if !self.split_step {
             self.finish_step();
+        } else if self.step_job.is_some() {
+            self.step_stage();
+            return;
+        }
+        // then the joint maximum's combinations
+        if self.split_joint {
+            self.joint_stage();
         }
     }
 
     /// The stage a push runs after its sample: once the step test is done, and if the
     /// sample was accepted and completed no hop, the next hop's preparation.
     fn stage_after_push(&mut self) {
-        if self.pushed.take() == Some(true) && !self.staged && self.step_job.is_none() {
-            self.prepare_stage();
+        if self.pushed.take() == Some(true)
+            && !self.staged
+            && self.step_job.is_none()
+            && self.joint_job.is_none()
+            && !self.prepare_stage()
+        {
+            self.prepare_joint_stage();
         }
     }
 
@@ -1007,6 +1108,7 @@ impl Estimator {
         };
         // the last hop's step test, as it would have run at the next push
         self.finish_step();
+        self.finish_joint();
         let drift = est.drift.clamp(-drift::MAX_DRIFT, drift::MAX_DRIFT);
         let drift_std = est.drift_std.clamp(1e-9, self.p.drift0.max(1e-9));
         // blind for `age` seconds: the offset moved by the drift, and its uncertainty
@@ -1066,6 +1168,7 @@ impl Estimator {
     /// moves by the same amount (LiDAR: +, camera: -); re-acquire around the new value.
     fn clock_jump(&mut self, stream: Stream, jump_ns: Nanos) {
         self.finish_step();
+        self.finish_joint();
         let si = idx(stream);
         self.jumps[si] = self.jumps[si].saturating_add(jump_ns);
         let j = jump_ns as f64 * 1e-9;
@@ -1182,8 +1285,11 @@ impl Estimator {
 
     fn run_correlator(&mut self) {
         loop {
-            if self.step_job.is_some() && self.corr.may_complete_block() {
+            if (self.step_job.is_some() || self.joint_job.is_some())
+                && self.corr.may_complete_block()
+            {
                 self.finish_step();
+                self.finish_joint();
             }
             match self.corr.step() {
                 Step::Idle => break,
@@ -1215,6 +1321,7 @@ impl Estimator {
             return;
         }
         self.finish_step();
+        self.finish_joint();
         // at most one queue's worth of blind estimates
         let start = first.max(target - (QUEUE as i64 - 1) * hl);
         let mut b = start;
@@ -1264,6 +1371,7 @@ impl Estimator {
                 return;
             }
             self.finish_step();
+            self.finish_joint();
             if self.mode == Mode::Locked {
                 self.lose();
             }
@@ -1474,6 +1582,10 @@ impl Estimator {
     fn hop(&mut self) {
         self.hops_done += 1;
         self.hop_inner();
+        if !self.split_joint {
+            self.finish_joint();
+        }
+        self.joint_prep = None;
         // what was prepared was for this hop (used, or its inputs changed)
         self.seg.drop_prepared();
     }
@@ -1481,6 +1593,7 @@ impl Estimator {
     fn hop_inner(&mut self) {
         // normally finished already, before the block that makes this hop completed
         self.finish_step();
+        self.finish_joint();
         let count = self.corr.count();
         if count == 0 {
             return;
@@ -1573,6 +1686,159 @@ impl Estimator {
         self.locked_hops = 0;
         // the lock's own estimate comes from the segment (robust, at the reference time)
         self.hop_track(t_ref_ns, t, motion);
+    }
+
+    /// Starts the segment's joint (offset, drift) maximum of this hop: its blocks
+    /// combined (with the weights they have now) under three drift hypotheses
+    /// around the last one, each hypothesis's peak maximised over the lag, a
+    /// parabola through the three heights. Its vertex is the segment's own slope,
+    /// measured from all its data at once; the parabola's curvature gives its
+    /// variance as the lag's curvature gives the offset's ([`Estimator::meas_var`]).
+    /// It informs the drift fit as the segment's slope measurement
+    /// ([`DriftFit::set_joint`]). The combinations run one per pushed sample after
+    /// the hop ([`Estimator::joint_stage`]), so its result informs the next hop's
+    /// drift. Returns whether the segment can be measured.
+    fn start_joint(&mut self, t_ref_ns: Nanos, t: f64, pred_t: f64, sign: f64) -> bool {
+        let Some(first) = self.segment_first() else {
+            return false;
+        };
+        let n = self.corr.count();
+        let (k0, k1) = (
+            self.corr.block(first).first_k,
+            self.corr.block(n - 1).last_k,
+        );
+        let Some((lo, hi, k_ref, delta)) = self.joint_inputs(first, n, (k0, k1), t_ref_ns, pred_t)
+        else {
+            return false;
+        };
+        let c = self.joint_d.unwrap_or(self.d.0);
+        self.joint_d = None;
+        self.seg.snapshot_weights();
+        let mut job = JointJob {
+            first,
+            last: n - 1,
+            k_ref,
+            lo,
+            hi,
+            sign,
+            delta,
+            c,
+            round: 0,
+            j: 0,
+            h: [0.0; 3],
+            nsum: 0.0,
+            rate: self.min_rate(),
+            t,
+            t_end: self.rel_k(k1 as f64),
+        };
+        // the first round: prepared on the samples before this hop (its new block
+        // added now), else combined now; the same sums either way
+        let key = JointKey {
+            epoch: self.corr.epoch(),
+            blocks: n - 1 - first,
+            first_k: k0,
+            last_k: self.corr.block(n - 2).last_k,
+            k_ref,
+            lo,
+            hi,
+            c,
+            delta,
+        };
+        let prepared = self
+            .joint_prep
+            .take()
+            .is_some_and(|(k, _, done)| done == 3 && k == key);
+        self.joint_hops.0 += 1;
+        self.joint_hops.1 += u64::from(prepared);
+        for j in 0..3 {
+            let span = job.span(j);
+            let sums = if prepared {
+                self.seg.finish_joint(&self.corr, &span, j, n - 1)
+            } else {
+                self.seg.combine_snapshot(&self.corr, &span);
+                &self.seg.sums
+            };
+            job.nsum = sums.n;
+            let Some(pk) = peak::find(sums, lo, hi, sign, &mut self.scratch) else {
+                self.joint_failed(&job);
+                return true;
+            };
+            job.h[j] = pk.score;
+        }
+        // a measurement informs this hop's drift; re-centred rounds, the next hop's
+        self.joint_fit(job);
+        true
+    }
+
+    /// One stage of the pending joint maximum, if any: one hypothesis's combination
+    /// and peak; the third of a round fits the parabola and either gives the
+    /// measurement or re-centres the next round. A joint maximum that fails gives
+    /// the drift fit its hop without one (it breaks the run a free slope needs).
+    fn joint_stage(&mut self) {
+        let Some(mut job) = self.joint_job.take() else {
+            return;
+        };
+        let span = job.span(job.j);
+        job.nsum = self.seg.combine_snapshot(&self.corr, &span);
+        let Some(pk) = peak::find(&self.seg.sums, job.lo, job.hi, job.sign, &mut self.scratch)
+        else {
+            self.joint_failed(&job);
+            return;
+        };
+        job.h[job.j] = pk.score;
+        job.j += 1;
+        if job.j < 3 {
+            self.joint_job = Some(job);
+            return;
+        }
+        self.joint_fit(job);
+    }
+
+    /// The parabola through a round's three heights: the measurement, or the next
+    /// round (re-centred, staged), or a failure.
+    fn joint_fit(&mut self, mut job: JointJob) {
+        let (h, delta) = (job.h, job.delta);
+        let den = h[0] - 2.0 * h[1] + h[2];
+        let curv = -den / (delta * delta);
+        if !(curv > 0.0 && curv.is_finite()) {
+            self.joint_failed(&job);
+            return;
+        }
+        let x = (0.5 * (h[0] - h[2]) / den * delta).clamp(-2.0 * delta, 2.0 * delta);
+        if x.abs() > delta {
+            // too far from the hypotheses for the parabola: centre there, again
+            job.round += 1;
+            if job.round == JOINT_ROUNDS {
+                self.joint_failed(&job);
+                return;
+            }
+            job.c += x;
+            job.j = 0;
+            self.joint_job = Some(job);
+            return;
+        }
+        let d = job.c + x;
+        let rho = (h[1] + 0.25 * (h[0] - h[2]) * x / delta).clamp(1e-3, 0.999);
+        let band = (self.p.lowpass_hz.min(0.5 * job.rate) - self.p.highpass_hz).max(0.1);
+        let n_eff = (2.0 * band * job.nsum / self.p.fs).max(1.0);
+        let secs = (job.nsum / self.p.fs).max(1e-3);
+        let var = self.p.noise_scale * (1.0 - rho * rho) / (rho * curv * n_eff)
+            * (CAL_WINDOW_S / secs).sqrt();
+        self.joint_d = Some(d);
+        self.drift.set_joint(job.t_end, d, var);
+    }
+
+    fn joint_failed(&mut self, job: &JointJob) {
+        self.joint_d = None;
+        self.drift.set_joint(job.t, f64::NAN, f64::INFINITY);
+    }
+
+    /// Runs the pending joint maximum to its end: before anything changes the stored
+    /// blocks (a block completing, a stall, a clock jump) and at the next hop.
+    fn finish_joint(&mut self) {
+        while self.joint_job.is_some() {
+            self.joint_stage();
+        }
     }
 
     /// The two halves of the acquisition window measure the offset at two times
@@ -1669,17 +1935,116 @@ impl Estimator {
     /// inputs that hop will have if no block, step or lag shift comes between: the
     /// hop then only adds its new block. A hop whose inputs differ combines
     /// directly, so a wrong guess costs time, never accuracy.
-    fn prepare_stage(&mut self) {
+    /// Returns whether it had work.
+    fn prepare_stage(&mut self) -> bool {
         if !self.prepare || self.mode != Mode::Locked || self.seg.prepared_ready() {
-            return;
+            return false;
         }
         if self.seg.preparing() {
             self.seg.prepare_sums(&self.corr);
+            return true;
+        }
+        let Some((span, key)) = self.next_hop_key() else {
+            return false;
+        };
+        self.seg.prepare_residuals(&self.corr, &span, key);
+        true
+    }
+
+    /// One stage of preparing the next hop's joint maximum's first round (after the
+    /// segment's preparation): one hypothesis's combination of the blocks it will
+    /// hold besides its new one, from the inputs it will have if no block, step or
+    /// lag shift comes between ([`JointKey`]). A hop whose inputs differ combines
+    /// its first round directly: the same measurement, at a cost.
+    fn prepare_joint_stage(&mut self) {
+        if !self.prepare_joint || self.mode != Mode::Locked {
             return;
         }
-        if let Some((span, key)) = self.next_hop_key() {
-            self.seg.prepare_residuals(&self.corr, &span, key);
+        let Some((key, first)) = self.next_joint_key() else {
+            return;
+        };
+        let done = match self.joint_prep {
+            Some((k, _, done)) if k == key => done,
+            _ => 0,
+        };
+        if done == 3 {
+            return;
         }
+        let span = Span {
+            first,
+            last: first + key.blocks - 1,
+            drift: key.c + (done as f64 - 1.0) * key.delta,
+            k_ref: key.k_ref,
+            lo: key.lo,
+            hi: key.hi,
+        };
+        self.seg.prepare_joint(&self.corr, &span, done);
+        self.joint_prep = Some((key, first, done + 1));
+    }
+
+    /// The next hop's joint maximum's inputs ([`Estimator::start_joint`]), predicted,
+    /// and the store index of its first block.
+    fn next_joint_key(&self) -> Option<(JointKey, usize)> {
+        let n = self.corr.count();
+        let cursor = self.corr.cursor()?;
+        if n == 0 {
+            return None;
+        }
+        let epoch = self.epoch_ns?;
+        let hl = self.p.hop_len;
+        let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
+        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
+        let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
+        if t < self.seg_start_t {
+            return None;
+        }
+        let (pred_t, _) = self.predict(t);
+        let oldest = (n + 1).saturating_sub(self.p.seg_blocks);
+        let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
+        let k0 = self.corr.block(first).first_k;
+        let (lo, hi, k_ref, delta) = self.joint_inputs(first, n, (k0, k_end), t_ref_ns, pred_t)?;
+        let key = JointKey {
+            epoch: self.corr.epoch(),
+            blocks: n - first,
+            first_k: k0,
+            last_k: self.corr.block(n - 1).last_k,
+            k_ref,
+            lo,
+            hi,
+            c: self.joint_d.unwrap_or(self.d.0),
+            delta,
+        };
+        Some((key, first))
+    }
+
+    /// The joint maximum's slots, reference index and hypotheses' spacing for the
+    /// segment of blocks `first..held` (those that hold its slots) spanning grid
+    /// indices `k0..=k1`; `None` when it is too short or holds too few slots.
+    fn joint_inputs(
+        &self,
+        first: usize,
+        held: usize,
+        (k0, k1): (i64, i64),
+        t_ref_ns: Nanos,
+        pred_t: f64,
+    ) -> Option<(usize, usize, f64, f64)> {
+        let len = (k1 - k0) as f64;
+        if len < (2 * self.p.short_blocks as i64 * self.p.hop_len) as f64 - 1.0 {
+            return None;
+        }
+        let (lo, hi) = self.track_slots_around(pred_t);
+        let (held_lo, held_hi) = self.corr.slots_held(first, held);
+        let (lo, hi) = (lo.max(held_lo + 4), hi.min(held_hi.saturating_sub(5)));
+        if hi < lo + 4 {
+            return None;
+        }
+        let k_ref = t_ref_ns.saturating_add(self.group_delay_ns) as f64 / self.p.dt_ns as f64;
+        // hypotheses shifting the segment's far end by JOINT_SHIFT slots
+        let far = (k_ref - k0 as f64)
+            .abs()
+            .max((k1 as f64 - k_ref).abs())
+            .max(1.0);
+        Some((lo, hi, k_ref, JOINT_SHIFT / far))
     }
 
     /// The next hop's segment (without its new block) and key, predicted.
@@ -1826,6 +2191,16 @@ impl Estimator {
         } else {
             None
         };
+        // the joint maximum runs on the next pushes (after the step test): its slope
+        // informs the drift from the next hop on
+        if !(motion
+            && raw.is_some()
+            && t >= self.seg_start_t
+            && self.start_joint(t_ref_ns, t, pred_t, sign))
+        {
+            self.joint_d = None;
+            self.drift.set_joint(t, f64::NAN, f64::INFINITY);
+        }
         self.d = self.drift.estimate();
         // 2. the segment's offset at the reference time
         if t < self.seg_start_t {
@@ -2283,6 +2658,10 @@ impl Estimator {
         self.fresh = true;
         self.seg_start_k = k;
         self.seg_start_t = t_c;
+        // the joint maximum under way measured the old segment through the change: the
+        // new segment's hypotheses centre on the drift estimate
+        self.joint_job = None;
+        self.joint_d = None;
         self.step = Streak::default();
         self.step_evidence = 0.0;
         self.since_chunk = 0;
@@ -2406,6 +2785,122 @@ mod tests {
             b.extend(std::iter::from_fn(|| whole.poll()));
         }
         (a, b, split.stats().steps, pending)
+    }
+
+    /// Estimates with the joint maximum's re-centred rounds staged over the pushes
+    /// after its hop and with them run whole at the end of its hop; the pushes during
+    /// which a staged round stood part-done.
+    fn joint_staged_and_whole(
+        family: Family,
+        seed: u64,
+        cfg: &EstimatorConfig,
+    ) -> (Vec<Estimate>, Vec<Estimate>, usize) {
+        let all = generate(family, seed, None).pushes();
+        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
+        whole.split_joint = false;
+        // both combine directly: the whole one leaves no pushes for the preparation
+        split.prepare = false;
+        whole.prepare = false;
+        let (mut a, mut b, mut part_done) = (Vec::new(), Vec::new(), 0);
+        for &(stream, s) in &all {
+            let _ = split.push(stream, s);
+            let _ = whole.push(stream, s);
+            part_done += usize::from(split.joint_job.is_some_and(|j| j.j > 0));
+            a.extend(std::iter::from_fn(|| split.poll()));
+            b.extend(std::iter::from_fn(|| whole.poll()));
+        }
+        (a, b, part_done)
+    }
+
+    /// The joint maximum's re-centred rounds run one combination per push after its
+    /// hop, once the step test is done, give the estimates of the rounds run whole
+    /// at the end of its hop (the weights they combine with are kept at its start:
+    /// the hop's and the step test's re-weighting in between do not reach them),
+    /// with steps that drop them and 0.1 s hops that finish them on the sample
+    /// completing the next block.
+    #[test]
+    fn the_joint_maximum_in_stages_gives_the_estimates_of_the_whole_one() {
+        let short_hops = EstimatorConfig {
+            hop_s: 0.1,
+            ..EstimatorConfig::default()
+        };
+        let no_cadence = EstimatorConfig {
+            cadence: vlsync_config::CadenceStreams::Off,
+            ..EstimatorConfig::default()
+        };
+        for (family, seed, cfg) in [
+            (Family::Seed, 1000, EstimatorConfig::default()),
+            (Family::Seed, 1003, short_hops),
+            (Family::LoadSteps, 3, no_cadence),
+            (Family::Clocks, 1000, EstimatorConfig::default()),
+        ] {
+            let (split, whole, part_done) = joint_staged_and_whole(family, seed, &cfg);
+            assert!(
+                split.len() > 15,
+                "{family:?} {seed}: {} estimates",
+                split.len()
+            );
+            // the re-centred rounds are staged (the first is combined at the hop):
+            // load-steps' steps leave the hypotheses far from the new segment's slope
+            if family == Family::LoadSteps {
+                assert!(part_done > 5, "{family:?}: {part_done} pushes part-done");
+            }
+            assert_eq!(split.len(), whole.len());
+            for (x, y) in split.iter().zip(&whole) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?} {seed}");
+            }
+            if family == Family::Seed {
+                // the joint slope decided: the seed's 12 ms/s drift is learnt
+                let d = split.last().unwrap().drift;
+                assert!((d - 0.012).abs() < 0.002, "{family:?} {seed}: drift {d}");
+            }
+        }
+    }
+
+    /// The joint maximum's first round prepared on the samples before its hop gives
+    /// the estimates of the one combined at the hop, bit for bit (the hop adds its
+    /// new block to sums of the same blocks in the same order), and the hops used
+    /// what was prepared.
+    #[test]
+    fn a_prepared_joint_maximum_gives_the_estimates_of_the_direct_one() {
+        let no_cadence = EstimatorConfig {
+            cadence: vlsync_config::CadenceStreams::Off,
+            ..EstimatorConfig::default()
+        };
+        // (family, seed, configuration, degraded mode, share of joint maxima prepared
+        // at least)
+        for (family, seed, cfg, degraded, share) in [
+            (Family::Seed, 1000, EstimatorConfig::default(), false, 0.9),
+            (Family::Seed, 4001, EstimatorConfig::default(), false, 0.9),
+            (Family::Robot, 1000, EstimatorConfig::default(), false, 0.9),
+            (Family::LoadSteps, 3, no_cadence, false, 0.9),
+            (Family::Clocks, 1000, EstimatorConfig::default(), false, 0.9),
+            // the tracking range narrowed around each hop's prediction
+            (Family::Robot, 1001, EstimatorConfig::default(), true, 0.9),
+        ] {
+            let all = generate(family, seed, None).pushes();
+            let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            prep.set_degraded(degraded);
+            direct.set_degraded(degraded);
+            direct.prepare_joint = false;
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for &(stream, s) in &all {
+                let _ = prep.push(stream, s);
+                let _ = direct.push(stream, s);
+                a.extend(std::iter::from_fn(|| prep.poll()));
+                b.extend(std::iter::from_fn(|| direct.poll()));
+            }
+            let (started, prepared) = prep.joint_hops;
+            assert_eq!(direct.joint_hops.1, 0);
+            assert!(
+                started >= 10 && prepared as f64 >= share * started as f64,
+                "{family:?} {seed}: {prepared} of {started} joint maxima prepared"
+            );
+            assert_eq!(a.len(), b.len(), "{family:?} {seed}");
+            for (x, y) in a.iter().zip(&b) {
+                assert_eq!(format!("{x:?}"), format!("{y:?}"), "{family:?} {seed}");
+            }
+        }
     }
 
     #[test]

@@ -38,6 +38,13 @@ pub struct Segment {
     /// Weight per stored block (by [`Correlator::phys`] position, so weights stay
     /// with their blocks as the store turns).
     w: Vec<f64>,
+    /// The weights as [`Segment::snapshot_weights`] kept them, for combinations
+    /// staged over later samples while the live weights move
+    /// ([`Segment::combine_snapshot`]).
+    w_snap: Vec<f64>,
+    /// The next hop's joint maximum's first three hypotheses, prepared before its
+    /// block completes ([`Segment::prepare_joint`]).
+    joint: [Sums; 3],
     /// Residual energy per sample per stored block.
     e: Vec<f64>,
     sort: Vec<f64>,
@@ -152,6 +159,8 @@ impl Segment {
         Self {
             sums: Sums::new(n_lags),
             w: vec![1.0; cap_blocks],
+            w_snap: vec![1.0; cap_blocks],
+            joint: [Sums::new(n_lags), Sums::new(n_lags), Sums::new(n_lags)],
             e: vec![0.0; cap_blocks],
             sort: vec![0.0; cap_blocks],
             prep: Prepared {
@@ -213,27 +222,69 @@ impl Segment {
     /// Combines the blocks of `span` with the current weights into [`Segment::sums`].
     /// Returns the weighted number of pairs.
     pub fn combine(&mut self, corr: &Correlator, span: &Span) -> f64 {
-        let s = &mut self.sums;
-        zero(s, span.lo, span.hi);
-        let mut first = true;
-        for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
-            let w = self.w[corr.phys(i)];
-            let b = corr.block(i);
-            if w <= 0.0 || b.n <= 0.0 {
-                continue;
-            }
-            let Some(sh) = Self::shift(b, span) else {
-                continue;
-            };
-            if first {
-                s.first_k = b.first_k;
-                first = false;
-            }
-            s.last_k = b.last_k;
-            accumulate(s, b, w, span, sh);
-        }
-        s.n
+        combine_into(&mut self.sums, &self.w, corr, span)
     }
+
+    /// Keeps the current weights for [`Segment::combine_snapshot`] (valid until a
+    /// block completes: the weights are by stored position).
+    pub fn snapshot_weights(&mut self) {
+        self.w_snap.copy_from_slice(&self.w);
+    }
+
+    /// Combines the blocks of `span` with the current weights into joint hypothesis
+    /// `j`'s sums, as [`Segment::combine`] does: the next hop adds its new block
+    /// ([`Segment::finish_joint`]). Returns the weighted number of pairs.
+    pub fn prepare_joint(&mut self, corr: &Correlator, span: &Span, j: usize) -> f64 {
+        combine_into(&mut self.joint[j], &self.w, corr, span)
+    }
+
+    /// Adds stored block `i` (with its current weight) to joint hypothesis `j`'s
+    /// prepared sums, shifted as `span` asks: what [`Segment::combine`] of the span
+    /// through `i` would hold, summed in the same order. Returns those sums.
+    pub fn finish_joint(&mut self, corr: &Correlator, span: &Span, j: usize, i: usize) -> &Sums {
+        let s = &mut self.joint[j];
+        let w = self.w[corr.phys(i)];
+        let b = corr.block(i);
+        if w > 0.0 && b.n > 0.0 {
+            if let Some(sh) = Self::shift(b, span) {
+                if s.n == 0.0 {
+                    s.first_k = b.first_k;
+                }
+                s.last_k = b.last_k;
+                accumulate(s, b, w, span, sh);
+            }
+        }
+        &self.joint[j]
+    }
+
+    /// [`Segment::combine`] with the weights [`Segment::snapshot_weights`] kept.
+    pub fn combine_snapshot(&mut self, corr: &Correlator, span: &Span) -> f64 {
+        combine_into(&mut self.sums, &self.w_snap, corr, span)
+    }
+}
+
+/// Combines the blocks of `span` with weights `w` (by stored position) into `s`.
+/// Returns the weighted number of pairs.
+fn combine_into(s: &mut Sums, w: &[f64], corr: &Correlator, span: &Span) -> f64 {
+    zero(s, span.lo, span.hi);
+    let mut first = true;
+    for i in span.first..=span.last.min(corr.count().saturating_sub(1)) {
+        let w = w[corr.phys(i)];
+        let b = corr.block(i);
+        if w <= 0.0 || b.n <= 0.0 {
+            continue;
+        }
+        let Some(sh) = Segment::shift(b, span) else {
+            continue;
+        };
+        if first {
+            s.first_k = b.first_k;
+            first = false;
+        }
+        s.last_k = b.last_k;
+        accumulate(s, b, w, span, sh);
+    }
+    s.n
 }
 
 /// Zeroes the lag-free sums of `s` and its slots `lo..=hi`.
