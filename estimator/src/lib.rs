@@ -267,7 +267,7 @@ const RAW_TREND: usize = 8;
 /// Raw window measurements a trend needs at least.
 const RAW_TREND_MIN: usize = 4;
 
-/// The newest raw window measurements `(t, z, var)`: peaks of the acquisition
+/// The newest raw window measurements `(t, z, σ)`: peaks of the acquisition
 /// window at its centre time, oldest first; the acquisition's consistent windows
 /// before a lock, then each tracking hop's raw measurement. A hop without one (no
 /// motion, no peak) or an acquisition's restart clears them. Their trend confirms a
@@ -291,7 +291,7 @@ impl RawTrend {
             self.pts.copy_within(1.., 0);
             self.n -= 1;
         }
-        self.pts[self.n] = (t, z, var);
+        self.pts[self.n] = (t, z, var.sqrt());
         self.n += 1;
     }
 
@@ -315,11 +315,11 @@ impl RawTrend {
             return None;
         }
         let s = pts.iter().map(|p| (p.0 - tb) * (p.1 - zb)).sum::<f64>() / stt;
-        let mut model = 0.0;
+        let (mut model, w) = (0.0, window_s.max(1e-3));
         for a in pts {
             for b in pts {
-                let c = (1.0 - (a.0 - b.0).abs() / window_s.max(1e-3)).max(0.0);
-                model += (a.0 - tb) * (b.0 - tb) * (a.2 * b.2).sqrt() * c;
+                let c = (1.0 - (a.0 - b.0).abs() / w).max(0.0);
+                model += (a.0 - tb) * (b.0 - tb) * a.2 * b.2 * c;
             }
         }
         model /= stt * stt;
