@@ -267,6 +267,17 @@ const RAW_TREND: usize = 8;
 /// Raw window measurements a trend needs at least.
 const RAW_TREND_MIN: usize = 4;
 
+/// The raw trend confirms a joint slope ([`DriftFit::set_raw_trend`]) while the
+/// reference time is at most this long (s) after the segment's start: its first
+/// hops (2 s after the start at a lock), while the prior's lag costs most and the
+/// segment alone cannot show a fast drift at 5σ. Later a true one shows on the
+/// segment alone (the seed run's 12 ms/s: 6-13σ by then), and the windows' own
+/// excursions would pass: without the limit, a rates-60x5 run (2002) took a
+/// 23 ms/s slope 7 s after its start and a heavy-noise run (6000) -7 ms/s 8 s after
+/// (estimates 21-25 ms off), and free slopes over 1 ms/s appeared in 41 hops of the
+/// drift-free families' 190 seeds each instead of 17 (22 with the limit).
+const RAW_CONFIRM_S: f64 = 4.0;
+
 /// The newest raw window measurements `(t, z, σ)`: peaks of the acquisition
 /// window at its centre time, oldest first; the acquisition's consistent windows
 /// before a lock, then each tracking hop's raw measurement. A hop without one (no
@@ -2277,8 +2288,11 @@ impl Estimator {
         if raw.is_none() {
             self.raw_trend.clear();
         }
-        self.drift
-            .set_raw_trend(self.raw_trend.slope(self.p.window_s));
+        // the raw trend confirms a joint slope in the segment's first seconds only
+        let young = t - self.seg_start_t <= RAW_CONFIRM_S;
+        let trend = self.raw_trend.slope(self.p.window_s).filter(|_| young);
+        self.drift.set_raw_trend(trend);
+
         // the joint maximum runs on the next pushes (after the step test): its slope
         // informs the drift from the next hop on
         if !(motion
