@@ -88,6 +88,20 @@ pub const JOINT_HISTORY: usize = 20;
 /// win (at 5 sigmas) ([`DriftFit::set_joint`]).
 pub const JOINT_CONFIRM_SIGMA: f64 = 3.0;
 
+/// Sigmas from 0 at which a joint measurement lets a free slope win on its own,
+/// without the hop before, when the raw window measurements' trend confirms it
+/// ([`DriftFit::set_raw_trend`]).
+pub const JOINT_RAW_SIGMA: f64 = 3.0;
+
+/// Sigmas of the raw trend from 0, and the joint slope's distance from 0 in the raw
+/// trend's sigmas (a slope the raw trend cannot tell from 0 is not confirmed by it)
+/// ([`DriftFit::set_raw_trend`]).
+pub const RAW_TREND_SIGMA: f64 = 2.0;
+
+/// Sigmas (of both) within which the raw trend and the joint slope must agree
+/// ([`DriftFit::set_raw_trend`]).
+pub const RAW_AGREE_SIGMA: f64 = 1.5;
+
 /// The drift estimator.
 #[derive(Debug, Clone)]
 pub struct DriftFit {
@@ -109,7 +123,11 @@ pub struct DriftFit {
     /// The current segment's joint slope measurements `(t_end, drift, var)`, oldest
     /// first: each measures the slope from all the segment's data up to `t_end`.
     joint: [(f64, f64, f64); JOINT_HISTORY],
+    /// Per joint measurement: whether the raw trend confirmed it.
+    joint_raw: [bool; JOINT_HISTORY],
     n_joint: usize,
+    /// The raw window measurements' trend `(slope, var)` at the next joint measurement.
+    raw_trend: Option<(f64, f64)>,
 }
 
 impl DriftFit {
@@ -130,7 +148,9 @@ impl DriftFit {
             closed_n: 0.0,
             closed_segments: 0.0,
             joint: [(0.0, 0.0, 0.0); JOINT_HISTORY],
+            joint_raw: [false; JOINT_HISTORY],
             n_joint: 0,
+            raw_trend: None,
         }
     }
 
@@ -151,10 +171,33 @@ impl DriftFit {
         };
         if self.n_joint == JOINT_HISTORY {
             self.joint.copy_within(1.., 0);
+            self.joint_raw.copy_within(1.., 0);
             self.n_joint -= 1;
         }
+        let (k, a) = (RAW_TREND_SIGMA, RAW_AGREE_SIGMA);
+        let raw = self.raw_trend.is_some_and(|(s, vs)| {
+            var.is_finite()
+                && vs.is_finite()
+                && s * s > k * k * vs
+                && drift * drift > k * k * vs
+                && (s - drift).powi(2) <= a * a * (vs + var)
+        });
         self.joint[self.n_joint] = (t_end, drift, var);
+        self.joint_raw[self.n_joint] = raw;
         self.n_joint += 1;
+    }
+
+    /// The trend `(slope, var)` of the newest raw window measurements (peaks of
+    /// overlapping windows at their centres, which a drift does not bias to first
+    /// order), evidence besides the segment's surface: a joint measurement it
+    /// confirms (the trend and the joint slope both [`RAW_TREND_SIGMA`] trend sigmas
+    /// from 0, within [`RAW_AGREE_SIGMA`] of each other) lets a free slope win at
+    /// [`JOINT_RAW_SIGMA`], without the hop before, and stands in for the segment's
+    /// windows. A false joint slope (a stretch where the signatures disagree) moves
+    /// the segment's surface, not the windows' peaks. Applies to the next
+    /// [`DriftFit::set_joint`].
+    pub fn set_raw_trend(&mut self, trend: Option<(f64, f64)>) {
+        self.raw_trend = trend;
     }
 
     /// Forgets everything.
@@ -243,23 +286,27 @@ impl DriftFit {
     /// before, agrees and is at least [`JOINT_CONFIRM_SIGMA`] from 0: a joint measurement decides between the prior and a
     /// free slope, never moves a slope the prior rules, and one hop's surface (a
     /// stretch where the signatures disagree) does not decide alone.
-    fn free_joint(&self, i: usize) -> Option<(f64, f64, f64)> {
+    fn free_joint(&self, i: usize) -> Option<((f64, f64, f64), bool)> {
         let free = |(_, d, v): (f64, f64, f64), k: f64| {
             v.is_finite() && d * d > k * k * v && d * d > 9.0 * self.prior_var
         };
-        let (j, p) = (self.joint[i], self.joint[i.checked_sub(1)?]);
+        let j = self.joint[i];
+        if self.joint_raw[i] && free(j, JOINT_RAW_SIGMA) {
+            return Some((j, true));
+        }
+        let p = self.joint[i.checked_sub(1)?];
         (free(j, 5.0)
             && free(p, JOINT_CONFIRM_SIGMA)
             && (j.1 - p.1).abs() <= 3.0 * (j.2 + p.2).sqrt())
-        .then_some(j)
+        .then_some((j, false))
     }
 
     /// Closes the committed segment: its slope information (its short windows', or
     /// the joint measurement `joint` of it when that informs the slope more) stays.
-    fn close_committed(&mut self, joint: Option<(f64, f64, f64)>) {
+    fn close_committed(&mut self, joint: Option<((f64, f64, f64), bool)>) {
         let (tt, _, _) = self.cur.centred();
         match joint {
-            Some((_, d, v)) if 1.0 / v > tt => {
+            Some(((_, d, v), forced)) if forced || 1.0 / v > tt => {
                 self.closed_tt += 1.0 / v;
                 self.closed_tz += d / v;
                 self.closed_zz += d * d / v;
@@ -288,15 +335,19 @@ impl DriftFit {
         // the current segment's joint measurement, when it informs the slope more
         // than its short windows, stands in for them (their intercept does not
         // inform the slope)
+        let mut k = 5.0;
         if let Some(j) = self.n_joint.checked_sub(1).and_then(|i| self.free_joint(i)) {
-            if 1.0 / j.2 > all.cur.centred().0 {
+            if j.1 || 1.0 / j.0 .2 > all.cur.centred().0 {
                 all.close_committed(Some(j));
+                if j.1 {
+                    k = JOINT_RAW_SIGMA;
+                }
             }
         }
-        all.estimate_committed()
+        all.estimate_committed(k)
     }
 
-    fn estimate_committed(&self) -> (f64, f64) {
+    fn estimate_committed(&self, k: f64) -> (f64, f64) {
         // information on [intercept of the current segment, slope]; closed segments
         // add centred slope information
         let m = &self.cur;
@@ -339,7 +390,7 @@ impl DriftFit {
             1.0
         };
         let var = var * scale;
-        let (d, var) = if d * d > 25.0 * var && d * d > 9.0 * self.prior_var {
+        let (d, var) = if d * d > k * k * var && d * d > 9.0 * self.prior_var {
             (d, var)
         } else {
             with_prior(scale)
@@ -434,6 +485,34 @@ mod tests {
         g.set_joint(5.0, -0.012, 4e-6);
         g.set_joint(5.5, 0.012, 4e-6);
         assert!(g.estimate().0.abs() < 1e-4);
+    }
+
+    /// A joint slope at 3-5σ wins on its own when the raw windows' trend confirms it,
+    /// not when the trend stays near 0 or cannot tell it from 0.
+    #[test]
+    fn a_joint_slope_the_raw_trend_confirms_wins_at_once() {
+        // 0.012 ± 0.0033 s/s: 3.6σ, alone not enough
+        let mut f = DriftFit::new(50e-6, 900.0);
+        f.set_joint(5.0, 0.012, 1.1e-5);
+        assert!(f.estimate().0.abs() < 1e-4);
+        // confirmed by a trend of 0.010 ± 0.004 s/s
+        f.set_raw_trend(Some((0.010, 1.6e-5)));
+        f.set_joint(5.5, 0.012, 1.1e-5);
+        let (d, v) = f.estimate();
+        assert!(
+            (d - 0.012).abs() < 1e-9 && (v - 1.1e-5).abs() < 1e-12,
+            "{d} {v}"
+        );
+        // a trend near 0 (the false 50 ms/s slope of a heavy-noise run at its lock)
+        let mut g = DriftFit::new(50e-6, 900.0);
+        g.set_raw_trend(Some((0.0098, 1.3e-4)));
+        g.set_joint(5.0, 0.05, 1.3e-4);
+        assert!(g.estimate().0.abs() < 1e-4);
+        // a trend of the same sign that cannot tell a small slope from 0
+        let mut h = DriftFit::new(50e-6, 900.0);
+        h.set_raw_trend(Some((0.008, 1.6e-5)));
+        h.set_joint(5.0, 0.0005, 1.6e-8);
+        assert!(h.estimate().0.abs() < 1e-4);
     }
 
     #[test]
