@@ -269,14 +269,20 @@ fn segment(c: &mut Criterion) {
     let mut t = 90_000_000_000i64;
     push_until(&mut est, &mut ij, t);
     let hop_ns = (cfg.hop_s * 1e9) as i64;
+    // the next hop's end; past the run's end, a new estimator warmed up again
+    let next_hop = |t: &mut i64, est: &mut Estimator, ij: &mut (usize, usize)| {
+        *t += hop_ns;
+        if *t > 3_590_000_000_000 {
+            *t = 90_000_000_000;
+            *est = Estimator::new(&cfg);
+            *ij = (0, 0);
+            push_until(est, ij, *t);
+            *t += hop_ns;
+        }
+    };
     g.bench_function("estimator_hop", |b| {
         b.iter(|| {
-            t += hop_ns;
-            if t > 3_590_000_000_000 {
-                t = 90_000_000_000;
-                est = Estimator::new(&cfg);
-                ij = (0, 0);
-            }
+            next_hop(&mut t, &mut est, &mut ij);
             push_until(&mut est, &mut ij, t);
             black_box(est.state())
         })
@@ -296,14 +302,7 @@ fn segment(c: &mut Criterion) {
             b.iter_custom(|iters| {
                 let mut total = std::time::Duration::ZERO;
                 for _ in 0..iters {
-                    t += hop_ns;
-                    if t > 3_590_000_000_000 {
-                        t = 90_000_000_000;
-                        est = Estimator::new(&cfg);
-                        ij = (0, 0);
-                        push_until(&mut est, &mut ij, t);
-                        t += hop_ns;
-                    }
+                    next_hop(&mut t, &mut est, &mut ij);
                     let mut busiest = std::time::Duration::ZERO;
                     // both streams in time order, as the daemon pushes them
                     loop {

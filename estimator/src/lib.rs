@@ -415,6 +415,21 @@ struct JointKey {
     delta: f64,
 }
 
+/// The next hop as predicted before its block completes ([`Estimator::next_hop`]),
+/// for the preparations of its segment combination and its joint maximum.
+#[derive(Debug, Clone, Copy)]
+struct NextHop {
+    /// Blocks stored now (the hop adds one).
+    n: usize,
+    /// The hop's last LiDAR grid index.
+    k_end: i64,
+    t_ref_ns: Nanos,
+    /// The predicted offset at its reference time.
+    pred_t: f64,
+    /// The first stored block its segment will hold.
+    first: usize,
+}
+
 /// Where a step test in progress stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum StepStage {
@@ -2079,22 +2094,13 @@ impl Estimator {
     /// The next hop's joint maximum's inputs ([`Estimator::start_joint`]), predicted,
     /// and the store index of its first block.
     fn next_joint_key(&self) -> Option<(JointKey, usize)> {
-        let n = self.corr.count();
-        let cursor = self.corr.cursor()?;
-        if n == 0 {
-            return None;
-        }
-        let epoch = self.epoch_ns?;
-        let hl = self.p.hop_len;
-        let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
-        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
-        let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
-        if t < self.seg_start_t {
-            return None;
-        }
-        let (pred_t, _) = self.predict(t);
-        let oldest = (n + 1).saturating_sub(self.p.seg_blocks);
-        let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
+        let NextHop {
+            n,
+            k_end,
+            t_ref_ns,
+            pred_t,
+            first,
+        } = self.next_hop()?;
         let k0 = self.corr.block(first).first_k;
         let (lo, hi, k_ref, delta) = self.joint_inputs(first, n, (k0, k_end), t_ref_ns, pred_t)?;
         let key = JointKey {
@@ -2143,25 +2149,13 @@ impl Estimator {
 
     /// The next hop's segment (without its new block) and key, predicted.
     fn next_hop_key(&self) -> Option<(Span, PrepKey)> {
-        let n = self.corr.count();
-        let cursor = self.corr.cursor()?;
-        if n == 0 {
-            return None;
-        }
-        // the tracker's time origin (`rel`): after a restore or a clock jump the next
-        // hop sets it, and nothing is prepared before (the preparation sets nothing)
-        let epoch = self.epoch_ns?;
-        let hl = self.p.hop_len;
-        let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
-        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
-        let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
-        if t < self.seg_start_t {
-            return None;
-        }
-        let (pred_t, _) = self.predict(t);
-        // the blocks the next hop's segment will hold besides the new one
-        let oldest = (n + 1).saturating_sub(self.p.seg_blocks);
-        let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
+        let NextHop {
+            n,
+            t_ref_ns,
+            pred_t,
+            first,
+            ..
+        } = self.next_hop()?;
         if n + 1 - first < self.p.short_blocks {
             return None;
         }
@@ -2175,6 +2169,38 @@ impl Estimator {
             hi,
         };
         Some((span, self.prep_key(&span)))
+    }
+
+    /// What the next hop will be, as far as the blocks stored and the cursor tell:
+    /// its last grid index, reference time and predicted offset, and the first
+    /// stored block its segment will hold besides its new one. `None` before the
+    /// tracker has a time origin (after a restore or a clock jump the next hop sets
+    /// it, and nothing is prepared before: the preparation sets nothing), or when
+    /// the reference time precedes the current segment (a change just detected).
+    fn next_hop(&self) -> Option<NextHop> {
+        let n = self.corr.count();
+        let cursor = self.corr.cursor()?;
+        if n == 0 {
+            return None;
+        }
+        let epoch = self.epoch_ns?;
+        let hl = self.p.hop_len;
+        let k_end = (cursor.div_euclid(hl) + 1) * hl - 1;
+        let t_ref_ns = self.t_ref_of(k_end.saturating_add(1));
+        let t = t_ref_ns.saturating_sub(epoch) as f64 * 1e-9;
+        if t < self.seg_start_t {
+            return None;
+        }
+        let (pred_t, _) = self.predict(t);
+        let oldest = (n + 1).saturating_sub(self.p.seg_blocks);
+        let first = (oldest..n).find(|&i| self.corr.block(i).first_k >= self.seg_start_k)?;
+        Some(NextHop {
+            n,
+            k_end,
+            t_ref_ns,
+            pred_t,
+            first,
+        })
     }
 
     /// The key of a combination of `span`'s blocks prepared for the next hop: what
@@ -2863,6 +2889,49 @@ mod tests {
     use super::*;
     use vlsync_sim::families::{generate, Family};
 
+    /// Replays a run of `family` (seed `seed`) into `a` and `b` alike, calling
+    /// `after_push` with `a` after each push; returns both estimate sequences.
+    fn replay_both(
+        family: Family,
+        seed: u64,
+        a: &mut Estimator,
+        b: &mut Estimator,
+        mut after_push: impl FnMut(&Estimator),
+    ) -> (Vec<Estimate>, Vec<Estimate>) {
+        let (mut ea, mut eb) = (Vec::new(), Vec::new());
+        for (stream, s) in generate(family, seed, None).pushes() {
+            let _ = a.push(stream, s);
+            let _ = b.push(stream, s);
+            after_push(a);
+            ea.extend(std::iter::from_fn(|| a.poll()));
+            eb.extend(std::iter::from_fn(|| b.poll()));
+        }
+        (ea, eb)
+    }
+
+    /// Replays a run into two estimators that combine directly (a prepared
+    /// combination sums in another order, and when it is ready differs between the
+    /// two: its own tests compare it): `split` as built, `whole` set up by
+    /// `make_whole`. Returns both estimate sequences, the split one's step count,
+    /// and how many pushes left `split` with `part_done` true after their own stage.
+    fn replay_pair(
+        family: Family,
+        seed: u64,
+        cfg: &EstimatorConfig,
+        make_whole: impl Fn(&mut Estimator),
+        part_done: impl Fn(&Estimator) -> bool,
+    ) -> (Vec<Estimate>, Vec<Estimate>, u64, usize) {
+        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
+        make_whole(&mut whole);
+        split.prepare = false;
+        whole.prepare = false;
+        let mut pending = 0;
+        let (a, b) = replay_both(family, seed, &mut split, &mut whole, |e| {
+            pending += usize::from(part_done(e))
+        });
+        (a, b, split.stats().steps, pending)
+    }
+
     /// Replays `run`, one estimator splitting its step tests over the pushes and one
     /// running each whole at the first push after its hop. Returns both estimate
     /// sequences, the split one's step count, and how many pushes found a step test
@@ -2872,46 +2941,31 @@ mod tests {
         seed: u64,
         cfg: &EstimatorConfig,
     ) -> (Vec<Estimate>, Vec<Estimate>, u64, usize) {
-        let all = generate(family, seed, None).pushes();
-        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
-        whole.split_step = false;
-        // both combine directly: a prepared combination sums in another order, and
-        // when it is ready differs between the two (its own test compares it)
-        split.prepare = false;
-        whole.prepare = false;
-        let (mut a, mut b, mut pending) = (Vec::new(), Vec::new(), 0);
-        for &(stream, s) in &all {
-            let _ = split.push(stream, s);
-            let _ = whole.push(stream, s);
-            pending += usize::from(split.step_job.is_some_and(|j| j.stage != StepStage::Start));
-            a.extend(std::iter::from_fn(|| split.poll()));
-            b.extend(std::iter::from_fn(|| whole.poll()));
-        }
-        (a, b, split.stats().steps, pending)
+        replay_pair(
+            family,
+            seed,
+            cfg,
+            |w| w.split_step = false,
+            |e| e.step_job.is_some_and(|j| j.stage != StepStage::Start),
+        )
     }
 
     /// Estimates with the joint maximum's re-centred rounds staged over the pushes
-    /// after its hop and with them run whole at the end of its hop; the pushes during
-    /// which a staged round stood part-done.
+    /// after its hop and with them run whole at the end of its hop (the whole one
+    /// leaves no pushes for the preparation, so both combine directly); the pushes
+    /// during which a staged round stood part-done.
     fn joint_staged_and_whole(
         family: Family,
         seed: u64,
         cfg: &EstimatorConfig,
     ) -> (Vec<Estimate>, Vec<Estimate>, usize) {
-        let all = generate(family, seed, None).pushes();
-        let (mut split, mut whole) = (Estimator::new(cfg), Estimator::new(cfg));
-        whole.split_joint = false;
-        // both combine directly: the whole one leaves no pushes for the preparation
-        split.prepare = false;
-        whole.prepare = false;
-        let (mut a, mut b, mut part_done) = (Vec::new(), Vec::new(), 0);
-        for &(stream, s) in &all {
-            let _ = split.push(stream, s);
-            let _ = whole.push(stream, s);
-            part_done += usize::from(split.joint_job.is_some_and(|j| j.j > 0));
-            a.extend(std::iter::from_fn(|| split.poll()));
-            b.extend(std::iter::from_fn(|| whole.poll()));
-        }
+        let (a, b, _, part_done) = replay_pair(
+            family,
+            seed,
+            cfg,
+            |w| w.split_joint = false,
+            |e| e.joint_job.is_some_and(|j| j.j > 0),
+        );
         (a, b, part_done)
     }
 
@@ -2981,18 +3035,11 @@ mod tests {
             // the tracking range narrowed around each hop's prediction
             (Family::Robot, 1001, EstimatorConfig::default(), true, 0.9),
         ] {
-            let all = generate(family, seed, None).pushes();
             let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
             prep.set_degraded(degraded);
             direct.set_degraded(degraded);
             direct.prepare_joint = false;
-            let (mut a, mut b) = (Vec::new(), Vec::new());
-            for &(stream, s) in &all {
-                let _ = prep.push(stream, s);
-                let _ = direct.push(stream, s);
-                a.extend(std::iter::from_fn(|| prep.poll()));
-                b.extend(std::iter::from_fn(|| direct.poll()));
-            }
+            let (a, b) = replay_both(family, seed, &mut prep, &mut direct, |_| {});
             let (started, prepared) = prep.joint_hops;
             assert_eq!(direct.joint_hops.1, 0);
             assert!(
@@ -3051,18 +3098,11 @@ mod tests {
             ),
         ];
         for (family, seed, cfg, setup, share) in cases {
-            let all = generate(family, seed, None).pushes();
             let (mut prep, mut direct) = (Estimator::new(&cfg), Estimator::new(&cfg));
             direct.prepare = false;
             setup(&mut prep);
             setup(&mut direct);
-            let (mut a, mut b) = (Vec::new(), Vec::new());
-            for &(stream, s) in &all {
-                let _ = prep.push(stream, s);
-                let _ = direct.push(stream, s);
-                a.extend(std::iter::from_fn(|| prep.poll()));
-                b.extend(std::iter::from_fn(|| direct.poll()));
-            }
+            let (a, b) = replay_both(family, seed, &mut prep, &mut direct, |_| {});
             let (measured, prepared) = prep.prepared_hops;
             assert_eq!(direct.prepared_hops.1, 0);
             // the hops used what the samples before them prepared
