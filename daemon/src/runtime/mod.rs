@@ -25,8 +25,10 @@
 //! * the **service thread** (the main thread) logs those events with tracing
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
 //!   `daemon.status_period_s`, polling both channels every [`SERVICE_POLL_BUSY`]
-//!   while events come and every [`SERVICE_POLL_IDLE`] when they do not. Statuses have a channel of their own (capacity
-//!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
+//!   while events come, every [`SERVICE_POLL_IDLE`] when they do not, and again
+//!   at once after a poll that met [`EVENTS_PER_POLL`]. Statuses have a channel
+//!   of their own (capacity [`STATUS_CAPACITY`]), which the service thread reads
+//!   before each event: a
 //!   flood of events that fills the event channel (a publisher faster than the
 //!   daemon) drops events, never the statuses that report it.
 //!
@@ -232,14 +234,18 @@ fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
     }
 }
 
-/// The service thread's wait before its next poll of the channels: short while the
-/// real-time thread hands it events (found on this poll or the one before), then
-/// [`SERVICE_POLL_IDLE`].
-fn service_poll_period(found_last: bool, found_now: bool) -> Duration {
-    if found_now || found_last {
-        SERVICE_POLL_BUSY
+/// The service thread's wait before its next poll of the channels, after a poll
+/// that handled `handled` events and statuses: none when it stopped at
+/// [`EVENTS_PER_POLL`] (a backlog: a sleep would only let a flood drop more),
+/// short while the real-time thread hands it events (on this poll or the one
+/// before, `found_last`), else [`SERVICE_POLL_IDLE`].
+fn service_wait(found_last: bool, handled: usize) -> Option<Duration> {
+    if handled >= EVENTS_PER_POLL {
+        None
+    } else if handled > 0 || found_last {
+        Some(SERVICE_POLL_BUSY)
     } else {
-        SERVICE_POLL_IDLE
+        Some(SERVICE_POLL_IDLE)
     }
 }
 
@@ -1105,7 +1111,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // blocked in `recv`/`Select` registers with the channel's waker, and every
     // `try_send` of the real-time thread would then take the waker's mutex (no
     // priority inheritance) and make a futex wake-up call. Polled, a send is a
-    // lock-free slot write and nothing more (`service_poll`).
+    // lock-free slot write and nothing more (`service_wait`).
     let mut busy = false;
     loop {
         // statuses before each event: a flood of events cannot hold one back
@@ -1145,7 +1151,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         if disconnected {
             break;
         }
-        std::thread::sleep(service_poll_period(busy, got > 0));
+        if let Some(wait) = service_wait(busy, got) {
+            std::thread::sleep(wait);
+        }
         busy = got > 0;
         let mono = monotonic_ns();
         throttle.due(mono, report_suppressed);
@@ -1245,13 +1253,17 @@ mod tests {
         p.id()
     }
 
-    /// The service thread polls fast while events come and for one poll after, then
-    /// as seldom as the real-time thread wakes when idle.
+    /// The service thread polls fast while events come and for one poll after, at
+    /// once after a poll that met its cap, else as seldom as the real-time thread
+    /// wakes when idle.
     #[test]
     fn the_service_poll_is_short_only_while_events_come() {
-        assert_eq!(service_poll_period(false, true), SERVICE_POLL_BUSY);
-        assert_eq!(service_poll_period(true, false), SERVICE_POLL_BUSY);
-        assert_eq!(service_poll_period(false, false), SERVICE_POLL_IDLE);
+        assert_eq!(service_wait(false, 1), Some(SERVICE_POLL_BUSY));
+        assert_eq!(service_wait(true, 0), Some(SERVICE_POLL_BUSY));
+        assert_eq!(service_wait(false, 0), Some(SERVICE_POLL_IDLE));
+        // a poll that met its cap left a backlog: the next one comes at once
+        assert_eq!(service_wait(false, EVENTS_PER_POLL), None);
+        assert_eq!(service_wait(true, EVENTS_PER_POLL + 3), None);
         assert!(SERVICE_POLL_BUSY < SERVICE_POLL_IDLE);
         assert_eq!(SERVICE_POLL_IDLE, WAKE_PERIOD);
     }
