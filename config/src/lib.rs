@@ -90,7 +90,7 @@ pub struct EstimatorConfig {
     /// Minimum window variance of each signal relative to its recent typical motion variance.
     pub min_motion_ratio: f64,
     /// Consecutive consistent acquisition measurements needed to lock.
-    #[serde(deserialize_with = "count::<1, 100, _>")]
+    #[serde(deserialize_with = "count::<1, { CONFIRM_MAX }, _>")]
     pub acquire_confirm: u32,
     /// Scale applied to the peak-sharpness measurement noise.
     pub measurement_noise_scale: f64,
@@ -109,7 +109,7 @@ pub struct EstimatorConfig {
     /// accumulate evidence.
     pub step_gate_sigma: f64,
     /// A step is declared once the evidence reaches `step_confirm · step_gate_sigma² / 2`.
-    #[serde(deserialize_with = "count::<1, 100, _>")]
+    #[serde(deserialize_with = "count::<1, { CONFIRM_MAX }, _>")]
     pub step_confirm: u32,
     /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
     pub lost_std_s: f64,
@@ -122,9 +122,14 @@ pub struct EstimatorConfig {
     pub cadence_min_step_s: f64,
     /// Consecutive samples off the grid, on the same side and agreeing, that
     /// confirm a latency step.
-    #[serde(deserialize_with = "count::<1, 15, _>")]
+    #[serde(deserialize_with = "count::<1, { CADENCE_CONFIRM_MAX }, _>")]
     pub cadence_confirm: u32,
 }
+
+/// Largest `estimator.acquire_confirm` and `estimator.step_confirm` (hops).
+pub const CONFIRM_MAX: u32 = 100;
+/// Largest `estimator.cadence_confirm` (samples).
+pub const CADENCE_CONFIRM_MAX: u32 = 15;
 
 /// A count key read from TOML as any integer, so a negative or huge value gets the
 /// key's range in its error (TOML's own message for a `u32` names no range); the
@@ -456,7 +461,12 @@ impl EstimatorConfig {
         c.range(&k("min_peak_score"), self.min_peak_score, 0.0, 1.0)?;
         c.range(&k("min_peak_ratio"), self.min_peak_ratio, 1.0, 100.0)?;
         c.range(&k("min_motion_ratio"), self.min_motion_ratio, 0.0, 1.0)?;
-        c.int_range(&k("acquire_confirm"), self.acquire_confirm.into(), 1, 100)?;
+        c.int_range(
+            &k("acquire_confirm"),
+            self.acquire_confirm.into(),
+            1,
+            CONFIRM_MAX.into(),
+        )?;
         c.range(
             &k("measurement_noise_scale"),
             self.measurement_noise_scale,
@@ -474,10 +484,20 @@ impl EstimatorConfig {
         c.range(&k("hold_process_noise"), self.hold_process_noise, 0.0, 1.0)?;
         c.range(&k("gate_sigma"), self.gate_sigma, 1.0, 100.0)?;
         c.range(&k("step_gate_sigma"), self.step_gate_sigma, 1.0, 100.0)?;
-        c.int_range(&k("step_confirm"), self.step_confirm.into(), 1, 100)?;
+        c.int_range(
+            &k("step_confirm"),
+            self.step_confirm.into(),
+            1,
+            CONFIRM_MAX.into(),
+        )?;
         c.range(&k("lost_std_s"), self.lost_std_s, 1e-4, 10.0)?;
         c.range(&k("cadence_min_step_s"), self.cadence_min_step_s, 1e-4, 0.1)?;
-        c.int_range(&k("cadence_confirm"), self.cadence_confirm.into(), 1, 15)?;
+        c.int_range(
+            &k("cadence_confirm"),
+            self.cadence_confirm.into(),
+            1,
+            CADENCE_CONFIRM_MAX.into(),
+        )?;
         c.rule(self.hop_s <= self.window_s, || {
             format!(
                 "`estimator.hop_s` = {} must not exceed `estimator.window_s` = {}",

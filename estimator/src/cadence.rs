@@ -94,6 +94,8 @@ const BINS: usize = 128;
 /// Longest step-test window, and the most consecutive off-grid samples tolerated
 /// before the grid is learnt again.
 const PENDING: usize = 16;
+// the configuration's largest `cadence_confirm` is what these buffers hold
+const _: () = assert!(PENDING - 1 == vlsync_config::CADENCE_CONFIRM_MAX as usize);
 /// Samples between re-anchorings of the fit's coordinates.
 const REANCHOR: u32 = 256;
 /// Samples after a step during which a return to the level before it is an

@@ -197,7 +197,7 @@ impl Params {
             min_score: cl(c.min_peak_score, 0.0, 1.0),
             min_ratio: cl(c.min_peak_ratio, 1.0, 100.0),
             min_motion: cl(c.min_motion_ratio, 0.0, 1.0),
-            acquire_confirm: c.acquire_confirm.clamp(1, 100),
+            acquire_confirm: c.acquire_confirm.clamp(1, vlsync_config::CONFIRM_MAX),
             noise_scale: cl(c.measurement_noise_scale, 1e-3, 1e3),
             qo: cl(c.offset_process_noise, 0.0, 1.0),
             q_hold: cl(c.hold_process_noise, 0.0, 1.0),
@@ -205,7 +205,7 @@ impl Params {
             drift_memory_s: cl(c.drift_memory_s, 1.0, 1e9),
             gate: cl(c.gate_sigma, 1.0, 100.0),
             step_gate: cl(c.step_gate_sigma, 1.0, 100.0),
-            step_confirm: c.step_confirm.clamp(1, 100),
+            step_confirm: c.step_confirm.clamp(1, vlsync_config::CONFIRM_MAX),
             lost_var: cl(c.lost_std_s, 1e-4, 10.0).powi(2),
             stall_slots: ((cl(c.max_gap_s, 0.01, 60.0) + 2.0 * max_lag_s + hop_s) * fs).ceil()
                 as i64,
@@ -2888,6 +2888,41 @@ enum Which {
 mod tests {
     use super::*;
     use vlsync_sim::families::{generate, Family};
+
+    /// The configuration validates against the hop and acquisition window the
+    /// estimator runs (`EstimatorConfig::effective_hop_s`, `effective_window_s`):
+    /// both round the same way as [`Params::new`] for every valid configuration.
+    #[test]
+    fn the_configs_effective_hop_and_window_are_the_estimators() {
+        for grid_hz in [10.0, 30.0, 100.0, 333.0, 1000.0, 2000.0] {
+            for hop_s in [0.1, 0.25, 0.5, 0.77, 1.3] {
+                for window_s in [2.0, 2.75, 6.0, 7.4, 30.0] {
+                    let c = EstimatorConfig {
+                        grid_hz,
+                        hop_s,
+                        window_s,
+                        ..EstimatorConfig::default()
+                    };
+                    if hop_s > window_s || hop_s * grid_hz < 1.0 {
+                        continue;
+                    }
+                    let p = Params::new(&c);
+                    assert!(
+                        (p.hop_s - c.effective_hop_s()).abs() < 1e-12,
+                        "{grid_hz} {hop_s}: {} against {}",
+                        p.hop_s,
+                        c.effective_hop_s()
+                    );
+                    let w = p.acq_blocks as f64 * p.hop_s;
+                    assert!(
+                        (w - c.effective_window_s()).abs() < 1e-9,
+                        "{grid_hz} {hop_s} {window_s}: {w} against {}",
+                        c.effective_window_s()
+                    );
+                }
+            }
+        }
+    }
 
     /// Replays a run of `family` (seed `seed`) into `a` and `b` alike, calling
     /// `after_push` with `a` after each push; returns both estimate sequences.
