@@ -18,7 +18,7 @@
 //! ```
 
 use crate::families::{CleanPoint, SimError, SimRun};
-use vlsync_common::{secs_to_nanos, Nanos};
+use vlsync_common::{nanos_to_secs, secs_to_nanos, Nanos};
 
 /// Shortest window accepted by the windowed bound, seconds.
 pub const MIN_WINDOW_S: f64 = 0.1;
@@ -107,6 +107,123 @@ pub fn crb_window_std_s(run: &SimRun, window_s: f64) -> Result<f64, SimError> {
     })
 }
 
+/// Width of the bins in which [`causal_std_s`] measures the offset, ns (one default hop).
+pub const CAUSAL_BIN_NS: Nanos = 500_000_000;
+
+/// The causal bound: for each time in `times_ns` (LiDAR clock), the standard deviation
+/// (seconds) of the best estimate of the offset at that time that an estimator could
+/// make from the data up to `lookahead_s` later, knowing the signatures' shapes and
+/// noise and the sizes of the offset steps, with the drift drawn from a zero-mean prior
+/// of standard deviation `drift_prior_std` (s/s; 0: the drift is known).
+///
+/// Where [`crb_run_std_s`] is the bound of one constant offset measured with the whole
+/// run, this is the bound of what vlsync publishes: an offset that may drift, estimated
+/// online, `reference_lag_s` behind the newest data. The model:
+/// * every [`CAUSAL_BIN_NS`] bin of data measures the offset at the bin's centre with the
+///   reference notes' variance `σ_c²/Σ_cam s'² + σ_l²/Σ_lidar s'²` over that bin's
+///   samples (drops, gaps and standstills give a bin no information);
+/// * the offset is a line `o + d·(t - t_ref)` plus the known steps; the bins up to the
+///   horizon inform `o` and `d`, the prior adds `1/drift_prior_std²` to `d`'s information;
+/// * the variance of `o` is the `(0, 0)` element of the inverse information matrix.
+///
+/// Known step sizes make it a floor for the families with steps too (vlsync measures
+/// them from the stamps' cadence, not exactly). It is a floor, not a prediction:
+/// side-peak errors at low SNR, stamp jitter and the estimator's robustness against
+/// outliers and steps all come on top. A time without information up to its horizon
+/// gives infinity; a run without noise gives zero.
+///
+/// ```
+/// use vlsync_sim::{crb::causal_std_s, families::{generate, Family}};
+/// let run = generate(Family::Robot, 2, None);
+/// let t = [20_000_000_000, 60_000_000_000, 110_000_000_000];
+/// // with the drift known: more data, a tighter bound, never better than the whole
+/// // run's constant-offset bound
+/// let known = causal_std_s(&run, &t, 3.0, 0.0);
+/// assert!(known[0] > known[1] && known[1] > known[2] && known[2] > run.crb_std_s);
+/// // a drift drawn from a 50 ppm prior costs more, a drift not known at all more still
+/// // (with a drift, later is not always better: the newest data lie far from the older)
+/// let prior = causal_std_s(&run, &t, 3.0, 50e-6);
+/// let free = causal_std_s(&run, &t, 3.0, 1.0);
+/// assert!((0..3).all(|i| known[i] < prior[i] && prior[i] < free[i]));
+/// ```
+pub fn causal_std_s(
+    run: &SimRun,
+    times_ns: &[Nanos],
+    lookahead_s: f64,
+    drift_prior_std: f64,
+) -> Vec<f64> {
+    if run.noise_cam == 0.0 && run.noise_lidar == 0.0 {
+        return vec![0.0; times_ns.len()];
+    }
+    let bin_of = |p: &CleanPoint| p.tau_ns.div_euclid(CAUSAL_BIN_NS);
+    let (first, last) = match (run.lidar_clean.first(), run.lidar_clean.last()) {
+        (Some(a), Some(b)) => (bin_of(a), bin_of(b)),
+        _ => return vec![f64::INFINITY; times_ns.len()],
+    };
+    // per bin from the LiDAR's first: Σ s'² of each stream
+    let n = usize::try_from(last - first + 1).unwrap_or(0);
+    let mut sums = vec![(0.0, 0.0); n];
+    for (points, lidar) in [(&run.cam_clean, false), (&run.lidar_clean, true)] {
+        for p in points.iter() {
+            let Some(e) = usize::try_from(bin_of(p) - first)
+                .ok()
+                .and_then(|i| sums.get_mut(i))
+            else {
+                continue;
+            };
+            if lidar {
+                e.1 += p.slope * p.slope;
+            } else {
+                e.0 += p.slope * p.slope;
+            }
+        }
+    }
+    let term = |sigma: f64, info: f64| {
+        if sigma == 0.0 {
+            0.0
+        } else if info > 0.0 {
+            sigma * sigma / info
+        } else {
+            f64::INFINITY
+        }
+    };
+    // (bin centre s, information 1/s²) of the bins that carry any
+    let bins: Vec<(f64, f64)> = sums
+        .iter()
+        .enumerate()
+        .map(|(i, &(c, l))| {
+            let v = term(run.noise_cam, c) + term(run.noise_lidar, l);
+            let centre = ((first + i as i64) as f64 + 0.5) * nanos_to_secs(CAUSAL_BIN_NS);
+            (centre, if v > 0.0 { 1.0 / v } else { 0.0 })
+        })
+        .filter(|b| b.1 > 0.0)
+        .collect();
+    let known_drift = drift_prior_std <= 0.0;
+    times_ns
+        .iter()
+        .map(|&t| {
+            let t_s = nanos_to_secs(t);
+            let (mut j_oo, mut j_od, mut j_dd) = (0.0, 0.0, 0.0);
+            for &(c, i) in bins.iter().take_while(|b| b.0 <= t_s + lookahead_s) {
+                let x = c - t_s;
+                j_oo += i;
+                j_od += i * x;
+                j_dd += i * x * x;
+            }
+            if j_oo <= 0.0 {
+                return f64::INFINITY;
+            }
+            let var = if known_drift {
+                1.0 / j_oo
+            } else {
+                j_dd += 1.0 / (drift_prior_std * drift_prior_std);
+                j_dd / (j_oo * j_dd - j_od * j_od)
+            };
+            var.max(0.0).sqrt()
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -126,6 +243,55 @@ mod tests {
             prop_assert!(crb_std_s(sc * k, &slopes, sl, &slopes) > base || base.is_infinite());
             prop_assert!(crb_std_s(sc, &slopes, sl * k, &slopes) > base || base.is_infinite());
         }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        #[test]
+        fn causal_bound_falls_with_data_and_rises_with_the_prior(
+            seed in 0u64..1000, t_s in 5.0f64..110.0, look in 0.0f64..5.0,
+            prior in 1e-6f64..1e-3,
+        ) {
+            let run = crate::families::generate(crate::families::Family::Clocks, seed, None);
+            let t = [secs_to_nanos(t_s)];
+            let base = causal_std_s(&run, &t, look, prior)[0];
+            prop_assert!(base.is_finite() && base > 0.0);
+            prop_assert!(causal_std_s(&run, &t, look + 1.0, prior)[0] <= base);
+            prop_assert!(causal_std_s(&run, &t, look, prior * 2.0)[0] >= base);
+            prop_assert!(causal_std_s(&run, &t, look, 0.0)[0] <= base);
+        }
+    }
+
+    #[test]
+    fn causal_bound_with_all_data_and_a_known_drift_is_the_run_bound() {
+        for family in [
+            crate::families::Family::Robot,
+            crate::families::Family::Clocks,
+        ] {
+            let run = crate::families::generate(family, 7, None);
+            let end = run.lidar_clean.last().unwrap().tau_ns;
+            let b = causal_std_s(&run, &[end], 1.0, 0.0)[0];
+            // bins can only lose information against the whole run's sums (the combined
+            // variance is concave in the two streams' information), and lose little when
+            // both streams see the same motion
+            assert!(
+                b >= run.crb_std_s && b < 1.1 * run.crb_std_s,
+                "{family:?}: {b} vs {}",
+                run.crb_std_s
+            );
+        }
+        // before any data, and without noise
+        let mut run = crate::families::generate(crate::families::Family::Robot, 7, Some(30.0));
+        assert_eq!(
+            causal_std_s(&run, &[-secs_to_nanos(5.0)], 1.0, 50e-6),
+            [f64::INFINITY]
+        );
+        run.noise_cam = 0.0;
+        run.noise_lidar = 0.0;
+        assert_eq!(
+            causal_std_s(&run, &[secs_to_nanos(10.0)], 1.0, 50e-6),
+            [0.0]
+        );
     }
 
     #[test]

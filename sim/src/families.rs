@@ -769,6 +769,26 @@ struct Params {
     step_spread_s: f64,
 }
 
+impl Family {
+    /// The drift's root mean square over the family's runs (s/s): the prior an estimator
+    /// made for this family alone would hold ([`crate::crb::causal_std_s`]). 0 for the
+    /// families without drift and for `seed`, whose drift is always the same 12 ms/s.
+    ///
+    /// ```
+    /// use vlsync_sim::families::Family;
+    /// // 20-60 ppm of either sign: sqrt((60³ - 20³) / (3 · 40)) ≈ 41.6 ppm
+    /// assert!((Family::Clocks.drift_rms() * 1e6 - 41.63).abs() < 0.01);
+    /// assert_eq!(Family::Robot.drift_rms(), 0.0);
+    /// ```
+    pub fn drift_rms(self) -> f64 {
+        match params(self).drift_ppm {
+            Some((a, b)) if b > a => ((b.powi(3) - a.powi(3)) / (3.0 * (b - a))).sqrt() * 1e-6,
+            Some((a, _)) => a * 1e-6,
+            None => 0.0,
+        }
+    }
+}
+
 fn params(f: Family) -> Params {
     let (cam_hz, lidar_hz) = f.rates_hz();
     let mut p = Params {
@@ -1215,6 +1235,25 @@ mod tests {
         );
         let e = try_generate(Family::Robot, 1, Some(f64::INFINITY)).unwrap_err();
         assert!(e.to_string().contains("inf"), "{e}");
+    }
+
+    #[test]
+    fn drift_rms_is_the_generated_drifts_rms() {
+        for family in Family::ALL {
+            let drifts: Vec<f64> = (0..60)
+                .map(|seed| generate(family, seed, Some(20.0)).truth.drift)
+                .collect();
+            let rms = (drifts.iter().map(|d| d * d).sum::<f64>() / 60.0).sqrt();
+            match family {
+                Family::Seed => assert!(drifts.iter().all(|&d| d == drifts[0])),
+                _ if family.drift_rms() == 0.0 => assert_eq!(rms, 0.0, "{family:?}"),
+                _ => assert!(
+                    (rms / family.drift_rms() - 1.0).abs() < 0.12,
+                    "{family:?}: {rms} vs {}",
+                    family.drift_rms()
+                ),
+            }
+        }
     }
 
     #[test]

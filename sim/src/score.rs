@@ -87,20 +87,41 @@ fn in_standstill(run: &SimRun, t: Nanos) -> bool {
     run.standstills.iter().any(|&(a, b)| t >= a && t <= b)
 }
 
-fn score_items(items: &[Item], run: &SimRun, with_std: bool) -> Score {
+fn ok_state(s: EstimatorState) -> bool {
+    matches!(s, EstimatorState::Tracking | EstimatorState::Holding)
+}
+
+/// The first lock's index and the scored items (see the module docs).
+fn scored_items<'a>(items: &'a [Item], run: &SimRun) -> (Option<usize>, Vec<&'a Item>) {
     let first = items
         .iter()
         .position(|e| e.state == EstimatorState::Tracking);
-    let locked: &[Item] = match first {
-        Some(i) => &items[i..],
-        None => &[],
-    };
-    let ok_state =
-        |s: EstimatorState| matches!(s, EstimatorState::Tracking | EstimatorState::Holding);
-    let scored: Vec<&Item> = locked
+    let locked: &[Item] = first.map_or(&[], |i| &items[i..]);
+    let scored = locked
         .iter()
         .filter(|e| ok_state(e.state) && !in_step_grace(run, e.t))
         .collect();
+    (first, scored)
+}
+
+/// Reference times of the estimates [`score_estimates`] scores, in order: what a bound
+/// must be evaluated at to stand beside the score ([`crate::crb::causal_std_s`]).
+pub fn scored_times(estimates: &[Estimate], run: &SimRun) -> Vec<Nanos> {
+    let items: Vec<Item> = estimates
+        .iter()
+        .map(|e| Item {
+            t: e.t_ref_ns,
+            err: 0.0,
+            std: None,
+            state: e.state,
+        })
+        .collect();
+    scored_items(&items, run).1.iter().map(|e| e.t).collect()
+}
+
+fn score_items(items: &[Item], run: &SimRun, with_std: bool) -> Score {
+    let (first, scored) = scored_items(items, run);
+    let locked: &[Item] = first.map_or(&[], |i| &items[i..]);
     let mut abs: Vec<f64> = scored.iter().map(|e| e.err.abs()).collect();
     abs.sort_by(|a, b| a.total_cmp(b));
     let n = abs.len();
@@ -342,6 +363,8 @@ mod tests {
         // scored tracking: 5 s (ok), 6 s (bad), 35 s (bad)
         assert!((s.consistency_2sigma.unwrap() - 1.0 / 3.0).abs() < 1e-12);
         assert_eq!(s.standstill_tracking_over_20ms, 1);
+        let times: Vec<Nanos> = [5.0, 6.0, 7.0, 35.0, 36.0].map(secs_to_nanos).to_vec();
+        assert_eq!(scored_times(&list, &run), times);
     }
 
     #[test]
