@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use vlsync_config::Config;
 use vlsync_sim::baseline::seed_chunked;
-use vlsync_sim::crb::causal_std_s;
+use vlsync_sim::crb::{causal_std_s, share_beyond};
 use vlsync_sim::families::{generate, Family};
 use vlsync_sim::score::{score_estimates, score_pairs, scored_times, Score};
 
@@ -72,6 +72,12 @@ pub struct FamilyResult {
     /// mean of [`vlsync_sim::crb::causal_std_s`] over the scored estimates' times (with
     /// the configuration's `reference_lag_s` and the family's drift as the prior); mean over seeds.
     pub causal_mae_s: f64,
+    /// Runs in which that ideal estimator's expected share of estimates beyond 20 ms
+    /// ([`vlsync_sim::crb::share_beyond`] of its σ at the scored times) exceeds the
+    /// targets' 0.5 %: a tail no online estimator could avoid.
+    pub causal_runs_over: usize,
+    /// Runs of the family.
+    pub runs: usize,
     /// Mean estimator time per run, seconds.
     pub time_s: f64,
     /// Latest first lock over the seeds as published: seconds after motion starts at
@@ -106,7 +112,7 @@ pub fn run_family(
         let (ests, _) = run_estimator(&cfg.estimator, &run.cam, &run.lidar);
         time += t0.elapsed().as_secs_f64();
         ours.push(score_estimates(&ests, &run));
-        causal.push(causal_mae_s(&run, &ests, cfg));
+        causal.push(causal_bound(&run, &ests, cfg));
         if steps != StepRun::Off && !run.truth.steps.is_empty() {
             let times: Vec<vlsync_common::Nanos> = run.truth.steps.iter().map(|s| s.0).collect();
             let hint = (steps == StepRun::Hinted).then_some(vlsync_estimator::HINT_STEP_STD_S);
@@ -149,21 +155,26 @@ pub fn run_family(
         ours,
         baseline: Score::aggregate(&base),
         crb_s: crbs.get(crbs.len() / 2).copied().unwrap_or(f64::NAN),
-        causal_mae_s: causal.iter().sum::<f64>() / causal.len().max(1) as f64,
+        causal_mae_s: causal.iter().map(|c| c.0).sum::<f64>() / causal.len().max(1) as f64,
+        causal_runs_over: causal.iter().filter(|c| c.1 > IDEAL_TAIL_SHARE).count(),
+        runs: causal.len(),
         time_s: time / n as f64,
         known_steps: (!known.is_empty()).then(|| Score::aggregate(&known)),
         step_run: steps,
     })
 }
 
-/// The causal bound of one run as a mean absolute error over its scored estimates'
-/// times (NaN when none is scored): Gaussian errors of standard deviation σ have a mean
-/// absolute value of `σ·sqrt(2/π)`.
-fn causal_mae_s(
+/// The share of estimates beyond 20 ms the targets allow (issue 2: under 0.5 %).
+const IDEAL_TAIL_SHARE: f64 = 0.005;
+
+/// The causal bound of one run over its scored estimates' times (NaN when none is
+/// scored): as a mean absolute error (Gaussian errors of standard deviation σ have a
+/// mean absolute value of `σ·sqrt(2/π)`), and its expected share beyond 20 ms.
+fn causal_bound(
     run: &vlsync_sim::families::SimRun,
     ests: &[vlsync_common::Estimate],
     cfg: &Config,
-) -> f64 {
+) -> (f64, f64) {
     let times = scored_times(ests, run);
     let stds = causal_std_s(
         run,
@@ -172,7 +183,10 @@ fn causal_mae_s(
         run.family.drift_rms(),
     );
     let mean = stds.iter().sum::<f64>() / stds.len() as f64;
-    mean * (2.0 / std::f64::consts::PI).sqrt()
+    (
+        mean * (2.0 / std::f64::consts::PI).sqrt(),
+        share_beyond(&stds, vlsync_sim::score::BIG_ERROR_S),
+    )
 }
 
 fn ms(x: f64) -> String {
@@ -201,7 +215,7 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "| family | MAE ms | p95 ms | >20 ms % | coverage % | first lock s | 2σ consistency % | CRB ms | causal bound ms | baseline MAE ms | baseline p95 ms | baseline >20 ms % |"
+        "| family | MAE ms | p95 ms | >20 ms % worst run (pooled) | coverage % | first lock s | 2σ consistency % | CRB ms | causal bound ms | baseline MAE ms | baseline p95 ms | baseline >20 ms % |"
     );
     let _ = writeln!(
         s,
@@ -210,13 +224,19 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
     for r in results {
         let o = &r.ours;
         let b = &r.baseline;
+        let pooled = if o.share_over_20ms_pooled.is_finite() {
+            format!("{:.2}", o.share_over_20ms_pooled * 100.0)
+        } else {
+            "-".into()
+        };
+        let over_20 = format!("{} ({pooled})", pct(o.share_over_20ms));
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.family.name(),
             ms(o.mae_s),
             ms(o.p95_s),
-            pct(o.share_over_20ms),
+            over_20,
             pct(o.coverage),
             r.lock_published_s
                 .map_or("never".to_string(), |t| format!("{t:.1}")),
@@ -226,6 +246,19 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
             ms(b.mae_s),
             ms(b.p95_s),
             pct(b.share_over_20ms),
+        );
+    }
+    let tails: Vec<_> = results.iter().filter(|r| r.causal_runs_over > 0).collect();
+    if !tails.is_empty() {
+        let _ = writeln!(s);
+    }
+    for r in tails {
+        let _ = writeln!(
+            s,
+            "{}: in {} of {} runs the causal bound's ideal estimator would itself have more than 0.5 % of its estimates beyond 20 ms (the Gaussian tails of its σ at the scored times).",
+            r.family.name(),
+            r.causal_runs_over,
+            r.runs
         );
     }
     let known: Vec<_> = results
@@ -265,7 +298,7 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "MAE, p95, >20 ms: mean/mean/max over seeds of estimates after first lock (tracking or holding; 3 s after each load step excluded). coverage: min over seeds. first lock: max over seeds, seconds after motion starts at which the first tracking estimate is published (its reference time is `reference_lag_s` earlier). 2σ: share of tracking estimates within 2σ + 1 ms. CRB: Cramér-Rao bound of a constant offset over the whole run (median of seeds). causal bound: the MAE an ideal online estimator could reach at the scored estimates' times (mean of seeds), one that knew the signatures' shapes and noise and the steps' sizes, used the data up to `reference_lag_s` after each reference time, and knew the family's drift distribution (RMS as the prior: 41.6 ppm in clocks and load-jitter; known in the others); stamp jitter and side-peak errors come on top (`vlsync_sim::crb::causal_std_s`)."
+        "MAE, p95, >20 ms: mean/mean/max over seeds (and in brackets the share of all seeds' estimates together) of estimates after first lock (tracking or holding; 3 s after each load step excluded). coverage: min over seeds. first lock: max over seeds, seconds after motion starts at which the first tracking estimate is published (its reference time is `reference_lag_s` earlier). 2σ: share of tracking estimates within 2σ + 1 ms. CRB: Cramér-Rao bound of a constant offset over the whole run (median of seeds). causal bound: the MAE an ideal online estimator could reach at the scored estimates' times (mean of seeds), one that knew the signatures' shapes and noise and the steps' sizes, used the data up to `reference_lag_s` after each reference time, and knew the family's drift distribution (RMS as the prior: 41.6 ppm in clocks and load-jitter; known in the others); stamp jitter and side-peak errors come on top (`vlsync_sim::crb::causal_std_s`)."
     );
     s
 }
@@ -277,6 +310,7 @@ fn json(results: &[FamilyResult]) -> String {
             let sc = |s: &Score| {
                 serde_json::json!({
                     "mae_s": s.mae_s, "p95_s": s.p95_s, "share_over_20ms": s.share_over_20ms,
+                    "share_over_20ms_pooled": s.share_over_20ms_pooled,
                     "coverage": s.coverage, "time_to_first_lock_s": s.time_to_first_lock_s,
                     "consistency_2sigma": s.consistency_2sigma, "bias_s": s.bias_s,
                     "max_abs_s": s.max_abs_s,
@@ -286,7 +320,8 @@ fn json(results: &[FamilyResult]) -> String {
             };
             serde_json::json!({
                 "family": r.family.name(), "estimator": sc(&r.ours), "baseline": sc(&r.baseline),
-                "crb_s": r.crb_s, "causal_mae_s": r.causal_mae_s, "estimator_time_s": r.time_s,
+                "crb_s": r.crb_s, "causal_mae_s": r.causal_mae_s,
+                "causal_runs_over_half_percent": r.causal_runs_over, "runs": r.runs, "estimator_time_s": r.time_s,
                 "first_lock_published_s": r.lock_published_s,
                 "known_steps": r.known_steps.as_ref().map(sc),
                 "known_steps_hinted": r.step_run == StepRun::Hinted,
@@ -471,6 +506,36 @@ mod tests {
         assert!(!table(std::slice::from_ref(&robot), 1, 2).contains("--known-steps"));
         let j: serde_json::Value = serde_json::from_str(&json(&[robot, steps])).unwrap();
         assert!(j[0]["known_steps"].is_null() && j[1]["known_steps"]["mae_s"].is_f64());
+    }
+
+    #[test]
+    fn the_causal_bound_stands_beside_the_score_and_its_tail_is_said_where_it_matters() {
+        let cfg = Config::default();
+        let mut robot =
+            run_family(&cfg, Family::Robot, 2..4, Some(60.0), None, StepRun::Off).unwrap();
+        // a floor of the same order as the score: finite, above the whole-run CRB
+        // (a mean absolute error over partial data), not far below the MAE
+        let (c, m) = (robot.causal_mae_s, robot.ours.mae_s);
+        assert!(
+            c.is_finite() && c > 0.5 * robot.crb_s && c > 0.4 * m && c < 2.0 * m,
+            "{c} vs {m}"
+        );
+        assert_eq!((robot.causal_runs_over, robot.runs), (0, 2));
+        let t = table(std::slice::from_ref(&robot), 2, 2);
+        assert!(
+            t.contains("causal bound ms") && !t.contains("ideal estimator would"),
+            "{t}"
+        );
+        let j: serde_json::Value =
+            serde_json::from_str(&json(std::slice::from_ref(&robot))).unwrap();
+        assert_eq!(j[0]["causal_mae_s"].as_f64(), Some(c));
+        assert!(j[0]["estimator"]["share_over_20ms_pooled"].is_f64());
+        robot.causal_runs_over = 1;
+        let t = table(&[robot], 2, 2);
+        assert!(
+            t.contains("robot: in 1 of 2 runs the causal bound's ideal estimator"),
+            "{t}"
+        );
     }
 
     #[test]

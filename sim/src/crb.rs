@@ -224,6 +224,42 @@ pub fn causal_std_s(
         .collect()
 }
 
+/// The expected share of estimates off by more than `threshold_s` when each is off by a
+/// zero-mean Gaussian error of the given standard deviation (seconds): the mean of
+/// `erfc(threshold / (σ·√2))`. With [`causal_std_s`] it is the tail an ideal online
+/// estimator could not avoid. NaN for an empty slice; an infinite σ counts as 1.
+///
+/// ```
+/// use vlsync_sim::crb::share_beyond;
+/// // 1σ, 2σ and 3σ two-sided tails
+/// let t = share_beyond(&[0.02, 0.01, 0.02 / 3.0], 0.02);
+/// assert!((t - (0.317311 + 0.045500 + 0.002700) / 3.0).abs() < 1e-5);
+/// assert_eq!(share_beyond(&[0.0, f64::INFINITY], 0.02), 0.5);
+/// ```
+pub fn share_beyond(stds: &[f64], threshold_s: f64) -> f64 {
+    let tail = |sd: f64| {
+        if sd <= 0.0 {
+            0.0
+        } else if sd.is_infinite() {
+            1.0
+        } else {
+            erfc(threshold_s / (sd * std::f64::consts::SQRT_2))
+        }
+    };
+    stds.iter().map(|&sd| tail(sd)).sum::<f64>() / stds.len() as f64
+}
+
+/// Complementary error function for `x >= 0` (Abramowitz and Stegun 7.1.26, absolute
+/// error under 1.5e-7).
+fn erfc(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    poly * (-x * x).exp()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -56,8 +56,11 @@ pub struct Score {
     pub p95_s: f64,
     /// Largest |error| over scored estimates, s (NaN when none).
     pub max_abs_s: f64,
-    /// Share of scored estimates with |error| > 20 ms (NaN when none).
+    /// Share of scored estimates with |error| > 20 ms (NaN when none); aggregated: the
+    /// worst run's.
     pub share_over_20ms: f64,
+    /// The same share over all scored estimates together (for one run, the run's).
+    pub share_over_20ms_pooled: f64,
     /// Tracking/Holding share from the first lock on (0 without a lock).
     pub coverage: f64,
     /// First lock time minus motion start, s; `None` when never locked.
@@ -138,6 +141,11 @@ fn score_items(items: &[Item], run: &SimRun, with_std: bool) -> Score {
     } else {
         abs[((0.95 * n as f64).ceil() as usize).clamp(1, n) - 1]
     };
+    let share = if n == 0 {
+        f64::NAN
+    } else {
+        abs.iter().filter(|&&a| a > BIG_ERROR_S).count() as f64 / n as f64
+    };
     let consistency_2sigma = if with_std {
         let tr: Vec<&&Item> = scored
             .iter()
@@ -162,11 +170,8 @@ fn score_items(items: &[Item], run: &SimRun, with_std: bool) -> Score {
         bias_s: mean(&mut scored.iter().map(|e| e.err)),
         p95_s,
         max_abs_s: abs.last().copied().unwrap_or(f64::NAN),
-        share_over_20ms: if n == 0 {
-            f64::NAN
-        } else {
-            abs.iter().filter(|&&a| a > BIG_ERROR_S).count() as f64 / n as f64
-        },
+        share_over_20ms: share,
+        share_over_20ms_pooled: share,
         coverage: if locked.is_empty() {
             0.0
         } else {
@@ -229,6 +234,7 @@ impl Score {
     /// Combines per-seed scores: mean of `mae_s`, `bias_s`, `p95_s` and
     /// `consistency_2sigma` (over the runs that have one), max of `max_abs_s`,
     /// `share_over_20ms` and `time_to_first_lock_s` (`None` if any run never locked),
+    /// `share_over_20ms_pooled` over all the runs' scored estimates together,
     /// min of `coverage`, sums of the counts. An empty slice gives NaN statistics.
     pub fn aggregate(scores: &[Score]) -> Score {
         let k = scores.len();
@@ -261,6 +267,19 @@ impl Score {
             p95_s: mean(&|s| s.p95_s),
             max_abs_s: max(&|s| s.max_abs_s),
             share_over_20ms: max(&|s| s.share_over_20ms),
+            share_over_20ms_pooled: {
+                let n: usize = scores.iter().map(|s| s.n).sum();
+                let over: f64 = scores
+                    .iter()
+                    .filter(|s| s.n > 0)
+                    .map(|s| s.share_over_20ms_pooled * s.n as f64)
+                    .sum();
+                if n == 0 {
+                    f64::NAN
+                } else {
+                    over / n as f64
+                }
+            },
             coverage: if k == 0 {
                 f64::NAN
             } else {
@@ -396,6 +415,8 @@ mod tests {
         let g = Score::aggregate(&[a.clone(), b.clone()]);
         assert!((g.mae_s - 0.02).abs() < 1e-9);
         assert_eq!(g.share_over_20ms, 1.0);
+        // pooled: 2 of the 3 scored estimates are beyond 20 ms
+        assert!((g.share_over_20ms_pooled - 2.0 / 3.0).abs() < 1e-12);
         assert_eq!(g.n, 3);
         assert_eq!(g.coverage, 1.0);
         let lock = |s: &Score| s.time_to_first_lock_s.unwrap();
