@@ -32,17 +32,22 @@ pub fn crb_std_s(
     sigma_lidar: f64,
     lidar_slopes: &[f64],
 ) -> f64 {
-    let term = |sigma: f64, slopes: &[f64]| {
-        let info: f64 = slopes.iter().map(|s| s * s).sum();
-        if sigma == 0.0 {
-            0.0
-        } else if info > 0.0 {
-            sigma * sigma / info
-        } else {
-            f64::INFINITY
-        }
-    };
-    (term(sigma_cam, cam_slopes) + term(sigma_lidar, lidar_slopes)).sqrt()
+    let info = |slopes: &[f64]| slopes.iter().map(|s| s * s).sum::<f64>();
+    (stream_variance(sigma_cam, info(cam_slopes))
+        + stream_variance(sigma_lidar, info(lidar_slopes)))
+    .sqrt()
+}
+
+/// One stream's term of the bound: `σ² / Σ s'²` (0 without noise, infinite without
+/// information).
+fn stream_variance(sigma: f64, info: f64) -> f64 {
+    if sigma == 0.0 {
+        0.0
+    } else if info > 0.0 {
+        sigma * sigma / info
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// Slopes of the points with `tau` in `[a, b)`; `points` sorted by `tau` (as generated).
@@ -178,21 +183,12 @@ pub fn causal_std_s(
             }
         }
     }
-    let term = |sigma: f64, info: f64| {
-        if sigma == 0.0 {
-            0.0
-        } else if info > 0.0 {
-            sigma * sigma / info
-        } else {
-            f64::INFINITY
-        }
-    };
     // (bin centre s, information 1/s²) of the bins that carry any
     let bins: Vec<(f64, f64)> = sums
         .iter()
         .enumerate()
         .map(|(i, &(c, l))| {
-            let v = term(run.noise_cam, c) + term(run.noise_lidar, l);
+            let v = stream_variance(run.noise_cam, c) + stream_variance(run.noise_lidar, l);
             let centre = ((first + i as i64) as f64 + 0.5) * nanos_to_secs(CAUSAL_BIN_NS);
             (centre, if v > 0.0 { 1.0 / v } else { 0.0 })
         })
