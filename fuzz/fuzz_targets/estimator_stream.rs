@@ -12,6 +12,10 @@ use vlsync_common::{Estimate, EstimatorState, Polarity, Sample, Stream};
 use vlsync_config::EstimatorConfig;
 use vlsync_estimator::Estimator;
 
+#[path = "shared.rs"]
+mod shared;
+use shared::{check, motion};
+
 #[derive(Arbitrary, Debug)]
 enum Dt {
     /// The sensor's nominal period plus `jitter` × 0.1 ms.
@@ -34,15 +38,34 @@ enum Val {
 
 #[derive(Arbitrary, Debug)]
 enum Op {
-    Push { lidar: bool, dt: Dt, val: Val, urgent: bool },
+    Push {
+        lidar: bool,
+        dt: Dt,
+        val: Val,
+        urgent: bool,
+    },
     /// `cycles` × 100 ms of regular data (one LiDAR scan, three frames each) on the
     /// motion: the long stretches the estimator needs to lock and track.
-    Run { cycles: u8, noise: i8 },
+    Run {
+        cycles: u8,
+        noise: i8,
+    },
     Idle,
-    Declare { back_ms: u16 },
-    Hint { back_ms: u16, std_ms: u8 },
+    Declare {
+        back_ms: u16,
+    },
+    Hint {
+        back_ms: u16,
+        std_ms: u8,
+    },
     Degraded(bool),
-    Restore { offset_ms: i32, std_us: u32, drift_ppm: i16, age_s: u16, tracking: bool },
+    Restore {
+        offset_ms: i32,
+        std_us: u32,
+        drift_ppm: i16,
+        age_s: u16,
+        tracking: bool,
+    },
 }
 
 #[derive(Arbitrary, Debug)]
@@ -50,23 +73,6 @@ struct Input {
     wide: bool,
     offset_ms: i16,
     ops: Vec<Op>,
-}
-
-/// A motion both sensors see: two incommensurate tones, seconds in.
-fn motion(t_s: f64) -> f64 {
-    (t_s * 2.1).sin() + 0.6 * (t_s * 5.3 + 1.0).sin()
-}
-
-fn check(e: &Estimate, last_seq: &mut Option<u64>) {
-    assert!(e.offset_std_s >= 0.0 && !e.offset_std_s.is_nan(), "{e:?}");
-    assert!(e.drift_std >= 0.0 && !e.drift_std.is_nan(), "{e:?}");
-    if e.state == EstimatorState::Tracking {
-        assert!(e.offset_s.is_finite() && e.offset_std_s.is_finite(), "{e:?}");
-    }
-    if let Some(s) = *last_seq {
-        assert!(e.seq > s, "sequence {} after {s}", e.seq);
-    }
-    *last_seq = Some(e.seq);
 }
 
 fuzz_target!(|input: Input| {
@@ -81,7 +87,12 @@ fuzz_target!(|input: Input| {
     let mut last_seq = None;
     for op in input.ops.iter().take(20_000) {
         match op {
-            Op::Push { lidar, dt, val, urgent } => {
+            Op::Push {
+                lidar,
+                dt,
+                val,
+                urgent,
+            } => {
                 let i = usize::from(*lidar);
                 let period: i64 = if *lidar { 100_000_000 } else { 33_333_333 };
                 t[i] = match dt {
@@ -115,10 +126,10 @@ fuzz_target!(|input: Input| {
                         for _ in 0..n {
                             t[i] = t[i].saturating_add(period);
                             let lidar = i == 1;
-                            let true_s =
-                                t[i] as f64 * 1e-9 + if lidar { 0.0 } else { offset_s };
+                            let true_s = t[i] as f64 * 1e-9 + if lidar { 0.0 } else { offset_s };
                             let m = motion(true_s);
-                            let wobble = f64::from(*noise) / 256.0 * if c % 2 == 0 { 1.0 } else { -1.0 };
+                            let wobble =
+                                f64::from(*noise) / 256.0 * if c % 2 == 0 { 1.0 } else { -1.0 };
                             let v = if lidar { -m } else { m } + wobble;
                             let stream = if lidar { Stream::Lidar } else { Stream::Cam };
                             let _ = est.push(stream, Sample::new(t[i], v));
@@ -138,7 +149,13 @@ fuzz_target!(|input: Input| {
                 f64::from(*std_ms) * 1e-3,
             ),
             Op::Degraded(on) => est.set_degraded(*on),
-            Op::Restore { offset_ms, std_us, drift_ppm, age_s, tracking } => {
+            Op::Restore {
+                offset_ms,
+                std_us,
+                drift_ppm,
+                age_s,
+                tracking,
+            } => {
                 let e = Estimate {
                     seq: 0,
                     t_ref_ns: t[1],
@@ -146,7 +163,11 @@ fuzz_target!(|input: Input| {
                     drift: f64::from(*drift_ppm) * 1e-6,
                     offset_std_s: f64::from(*std_us) * 1e-6,
                     drift_std: 50e-6,
-                    state: if *tracking { EstimatorState::Tracking } else { EstimatorState::Holding },
+                    state: if *tracking {
+                        EstimatorState::Tracking
+                    } else {
+                        EstimatorState::Holding
+                    },
                     polarity: Polarity::Negative,
                     peak_score: 0.9,
                     peak_ratio: 2.0,
