@@ -74,7 +74,7 @@ pub struct FamilyResult {
     pub causal_mae_s: f64,
     /// Runs in which that ideal estimator's expected share of estimates beyond 20 ms
     /// ([`vlsync_sim::crb::share_beyond`] of its σ at the scored times) exceeds the
-    /// targets' 0.5 %: a tail no online estimator could avoid.
+    /// targets' 0.5 %: a tail the ideal online estimator itself would expect.
     pub causal_runs_over: usize,
     /// Runs of the family.
     pub runs: usize,
