@@ -76,8 +76,6 @@ pub struct FamilyResult {
     /// ([`vlsync_sim::crb::share_beyond`] of its σ at the scored times) exceeds the
     /// targets' 0.5 %: a tail the ideal online estimator itself would expect.
     pub causal_runs_over: usize,
-    /// Runs of the family.
-    pub runs: usize,
     /// Mean estimator time per run, seconds.
     pub time_s: f64,
     /// Latest first lock over the seeds as published: seconds after motion starts at
@@ -157,7 +155,6 @@ pub fn run_family(
         crb_s: crbs.get(crbs.len() / 2).copied().unwrap_or(f64::NAN),
         causal_mae_s: causal.iter().map(|c| c.0).sum::<f64>() / causal.len().max(1) as f64,
         causal_runs_over: causal.iter().filter(|c| c.1 > IDEAL_TAIL_SHARE).count(),
-        runs: causal.len(),
         time_s: time / n as f64,
         known_steps: (!known.is_empty()).then(|| Score::aggregate(&known)),
         step_run: steps,
@@ -258,7 +255,7 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
             "{}: in {} of {} runs the causal bound's ideal estimator would itself have more than 0.5 % of its estimates beyond 20 ms (the Gaussian tails of its σ at the scored times).",
             r.family.name(),
             r.causal_runs_over,
-            r.runs
+            r.ours.runs
         );
     }
     let known: Vec<_> = results
@@ -321,7 +318,7 @@ fn json(results: &[FamilyResult]) -> String {
             serde_json::json!({
                 "family": r.family.name(), "estimator": sc(&r.ours), "baseline": sc(&r.baseline),
                 "crb_s": r.crb_s, "causal_mae_s": r.causal_mae_s,
-                "causal_runs_over_half_percent": r.causal_runs_over, "runs": r.runs, "estimator_time_s": r.time_s,
+                "causal_runs_over_half_percent": r.causal_runs_over, "runs": r.ours.runs, "estimator_time_s": r.time_s,
                 "first_lock_published_s": r.lock_published_s,
                 "known_steps": r.known_steps.as_ref().map(sc),
                 "known_steps_hinted": r.step_run == StepRun::Hinted,
@@ -520,7 +517,7 @@ mod tests {
             c.is_finite() && c > 0.5 * robot.crb_s && c > 0.4 * m && c < 2.0 * m,
             "{c} vs {m}"
         );
-        assert_eq!((robot.causal_runs_over, robot.runs), (0, 2));
+        assert_eq!((robot.causal_runs_over, robot.ours.runs), (0, 2));
         let t = table(std::slice::from_ref(&robot), 2, 2);
         assert!(
             t.contains("causal bound ms") && !t.contains("ideal estimator would"),
