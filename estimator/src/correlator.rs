@@ -145,6 +145,35 @@ impl Sums {
         r.clamp(-1.0, 1.0)
     }
 
+    /// [`Sums::ncc`] of the slots `lo..=hi` into `out[lo..=hi]`, the same values bit
+    /// for bit; written without branches so the loop vectorises (`out` and the sums
+    /// must hold slot `hi`).
+    pub fn ncc_range(&self, lo: usize, hi: usize, out: &mut [f64]) {
+        let n = self.n;
+        let out = &mut out[lo..=hi];
+        if n < 3.0 {
+            out.fill(0.0);
+            return;
+        }
+        let vx = self.sxx - self.sx * self.sx / n;
+        let sums = self.xy[lo..=hi]
+            .iter()
+            .zip(&self.y[lo..=hi])
+            .zip(&self.yy[lo..=hi]);
+        for (o, ((&sxy, &sy), &syy)) in out.iter_mut().zip(sums) {
+            let d = vx * (syy - sy * sy / n);
+            let r = (sxy - self.sx * sy / n) / d.sqrt();
+            // `clamp` and `d > 0 && d.is_finite()`, spelt as selects
+            let r = if r < -1.0 { -1.0 } else { r };
+            let r = if r > 1.0 { 1.0 } else { r };
+            *o = if (d > 0.0) & (d < f64::INFINITY) {
+                r
+            } else {
+                0.0
+            };
+        }
+    }
+
     /// Variance of the LiDAR values.
     pub fn var_x(&self) -> f64 {
         if self.n < 2.0 {
@@ -219,35 +248,48 @@ impl Ring {
     }
 }
 
-/// Most grid indices one [`Correlator::step`] adds.
-const BATCH: usize = 4;
+/// Most grid indices one [`Correlator::step`] adds: a 10 Hz LiDAR scan brings ten grid
+/// values at 100 Hz, and each Σxy slot is then loaded and stored once for all of them.
+const BATCH: usize = 10;
 
-/// `xy[s] += Σ_j xs[j] · ys[hi - s + j]` for the slots `s` of `xy` (`xy[0]` is slot
-/// `lo`, `hi = lo + xy.len() - 1`), the additions of each slot in the order of `j`:
-/// the same sums, bit for bit, as adding the indices one at a time.
+/// `acc[i] += Σ_j xs[j] · ys[i + j]` for every `i` of `acc`, the additions of each
+/// slot in the order of `j`: the same sums, bit for bit, as adding the indices one at
+/// a time. `acc` holds the unfinished block's Σxy with its slots in reverse order
+/// (`Correlator::cur`), so both run forward and the loop vectorises without
+/// shuffles.
 #[inline]
-fn add_products(xy: &mut [f64], ys: &[f64], xs: &[f64]) {
-    let w = xy.len();
+fn add_products(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
     match *xs {
-        [a, b, c, d] => {
-            let it = xy.iter_mut().rev().zip(&ys[..w]).zip(&ys[1..w + 1]);
-            for ((((o, &p), &q), &r), &t) in it.zip(&ys[2..w + 2]).zip(&ys[3..w + 3]) {
-                let mut v = *o;
-                v += a * p;
-                v += b * q;
-                v += c * r;
-                v += d * t;
-                *o = v;
-            }
-        }
-        // fewer (a block's or a burst's last indices): one pass per index, in order
+        [a] => add_n(acc, ys, &[a]),
+        [a, b] => add_n(acc, ys, &[a, b]),
+        [a, b, c] => add_n(acc, ys, &[a, b, c]),
+        [a, b, c, d] => add_n(acc, ys, &[a, b, c, d]),
+        [a, b, c, d, e] => add_n(acc, ys, &[a, b, c, d, e]),
+        [a, b, c, d, e, f] => add_n(acc, ys, &[a, b, c, d, e, f]),
+        [a, b, c, d, e, f, g] => add_n(acc, ys, &[a, b, c, d, e, f, g]),
+        [a, b, c, d, e, f, g, h] => add_n(acc, ys, &[a, b, c, d, e, f, g, h]),
+        [a, b, c, d, e, f, g, h, i] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i]),
+        [a, b, c, d, e, f, g, h, i, j] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i, j]),
+        // more than a step adds: one pass per index, in order
         _ => {
             for (j, &x) in xs.iter().enumerate() {
-                for (o, &p) in xy.iter_mut().rev().zip(&ys[j..j + w]) {
-                    *o += x * p;
-                }
+                add_n(acc, &ys[j..], &[x]);
             }
         }
+    }
+}
+
+/// [`add_products`] for `N` indices, unrolled.
+#[inline(always)]
+fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
+    let ys = &ys[..acc.len() + N - 1];
+    for (i, o) in acc.iter_mut().enumerate() {
+        let y: &[f64; N] = ys[i..i + N].try_into().expect("N values from i");
+        let mut v = *o;
+        for j in 0..N {
+            v += xs[j] * y[j];
+        }
+        *o = v;
     }
 }
 
@@ -274,6 +316,8 @@ pub struct Correlator {
     lidar: Ring,
     cam: Ring,
     cursor: Option<i64>,
+    /// The unfinished block; its Σxy holds slot `s` at `n_lags - 1 - s` until it
+    /// completes (`add_products`).
     cur: Sums,
     /// Completed blocks, a ring of `blocks.len()`; `head` is the oldest.
     blocks: Vec<Sums>,
@@ -548,12 +592,18 @@ impl Correlator {
     /// Whether the next [`Correlator::step`] may complete a block (conservative:
     /// true before the first index). Until it does, the stored blocks stay as they are.
     pub fn may_complete_block(&self) -> bool {
-        // a step adds up to BATCH indices
-        self.cursor
-            .is_none_or(|k| self.hop_len - 1 - k.rem_euclid(self.hop_len) < BATCH as i64)
+        let Some(k) = self.cursor else {
+            return true;
+        };
+        // a step adds up to BATCH indices, and only those whose data are in: the
+        // block's last index needs its LiDAR value and the camera's at the lowest lag
+        let left = self.hop_len - 1 - k.rem_euclid(self.hop_len);
+        let end = k.saturating_add(left);
+        let m_lo = self.lag0 + self.active.0 as i64;
+        left < BATCH as i64 && self.lidar.end >= end && self.cam.end >= end.saturating_sub(m_lo)
     }
 
-    /// Adds the next grid index, with up to three more of the same block whose data
+    /// Adds the next grid index, with up to nine more of the same block whose data
     /// are in. Call until it returns [`Step::Idle`].
     pub fn step(&mut self) -> Step {
         self.step_up_to(BATCH)
@@ -619,11 +669,13 @@ impl Correlator {
         }
         let (lo, hi) = self.active;
         // slot s pairs index k + j with camera index k + j - lag0 - s: in the span from
-        // k - m_hi, position hi - s + j (the slots read backwards, shifted by j).
-        // Only Σxy needs the pair; Σy and Σy² of a block are sliding sums over the
-        // camera ring, filled in once when the block completes.
+        // k - m_hi, position hi - s + j. The unfinished block's Σxy holds slot s at
+        // n_lags - 1 - s until it completes, so that position is its offset from slot
+        // hi's, plus j. Only Σxy needs the pair; Σy and Σy² of a block are sliding sums
+        // over the camera ring, filled in once when the block completes.
         let ys = self.cam.span(k - m_hi, last - m_lo);
-        add_products(&mut self.cur.xy[lo..=hi], ys, &xs[..nb]);
+        let n = self.n_lags;
+        add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, &xs[..nb]);
         self.cursor = Some(last + 1);
         if (last + 1).rem_euclid(self.hop_len) == 0 {
             if self.complete_block() {
@@ -677,6 +729,8 @@ impl Correlator {
             self.cur.clear();
             return false;
         }
+        // its Σxy was summed with the slots in reverse order (`add_products`)
+        self.cur.xy.reverse();
         let cap = self.blocks.len();
         if self.count == cap {
             // the oldest block leaves the store (it left the acquisition window long ago
@@ -900,6 +954,44 @@ mod tests {
             }
             for s in one.acq().lo..=one.acq().hi {
                 proptest::prop_assert_eq!(one.acq().xy[s].to_bits(), burst.acq().xy[s].to_bits());
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// The branch-free range gives what the per-slot correlation gives, bit for bit,
+        /// on any sums: too few pairs, a variance that is zero, negative or infinite by
+        /// cancellation or overflow, any bit pattern.
+        #[test]
+        fn ncc_range_is_ncc_slot_by_slot(
+            n in proptest::prop_oneof![0.0..5.0f64, 3.0..1e6, proptest::num::f64::ANY],
+            sx in proptest::prop_oneof![-1e3..1e3f64, proptest::num::f64::ANY],
+            sxx in proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY],
+            slots in proptest::collection::vec(
+                (-1e3..1e3f64, -1e3..1e3f64, proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY]),
+                3..40,
+            ),
+            lo_frac in 0.0..1.0f64,
+        ) {
+            let mut sums = Sums::new(slots.len());
+            (sums.n, sums.sx, sums.sxx) = (n.floor(), sx, sxx);
+            for (s, &(xy, y, yy)) in slots.iter().enumerate() {
+                (sums.xy[s], sums.y[s], sums.yy[s]) = (xy, y, yy);
+            }
+            let hi = slots.len() - 1;
+            let lo = (lo_frac * hi as f64) as usize;
+            let mut out = vec![7.0; slots.len()];
+            sums.ncc_range(lo, hi, &mut out);
+            for (s, &v) in out.iter().enumerate() {
+                if s < lo {
+                    proptest::prop_assert_eq!(v, 7.0, "slot {} outside the range written", s);
+                } else {
+                    let want = sums.ncc(s);
+                    proptest::prop_assert!(
+                        v.to_bits() == want.to_bits() || (v.is_nan() && want.is_nan()),
+                        "slot {}: {} against {}", s, v, want
+                    );
+                }
             }
         }
     }

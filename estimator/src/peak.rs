@@ -27,9 +27,7 @@ pub fn find(sums: &Sums, lo: usize, hi: usize, sign: f64, scratch: &mut [f64]) -
     if hi < lo + 2 || hi >= scratch.len() {
         return None;
     }
-    for (s, v) in scratch.iter_mut().enumerate().take(hi + 1).skip(lo) {
-        *v = sums.ncc(s);
-    }
+    sums.ncc_range(lo, hi, scratch);
     let signs: &[f64] = if sign == 0.0 {
         &[1.0, -1.0]
     } else if sign > 0.0 {
