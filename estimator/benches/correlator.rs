@@ -180,7 +180,8 @@ fn bench(c: &mut Criterion) {
         // incremental: warm a correlator, then measure one hop (hop samples + block combine)
         // fed one index of each stream, then a step; and as the estimator feeds it from
         // a 10 Hz LiDAR: each scan brings ten grid values, then the correlator steps (up
-        // to four indices per step)
+        // to ten indices of a block per step); both then evaluate the correlation at every lag,
+        // as the batch paths return it
         for (name, burst) in [("incremental", 1), ("incremental_10hz_bursts", 10)] {
             let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
             let mut k = 0i64;
