@@ -196,7 +196,6 @@ fn bench(c: &mut Criterion) {
                 }
             };
             feed(&mut corr, &mut k, win as i64 + 4 * half);
-            // the correlation at every lag, as the batch paths return it
             let mut out = vec![0.0; n_lags];
             g.bench_function(BenchmarkId::new(name, s.name), |b| {
                 b.iter(|| {

@@ -130,47 +130,45 @@ impl Sums {
     /// Pearson correlation at lag slot `slot` (0 when undefined).
     #[inline]
     pub fn ncc(&self, slot: usize) -> f64 {
-        let n = self.n;
-        if n < 3.0 {
+        if self.n < 3.0 {
             return 0.0;
         }
-        let (sxy, sy, syy) = (self.xy[slot], self.y[slot], self.yy[slot]);
-        let vx = self.sxx - self.sx * self.sx / n;
-        let vy = syy - sy * sy / n;
-        let d = vx * vy;
-        if d <= 0.0 || !d.is_finite() {
-            return 0.0;
-        }
-        let r = (sxy - self.sx * sy / n) / d.sqrt();
-        r.clamp(-1.0, 1.0)
+        let vx = self.sxx - self.sx * self.sx / self.n;
+        self.pearson(vx, self.xy[slot], self.y[slot], self.yy[slot])
     }
 
-    /// [`Sums::ncc`] of the slots `lo..=hi` into `out[lo..=hi]`, the same values bit
-    /// for bit; written without branches so the loop vectorises (`out` and the sums
-    /// must hold slot `hi`).
+    /// [`Sums::ncc`] of the slots `lo..=hi` into `out[lo..=hi]` (`out` and the sums
+    /// must hold slot `hi`); the loop vectorises.
     pub fn ncc_range(&self, lo: usize, hi: usize, out: &mut [f64]) {
-        let n = self.n;
         let out = &mut out[lo..=hi];
-        if n < 3.0 {
+        if self.n < 3.0 {
             out.fill(0.0);
             return;
         }
-        let vx = self.sxx - self.sx * self.sx / n;
+        let vx = self.sxx - self.sx * self.sx / self.n;
         let sums = self.xy[lo..=hi]
             .iter()
             .zip(&self.y[lo..=hi])
             .zip(&self.yy[lo..=hi]);
         for (o, ((&sxy, &sy), &syy)) in out.iter_mut().zip(sums) {
-            let d = vx * (syy - sy * sy / n);
-            let r = (sxy - self.sx * sy / n) / d.sqrt();
-            // `clamp` and `d > 0 && d.is_finite()`, spelt as selects
-            let r = if r < -1.0 { -1.0 } else { r };
-            let r = if r > 1.0 { 1.0 } else { r };
-            *o = if (d > 0.0) & (d < f64::INFINITY) {
-                r
-            } else {
-                0.0
-            };
+            *o = self.pearson(vx, sxy, sy, syy);
+        }
+    }
+
+    /// The correlation of one slot's sums given the LiDAR values' `vx` (n ≥ 3):
+    /// clamped to ±1, 0 when the variance product is not positive and finite. Written
+    /// as selects, without branches, so that [`Sums::ncc_range`]'s loop vectorises.
+    #[inline(always)]
+    fn pearson(&self, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
+        let n = self.n;
+        let d = vx * (syy - sy * sy / n);
+        let r = (sxy - self.sx * sy / n) / d.sqrt();
+        let r = if r < -1.0 { -1.0 } else { r };
+        let r = if r > 1.0 { 1.0 } else { r };
+        if (d > 0.0) & (d < f64::INFINITY) {
+            r
+        } else {
+            0.0
         }
     }
 
@@ -959,8 +957,8 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// The branch-free range gives what the per-slot correlation gives, bit for bit,
-        /// on any sums: too few pairs, a variance that is zero, negative or infinite by
+        /// The branch-free range and the per-slot correlation give the textbook
+        /// formula's values bit for bit, on any sums: too few pairs, a variance that is zero, negative or infinite by
         /// cancellation or overflow, any bit pattern.
         #[test]
         fn ncc_range_is_ncc_slot_by_slot(
@@ -986,11 +984,24 @@ mod tests {
                 if s < lo {
                     proptest::prop_assert_eq!(v, 7.0, "slot {} outside the range written", s);
                 } else {
-                    let want = sums.ncc(s);
-                    proptest::prop_assert!(
-                        v.to_bits() == want.to_bits() || (v.is_nan() && want.is_nan()),
-                        "slot {}: {} against {}", s, v, want
-                    );
+                    // the textbook form, with branches and `clamp`
+                    let want = if sums.n < 3.0 {
+                        0.0
+                    } else {
+                        let vx = sums.sxx - sums.sx * sums.sx / sums.n;
+                        let d = vx * (sums.yy[s] - sums.y[s] * sums.y[s] / sums.n);
+                        if d <= 0.0 || !d.is_finite() {
+                            0.0
+                        } else {
+                            ((sums.xy[s] - sums.sx * sums.y[s] / sums.n) / d.sqrt()).clamp(-1.0, 1.0)
+                        }
+                    };
+                    for got in [v, sums.ncc(s)] {
+                        proptest::prop_assert!(
+                            got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                            "slot {}: {} against {}", s, got, want
+                        );
+                    }
                 }
             }
         }
