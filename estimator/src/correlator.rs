@@ -36,7 +36,7 @@ pub struct Sums {
     pub first_k: i64,
     /// Last LiDAR grid index covered.
     pub last_k: i64,
-    /// Lag slots these sums hold (the active range when the block completed).
+    /// Lag slots these sums hold (of a block: the slots active for all of it).
     pub lo: usize,
     /// Last lag slot held (inclusive).
     pub hi: usize,
@@ -69,16 +69,22 @@ impl Sums {
         self.yy.iter_mut().for_each(|v| *v = 0.0);
     }
 
+    /// Adds `sign` times `o` on the slots it holds (a window of blocks is valid on
+    /// the slots all of them hold, so what the others hold does not matter).
     fn add(&mut self, o: &Sums, sign: f64) {
         self.n += sign * o.n;
         self.sx += sign * o.sx;
         self.sxx += sign * o.sxx;
+        let (lo, hi) = (o.lo, o.hi.min(o.xy.len() - 1));
+        if lo > hi {
+            return;
+        }
         for (a, b) in [
             (&mut self.xy, &o.xy),
             (&mut self.y, &o.y),
             (&mut self.yy, &o.yy),
         ] {
-            for (p, q) in a.iter_mut().zip(b.iter()) {
+            for (p, q) in a[lo..=hi].iter_mut().zip(&b[lo..=hi]) {
                 *p += sign * q;
             }
         }
@@ -428,6 +434,10 @@ impl Correlator {
             b.lo = lo;
             b.hi = hi;
         }
+        // the active range keeps its lags where it can (its width always)
+        let (a, b) = self.active;
+        let a = (a as i64 - delta).clamp(0, n - 1 - (b - a) as i64) as usize;
+        self.active = (a, a + (b - self.active.0));
         self.cur.clear();
         // the acquisition window keeps its blocks, valid on the slots they all hold
         // (a re-centre must not leave the tracker without its motion gate for a
@@ -435,16 +445,17 @@ impl Correlator {
         self.rebuild_acq();
     }
 
-    /// Restricts the updated lag slots to `lo..=hi` (clamped). Stored blocks stay
-    /// (each knows the slots it holds); the acquisition window and the unfinished
-    /// block restart when the range changes.
+    /// Restricts the updated lag slots to `lo..=hi` (clamped). Nothing is forgotten:
+    /// each stored block knows the slots it holds, so the acquisition window stays
+    /// valid on the slots all its blocks hold, and the unfinished block will hold
+    /// the slots that were active for all of it.
     pub fn set_active(&mut self, lo: usize, hi: usize) {
         let hi = hi.min(self.n_lags - 1);
         let lo = lo.min(hi);
-        if (lo, hi) != self.active {
-            self.active = (lo, hi);
-            self.cur.clear();
-            self.restart_acq();
+        self.active = (lo, hi);
+        if self.cur.n > 0.0 {
+            self.cur.lo = self.cur.lo.max(lo);
+            self.cur.hi = self.cur.hi.min(hi);
         }
     }
 
@@ -511,8 +522,10 @@ impl Correlator {
         (self.head + i) % self.blocks.len()
     }
 
-    /// Forgets every completed block and the unfinished one (the cursor stays).
+    /// Forgets every completed block and the unfinished one (the cursor stays); every
+    /// lag slot is active again.
     pub fn clear_blocks(&mut self) {
+        self.active = (0, self.n_lags - 1);
         self.cur.clear();
         self.epoch += 1;
         self.count = 0;
@@ -657,6 +670,7 @@ impl Correlator {
         }
         if self.cur.n == 0.0 {
             self.cur.first_k = k;
+            (self.cur.lo, self.cur.hi) = self.active;
         }
         let last = k + nb as i64 - 1;
         self.cur.last_k = last;
@@ -723,7 +737,7 @@ impl Correlator {
     /// Stores the finished block; false (and the block dropped) when the camera
     /// ring no longer holds its values.
     fn complete_block(&mut self) -> bool {
-        if self.cur.n == 0.0 || !self.fill_y_sums() {
+        if self.cur.n == 0.0 || self.cur.lo > self.cur.hi || !self.fill_y_sums() {
             self.cur.clear();
             return false;
         }
@@ -741,7 +755,6 @@ impl Correlator {
             self.count -= 1;
         }
         let pos = (self.head + self.count) % cap;
-        (self.cur.lo, self.cur.hi) = self.active;
         std::mem::swap(&mut self.blocks[pos], &mut self.cur);
         self.cur.clear();
         self.count += 1;
@@ -875,11 +888,70 @@ mod tests {
         feed(&mut c, 0..100);
         assert_eq!((c.block(0).lo, c.block(0).hi), (0, 20));
         c.set_active(5, 15);
-        assert_eq!(c.acq_count(), 0);
+        // the window keeps its blocks; it holds what they all hold
+        assert_eq!(c.acq_count(), 4);
+        assert_eq!((c.acq().lo, c.acq().hi), (0, 20));
         feed(&mut c, 100..140);
         let n = c.count();
         assert_eq!((c.block(n - 1).lo, c.block(n - 1).hi), (5, 15));
         assert_eq!((c.block(0).lo, c.block(0).hi), (0, 20));
+        assert_eq!((c.acq().lo, c.acq().hi), (5, 15));
+        // forgetting the blocks makes every slot active again
+        c.clear_blocks();
+        assert_eq!(c.active(), (0, 20));
+    }
+
+    /// A block holds the slots that were active for all of it: moving the range
+    /// mid-block keeps the unfinished block, which then holds their intersection,
+    /// with the sums a correlator on that range throughout has.
+    #[test]
+    fn moving_the_active_range_mid_block_keeps_the_block_on_the_common_slots() {
+        let feed = |c: &mut Correlator, r: std::ops::Range<i64>| feed_tones(c, r, 3);
+        let mut moved = Correlator::new(21, -10, 10, 4, 8, 1024);
+        let mut fixed = Correlator::new(21, -10, 10, 4, 8, 1024);
+        moved.set_active(4, 16);
+        fixed.set_active(6, 16);
+        // index k pairs with camera index k + 6 at slot 4: the cursor is at 104
+        feed(&mut moved, 0..110);
+        feed(&mut fixed, 0..110);
+        assert_eq!(moved.cursor(), Some(104));
+        moved.set_active(6, 18); // mid-block (indices 100..=109)
+        feed(&mut moved, 110..118);
+        feed(&mut fixed, 110..118);
+        let (m, f) = (
+            moved.block(moved.count() - 1),
+            fixed.block(fixed.count() - 1),
+        );
+        assert_eq!((m.first_k, m.last_k), (100, 109));
+        assert_eq!((m.lo, m.hi), (6, 16));
+        assert_eq!(m.n, f.n);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
+        for s in 6..=16 {
+            // Σxy summed alike; Σy and Σy² slide from the range's top slot
+            assert_eq!(m.xy[s], f.xy[s], "slot {s}");
+            assert!(close(m.y[s], f.y[s]) && close(m.yy[s], f.yy[s]), "slot {s}");
+        }
+        // the window holds the slots every block in it holds
+        assert_eq!((moved.acq().lo, moved.acq().hi), (6, 16));
+        for s in 6..=16 {
+            assert!(
+                (moved.acq().ncc(s) - fixed.acq().ncc(s)).abs() < 1e-12,
+                "slot {s}"
+            );
+        }
+        // a range moved off every slot of the unfinished block (110..=119) loses it
+        let newest = |c: &Correlator| c.block(c.count() - 1).first_k;
+        assert!(moved.cursor().is_some_and(|k| k > 110));
+        moved.set_active(0, 3);
+        feed(&mut moved, 118..135);
+        assert_eq!(
+            newest(&moved),
+            100,
+            "a block that holds no slot is not stored"
+        );
+        feed(&mut moved, 135..145);
+        let b = moved.block(moved.count() - 1);
+        assert_eq!((b.first_k, b.lo, b.hi), (120, 0, 3));
     }
 
     #[test]
