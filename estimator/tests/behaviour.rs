@@ -1046,9 +1046,9 @@ fn a_lidar_clock_stepping_forward_moves_no_search() {
     }
 }
 
-/// Degraded mode (a daemon over its latency budget) narrows the lags a lock updates
-/// to those near the prediction; the acquisition after the lock is gone searches
-/// the whole range again. Here the drivers restart as a new session whose offset is
+/// A lock updates only the lags near the prediction, degraded mode (a daemon over its
+/// latency budget) fewer still; the acquisition after the lock is gone searches the
+/// whole range again. Here the drivers restart as a new session whose offset is
 /// 300 ms from the old one (both clocks back to 0): the narrowing used to outlive
 /// the lock, and a daemon kept over budget searched only the ±0.2 s around the old
 /// prediction, moving its search back and forth every 30 s without finding the
