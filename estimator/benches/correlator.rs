@@ -49,6 +49,11 @@ const SETTINGS: [Setting; 3] = [
     },
 ];
 
+/// Lag slots the estimator updates while tracking at the default setting: the
+/// tracking range (±8 slots), the 6 slots beyond it tracking reads and 8 to spare,
+/// each side of the prediction (`Estimator::narrow_to`).
+const TRACKING_SLOTS: usize = 45;
+
 fn sig(i: i64) -> f64 {
     let t = i as f64 * 0.01;
     (0.9 * t).sin() + 0.5 * (2.7 * t).cos() + 0.1 * ((i * 7919) % 101) as f64 / 101.0
@@ -181,8 +186,17 @@ fn bench(c: &mut Criterion) {
         // fed one index of each stream, then a step; and as the estimator feeds it from
         // a 10 Hz LiDAR: each scan brings ten grid values, then the correlator steps (up
         // to ten indices of a block per step); both then evaluate the correlation at every lag,
-        // as the batch paths return it
-        for (name, burst) in [("incremental", 1), ("incremental_10hz_bursts", 10)] {
+        // as the batch paths return it. The third is the second once locked: the
+        // estimator then updates, and evaluates, only the `TRACKING_SLOTS` lags near
+        // the prediction (a batch recompute at those lags alone is `segment`'s
+        // `batch_direct_tracking_lags`; an FFT's costs the same at any)
+        let peak = (half + 12) as usize;
+        let (t_lo, t_hi) = (peak - TRACKING_SLOTS / 2, peak + TRACKING_SLOTS / 2);
+        for (name, burst, (lo, hi)) in [
+            ("incremental", 1, (0, n_lags - 1)),
+            ("incremental_10hz_bursts", 10, (0, n_lags - 1)),
+            ("incremental_10hz_tracking", 10, (t_lo, t_hi)),
+        ] {
             let mut corr = Correlator::new(n_lags, -half, hop, wb, wb, 8192);
             let mut k = 0i64;
             let feed = |corr: &mut Correlator, k: &mut i64, n: i64| {
@@ -195,12 +209,14 @@ fn bench(c: &mut Criterion) {
                     while corr.step() != Step::Idle {}
                 }
             };
+            corr.set_active(lo, hi);
             feed(&mut corr, &mut k, win as i64 + 4 * half);
+            assert_eq!((corr.acq().lo, corr.acq().hi), (lo, hi));
             let mut out = vec![0.0; n_lags];
             g.bench_function(BenchmarkId::new(name, s.name), |b| {
                 b.iter(|| {
                     feed(&mut corr, &mut k, hop);
-                    corr.acq().ncc_range(0, n_lags - 1, &mut out);
+                    corr.acq().ncc_range(lo, hi, &mut out);
                     black_box(out[n_lags / 2])
                 })
             });
@@ -214,6 +230,22 @@ fn bench(c: &mut Criterion) {
                 black_box(out[0])
             })
         });
+        // the direct recompute at the lags a lock updates alone (an FFT's cost does not
+        // depend on how many lags are read)
+        let mut part = vec![0.0; TRACKING_SLOTS];
+        let y_part = &y[t_lo..t_lo + win + TRACKING_SLOTS];
+        batch_direct(&x, y_part, TRACKING_SLOTS, &mut part);
+        batch_direct(&x, &y, n_lags, &mut out);
+        assert_eq!(part[..], out[t_lo..=t_hi]);
+        g.bench_function(
+            BenchmarkId::new("batch_direct_tracking_lags", s.name),
+            |b| {
+                b.iter(|| {
+                    batch_direct(black_box(&x), black_box(y_part), TRACKING_SLOTS, &mut part);
+                    black_box(part[0])
+                })
+            },
+        );
         let mut fft = BatchFft::new(x.len(), y.len(), n_lags);
         // the same correlation as the direct recompute
         let mut check = vec![0.0; n_lags];
