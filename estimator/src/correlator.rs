@@ -1029,6 +1029,57 @@ mod tests {
     }
 
     proptest::proptest! {
+        /// However the active lags move (any range, at any index, mid-block or not), every
+        /// stored block holds on its slots the sums of its own indices at those lags, and
+        /// the acquisition window those of its blocks on the slots they all hold.
+        #[test]
+        fn blocks_hold_exact_sums_on_their_slots_however_the_active_range_moves(
+            moves in proptest::collection::vec((0usize..31, 0usize..31, 1usize..40), 1..30),
+        ) {
+            let sig = |k: i64| (k as f64 * 0.11).sin() + 0.3 * ((k * 7919) % 17) as f64 / 17.0;
+            let lag0 = -15i64;
+            let mut c = Correlator::new(31, lag0, 10, 4, 64, 2048);
+            let mut k = 0i64;
+            for (a, b, n) in moves {
+                c.set_active(a.min(b), a.max(b));
+                for _ in 0..n {
+                    c.push_cam(k, sig(k));
+                    c.push_lidar(k, sig(k - 3));
+                    k += 1;
+                    while c.step() != Step::Idle {}
+                }
+            }
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());
+            for i in 0..c.count() {
+                let bl = c.block(i);
+                proptest::prop_assert!(bl.lo <= bl.hi);
+                proptest::prop_assert_eq!(bl.n, (bl.last_k - bl.first_k + 1) as f64);
+                for s in bl.lo..=bl.hi {
+                    let m = lag0 + s as i64;
+                    let (mut xy, mut y, mut yy) = (0.0, 0.0, 0.0);
+                    for j in bl.first_k..=bl.last_k {
+                        let (xv, yv) = (sig(j - 3), sig(j - m));
+                        xy += xv * yv;
+                        y += yv;
+                        yy += yv * yv;
+                    }
+                    proptest::prop_assert!(
+                        close(bl.xy[s], xy) && close(bl.y[s], y) && close(bl.yy[s], yy),
+                        "block {} ({}..={}) slot {}", i, bl.first_k, bl.last_k, s
+                    );
+                }
+            }
+            let w = c.acq();
+            let first = c.count() - c.acq_count();
+            proptest::prop_assert_eq!((w.lo, w.hi), c.slots_held(first, c.count()));
+            for s in w.lo..=w.hi.min(30) {
+                let want: f64 = (first..c.count()).map(|i| c.block(i).xy[s]).sum();
+                proptest::prop_assert!(close(w.xy[s], want), "window slot {}", s);
+            }
+        }
+    }
+
+    proptest::proptest! {
         /// The branch-free range and the per-slot correlation give the textbook
         /// formula's values bit for bit, on any sums: too few pairs, a variance that is zero, negative or infinite by
         /// cancellation or overflow, any bit pattern.
