@@ -436,8 +436,9 @@ impl Correlator {
         }
         // the active range keeps its lags where it can (its width always)
         let (a, b) = self.active;
-        let a = (a as i64 - delta).clamp(0, n - 1 - (b - a) as i64) as usize;
-        self.active = (a, a + (b - self.active.0));
+        let width = b - a;
+        let a = (a as i64 - delta).clamp(0, n - 1 - width as i64) as usize;
+        self.active = (a, a + width);
         self.cur.clear();
         // the acquisition window keeps its blocks, valid on the slots they all hold
         // (a re-centre must not leave the tracker without its motion gate for a

@@ -6,6 +6,13 @@ use vlsync_config::EstimatorConfig;
 use vlsync_estimator::{Estimator, SearchMoveReason};
 use vlsync_sim::families::{generate, Family, SimRun};
 
+/// The newest estimate in state `tracking`, if any.
+fn last_tracking(out: &[vlsync_common::Estimate]) -> Option<&vlsync_common::Estimate> {
+    out.iter()
+        .rev()
+        .find(|e| e.state == EstimatorState::Tracking)
+}
+
 fn replay(run: &SimRun, est: &mut Estimator) -> Vec<vlsync_common::Estimate> {
     replay_announcing(run, est, &[], |_, _| {})
 }
@@ -723,11 +730,7 @@ fn restore_starts_holding_near_the_saved_offset_and_relocks() {
     let run = generate(Family::Robot, 21, Some(60.0));
     let mut first = Estimator::new(&EstimatorConfig::default());
     let out = replay(&run, &mut first);
-    let saved = *out
-        .iter()
-        .rev()
-        .find(|e| e.state == EstimatorState::Tracking)
-        .unwrap();
+    let saved = *last_tracking(&out).unwrap();
     let mut est = Estimator::new(&EstimatorConfig::default());
     est.restore(&saved, 30.0);
     assert_eq!(est.state(), EstimatorState::Holding);
@@ -1066,11 +1069,7 @@ fn degraded_mode_searches_the_whole_range_once_the_lock_is_gone() {
     let _ = replay(&first, &mut est);
     let second_out = replay(&second, &mut est);
     assert_eq!(est.stats().resets, [1, 1], "{:?}", est.stats());
-    let last = second_out
-        .iter()
-        .rev()
-        .find(|e| e.state == EstimatorState::Tracking)
-        .expect("tracks in the second session");
+    let last = last_tracking(&second_out).expect("tracks in the second session");
     assert!(last.t_ref_ns > 100_000_000_000, "{last:?}");
     let truth = second.truth.offset_at(last.t_ref_ns - shift) + 0.3;
     assert!(
@@ -1122,11 +1121,7 @@ fn a_new_session_far_from_the_old_offset_is_found_without_a_search_move() {
             .position(|e| e.state == EstimatorState::Tracking)
             .unwrap_or_else(|| panic!("{label}: never locked"));
         assert!(lock < 30, "{label}: first lock at hop {lock}");
-        let e = out[lock..]
-            .iter()
-            .rev()
-            .find(|e| e.state == EstimatorState::Tracking)
-            .unwrap();
+        let e = last_tracking(&out[lock..]).unwrap();
         let truth = second.truth.offset_at(e.t_ref_ns - shift) + shift as f64 * 1e-9;
         assert!(
             (e.offset_s - truth).abs() < 0.01,
@@ -1171,11 +1166,7 @@ fn the_start_range_is_searched_on_the_internal_stamps_after_latency_steps() {
         moves >= 1 && lock < 120,
         "lock at hop {lock} after {moves} moves"
     );
-    let e = out
-        .iter()
-        .rev()
-        .find(|e| e.state == EstimatorState::Tracking)
-        .unwrap();
+    let e = last_tracking(&out).unwrap();
     let truth = second.truth.offset_at(e.t_ref_ns - shift2) + shift2 as f64 * 1e-9;
     assert!((e.offset_s - truth).abs() < 0.01, "{e:?} vs {truth}");
 }
@@ -1241,11 +1232,7 @@ fn a_new_session_arriving_skewed_is_found_at_once_or_after_one_search_move() {
                     "{label}: {moves} moves, lock {lock_s} s"
                 );
             }
-            let last = out
-                .iter()
-                .rev()
-                .find(|e| e.state == EstimatorState::Tracking)
-                .unwrap();
+            let last = last_tracking(&out).unwrap();
             let err = last.offset_s - second.truth.offset_at(last.t_ref_ns);
             assert!(err.abs() < 0.005, "{label}: {err} s off");
         }
