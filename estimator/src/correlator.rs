@@ -90,6 +90,33 @@ impl Sums {
         }
     }
 
+    /// Subtracts `out` and adds `inn` (a window moving by one block): the sums of
+    /// `self.add(out, -1.0)` then `self.add(inn, 1.0)`, bit for bit, in one pass
+    /// when both hold the same slots.
+    fn replace(&mut self, out: &Sums, inn: &Sums) {
+        if (out.lo, out.hi) != (inn.lo, inn.hi) || out.hi >= out.xy.len() || out.lo > out.hi {
+            self.add(out, -1.0);
+            self.add(inn, 1.0);
+            return;
+        }
+        self.n = (self.n - out.n) + inn.n;
+        self.sx = (self.sx - out.sx) + inn.sx;
+        self.sxx = (self.sxx - out.sxx) + inn.sxx;
+        let r = out.lo..=out.hi;
+        for (a, b, c) in [
+            (&mut self.xy, &out.xy, &inn.xy),
+            (&mut self.y, &out.y, &inn.y),
+            (&mut self.yy, &out.yy, &inn.yy),
+        ] {
+            for (p, (q, w)) in a[r.clone()]
+                .iter_mut()
+                .zip(b[r.clone()].iter().zip(&c[r.clone()]))
+            {
+                *p = (*p - q) + w;
+            }
+        }
+    }
+
     /// Adds `sign` times the slots `lo..=hi` of `o` (and its lag-free sums). The slots
     /// must be ones `o` holds (its `lo..=hi`) unless it is empty: the lag-free sums
     /// count every pair, so a slot it lacks would make a sum of no lag.
@@ -139,7 +166,7 @@ impl Sums {
         if self.n < 3.0 {
             return 0.0;
         }
-        let vx = self.sxx - self.sx * self.sx / self.n;
+        let vx = self.n * self.sxx - self.sx * self.sx;
         self.pearson(vx, self.xy[slot], self.y[slot], self.yy[slot])
     }
 
@@ -151,7 +178,7 @@ impl Sums {
             out.fill(0.0);
             return;
         }
-        let vx = self.sxx - self.sx * self.sx / self.n;
+        let vx = self.n * self.sxx - self.sx * self.sx;
         let sums = self.xy[lo..=hi]
             .iter()
             .zip(&self.y[lo..=hi])
@@ -161,14 +188,16 @@ impl Sums {
         }
     }
 
-    /// The correlation of one slot's sums given the LiDAR values' `vx` (n ≥ 3):
-    /// clamped to ±1, 0 when the variance product is not positive and finite. Written
-    /// as selects, without branches, so that [`Sums::ncc_range`]'s loop vectorises.
+    /// The correlation of one slot's sums given the LiDAR values' `vx = n·Σx² - (Σx)²`
+    /// (n ≥ 3): `(n·Σxy - Σx·Σy) / √(vx·(n·Σy² - (Σy)²))`, one division and one root
+    /// per slot; clamped to ±1, 0 when the variance product is not positive and
+    /// finite. Written as selects, without branches, so that [`Sums::ncc_range`]'s
+    /// loop vectorises.
     #[inline(always)]
     fn pearson(&self, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
         let n = self.n;
-        let d = vx * (syy - sy * sy / n);
-        let r = (sxy - self.sx * sy / n) / d.sqrt();
+        let d = vx * (n * syy - sy * sy);
+        let r = (n * sxy - self.sx * sy) / d.sqrt();
         let r = if r < -1.0 { -1.0 } else { r };
         let r = if r > 1.0 { 1.0 } else { r };
         if (d > 0.0) & (d < f64::INFINITY) {
@@ -222,6 +251,7 @@ impl Ring {
         }
     }
 
+    #[inline]
     fn push(&mut self, k: i64, v: f64) {
         if self.seg_start.is_none() || k != self.end.wrapping_add(1) {
             self.seg_start = Some(k);
@@ -296,6 +326,11 @@ fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
         *o = v;
     }
 }
+
+/// The acquisition window's running total is rebuilt exactly from its blocks once
+/// per this many window lengths: each block is added once and subtracted once in
+/// between, so rounding stays within a few hundred additions' worth (relative 1e-14).
+const REBUILD_WINDOWS: usize = 4;
 
 /// Result of one cursor step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -471,11 +506,13 @@ impl Correlator {
     }
 
     /// Stores a filtered LiDAR grid value.
+    #[inline]
     pub fn push_lidar(&mut self, k: i64, v: f64) {
         self.lidar.push(k, v);
     }
 
     /// Stores a filtered camera grid value.
+    #[inline]
     pub fn push_cam(&mut self, k: i64, v: f64) {
         self.cam.push(k, v);
     }
@@ -654,28 +691,23 @@ impl Correlator {
         };
         // up to BATCH consecutive indices of the same block at once, when their data are
         // in (a LiDAR sample brings several grid values): each Σxy slot is then loaded
-        // and stored once for all of them, its additions in index order as one by one
+        // and stored once for all of them, its additions in index order as one by one.
+        // Both rings hold every index from their segment's start to their end (k is at
+        // or after both starts, and its values are still in), so the indices up to
+        // the newest each stream covers are all there.
         let block_end = (k.div_euclid(self.hop_len) + 1) * self.hop_len - 1;
-        let mut xs = [x; BATCH];
-        let mut nb = 1;
-        while nb < batch.min(BATCH) {
-            let kj = k + nb as i64;
-            if kj > block_end || self.lidar.end < kj || self.cam.end < kj - m_lo {
-                break;
-            }
-            let (Some(xj), Some(_)) = (self.lidar.get(kj), self.cam.get(kj - m_lo)) else {
-                break;
-            };
-            xs[nb] = xj;
-            nb += 1;
-        }
+        let last = (k + batch.clamp(1, BATCH) as i64 - 1)
+            .min(block_end)
+            .min(self.lidar.end)
+            .min(self.cam.end.saturating_add(m_lo));
+        let xs = self.lidar.span(k, last);
+        debug_assert_eq!(xs.first(), Some(&x));
         if self.cur.n == 0.0 {
             self.cur.first_k = k;
             (self.cur.lo, self.cur.hi) = self.active;
         }
-        let last = k + nb as i64 - 1;
         self.cur.last_k = last;
-        for &xj in &xs[..nb] {
+        for &xj in xs {
             self.cur.n += 1.0;
             self.cur.sx += xj;
             self.cur.sxx += xj * xj;
@@ -688,7 +720,7 @@ impl Correlator {
         // over the camera ring, filled in once when the block completes.
         let ys = self.cam.span(k - m_hi, last - m_lo);
         let n = self.n_lags;
-        add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, &xs[..nb]);
+        add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, xs);
         self.cursor = Some(last + 1);
         if (last + 1).rem_euclid(self.hop_len) == 0 {
             if self.complete_block() {
@@ -717,11 +749,22 @@ impl Correlator {
         if ys.len() < len + (hi - lo) {
             return false;
         }
-        let (mut sy, mut syy) = (0.0, 0.0);
-        for &y in &ys[..len] {
-            sy += y;
-            syy += y * y;
+        // slot hi's sums in four interleaved partial sums: four short chains of
+        // additions instead of one long one
+        let (mut py, mut pyy) = ([0.0f64; 4], [0.0f64; 4]);
+        let mut quads = ys[..len].chunks_exact(4);
+        for q in &mut quads {
+            for i in 0..4 {
+                py[i] += q[i];
+                pyy[i] += q[i] * q[i];
+            }
         }
+        for (i, &y) in quads.remainder().iter().enumerate() {
+            py[i] += y;
+            pyy[i] += y * y;
+        }
+        let mut sy = (py[0] + py[1]) + (py[2] + py[3]);
+        let mut syy = (pyy[0] + pyy[1]) + (pyy[2] + pyy[3]);
         // slot hi covers ys[0..len]; each lower slot shifts the range up by one
         for (j, s) in (lo..=hi).rev().enumerate() {
             if j > 0 {
@@ -742,14 +785,22 @@ impl Correlator {
             self.cur.clear();
             return false;
         }
-        // its Σxy was summed with the slots in reverse order (`add_products`)
-        self.cur.xy.reverse();
+        // its Σxy was summed with the slots in reverse order (`add_products`): slot s
+        // at n - 1 - s. Reversing the span symmetric about the middle that covers both
+        // puts the held slots in place (the others hold nothing anyone reads)
+        let n = self.n_lags;
+        let p = self.cur.lo.min(n - 1 - self.cur.hi);
+        self.cur.xy[p..n - p].reverse();
         let cap = self.blocks.len();
+        // the block leaving the acquisition window, if one does: the oldest stored one
+        // when the window is the whole store (it is swapped into `cur` below), else the
+        // one `acq_blocks` back
+        let mut evicted_from_acq = false;
         if self.count == cap {
             // the oldest block leaves the store (it left the acquisition window long ago
             // unless the window is the whole store)
             if self.acq_count == cap {
-                self.acq.add(&self.blocks[self.head], -1.0);
+                evicted_from_acq = true;
                 self.acq_count -= 1;
             }
             self.head = (self.head + 1) % cap;
@@ -757,25 +808,29 @@ impl Correlator {
         }
         let pos = (self.head + self.count) % cap;
         std::mem::swap(&mut self.blocks[pos], &mut self.cur);
-        self.cur.clear();
         self.count += 1;
         self.acq_count += 1;
         self.since_rebuild += 1;
+        let mut leaving = None;
         if self.acq_count > self.acq_blocks {
             self.acq_count = self.acq_blocks;
-            if self.since_rebuild < self.acq_blocks {
-                let leaving = (self.head + self.count - 1 - self.acq_blocks) % cap;
-                self.acq.add(&self.blocks[leaving], -1.0);
-            }
+            leaving = Some((self.head + self.count - 1 - self.acq_blocks) % cap);
         }
-        if self.since_rebuild >= self.acq_blocks {
+        if self.since_rebuild >= REBUILD_WINDOWS * self.acq_blocks {
             self.rebuild_acq();
         } else {
-            self.acq.add(&self.blocks[pos], 1.0);
+            // the window moves by one block: one pass subtracts the leaving block and
+            // adds the new one
+            match (evicted_from_acq, leaving) {
+                (true, _) => self.acq.replace(&self.cur, &self.blocks[pos]),
+                (false, Some(l)) => self.acq.replace(&self.blocks[l], &self.blocks[pos]),
+                (false, None) => self.acq.add(&self.blocks[pos], 1.0),
+            }
             self.acq.first_k = self.block(self.count - self.acq_count).first_k;
             self.acq.last_k = self.block(self.count - 1).last_k;
             self.acq_range();
         }
+        self.cur.clear();
         true
     }
 }
@@ -1112,12 +1167,13 @@ mod tests {
                     let want = if sums.n < 3.0 {
                         0.0
                     } else {
-                        let vx = sums.sxx - sums.sx * sums.sx / sums.n;
-                        let d = vx * (sums.yy[s] - sums.y[s] * sums.y[s] / sums.n);
+                        let n = sums.n;
+                        let vx = n * sums.sxx - sums.sx * sums.sx;
+                        let d = vx * (n * sums.yy[s] - sums.y[s] * sums.y[s]);
                         if d <= 0.0 || !d.is_finite() {
                             0.0
                         } else {
-                            ((sums.xy[s] - sums.sx * sums.y[s] / sums.n) / d.sqrt()).clamp(-1.0, 1.0)
+                            ((n * sums.xy[s] - sums.sx * sums.y[s]) / d.sqrt()).clamp(-1.0, 1.0)
                         }
                     };
                     for got in [v, sums.ncc(s)] {
