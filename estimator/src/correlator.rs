@@ -167,11 +167,18 @@ impl Sums {
             return 0.0;
         }
         let vx = self.n * self.sxx - self.sx * self.sx;
-        self.pearson(vx, self.xy[slot], self.y[slot], self.yy[slot])
+        vlsync_simd::pearson(
+            self.n,
+            self.sx,
+            vx,
+            self.xy[slot],
+            self.y[slot],
+            self.yy[slot],
+        )
     }
 
     /// [`Sums::ncc`] of the slots `lo..=hi` into `out[lo..=hi]` (`out` and the sums
-    /// must hold slot `hi`); the loop vectorises.
+    /// must hold slot `hi`), vectorised ([`vlsync_simd::pearson_range`]).
     pub fn ncc_range(&self, lo: usize, hi: usize, out: &mut [f64]) {
         let out = &mut out[lo..=hi];
         if self.n < 3.0 {
@@ -179,32 +186,15 @@ impl Sums {
             return;
         }
         let vx = self.n * self.sxx - self.sx * self.sx;
-        let sums = self.xy[lo..=hi]
-            .iter()
-            .zip(&self.y[lo..=hi])
-            .zip(&self.yy[lo..=hi]);
-        for (o, ((&sxy, &sy), &syy)) in out.iter_mut().zip(sums) {
-            *o = self.pearson(vx, sxy, sy, syy);
-        }
-    }
-
-    /// The correlation of one slot's sums given the LiDAR values' `vx = n·Σx² - (Σx)²`
-    /// (n ≥ 3): `(n·Σxy - Σx·Σy) / √(vx·(n·Σy² - (Σy)²))`, one division and one root
-    /// per slot; clamped to ±1, 0 when the variance product is not positive and
-    /// finite. Written as selects, without branches, so that [`Sums::ncc_range`]'s
-    /// loop vectorises.
-    #[inline(always)]
-    fn pearson(&self, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
-        let n = self.n;
-        let d = vx * (n * syy - sy * sy);
-        let r = (n * sxy - self.sx * sy) / d.sqrt();
-        let r = if r < -1.0 { -1.0 } else { r };
-        let r = if r > 1.0 { 1.0 } else { r };
-        if (d > 0.0) & (d < f64::INFINITY) {
-            r
-        } else {
-            0.0
-        }
+        vlsync_simd::pearson_range(
+            self.n,
+            self.sx,
+            vx,
+            &self.xy[lo..=hi],
+            &self.y[lo..=hi],
+            &self.yy[lo..=hi],
+            out,
+        );
     }
 
     /// Variance of the LiDAR values.
@@ -286,47 +276,6 @@ impl Ring {
 /// values at 100 Hz, and each Σxy slot is then loaded and stored once for all of them.
 const BATCH: usize = 10;
 
-/// `acc[i] += Σ_j xs[j] · ys[i + j]` for every `i` of `acc`, the additions of each
-/// slot in the order of `j`: the same sums, bit for bit, as adding the indices one at
-/// a time. `acc` holds the unfinished block's Σxy with its slots in reverse order
-/// (`Correlator::cur`), so both run forward and the loop vectorises without
-/// shuffles.
-#[inline]
-fn add_products(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
-    match *xs {
-        [a] => add_n(acc, ys, &[a]),
-        [a, b] => add_n(acc, ys, &[a, b]),
-        [a, b, c] => add_n(acc, ys, &[a, b, c]),
-        [a, b, c, d] => add_n(acc, ys, &[a, b, c, d]),
-        [a, b, c, d, e] => add_n(acc, ys, &[a, b, c, d, e]),
-        [a, b, c, d, e, f] => add_n(acc, ys, &[a, b, c, d, e, f]),
-        [a, b, c, d, e, f, g] => add_n(acc, ys, &[a, b, c, d, e, f, g]),
-        [a, b, c, d, e, f, g, h] => add_n(acc, ys, &[a, b, c, d, e, f, g, h]),
-        [a, b, c, d, e, f, g, h, i] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i]),
-        [a, b, c, d, e, f, g, h, i, j] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i, j]),
-        // more than a step adds: one pass per index, in order
-        _ => {
-            for (j, &x) in xs.iter().enumerate() {
-                add_n(acc, &ys[j..], &[x]);
-            }
-        }
-    }
-}
-
-/// [`add_products`] for `N` indices, unrolled.
-#[inline(always)]
-fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
-    let ys = &ys[..acc.len() + N - 1];
-    for (i, o) in acc.iter_mut().enumerate() {
-        let y: &[f64; N] = ys[i..i + N].try_into().expect("N values from i");
-        let mut v = *o;
-        for j in 0..N {
-            v += xs[j] * y[j];
-        }
-        *o = v;
-    }
-}
-
 /// The acquisition window's running total is rebuilt exactly from its blocks once
 /// per this many window lengths: each block is added once and subtracted once in
 /// between, so rounding stays within a few hundred additions' worth (relative 1e-14).
@@ -356,7 +305,8 @@ pub struct Correlator {
     cam: Ring,
     cursor: Option<i64>,
     /// The unfinished block; its Σxy holds slot `s` at `n_lags - 1 - s` until it
-    /// completes (`add_products`).
+    /// completes ([`vlsync_simd::add_products`]: both run forward, and the loop
+    /// vectorises without shuffles).
     cur: Sums,
     /// Completed blocks, a ring of `blocks.len()`; `head` is the oldest.
     blocks: Vec<Sums>,
@@ -720,7 +670,7 @@ impl Correlator {
         // over the camera ring, filled in once when the block completes.
         let ys = self.cam.span(k - m_hi, last - m_lo);
         let n = self.n_lags;
-        add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, xs);
+        vlsync_simd::add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, xs);
         self.cursor = Some(last + 1);
         if (last + 1).rem_euclid(self.hop_len) == 0 {
             if self.complete_block() {

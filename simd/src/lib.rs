@@ -1,0 +1,238 @@
+//! The correlator's inner loop, `acc[i] += Σ_j xs[j] · ys[i + j]`, compiled twice:
+//! for the baseline instruction set, and on x86-64 also with AVX (four `f64` per
+//! instruction instead of SSE2's two), chosen at run time when the CPU has it.
+//!
+//! Why a crate of its own: calling a `#[target_feature]` function from code built
+//! without that feature is `unsafe`, and every other crate of the workspace forbids
+//! unsafe code. This one holds that single call and nothing else.
+//!
+//! Both versions perform the same multiplications and additions in the same order
+//! (Rust never fuses a multiply and an add unless asked, and only AVX, not FMA, is
+//! enabled), so they give the same sums bit for bit: an estimate does not depend on
+//! the machine it was computed on. On aarch64 (the Raspberry Pi) NEON is part of the
+//! baseline and the portable version is the vectorised one.
+//!
+//! ```
+//! let ys = [1.0, 2.0, 3.0, 4.0, 5.0];
+//! let mut acc = [0.0; 3];
+//! // acc[i] += 10·ys[i] + 100·ys[i + 1] + 1000·ys[i + 2]
+//! vlsync_simd::add_products(&mut acc, &ys, &[10.0, 100.0, 1000.0]);
+//! assert_eq!(acc, [3210.0, 4320.0, 5430.0]);
+//! ```
+#![deny(unsafe_code)]
+
+/// `acc[i] += Σ_j xs[j] · ys[i + j]` for every `i` of `acc`, the additions of each
+/// slot in the order of `j` (the same sums, bit for bit, as adding `xs` one at a
+/// time). `ys` must hold at least `acc.len() + xs.len() - 1` values (panics
+/// otherwise, like a slice index). Up to ten `xs` are unrolled into one pass.
+#[inline]
+pub fn add_products(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
+    if xs.is_empty() {
+        return;
+    }
+    assert!(
+        ys.len() >= acc.len() + xs.len() - 1,
+        "add_products: {} values for {} slots and {} products",
+        ys.len(),
+        acc.len(),
+        xs.len()
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        #[allow(unsafe_code)]
+        // SAFETY: `add_products_avx` is compiled with AVX enabled; the CPU was just
+        // checked to have AVX, which is all that makes calling it sound. Its body is
+        // safe Rust (bounds-checked slices).
+        unsafe {
+            add_products_avx(acc, ys, xs)
+        };
+        return;
+    }
+    add_products_any(acc, ys, xs);
+}
+
+/// [`add_products`] with AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn add_products_avx(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
+    add_products_any(acc, ys, xs);
+}
+
+/// [`add_products`] in portable code; inlined into the AVX version, it is compiled
+/// again with AVX there.
+#[inline(always)]
+fn add_products_any(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
+    match *xs {
+        [a] => add_n(acc, ys, &[a]),
+        [a, b] => add_n(acc, ys, &[a, b]),
+        [a, b, c] => add_n(acc, ys, &[a, b, c]),
+        [a, b, c, d] => add_n(acc, ys, &[a, b, c, d]),
+        [a, b, c, d, e] => add_n(acc, ys, &[a, b, c, d, e]),
+        [a, b, c, d, e, f] => add_n(acc, ys, &[a, b, c, d, e, f]),
+        [a, b, c, d, e, f, g] => add_n(acc, ys, &[a, b, c, d, e, f, g]),
+        [a, b, c, d, e, f, g, h] => add_n(acc, ys, &[a, b, c, d, e, f, g, h]),
+        [a, b, c, d, e, f, g, h, i] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i]),
+        [a, b, c, d, e, f, g, h, i, j] => add_n(acc, ys, &[a, b, c, d, e, f, g, h, i, j]),
+        // more than ten: one pass per index, in order
+        _ => {
+            for (j, &x) in xs.iter().enumerate() {
+                add_n(acc, &ys[j..], &[x]);
+            }
+        }
+    }
+}
+
+/// [`add_products`] for `N` values, unrolled: each slot is loaded and stored once.
+#[inline(always)]
+fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
+    let ys = &ys[..acc.len() + N - 1];
+    for (i, o) in acc.iter_mut().enumerate() {
+        let y: &[f64; N] = ys[i..i + N].try_into().expect("N values from i");
+        let mut v = *o;
+        for j in 0..N {
+            v += xs[j] * y[j];
+        }
+        *o = v;
+    }
+}
+
+/// Pearson correlation of one lag's sums over `n` pairs, given the LiDAR values' Σx
+/// and `vx = n·Σx² - (Σx)²` (n ≥ 3): `(n·Σxy - Σx·Σy) / √(vx·(n·Σy² - (Σy)²))`,
+/// one division and one root; clamped to ±1, 0 when the variance product is not
+/// positive and finite. Written as selects, without branches, so that
+/// [`pearson_range`]'s loop vectorises.
+///
+/// ```
+/// // y = 2x + 1 over x = 1, 2, 3: n = 3, Σx = 6, Σx² = 14, Σy = 15, Σy² = 83, Σxy = 34
+/// let vx = 3.0 * 14.0 - 6.0 * 6.0;
+/// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 34.0, 15.0, 83.0), 1.0);
+/// // no variance: 0, not NaN
+/// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 30.0, 15.0, 75.0), 0.0);
+/// ```
+#[inline(always)]
+pub fn pearson(n: f64, sx: f64, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
+    let d = vx * (n * syy - sy * sy);
+    let r = (n * sxy - sx * sy) / d.sqrt();
+    let r = if r < -1.0 { -1.0 } else { r };
+    let r = if r > 1.0 { 1.0 } else { r };
+    if (d > 0.0) & (d < f64::INFINITY) {
+        r
+    } else {
+        0.0
+    }
+}
+
+/// [`pearson`] of every lag: `out[i]` from `xy[i]`, `y[i]`, `yy[i]` (all five slices
+/// the same length; panics otherwise).
+pub fn pearson_range(n: f64, sx: f64, vx: f64, xy: &[f64], y: &[f64], yy: &[f64], out: &mut [f64]) {
+    let len = out.len();
+    assert!(
+        xy.len() == len && y.len() == len && yy.len() == len,
+        "pearson_range: {} outputs from {} / {} / {} sums",
+        len,
+        xy.len(),
+        y.len(),
+        yy.len()
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        #[allow(unsafe_code)]
+        // SAFETY: `pearson_range_avx` is compiled with AVX enabled and the CPU was
+        // just checked to have AVX; its body is safe Rust.
+        unsafe {
+            pearson_range_avx(n, sx, vx, xy, y, yy, out)
+        };
+        return;
+    }
+    pearson_range_any(n, sx, vx, xy, y, yy, out);
+}
+
+/// [`pearson_range`] with AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn pearson_range_avx(n: f64, sx: f64, vx: f64, xy: &[f64], y: &[f64], yy: &[f64], out: &mut [f64]) {
+    pearson_range_any(n, sx, vx, xy, y, yy, out);
+}
+
+#[inline(always)]
+fn pearson_range_any(n: f64, sx: f64, vx: f64, xy: &[f64], y: &[f64], yy: &[f64], out: &mut [f64]) {
+    for (o, ((&sxy, &sy), &syy)) in out.iter_mut().zip(xy.iter().zip(y).zip(yy)) {
+        *o = pearson(n, sx, vx, sxy, sy, syy);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The definition, one product at a time.
+    fn one_by_one(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
+        for (j, &x) in xs.iter().enumerate() {
+            for (i, o) in acc.iter_mut().enumerate() {
+                *o += x * ys[i + j];
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// The dispatched kernel (AVX where the CPU has it), the portable one and the
+        /// definition agree bit for bit, for any number of slots and products.
+        #[test]
+        fn every_version_gives_the_definitions_sums_bit_for_bit(
+            acc in proptest::collection::vec(-1e6..1e6f64, 0..130),
+            xs in proptest::collection::vec(-1e3..1e3f64, 0..14),
+            extra in proptest::collection::vec(-1e3..1e3f64, 13..14),
+            ys_seed in proptest::collection::vec(-1e3..1e3f64, 150..160),
+        ) {
+            let ys: Vec<f64> = ys_seed.iter().chain(&extra).copied().collect();
+            let mut want = acc.clone();
+            one_by_one(&mut want, &ys, &xs);
+            let mut got = acc.clone();
+            add_products(&mut got, &ys, &xs);
+            let mut any = acc.clone();
+            add_products_any(&mut any, &ys, &xs);
+            for (i, ((g, a), w)) in got.iter().zip(&any).zip(&want).enumerate() {
+                proptest::prop_assert_eq!(g.to_bits(), w.to_bits(), "dispatched, slot {}", i);
+                proptest::prop_assert_eq!(a.to_bits(), w.to_bits(), "portable, slot {}", i);
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// The dispatched range and the portable one give [`pearson`]'s values bit for
+        /// bit, on any sums (NaN for NaN).
+        #[test]
+        fn every_version_gives_pearsons_values_bit_for_bit(
+            n in proptest::prop_oneof![3.0..1e6f64, proptest::num::f64::ANY],
+            sx in proptest::prop_oneof![-1e3..1e3f64, proptest::num::f64::ANY],
+            vx in proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY],
+            slots in proptest::collection::vec(
+                (-1e3..1e3f64, -1e3..1e3f64, proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY]),
+                0..40,
+            ),
+        ) {
+            let xy: Vec<f64> = slots.iter().map(|s| s.0).collect();
+            let y: Vec<f64> = slots.iter().map(|s| s.1).collect();
+            let yy: Vec<f64> = slots.iter().map(|s| s.2).collect();
+            let mut got = vec![7.0; slots.len()];
+            pearson_range(n, sx, vx, &xy, &y, &yy, &mut got);
+            let mut any = vec![7.0; slots.len()];
+            pearson_range_any(n, sx, vx, &xy, &y, &yy, &mut any);
+            for i in 0..slots.len() {
+                let want = pearson(n, sx, vx, xy[i], y[i], yy[i]);
+                for v in [got[i], any[i]] {
+                    proptest::prop_assert!(
+                        v.to_bits() == want.to_bits() || (v.is_nan() && want.is_nan()),
+                        "slot {}: {} against {}", i, v, want
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "add_products: 4 values for 3 slots and 3 products")]
+    fn too_few_values_is_a_clear_panic_not_a_wrong_sum() {
+        add_products(&mut [0.0; 3], &[1.0; 4], &[1.0; 3]);
+    }
+}
