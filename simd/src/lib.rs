@@ -27,16 +27,9 @@
 /// otherwise, like a slice index). Up to ten `xs` are unrolled into one pass.
 #[inline]
 pub fn add_products(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
-    if xs.is_empty() {
+    if !check_products(acc, ys, xs) {
         return;
     }
-    assert!(
-        ys.len() >= acc.len() + xs.len() - 1,
-        "add_products: {} values for {} slots and {} products",
-        ys.len(),
-        acc.len(),
-        xs.len()
-    );
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         #[allow(unsafe_code)]
@@ -49,6 +42,30 @@ pub fn add_products(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
         return;
     }
     add_products_any(acc, ys, xs);
+}
+
+/// [`add_products`] always in the portable build (what a CPU without AVX runs): the
+/// benches compare the two.
+pub fn add_products_portable(acc: &mut [f64], ys: &[f64], xs: &[f64]) {
+    if check_products(acc, ys, xs) {
+        add_products_any(acc, ys, xs);
+    }
+}
+
+/// Whether there is anything to add; panics when `ys` is too short.
+#[inline]
+fn check_products(acc: &[f64], ys: &[f64], xs: &[f64]) -> bool {
+    if xs.is_empty() {
+        return false;
+    }
+    assert!(
+        ys.len() >= acc.len() + xs.len() - 1,
+        "add_products: {} values for {} slots and {} products",
+        ys.len(),
+        acc.len(),
+        xs.len()
+    );
+    true
 }
 
 /// [`add_products`] with AVX.
@@ -125,15 +142,7 @@ pub fn pearson(n: f64, sx: f64, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
 /// [`pearson`] of every lag: `out[i]` from `xy[i]`, `y[i]`, `yy[i]` (all five slices
 /// the same length; panics otherwise).
 pub fn pearson_range(n: f64, sx: f64, vx: f64, xy: &[f64], y: &[f64], yy: &[f64], out: &mut [f64]) {
-    let len = out.len();
-    assert!(
-        xy.len() == len && y.len() == len && yy.len() == len,
-        "pearson_range: {} outputs from {} / {} / {} sums",
-        len,
-        xy.len(),
-        y.len(),
-        yy.len()
-    );
+    check_range(xy, y, yy, out);
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         #[allow(unsafe_code)]
@@ -145,6 +154,34 @@ pub fn pearson_range(n: f64, sx: f64, vx: f64, xy: &[f64], y: &[f64], yy: &[f64]
         return;
     }
     pearson_range_any(n, sx, vx, xy, y, yy, out);
+}
+
+/// [`pearson_range`] always in the portable build (the benches compare the two).
+pub fn pearson_range_portable(
+    n: f64,
+    sx: f64,
+    vx: f64,
+    xy: &[f64],
+    y: &[f64],
+    yy: &[f64],
+    out: &mut [f64],
+) {
+    check_range(xy, y, yy, out);
+    pearson_range_any(n, sx, vx, xy, y, yy, out);
+}
+
+/// Panics unless the four slices are as long as each other.
+#[inline]
+fn check_range(xy: &[f64], y: &[f64], yy: &[f64], out: &[f64]) {
+    let len = out.len();
+    assert!(
+        xy.len() == len && y.len() == len && yy.len() == len,
+        "pearson_range: {} outputs from {} / {} / {} sums",
+        len,
+        xy.len(),
+        y.len(),
+        yy.len()
+    );
 }
 
 /// [`pearson_range`] with AVX.
@@ -190,7 +227,7 @@ mod tests {
             let mut got = acc.clone();
             add_products(&mut got, &ys, &xs);
             let mut any = acc.clone();
-            add_products_any(&mut any, &ys, &xs);
+            add_products_portable(&mut any, &ys, &xs);
             for (i, ((g, a), w)) in got.iter().zip(&any).zip(&want).enumerate() {
                 proptest::prop_assert_eq!(g.to_bits(), w.to_bits(), "dispatched, slot {}", i);
                 proptest::prop_assert_eq!(a.to_bits(), w.to_bits(), "portable, slot {}", i);
@@ -217,7 +254,7 @@ mod tests {
             let mut got = vec![7.0; slots.len()];
             pearson_range(n, sx, vx, &xy, &y, &yy, &mut got);
             let mut any = vec![7.0; slots.len()];
-            pearson_range_any(n, sx, vx, &xy, &y, &yy, &mut any);
+            pearson_range_portable(n, sx, vx, &xy, &y, &yy, &mut any);
             for i in 0..slots.len() {
                 let want = pearson(n, sx, vx, xy[i], y[i], yy[i]);
                 for v in [got[i], any[i]] {
