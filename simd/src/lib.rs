@@ -1,16 +1,20 @@
-//! The correlator's inner loop, `acc[i] += Σ_j xs[j] · ys[i + j]`, compiled twice:
-//! for the baseline instruction set, and on x86-64 also with AVX (four `f64` per
-//! instruction instead of SSE2's two), chosen at run time when the CPU has it.
+//! The correlator's two inner loops, each compiled twice: for the baseline
+//! instruction set, and on x86-64 also with AVX (four `f64` per instruction instead
+//! of SSE2's two), chosen at run time when the CPU has it.
+//! * [`add_products`]: `acc[i] += Σ_j xs[j] · ys[i + j]`, the Σxy of a step's grid
+//!   values at every active lag;
+//! * [`pearson_range`]: the Pearson correlation of a range of lags from their sums.
 //!
 //! Why a crate of its own: calling a `#[target_feature]` function from code built
-//! without that feature is `unsafe`, and every other crate of the workspace forbids
-//! unsafe code. This one holds that single call and nothing else.
+//! without that feature is `unsafe`, and the estimator forbids unsafe code. This
+//! crate holds those two calls (each with its `SAFETY` comment) and nothing else.
 //!
 //! Both versions perform the same multiplications and additions in the same order
 //! (Rust never fuses a multiply and an add unless asked, and only AVX, not FMA, is
-//! enabled), so they give the same sums bit for bit: an estimate does not depend on
-//! the machine it was computed on. On aarch64 (the Raspberry Pi) NEON is part of the
-//! baseline and the portable version is the vectorised one.
+//! enabled; division and square root are correctly rounded in both), so they give
+//! the same values bit for bit: an estimate does not depend on the machine it was
+//! computed on. On aarch64 (the Raspberry Pi) NEON is part of the baseline and the
+//! portable version is the vectorised one.
 //!
 //! ```
 //! let ys = [1.0, 2.0, 3.0, 4.0, 5.0];
