@@ -11,9 +11,9 @@
 //! `acq_blocks` blocks, is maintained as a running total: the completed block is
 //! added and the one leaving is subtracted (one pass), and the total is rebuilt
 //! exactly from its blocks once per four window lengths, so each sum carries the
-//! rounding of at most eight additions per block of the window (96 at the defaults). The two inner loops (a step's products,
-//! the correlation of a range of lags) are `vlsync-simd`'s, vectorised with AVX
-//! where the CPU has it.
+//! rounding of at most eight additions per block of the window (96 at the
+//! defaults). The two inner loops (a step's products, the correlation of a range of
+//! lags) are `vlsync-simd`'s, vectorised with AVX where the CPU has it.
 //! A break in the data (a gap) drops the unfinished block and keeps the
 //! completed ones: a segment may span a gap. Nothing allocates after construction.
 //!
