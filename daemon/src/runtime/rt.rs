@@ -1,0 +1,480 @@
+//! The real-time thread: its set-up (core, SCHED_FIFO, the services), then the loop
+//! that receives, estimates and publishes, with its counters and histograms. After
+//! start-up it allocates nothing per sample, logs nothing and does no I/O: events
+//! and statuses go to the service thread over bounded channels (`try_send`).
+
+use super::*;
+
+/// Counters and histograms of the real-time thread, preallocated.
+pub struct RtCounters {
+    pub(super) status: Status,
+    pub(super) processing: Histogram,
+    pub(super) end_to_end: Histogram,
+    pub(super) last_seq: [[Option<(UniquePublisherId, u64)>; 4]; 2],
+    pub(super) events_dropped: u64,
+}
+
+impl RtCounters {
+    pub(super) fn new() -> Self {
+        Self {
+            status: Status::default(),
+            processing: Histogram::new(),
+            end_to_end: Histogram::new(),
+            last_seq: [[None; 4]; 2],
+            events_dropped: 0,
+        }
+    }
+}
+
+pub(super) fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
+    match tx.try_send(ev) {
+        Ok(()) => {}
+        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => c.events_dropped += 1,
+    }
+}
+
+/// Which held sample (0: camera, 1: LiDAR) comes next: the one its driver published
+/// first (`publish_ns`, both drivers on this host's `CLOCK_MONOTONIC`), the camera's
+/// on a tie; `None` when none is held. Only the order within the backlog depends on
+/// it, so a foreign or hostile `publish_ns` cannot hold a sample back for longer
+/// than the other stream's backlog takes to drain (over several wake-ups when it is
+/// longer than [`MAX_SAMPLES_PER_WAKE`]).
+pub(super) fn first_published(
+    pending: &[Option<(SignatureSample, UniquePublisherId)>; 2],
+) -> Option<usize> {
+    match (&pending[0], &pending[1]) {
+        (None, None) => None,
+        (Some(_), None) => Some(0),
+        (None, Some(_)) => Some(1),
+        (Some((cam, _)), Some((lidar, _))) => Some(usize::from(lidar.publish_ns < cam.publish_ns)),
+    }
+}
+
+/// The largest sequence jump counted as lost samples (see [`sequence_gap`]).
+pub(super) const MAX_COUNTED_GAP: u64 = 1 << 32;
+
+/// Tracks the sequence of each publisher of a stream; returns samples lost
+/// before `seq` (0 for the first sample of a publisher or a restart, and for a
+/// jump beyond [`MAX_COUNTED_GAP`]).
+pub(super) fn sequence_gap(
+    slots: &mut [Option<(UniquePublisherId, u64)>; 4],
+    publisher: UniquePublisherId,
+    seq: u64,
+    first: bool,
+) -> u64 {
+    if let Some(slot) = slots.iter_mut().flatten().find(|(p, _)| *p == publisher) {
+        let last = slot.1;
+        slot.1 = seq;
+        if first || seq <= last {
+            return 0;
+        }
+        let gap = seq - last - 1;
+        // no subscriber buffer loses billions of samples: a jump that far is a
+        // publisher whose counter restarted or is corrupt, not a loss
+        return if gap > MAX_COUNTED_GAP { 0 } else { gap };
+    }
+    // a new publisher: take a free slot, or replace the one with the oldest sequence
+    let free = slots.iter().position(|s| s.is_none());
+    let idx = free.unwrap_or_else(|| {
+        slots
+            .iter()
+            .enumerate()
+            .min_by_key(|(_, s)| s.map_or(0, |(_, q)| q))
+            .map_or(0, |(i, _)| i)
+    });
+    slots[idx] = Some((publisher, seq));
+    // samples before the first one seen from a publisher that did not just start
+    // were published while no daemon listened: not lost by the daemon
+    0
+}
+
+/// Everything the real-time thread needs, built before its loop starts.
+pub(super) struct RtSetup {
+    pub(super) cfg: Config,
+    pub(super) names: ServiceNames,
+    pub(super) stop: Arc<AtomicBool>,
+    pub(super) tx: Sender<RtEvent>,
+    /// The periodic status snapshots (their own channel: a full event channel
+    /// does not drop them).
+    pub(super) status_tx: Sender<Status>,
+    pub(super) start_ns: Nanos,
+    /// Incremented every loop: the watchdog's proof of progress.
+    pub(super) heartbeat: Arc<AtomicU64>,
+    /// A saved estimate and its age (s) to start from.
+    pub(super) restore: Option<(Estimate, f64)>,
+    /// Load hints: `CLOCK_MONOTONIC` times at which the offset may have stepped.
+    pub(super) hints: Receiver<Nanos>,
+}
+
+/// What the real-time thread reports once, before its loop.
+#[derive(Debug, Clone)]
+pub struct RtReport {
+    /// System refusals of real-time settings (each a readable sentence).
+    pub refused: Vec<String>,
+    /// Real-time settings applied.
+    pub applied: Vec<String>,
+    /// Subscriber buffer requested/granted.
+    pub buffer: (usize, usize),
+}
+
+pub(super) fn apply_rt_settings(cfg: &Config) -> RtReport {
+    let mut r = RtReport {
+        refused: vec![],
+        applied: vec![],
+        buffer: (0, 0),
+    };
+    if cfg.daemon.core >= 0 {
+        match vlsync_ipc::rt::pin_current_thread(cfg.daemon.core as usize) {
+            Ok(()) => r
+                .applied
+                .push(format!("pinned to core {}", cfg.daemon.core)),
+            Err(e) => r.refused.push(e.to_string()),
+        }
+    }
+    if cfg.daemon.fifo_priority > 0 {
+        match vlsync_ipc::rt::set_current_thread_fifo(cfg.daemon.fifo_priority as i32) {
+            Ok(()) => r
+                .applied
+                .push(format!("SCHED_FIFO priority {}", cfg.daemon.fifo_priority)),
+            Err(e) => r.refused.push(e.to_string()),
+        }
+    }
+    r
+}
+
+/// The real-time thread: set-up, then the loop. Returns a set-up error as text.
+pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>>) {
+    let mut report = apply_rt_settings(&s.cfg);
+    let setup = (|| -> Result<_, vlsync_ipc::IpcError> {
+        let node = create_node("vlsyncd-rt", false)?;
+        let buf = s.cfg.services.subscriber_buffer.max(1) as usize;
+        let mut subs = Vec::with_capacity(2);
+        let mut granted = buf;
+        let mut factories = Vec::with_capacity(2);
+        for stream in [Stream::Cam, Stream::Lidar] {
+            let name = s.names.signature(stream);
+            let f = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(buf))?;
+            let (sub, b) = subscriber(&f, buf, &name)?;
+            granted = granted.min(b.granted);
+            subs.push(sub);
+            factories.push(f);
+        }
+        let ready_ev = open_or_create_event(&node, &s.names.signature_ready())?;
+        let lis = listener(&ready_ev, &s.names.signature_ready())?;
+        let off = open_or_create_pubsub::<OffsetEstimate>(&node, &s.names.offset(), Qos::latest())?;
+        let off_pub = publisher(&off, &s.names.offset())?;
+        let off_ev = open_or_create_event(&node, &s.names.offset())?;
+        let off_not = notifier(&off_ev, &s.names.offset())?;
+        Ok((
+            node, subs, factories, ready_ev, lis, off, off_pub, off_ev, off_not, granted,
+        ))
+    })();
+    let (_node, subs, _factories, _ready_ev, lis, _off, off_pub, _off_ev, off_not, granted) =
+        match setup {
+            Ok(v) => v,
+            Err(e) => {
+                let _ = ready.send(Err(e.to_string()));
+                return;
+            }
+        };
+    report.buffer = (s.cfg.services.subscriber_buffer.max(1) as usize, granted);
+    let mut est = Estimator::new(&s.cfg.estimator);
+    if let Some((saved, age_s)) = &s.restore {
+        est.restore(saved, *age_s);
+    }
+    let mut c = RtCounters::new();
+    let budget_ns = (s.cfg.daemon.latency_budget_us * 1e3) as u64;
+    let status_period_ns = (s.cfg.daemon.status_period_s * 1e9) as i64;
+    let quiet_ns = DEGRADED_QUIET.as_nanos() as i64;
+    let mut degraded = false;
+    let mut last_overrun: Nanos = 0;
+    let mut last_state: Option<EstimatorState> = None;
+    let mut next_status = monotonic_ns() + status_period_ns;
+    // the newest LiDAR sample: its stamp and when its driver published it
+    // (`CLOCK_MONOTONIC`), which dates a load hint on the LiDAR clock
+    let mut lidar_clock: Option<(Nanos, Nanos)> = None;
+    let _ = ready.send(Ok(report));
+
+    // a wake-up that served MAX_SAMPLES_PER_WAKE left samples waiting: the next one
+    // does not sleep
+    let mut backlog = false;
+    // the sample held per stream for the publish-order merge below; kept across
+    // wake-ups, so a wake-up that ends at MAX_SAMPLES_PER_WAKE resumes the merge
+    // where it stopped (the order does not break at the boundary)
+    let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
+    // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
+    while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
+        s.heartbeat.fetch_add(1, Ordering::Relaxed);
+        // sleeps until a driver notifies; a signal or timeout just loops
+        // which streams notified (each driver notifies with its stream's event id);
+        // a timeout or a foreign id reads both
+        let mut ready = [false; 2];
+        let on_event =
+            |ev: vlsync_ipc::iceoryx2::port::EventActivation| match [Stream::Cam, Stream::Lidar]
+                .map(|st| ev.id == stream_event_id(st))
+            {
+                [true, _] => ready[0] = true,
+                [_, true] => ready[1] = true,
+                _ => ready = [true; 2],
+            };
+        if backlog {
+            let _ = lis.try_wait(on_event);
+            ready = [true; 2];
+        } else {
+            let _ = lis.timed_wait(on_event, WAKE_PERIOD);
+            if ready == [false; 2] {
+                ready = [true; 2];
+                // no driver notified (idle, or a driver that does not notify):
+                // connect subscribers that came since the last estimate, which hands
+                // them the last one (history 1) now instead of at the next estimate,
+                // which an idle daemon may never publish
+                let _ = off_pub.update_connections();
+            }
+        }
+        // both streams' waiting samples in the order their drivers published them
+        // (one held per stream): after a stall the backlogs interleave as they were
+        // made, which the estimator's judgement of a clock jump relies on. Before the
+        // first sample only the streams that notified are read, so a lone sample's
+        // latency holds no read of the other subscriber; after it every stream is
+        // read until it is empty (a publisher that does not notify is still served)
+        let mut empty = [false; 2];
+        let mut any = pending.iter().any(Option::is_some);
+        // at most MAX_SAMPLES_PER_WAKE handled per wake-up: a publisher faster than
+        // the daemon (or one that floods without notifying) cannot keep it from its
+        // stop check, its heartbeat (the watchdog), statuses and the end of degraded
+        // mode
+        let mut served = 0usize;
+        backlog = false;
+        loop {
+            if served >= MAX_SAMPLES_PER_WAKE {
+                backlog = true;
+                break;
+            }
+            for (i, sub) in subs.iter().enumerate() {
+                if pending[i].is_some() || empty[i] || !(ready[i] || any) {
+                    continue;
+                }
+                match sub.receive() {
+                    Ok(Some(x)) => pending[i] = Some((*x.payload(), x.header().publisher_id())),
+                    Ok(None) => empty[i] = true,
+                    Err(_) => {
+                        empty[i] = true;
+                        emit(
+                            &s.tx,
+                            &mut c,
+                            RtEvent::Fatal("receive on a signature service failed"),
+                        );
+                    }
+                }
+            }
+            let Some(si) = first_published(&pending) else {
+                if any || empty == [true; 2] {
+                    break;
+                }
+                // the streams that notified had nothing: read the others
+                any = true;
+                continue;
+            };
+            any = true;
+            let Some((w, pid)) = pending[si].take() else {
+                break;
+            };
+            served += 1;
+            let stream = if si == 0 { Stream::Cam } else { Stream::Lidar };
+            let t0 = monotonic_ns();
+            c.status.received[si] += 1;
+            if w.validate().is_err() {
+                c.status.rejected[si][REJECT_MALFORMED] += 1;
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Rejected {
+                        stream,
+                        reason: REJECT_MALFORMED,
+                        t_ns: w.t_ns,
+                    },
+                );
+                continue;
+            }
+            if w.is_first() {
+                emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
+            }
+            let clock_reading =
+                (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
+            let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
+            if lost > 0 {
+                c.status.lost[si] = c.status.lost[si].saturating_add(lost);
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Lost {
+                        stream,
+                        count: lost,
+                    },
+                );
+            }
+            if let Err(r) = est.push_urgent(stream, w.sample()) {
+                c.status.rejected[si][r.index()] += 1;
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Rejected {
+                        stream,
+                        reason: r.index(),
+                        t_ns: w.t_ns,
+                    },
+                );
+            } else if let Some((t_l, pub_ns)) = clock_reading {
+                // only a sample the estimator took dates load hints, and only with a
+                // publish time that is a latency (as below): a rejected far-future
+                // stamp or a foreign publish_ns would put a hint's change where no
+                // data ever comes
+                if (0..MAX_LATENCY_NS).contains(&(t0 - pub_ns)) {
+                    lidar_clock = Some((t_l, pub_ns));
+                }
+            }
+            if let Some(st) = est.take_latency_step() {
+                emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
+            }
+            while let Some(e) = est.poll() {
+                publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
+                emit(&s.tx, &mut c, RtEvent::Estimate(e));
+                if last_state != Some(e.state) {
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::State {
+                            from: last_state,
+                            to: e.state,
+                        },
+                    );
+                    last_state = Some(e.state);
+                    c.status.state = e.state as u8;
+                }
+            }
+            let t1 = monotonic_ns();
+            let proc_ns = (t1 - t0).max(0) as u64;
+            c.processing.record(proc_ns);
+            // driver publish -> done with the sample (estimate published if one was due);
+            // a hostile or foreign-host publish_ns outside 0..MAX_LATENCY_NS is not a
+            // latency (a positive one cannot overflow the difference)
+            if w.publish_ns > 0 {
+                let e2e = t1 - w.publish_ns;
+                if (0..MAX_LATENCY_NS).contains(&e2e) {
+                    c.end_to_end.record(e2e as u64);
+                }
+            }
+            if proc_ns > budget_ns {
+                c.status.budget_overruns += 1;
+                last_overrun = t1;
+                if !degraded {
+                    degraded = true;
+                    est.set_degraded(true);
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Degraded {
+                            on: true,
+                            processing_ns: proc_ns,
+                        },
+                    );
+                }
+            }
+            // the estimator's background stage (step test, next hop's preparation)
+            // once the sample is done and its estimate out: the same estimates as
+            // `push` alone, none of that work in the sample's latency; a sample
+            // arriving meanwhile waits for it, and its latency shows that
+            est.idle();
+            // the step test's verdict comes from either stage, a search moves in `push`
+            if let Some(st) = est.take_offset_step() {
+                emit(&s.tx, &mut c, RtEvent::OffsetStep(st));
+            }
+            if let Some(m) = est.take_search_move() {
+                emit(&s.tx, &mut c, RtEvent::SearchMoved(m));
+            }
+        }
+        while let Ok(at_mono) = s.hints.try_recv() {
+            match lidar_clock {
+                Some((t_l, pub_ns)) => {
+                    let t_lidar_ns = t_l.saturating_add(at_mono.saturating_sub(pub_ns));
+                    est.hint_change(t_lidar_ns, vlsync_estimator::HINT_STEP_STD_S);
+                    emit(&s.tx, &mut c, RtEvent::ChangeDeclared { t_lidar_ns });
+                }
+                None => emit(&s.tx, &mut c, RtEvent::HintUndated),
+            }
+        }
+        let now = monotonic_ns();
+        if degraded && now - last_overrun > quiet_ns {
+            degraded = false;
+            est.set_degraded(false);
+            emit(
+                &s.tx,
+                &mut c,
+                RtEvent::Degraded {
+                    on: false,
+                    processing_ns: 0,
+                },
+            );
+        }
+        if now >= next_status {
+            next_status = now + status_period_ns;
+            let st = snapshot(&mut c, degraded, s.start_ns, now);
+            hand_status(&s.status_tx, &mut c, st);
+            if s.cfg.daemon.latency_per_period {
+                c.processing.clear();
+                c.end_to_end.clear();
+            }
+        }
+    }
+    // final status so the last counters are not lost
+    let now = monotonic_ns();
+    let st = snapshot(&mut c, degraded, s.start_ns, now);
+    // the thread is ending: it may wait for a slot (a service thread that fell
+    // STATUS_CAPACITY statuses behind) rather than lose the last counters
+    let _ = s.status_tx.send_timeout(st, Duration::from_secs(1));
+}
+
+/// Hands a status snapshot to the service thread; a full status channel (a service
+/// thread that has fallen [`STATUS_CAPACITY`] statuses behind) counts a drop.
+pub(super) fn hand_status(tx: &Sender<Status>, c: &mut RtCounters, st: Status) {
+    if tx.try_send(st).is_err() {
+        c.events_dropped += 1;
+    }
+}
+
+pub(super) fn snapshot(c: &mut RtCounters, degraded: bool, start_ns: Nanos, now: Nanos) -> Status {
+    c.status.uptime_ns = (now - start_ns).max(0);
+    c.status.publish_ns = now;
+    c.status.processing_ns = c.processing.summary();
+    c.status.end_to_end_ns = c.end_to_end.summary();
+    c.status.latency_count = c.end_to_end.count();
+    c.status.events_dropped = c.events_dropped;
+    c.status.degraded = u8::from(degraded);
+    c.status
+}
+
+pub(super) fn publish_estimate(
+    e: &Estimate,
+    off_pub: &vlsync_ipc::iceoryx2::port::publisher::Publisher<vlsync_ipc::Svc, OffsetEstimate, ()>,
+    off_not: &vlsync_ipc::iceoryx2::port::notifier::Notifier<vlsync_ipc::Svc>,
+    tx: &Sender<RtEvent>,
+    c: &mut RtCounters,
+) {
+    let w = match OffsetEstimate::from_estimate(e, monotonic_ns()) {
+        Ok(w) => w,
+        Err(_) => {
+            emit(tx, c, RtEvent::InvalidEstimate { seq: e.seq });
+            return;
+        }
+    };
+    let sent = match off_pub.loan_uninit() {
+        Ok(s) => s.write_payload(w).send().is_ok(),
+        Err(_) => false,
+    };
+    if sent {
+        c.status.estimates_published += 1;
+        let _ = off_not.notify();
+    } else {
+        emit(tx, c, RtEvent::PublishFailed { seq: e.seq });
+    }
+}
