@@ -56,7 +56,12 @@ if [ ${#missing[@]} -gt 0 ]; then
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}"
 fi
-if ! rustup target list --installed | grep -qx "$TARGET"; then
+command -v cargo >/dev/null || { echo "error: cargo not found (install Rust: https://rustup.rs)" >&2; exit 1; }
+if ! [ -d "$(rustc --print sysroot)/lib/rustlib/$TARGET" ]; then
+    command -v rustup >/dev/null || {
+        echo "error: the Rust standard library for $TARGET is missing and there is no rustup to add it" >&2
+        exit 1
+    }
     echo "==> rustup target add $TARGET"
     rustup target add "$TARGET"
 fi
