@@ -1,0 +1,638 @@
+//! The camera sources: frame files, MCAP images, V4L2 and the rendering simulator,
+//! through the optical-flow front-end.
+
+use super::*;
+
+/// What the driver knows about a rendered frame beyond its image and time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct FrameTruth {
+    /// Frame number counting dropped frames (a V4L2 buffer's `sequence`).
+    sequence: u64,
+    /// The camera's nominal frame period, ns.
+    period_ns: Nanos,
+    /// True mid-exposure, on the run's time base.
+    event_ns: Nanos,
+    /// Delivered this late after the end of exposure (software stamping).
+    late_ns: Nanos,
+    /// Rendered this late after the end of exposure (software stamping).
+    render_late_ns: Nanos,
+}
+
+/// A frame, its time and its truth.
+type TimedFrame<'a> = (cam::GrayFrame<'a, u8>, cam::FrameTime, Option<FrameTruth>);
+
+/// Frames with their truth when the source knows it.
+trait Frames {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error>;
+    /// Real-time delivery counts and the render thread's priority (live rendering only).
+    fn live(&self) -> Option<(LiveCounts, String)> {
+        None
+    }
+    /// Frames the source skipped as unusable, and the last one's reason.
+    fn unusable(&self) -> Option<(u64, &str)> {
+        None
+    }
+}
+
+/// A front-end frame source: no truth.
+struct Plain(Box<dyn FrameSource>);
+
+impl Frames for Plain {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
+        Ok(self.0.next_frame()?.map(|(f, t)| (f, t, None)))
+    }
+    fn unusable(&self) -> Option<(u64, &str)> {
+        self.0.unusable()
+    }
+}
+
+fn render_error(seed: u64, i: u64, e: &vlsync_render::RenderError) -> cam::Error {
+    cam::Error::Decode {
+        path: PathBuf::from(format!("render seed {seed} frame {i}")),
+        reason: e.to_string(),
+    }
+}
+
+/// Rendered frames on the rendered camera clock (shifted by `shift` ns), in turn.
+struct RenderFrames {
+    r: vlsync_render::Renderer,
+    next: usize,
+    shift: Nanos,
+    period_ns: Nanos,
+    cur: Option<vlsync_render::RenderedFrame>,
+}
+
+/// The nominal frame period of a rendered run, ns.
+fn frame_period_ns(r: &vlsync_render::Renderer) -> Nanos {
+    (1e9 / r.config().camera.fps).round() as Nanos
+}
+
+impl Frames for RenderFrames {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
+        let i = self.next;
+        match self.r.render_frame(i) {
+            None => Ok(None),
+            // a frame that failed is skipped like one the camera dropped: the
+            // next call renders the frame after it, not this one again
+            Some(Err(e)) => {
+                self.next += 1;
+                Err(render_error(self.r.config().seed, i as u64, &e))
+            }
+            Some(Ok(f)) => {
+                self.next += 1;
+                let time = match f.time {
+                    cam::FrameTime::Instant(t) => cam::FrameTime::Instant(t + self.shift),
+                    cam::FrameTime::Exposure {
+                        start_ns,
+                        duration_ns,
+                    } => cam::FrameTime::Exposure {
+                        start_ns: start_ns + self.shift,
+                        duration_ns,
+                    },
+                };
+                let truth = FrameTruth {
+                    sequence: f.index,
+                    period_ns: self.period_ns,
+                    event_ns: f.tau_mid_ns + self.shift,
+                    ..FrameTruth::default()
+                };
+                let f = self.cur.insert(f);
+                Ok(Some((f.image.view(), time, Some(truth))))
+            }
+        }
+    }
+}
+
+/// Frames rendered ahead of time on a thread ("the camera hardware").
+pub const RENDER_AHEAD_FRAMES: usize = 30;
+/// Nice value asked for the render thread, so host load does not slow the
+/// simulated camera hardware (refusal is reported, not fatal).
+pub const RENDER_THREAD_NICE: i32 = -10;
+
+struct Rendered {
+    /// The frame's index in the run (named by an error).
+    index: usize,
+    frame: Result<vlsync_render::RenderedFrame, vlsync_render::RenderError>,
+    /// `CLOCK_MONOTONIC` when rendering finished.
+    done_ns: Nanos,
+}
+
+/// Rendered frames delivered in real time for software stamping.
+struct LiveRender {
+    rx: Receiver<Rendered>,
+    seed: u64,
+    shift: Nanos,
+    period_ns: Nanos,
+    stop: StopFn,
+    /// Frames whose exposure ended before this were skipped (a restarted driver).
+    skip_before: Nanos,
+    cur: Option<vlsync_render::RenderedFrame>,
+    nice: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    live: LiveCounts,
+}
+
+/// What the real-time delivery of rendered frames saw.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LiveCounts {
+    /// Frames delivered.
+    pub delivered: u64,
+    /// Frames skipped because their time passed before the driver started.
+    pub skipped: u64,
+    /// Frames the renderer finished after their exposure ended.
+    pub render_late: u64,
+    /// Largest render lateness, ns.
+    pub max_render_late_ns: Nanos,
+    /// Largest delivery lateness (end of exposure to front-end), ns.
+    pub max_late_ns: Nanos,
+}
+
+impl LiveRender {
+    fn start(r: vlsync_render::Renderer, shift: Nanos, stop: StopFn) -> Result<Self, SourceError> {
+        let seed = r.config().seed;
+        let period_ns = frame_period_ns(&r);
+        let now = monotonic_ns();
+        let exp_half = vlsync_common::secs_to_nanos(r.config().camera.exposure_s) / 2;
+        // a driver restarted mid-run (start_at in the past) resumes at the current frame
+        let skip_before = if shift + render_anchor_ns(&r) < now {
+            now
+        } else {
+            Nanos::MIN
+        };
+        let first = r
+            .frame_schedule()
+            .iter()
+            .position(|f| f.tau_mid_ns + exp_half + shift >= skip_before)
+            .unwrap_or(r.frame_schedule().len());
+        let (tx, rx) = sync_channel(RENDER_AHEAD_FRAMES);
+        let nice = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let nice_t = nice.clone();
+        let mut r = r;
+        std::thread::Builder::new()
+            .name("vlsync-render".into())
+            .spawn(move || {
+                let got = vlsync_ipc::rt::set_current_thread_nice(
+                    RENDER_THREAD_NICE,
+                    &format!("render thread nice {RENDER_THREAD_NICE}"),
+                );
+                if let Ok(mut n) = nice_t.lock() {
+                    *n = Some(match got {
+                        Ok(()) => format!("render thread at nice {RENDER_THREAD_NICE}"),
+                        Err(e) => format!("{e}; render thread at the default priority"),
+                    });
+                }
+                let mut i = first;
+                while let Some(frame) = r.render_frame(i) {
+                    let index = i;
+                    i += 1;
+                    let done_ns = monotonic_ns();
+                    if tx
+                        .send(Rendered {
+                            index,
+                            frame,
+                            done_ns,
+                        })
+                        .is_err()
+                    {
+                        break; // the driver is gone
+                    }
+                }
+            })
+            .map_err(|e| {
+                SourceError(format!(
+                    "render seed {seed}: cannot start the render thread: {e}"
+                ))
+            })?;
+        Ok(Self {
+            rx,
+            seed,
+            shift,
+            period_ns,
+            stop,
+            skip_before,
+            cur: None,
+            nice,
+            live: LiveCounts {
+                skipped: first as u64,
+                ..LiveCounts::default()
+            },
+        })
+    }
+}
+
+impl Frames for LiveRender {
+    fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
+        let f = loop {
+            if (self.stop)() {
+                return Ok(None);
+            }
+            let r = match self.rx.recv_timeout(MAX_WAIT) {
+                Ok(r) => r,
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => return Ok(None),
+            };
+            let f = r
+                .frame
+                .map_err(|e| render_error(self.seed, r.index as u64, &e))?;
+            let due = f.tau_available_ns + self.shift;
+            if due < self.skip_before {
+                self.live.skipped += 1;
+                continue;
+            }
+            let render_late = (r.done_ns - due).max(0);
+            if render_late > 0 {
+                self.live.render_late += 1;
+                self.live.max_render_late_ns = self.live.max_render_late_ns.max(render_late);
+            }
+            // the exposure ends at `due`: the frame exists from then on
+            loop {
+                let now = monotonic_ns();
+                if now >= due {
+                    break;
+                }
+                if (self.stop)() {
+                    return Ok(None);
+                }
+                std::thread::sleep(Duration::from_nanos((due - now) as u64).min(MAX_WAIT));
+            }
+            break (f, render_late, due);
+        };
+        let (f, render_late_ns, due) = f;
+        let now = monotonic_ns();
+        let late_ns = now - due;
+        self.live.delivered += 1;
+        self.live.max_late_ns = self.live.max_late_ns.max(late_ns);
+        let truth = FrameTruth {
+            sequence: f.index,
+            period_ns: self.period_ns,
+            event_ns: f.tau_mid_ns + self.shift,
+            late_ns,
+            render_late_ns,
+        };
+        let f = self.cur.insert(f);
+        Ok(Some((
+            f.image.view(),
+            cam::FrameTime::Instant(now),
+            Some(truth),
+        )))
+    }
+
+    fn live(&self) -> Option<(LiveCounts, String)> {
+        let nice = self
+            .nice
+            .lock()
+            .ok()
+            .and_then(|n| n.clone())
+            .unwrap_or_else(|| "render thread priority unknown".into());
+        Some((self.live, nice))
+    }
+}
+
+/// Longest single wait of the live render source, so a stop request is seen.
+const MAX_WAIT: Duration = Duration::from_millis(50);
+
+/// What the camera front-end did with the frames.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CamCounts {
+    /// Frames read.
+    pub frames: u64,
+    /// Samples published.
+    pub samples: u64,
+    /// Samples dropped for low texture (too few tracked points).
+    pub low_texture: u64,
+    /// Samples dropped because no point was tracked or the value was not finite.
+    pub no_flow: u64,
+    /// Sequences restarted by a gap longer than `max_gap_ns` (dropped frames).
+    pub gaps: u64,
+    /// Frames whose time was not after the previous one (sequence restarted).
+    pub not_increasing: u64,
+    /// Frames whose size changed (sequence restarted).
+    pub size_changed: u64,
+    /// Frames the processor refused (bad exposure time, unusable size).
+    pub refused: u64,
+}
+
+/// Camera frames through `SignatureProcessor`.
+pub struct CamSource {
+    frames: Box<dyn Frames>,
+    proc: cam::SignatureProcessor,
+    what: String,
+    stop: StopFn,
+    counts: CamCounts,
+    last_refusal: Option<String>,
+    /// Stamp each frame with `CLOCK_MONOTONIC` after processing it.
+    software: bool,
+    /// Software stamp and truth of the previous frame the processor kept.
+    prev: Option<(Nanos, Option<FrameTruth>)>,
+    last_truth: Option<SampleTruth>,
+    /// CPU time each frame costs before it is stamped, ns (0: the front-end's own).
+    frame_cpu_ns: Nanos,
+    /// Frames of a recording that could not be read (an undecodable or missing
+    /// image): skipped as dropped frames, until too many come in a row.
+    skipped: cam::UnusableFrames,
+}
+
+impl std::fmt::Debug for CamSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CamSource")
+            .field("what", &self.what)
+            .field("counts", &self.counts)
+            .finish_non_exhaustive()
+    }
+}
+
+impl CamSource {
+    fn new(frames: Box<dyn FrameSource>, what: String, stop: StopFn) -> Result<Self, SourceError> {
+        Self::with_frames(Box::new(Plain(frames)), what, stop, false)
+    }
+
+    fn with_frames(
+        frames: Box<dyn Frames>,
+        what: String,
+        stop: StopFn,
+        software: bool,
+    ) -> Result<Self, SourceError> {
+        let proc = cam::SignatureProcessor::new(cam::SignatureConfig::default())
+            .map_err(|e| SourceError(format!("{what}: camera signature config: {e}")))?;
+        Ok(Self {
+            frames,
+            proc,
+            what,
+            stop,
+            counts: CamCounts::default(),
+            last_refusal: None,
+            software,
+            prev: None,
+            last_truth: None,
+            frame_cpu_ns: 0,
+            skipped: cam::UnusableFrames::default(),
+        })
+    }
+
+    /// With software stamping: keep each frame's thread busy until it has spent
+    /// `ns` of CPU on the frame (front-end included) before stamping it; stands in
+    /// for a heavier front-end, whose stamps CPU contention delays accordingly.
+    pub fn set_frame_cpu_ns(&mut self, ns: Nanos) {
+        self.frame_cpu_ns = ns.max(0);
+    }
+
+    /// A directory of frames with `frames.csv` (see `vlsync_signature_cam::source`).
+    pub fn frames_dir(dir: &Path) -> Result<Self, SourceError> {
+        let src = cam::DirSource::open(dir).map_err(|e| SourceError(format!("--frames: {e}")))?;
+        let n = src.entries().len();
+        Self::new(
+            Box::new(src),
+            format!("frames {} ({n} frames)", dir.display()),
+            never,
+        )
+    }
+
+    /// The image topic of a recording (`topic`, or the only image topic).
+    pub fn mcap(path: &Path, topic: Option<&str>) -> Result<Self, SourceError> {
+        let opts = match topic {
+            Some(t) => vlsync_mcap::ImageSourceOptions::topic(t),
+            None => vlsync_mcap::ImageSourceOptions::default(),
+        };
+        let src = vlsync_mcap::McapImageSource::open(path, opts)
+            .map_err(|e| SourceError(format!("--mcap: {e}")))?;
+        let what = format!("mcap {} topic {}", path.display(), src.topic().topic);
+        Self::new(Box::new(src), what, never)
+    }
+
+    /// A V4L2 camera (`/dev/videoN`); needs the `v4l2` cargo feature.
+    pub fn v4l2(device: &Path, stop: StopFn) -> Result<Self, SourceError> {
+        if !cfg!(feature = "v4l2") {
+            return Err(SourceError(format!(
+                "--v4l2 {}: built without V4L2 support; rebuild with --features vlsync-driver/v4l2",
+                device.display()
+            )));
+        }
+        let cfg = cam::V4l2Config {
+            device: device.to_path_buf(),
+            ..cam::V4l2Config::default()
+        };
+        let mut src =
+            cam::V4l2Source::open(&cfg).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
+        // a stalled camera's wait wakes to check the stop (and ends in an error after
+        // `V4l2Config::stall`), instead of blocking the driver for good
+        src.set_stop(stop);
+        let (w, h) = src.frame_size();
+        Self::new(
+            Box::new(src),
+            format!("v4l2 {} ({w}x{h})", device.display()),
+            stop,
+        )
+    }
+
+    /// The frames of rendered run `seed` on the rendered camera clock (see [`renderer`]).
+    pub fn render(r: vlsync_render::Renderer) -> Result<Self, SourceError> {
+        Self::render_with(r, RenderStamp::Sensor, never)
+    }
+
+    /// The frames of a rendered run, stamped as `stamp` says. `Software`
+    /// renders on a thread and delivers each frame at the end of its exposure
+    /// (`stop` is polled while waiting); the others render on demand.
+    pub fn render_with(
+        r: vlsync_render::Renderer,
+        stamp: RenderStamp,
+        stop: StopFn,
+    ) -> Result<Self, SourceError> {
+        let what = format!(
+            "render seed {} ({} s, {} frames{})",
+            r.config().seed,
+            r.config().duration_s,
+            r.frame_schedule().len(),
+            match stamp {
+                RenderStamp::Sensor => "",
+                RenderStamp::Mono { .. } => ", sensor stamps on CLOCK_MONOTONIC",
+                RenderStamp::Software { .. } =>
+                    ", real time, stamped on CLOCK_MONOTONIC after processing",
+            }
+        );
+        match stamp {
+            RenderStamp::Software { shift_ns } => Self::with_frames(
+                Box::new(LiveRender::start(r, shift_ns, stop)?),
+                what,
+                stop,
+                true,
+            ),
+            _ => Self::with_frames(
+                Box::new(RenderFrames {
+                    period_ns: frame_period_ns(&r),
+                    r,
+                    next: 0,
+                    shift: stamp.shift_ns(),
+                    cur: None,
+                }),
+                what,
+                never,
+                false,
+            ),
+        }
+    }
+
+    /// The counts so far.
+    pub fn counts(&self) -> CamCounts {
+        self.counts
+    }
+
+    /// Real-time delivery counts of a software-stamped render.
+    pub fn live_counts(&self) -> Option<LiveCounts> {
+        self.frames.live().map(|l| l.0)
+    }
+}
+
+impl Source for CamSource {
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+        loop {
+            if (self.stop)() {
+                return Ok(None);
+            }
+            let Self {
+                frames,
+                proc,
+                what,
+                counts,
+                last_refusal,
+                software,
+                prev,
+                last_truth,
+                frame_cpu_ns,
+                skipped,
+                ..
+            } = self;
+            let next = match frames.next() {
+                Ok(next) => next,
+                // one bad image of a recording is a dropped frame, not the end of it
+                Err(e) if e.is_one_frame() => {
+                    skipped
+                        .skip(e.to_string())
+                        .map_err(|m| SourceError(format!("{what}: {m}")))?;
+                    continue;
+                }
+                Err(e) => return Err(SourceError(format!("{what}: {e}"))),
+            };
+            let Some((frame, time, truth)) = next else {
+                return Ok(None);
+            };
+            skipped.used();
+            counts.frames += 1;
+            let t_in = monotonic_ns();
+            let cpu_in = (*frame_cpu_ns > 0)
+                .then(vlsync_ipc::rt::thread_cpu_ns)
+                .flatten();
+            let step = proc.process(&frame, time);
+            if let Some(c0) = cpu_in {
+                burn_cpu_until(c0.saturating_add(*frame_cpu_ns));
+            }
+            // software stamping: the clock is read once the front-end is done
+            let t_done = monotonic_ns();
+            let this = (t_done, truth);
+            match step {
+                Err(e) => {
+                    counts.refused += 1;
+                    *last_refusal = Some(e.to_string());
+                    *prev = None;
+                }
+                Ok(cam::Step::Started(r)) => {
+                    *prev = Some(this);
+                    match r {
+                        cam::StartReason::First => {}
+                        cam::StartReason::Gap { .. } => counts.gaps += 1,
+                        cam::StartReason::NotIncreasing { .. } => counts.not_increasing += 1,
+                        cam::StartReason::SizeChanged { .. } => counts.size_changed += 1,
+                    }
+                }
+                Ok(cam::Step::Sample(s)) => {
+                    let before = prev.replace(this);
+                    let mut sample = s.sample;
+                    if *software {
+                        // stamped at the midpoint of the two software stamps; the
+                        // flow is over the frames' own interval: the frame numbers
+                        // times the nominal period when known (software stamps
+                        // jitter by tens of ms under load, the sensor's clock does
+                        // not), else the software interval
+                        let p_sw = before.map_or(t_done, |b| b.0);
+                        let dt = t_done - p_sw;
+                        if dt <= 0 {
+                            counts.not_increasing += 1;
+                            continue;
+                        }
+                        let interval = match (before.and_then(|b| b.1), truth) {
+                            (Some(a), Some(b)) if b.sequence > a.sequence && b.period_ns > 0 => {
+                                (b.sequence - a.sequence) as f64 * b.period_ns as f64
+                            }
+                            _ => dt as f64,
+                        };
+                        sample = Sample::new(
+                            mid(p_sw, t_done),
+                            s.flow_px * vlsync_common::NANOS_PER_SEC as f64 / interval,
+                        );
+                    }
+                    if !sample.value.is_finite() {
+                        counts.no_flow += 1;
+                    } else if s.low_texture() {
+                        counts.low_texture += 1;
+                    } else {
+                        counts.samples += 1;
+                        *last_truth = match (before.and_then(|b| b.1), truth) {
+                            (Some(a), Some(b)) => Some(SampleTruth {
+                                event_ns: mid(a.event_ns, b.event_ns),
+                                late_ns: b.late_ns,
+                                process_ns: t_done - t_in,
+                                render_late_ns: b.render_late_ns,
+                            }),
+                            _ => None,
+                        };
+                        return Ok(Some(sample));
+                    }
+                }
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        self.what.clone()
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        self.last_truth
+    }
+
+    fn report(&self) -> Option<String> {
+        let c = &self.counts;
+        let mut s = format!(
+            "{} frames, {} samples; dropped: {} low texture, {} no flow; restarts: {} gaps, \
+             {} non-increasing times, {} size changes; {} frames refused",
+            c.frames,
+            c.samples,
+            c.low_texture,
+            c.no_flow,
+            c.gaps,
+            c.not_increasing,
+            c.size_changed,
+            c.refused
+        );
+        if let Some(r) = &self.last_refusal {
+            s.push_str(&format!(" (last: {r})"));
+        }
+        // a live camera's bad buffers (its source counts them), a recording's bad images
+        for (n, last) in [self.frames.unusable(), self.skipped.counts()]
+            .into_iter()
+            .flatten()
+        {
+            s.push_str(&format!("; {n} unusable frames skipped (last: {last})"));
+        }
+        if let Some((l, nice)) = self.frames.live() {
+            s.push_str(&format!(
+                "; real time: {} frames delivered, {} skipped (before a restart), {} rendered late \
+                 (worst {:.1} ms), worst delivery {:.1} ms after exposure end; {nice}",
+                l.delivered,
+                l.skipped,
+                l.render_late,
+                l.max_render_late_ns as f64 / 1e6,
+                l.max_late_ns as f64 / 1e6
+            ));
+        }
+        Some(s)
+    }
+}

@@ -1,0 +1,467 @@
+//! The LiDAR sources: LD06/LD19 and RPLIDAR on a serial port, scan CSVs, MCAP
+//! LaserScans and the rendering simulator, through the wall-distance front-end.
+
+use super::*;
+
+/// Which serial LiDAR.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SerialKind {
+    /// LDROBOT LD06 / LD19 (230400 baud, streams on power-up).
+    Ld06,
+    /// Slamtec RPLIDAR standard scan (115200 baud by default; the scan request is sent).
+    Rplidar,
+}
+
+impl SerialKind {
+    /// The usual baud rate.
+    pub fn default_baud(self) -> u32 {
+        match self {
+            SerialKind::Ld06 => lidar::ld06::BAUD,
+            SerialKind::Rplidar => RplidarConfig::default().baud,
+        }
+    }
+
+    fn flag(self) -> &'static str {
+        match self {
+            SerialKind::Ld06 => "--ld06",
+            SerialKind::Rplidar => "--rplidar",
+        }
+    }
+}
+
+enum Parser {
+    Ld06(Ld06Parser),
+    Rplidar(RplidarParser),
+}
+
+/// A live serial LiDAR.
+struct Serial {
+    port: SerialLidar,
+    parser: Parser,
+    stop: StopFn,
+    /// No bytes for this long is an error.
+    silence: Duration,
+    last_bytes: Instant,
+    last_scan: Instant,
+    scans: u64,
+}
+
+impl Drop for Serial {
+    fn drop(&mut self) {
+        if matches!(self.parser, Parser::Rplidar(_)) {
+            // stop the scan stream; nothing to do if the device is gone. The A1/A2
+            // motor keeps spinning: asserting DTR here would not outlast the close,
+            // whose hang-up (HUPCL, which serialport leaves set) releases it again
+            let _ = self.port.write_request(&lidar::rplidar::stop_request());
+        }
+    }
+}
+
+/// Nodes per second an RPLIDAR sends in standard scan mode at `baud`: the C1
+/// (460800 baud) 5000, the A1/A2 (115200) 2000. It dates a revolution's start from
+/// the bytes that came after its start node in the same read, so a wrong rate
+/// biases every stamp by up to a read's worth of bytes (tens of ms at 460800).
+pub fn rplidar_node_rate_hz(baud: u32) -> u32 {
+    if baud >= 460_800 {
+        5000
+    } else {
+        2000
+    }
+}
+
+enum ScanInput {
+    Csv(lidar::csv::CsvScanReader<std::io::BufReader<std::fs::File>>),
+    Mcap(vlsync_mcap::McapScanSource),
+    Render {
+        r: Box<vlsync_render::Renderer>,
+        next: usize,
+        shift: Nanos,
+        /// `(first-ray stamp, stamp - true time)` of the last scans: the jitter to undo.
+        recent: VecDeque<(Nanos, Nanos)>,
+    },
+    Serial(Box<Serial>),
+}
+
+/// LiDAR scans through `SignatureProcessor::push_scan`.
+pub struct LidarSource {
+    input: ScanInput,
+    proc: lidar::WallFront,
+    queue: VecDeque<(Sample, Option<SampleTruth>)>,
+    what: String,
+    scans: u64,
+    last_truth: Option<SampleTruth>,
+    /// Scans of a recording that could not be used (a malformed `LaserScan`):
+    /// skipped as missed revolutions, until too many come in a row.
+    skipped: cam::UnusableFrames,
+}
+
+impl std::fmt::Debug for LidarSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LidarSource")
+            .field("what", &self.what)
+            .field("scans", &self.scans)
+            .finish_non_exhaustive()
+    }
+}
+
+impl LidarSource {
+    fn new(input: ScanInput, what: String) -> Result<Self, SourceError> {
+        let proc = lidar::SignatureProcessor::new(lidar::SignatureConfig::default())
+            .map_err(|e| SourceError(format!("{what}: {e}")))?;
+        Ok(Self {
+            input,
+            proc: lidar::WallFront::One(Box::new(proc)),
+            queue: VecDeque::new(),
+            what,
+            scans: 0,
+            last_truth: None,
+            skipped: cam::UnusableFrames::named("scans"),
+        })
+    }
+
+    /// Fits the wall in the bearing window(s) `f` gives (the `[lidar]` section of
+    /// the configuration) instead of the default window.
+    pub fn with_front(mut self, f: &vlsync_config::LidarConfig) -> Result<Self, SourceError> {
+        let cfg = lidar::SignatureConfig {
+            window_centre_rad: lidar::scan::wrap_pi(f.window_centre_deg.to_radians()),
+            window_half_width_rad: f.window_half_width_deg.to_radians(),
+            ..lidar::SignatureConfig::default()
+        };
+        let err = |e: lidar::ConfigError| SourceError(format!("{}: {e}", self.what));
+        self.proc = lidar::WallFront::new(cfg, f.opposite_window).map_err(err)?;
+        self.what = format!(
+            "{}; wall window {:.1}° ± {:.1}°{}",
+            self.what,
+            f.window_centre_deg,
+            f.window_half_width_deg,
+            if f.opposite_window {
+                " and the opposite one"
+            } else {
+                ""
+            }
+        );
+        Ok(self)
+    }
+
+    /// A scan CSV (`vlsync_signature_lidar::csv`'s format).
+    pub fn scans_csv(path: &Path) -> Result<Self, SourceError> {
+        let r = lidar::csv::CsvScanReader::open(path)
+            .map_err(|e| SourceError(format!("--scans: {e}")))?;
+        Self::new(ScanInput::Csv(r), format!("scans {}", path.display()))
+    }
+
+    /// The `LaserScan` topic of a recording (`topic`, or the only one).
+    pub fn mcap(path: &Path, topic: Option<&str>) -> Result<Self, SourceError> {
+        let opts = match topic {
+            Some(t) => vlsync_mcap::ScanSourceOptions::topic(t),
+            None => vlsync_mcap::ScanSourceOptions::default(),
+        };
+        let src = vlsync_mcap::McapScanSource::open(path, opts)
+            .map_err(|e| SourceError(format!("--mcap: {e}")))?;
+        let what = format!("mcap {} topic {}", path.display(), src.topic().topic);
+        Self::new(ScanInput::Mcap(src), what)
+    }
+
+    /// The scans of a rendered run on the rendered LiDAR clock (see [`renderer`]).
+    pub fn render(r: vlsync_render::Renderer) -> Result<Self, SourceError> {
+        Self::render_with(r, RenderStamp::Sensor)
+    }
+
+    /// The scans of a rendered run, stamped as `stamp` says (`Software` is a
+    /// camera mode and is refused).
+    pub fn render_with(
+        r: vlsync_render::Renderer,
+        stamp: RenderStamp,
+    ) -> Result<Self, SourceError> {
+        let what = format!(
+            "render seed {} ({} s, {} scans{})",
+            r.config().seed,
+            r.config().duration_s,
+            r.scan_schedule().len(),
+            match stamp {
+                RenderStamp::Sensor => "",
+                RenderStamp::Mono { .. } => ", sensor stamps on CLOCK_MONOTONIC",
+                RenderStamp::Software { .. } => {
+                    return Err(SourceError(format!(
+                        "render seed {}: software stamping is a camera mode; the LiDAR \
+                         stamps like its sensor (--stamp sensor or mono)",
+                        r.config().seed
+                    )));
+                }
+            }
+        );
+        Self::new(
+            ScanInput::Render {
+                r: Box::new(r),
+                next: 0,
+                shift: stamp.shift_ns(),
+                recent: VecDeque::new(),
+            },
+            what,
+        )
+    }
+
+    /// A serial LiDAR at `path`; `baud` defaults to the device's usual rate.
+    /// Rays are stamped on arrival with `CLOCK_MONOTONIC`. No bytes for
+    /// `silence` is an error naming the device.
+    pub fn serial(
+        kind: SerialKind,
+        path: &str,
+        baud: Option<u32>,
+        silence: Duration,
+        stop: StopFn,
+    ) -> Result<Self, SourceError> {
+        let baud = baud.unwrap_or(kind.default_baud());
+        let flag = kind.flag();
+        let mut port = SerialLidar::open(path, baud, Duration::from_millis(50))
+            .map_err(|e| SourceError(format!("{flag}: {e}")))?;
+        let parser = match kind {
+            SerialKind::Ld06 => Parser::Ld06(Ld06Parser::new(Ld06Config {
+                baud,
+                ..Ld06Config::default()
+            })),
+            SerialKind::Rplidar => {
+                // the A1/A2 USB adapter runs the motor while DTR is released, and
+                // Linux asserted it on open; a C1 or a port without modem lines
+                // ignores or refuses this, which does not matter to the scan
+                let _ = port.set_dtr(false);
+                port.write_request(&lidar::rplidar::scan_request())
+                    .map_err(|e| SourceError(format!("{flag}: scan request: {e}")))?;
+                Parser::Rplidar(RplidarParser::new(RplidarConfig {
+                    baud,
+                    sample_rate_hz: rplidar_node_rate_hz(baud),
+                    ..RplidarConfig::default()
+                }))
+            }
+        };
+        let now = Instant::now();
+        let what = format!("{} {path} at {baud} baud", &flag[2..]);
+        Self::new(
+            ScanInput::Serial(Box::new(Serial {
+                port,
+                parser,
+                stop,
+                silence,
+                last_bytes: now,
+                last_scan: now,
+                scans: 0,
+            })),
+            what,
+        )
+    }
+
+    /// Scans read so far.
+    pub fn scans(&self) -> u64 {
+        self.scans
+    }
+
+    /// The front-end's counters.
+    pub fn counters(&self) -> lidar::Counters {
+        *self.proc.ahead().counters()
+    }
+
+    /// Reads more input into the queue; false at the end of the input.
+    fn fill(&mut self) -> Result<bool, SourceError> {
+        let Self {
+            input,
+            proc,
+            queue,
+            what,
+            scans,
+            skipped,
+            ..
+        } = self;
+        // returns how many samples were queued
+        let mut push = |scan: &lidar::Scan| {
+            *scans += 1;
+            let mut n = 0;
+            proc.push_scan(scan, |s| {
+                if s.value.is_finite() {
+                    queue.push_back((s, None));
+                    n += 1;
+                }
+            });
+            n
+        };
+        match input {
+            ScanInput::Csv(r) => match r.next() {
+                None => Ok(false),
+                Some(Err(e)) => Err(SourceError(format!("--scans: {e}"))),
+                Some(Ok(scan)) => {
+                    push(&scan);
+                    Ok(true)
+                }
+            },
+            ScanInput::Mcap(m) => match m.next_scan() {
+                Ok(None) => Ok(false),
+                // one malformed message is a missed revolution, not the end of the recording
+                Err(e @ vlsync_mcap::Error::Message { .. }) => {
+                    skipped
+                        .skip(e.to_string())
+                        .map_err(|m| SourceError(format!("--mcap: {m}")))?;
+                    Ok(true)
+                }
+                Err(e) => Err(SourceError(format!("--mcap: {e}"))),
+                Ok(Some(scan)) => {
+                    skipped.used();
+                    push(scan);
+                    Ok(true)
+                }
+            },
+            ScanInput::Render {
+                r,
+                next,
+                shift,
+                recent,
+            } => match r.render_scan(*next) {
+                None => Ok(false),
+                Some(s) => {
+                    *next += 1;
+                    let start = s.scan.timing().start_ns;
+                    recent.push_back((start, start - s.tau_start_ns));
+                    if recent.len() > 8 {
+                        recent.pop_front();
+                    }
+                    let n = push(&s.scan);
+                    let period = s.scan.timing().period_ns;
+                    let before = queue.len() - n;
+                    for (sample, truth) in queue.iter_mut().skip(before) {
+                        *truth = Some(SampleTruth {
+                            event_ns: lidar_event_ns(recent, sample.t_ns, period) + *shift,
+                            ..SampleTruth::default()
+                        });
+                        sample.t_ns += *shift;
+                    }
+                    Ok(true)
+                }
+            },
+            ScanInput::Serial(s) => {
+                if (s.stop)() {
+                    return Ok(false);
+                }
+                let Serial {
+                    port,
+                    parser,
+                    last_bytes,
+                    last_scan,
+                    scans: serial_scans,
+                    silence,
+                    ..
+                } = &mut **s;
+                let (chunk, t) = port
+                    .read_chunk(&vlsync_ipc::monotonic_ns)
+                    .map_err(|e| SourceError(format!("{what}: {e}")))?;
+                let now = Instant::now();
+                if !chunk.is_empty() {
+                    *last_bytes = now;
+                }
+                let before = *serial_scans;
+                let mut on_scan = |scan: &lidar::Scan| {
+                    *serial_scans += 1;
+                    push(scan);
+                };
+                match parser {
+                    Parser::Ld06(p) => p.push(chunk, t, &mut on_scan),
+                    Parser::Rplidar(p) => p.push(chunk, t, &mut on_scan),
+                }
+                if *serial_scans != before {
+                    *last_scan = now;
+                }
+                if now.duration_since(*last_bytes) > *silence {
+                    return Err(SourceError(format!(
+                        "{what}: no data for {:.1} s (is the LiDAR powered and the baud rate right?)",
+                        silence.as_secs_f64()
+                    )));
+                }
+                if now.duration_since(*last_scan) > *silence {
+                    return Err(SourceError(format!(
+                        "{what}: bytes but no complete scan for {:.1} s (wrong device type or baud rate?)",
+                        silence.as_secs_f64()
+                    )));
+                }
+                Ok(true)
+            }
+        }
+    }
+}
+
+/// True time of a LiDAR sample stamped `t` (the midpoint of two passes over the
+/// bearing window, one revolution apart): `t` minus the mean stamp jitter of the
+/// scans holding `t - period/2` and `t + period/2`. Exact unless a pass's median
+/// ray lies within the jitter of a scan boundary.
+fn lidar_event_ns(recent: &VecDeque<(Nanos, Nanos)>, t: Nanos, period: Nanos) -> Nanos {
+    let jitter_at = |x: Nanos| {
+        recent
+            .iter()
+            .rev()
+            .find(|(start, _)| *start <= x)
+            .or(recent.front())
+            .map_or(0, |(_, j)| *j)
+    };
+    t - mid(jitter_at(t - period / 2), jitter_at(t + period / 2))
+}
+
+impl Source for LidarSource {
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+        loop {
+            if let Some((s, truth)) = self.queue.pop_front() {
+                self.last_truth = truth;
+                return Ok(Some(s));
+            }
+            if !self.fill()? {
+                return Ok(None);
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        self.what.clone()
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        self.last_truth
+    }
+
+    fn report(&self) -> Option<String> {
+        let c = self.proc.ahead().counters();
+        let mut s = format!(
+            "{} scans, {} passes, {} samples; dropped:",
+            self.scans, c.passes, c.samples
+        );
+        for r in lidar::DropReason::ALL {
+            s.push_str(&format!(" {} {},", r.name(), c.dropped(r)));
+        }
+        s.push_str(&format!(" invalid returns {}", c.invalid_returns));
+        if let Some((n, last)) = self.skipped.counts() {
+            s.push_str(&format!("; {n} unusable scans skipped (last: {last})"));
+        }
+        if let Some(w) = self.proc.opposite() {
+            let c = w.behind().counters();
+            s.push_str(&format!(
+                "; opposite window: {} passes, {} samples, {} dropped out of time order",
+                c.passes,
+                c.samples,
+                w.out_of_order()
+            ));
+        }
+        if let ScanInput::Serial(ser) = &self.input {
+            match &ser.parser {
+                Parser::Ld06(p) => {
+                    let st = p.stats();
+                    s.push_str(&format!(
+                        "; LD06: {} bytes, {} packets, {} CRC errors, {} skipped bytes, {} invalid packets",
+                        st.bytes, st.packets, st.crc_errors, st.skipped_bytes, st.invalid_packets
+                    ));
+                }
+                Parser::Rplidar(p) => {
+                    let st = p.stats();
+                    s.push_str(&format!(
+                        "; RPLIDAR: {} bytes, {} nodes, {} skipped bytes, {} false starts",
+                        st.bytes, st.nodes, st.skipped_bytes, st.false_starts
+                    ));
+                }
+            }
+        }
+        Some(s)
+    }
+}

@@ -1,0 +1,195 @@
+//! Raw-sensor sources: frames and scans run through the front-ends
+//! (`vlsync-signature-cam`, `vlsync-signature-lidar`) into signature samples.
+//!
+//! | stream | source | input |
+//! |---|---|---|
+//! | camera | [`CamSource::frames_dir`] | a directory of PNG/JPEG frames with `frames.csv` |
+//! | camera | [`CamSource::mcap`] | a ROS 2 recording (`sensor_msgs/Image` or `CompressedImage`) |
+//! | camera | [`CamSource::v4l2`] | a V4L2 device (cargo feature `v4l2`) |
+//! | camera | [`CamSource::render`] | frames of the rendering simulator |
+//! | LiDAR | [`LidarSource::serial`] | an LD06/LD19 or RPLIDAR on a serial port |
+//! | LiDAR | [`LidarSource::scans_csv`] | a scan CSV (one row per ray) |
+//! | LiDAR | [`LidarSource::mcap`] | a ROS 2 recording (`sensor_msgs/LaserScan`) |
+//! | LiDAR | [`LidarSource::render`] | scans of the rendering simulator |
+//!
+//! Samples the front-ends cannot vouch for (low texture, no tracked point,
+//! passes with too few returns, ...) are not published: they are counted and
+//! [`Source::report`] lists the counts. Errors name the file or device.
+//!
+//! Live devices stamp on the host's `CLOCK_MONOTONIC` (V4L2 buffer times
+//! normally are; serial LiDAR chunks are stamped with it on arrival), so both
+//! drivers of a robot share a time base up to the sensors' latencies.
+//!
+//! # Rendered runs: stamping and truth ([`RenderStamp`])
+//!
+//! * `Sensor`: the rendered sensor clocks (the camera clock carries the run's
+//!   offset and drift; the LiDAR clock is the true time plus per-scan jitter).
+//! * `Mono`: the same stamps carried onto `CLOCK_MONOTONIC`: true time `τ` maps
+//!   to `τ + shift`, `shift = start_at - anchor` (both drivers of a pair compute
+//!   the same from `--start-at`), so stamps of a real-time run read like the
+//!   host clock while keeping the sensors' own stamping.
+//! * `Software` (camera): frames are rendered ahead on their own thread (the
+//!   "camera hardware", raised to nice −10 when allowed so host load does not
+//!   slow it) and handed to the front-end when their exposure ends, at
+//!   `τ_end + shift`; the driver reads `CLOCK_MONOTONIC` **after** the
+//!   front-end processed the frame and uses that as the frame's time, like a
+//!   cheap camera stamped in software. The sample is stamped at the midpoint of
+//!   the two software stamps (the processor's rule with those times), so
+//!   scheduling delays, CPU load and stalls move the stamps as they would on a
+//!   robot. Its value is the flow over the frames' own interval, from their
+//!   frame numbers and the nominal period (what a V4L2 buffer's `sequence`
+//!   gives), not over the software interval: late frames would otherwise
+//!   arrive in bursts a millisecond apart and turn into spikes of the signature.
+//!
+//! Every sample of a rendered source carries a [`SampleTruth`]: its true event
+//! time on the run's time base (the midpoint of the two true mid-exposure
+//! instants for the camera; for the LiDAR the stamp with the jitter of the two
+//! scans it spans removed), so `stamp - event` is the stamping error and the
+//! true offset of a pair is `(stamp - event)_LiDAR - (stamp - event)_camera`.
+
+use crate::{SampleTruth, Source, SourceError};
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+use vlsync_common::{Nanos, Sample};
+use vlsync_ipc::monotonic_ns;
+use vlsync_signature_cam as cam;
+use vlsync_signature_lidar as lidar;
+
+use cam::FrameSource;
+use lidar::ld06::{Ld06Config, Ld06Parser};
+use lidar::rplidar::{RplidarConfig, RplidarParser};
+use lidar::serial::SerialLidar;
+
+/// Returns true when the driver should stop (a live source checks it while it waits).
+pub type StopFn = fn() -> bool;
+
+fn never() -> bool {
+    false
+}
+
+/// Default render duration when none is given, seconds.
+pub const DEFAULT_RENDER_DURATION_S: f64 = 60.0;
+
+/// The rendering simulator's run for `seed` (camera and LiDAR drivers given the
+/// same seed and duration render the same run).
+pub fn renderer(seed: u64, duration_s: f64) -> Result<vlsync_render::Renderer, SourceError> {
+    vlsync_render::Renderer::new(vlsync_render::RenderConfig::from_seed(seed, duration_s))
+        .map_err(|e| SourceError(format!("render seed {seed}: {e}")))
+}
+
+/// The pacing anchor of a rendered pair: the earlier of the first frame's and
+/// the first scan's stamps (both drivers compute the same).
+pub fn render_anchor_ns(r: &vlsync_render::Renderer) -> Nanos {
+    let c = r.frame_schedule().first().map(|f| f.stamp_ns);
+    let l = r.scan_schedule().first().map(|s| s.stamp_ns);
+    match (c, l) {
+        (Some(c), Some(l)) => c.min(l),
+        (Some(t), None) | (None, Some(t)) => t,
+        (None, None) => 0,
+    }
+}
+
+/// How a rendered source stamps its samples (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RenderStamp {
+    /// The rendered sensor clocks.
+    Sensor,
+    /// The rendered sensor clocks carried onto `CLOCK_MONOTONIC` (`+ shift_ns`).
+    Mono {
+        /// `start_at - anchor`: true time `τ` happens at `τ + shift_ns` on `CLOCK_MONOTONIC`.
+        shift_ns: Nanos,
+    },
+    /// Camera only: `CLOCK_MONOTONIC` read after the front-end processed each
+    /// frame; frames are delivered in real time at the end of their exposure.
+    Software {
+        /// As for `Mono`.
+        shift_ns: Nanos,
+    },
+}
+
+impl RenderStamp {
+    /// The shift from the run's true time to the published time base.
+    pub fn shift_ns(self) -> Nanos {
+        match self {
+            RenderStamp::Sensor => 0,
+            RenderStamp::Mono { shift_ns } | RenderStamp::Software { shift_ns } => shift_ns,
+        }
+    }
+}
+
+/// Works on the calling thread until its CPU clock reaches `until_ns`.
+fn burn_cpu_until(until_ns: Nanos) {
+    let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+    while vlsync_ipc::rt::thread_cpu_ns().is_some_and(|t| t < until_ns) {
+        for _ in 0..256 {
+            x = std::hint::black_box(x ^ (x << 13) ^ (x >> 7));
+        }
+    }
+}
+
+/// `(a + b) / 2` without overflow.
+fn mid(a: Nanos, b: Nanos) -> Nanos {
+    ((i128::from(a) + i128::from(b)).div_euclid(2)) as Nanos
+}
+
+mod cam_source;
+mod lidar_source;
+
+pub use cam_source::{CamCounts, CamSource, LiveCounts, RENDER_AHEAD_FRAMES, RENDER_THREAD_NICE};
+pub use lidar_source::{rplidar_node_rate_hz, LidarSource, SerialKind};
+
+/// A source whose first sample was read ahead (to anchor the pacing on it).
+pub struct Prefetched {
+    first: Option<(Sample, Option<SampleTruth>)>,
+    first_out: bool,
+    inner: Box<dyn Source>,
+}
+
+impl Prefetched {
+    /// Reads the first sample of `inner`.
+    pub fn new(mut inner: Box<dyn Source>) -> Result<Self, SourceError> {
+        let first = inner.next_sample()?.map(|s| (s, inner.truth()));
+        Ok(Self {
+            first,
+            first_out: false,
+            inner,
+        })
+    }
+
+    /// The first sample's time.
+    pub fn first_t_ns(&self) -> Option<Nanos> {
+        self.first.map(|s| s.0.t_ns)
+    }
+}
+
+impl Source for Prefetched {
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+        match self.first {
+            Some((s, _)) if !self.first_out => {
+                self.first_out = true;
+                Ok(Some(s))
+            }
+            _ => {
+                self.first = None;
+                self.inner.next_sample()
+            }
+        }
+    }
+
+    fn truth(&self) -> Option<SampleTruth> {
+        match self.first {
+            Some((_, t)) if self.first_out => t,
+            _ => self.inner.truth(),
+        }
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn report(&self) -> Option<String> {
+        self.inner.report()
+    }
+}
