@@ -21,8 +21,9 @@
 # The Python subscriber's test (step 4) needs the pinned iceoryx2 package that
 # ./scripts/test.sh installs. From a fresh clone on 2 cores, 11.5 minutes with --ipc, most
 # of it the cross and the native builds (step 4 about 5 of them). Not part of
-# ./scripts/test.sh: it would take the suite past its time budget. qemu checks results, not timing, and emulates aarch64 on x86's stronger memory
-# ordering: the Pi's own soak (deploy/README.md) is the check of the real board.
+# ./scripts/test.sh: it would take the suite past its time budget. qemu checks results,
+# not timing, and emulates aarch64 on x86's stronger memory ordering: the Pi's own soak
+# (deploy/README.md) is the check of the real board.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
