@@ -5,7 +5,10 @@
 #   kept, the new version goes next to them as *.new); the units to
 #   /etc/systemd/system; /etc/tmpfiles.d/vlsync.conf, applied at once with
 #   systemd-tmpfiles --create; deploy/README.md to /usr/local/share/doc/vlsync;
-#   then daemon-reload. It does not enable or start anything.
+#   the C/C++ client library libvlsync_client.so to /usr/local/lib (then ldconfig)
+#   and its headers to /usr/local/include, when it was built (cargo build --release
+#   builds it; --bins alone does not); then daemon-reload. It does not enable or
+#   start anything.
 #
 #   sudo deploy/install.sh [--bin-dir DIR] [--dry-run]
 #
@@ -26,6 +29,8 @@ etc_dir=/etc/vlsync
 unit_dir=/etc/systemd/system
 tmpfiles_dir=/etc/tmpfiles.d
 doc_dir=/usr/local/share/doc/vlsync
+lib_dir=/usr/local/lib
+include_dir=/usr/local/include
 
 # the comment block above, up to its first line that is not a comment
 usage() { awk 'NR == 1 { next } !/^#/ { exit } { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
@@ -60,6 +65,17 @@ done
 for f in vlsync.toml cam.env lidar.env tmpfiles.d/vlsync.conf README.md; do
     [ -f "$here/$f" ] || die "$here/$f missing"
 done
+# the C/C++ client library is optional: installed when it was built
+capi_lib="$bin_dir/libvlsync_client.so"
+# its headers: in the checkout, or copied next to the binaries (include/, a cross build)
+capi_include="$repo/capi/include"
+[ -d "$capi_include" ] || capi_include="$bin_dir/include"
+capi_headers=("$capi_include/vlsync_client.h" "$capi_include/vlsync_client.hpp")
+if [ -f "$capi_lib" ]; then
+    for h in "${capi_headers[@]}"; do
+        [ -f "$h" ] || die "header $h missing (copy capi/include next to the library)"
+    done
+fi
 
 # run a command, or print it in --dry-run mode
 run() {
@@ -117,6 +133,16 @@ done
 run install -m 0644 "$here/tmpfiles.d/vlsync.conf" "$tmpfiles_dir/vlsync.conf"
 run install -d -m 0755 "$doc_dir"
 run install -m 0644 "$here/README.md" "$doc_dir/README.md"
+if [ -f "$capi_lib" ]; then
+    run install -d -m 0755 "$lib_dir" "$include_dir"
+    run install -m 0755 "$capi_lib" "$lib_dir/libvlsync_client.so"
+    for h in "${capi_headers[@]}"; do
+        run install -m 0644 "$h" "$include_dir/$(basename "$h")"
+    done
+    run ldconfig
+else
+    echo "$capi_lib not built: the C/C++ client library is not installed (cargo build --release -p vlsync-capi, then run this again)"
+fi
 
 # /tmp/iceoryx2 created earlier by another user (e.g. a test run as root) would
 # lock the vlsync user out of iceoryx2

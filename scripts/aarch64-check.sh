@@ -1,23 +1,24 @@
 #!/usr/bin/env bash
 # The Raspberry Pi's build, checked on an x86-64 Debian 12 / Ubuntu host:
 #
-#  1. cross-compiles every binary for aarch64-unknown-linux-gnu (what deploy/README.md
-#     copies to the Pi);
+#  1. cross-compiles every binary and the C/C++ client library (libvlsync_client.so) for
+#     aarch64-unknown-linux-gnu (what deploy/README.md copies to the Pi);
 #  2. runs the numeric crates' tests (common, config, simd, estimator, sim) on aarch64
 #     under qemu user-mode emulation;
 #  3. runs `vlsyncd bench` (every simulated family, two seed sets) and one replay with the
 #     aarch64 build and the native one, and requires the same results bit for bit: the
 #     estimator promises the same estimates on any CPU (ARCHITECTURE.md, invariants);
-#  4. with --ipc, the multi-process tests (crate vlsync-tests: daemon, drivers, echo and the
-#     Python subscriber over iceoryx2) with the aarch64 binaries, but for three that cannot
+#  4. with --ipc, the multi-process tests (crate vlsync-tests: daemon, drivers, echo, the
+#     Python subscriber, and the C and C++ examples compiled with the aarch64 cross
+#     compilers against the aarch64 library) with the aarch64 binaries, but for three that cannot
 #     hold under emulation: the rendered demo and the short load profile (the renderer
 #     runs 30 s behind real time emulated) and the daemon's signal-handler census (qemu
 #     itself catches every signal).
 # Tests that run the binaries exec aarch64 files, so the kernel must hand them to qemu
 # (binfmt_misc): the script registers qemu-aarch64 there when missing (as root; until reboot).
 #
-# It installs what it needs when missing (gcc-aarch64-linux-gnu, libc6-dev-arm64-cross,
-# qemu-user through apt-get, which needs root; the Rust target through rustup).
+# It installs what it needs when missing (gcc-aarch64-linux-gnu, g++-aarch64-linux-gnu,
+# libc6-dev-arm64-cross, qemu-user through apt-get, which needs root; the Rust target through rustup).
 # The Python subscriber's test (step 4) needs the pinned iceoryx2 package that
 # ./scripts/test.sh installs. From a fresh clone on 2 cores, 11.5 minutes with --ipc, most
 # of it the cross and the native builds (step 4 about 5 of them). Not part of
@@ -46,6 +47,7 @@ SYSROOT=/usr/aarch64-linux-gnu
 
 missing=()
 command -v aarch64-linux-gnu-gcc >/dev/null || missing+=(gcc-aarch64-linux-gnu)
+command -v aarch64-linux-gnu-g++ >/dev/null || missing+=(g++-aarch64-linux-gnu)
 [ -e "$SYSROOT/lib/ld-linux-aarch64.so.1" ] || missing+=(libc6-dev-arm64-cross)
 command -v qemu-aarch64 >/dev/null || missing+=(qemu-user)
 if [ ${#missing[@]} -gt 0 ]; then
@@ -84,9 +86,10 @@ export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
 export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L $SYSROOT"
 arm() { qemu-aarch64 -L "$SYSROOT" "$@"; }
 
-echo "==> 1. cross build: cargo build --release --bins --target $TARGET"
+echo "==> 1. cross build: cargo build --release --bins --target $TARGET, and -p vlsync-capi"
 cargo build --release --bins --target "$TARGET"
-ls -l target/$TARGET/release/vlsync{d,-cam,-lidar,-echo,-soak} | awk '{print "    " $5 " bytes  " $9}'
+cargo build --release -p vlsync-capi --target "$TARGET"
+ls -l target/$TARGET/release/{vlsync{d,-cam,-lidar,-echo,-soak},libvlsync_client.so} | awk '{print "    " $5 " bytes  " $9}'
 
 echo "==> 2. the numeric crates' tests on aarch64 (qemu)"
 out=$(mktemp -d)
@@ -141,8 +144,9 @@ fi
 
 if [ $ipc -eq 1 ]; then
     echo "==> 4. the multi-process tests with the aarch64 binaries (qemu through binfmt_misc)"
-    # the binaries were cross-built in step 1; the tests must not rebuild them natively
-    if ! VLSYNC_PREBUILT_BINS=1 cargo test --release --no-fail-fast --target "$TARGET" -p vlsync-tests -- \
+    # the binaries were cross-built in step 1; the tests must not rebuild them natively.
+    # The C and C++ examples are compiled for aarch64 too, against the aarch64 library
+    if ! CC=aarch64-linux-gnu-gcc CXX=aarch64-linux-gnu-g++ VLSYNC_PREBUILT_BINS=1 cargo test --release --no-fail-fast --target "$TARGET" -p vlsync-tests -- \
         --skip demo_ctrl_c_stops_children_and_leaves_nothing \
         --skip short_load_profile_keeps_error_and_loss_in_bounds \
         --skip without_notify_socket_the_daemon_runs_and_stops_as_before >"$out/ipc.log" 2>&1; then

@@ -58,6 +58,10 @@ else
         exit 1
     fi
 fi
+# The C and C++ client tests (tests/tests/ipc_capi.rs, ipc_c_header.rs) compile the
+# examples against libvlsync_client.so.
+command -v cc >/dev/null 2>&1 || install_deb gcc "the C client tests will fail"
+command -v c++ >/dev/null 2>&1 || install_deb g++ "the C++ client test will fail"
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
 command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"
 # The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang.

@@ -97,6 +97,23 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
+/// The directory holding `libvlsync_client.so` (the C client library) of this test
+/// build: the tests depend on `vlsync-capi`, so building them built it into
+/// `target/<profile>/deps` (a `cdylib` has no hash in its name); an explicit
+/// `cargo build -p vlsync-capi` puts it one level up.
+pub fn capi_lib_dir() -> PathBuf {
+    let dir = profile_dir();
+    for d in [dir.join("deps"), dir.clone()] {
+        if d.join("libvlsync_client.so").is_file() {
+            return d;
+        }
+    }
+    panic!(
+        "libvlsync_client.so is in neither {0}/deps nor {0}: build the tests with cargo (they depend on vlsync-capi)",
+        dir.display()
+    );
+}
+
 /// Longest wait of [`assert_serving`] for a daemon to serve.
 pub const DAEMON_READY_WAIT: Duration = Duration::from_secs(20);
 

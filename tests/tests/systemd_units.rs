@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use vlsync_tests::bin;
+use vlsync_tests::{bin, capi_lib_dir};
 
 fn deploy() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy")
@@ -344,6 +344,59 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
     // every action of a dry run is only printed
     let executed: Vec<&str> = text.lines().filter(|l| l.starts_with('+')).collect();
     assert!(executed.is_empty(), "dry run executed {executed:?}");
+
+    // with the C client library built next to the binaries, it and its headers are
+    // installed too, then ldconfig runs
+    let with_lib = std::env::temp_dir().join(format!("vlsync-install-lib-{}", std::process::id()));
+    std::fs::create_dir_all(&with_lib).unwrap();
+    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
+        let _ = std::fs::remove_file(with_lib.join(b));
+        std::os::unix::fs::symlink(bins.join(b), with_lib.join(b)).unwrap();
+    }
+    let lib = with_lib.join("libvlsync_client.so");
+    let _ = std::fs::remove_file(&lib);
+    std::os::unix::fs::symlink(capi_lib_dir().join("libvlsync_client.so"), &lib).unwrap();
+    let out = install_sh()
+        .arg("--dry-run")
+        .arg("--bin-dir")
+        .arg(&with_lib)
+        .output()
+        .unwrap();
+    let lib_text = String::from_utf8_lossy(&out.stdout).into_owned();
+    std::fs::remove_dir_all(&with_lib).unwrap();
+    assert!(out.status.success(), "{lib_text}");
+    let want = format!(
+        "install -m 0755 {} /usr/local/lib/libvlsync_client.so",
+        lib.display()
+    );
+    assert!(lib_text.contains(&want), "no `{want}` in\n{lib_text}");
+    for h in ["vlsync_client.h", "vlsync_client.hpp"] {
+        assert!(
+            lib_text.contains(&format!("/usr/local/include/{h}")),
+            "{h} not installed:\n{lib_text}"
+        );
+    }
+    assert!(lib_text.contains("would run: ldconfig"), "{lib_text}");
+    // without it, the script says how to build it
+    let bare = std::env::temp_dir().join(format!("vlsync-install-bare-{}", std::process::id()));
+    std::fs::create_dir_all(&bare).unwrap();
+    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
+        let _ = std::fs::remove_file(bare.join(b));
+        std::os::unix::fs::symlink(bins.join(b), bare.join(b)).unwrap();
+    }
+    let out = install_sh()
+        .arg("--dry-run")
+        .arg("--bin-dir")
+        .arg(&bare)
+        .output()
+        .unwrap();
+    std::fs::remove_dir_all(&bare).unwrap();
+    let bare_text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{bare_text}");
+    assert!(
+        bare_text.contains("libvlsync_client.so not built") && !bare_text.contains("ldconfig"),
+        "{bare_text}"
+    );
 
     // a missing binary is named before anything happens
     let out = install_sh()

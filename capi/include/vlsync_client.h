@@ -1,0 +1,124 @@
+/*
+ * vlsync_client.h - read the vlsync daemon's offset from C (and C++: vlsync_client.hpp).
+ *
+ * Link with libvlsync_client.so (`cargo build --release -p vlsync-capi` writes it to
+ * target/release/). The library opens <prefix>/offset of the daemon's iceoryx2 services,
+ * validates every payload as the Rust and Python clients do, and converts camera stamps
+ * to the LiDAR time base. No iceoryx2 C/C++ bindings are needed.
+ *
+ *   char err[256];
+ *   vlsync_client *c = vlsync_client_open("vlsync/robot", err, sizeof err);
+ *   if (!c) { fprintf(stderr, "%s\n", err); return 1; }
+ *   vlsync_estimate e;
+ *   if (vlsync_client_wait_next(c, 1000, &e, err, sizeof err) == 1)
+ *       printf("%s offset %.3f ms\n", vlsync_state_name(e.state), e.offset_s * 1e3);
+ *   vlsync_client_close(c);
+ *
+ * Clock convention: offset = t_lidar - t_cam for one event, so t_lidar = t_cam + offset;
+ * drift = d offset / d t_lidar. Times are integer nanoseconds; publish_ns is
+ * CLOCK_MONOTONIC. An estimate's offset refers to its t_ref_ns, which lags the newest
+ * LiDAR data by the daemon's reference lag (3 s by default):
+ * vlsync_client_camera_to_lidar extrapolates with the drift.
+ *
+ * Errors: every function checks its pointers (NULL is an error, never a crash) and
+ * returns a code; those taking `err, err_len` write the reason there, NUL-terminated and
+ * cut to fit (`err` may be NULL). A handle is single-threaded: use it on the thread that
+ * opened it (calls from another thread are refused with -1). The library installs no
+ * signal handlers: a signal interrupts a wait, which then returns 0 early.
+ */
+#ifndef VLSYNC_CLIENT_H
+#define VLSYNC_CLIENT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* The ABI this header describes; compare with vlsync_client_abi_version(). */
+#define VLSYNC_CLIENT_ABI_VERSION 1u
+
+/* vlsync_estimate.state */
+#define VLSYNC_STATE_ACQUIRING 0 /* searching; no lock yet */
+#define VLSYNC_STATE_TRACKING 1  /* locked, with a fresh measurement */
+#define VLSYNC_STATE_HOLDING 2   /* locked earlier, predicted (no motion); uncertainty grows */
+#define VLSYNC_STATE_LOST 3      /* too uncertain to use; reacquiring */
+
+typedef struct vlsync_client vlsync_client; /* opaque handle */
+
+typedef struct vlsync_estimate {
+    uint64_t seq;             /* +1 per estimate of one daemon run */
+    int64_t t_ref_ns;         /* reference time on the LiDAR clock */
+    double offset_s;          /* t_lidar - t_cam at t_ref_ns */
+    double drift;             /* d offset / d t_lidar (s/s) */
+    double offset_std_s;      /* one standard deviation of offset_s */
+    double drift_std;         /* one standard deviation of drift */
+    double peak_score;        /* correlation at the hop's peak (0: none) */
+    double peak_ratio;        /* main to second peak (+inf: no second peak; 0: no peak) */
+    double measured_offset_s; /* the hop's raw window measurement; NaN: none */
+    int64_t publish_ns;       /* CLOCK_MONOTONIC when the daemon published it */
+    uint8_t state;            /* VLSYNC_STATE_* */
+    int8_t polarity;          /* +1, -1, 0 unknown */
+    uint8_t reserved[6];      /* 0 */
+} vlsync_estimate;
+
+typedef struct vlsync_conversion {
+    int64_t t_lidar_ns;       /* the camera stamp on the LiDAR clock */
+    double std_s;             /* one standard deviation of t_lidar_ns, seconds */
+    vlsync_estimate estimate; /* what it was converted with: check its state and age */
+} vlsync_conversion;
+
+#if defined(__cplusplus)
+static_assert(sizeof(vlsync_estimate) == 88, "vlsync_estimate layout");
+static_assert(offsetof(vlsync_estimate, publish_ns) == 72, "vlsync_estimate layout");
+static_assert(offsetof(vlsync_estimate, state) == 80, "vlsync_estimate layout");
+static_assert(sizeof(vlsync_conversion) == 104, "vlsync_conversion layout");
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
+_Static_assert(sizeof(vlsync_estimate) == 88, "vlsync_estimate layout");
+_Static_assert(offsetof(vlsync_estimate, publish_ns) == 72, "vlsync_estimate layout");
+_Static_assert(offsetof(vlsync_estimate, state) == 80, "vlsync_estimate layout");
+_Static_assert(sizeof(vlsync_conversion) == 104, "vlsync_conversion layout");
+#endif
+
+/* The ABI version the library was built with. */
+uint32_t vlsync_client_abi_version(void);
+
+/* Opens the offset service of robot `prefix` (e.g. "vlsync/robot"). The daemon need not
+ * run yet. Returns NULL with the reason in err on failure (an invalid prefix, no shared
+ * memory, ...). */
+vlsync_client *vlsync_client_open(const char *prefix, char *err, size_t err_len);
+
+/* Closes a handle (NULL: nothing). 0, or -1 from another thread (the handle stays open). */
+int vlsync_client_close(vlsync_client *c);
+
+/* Waits up to timeout_ms (negative: no limit) for the next estimate.
+ * 1: written to *out; 0: timeout, or a signal interrupted the wait; -1: error (err). */
+int vlsync_client_wait_next(vlsync_client *c, int64_t timeout_ms, vlsync_estimate *out,
+                            char *err, size_t err_len);
+
+/* The most recent estimate. 1: written; 0: none yet; -1: NULL argument or wrong thread. */
+int vlsync_client_latest(vlsync_client *c, vlsync_estimate *out);
+
+/* Converts camera stamp t_cam_ns with the latest estimate, extrapolated with its drift;
+ * std_s includes the offset's random walk since t_ref_ns. 1: written; 0: no estimate
+ * yet; -1: NULL argument or wrong thread. Trust it only in a tracking or holding state. */
+int vlsync_client_camera_to_lidar(vlsync_client *c, int64_t t_cam_ns, vlsync_conversion *out);
+
+/* The offset's random walk (s/sqrt(s)) conversions assume while tracking and otherwise:
+ * the daemon's estimator.offset_process_noise and estimator.hold_process_noise when it
+ * does not run the shipped 2e-4 and 3e-3. 0, or -1 (err) for a value not finite and >= 0. */
+int vlsync_client_set_process_noise(vlsync_client *c, double tracking, double holding,
+                                    char *err, size_t err_len);
+
+/* Payloads refused by validation so far. */
+uint64_t vlsync_client_invalid_count(vlsync_client *c);
+
+/* "acquiring", "tracking", "holding", "lost", or "unknown": a static string. */
+const char *vlsync_state_name(uint8_t state);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VLSYNC_CLIENT_H */

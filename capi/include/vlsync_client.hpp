@@ -1,0 +1,107 @@
+// vlsync_client.hpp - C++17 wrapper of vlsync_client.h: one owning, movable handle;
+// errors as exceptions, "nothing yet" as an empty std::optional.
+//
+//   vlsync::Client c("vlsync/robot");          // throws vlsync::Error
+//   if (auto e = c.wait_next(std::chrono::seconds(1)))
+//       std::cout << vlsync::state_name(*e) << " " << e->offset_s << "\n";
+//   if (auto v = c.camera_to_lidar(t_cam_ns); v && vlsync::is_locked(v->estimate))
+//       use(v->t_lidar_ns);
+//
+// Like the handle it wraps, a Client is used on the thread that constructed it.
+#ifndef VLSYNC_CLIENT_HPP
+#define VLSYNC_CLIENT_HPP
+
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "vlsync_client.h"
+
+namespace vlsync {
+
+/// A failed call; what() is the library's message.
+class Error : public std::runtime_error {
+  public:
+    using std::runtime_error::runtime_error;
+};
+
+inline const char *state_name(const vlsync_estimate &e) { return vlsync_state_name(e.state); }
+
+/// Tracking or holding: the estimator has a lock.
+inline bool is_locked(const vlsync_estimate &e) {
+    return e.state == VLSYNC_STATE_TRACKING || e.state == VLSYNC_STATE_HOLDING;
+}
+
+class Client {
+  public:
+    explicit Client(const std::string &prefix) {
+        if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION)
+            throw Error("libvlsync_client has ABI version " +
+                        std::to_string(vlsync_client_abi_version()) + ", this header " +
+                        std::to_string(VLSYNC_CLIENT_ABI_VERSION));
+        char err[512] = {0};
+        c_ = vlsync_client_open(prefix.c_str(), err, sizeof err);
+        if (!c_) throw Error(err);
+    }
+    ~Client() { vlsync_client_close(c_); }
+    Client(const Client &) = delete;
+    Client &operator=(const Client &) = delete;
+    Client(Client &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
+    Client &operator=(Client &&o) noexcept {
+        if (this != &o) {
+            vlsync_client_close(c_);
+            c_ = std::exchange(o.c_, nullptr);
+        }
+        return *this;
+    }
+
+    /// The next estimate within `timeout` (negative: no limit); empty on timeout or when
+    /// a signal interrupted the wait.
+    std::optional<vlsync_estimate> wait_next(std::chrono::milliseconds timeout) {
+        vlsync_estimate e;
+        char err[512] = {0};
+        switch (vlsync_client_wait_next(c_, timeout.count(), &e, err, sizeof err)) {
+        case 1: return e;
+        case 0: return std::nullopt;
+        default: throw Error(err);
+        }
+    }
+
+    /// The most recent estimate; empty before the first.
+    std::optional<vlsync_estimate> latest() {
+        vlsync_estimate e;
+        switch (vlsync_client_latest(c_, &e)) {
+        case 1: return e;
+        case 0: return std::nullopt;
+        default: throw Error("vlsync_client_latest: invalid handle or wrong thread");
+        }
+    }
+
+    /// A camera stamp on the LiDAR clock; empty before the first estimate.
+    std::optional<vlsync_conversion> camera_to_lidar(int64_t t_cam_ns) {
+        vlsync_conversion v;
+        switch (vlsync_client_camera_to_lidar(c_, t_cam_ns, &v)) {
+        case 1: return v;
+        case 0: return std::nullopt;
+        default: throw Error("vlsync_client_camera_to_lidar: invalid handle or wrong thread");
+        }
+    }
+
+    void set_process_noise(double tracking, double holding) {
+        char err[512] = {0};
+        if (vlsync_client_set_process_noise(c_, tracking, holding, err, sizeof err) != 0)
+            throw Error(err);
+    }
+
+    uint64_t invalid_count() { return vlsync_client_invalid_count(c_); }
+
+  private:
+    vlsync_client *c_ = nullptr;
+};
+
+} // namespace vlsync
+
+#endif // VLSYNC_CLIENT_HPP

@@ -1,0 +1,688 @@
+//! The C ABI of the vlsync client: `libvlsync_client.so` and `include/vlsync_client.h`
+//! (with a C++ wrapper, `include/vlsync_client.hpp`).
+//!
+//! C and C++ processes on the robot read the daemon's offset through this library
+//! instead of iceoryx2's own C/C++ bindings, which must be built from iceoryx2's
+//! source at exactly the daemon's release (crates.io carries no C bindings of 0.10).
+//! The library is [`vlsync_ipc::OffsetClient`] behind a handle: the same services,
+//! the same validation of every payload, the same conversion of camera stamps.
+//!
+//! Every function checks its pointers (NULL is an error, not a crash), catches any
+//! panic at the boundary, and reports errors as a return code plus a message written
+//! into a caller's buffer. A handle is used on the thread that opened it: a call
+//! from another thread is refused with a message (the iceoryx2 ports inside are
+//! single-threaded).
+//!
+//! ```
+//! // what a C program does, here from Rust: a prefix the daemon would refuse is an
+//! // error that names it
+//! let mut err = [0u8; 128];
+//! // SAFETY: a NUL-terminated prefix, and the buffer with its true length
+//! let c = unsafe {
+//!     vlsync_client::vlsync_client_open(c"robot/".as_ptr(), err.as_mut_ptr().cast(), err.len())
+//! };
+//! assert!(c.is_null());
+//! let msg = std::ffi::CStr::from_bytes_until_nul(&err).unwrap().to_str().unwrap();
+//! assert!(msg.contains("robot/"), "{msg}");
+//! ```
+// `#[no_mangle]` and the pointer reads of the exported functions need unsafe code:
+// each such item allows it, with its `SAFETY` comment
+#![deny(unsafe_code)]
+
+use std::ffi::{c_char, c_int, CStr};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::thread::ThreadId;
+use std::time::Duration;
+use vlsync_common::{Estimate, Nanos};
+use vlsync_ipc::OffsetClient;
+
+/// Version of this ABI ([`vlsync_client_abi_version`], `VLSYNC_CLIENT_ABI_VERSION` in
+/// the header): a program compiled against another version must not use the library.
+pub const ABI_VERSION: u32 = 1;
+
+/// An estimate as the C API hands it out (`vlsync_estimate`): every field of
+/// [`Estimate`], validated, plus the time the daemon published it.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VlsyncEstimate {
+    /// Sequence number, +1 per estimate of one daemon run.
+    pub seq: u64,
+    /// Reference time on the LiDAR clock, ns: the estimate is the offset at this instant.
+    pub t_ref_ns: i64,
+    /// `t_lidar - t_cam` at `t_ref_ns`, seconds.
+    pub offset_s: f64,
+    /// `d offset / d t_lidar` (dimensionless, s/s).
+    pub drift: f64,
+    /// One standard deviation of `offset_s`, seconds.
+    pub offset_std_s: f64,
+    /// One standard deviation of `drift`.
+    pub drift_std: f64,
+    /// Normalised cross-correlation at the hop's peak (0: none).
+    pub peak_score: f64,
+    /// Main to second peak ratio (`+inf`: no second peak; 0: no peak).
+    pub peak_ratio: f64,
+    /// The hop's raw window measurement, seconds; NaN when there was none.
+    pub measured_offset_s: f64,
+    /// `CLOCK_MONOTONIC` time at which the daemon published it, ns.
+    pub publish_ns: i64,
+    /// `VLSYNC_STATE_*`: 0 acquiring, 1 tracking, 2 holding, 3 lost.
+    pub state: u8,
+    /// +1 positive, -1 negative, 0 unknown.
+    pub polarity: i8,
+    /// Zero.
+    pub reserved: [u8; 6],
+}
+
+impl VlsyncEstimate {
+    /// The C view of `e`, published at `publish_ns`.
+    pub fn new(e: &Estimate, publish_ns: Nanos) -> Self {
+        Self {
+            seq: e.seq,
+            t_ref_ns: e.t_ref_ns,
+            offset_s: e.offset_s,
+            drift: e.drift,
+            offset_std_s: e.offset_std_s,
+            drift_std: e.drift_std,
+            peak_score: e.peak_score,
+            peak_ratio: e.peak_ratio,
+            measured_offset_s: e.measured_offset_s,
+            publish_ns,
+            state: e.state as u8,
+            polarity: e.polarity as i8,
+            reserved: [0; 6],
+        }
+    }
+}
+
+/// A camera stamp on the LiDAR time base (`vlsync_conversion`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VlsyncConversion {
+    /// The stamp on the LiDAR clock, ns.
+    pub t_lidar_ns: i64,
+    /// One standard deviation of `t_lidar_ns`, seconds.
+    pub std_s: f64,
+    /// The estimate it was converted with: check its state and age.
+    pub estimate: VlsyncEstimate,
+}
+
+/// The handle behind `vlsync_client *`.
+pub struct VlsyncClient {
+    inner: OffsetClient,
+    thread: ThreadId,
+}
+
+/// What a call failed with.
+type CallResult<T> = Result<T, String>;
+
+/// Runs `f`, turning a panic into an error: no unwinding crosses the C boundary.
+fn guarded<T>(what: &str, f: impl FnOnce() -> CallResult<T>) -> CallResult<T> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => {
+            let why = p
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(format!("{what}: internal error: {why}"))
+        }
+    }
+}
+
+/// The longest prefix of `msg` that fits a buffer of `cap` bytes with its
+/// terminating NUL, cut at a character boundary (so the C string stays UTF-8), and
+/// with any NUL of `msg` ending it.
+pub fn message_prefix(msg: &str, cap: usize) -> &[u8] {
+    if cap == 0 {
+        return &[];
+    }
+    let msg = msg.split('\0').next().unwrap_or("");
+    let mut end = msg.len().min(cap - 1);
+    while !msg.is_char_boundary(end) {
+        end -= 1;
+    }
+    &msg.as_bytes()[..end]
+}
+
+/// Writes `msg` as a NUL-terminated string into `buf` (`cap` bytes); nothing when
+/// `buf` is NULL or `cap` is 0.
+#[allow(unsafe_code)]
+fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
+    if buf.is_null() || cap == 0 {
+        return;
+    }
+    let bytes = message_prefix(msg, cap);
+    // SAFETY: the caller of the exported function promised `buf` points to `cap`
+    // writable bytes (the header says so of every `err, err_len` pair); we write
+    // `bytes.len() + 1 <= cap` of them, and `bytes` does not overlap a buffer we
+    // own only through a raw pointer.
+    unsafe {
+        std::ptr::copy_nonoverlapping(bytes.as_ptr(), buf.cast::<u8>(), bytes.len());
+        *buf.add(bytes.len()) = 0;
+    }
+}
+
+/// The handle behind `c`, on the thread that opened it.
+#[allow(unsafe_code)]
+fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut VlsyncClient> {
+    if c.is_null() {
+        return Err(format!("{what}: the client is NULL"));
+    }
+    // SAFETY: a non-NULL `c` is a handle from `vlsync_client_open` not yet closed
+    // (the header's contract). Only its `thread` field is read here, through the raw
+    // pointer (no reference to the handle is made on a foreign thread): it is written
+    // once, before the handle is returned, and never again.
+    let owner = unsafe { std::ptr::addr_of!((*c).thread).read() };
+    if owner != std::thread::current().id() {
+        return Err(format!(
+            "{what}: the client was opened on another thread (use a handle only on the thread that opened it)"
+        ));
+    }
+    // SAFETY: as above, and on the thread that opened it, which is the only one that
+    // makes references to it: the single-threaded ports inside stay on their thread.
+    Ok(unsafe { &mut *c })
+}
+
+/// Writes `v` to `out`.
+#[allow(unsafe_code)]
+fn put<T>(out: *mut T, v: T) {
+    // SAFETY: callers check `out` is not NULL; the header's contract makes it point
+    // to a writable, aligned `T`.
+    unsafe { out.write(v) }
+}
+
+/// The ABI version the library was built with (`VLSYNC_CLIENT_ABI_VERSION`).
+#[allow(unsafe_code)]
+#[no_mangle]
+pub extern "C" fn vlsync_client_abi_version() -> u32 {
+    ABI_VERSION
+}
+
+/// Opens the offset service of robot `prefix` (e.g. `vlsync/robot`). Returns the
+/// handle, or NULL with the reason in `err` (up to `err_len` bytes, NUL-terminated;
+/// `err` may be NULL). The daemon need not run yet: estimates arrive once it does.
+///
+/// # Safety
+/// `prefix` is NULL or a NUL-terminated string; `err` is NULL or points to
+/// `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_open(
+    prefix: *const c_char,
+    err: *mut c_char,
+    err_len: usize,
+) -> *mut VlsyncClient {
+    let r = guarded("vlsync_client_open", || {
+        if prefix.is_null() {
+            return Err("vlsync_client_open: the prefix is NULL".into());
+        }
+        // SAFETY: non-NULL and NUL-terminated, as the caller promised.
+        let p = unsafe { CStr::from_ptr(prefix) };
+        let p = p.to_str().map_err(|_| {
+            format!(
+                "vlsync_client_open: the prefix {:?} is not UTF-8",
+                p.to_string_lossy()
+            )
+        })?;
+        if !vlsync_config::prefix_is_valid(p) {
+            let shown: String = p.chars().take(60).collect();
+            let more = if shown.len() < p.len() { "..." } else { "" };
+            return Err(format!(
+                "vlsync_client_open: prefix {shown:?}{more} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`"
+            ));
+        }
+        let inner = OffsetClient::open(p).map_err(|e| format!("vlsync_client_open: {e}"))?;
+        Ok(Box::new(VlsyncClient {
+            inner,
+            thread: std::thread::current().id(),
+        }))
+    });
+    match r {
+        Ok(b) => Box::into_raw(b),
+        Err(m) => {
+            write_message(err, err_len, &m);
+            std::ptr::null_mut()
+        }
+    }
+}
+
+/// Closes a handle (NULL: nothing to do). Returns 0, or -1 when called on another
+/// thread than the one that opened it: the handle is then left open.
+///
+/// # Safety
+/// `c` is NULL or a handle from [`vlsync_client_open`] not closed before.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
+    if c.is_null() {
+        return 0;
+    }
+    if handle(c, "vlsync_client_close").is_err() {
+        return -1;
+    }
+    // SAFETY: `c` came from `Box::into_raw` in `vlsync_client_open` and is closed
+    // once (the caller's promise); on its own thread (checked above).
+    let b = unsafe { Box::from_raw(c) };
+    // a panic in a port's drop is caught; the handle is gone either way
+    let _ = catch_unwind(AssertUnwindSafe(move || drop(b)));
+    0
+}
+
+/// Waits up to `timeout_ms` (negative: no limit) for the next estimate and writes it
+/// to `out`. Returns 1 when one was written; 0 on timeout, and early when a signal
+/// interrupts the wait (check your own stop flag and call again); -1 on error, with
+/// the reason in `err`.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_estimate`; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_wait_next(
+    c: *mut VlsyncClient,
+    timeout_ms: i64,
+    out: *mut VlsyncEstimate,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    let r = guarded("vlsync_client_wait_next", || {
+        let h = handle(c, "vlsync_client_wait_next")?;
+        if out.is_null() {
+            return Err("vlsync_client_wait_next: out is NULL".into());
+        }
+        let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
+        match h
+            .inner
+            .wait_next(timeout)
+            .map_err(|e| format!("vlsync_client_wait_next: {e}"))?
+        {
+            Some(e) => {
+                put(out, VlsyncEstimate::new(&e, h.inner.latest_publish_ns()));
+                Ok(1)
+            }
+            None => Ok(0),
+        }
+    });
+    r.unwrap_or_else(|m| {
+        write_message(err, err_len, &m);
+        -1
+    })
+}
+
+/// Writes the most recent estimate (after taking what is pending) to `out`.
+/// Returns 1 when written, 0 before the first estimate, -1 when `c` or `out` is
+/// NULL or `c` belongs to another thread.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_estimate`.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_latest(
+    c: *mut VlsyncClient,
+    out: *mut VlsyncEstimate,
+) -> c_int {
+    let r = guarded("vlsync_client_latest", || {
+        let h = handle(c, "vlsync_client_latest")?;
+        if out.is_null() {
+            return Err("out is NULL".into());
+        }
+        Ok(match h.inner.latest() {
+            Some(e) => {
+                put(out, VlsyncEstimate::new(&e, h.inner.latest_publish_ns()));
+                1
+            }
+            None => 0,
+        })
+    });
+    r.unwrap_or(-1)
+}
+
+/// Converts camera stamp `t_cam_ns` to the LiDAR time base with the latest estimate
+/// (extrapolated with its drift; the standard deviation includes the offset's random
+/// walk since the estimate's reference time). Returns 1 when written to `out`, 0
+/// before the first estimate, -1 when `c` or `out` is NULL or `c` belongs to another
+/// thread. Check `out->estimate.state` (tracking or holding: a lock) and its age.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_conversion`.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
+    c: *mut VlsyncClient,
+    t_cam_ns: i64,
+    out: *mut VlsyncConversion,
+) -> c_int {
+    let r = guarded("vlsync_client_camera_to_lidar", || {
+        let h = handle(c, "vlsync_client_camera_to_lidar")?;
+        if out.is_null() {
+            return Err("out is NULL".into());
+        }
+        Ok(match h.inner.camera_to_lidar(t_cam_ns) {
+            Some(v) => {
+                put(
+                    out,
+                    VlsyncConversion {
+                        t_lidar_ns: v.t_lidar_ns,
+                        std_s: v.std_s,
+                        estimate: VlsyncEstimate::new(&v.estimate, h.inner.latest_publish_ns()),
+                    },
+                );
+                1
+            }
+            None => 0,
+        })
+    });
+    r.unwrap_or(-1)
+}
+
+/// Sets the offset's random walk (s/√s) that conversions assume while tracking and
+/// otherwise: the daemon's `estimator.offset_process_noise` and
+/// `estimator.hold_process_noise` when it does not run the shipped values (2e-4,
+/// 3e-3). Returns 0, or -1 with the reason in `err` (a value not finite and >= 0
+/// leaves the setting as it was).
+///
+/// # Safety
+/// `c` is NULL or an open handle; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_set_process_noise(
+    c: *mut VlsyncClient,
+    tracking: f64,
+    holding: f64,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    let r = guarded("vlsync_client_set_process_noise", || {
+        let h = handle(c, "vlsync_client_set_process_noise")?;
+        h.inner
+            .set_process_noise(tracking, holding)
+            .map_err(|e| format!("vlsync_client_set_process_noise: {e}"))
+    });
+    match r {
+        Ok(()) => 0,
+        Err(m) => {
+            write_message(err, err_len, &m);
+            -1
+        }
+    }
+}
+
+/// Payloads refused by validation so far (0 for NULL or another thread's handle).
+///
+/// # Safety
+/// `c` is NULL or an open handle.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_invalid_count(c: *mut VlsyncClient) -> u64 {
+    handle(c, "vlsync_client_invalid_count").map_or(0, |h| h.inner.invalid_count())
+}
+
+/// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
+/// `"lost"`), `"unknown"` for any other: a static string, never freed.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub extern "C" fn vlsync_state_name(state: u8) -> *const c_char {
+    let s: &'static CStr = match vlsync_common::EstimatorState::from_code(state) {
+        Some(vlsync_common::EstimatorState::Acquiring) => c"acquiring",
+        Some(vlsync_common::EstimatorState::Tracking) => c"tracking",
+        Some(vlsync_common::EstimatorState::Holding) => c"holding",
+        Some(vlsync_common::EstimatorState::Lost) => c"lost",
+        None => c"unknown",
+    };
+    s.as_ptr()
+}
+
+#[cfg(test)]
+#[allow(unsafe_code)]
+mod tests {
+    use super::*;
+    use std::mem::{align_of, offset_of, size_of};
+    use vlsync_common::{EstimatorState, Polarity};
+
+    fn text(buf: &[u8]) -> String {
+        CStr::from_bytes_until_nul(buf)
+            .expect("NUL-terminated")
+            .to_str()
+            .expect("UTF-8")
+            .to_string()
+    }
+
+    /// The layout `include/vlsync_client.h` states (its static asserts say the same
+    /// on the C side; `tests/tests/ipc_capi.rs` compares the two).
+    #[test]
+    fn layouts_are_the_headers() {
+        assert_eq!(
+            (size_of::<VlsyncEstimate>(), align_of::<VlsyncEstimate>()),
+            (88, 8)
+        );
+        assert_eq!(offset_of!(VlsyncEstimate, t_ref_ns), 8);
+        assert_eq!(offset_of!(VlsyncEstimate, measured_offset_s), 64);
+        assert_eq!(offset_of!(VlsyncEstimate, publish_ns), 72);
+        assert_eq!(offset_of!(VlsyncEstimate, state), 80);
+        assert_eq!(offset_of!(VlsyncEstimate, polarity), 81);
+        assert_eq!(size_of::<VlsyncConversion>(), 104);
+        assert_eq!(offset_of!(VlsyncConversion, estimate), 16);
+    }
+
+    #[test]
+    fn an_estimate_keeps_every_field() {
+        let e = Estimate {
+            seq: 7,
+            t_ref_ns: -5,
+            offset_s: 0.1,
+            drift: 2e-5,
+            offset_std_s: 1e-3,
+            drift_std: 3e-6,
+            state: EstimatorState::Holding,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: f64::INFINITY,
+            measured_offset_s: f64::NAN,
+        };
+        let c = VlsyncEstimate::new(&e, 42);
+        assert_eq!((c.seq, c.t_ref_ns, c.publish_ns), (7, -5, 42));
+        assert_eq!(
+            (c.offset_s, c.drift, c.offset_std_s, c.drift_std),
+            (0.1, 2e-5, 1e-3, 3e-6)
+        );
+        assert_eq!((c.state, c.polarity, c.reserved), (2, -1, [0; 6]));
+        assert!(c.peak_ratio.is_infinite() && c.measured_offset_s.is_nan());
+    }
+
+    #[test]
+    fn null_pointers_are_errors_not_crashes() {
+        let mut err = [0u8; 200];
+        let mut est = VlsyncEstimate::new(&zero(), 0);
+        let mut conv = VlsyncConversion {
+            t_lidar_ns: 0,
+            std_s: 0.0,
+            estimate: est,
+        };
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        unsafe {
+            assert!(
+                vlsync_client_open(std::ptr::null(), err.as_mut_ptr().cast(), err.len()).is_null()
+            );
+            assert_eq!(text(&err), "vlsync_client_open: the prefix is NULL");
+            let null = std::ptr::null_mut();
+            assert_eq!(
+                vlsync_client_wait_next(null, 0, &mut est, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_wait_next: the client is NULL");
+            assert_eq!(vlsync_client_latest(null, &mut est), -1);
+            assert_eq!(vlsync_client_camera_to_lidar(null, 0, &mut conv), -1);
+            assert_eq!(
+                vlsync_client_set_process_noise(null, 0.0, 0.0, std::ptr::null_mut(), 0),
+                -1
+            );
+            assert_eq!(vlsync_client_invalid_count(null), 0);
+            assert_eq!(vlsync_client_close(null), 0);
+        }
+    }
+
+    #[test]
+    fn an_invalid_prefix_names_itself_and_a_short_buffer_cuts_the_message() {
+        let mut err = [0xAAu8; 24];
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        let c = unsafe { vlsync_client_open(c"/bad".as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(c.is_null());
+        let m = text(&err);
+        assert_eq!(m.len(), 23, "{m}");
+        assert!(m.starts_with("vlsync_client_open: "), "{m}");
+        // no buffer at all: still NULL, nothing written anywhere
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        let c = unsafe { vlsync_client_open(c"/bad".as_ptr(), std::ptr::null_mut(), 99) };
+        assert!(c.is_null());
+        let mut long = [0u8; 200];
+        let c =
+            // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+            unsafe { vlsync_client_open(c"/bad".as_ptr(), long.as_mut_ptr().cast(), long.len()) };
+        assert!(c.is_null());
+        assert!(
+            text(&long).contains("\"/bad\" is invalid"),
+            "{}",
+            text(&long)
+        );
+        let mut bytes = *b"\xff\xfe\0";
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        let c = unsafe {
+            vlsync_client_open(
+                bytes.as_mut_ptr().cast(),
+                long.as_mut_ptr().cast(),
+                long.len(),
+            )
+        };
+        assert!(c.is_null());
+        assert!(text(&long).contains("not UTF-8"), "{}", text(&long));
+    }
+
+    #[test]
+    fn a_handle_answers_only_on_its_own_thread_and_reads_nothing_before_a_daemon() {
+        let prefix = format!("vlsync/capi-unit-{}", std::process::id());
+        let cp = std::ffi::CString::new(prefix).unwrap();
+        let mut err = [0u8; 300];
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(!c.is_null(), "{}", text(&err));
+        let mut est = VlsyncEstimate::new(&zero(), 0);
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        unsafe {
+            assert_eq!(vlsync_client_latest(c, &mut est), 0);
+            assert_eq!(
+                vlsync_client_wait_next(c, 20, &mut est, err.as_mut_ptr().cast(), err.len()),
+                0
+            );
+            assert_eq!(
+                vlsync_client_wait_next(
+                    c,
+                    20,
+                    std::ptr::null_mut(),
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_wait_next: out is NULL");
+            assert_eq!(
+                vlsync_client_set_process_noise(
+                    c,
+                    f64::NAN,
+                    1.0,
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert!(text(&err).contains("tracking walk NaN"), "{}", text(&err));
+            assert_eq!(
+                vlsync_client_set_process_noise(c, 1e-4, 1e-3, std::ptr::null_mut(), 0),
+                0
+            );
+        }
+        // another thread is refused, and cannot close it
+        let addr = c as usize;
+        let (code, closed, msg) = std::thread::spawn(move || {
+            let c = addr as *mut VlsyncClient;
+            let mut err = [0u8; 300];
+            let mut est = VlsyncEstimate::new(&zero(), 0);
+            // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+            let code = unsafe {
+                vlsync_client_wait_next(c, 0, &mut est, err.as_mut_ptr().cast(), err.len())
+            };
+            // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+            let closed = unsafe { vlsync_client_close(c) };
+            (code, closed, text(&err))
+        })
+        .join()
+        .unwrap();
+        assert_eq!((code, closed), (-1, -1));
+        assert!(msg.contains("another thread"), "{msg}");
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
+        assert_eq!(unsafe { vlsync_client_close(c) }, 0);
+    }
+
+    #[test]
+    fn state_names() {
+        let name = |s| {
+            // SAFETY: vlsync_state_name returns a static NUL-terminated string.
+            unsafe { CStr::from_ptr(vlsync_state_name(s)) }
+                .to_str()
+                .unwrap()
+        };
+        assert_eq!(
+            [name(0), name(1), name(2), name(3), name(4), name(255)],
+            [
+                "acquiring",
+                "tracking",
+                "holding",
+                "lost",
+                "unknown",
+                "unknown"
+            ]
+        );
+        assert_eq!(vlsync_client_abi_version(), ABI_VERSION);
+    }
+
+    fn zero() -> Estimate {
+        Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s: 0.0,
+            drift: 0.0,
+            offset_std_s: 0.0,
+            drift_std: 0.0,
+            state: EstimatorState::Acquiring,
+            polarity: Polarity::Unknown,
+            peak_score: 0.0,
+            peak_ratio: 0.0,
+            measured_offset_s: f64::NAN,
+        }
+    }
+
+    proptest::proptest! {
+        /// Any message into any buffer: NUL-terminated within it, a prefix of the
+        /// message up to its first NUL, valid UTF-8, as long as fits.
+        #[test]
+        fn messages_fit_their_buffer(msg in ".{0,80}", cap in 0usize..100) {
+            let mut buf = vec![0xAAu8; cap + 4];
+            write_message(buf.as_mut_ptr().cast(), cap, &msg);
+            // nothing beyond the buffer
+            proptest::prop_assert!(buf[cap..].iter().all(|&b| b == 0xAA));
+            if cap == 0 {
+                return Ok(());
+            }
+            let got = text(&buf[..cap]);
+            let whole = msg.split('\0').next().unwrap();
+            proptest::prop_assert!(whole.starts_with(&got));
+            // the cut is as late as fits: the next character would not
+            if got.len() < whole.len() {
+                let next = whole[got.len()..].chars().next().unwrap().len_utf8();
+                proptest::prop_assert!(got.len() + next > cap - 1);
+            }
+        }
+    }
+}

@@ -1,0 +1,77 @@
+// vlsync_convert.cpp - put camera stamps on the LiDAR clock from C++, through
+// libvlsync_client and its C++ wrapper (capi/include/vlsync_client.hpp).
+//
+//   cargo build --release -p vlsync-capi
+//   c++ -std=c++17 -Wall -I capi/include examples/cpp/vlsync_convert.cpp -L target/release
+//       -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_convert   (one line)
+//   ./vlsync_convert --prefix vlsync/robot [--timeout S] < camera_stamps_ns.txt
+//
+// Waits (up to --timeout seconds, default 30) for the estimator's lock, then reads one
+// camera stamp per line (integer ns on the camera's clock) and prints
+// `t_cam_ns t_lidar_ns std_us state` for each, with the newest estimate at that moment.
+// Exit status: 0 at the end of the input; 1 when no lock came within the timeout; 2 on a
+// bad argument, a line that is not an integer (named by its number), or a library error.
+#include <chrono>
+#include <cstdint>
+#include <cstdlib>
+#include <iostream>
+#include <string>
+
+#include "vlsync_client.hpp"
+
+int main(int argc, char **argv) {
+    std::string prefix = "vlsync/robot";
+    double timeout_s = 30.0;
+    for (int i = 1; i < argc; i++) {
+        std::string a = argv[i];
+        if (i + 1 >= argc) {
+            std::cerr << "vlsync_convert: " << a << " takes a value\n";
+            return 2;
+        }
+        if (a == "--prefix") {
+            prefix = argv[++i];
+        } else if (a == "--timeout") {
+            char *end = nullptr;
+            timeout_s = std::strtod(argv[++i], &end);
+            if (*end || !(timeout_s >= 0.0) || timeout_s > 1e6) {
+                std::cerr << "vlsync_convert: --timeout takes seconds >= 0\n";
+                return 2;
+            }
+        } else {
+            std::cerr << "vlsync_convert: unknown option " << a << "\n";
+            return 2;
+        }
+    }
+    try {
+        vlsync::Client c(prefix);
+        using clock = std::chrono::steady_clock;
+        auto deadline = clock::now() + std::chrono::duration<double>(timeout_s);
+        for (;;) {
+            auto e = c.latest();
+            if (e && vlsync::is_locked(*e)) break;
+            if (clock::now() >= deadline) {
+                std::cerr << "vlsync_convert: no lock on " << prefix << "/offset within "
+                          << timeout_s << " s\n";
+                return 1;
+            }
+            c.wait_next(std::chrono::milliseconds(250));
+        }
+        std::string line;
+        for (long n = 1; std::getline(std::cin, line); n++) {
+            char *end = nullptr;
+            long long t_cam = std::strtoll(line.c_str(), &end, 10);
+            if (line.empty() || *end) {
+                std::cerr << "vlsync_convert: line " << n << " is not an integer stamp: "
+                          << line << "\n";
+                return 2;
+            }
+            auto v = c.camera_to_lidar(t_cam);  // a lock was seen, so never empty
+            std::cout << t_cam << " " << v->t_lidar_ns << " " << v->std_s * 1e6 << " "
+                      << vlsync::state_name(v->estimate) << std::endl;
+        }
+    } catch (const vlsync::Error &e) {
+        std::cerr << "vlsync_convert: " << e.what() << "\n";
+        return 2;
+    }
+    return 0;
+}

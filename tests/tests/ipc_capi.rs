@@ -1,0 +1,280 @@
+//! C and C++ programs read the live daemon through `libvlsync_client.so`: the header's
+//! layouts equal the Rust ones (compiled as C and as C++), `examples/c/vlsync_echo.c`
+//! prints the estimates of a live run, which converge to the truth, and
+//! `examples/cpp/vlsync_convert.cpp` puts camera stamps on the LiDAR clock. Bad
+//! arguments and a silent prefix are clear errors with their exit codes.
+
+use core::mem::{offset_of, size_of};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use vlsync_client::{VlsyncConversion, VlsyncEstimate};
+use vlsync_common::Stream;
+use vlsync_tests::{capi_lib_dir, Rig};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// A scratch directory for this test's programs.
+fn scratch(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("vlsync-capi-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Compiles `src` (C when `cxx` is false) against the header and the library into `exe`.
+fn compile(src: &Path, exe: &Path, cxx: bool) {
+    let (var, default, std) = if cxx {
+        ("CXX", "c++", "-std=c++17")
+    } else {
+        ("CC", "cc", "-std=c11")
+    };
+    let cc = std::env::var(var).unwrap_or_else(|_| default.into());
+    let lib = capi_lib_dir();
+    let out = Command::new(&cc)
+        .args([std, "-Wall", "-Wextra", "-Werror", "-I"])
+        .arg(root().join("capi/include"))
+        .arg(src)
+        .arg("-L")
+        .arg(&lib)
+        .arg("-lvlsync_client")
+        .arg(format!("-Wl,-rpath,{}", lib.display()))
+        .arg("-o")
+        .arg(exe)
+        .output()
+        .unwrap_or_else(|e| panic!("compiler `{cc}` not runnable: {e}"));
+    assert!(
+        out.status.success(),
+        "{} does not compile:\n{}",
+        src.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
+    let mut child = Command::new("timeout")
+        .arg("60")
+        .arg(exe)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run the example");
+    use std::io::Write;
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(stdin.as_bytes())
+        .unwrap();
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn the_headers_layouts_are_the_libraries_in_c_and_cpp() {
+    let tmp = scratch("layout");
+    let src = r#"#include <stdio.h>
+#include "vlsync_client.h"
+int main(void) {
+  printf("%zu %zu %zu %zu %zu %zu %zu %zu\n", sizeof(vlsync_estimate), offsetof(vlsync_estimate, t_ref_ns),
+         offsetof(vlsync_estimate, measured_offset_s), offsetof(vlsync_estimate, publish_ns),
+         offsetof(vlsync_estimate, state), offsetof(vlsync_estimate, polarity),
+         sizeof(vlsync_conversion), offsetof(vlsync_conversion, estimate));
+  return vlsync_client_abi_version() == VLSYNC_CLIENT_ABI_VERSION ? 0 : 3;
+}
+"#;
+    let want = format!(
+        "{} {} {} {} {} {} {} {}\n",
+        size_of::<VlsyncEstimate>(),
+        offset_of!(VlsyncEstimate, t_ref_ns),
+        offset_of!(VlsyncEstimate, measured_offset_s),
+        offset_of!(VlsyncEstimate, publish_ns),
+        offset_of!(VlsyncEstimate, state),
+        offset_of!(VlsyncEstimate, polarity),
+        size_of::<VlsyncConversion>(),
+        offset_of!(VlsyncConversion, estimate),
+    );
+    for (name, cxx) in [("layout.c", false), ("layout.cpp", true)] {
+        let path = tmp.join(name);
+        // the C++ build reads the header through the wrapper, as C++ programs do
+        let text = if cxx {
+            src.replace("vlsync_client.h", "vlsync_client.hpp")
+                .replace("<stdio.h>", "<cstdio>\n#include <cstddef>")
+        } else {
+            src.to_string()
+        };
+        std::fs::write(&path, text).unwrap();
+        let exe = tmp.join(name.replace('.', "_"));
+        compile(&path, &exe, cxx);
+        let out = Command::new(&exe).output().unwrap();
+        assert_eq!(out.status.code(), Some(0), "{name}: ABI version differs");
+        assert_eq!(String::from_utf8_lossy(&out.stdout), want, "{name}");
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// One line of `vlsync_echo`: (seq, state, t_ref s, offset ms, std ms).
+fn echo_line(l: &str) -> (u64, String, f64, f64, f64) {
+    let w: Vec<&str> = l.split_whitespace().collect();
+    let num = |i: usize| -> f64 {
+        w.get(i)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("field {i} of {l:?}"))
+    };
+    assert_eq!(w.len(), 15, "{l}");
+    assert_eq!(
+        (w[0], w[3], w[6], w[9], w[12]),
+        ("seq", "t_ref", "offset", "+-", "drift"),
+        "{l}"
+    );
+    (num(1) as u64, w[2].to_string(), num(4), num(7), num(10))
+}
+
+#[test]
+fn c_and_cpp_programs_read_a_live_daemon() {
+    let tmp = scratch("live");
+    let (echo, convert) = (tmp.join("vlsync_echo"), tmp.join("vlsync_convert"));
+    compile(&root().join("examples/c/vlsync_echo.c"), &echo, false);
+    compile(
+        &root().join("examples/cpp/vlsync_convert.cpp"),
+        &convert,
+        true,
+    );
+
+    let rig = Rig::new("capi", "robot", 3, 40.0, 5.0);
+    let mut daemon = rig.daemon(0);
+    let mut cam = rig.driver(Stream::Cam, 0);
+    let mut lidar = rig.driver(Stream::Lidar, 0);
+    // 24 estimates: 12 s of the run at 0.5 s per hop, the lock within its first 6 s
+    let out = run(
+        &echo,
+        &["--prefix", &rig.prefix, "--count", "24", "--timeout", "20"],
+        "",
+    );
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "vlsync_echo: {text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // camera stamps two seconds apart, from the run's first frame on
+    let t0 = rig.sim.cam[0].t_ns;
+    let stamps: Vec<i64> = (0..5).map(|i| t0 + i * 2_000_000_000).collect();
+    let input: String = stamps.iter().map(|t| format!("{t}\n")).collect();
+    let conv = run(
+        &convert,
+        &["--prefix", &rig.prefix, "--timeout", "20"],
+        &input,
+    );
+    let conv_text = String::from_utf8_lossy(&conv.stdout).to_string();
+    assert!(
+        cam.stop(std::time::Duration::from_secs(3)) & lidar.stop(std::time::Duration::from_secs(3))
+    );
+    assert!(daemon.stop(std::time::Duration::from_secs(3)));
+
+    let lines: Vec<_> = text.lines().map(echo_line).collect();
+    assert_eq!(lines.len(), 24, "{text}");
+    for w in lines.windows(2) {
+        assert!(w[1].0 > w[0].0, "sequence not increasing:\n{text}");
+    }
+    let states = ["acquiring", "tracking", "holding", "lost"];
+    let mut locked = 0;
+    for (_, state, t_ref, offset_ms, std_ms) in &lines {
+        assert!(states.contains(&state.as_str()), "{text}");
+        assert!(std_ms.is_finite() && *std_ms >= 0.0, "{text}");
+        if state == "tracking" || state == "holding" {
+            locked += 1;
+            let truth_ms = rig.sim.truth.offset_at((t_ref * 1e9) as i64) * 1e3;
+            assert!(
+                (offset_ms - truth_ms).abs() < 20.0,
+                "C client: {offset_ms} ms against the truth {truth_ms} ms at {t_ref} s:\n{text}"
+            );
+        }
+    }
+    assert!(locked >= 6, "only {locked} locked estimates:\n{text}");
+
+    assert_eq!(
+        conv.status.code(),
+        Some(0),
+        "vlsync_convert: {conv_text}\n{}",
+        String::from_utf8_lossy(&conv.stderr)
+    );
+    let rows: Vec<Vec<&str>> = conv_text
+        .lines()
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    assert_eq!(rows.len(), stamps.len(), "{conv_text}");
+    for (row, &t_cam) in rows.iter().zip(&stamps) {
+        assert_eq!(row.len(), 4, "{conv_text}");
+        assert_eq!(row[0].parse::<i64>().unwrap(), t_cam, "{conv_text}");
+        let t_lidar: i64 = row[1].parse().unwrap();
+        let std_us: f64 = row[2].parse().unwrap();
+        assert!(["tracking", "holding"].contains(&row[3]), "{conv_text}");
+        // t_lidar = t_cam + offset(t_lidar), within the estimate's error
+        let err_ms = ((t_lidar - t_cam) as f64 * 1e-9 - rig.sim.truth.offset_at(t_lidar)) * 1e3;
+        assert!(err_ms.abs() < 20.0, "{err_ms} ms off: {conv_text}");
+        assert!(std_us > 0.0 && std_us < 50_000.0, "{conv_text}");
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+#[test]
+fn the_examples_refuse_bad_input_with_their_exit_codes() {
+    let tmp = scratch("bad");
+    let (echo, convert) = (tmp.join("vlsync_echo"), tmp.join("vlsync_convert"));
+    compile(&root().join("examples/c/vlsync_echo.c"), &echo, false);
+    compile(
+        &root().join("examples/cpp/vlsync_convert.cpp"),
+        &convert,
+        true,
+    );
+    let silent = format!("vlsync-it/capi-silent-{}", std::process::id());
+    for (exe, args, code, says) in [
+        (
+            &echo,
+            vec!["--prefix", "/bad"],
+            2,
+            "prefix \"/bad\" is invalid",
+        ),
+        (
+            &echo,
+            vec!["--count", "-1"],
+            2,
+            "--count takes a whole number",
+        ),
+        (&echo, vec!["--count"], 2, "takes a value"),
+        (&echo, vec!["--what", "1"], 2, "unknown option"),
+        (
+            &echo,
+            vec!["--prefix", &silent, "--timeout", "0.5"],
+            1,
+            "no estimate on",
+        ),
+        (
+            &convert,
+            vec!["--prefix", "robot/"],
+            2,
+            "prefix \"robot/\" is invalid",
+        ),
+        (
+            &convert,
+            vec!["--timeout", "x"],
+            2,
+            "--timeout takes seconds",
+        ),
+        (
+            &convert,
+            vec!["--prefix", &silent, "--timeout", "0.5"],
+            1,
+            "no lock on",
+        ),
+    ] {
+        let out = run(exe, &args, "");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
