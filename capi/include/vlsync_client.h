@@ -47,6 +47,8 @@ extern "C" {
 
 typedef struct vlsync_client vlsync_client; /* opaque handle */
 
+/* The offset service's payload as received and validated (the same layout as
+ * vlsync_offset_estimate in examples/c/vlsync_wire.h), with its publish time. */
 typedef struct vlsync_estimate {
     uint64_t seq;             /* +1 per estimate of one daemon run */
     int64_t t_ref_ns;         /* reference time on the LiDAR clock */

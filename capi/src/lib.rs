@@ -40,58 +40,15 @@ use vlsync_ipc::OffsetClient;
 /// the header): a program compiled against another version must not use the library.
 pub const ABI_VERSION: u32 = 1;
 
-/// An estimate as the C API hands it out (`vlsync_estimate`): every field of
-/// [`Estimate`], validated, plus the time the daemon published it.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct VlsyncEstimate {
-    /// Sequence number, +1 per estimate of one daemon run.
-    pub seq: u64,
-    /// Reference time on the LiDAR clock, ns: the estimate is the offset at this instant.
-    pub t_ref_ns: i64,
-    /// `t_lidar - t_cam` at `t_ref_ns`, seconds.
-    pub offset_s: f64,
-    /// `d offset / d t_lidar` (dimensionless, s/s).
-    pub drift: f64,
-    /// One standard deviation of `offset_s`, seconds.
-    pub offset_std_s: f64,
-    /// One standard deviation of `drift`.
-    pub drift_std: f64,
-    /// Normalised cross-correlation at the hop's peak (0: none).
-    pub peak_score: f64,
-    /// Main to second peak ratio (`+inf`: no second peak; 0: no peak).
-    pub peak_ratio: f64,
-    /// The hop's raw window measurement, seconds; NaN when there was none.
-    pub measured_offset_s: f64,
-    /// `CLOCK_MONOTONIC` time at which the daemon published it, ns.
-    pub publish_ns: i64,
-    /// `VLSYNC_STATE_*`: 0 acquiring, 1 tracking, 2 holding, 3 lost.
-    pub state: u8,
-    /// +1 positive, -1 negative, 0 unknown.
-    pub polarity: i8,
-    /// Zero.
-    pub reserved: [u8; 6],
-}
+/// An estimate as the C API hands it out (`vlsync_estimate` in the header): the
+/// offset service's own payload, validated, with the time the daemon published it.
+/// Its layout is the one `examples/c/vlsync_wire.h` gives `vlsync_offset_estimate`.
+pub use vlsync_common::wire::OffsetEstimate;
 
-impl VlsyncEstimate {
-    /// The C view of `e`, published at `publish_ns`.
-    pub fn new(e: &Estimate, publish_ns: Nanos) -> Self {
-        Self {
-            seq: e.seq,
-            t_ref_ns: e.t_ref_ns,
-            offset_s: e.offset_s,
-            drift: e.drift,
-            offset_std_s: e.offset_std_s,
-            drift_std: e.drift_std,
-            peak_score: e.peak_score,
-            peak_ratio: e.peak_ratio,
-            measured_offset_s: e.measured_offset_s,
-            publish_ns,
-            state: e.state as u8,
-            polarity: e.polarity as i8,
-            reserved: [0; 6],
-        }
-    }
+/// The C view of `e`, published at `publish_ns`: every field as it arrived (the client
+/// validated it on receipt, so this check cannot fail on what it hands out).
+fn c_estimate(e: &Estimate, publish_ns: Nanos) -> CallResult<OffsetEstimate> {
+    OffsetEstimate::from_estimate(e, publish_ns).map_err(|w| format!("estimate refused: {w}"))
 }
 
 /// A camera stamp on the LiDAR time base (`vlsync_conversion`).
@@ -103,7 +60,7 @@ pub struct VlsyncConversion {
     /// One standard deviation of `t_lidar_ns`, seconds.
     pub std_s: f64,
     /// The estimate it was converted with: check its state and age.
-    pub estimate: VlsyncEstimate,
+    pub estimate: OffsetEstimate,
 }
 
 /// The handle behind `vlsync_client *`.
@@ -282,7 +239,7 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
 pub unsafe extern "C" fn vlsync_client_wait_next(
     c: *mut VlsyncClient,
     timeout_ms: i64,
-    out: *mut VlsyncEstimate,
+    out: *mut OffsetEstimate,
     err: *mut c_char,
     err_len: usize,
 ) -> c_int {
@@ -298,7 +255,7 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
             .map_err(|e| format!("vlsync_client_wait_next: {e}"))?
         {
             Some(e) => {
-                put(out, VlsyncEstimate::new(&e, h.inner.latest_publish_ns()));
+                put(out, c_estimate(&e, h.inner.latest_publish_ns())?);
                 Ok(1)
             }
             None => Ok(0),
@@ -321,7 +278,7 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_client_latest(
     c: *mut VlsyncClient,
-    out: *mut VlsyncEstimate,
+    out: *mut OffsetEstimate,
 ) -> c_int {
     let r = guarded("vlsync_client_latest", || {
         let h = handle(c, "vlsync_client_latest")?;
@@ -330,7 +287,7 @@ pub unsafe extern "C" fn vlsync_client_latest(
         }
         Ok(match h.inner.latest() {
             Some(e) => {
-                put(out, VlsyncEstimate::new(&e, h.inner.latest_publish_ns()));
+                put(out, c_estimate(&e, h.inner.latest_publish_ns())?);
                 1
             }
             None => 0,
@@ -367,7 +324,7 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
                     VlsyncConversion {
                         t_lidar_ns: v.t_lidar_ns,
                         std_s: v.std_s,
-                        estimate: VlsyncEstimate::new(&v.estimate, h.inner.latest_publish_ns()),
+                        estimate: c_estimate(&v.estimate, h.inner.latest_publish_ns())?,
                     },
                 );
                 1
@@ -455,14 +412,14 @@ mod tests {
     #[test]
     fn layouts_are_the_headers() {
         assert_eq!(
-            (size_of::<VlsyncEstimate>(), align_of::<VlsyncEstimate>()),
+            (size_of::<OffsetEstimate>(), align_of::<OffsetEstimate>()),
             (88, 8)
         );
-        assert_eq!(offset_of!(VlsyncEstimate, t_ref_ns), 8);
-        assert_eq!(offset_of!(VlsyncEstimate, measured_offset_s), 64);
-        assert_eq!(offset_of!(VlsyncEstimate, publish_ns), 72);
-        assert_eq!(offset_of!(VlsyncEstimate, state), 80);
-        assert_eq!(offset_of!(VlsyncEstimate, polarity), 81);
+        assert_eq!(offset_of!(OffsetEstimate, t_ref_ns), 8);
+        assert_eq!(offset_of!(OffsetEstimate, measured_offset_s), 64);
+        assert_eq!(offset_of!(OffsetEstimate, publish_ns), 72);
+        assert_eq!(offset_of!(OffsetEstimate, state), 80);
+        assert_eq!(offset_of!(OffsetEstimate, polarity), 81);
         assert_eq!(size_of::<VlsyncConversion>(), 104);
         assert_eq!(offset_of!(VlsyncConversion, estimate), 16);
     }
@@ -482,7 +439,7 @@ mod tests {
             peak_ratio: f64::INFINITY,
             measured_offset_s: f64::NAN,
         };
-        let c = VlsyncEstimate::new(&e, 42);
+        let c = c_estimate(&e, 42).unwrap();
         assert_eq!((c.seq, c.t_ref_ns, c.publish_ns), (7, -5, 42));
         assert_eq!(
             (c.offset_s, c.drift, c.offset_std_s, c.drift_std),
@@ -490,12 +447,21 @@ mod tests {
         );
         assert_eq!((c.state, c.polarity, c.reserved), (2, -1, [0; 6]));
         assert!(c.peak_ratio.is_infinite() && c.measured_offset_s.is_nan());
+        // what the client validated on receipt passes again: no -1 for a good estimate
+        assert!(c_estimate(
+            &Estimate {
+                offset_s: f64::NAN,
+                ..e
+            },
+            0
+        )
+        .is_err());
     }
 
     #[test]
     fn null_pointers_are_errors_not_crashes() {
         let mut err = [0u8; 200];
-        let mut est = VlsyncEstimate::new(&zero(), 0);
+        let mut est = OffsetEstimate::from_estimate(&zero(), 0).unwrap();
         let mut conv = VlsyncConversion {
             t_lidar_ns: 0,
             std_s: 0.0,
@@ -568,7 +534,7 @@ mod tests {
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
         assert!(!c.is_null(), "{}", text(&err));
-        let mut est = VlsyncEstimate::new(&zero(), 0);
+        let mut est = OffsetEstimate::from_estimate(&zero(), 0).unwrap();
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         unsafe {
             assert_eq!(vlsync_client_latest(c, &mut est), 0);
@@ -608,7 +574,7 @@ mod tests {
         let (code, closed, msg) = std::thread::spawn(move || {
             let c = addr as *mut VlsyncClient;
             let mut err = [0u8; 300];
-            let mut est = VlsyncEstimate::new(&zero(), 0);
+            let mut est = OffsetEstimate::from_estimate(&zero(), 0).unwrap();
             // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
             let code = unsafe {
                 vlsync_client_wait_next(c, 0, &mut est, err.as_mut_ptr().cast(), err.len())

@@ -7,7 +7,7 @@
 use core::mem::{offset_of, size_of};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use vlsync_client::{VlsyncConversion, VlsyncEstimate};
+use vlsync_client::{OffsetEstimate, VlsyncConversion};
 use vlsync_common::Stream;
 use vlsync_tests::{capi_lib_dir, Rig};
 
@@ -86,12 +86,12 @@ int main(void) {
 "#;
     let want = format!(
         "{} {} {} {} {} {} {} {}\n",
-        size_of::<VlsyncEstimate>(),
-        offset_of!(VlsyncEstimate, t_ref_ns),
-        offset_of!(VlsyncEstimate, measured_offset_s),
-        offset_of!(VlsyncEstimate, publish_ns),
-        offset_of!(VlsyncEstimate, state),
-        offset_of!(VlsyncEstimate, polarity),
+        size_of::<OffsetEstimate>(),
+        offset_of!(OffsetEstimate, t_ref_ns),
+        offset_of!(OffsetEstimate, measured_offset_s),
+        offset_of!(OffsetEstimate, publish_ns),
+        offset_of!(OffsetEstimate, state),
+        offset_of!(OffsetEstimate, polarity),
         size_of::<VlsyncConversion>(),
         offset_of!(VlsyncConversion, estimate),
     );
