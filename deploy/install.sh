@@ -5,8 +5,9 @@
 #   kept, the new version goes next to them as *.new); the units to
 #   /etc/systemd/system; /etc/tmpfiles.d/vlsync.conf, applied at once with
 #   systemd-tmpfiles --create; deploy/README.md to /usr/local/share/doc/vlsync;
-#   the C/C++ client library libvlsync_client.so to /usr/local/lib (then ldconfig)
-#   and its headers to /usr/local/include, when it was built (cargo build --release
+#   the C/C++ client library libvlsync_client.so to /usr/local/lib (then ldconfig),
+#   its headers to /usr/local/include and its pkg-config file vlsync_client.pc to
+#   /usr/local/lib/pkgconfig, when it was built (cargo build --release
 #   builds it; --bins alone does not); then daemon-reload. It does not enable or
 #   start anything.
 #
@@ -71,10 +72,13 @@ capi_lib="$bin_dir/libvlsync_client.so"
 capi_include="$repo/capi/include"
 [ -d "$capi_include" ] || capi_include="$bin_dir/include"
 capi_headers=("$capi_include/vlsync_client.h" "$capi_include/vlsync_client.hpp")
+capi_pc="$capi_include/../vlsync_client.pc.in"
+[ -f "$capi_pc" ] || capi_pc="$bin_dir/vlsync_client.pc.in"
 if [ -f "$capi_lib" ]; then
     for h in "${capi_headers[@]}"; do
         [ -f "$h" ] || die "header $h missing (copy capi/include next to the library)"
     done
+    [ -f "$capi_pc" ] || die "pkg-config template $capi_pc missing (copy capi/vlsync_client.pc.in next to the library)"
 fi
 
 # run a command, or print it in --dry-run mode
@@ -134,11 +138,20 @@ run install -m 0644 "$here/tmpfiles.d/vlsync.conf" "$tmpfiles_dir/vlsync.conf"
 run install -d -m 0755 "$doc_dir"
 run install -m 0644 "$here/README.md" "$doc_dir/README.md"
 if [ -f "$capi_lib" ]; then
-    run install -d -m 0755 "$lib_dir" "$include_dir"
+    run install -d -m 0755 "$lib_dir" "$include_dir" "$lib_dir/pkgconfig"
     run install -m 0755 "$capi_lib" "$lib_dir/libvlsync_client.so"
     for h in "${capi_headers[@]}"; do
         run install -m 0644 "$h" "$include_dir/$(basename "$h")"
     done
+    version="$(sed -n 's/^version = "\(.*\)"/\1/p' "$repo/Cargo.toml" 2>/dev/null | head -1 || true)"
+    pc="$lib_dir/pkgconfig/vlsync_client.pc"
+    if [ "$dry_run" -eq 1 ]; then
+        echo "would write: $pc (prefix /usr/local, version ${version:-0})"
+    else
+        echo "+ write $pc"
+        sed -e "s|@PREFIX@|/usr/local|" -e "s|@VERSION@|${version:-0}|" "$capi_pc" >"$pc"
+        chmod 0644 "$pc"
+    fi
     run ldconfig
 else
     echo "$capi_lib not built: the C/C++ client library is not installed (cargo build --release -p vlsync-capi, then run this again)"

@@ -376,6 +376,10 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
             "{h} not installed:\n{lib_text}"
         );
     }
+    assert!(
+        lib_text.contains("would write: /usr/local/lib/pkgconfig/vlsync_client.pc (prefix /usr/local, version 0.1.0)"),
+        "{lib_text}"
+    );
     assert!(lib_text.contains("would run: ldconfig"), "{lib_text}");
     // without it, the script says how to build it
     let bare = std::env::temp_dir().join(format!("vlsync-install-bare-{}", std::process::id()));
