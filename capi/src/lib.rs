@@ -104,16 +104,18 @@ pub fn message_prefix(msg: &str, cap: usize) -> &[u8] {
 
 /// Writes `msg` as a NUL-terminated string into `buf` (`cap` bytes); nothing when
 /// `buf` is NULL or `cap` is 0.
+///
+/// # Safety
+/// `buf` is NULL or points to `cap` writable bytes.
 #[allow(unsafe_code)]
-fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
+unsafe fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
     if buf.is_null() || cap == 0 {
         return;
     }
     let bytes = message_prefix(msg, cap);
-    // SAFETY: the caller of the exported function promised `buf` points to `cap`
-    // writable bytes (the header says so of every `err, err_len` pair); we write
-    // `bytes.len() + 1 <= cap` of them, and `bytes` does not overlap a buffer we
-    // own only through a raw pointer.
+    // SAFETY: `buf` points to `cap` writable bytes (this function's contract, the
+    // header's for every `err, err_len` pair); we write `bytes.len() + 1 <= cap` of
+    // them, from `msg`, which cannot overlap a buffer the caller handed us.
     unsafe {
         std::ptr::copy_nonoverlapping(bytes.as_ptr(), buf.cast::<u8>(), bytes.len());
         *buf.add(bytes.len()) = 0;
@@ -121,13 +123,17 @@ fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
 }
 
 /// The handle behind `c`, on the thread that opened it.
+///
+/// # Safety
+/// `c` is NULL or a handle from [`vlsync_client_open`] not yet closed, and the
+/// reference returned is dropped before the handle is closed.
 #[allow(unsafe_code)]
-fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut VlsyncClient> {
+unsafe fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut VlsyncClient> {
     if c.is_null() {
         return Err(format!("{what}: the client is NULL"));
     }
     // SAFETY: a non-NULL `c` is a handle from `vlsync_client_open` not yet closed
-    // (the header's contract). Only its `thread` field is read here, through the raw
+    // (this function's contract). Only its `thread` field is read here, through the raw
     // pointer (no reference to the handle is made on a foreign thread): it is written
     // once, before the handle is returned, and never again.
     let owner = unsafe { std::ptr::addr_of!((*c).thread).read() };
@@ -142,10 +148,12 @@ fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut VlsyncClie
 }
 
 /// Writes `v` to `out`.
+///
+/// # Safety
+/// `out` points to a writable, aligned `T`.
 #[allow(unsafe_code)]
-fn put<T>(out: *mut T, v: T) {
-    // SAFETY: callers check `out` is not NULL; the header's contract makes it point
-    // to a writable, aligned `T`.
+unsafe fn put<T>(out: *mut T, v: T) {
+    // SAFETY: this function's contract.
     unsafe { out.write(v) }
 }
 
@@ -198,7 +206,8 @@ pub unsafe extern "C" fn vlsync_client_open(
     match r {
         Ok(b) => Box::into_raw(b),
         Err(m) => {
-            write_message(err, err_len, &m);
+            // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
+            unsafe { write_message(err, err_len, &m) };
             std::ptr::null_mut()
         }
     }
@@ -215,7 +224,8 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
     if c.is_null() {
         return 0;
     }
-    if handle(c, "vlsync_client_close").is_err() {
+    // SAFETY: `c` is an open handle (the caller's promise); the reference is dropped here
+    if unsafe { handle(c, "vlsync_client_close") }.is_err() {
         return -1;
     }
     // SAFETY: `c` came from `Box::into_raw` in `vlsync_client_open` and is closed
@@ -244,7 +254,9 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
     err_len: usize,
 ) -> c_int {
     let r = guarded("vlsync_client_wait_next", || {
-        let h = handle(c, "vlsync_client_wait_next")?;
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
+        // only for this call
+        let h = unsafe { handle(c, "vlsync_client_wait_next") }?;
         if out.is_null() {
             return Err("vlsync_client_wait_next: out is NULL".into());
         }
@@ -255,14 +267,18 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
             .map_err(|e| format!("vlsync_client_wait_next: {e}"))?
         {
             Some(e) => {
-                put(out, c_estimate(&e, h.inner.latest_publish_ns())?);
+                let v = c_estimate(&e, h.inner.latest_publish_ns())?;
+                // SAFETY: `out` is not NULL (checked) and points to a writable
+                // `vlsync_estimate` (the caller's promise)
+                unsafe { put(out, v) };
                 Ok(1)
             }
             None => Ok(0),
         }
     });
     r.unwrap_or_else(|m| {
-        write_message(err, err_len, &m);
+        // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
+        unsafe { write_message(err, err_len, &m) };
         -1
     })
 }
@@ -281,13 +297,18 @@ pub unsafe extern "C" fn vlsync_client_latest(
     out: *mut OffsetEstimate,
 ) -> c_int {
     let r = guarded("vlsync_client_latest", || {
-        let h = handle(c, "vlsync_client_latest")?;
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
+        // only for this call
+        let h = unsafe { handle(c, "vlsync_client_latest") }?;
         if out.is_null() {
             return Err("out is NULL".into());
         }
         Ok(match h.inner.latest() {
             Some(e) => {
-                put(out, c_estimate(&e, h.inner.latest_publish_ns())?);
+                let v = c_estimate(&e, h.inner.latest_publish_ns())?;
+                // SAFETY: `out` is not NULL (checked) and points to a writable
+                // `vlsync_estimate` (the caller's promise)
+                unsafe { put(out, v) };
                 1
             }
             None => 0,
@@ -313,20 +334,22 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
     out: *mut VlsyncConversion,
 ) -> c_int {
     let r = guarded("vlsync_client_camera_to_lidar", || {
-        let h = handle(c, "vlsync_client_camera_to_lidar")?;
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
+        // only for this call
+        let h = unsafe { handle(c, "vlsync_client_camera_to_lidar") }?;
         if out.is_null() {
             return Err("out is NULL".into());
         }
         Ok(match h.inner.camera_to_lidar(t_cam_ns) {
             Some(v) => {
-                put(
-                    out,
-                    VlsyncConversion {
-                        t_lidar_ns: v.t_lidar_ns,
-                        std_s: v.std_s,
-                        estimate: c_estimate(&v.estimate, h.inner.latest_publish_ns())?,
-                    },
-                );
+                let conv = VlsyncConversion {
+                    t_lidar_ns: v.t_lidar_ns,
+                    std_s: v.std_s,
+                    estimate: c_estimate(&v.estimate, h.inner.latest_publish_ns())?,
+                };
+                // SAFETY: `out` is not NULL (checked) and points to a writable
+                // `vlsync_conversion` (the caller's promise)
+                unsafe { put(out, conv) };
                 1
             }
             None => 0,
@@ -353,7 +376,9 @@ pub unsafe extern "C" fn vlsync_client_set_process_noise(
     err_len: usize,
 ) -> c_int {
     let r = guarded("vlsync_client_set_process_noise", || {
-        let h = handle(c, "vlsync_client_set_process_noise")?;
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
+        // only for this call
+        let h = unsafe { handle(c, "vlsync_client_set_process_noise") }?;
         h.inner
             .set_process_noise(tracking, holding)
             .map_err(|e| format!("vlsync_client_set_process_noise: {e}"))
@@ -361,7 +386,8 @@ pub unsafe extern "C" fn vlsync_client_set_process_noise(
     match r {
         Ok(()) => 0,
         Err(m) => {
-            write_message(err, err_len, &m);
+            // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
+            unsafe { write_message(err, err_len, &m) };
             -1
         }
     }
@@ -374,7 +400,9 @@ pub unsafe extern "C" fn vlsync_client_set_process_noise(
 #[allow(unsafe_code)]
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_client_invalid_count(c: *mut VlsyncClient) -> u64 {
-    handle(c, "vlsync_client_invalid_count").map_or(0, |h| h.inner.invalid_count())
+    // SAFETY: `c` is NULL or an open handle (the caller's promise); the reference
+    // lives only for this call
+    unsafe { handle(c, "vlsync_client_invalid_count") }.map_or(0, |h| h.inner.invalid_count())
 }
 
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
@@ -635,7 +663,8 @@ mod tests {
         #[test]
         fn messages_fit_their_buffer(msg in ".{0,80}", cap in 0usize..100) {
             let mut buf = vec![0xAAu8; cap + 4];
-            write_message(buf.as_mut_ptr().cast(), cap, &msg);
+            // SAFETY: `buf` holds `cap + 4` bytes
+            unsafe { write_message(buf.as_mut_ptr().cast(), cap, &msg) };
             // nothing beyond the buffer
             proptest::prop_assert!(buf[cap..].iter().all(|&b| b == 0xAA));
             if cap == 0 {
