@@ -51,6 +51,18 @@ fn compile(src: &Path, exe: &Path, cxx: bool) {
     );
 }
 
+/// The C and C++ examples, built into `tmp`: (`vlsync_echo`, `vlsync_convert`).
+fn build_examples(tmp: &Path) -> (PathBuf, PathBuf) {
+    let (echo, convert) = (tmp.join("vlsync_echo"), tmp.join("vlsync_convert"));
+    compile(&root().join("examples/c/vlsync_echo.c"), &echo, false);
+    compile(
+        &root().join("examples/cpp/vlsync_convert.cpp"),
+        &convert,
+        true,
+    );
+    (echo, convert)
+}
+
 fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
     let mut child = Command::new("timeout")
         .arg("60")
@@ -134,13 +146,7 @@ fn echo_line(l: &str) -> (u64, String, f64, f64, f64) {
 #[test]
 fn c_and_cpp_programs_read_a_live_daemon() {
     let tmp = scratch("live");
-    let (echo, convert) = (tmp.join("vlsync_echo"), tmp.join("vlsync_convert"));
-    compile(&root().join("examples/c/vlsync_echo.c"), &echo, false);
-    compile(
-        &root().join("examples/cpp/vlsync_convert.cpp"),
-        &convert,
-        true,
-    );
+    let (echo, convert) = build_examples(&tmp);
 
     let rig = Rig::new("capi", "robot", 3, 40.0, 5.0);
     let mut daemon = rig.daemon(0);
@@ -223,13 +229,7 @@ fn c_and_cpp_programs_read_a_live_daemon() {
 #[test]
 fn the_examples_refuse_bad_input_with_their_exit_codes() {
     let tmp = scratch("bad");
-    let (echo, convert) = (tmp.join("vlsync_echo"), tmp.join("vlsync_convert"));
-    compile(&root().join("examples/c/vlsync_echo.c"), &echo, false);
-    compile(
-        &root().join("examples/cpp/vlsync_convert.cpp"),
-        &convert,
-        true,
-    );
+    let (echo, convert) = build_examples(&tmp);
     let silent = format!("vlsync-it/capi-silent-{}", std::process::id());
     for (exe, args, code, says) in [
         (

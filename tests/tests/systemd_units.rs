@@ -347,12 +347,17 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
 
     // with the C client library built next to the binaries, it and its headers are
     // installed too, then ldconfig runs
-    let with_lib = std::env::temp_dir().join(format!("vlsync-install-lib-{}", std::process::id()));
-    std::fs::create_dir_all(&with_lib).unwrap();
-    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
-        let _ = std::fs::remove_file(with_lib.join(b));
-        std::os::unix::fs::symlink(bins.join(b), with_lib.join(b)).unwrap();
-    }
+    // a directory with links to the four binaries, as a --bin-dir
+    let staged = |tag: &str| {
+        let d = std::env::temp_dir().join(format!("vlsync-install-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
+            let _ = std::fs::remove_file(d.join(b));
+            std::os::unix::fs::symlink(bins.join(b), d.join(b)).unwrap();
+        }
+        d
+    };
+    let with_lib = staged("lib");
     let lib = with_lib.join("libvlsync_client.so");
     let _ = std::fs::remove_file(&lib);
     std::os::unix::fs::symlink(capi_lib_dir().join("libvlsync_client.so"), &lib).unwrap();
@@ -382,12 +387,7 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
     );
     assert!(lib_text.contains("would run: ldconfig"), "{lib_text}");
     // without it, the script says how to build it
-    let bare = std::env::temp_dir().join(format!("vlsync-install-bare-{}", std::process::id()));
-    std::fs::create_dir_all(&bare).unwrap();
-    for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
-        let _ = std::fs::remove_file(bare.join(b));
-        std::os::unix::fs::symlink(bins.join(b), bare.join(b)).unwrap();
-    }
+    let bare = staged("bare");
     let out = install_sh()
         .arg("--dry-run")
         .arg("--bin-dir")
