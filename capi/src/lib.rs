@@ -48,7 +48,8 @@ pub use vlsync_common::wire::OffsetEstimate;
 /// The C view of `e`, published at `publish_ns`: every field as it arrived (the client
 /// validated it on receipt, so this check cannot fail on what it hands out).
 fn c_estimate(e: &Estimate, publish_ns: Nanos) -> CallResult<OffsetEstimate> {
-    OffsetEstimate::from_estimate(e, publish_ns).map_err(|w| format!("estimate refused: {w}"))
+    OffsetEstimate::from_estimate(e, publish_ns)
+        .map_err(|w| format!("vlsync_client: an estimate it received fails validation now: {w}"))
 }
 
 /// A camera stamp on the LiDAR time base (`vlsync_conversion`).

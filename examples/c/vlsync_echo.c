@@ -24,12 +24,13 @@
 static volatile sig_atomic_t stop = 0;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
-static int usage(const char *why) {
-    fprintf(stderr, "vlsync_echo: %s\nusage: vlsync_echo [--prefix P] [--count N] [--timeout S]\n", why);
+static int usage(const char *why, const char *arg) {
+    fprintf(stderr, "vlsync_echo: %s%s\nusage: vlsync_echo [--prefix P] [--count N] [--timeout S]\n",
+            why, arg);
     return 2;
 }
 
-/* a whole non-negative number in text s, or -1 */
+/* the number >= 0 (at most 1e9) in text s, or -1 */
 static double number(const char *s) {
     char *end;
     errno = 0;
@@ -47,13 +48,17 @@ int main(int argc, char **argv) {
     const char *prefix = "vlsync/robot";
     double count = 0.0, timeout = 0.0;
     for (int i = 1; i < argc; i++) {
-        if (i + 1 >= argc) return usage("every option takes a value");
-        if (!strcmp(argv[i], "--prefix")) prefix = argv[++i];
-        else if (!strcmp(argv[i], "--count")) {
-            if ((count = number(argv[++i])) < 0 || count != (long)count) return usage("--count takes a whole number >= 0");
-        } else if (!strcmp(argv[i], "--timeout")) {
-            if ((timeout = number(argv[++i])) < 0) return usage("--timeout takes seconds >= 0");
-        } else return usage("unknown option");
+        const char *opt = argv[i];
+        if (strcmp(opt, "--prefix") && strcmp(opt, "--count") && strcmp(opt, "--timeout"))
+            return usage("unknown option ", opt);
+        if (i + 1 >= argc) return usage("a value is missing after ", opt);
+        const char *val = argv[++i];
+        if (!strcmp(opt, "--prefix")) prefix = val;
+        else if (!strcmp(opt, "--count")) {
+            if ((count = number(val)) < 0 || count != (long)count)
+                return usage("--count takes a whole number >= 0, not ", val);
+        } else if ((timeout = number(val)) < 0)
+            return usage("--timeout takes seconds >= 0, not ", val);
     }
     if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION) {
         fprintf(stderr, "vlsync_echo: libvlsync_client has ABI %u, this program %u\n",

@@ -24,22 +24,24 @@ int main(int argc, char **argv) {
     double timeout_s = 30.0;
     for (int i = 1; i < argc; i++) {
         std::string a = argv[i];
-        if (i + 1 >= argc) {
-            std::cerr << "vlsync_convert: " << a << " takes a value\n";
-            return 2;
-        }
-        if (a == "--prefix") {
-            prefix = argv[++i];
-        } else if (a == "--timeout") {
-            char *end = nullptr;
-            timeout_s = std::strtod(argv[++i], &end);
-            if (*end || !(timeout_s >= 0.0) || timeout_s > 1e6) {
-                std::cerr << "vlsync_convert: --timeout takes seconds >= 0\n";
-                return 2;
-            }
-        } else {
+        if (a != "--prefix" && a != "--timeout") {
             std::cerr << "vlsync_convert: unknown option " << a << "\n";
             return 2;
+        }
+        if (i + 1 >= argc) {
+            std::cerr << "vlsync_convert: a value is missing after " << a << "\n";
+            return 2;
+        }
+        const char *v = argv[++i];
+        if (a == "--prefix") {
+            prefix = v;
+        } else {
+            char *end = nullptr;
+            timeout_s = std::strtod(v, &end);
+            if (end == v || *end || !(timeout_s >= 0.0) || timeout_s > 1e6) {
+                std::cerr << "vlsync_convert: --timeout takes seconds >= 0, not " << v << "\n";
+                return 2;
+            }
         }
     }
     try {

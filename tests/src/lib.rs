@@ -114,6 +114,34 @@ pub fn capi_lib_dir() -> PathBuf {
     );
 }
 
+/// Compiles C (`cxx` false: `$CC`, else `cc`, C11) or C++ (`$CXX`, else `c++`, C++17)
+/// source `src` into `exe` with every warning an error, headers from `include`, and
+/// `extra` arguments after the source (libraries); fails the test with the compiler's
+/// output.
+pub fn compile(src: &Path, exe: &Path, cxx: bool, include: &Path, extra: &[String]) {
+    let (var, default, std) = if cxx {
+        ("CXX", "c++", "-std=c++17")
+    } else {
+        ("CC", "cc", "-std=c11")
+    };
+    let cc = std::env::var(var).unwrap_or_else(|_| default.into());
+    let out = Command::new(&cc)
+        .args([std, "-Wall", "-Wextra", "-Werror", "-I"])
+        .arg(include)
+        .arg(src)
+        .args(extra)
+        .arg("-o")
+        .arg(exe)
+        .output()
+        .unwrap_or_else(|e| panic!("compiler `{cc}` not runnable: {e}"));
+    assert!(
+        out.status.success(),
+        "{} does not compile:\n{}",
+        src.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Longest wait of [`assert_serving`] for a daemon to serve.
 pub const DAEMON_READY_WAIT: Duration = Duration::from_secs(20);
 

@@ -30,19 +30,7 @@ int main(void) {
     )
     .unwrap();
     let exe = tmp.join("layout");
-    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
-    let st = Command::new(&cc)
-        .args(["-std=c11", "-Wall", "-Werror", "-I"])
-        .arg(&dir)
-        .arg(&src)
-        .arg("-o")
-        .arg(&exe)
-        .status()
-        .unwrap_or_else(|e| panic!("C compiler `{cc}` not runnable: {e}"));
-    assert!(
-        st.success(),
-        "vlsync_wire.h does not compile (static asserts?)"
-    );
+    vlsync_tests::compile(&src, &exe, false, &dir, &[]);
     let out = Command::new(&exe).output().unwrap();
     let text = String::from_utf8(out.stdout).unwrap();
     let expect = format!(

@@ -24,31 +24,14 @@ fn scratch(tag: &str) -> PathBuf {
 
 /// Compiles `src` (C when `cxx` is false) against the header and the library into `exe`.
 fn compile(src: &Path, exe: &Path, cxx: bool) {
-    let (var, default, std) = if cxx {
-        ("CXX", "c++", "-std=c++17")
-    } else {
-        ("CC", "cc", "-std=c11")
-    };
-    let cc = std::env::var(var).unwrap_or_else(|_| default.into());
     let lib = capi_lib_dir();
-    let out = Command::new(&cc)
-        .args([std, "-Wall", "-Wextra", "-Werror", "-I"])
-        .arg(root().join("capi/include"))
-        .arg(src)
-        .arg("-L")
-        .arg(&lib)
-        .arg("-lvlsync_client")
-        .arg(format!("-Wl,-rpath,{}", lib.display()))
-        .arg("-o")
-        .arg(exe)
-        .output()
-        .unwrap_or_else(|e| panic!("compiler `{cc}` not runnable: {e}"));
-    assert!(
-        out.status.success(),
-        "{} does not compile:\n{}",
-        src.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let link = [
+        "-L".to_string(),
+        lib.display().to_string(),
+        "-lvlsync_client".to_string(),
+        format!("-Wl,-rpath,{}", lib.display()),
+    ];
+    vlsync_tests::compile(src, exe, cxx, &root().join("capi/include"), &link);
 }
 
 /// The C and C++ examples, built into `tmp`: (`vlsync_echo`, `vlsync_convert`).
@@ -242,10 +225,34 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
             &echo,
             vec!["--count", "-1"],
             2,
-            "--count takes a whole number",
+            "--count takes a whole number >= 0, not -1",
         ),
-        (&echo, vec!["--count"], 2, "takes a value"),
-        (&echo, vec!["--what", "1"], 2, "unknown option"),
+        (
+            &echo,
+            vec!["--count"],
+            2,
+            "a value is missing after --count",
+        ),
+        (&echo, vec!["--what", "1"], 2, "unknown option --what"),
+        (
+            &echo,
+            vec!["--timeout", ""],
+            2,
+            "--timeout takes seconds >= 0, not ",
+        ),
+        (&convert, vec!["--what"], 2, "unknown option --what"),
+        (
+            &convert,
+            vec!["--timeout"],
+            2,
+            "a value is missing after --timeout",
+        ),
+        (
+            &convert,
+            vec!["--timeout", ""],
+            2,
+            "--timeout takes seconds >= 0, not ",
+        ),
         (
             &echo,
             vec!["--prefix", &silent, "--timeout", "0.5"],
@@ -262,7 +269,7 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
             &convert,
             vec!["--timeout", "x"],
             2,
-            "--timeout takes seconds",
+            "--timeout takes seconds >= 0, not x",
         ),
         (
             &convert,
