@@ -285,6 +285,19 @@ const BATCH: usize = 10;
 /// 1e-14 of the sums.
 const REBUILD_WINDOWS: usize = 4;
 
+/// `p % len` for `p < 2·len` (a ring position: the head, below `len`, plus an index
+/// below `len`), without the division that `%` by a length known only at run time
+/// costs: the block store's positions are computed several times per sample.
+#[inline]
+fn wrap(p: usize, len: usize) -> usize {
+    debug_assert!(p < 2 * len, "ring position {p} of {len}");
+    if p >= len {
+        p - len
+    } else {
+        p
+    }
+}
+
 /// Result of one cursor step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Step {
@@ -312,6 +325,8 @@ pub struct Correlator {
     /// completes ([`vlsync_simd::add_products`]: both run forward, and the loop
     /// vectorises without shuffles).
     cur: Sums,
+    /// Last grid index of the unfinished block (valid while it has indices).
+    cur_end: i64,
     /// Completed blocks, a ring of `blocks.len()`; `head` is the oldest.
     blocks: Vec<Sums>,
     head: usize,
@@ -351,6 +366,7 @@ impl Correlator {
             cam: Ring::new(ring_len.max(n_lags * 2)),
             cursor: None,
             cur: Sums::new(n_lags),
+            cur_end: 0,
             blocks: (0..cap_blocks).map(|_| Sums::new(n_lags)).collect(),
             head: 0,
             count: 0,
@@ -510,8 +526,9 @@ impl Correlator {
     }
 
     /// Position in the store of block `i` (stable while the block is stored).
+    #[inline]
     pub fn phys(&self, i: usize) -> usize {
-        (self.head + i) % self.blocks.len()
+        wrap(self.head + i, self.blocks.len())
     }
 
     /// Forgets every completed block and the unfinished one (the cursor stays); every
@@ -581,7 +598,7 @@ impl Correlator {
     fn rebuild_acq(&mut self) {
         self.acq.clear();
         for i in self.count - self.acq_count..self.count {
-            let b = &self.blocks[(self.head + i) % self.blocks.len()];
+            let b = &self.blocks[self.phys(i)];
             self.acq.add(b, 1.0);
         }
         if self.acq_count > 0 {
@@ -600,8 +617,8 @@ impl Correlator {
         };
         // a step adds up to BATCH indices, and only those whose data are in: the
         // block's last index needs its LiDAR value and the camera's at the lowest lag
-        let left = self.hop_len - 1 - k.rem_euclid(self.hop_len);
-        let end = k.saturating_add(left);
+        let end = self.block_end(k);
+        let left = end - k;
         let m_lo = self.lag0 + self.active.0 as i64;
         left < BATCH as i64 && self.lidar.end >= end && self.cam.end >= end.saturating_sub(m_lo)
     }
@@ -649,7 +666,7 @@ impl Correlator {
         // Both rings hold every index from their segment's start to their end (k is at
         // or after both starts, and its values are still in), so the indices up to
         // the newest each stream covers are all there.
-        let block_end = (k.div_euclid(self.hop_len) + 1) * self.hop_len - 1;
+        let block_end = self.block_end(k);
         let last = (k + batch.clamp(1, BATCH) as i64 - 1)
             .min(block_end)
             .min(self.lidar.end)
@@ -658,6 +675,7 @@ impl Correlator {
         debug_assert_eq!(xs.first(), Some(&x));
         if self.cur.n == 0.0 {
             self.cur.first_k = k;
+            self.cur_end = block_end;
             (self.cur.lo, self.cur.hi) = self.active;
         }
         self.cur.last_k = last;
@@ -676,7 +694,8 @@ impl Correlator {
         let n = self.n_lags;
         vlsync_simd::add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, xs);
         self.cursor = Some(last + 1);
-        if (last + 1).rem_euclid(self.hop_len) == 0 {
+        // the only block end in k..=last can be the block's own
+        if last == block_end {
             if self.complete_block() {
                 Step::Hop
             } else {
@@ -684,6 +703,22 @@ impl Correlator {
             }
         } else {
             Step::Added
+        }
+    }
+
+    /// Last index of the block holding index `k`: the unfinished block's, kept while
+    /// it has indices (the cursor stays in it: every jump clears it), else computed
+    /// (a division, which a step otherwise paid twice).
+    #[inline]
+    fn block_end(&self, k: i64) -> i64 {
+        if self.cur.n > 0.0 {
+            debug_assert_eq!(
+                self.cur_end,
+                (k.div_euclid(self.hop_len) + 1) * self.hop_len - 1
+            );
+            self.cur_end
+        } else {
+            (k.div_euclid(self.hop_len) + 1) * self.hop_len - 1
         }
     }
 
@@ -757,10 +792,10 @@ impl Correlator {
                 evicted_from_acq = true;
                 self.acq_count -= 1;
             }
-            self.head = (self.head + 1) % cap;
+            self.head = wrap(self.head + 1, cap);
             self.count -= 1;
         }
-        let pos = (self.head + self.count) % cap;
+        let pos = wrap(self.head + self.count, cap);
         std::mem::swap(&mut self.blocks[pos], &mut self.cur);
         self.count += 1;
         self.acq_count += 1;
@@ -768,7 +803,7 @@ impl Correlator {
         let mut leaving = None;
         if self.acq_count > self.acq_blocks {
             self.acq_count = self.acq_blocks;
-            leaving = Some((self.head + self.count - 1 - self.acq_blocks) % cap);
+            leaving = Some(wrap(self.head + self.count - 1 - self.acq_blocks, cap));
         }
         if self.since_rebuild >= REBUILD_WINDOWS * self.acq_blocks {
             self.rebuild_acq();
