@@ -23,8 +23,15 @@
  * Errors: every function checks its pointers (NULL is an error, never a crash) and
  * returns a code; those taking `err, err_len` write the reason there, NUL-terminated and
  * cut to fit (`err` may be NULL). A handle is single-threaded: use it on the thread that
- * opened it (calls from another thread are refused with -1). The library installs no
- * signal handlers: a signal interrupts a wait, which then returns 0 early.
+ * opened it (calls from another thread are refused with -1: a check that catches the
+ * mistake while the handle is open, not a licence to share it; a handle closed on its
+ * thread must not be used anywhere). The library installs no signal handlers: a signal
+ * interrupts a wait, which then returns 0 early.
+ *
+ * Which call takes which estimate: vlsync_client_wait_one hands out every estimate, one
+ * per call, oldest first (a recorder); vlsync_client_wait_next, vlsync_client_latest and
+ * vlsync_client_camera_to_lidar take everything pending and keep the newest, so an
+ * estimate they passed over is not handed out by a later wait_one.
  */
 #ifndef VLSYNC_CLIENT_H
 #define VLSYNC_CLIENT_H
@@ -94,10 +101,18 @@ vlsync_client *vlsync_client_open(const char *prefix, char *err, size_t err_len)
 /* Closes a handle (NULL: nothing). 0, or -1 from another thread (the handle stays open). */
 int vlsync_client_close(vlsync_client *c);
 
-/* Waits up to timeout_ms (negative: no limit) for the next estimate.
+/* Waits up to timeout_ms (negative: no limit) for the next estimate: the newest when
+ * several are pending (the older are passed over).
  * 1: written to *out; 0: timeout, or a signal interrupted the wait; -1: error (err). */
 int vlsync_client_wait_next(vlsync_client *c, int64_t timeout_ms, vlsync_estimate *out,
                             char *err, size_t err_len);
+
+/* Waits up to timeout_ms (negative: no limit) for an estimate and writes the oldest one
+ * pending: every estimate, one per call, in the order they were published. The
+ * subscriber buffers 16 (8 s at the default hop): a caller further behind loses the
+ * oldest. 1: written to *out; 0: timeout, or a signal interrupted the wait; -1: error. */
+int vlsync_client_wait_one(vlsync_client *c, int64_t timeout_ms, vlsync_estimate *out,
+                           char *err, size_t err_len);
 
 /* The most recent estimate. 1: written; 0: none yet; -1: NULL argument or wrong thread. */
 int vlsync_client_latest(vlsync_client *c, vlsync_estimate *out);
@@ -113,7 +128,7 @@ int vlsync_client_camera_to_lidar(vlsync_client *c, int64_t t_cam_ns, vlsync_con
 int vlsync_client_set_process_noise(vlsync_client *c, double tracking, double holding,
                                     char *err, size_t err_len);
 
-/* Payloads refused by validation so far. */
+/* Payloads refused by validation so far; 0 too for a NULL or another thread's handle. */
 uint64_t vlsync_client_invalid_count(vlsync_client *c);
 
 /* "acquiring", "tracking", "holding", "lost", or "unknown": a static string. */

@@ -7,12 +7,15 @@
 //   if (auto v = c.camera_to_lidar(t_cam_ns); v && vlsync::is_locked(v->estimate))
 //       use(v->t_lidar_ns);
 //
-// Like the handle it wraps, a Client is used on the thread that constructed it.
+// Like the handle it wraps, a Client is used, and destroyed, on the thread that
+// constructed it: close() throws when called from another thread (the handle stays
+// open); a destructor there cannot throw, so it says on stderr that the handle leaks.
 #ifndef VLSYNC_CLIENT_HPP
 #define VLSYNC_CLIENT_HPP
 
 #include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -46,24 +49,45 @@ class Client {
         c_ = vlsync_client_open(prefix.c_str(), err, sizeof err);
         if (!c_) throw Error(err);
     }
-    ~Client() { vlsync_client_close(c_); }
+    ~Client() { close_or_report(); }
     Client(const Client &) = delete;
     Client &operator=(const Client &) = delete;
     Client(Client &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
     Client &operator=(Client &&o) noexcept {
         if (this != &o) {
-            vlsync_client_close(c_);
+            close_or_report();
             c_ = std::exchange(o.c_, nullptr);
         }
         return *this;
     }
 
-    /// The next estimate within `timeout` (negative: no limit); empty on timeout or when
-    /// a signal interrupted the wait.
+    /// Closes the handle now (a moved-from or closed Client: nothing to do); throws,
+    /// leaving it open, when called on another thread than the one that opened it.
+    void close() {
+        if (vlsync_client_close(c_) != 0)
+            throw Error("vlsync_client_close: the client was opened on another thread");
+        c_ = nullptr;
+    }
+
+    /// The next estimate within `timeout` (negative: no limit), the newest when several
+    /// are pending; empty on timeout or when a signal interrupted the wait.
     std::optional<vlsync_estimate> wait_next(std::chrono::milliseconds timeout) {
         vlsync_estimate e;
         char err[512] = {0};
         switch (vlsync_client_wait_next(c_, timeout.count(), &e, err, sizeof err)) {
+        case 1: return e;
+        case 0: return std::nullopt;
+        default: throw Error(err);
+        }
+    }
+
+    /// The oldest estimate pending within `timeout` (negative: no limit): every
+    /// estimate, one per call, in order; empty on timeout or when a signal interrupted
+    /// the wait. wait_next, latest and camera_to_lidar take what is pending.
+    std::optional<vlsync_estimate> wait_one(std::chrono::milliseconds timeout) {
+        vlsync_estimate e;
+        char err[512] = {0};
+        switch (vlsync_client_wait_one(c_, timeout.count(), &e, err, sizeof err)) {
         case 1: return e;
         case 0: return std::nullopt;
         default: throw Error(err);
@@ -99,6 +123,14 @@ class Client {
     uint64_t invalid_count() { return vlsync_client_invalid_count(c_); }
 
   private:
+    void close_or_report() noexcept {
+        if (vlsync_client_close(c_) != 0)
+            std::fputs("vlsync::Client destroyed on another thread than the one that opened "
+                       "it: its handle is left open (leaked)\n",
+                       stderr);
+        c_ = nullptr;
+    }
+
     vlsync_client *c_ = nullptr;
 };
 

@@ -123,20 +123,21 @@ unsafe fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
     }
 }
 
-/// The handle behind `c`, on the thread that opened it.
+/// The client behind handle `c`, on the thread that opened it.
 ///
 /// # Safety
 /// `c` is NULL or a handle from [`vlsync_client_open`] not yet closed, and the
 /// reference returned is dropped before the handle is closed.
 #[allow(unsafe_code)]
-unsafe fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut VlsyncClient> {
+unsafe fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut OffsetClient> {
     if c.is_null() {
         return Err(format!("{what}: the client is NULL"));
     }
     // SAFETY: a non-NULL `c` is a handle from `vlsync_client_open` not yet closed
     // (this function's contract). Only its `thread` field is read here, through the raw
-    // pointer (no reference to the handle is made on a foreign thread): it is written
-    // once, before the handle is returned, and never again.
+    // pointer: it is written once, before the handle is returned, and never again, and
+    // no reference anyone makes covers it (the owner's is to `inner` alone, below), so
+    // a foreign thread's read aliases nothing.
     let owner = unsafe { std::ptr::addr_of!((*c).thread).read() };
     if owner != std::thread::current().id() {
         return Err(format!(
@@ -144,8 +145,9 @@ unsafe fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut Vls
         ));
     }
     // SAFETY: as above, and on the thread that opened it, which is the only one that
-    // makes references to it: the single-threaded ports inside stay on their thread.
-    Ok(unsafe { &mut *c })
+    // makes references into it: the single-threaded ports inside stay on their thread.
+    // The reference is to the `inner` field only, made from the raw pointer.
+    Ok(unsafe { &mut *std::ptr::addr_of_mut!((*c).inner) })
 }
 
 /// Writes `v` to `out`.
@@ -225,8 +227,12 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
     if c.is_null() {
         return 0;
     }
-    // SAFETY: `c` is an open handle (the caller's promise); the reference is dropped here
-    if unsafe { handle(c, "vlsync_client_close") }.is_err() {
+    let r = guarded("vlsync_client_close", || {
+        // SAFETY: `c` is an open handle (the caller's promise); the reference is
+        // dropped here
+        unsafe { handle(c, "vlsync_client_close") }.map(|_| ())
+    });
+    if r.is_err() {
         return -1;
     }
     // SAFETY: `c` came from `Box::into_raw` in `vlsync_client_open` and is closed
@@ -238,9 +244,10 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
 }
 
 /// Waits up to `timeout_ms` (negative: no limit) for the next estimate and writes it
-/// to `out`. Returns 1 when one was written; 0 on timeout, and early when a signal
-/// interrupts the wait (check your own stop flag and call again); -1 on error, with
-/// the reason in `err`.
+/// to `out`: the newest, when several are pending (the older ones are passed over;
+/// [`vlsync_client_wait_one`] hands out each). Returns 1 when one was written; 0 on
+/// timeout, and early when a signal interrupts the wait (check your own stop flag and
+/// call again); -1 on error, with the reason in `err`.
 ///
 /// # Safety
 /// `c` is NULL or an open handle; `out` is NULL or points to a writable
@@ -263,12 +270,11 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
         }
         let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
         match h
-            .inner
             .wait_next(timeout)
             .map_err(|e| format!("vlsync_client_wait_next: {e}"))?
         {
             Some(e) => {
-                let v = c_estimate(&e, h.inner.latest_publish_ns())?;
+                let v = c_estimate(&e, h.latest_publish_ns())?;
                 // SAFETY: `out` is not NULL (checked) and points to a writable
                 // `vlsync_estimate` (the caller's promise)
                 unsafe { put(out, v) };
@@ -284,7 +290,57 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
     })
 }
 
-/// Writes the most recent estimate (after taking what is pending) to `out`.
+/// Waits up to `timeout_ms` (negative: no limit) for an estimate and writes the
+/// oldest one pending to `out`: every estimate, one per call, in the order the daemon
+/// published them (what a recorder or logger needs; [`vlsync_client_wait_next`]
+/// keeps only the newest). Returns 1 when one was written; 0 on timeout, and early
+/// when a signal interrupts the wait; -1 on error, with the reason in `err`. The
+/// subscriber buffers 16 estimates (8 s at the default hop): a caller further behind
+/// loses the oldest.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_estimate`; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_wait_one(
+    c: *mut VlsyncClient,
+    timeout_ms: i64,
+    out: *mut OffsetEstimate,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    let r = guarded("vlsync_client_wait_one", || {
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
+        // only for this call
+        let h = unsafe { handle(c, "vlsync_client_wait_one") }?;
+        if out.is_null() {
+            return Err("vlsync_client_wait_one: out is NULL".into());
+        }
+        let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
+        match h
+            .wait_one(timeout)
+            .map_err(|e| format!("vlsync_client_wait_one: {e}"))?
+        {
+            Some((e, publish_ns)) => {
+                let v = c_estimate(&e, publish_ns)?;
+                // SAFETY: `out` is not NULL (checked) and points to a writable
+                // `vlsync_estimate` (the caller's promise)
+                unsafe { put(out, v) };
+                Ok(1)
+            }
+            None => Ok(0),
+        }
+    });
+    r.unwrap_or_else(|m| {
+        // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
+        unsafe { write_message(err, err_len, &m) };
+        -1
+    })
+}
+
+/// Writes the most recent estimate to `out`, after taking what is pending (which a
+/// later [`vlsync_client_wait_one`] then does not hand out).
 /// Returns 1 when written, 0 before the first estimate, -1 when `c` or `out` is
 /// NULL or `c` belongs to another thread.
 ///
@@ -304,9 +360,9 @@ pub unsafe extern "C" fn vlsync_client_latest(
         if out.is_null() {
             return Err("out is NULL".into());
         }
-        Ok(match h.inner.latest() {
+        Ok(match h.latest() {
             Some(e) => {
-                let v = c_estimate(&e, h.inner.latest_publish_ns())?;
+                let v = c_estimate(&e, h.latest_publish_ns())?;
                 // SAFETY: `out` is not NULL (checked) and points to a writable
                 // `vlsync_estimate` (the caller's promise)
                 unsafe { put(out, v) };
@@ -323,6 +379,7 @@ pub unsafe extern "C" fn vlsync_client_latest(
 /// walk since the estimate's reference time). Returns 1 when written to `out`, 0
 /// before the first estimate, -1 when `c` or `out` is NULL or `c` belongs to another
 /// thread. Check `out->estimate.state` (tracking or holding: a lock) and its age.
+/// Like [`vlsync_client_latest`] it takes what is pending first.
 ///
 /// # Safety
 /// `c` is NULL or an open handle; `out` is NULL or points to a writable
@@ -341,12 +398,12 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
         if out.is_null() {
             return Err("out is NULL".into());
         }
-        Ok(match h.inner.camera_to_lidar(t_cam_ns) {
+        Ok(match h.camera_to_lidar(t_cam_ns) {
             Some(v) => {
                 let conv = VlsyncConversion {
                     t_lidar_ns: v.t_lidar_ns,
                     std_s: v.std_s,
-                    estimate: c_estimate(&v.estimate, h.inner.latest_publish_ns())?,
+                    estimate: c_estimate(&v.estimate, h.latest_publish_ns())?,
                 };
                 // SAFETY: `out` is not NULL (checked) and points to a writable
                 // `vlsync_conversion` (the caller's promise)
@@ -380,8 +437,7 @@ pub unsafe extern "C" fn vlsync_client_set_process_noise(
         // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
         // only for this call
         let h = unsafe { handle(c, "vlsync_client_set_process_noise") }?;
-        h.inner
-            .set_process_noise(tracking, holding)
+        h.set_process_noise(tracking, holding)
             .map_err(|e| format!("vlsync_client_set_process_noise: {e}"))
     });
     match r {
@@ -401,9 +457,12 @@ pub unsafe extern "C" fn vlsync_client_set_process_noise(
 #[allow(unsafe_code)]
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_client_invalid_count(c: *mut VlsyncClient) -> u64 {
-    // SAFETY: `c` is NULL or an open handle (the caller's promise); the reference
-    // lives only for this call
-    unsafe { handle(c, "vlsync_client_invalid_count") }.map_or(0, |h| h.inner.invalid_count())
+    guarded("vlsync_client_invalid_count", || {
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); the reference
+        // lives only for this call
+        unsafe { handle(c, "vlsync_client_invalid_count") }.map(|h| h.invalid_count())
+    })
+    .unwrap_or(0)
 }
 
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
@@ -476,7 +535,8 @@ mod tests {
         );
         assert_eq!((c.state, c.polarity, c.reserved), (2, -1, [0; 6]));
         assert!(c.peak_ratio.is_infinite() && c.measured_offset_s.is_nan());
-        // what the client validated on receipt passes again: no -1 for a good estimate
+        // a good estimate passes (above); one that fails validation, here a NaN offset,
+        // is refused rather than handed to C
         assert!(c_estimate(
             &Estimate {
                 offset_s: f64::NAN,
@@ -508,6 +568,11 @@ mod tests {
                 -1
             );
             assert_eq!(text(&err), "vlsync_client_wait_next: the client is NULL");
+            assert_eq!(
+                vlsync_client_wait_one(null, 0, &mut est, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_wait_one: the client is NULL");
             assert_eq!(vlsync_client_latest(null, &mut est), -1);
             assert_eq!(vlsync_client_camera_to_lidar(null, 0, &mut conv), -1);
             assert_eq!(
@@ -583,6 +648,21 @@ mod tests {
             );
             assert_eq!(text(&err), "vlsync_client_wait_next: out is NULL");
             assert_eq!(
+                vlsync_client_wait_one(c, 20, &mut est, err.as_mut_ptr().cast(), err.len()),
+                0
+            );
+            assert_eq!(
+                vlsync_client_wait_one(
+                    c,
+                    0,
+                    std::ptr::null_mut(),
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_wait_one: out is NULL");
+            assert_eq!(
                 vlsync_client_set_process_noise(
                     c,
                     f64::NAN,
@@ -608,13 +688,17 @@ mod tests {
             let code = unsafe {
                 vlsync_client_wait_next(c, 0, &mut est, err.as_mut_ptr().cast(), err.len())
             };
+            // SAFETY: as above
+            let one = unsafe { vlsync_client_wait_one(c, 0, &mut est, std::ptr::null_mut(), 0) };
+            // SAFETY: as above
+            let count = unsafe { vlsync_client_invalid_count(c) };
             // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
             let closed = unsafe { vlsync_client_close(c) };
-            (code, closed, text(&err))
+            ((code, one, count), closed, text(&err))
         })
         .join()
         .unwrap();
-        assert_eq!((code, closed), (-1, -1));
+        assert_eq!((code, closed), ((-1, -1, 0), -1));
         assert!(msg.contains("another thread"), "{msg}");
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         assert_eq!(unsafe { vlsync_client_close(c) }, 0);

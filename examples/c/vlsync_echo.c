@@ -6,7 +6,7 @@
  *      -L target/release -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_echo_c
  *   ./vlsync_echo_c --prefix vlsync/robot [--count N] [--timeout S]
  *
- * One line per estimate: sequence number, state, reference time on the LiDAR clock,
+ * One line per estimate, every one in order (vlsync_client_wait_one): sequence number, state, reference time on the LiDAR clock,
  * offset +- one standard deviation, drift. Exit status: 0 after --count estimates or on
  * Ctrl-C / SIGTERM; 1 when --timeout seconds pass without an estimate; 2 on a bad
  * argument or a library error (its message on stderr).
@@ -83,7 +83,7 @@ int main(int argc, char **argv) {
     double last = now_s();
     while (!stop && (count == 0 || got < (long)count)) {
         vlsync_estimate e;
-        int r = vlsync_client_wait_next(c, 250, &e, err, sizeof err);
+        int r = vlsync_client_wait_one(c, 250, &e, err, sizeof err);
         if (r < 0) {
             fprintf(stderr, "vlsync_echo: %s\n", err);
             status = 2;
@@ -103,7 +103,11 @@ int main(int argc, char **argv) {
                (unsigned long long)e.seq, vlsync_state_name(e.state), e.t_ref_ns * 1e-9,
                e.offset_s * 1e3, e.offset_std_s * 1e3, e.drift * 1e6);
         if (fflush(stdout) != 0) {
-            status = 2;
+            /* a signal can interrupt a blocked write: that is a stop, not an error */
+            if (!stop) {
+                fprintf(stderr, "vlsync_echo: writing to stdout: %s\n", strerror(errno));
+                status = 2;
+            }
             break;
         }
     }

@@ -10,7 +10,9 @@
 // camera stamp per line (integer ns on the camera's clock) and prints
 // `t_cam_ns t_lidar_ns std_us state` for each, with the newest estimate at that moment.
 // Exit status: 0 at the end of the input; 1 when no lock came within the timeout; 2 on a
-// bad argument, a line that is not an integer (named by its number), or a library error.
+// bad argument, a line that is not a 64-bit integer (named by its number), or a library
+// error.
+#include <cerrno>
 #include <chrono>
 #include <cstdint>
 #include <cstdlib>
@@ -61,10 +63,11 @@ int main(int argc, char **argv) {
         std::string line;
         for (long n = 1; std::getline(std::cin, line); n++) {
             char *end = nullptr;
+            errno = 0;
             long long t_cam = std::strtoll(line.c_str(), &end, 10);
-            if (line.empty() || *end) {
-                std::cerr << "vlsync_convert: line " << n << " is not an integer stamp: "
-                          << line << "\n";
+            if (line.empty() || *end || errno == ERANGE) {
+                std::cerr << "vlsync_convert: line " << n
+                          << " is not an integer stamp (64-bit ns): " << line << "\n";
                 return 2;
             }
             auto v = c.camera_to_lidar(t_cam);  // a lock was seen, so never empty

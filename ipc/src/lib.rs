@@ -481,8 +481,8 @@ impl SignaturePublisher {
     }
 }
 
-/// The longest single sleep of [`OffsetClient::wait_next`] and
-/// [`OffsetClient::wait_all`]; a longer timeout sleeps again. The last estimate
+/// The longest single sleep of [`OffsetClient::wait_next`],
+/// [`OffsetClient::wait_all`] and [`OffsetClient::wait_one`]; a longer timeout sleeps again. The last estimate
 /// handed to a new subscriber (history 1) comes without an event, so a client that
 /// opened while the daemon publishes nothing sees it within this time (the daemon
 /// hands it over within 0.1 s).
@@ -689,6 +689,26 @@ impl OffsetClient {
             }
             if !out.is_empty() || interrupted || passed(deadline) {
                 return Ok(out);
+            }
+            interrupted = !self.wait_event(deadline)?;
+        }
+    }
+
+    /// The oldest valid estimate pending, with the `CLOCK_MONOTONIC` time the daemon
+    /// published it: every estimate, one per call, in order (the C API's
+    /// `vlsync_client_wait_one`; [`OffsetClient::wait_all`] without its vector). Waits
+    /// up to `timeout` on the offset event when none is pending: `Ok(None)` on
+    /// timeout, and early when a signal interrupts the wait. The subscriber buffers 16
+    /// estimates: a caller that falls further behind loses the oldest.
+    pub fn wait_one(&mut self, timeout: Duration) -> Result<Option<(Estimate, Nanos)>, IpcError> {
+        let deadline = Instant::now().checked_add(timeout);
+        let mut interrupted = false;
+        loop {
+            if let Some(x) = self.next_valid()? {
+                return Ok(Some(x));
+            }
+            if interrupted || passed(deadline) {
+                return Ok(None);
             }
             interrupted = !self.wait_event(deadline)?;
         }
@@ -930,6 +950,30 @@ mod tests {
         assert_eq!(seqs, vec![(6, 30), (7, 40)]);
         assert_eq!(c.invalid_count(), 2);
         assert!(c.wait_all(Duration::from_millis(50)).unwrap().is_empty());
+        // wait_one hands out the same, one per call, skipping the invalid
+        for (seq, publish) in [(8, 50), (9, 60)] {
+            let e = Estimate { seq, ..e };
+            publ.send_copy(OffsetEstimate::from_estimate(&e, publish).unwrap())
+                .unwrap();
+            publ.send_copy(bad).unwrap();
+        }
+        noti.notify().unwrap();
+        let mut one = || {
+            c.wait_one(Duration::from_secs(1))
+                .unwrap()
+                .map(|(e, p)| (e.seq, p))
+        };
+        assert_eq!(one(), Some((8, 50)));
+        assert_eq!(one(), Some((9, 60)));
+        let t0 = Instant::now();
+        assert_eq!(
+            c.wait_one(Duration::from_millis(100))
+                .unwrap()
+                .map(|x| x.0.seq),
+            None
+        );
+        assert!(t0.elapsed() >= Duration::from_millis(90));
+        assert_eq!(c.invalid_count(), 4);
     }
 
     #[test]

@@ -46,8 +46,23 @@ fn build_examples(tmp: &Path) -> (PathBuf, PathBuf) {
     (echo, convert)
 }
 
+/// A command running a program linked against the library: the loader searches
+/// `LD_LIBRARY_PATH` before the program's run path, and cargo puts
+/// `target/<profile>` on it, where an older `cargo build -p vlsync-capi` may have left
+/// a stale copy; the library under test goes first.
+fn linked(program: impl AsRef<std::ffi::OsStr>) -> Command {
+    let mut path = std::ffi::OsString::from(capi_lib_dir());
+    if let Some(old) = std::env::var_os("LD_LIBRARY_PATH") {
+        path.push(":");
+        path.push(old);
+    }
+    let mut c = Command::new(program);
+    c.env("LD_LIBRARY_PATH", path);
+    c
+}
+
 fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
-    let mut child = Command::new("timeout")
+    let mut child = linked("timeout")
         .arg("60")
         .arg(exe)
         .args(args)
@@ -57,12 +72,9 @@ fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
         .spawn()
         .expect("run the example");
     use std::io::Write;
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(stdin.as_bytes())
-        .unwrap();
+    // a program that exits before reading all its input closes the pipe: what it said
+    // and its exit code are the result, not the broken pipe
+    let _ = child.stdin.take().unwrap().write_all(stdin.as_bytes());
     child.wait_with_output().unwrap()
 }
 
@@ -102,7 +114,7 @@ int main(void) {
         std::fs::write(&path, text).unwrap();
         let exe = tmp.join(name.replace('.', "_"));
         compile(&path, &exe, cxx);
-        let out = Command::new(&exe).output().unwrap();
+        let out = linked(&exe).output().unwrap();
         assert_eq!(out.status.code(), Some(0), "{name}: ABI version differs");
         assert_eq!(String::from_utf8_lossy(&out.stdout), want, "{name}");
     }
@@ -158,6 +170,12 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         &input,
     );
     let conv_text = String::from_utf8_lossy(&conv.stdout).to_string();
+    // a stamp beyond 64 bits is refused by its line number, not wrapped to the limit
+    let big = run(
+        &convert,
+        &["--prefix", &rig.prefix, "--timeout", "20"],
+        &format!("{}\n99999999999999999999\n", stamps[0]),
+    );
     assert!(
         cam.stop(std::time::Duration::from_secs(3)) & lidar.stop(std::time::Duration::from_secs(3))
     );
@@ -165,8 +183,9 @@ fn c_and_cpp_programs_read_a_live_daemon() {
 
     let lines: Vec<_> = text.lines().map(echo_line).collect();
     assert_eq!(lines.len(), 24, "{text}");
+    // vlsync_client_wait_one hands out every estimate: no sequence number is skipped
     for w in lines.windows(2) {
-        assert!(w[1].0 > w[0].0, "sequence not increasing:\n{text}");
+        assert_eq!(w[1].0, w[0].0 + 1, "an estimate skipped:\n{text}");
     }
     let states = ["acquiring", "tracking", "holding", "lost"];
     let mut locked = 0;
@@ -190,6 +209,13 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         "vlsync_convert: {conv_text}\n{}",
         String::from_utf8_lossy(&conv.stderr)
     );
+    let big_err = String::from_utf8_lossy(&big.stderr);
+    assert_eq!(big.status.code(), Some(2), "{big_err}");
+    assert!(
+        big_err.contains("line 2 is not an integer stamp (64-bit ns): 99999999999999999999"),
+        "{big_err}"
+    );
+    assert_eq!(String::from_utf8_lossy(&big.stdout).lines().count(), 1);
     let rows: Vec<Vec<&str>> = conv_text
         .lines()
         .map(|l| l.split_whitespace().collect())
@@ -283,5 +309,57 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
         assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
         assert!(err.contains(says), "{args:?}: {err}");
     }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// The C++ wrapper's `close()` from another thread throws and leaves the handle open
+/// for its own thread; a `Client` destroyed on another thread says on stderr that its
+/// handle leaks instead of leaking it silently.
+#[test]
+fn the_cpp_wrapper_reports_a_close_from_another_thread() {
+    let tmp = scratch("cppthread");
+    let src = tmp.join("thread.cpp");
+    std::fs::write(
+        &src,
+        r#"#include <cstdio>
+#include <string>
+#include <thread>
+#include "vlsync_client.hpp"
+int main(int argc, char **argv) {
+  if (argc != 2) return 3;
+  vlsync::Client c(argv[1]);
+  std::string refused;
+  std::thread([&] {
+    try { c.close(); } catch (const vlsync::Error &e) { refused = e.what(); }
+  }).join();
+  if (refused.empty()) return 4;
+  std::printf("refused: %s\n", refused.c_str());
+  if (c.wait_one(std::chrono::milliseconds(10))) return 5;  // still open here
+  c.close();
+  c.close();  // closed: nothing to do
+  vlsync::Client d(argv[1]);
+  std::thread([d = std::move(d)]() mutable { vlsync::Client gone = std::move(d); }).join();
+  return 0;
+}
+"#,
+    )
+    .unwrap();
+    let exe = tmp.join("thread");
+    compile(&src, &exe, true);
+    let prefix = format!("vlsync-it/capi-thread-{}", std::process::id());
+    let out = run(&exe, &[&prefix], "");
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(0), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("refused: vlsync_client_close: the client was opened on another thread"),
+        "{stdout}"
+    );
+    assert!(
+        stderr.contains("vlsync::Client destroyed on another thread"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(&tmp).unwrap();
 }
