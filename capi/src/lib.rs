@@ -34,7 +34,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::thread::ThreadId;
 use std::time::Duration;
 use vlsync_common::{Estimate, Nanos};
-use vlsync_ipc::OffsetClient;
+use vlsync_ipc::{IpcError, OffsetClient};
 
 /// Version of this ABI ([`vlsync_client_abi_version`], `VLSYNC_CLIENT_ABI_VERSION` in
 /// the header): a program compiled against another version must not use the library.
@@ -261,20 +261,46 @@ pub unsafe extern "C" fn vlsync_client_wait_next(
     err: *mut c_char,
     err_len: usize,
 ) -> c_int {
-    let r = guarded("vlsync_client_wait_next", || {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        wait_into(
+            c,
+            timeout_ms,
+            out,
+            err,
+            err_len,
+            "vlsync_client_wait_next",
+            |h, t| Ok(h.wait_next(t)?.map(|e| (e, h.latest_publish_ns()))),
+        )
+    }
+}
+
+/// The two waits: `wait(client, timeout)` gives an estimate with its publish time or
+/// none, written to `out`; 1, 0, or -1 with the reason (prefixed with `what`) in `err`.
+///
+/// # Safety
+/// As [`vlsync_client_wait_next`]'s.
+#[allow(unsafe_code)]
+unsafe fn wait_into(
+    c: *mut VlsyncClient,
+    timeout_ms: i64,
+    out: *mut OffsetEstimate,
+    err: *mut c_char,
+    err_len: usize,
+    what: &str,
+    wait: impl FnOnce(&mut OffsetClient, Duration) -> Result<Option<(Estimate, Nanos)>, IpcError>,
+) -> c_int {
+    let r = guarded(what, || {
         // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
         // only for this call
-        let h = unsafe { handle(c, "vlsync_client_wait_next") }?;
+        let h = unsafe { handle(c, what) }?;
         if out.is_null() {
-            return Err("vlsync_client_wait_next: out is NULL".into());
+            return Err(format!("{what}: out is NULL"));
         }
         let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
-        match h
-            .wait_next(timeout)
-            .map_err(|e| format!("vlsync_client_wait_next: {e}"))?
-        {
-            Some(e) => {
-                let v = c_estimate(&e, h.latest_publish_ns())?;
+        match wait(h, timeout).map_err(|e| format!("{what}: {e}"))? {
+            Some((e, publish_ns)) => {
+                let v = c_estimate(&e, publish_ns)?;
                 // SAFETY: `out` is not NULL (checked) and points to a writable
                 // `vlsync_estimate` (the caller's promise)
                 unsafe { put(out, v) };
@@ -310,33 +336,18 @@ pub unsafe extern "C" fn vlsync_client_wait_one(
     err: *mut c_char,
     err_len: usize,
 ) -> c_int {
-    let r = guarded("vlsync_client_wait_one", || {
-        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
-        // only for this call
-        let h = unsafe { handle(c, "vlsync_client_wait_one") }?;
-        if out.is_null() {
-            return Err("vlsync_client_wait_one: out is NULL".into());
-        }
-        let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
-        match h
-            .wait_one(timeout)
-            .map_err(|e| format!("vlsync_client_wait_one: {e}"))?
-        {
-            Some((e, publish_ns)) => {
-                let v = c_estimate(&e, publish_ns)?;
-                // SAFETY: `out` is not NULL (checked) and points to a writable
-                // `vlsync_estimate` (the caller's promise)
-                unsafe { put(out, v) };
-                Ok(1)
-            }
-            None => Ok(0),
-        }
-    });
-    r.unwrap_or_else(|m| {
-        // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
-        unsafe { write_message(err, err_len, &m) };
-        -1
-    })
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        wait_into(
+            c,
+            timeout_ms,
+            out,
+            err,
+            err_len,
+            "vlsync_client_wait_one",
+            |h, t| h.wait_one(t),
+        )
+    }
 }
 
 /// Writes the most recent estimate to `out`, after taking what is pending (which a
