@@ -78,12 +78,50 @@ typedef struct vlsync_conversion {
     vlsync_estimate estimate; /* what it was converted with: check its state and age */
 } vlsync_conversion;
 
+typedef struct vlsync_status_client vlsync_status_client; /* opaque handle */
+
+/* vlsync_daemon_status.rejected[stream][reason] */
+#define VLSYNC_REJECT_NON_FINITE 0
+#define VLSYNC_REJECT_TOO_LARGE 1
+#define VLSYNC_REJECT_BACKWARDS 2
+#define VLSYNC_REJECT_REPEATED 3
+#define VLSYNC_REJECT_MALFORMED 4
+#define VLSYNC_REJECT_REASONS 5
+/* vlsync_daemon_status.state before the first estimate */
+#define VLSYNC_STATE_NONE 0xFF
+
+/* The daemon's counters (<prefix>/status, every daemon.status_period_s), validated: the
+ * layout of vlsync_status in examples/c/vlsync_wire.h. Per-stream arrays: 0 camera,
+ * 1 LiDAR; latency arrays {p50, p99, max} in ns over latency_count measurements. */
+typedef struct vlsync_daemon_status {
+    int64_t uptime_ns;                           /* since the daemon started */
+    int64_t publish_ns;                          /* CLOCK_MONOTONIC of this status */
+    uint64_t received[2];                        /* samples, rejected ones included */
+    uint64_t rejected[2][VLSYNC_REJECT_REASONS]; /* by VLSYNC_REJECT_* */
+    uint64_t lost[2];                            /* sequence gaps */
+    uint64_t budget_overruns;                    /* samples over daemon.latency_budget_us */
+    uint64_t estimates_published;
+    uint64_t events_dropped;                     /* log events the real-time thread dropped */
+    uint64_t processing_ns[3];                   /* receive to estimator done */
+    uint64_t end_to_end_ns[3];                   /* driver publish to estimate published */
+    uint64_t latency_count;
+    uint8_t state;                               /* VLSYNC_STATE_* of the last estimate, or NONE */
+    uint8_t degraded;                            /* 1 while over budget (narrower search) */
+    uint8_t reserved[14];                        /* 0 */
+} vlsync_daemon_status;
+
 #if defined(__cplusplus)
+static_assert(sizeof(vlsync_daemon_status) == 224, "vlsync_daemon_status layout");
+static_assert(offsetof(vlsync_daemon_status, latency_count) == 200, "vlsync_daemon_status layout");
+static_assert(offsetof(vlsync_daemon_status, state) == 208, "vlsync_daemon_status layout");
 static_assert(sizeof(vlsync_estimate) == 88, "vlsync_estimate layout");
 static_assert(offsetof(vlsync_estimate, publish_ns) == 72, "vlsync_estimate layout");
 static_assert(offsetof(vlsync_estimate, state) == 80, "vlsync_estimate layout");
 static_assert(sizeof(vlsync_conversion) == 104, "vlsync_conversion layout");
 #elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
+_Static_assert(sizeof(vlsync_daemon_status) == 224, "vlsync_daemon_status layout");
+_Static_assert(offsetof(vlsync_daemon_status, latency_count) == 200, "vlsync_daemon_status layout");
+_Static_assert(offsetof(vlsync_daemon_status, state) == 208, "vlsync_daemon_status layout");
 _Static_assert(sizeof(vlsync_estimate) == 88, "vlsync_estimate layout");
 _Static_assert(offsetof(vlsync_estimate, publish_ns) == 72, "vlsync_estimate layout");
 _Static_assert(offsetof(vlsync_estimate, state) == 80, "vlsync_estimate layout");
@@ -130,6 +168,19 @@ int vlsync_client_set_process_noise(vlsync_client *c, double tracking, double ho
 
 /* Payloads refused by validation so far; 0 too for a NULL or another thread's handle. */
 uint64_t vlsync_client_invalid_count(vlsync_client *c);
+
+/* Opens the status service of robot `prefix` (the daemon need not run yet); NULL with
+ * the reason in err on failure. Used on its opening thread, like a vlsync_client. */
+vlsync_status_client *vlsync_status_open(const char *prefix, char *err, size_t err_len);
+
+/* Closes a status handle (NULL: nothing). 0, or -1 from another thread (it stays open). */
+int vlsync_status_close(vlsync_status_client *c);
+
+/* The newest valid status (invalid payloads are skipped). 1: written to *out; 0: none
+ * yet; -1: error (err): NULL argument, wrong thread, transport failure, or only invalid
+ * payloads so far. */
+int vlsync_status_latest(vlsync_status_client *c, vlsync_daemon_status *out, char *err,
+                         size_t err_len);
 
 /* "acquiring", "tracking", "holding", "lost", or "unknown": a static string. */
 const char *vlsync_state_name(uint8_t state);

@@ -6,6 +6,8 @@
 //       std::cout << vlsync::state_name(*e) << " " << e->offset_s << "\n";
 //   if (auto v = c.camera_to_lidar(t_cam_ns); v && vlsync::is_locked(v->estimate))
 //       use(v->t_lidar_ns);
+//   vlsync::StatusClient s("vlsync/robot");    // the daemon's counters, for diagnostics
+//   if (auto st = s.latest()) report(st->lost[0] + st->lost[1], st->budget_overruns);
 //
 // Like the handle it wraps, a Client is used, and destroyed, on the thread that
 // constructed it: close() throws when called from another thread (the handle stays
@@ -132,6 +134,44 @@ class Client {
     }
 
     vlsync_client *c_ = nullptr;
+};
+
+/// The daemon's counters (`<prefix>/status`): one owning, movable handle, used on the
+/// thread that constructed it, like a Client.
+class StatusClient {
+  public:
+    explicit StatusClient(const std::string &prefix) {
+        char err[512] = {0};
+        c_ = vlsync_status_open(prefix.c_str(), err, sizeof err);
+        if (!c_) throw Error(err);
+    }
+    ~StatusClient() {
+        if (vlsync_status_close(c_) != 0)
+            std::fputs("vlsync::StatusClient destroyed on another thread than the one that "
+                       "opened it: its handle is left open (leaked)\n",
+                       stderr);
+    }
+    StatusClient(const StatusClient &) = delete;
+    StatusClient &operator=(const StatusClient &) = delete;
+    StatusClient(StatusClient &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
+    StatusClient &operator=(StatusClient &&o) noexcept {
+        if (this != &o) std::swap(c_, o.c_);
+        return *this;
+    }
+
+    /// The newest valid status; empty before the first.
+    std::optional<vlsync_daemon_status> latest() {
+        vlsync_daemon_status s;
+        char err[512] = {0};
+        switch (vlsync_status_latest(c_, &s, err, sizeof err)) {
+        case 1: return s;
+        case 0: return std::nullopt;
+        default: throw Error(err);
+        }
+    }
+
+  private:
+    vlsync_status_client *c_ = nullptr;
 };
 
 } // namespace vlsync

@@ -33,8 +33,9 @@ use std::ffi::{c_char, c_int, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::thread::ThreadId;
 use std::time::Duration;
+pub use vlsync_common::wire::Status;
 use vlsync_common::{Estimate, Nanos};
-use vlsync_ipc::{IpcError, OffsetClient};
+use vlsync_ipc::{IpcError, OffsetClient, StatusClient};
 
 /// Version of this ABI ([`vlsync_client_abi_version`], `VLSYNC_CLIENT_ABI_VERSION` in
 /// the header): a program compiled against another version must not use the library.
@@ -64,11 +65,17 @@ pub struct VlsyncConversion {
     pub estimate: OffsetEstimate,
 }
 
-/// The handle behind `vlsync_client *`.
-pub struct VlsyncClient {
-    inner: OffsetClient,
+/// A client behind an opaque C handle, with the thread that opened it.
+pub struct Handle<T> {
+    inner: T,
     thread: ThreadId,
 }
+
+/// The handle behind `vlsync_client *`.
+pub type VlsyncClient = Handle<OffsetClient>;
+
+/// The handle behind `vlsync_status_client *`.
+pub type VlsyncStatusClient = Handle<StatusClient>;
 
 /// What a call failed with.
 type CallResult<T> = Result<T, String>;
@@ -129,7 +136,7 @@ unsafe fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
 /// `c` is NULL or a handle from [`vlsync_client_open`] not yet closed, and the
 /// reference returned is dropped before the handle is closed.
 #[allow(unsafe_code)]
-unsafe fn handle<'a>(c: *mut VlsyncClient, what: &str) -> CallResult<&'a mut OffsetClient> {
+unsafe fn handle<'a, T>(c: *mut Handle<T>, what: &str) -> CallResult<&'a mut T> {
     if c.is_null() {
         return Err(format!("{what}: the client is NULL"));
     }
@@ -181,27 +188,49 @@ pub unsafe extern "C" fn vlsync_client_open(
     err: *mut c_char,
     err_len: usize,
 ) -> *mut VlsyncClient {
-    let r = guarded("vlsync_client_open", || {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        open_handle(
+            prefix,
+            err,
+            err_len,
+            "vlsync_client_open",
+            OffsetClient::open,
+        )
+    }
+}
+
+/// Opens a client of robot `prefix` with `open` on this thread: the handle, or NULL
+/// with the reason (prefixed with `what`) in `err`.
+///
+/// # Safety
+/// As [`vlsync_client_open`]'s.
+#[allow(unsafe_code)]
+unsafe fn open_handle<T>(
+    prefix: *const c_char,
+    err: *mut c_char,
+    err_len: usize,
+    what: &str,
+    open: impl FnOnce(&str) -> Result<T, IpcError>,
+) -> *mut Handle<T> {
+    let r = guarded(what, || {
         if prefix.is_null() {
-            return Err("vlsync_client_open: the prefix is NULL".into());
+            return Err(format!("{what}: the prefix is NULL"));
         }
         // SAFETY: non-NULL and NUL-terminated, as the caller promised.
         let p = unsafe { CStr::from_ptr(prefix) };
-        let p = p.to_str().map_err(|_| {
-            format!(
-                "vlsync_client_open: the prefix {:?} is not UTF-8",
-                p.to_string_lossy()
-            )
-        })?;
+        let p = p
+            .to_str()
+            .map_err(|_| format!("{what}: the prefix {:?} is not UTF-8", p.to_string_lossy()))?;
         if !vlsync_config::prefix_is_valid(p) {
             let shown: String = p.chars().take(60).collect();
             let more = if shown.len() < p.len() { "..." } else { "" };
             return Err(format!(
-                "vlsync_client_open: prefix {shown:?}{more} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`"
+                "{what}: prefix {shown:?}{more} is invalid: allowed 1-200 characters of [A-Za-z0-9_.-/], no leading, trailing or double `/`"
             ));
         }
-        let inner = OffsetClient::open(p).map_err(|e| format!("vlsync_client_open: {e}"))?;
-        Ok(Box::new(VlsyncClient {
+        let inner = open(p).map_err(|e| format!("{what}: {e}"))?;
+        Ok(Box::new(Handle {
             inner,
             thread: std::thread::current().id(),
         }))
@@ -224,19 +253,30 @@ pub unsafe extern "C" fn vlsync_client_open(
 #[allow(unsafe_code)]
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
+    // SAFETY: the caller's promise, passed on unchanged
+    unsafe { close_handle(c, "vlsync_client_close") }
+}
+
+/// Closes handle `c` on its own thread: 0 (NULL: nothing to do), or -1 on another
+/// thread, the handle left open.
+///
+/// # Safety
+/// `c` is NULL or a handle from `open_handle` not closed before.
+#[allow(unsafe_code)]
+unsafe fn close_handle<T>(c: *mut Handle<T>, what: &str) -> c_int {
     if c.is_null() {
         return 0;
     }
-    let r = guarded("vlsync_client_close", || {
+    let r = guarded(what, || {
         // SAFETY: `c` is an open handle (the caller's promise); the reference is
         // dropped here
-        unsafe { handle(c, "vlsync_client_close") }.map(|_| ())
+        unsafe { handle(c, what) }.map(|_| ())
     });
     if r.is_err() {
         return -1;
     }
-    // SAFETY: `c` came from `Box::into_raw` in `vlsync_client_open` and is closed
-    // once (the caller's promise); on its own thread (checked above).
+    // SAFETY: `c` came from `Box::into_raw` in `open_handle` and is closed once (the
+    // caller's promise); on its own thread (checked above).
     let b = unsafe { Box::from_raw(c) };
     // a panic in a port's drop is caught; the handle is gone either way
     let _ = catch_unwind(AssertUnwindSafe(move || drop(b)));
@@ -476,6 +516,89 @@ pub unsafe extern "C" fn vlsync_client_invalid_count(c: *mut VlsyncClient) -> u6
     .unwrap_or(0)
 }
 
+/// Opens the status service of robot `prefix` (the daemon's counters, published every
+/// `daemon.status_period_s`). Returns the handle, or NULL with the reason in `err`. The
+/// daemon need not run yet. Like an offset client, a handle is used on the thread that
+/// opened it.
+///
+/// # Safety
+/// `prefix` is NULL or a NUL-terminated string; `err` is NULL or points to
+/// `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_status_open(
+    prefix: *const c_char,
+    err: *mut c_char,
+    err_len: usize,
+) -> *mut VlsyncStatusClient {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        open_handle(
+            prefix,
+            err,
+            err_len,
+            "vlsync_status_open",
+            StatusClient::open,
+        )
+    }
+}
+
+/// Closes a status handle (NULL: nothing to do). Returns 0, or -1 when called on
+/// another thread than the one that opened it: the handle is then left open.
+///
+/// # Safety
+/// `c` is NULL or a handle from [`vlsync_status_open`] not closed before.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_status_close(c: *mut VlsyncStatusClient) -> c_int {
+    // SAFETY: the caller's promise, passed on unchanged
+    unsafe { close_handle(c, "vlsync_status_close") }
+}
+
+/// Writes the newest valid status to `out` (after taking what is pending; invalid
+/// payloads are skipped). Returns 1 when written, 0 before the first status, -1 on
+/// error with the reason in `err`: a NULL argument, another thread's handle, a
+/// transport failure, or, while no valid status ever arrived, the payload's
+/// validation error.
+///
+/// # Safety
+/// `c` is NULL or an open status handle; `out` is NULL or points to a writable
+/// `vlsync_daemon_status`; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_status_latest(
+    c: *mut VlsyncStatusClient,
+    out: *mut Status,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    let r = guarded("vlsync_status_latest", || {
+        // SAFETY: `c` is NULL or an open status handle (the caller's promise); `h`
+        // lives only for this call
+        let h = unsafe { handle(c, "vlsync_status_latest") }?;
+        if out.is_null() {
+            return Err("vlsync_status_latest: out is NULL".into());
+        }
+        match h
+            .latest()
+            .map_err(|e| format!("vlsync_status_latest: {e}"))?
+        {
+            Some(st) => {
+                // SAFETY: `out` is not NULL (checked) and points to a writable
+                // `vlsync_daemon_status` (the caller's promise)
+                unsafe { put(out, st) };
+                Ok(1)
+            }
+            None => Ok(0),
+        }
+    });
+    r.unwrap_or_else(|m| {
+        // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
+        unsafe { write_message(err, err_len, &m) };
+        -1
+    })
+}
+
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
 /// `"lost"`), `"unknown"` for any other: a static string, never freed.
 #[allow(unsafe_code)]
@@ -521,6 +644,70 @@ mod tests {
         assert_eq!(offset_of!(OffsetEstimate, polarity), 81);
         assert_eq!(size_of::<VlsyncConversion>(), 104);
         assert_eq!(offset_of!(VlsyncConversion, estimate), 16);
+        assert_eq!((size_of::<Status>(), align_of::<Status>()), (224, 8));
+        assert_eq!(offset_of!(Status, rejected), 32);
+        assert_eq!(offset_of!(Status, latency_count), 200);
+        assert_eq!(offset_of!(Status, state), 208);
+        assert_eq!(offset_of!(Status, degraded), 209);
+    }
+
+    #[test]
+    fn a_status_handle_checks_its_arguments_and_its_thread() {
+        let mut err = [0u8; 300];
+        let mut st = Status::default();
+        // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_status_open not yet closed.
+        unsafe {
+            let null = std::ptr::null_mut();
+            assert_eq!(
+                vlsync_status_latest(null, &mut st, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_status_latest: the client is NULL");
+            assert_eq!(vlsync_status_close(null), 0);
+            assert!(
+                vlsync_status_open(c"a//b".as_ptr(), err.as_mut_ptr().cast(), err.len()).is_null()
+            );
+            assert!(
+                text(&err).starts_with("vlsync_status_open: prefix \"a//b\" is invalid"),
+                "{}",
+                text(&err)
+            );
+        }
+        let prefix = format!("vlsync/capi-status-{}", std::process::id());
+        let cp = std::ffi::CString::new(prefix).unwrap();
+        // SAFETY: as above
+        let c = unsafe { vlsync_status_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(!c.is_null(), "{}", text(&err));
+        // SAFETY: as above
+        unsafe {
+            // no daemon: nothing yet
+            assert_eq!(
+                vlsync_status_latest(c, &mut st, err.as_mut_ptr().cast(), err.len()),
+                0
+            );
+            assert_eq!(
+                vlsync_status_latest(c, std::ptr::null_mut(), err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_status_latest: out is NULL");
+        }
+        let addr = c as usize;
+        let (code, closed) = std::thread::spawn(move || {
+            let c = addr as *mut VlsyncStatusClient;
+            let mut st = Status::default();
+            // SAFETY: as above (the handle is refused on this thread)
+            unsafe {
+                (
+                    vlsync_status_latest(c, &mut st, std::ptr::null_mut(), 0),
+                    vlsync_status_close(c),
+                )
+            }
+        })
+        .join()
+        .unwrap();
+        assert_eq!((code, closed), (-1, -1));
+        // SAFETY: as above
+        assert_eq!(unsafe { vlsync_status_close(c) }, 0);
     }
 
     #[test]

@@ -4,10 +4,12 @@
  *   cargo build --release -p vlsync-capi
  *   cc -std=c11 -Wall -I capi/include examples/c/vlsync_echo.c \
  *      -L target/release -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_echo_c
- *   ./vlsync_echo_c --prefix vlsync/robot [--count N] [--timeout S]
+ *   ./vlsync_echo_c --prefix vlsync/robot [--count N] [--timeout S] [--status]
  *
  * One line per estimate, every one in order (vlsync_client_wait_one): sequence number, state, reference time on the LiDAR clock,
- * offset +- one standard deviation, drift. Exit status: 0 after --count estimates or on
+ * offset +- one standard deviation, drift. With --status, one line per status the daemon
+ * publishes instead (its counters: state, samples received, rejected and lost per stream,
+ * estimates, budget overruns, end-to-end p99). Exit status: 0 after --count lines or on
  * Ctrl-C / SIGTERM; 1 when --timeout seconds pass without an estimate; 2 on a bad
  * argument or a library error (its message on stderr).
  */
@@ -25,7 +27,7 @@ static volatile sig_atomic_t stop = 0;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
 static int usage(const char *why, const char *arg) {
-    fprintf(stderr, "vlsync_echo: %s%s\nusage: vlsync_echo [--prefix P] [--count N] [--timeout S]\n",
+    fprintf(stderr, "vlsync_echo: %s%s\nusage: vlsync_echo [--prefix P] [--count N] [--timeout S] [--status]\n",
             why, arg);
     return 2;
 }
@@ -44,11 +46,81 @@ static double now_s(void) {
     return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
+/* Flushes stdout: 1, or 0 to stop, with *status 2 and a message on a write error. A
+ * signal can interrupt a blocked write: that is a stop, not an error. */
+static int flushed(int *status) {
+    if (fflush(stdout) == 0) return 1;
+    if (!stop) {
+        fprintf(stderr, "vlsync_echo: writing to stdout: %s\n", strerror(errno));
+        *status = 2;
+    }
+    return 0;
+}
+
+/* rejected samples of stream s, every reason */
+static unsigned long long rejected(const vlsync_daemon_status *st, int s) {
+    unsigned long long n = 0;
+    for (int r = 0; r < VLSYNC_REJECT_REASONS; r++) n += st->rejected[s][r];
+    return n;
+}
+
+/* --status: one line per new status, polled every 250 ms */
+static int echo_status(const char *prefix, long count, double timeout) {
+    char err[512];
+    vlsync_status_client *c = vlsync_status_open(prefix, err, sizeof err);
+    if (!c) {
+        fprintf(stderr, "vlsync_echo: %s\n", err);
+        return 2;
+    }
+    long got = 0;
+    int status = 0;
+    int64_t last_publish = INT64_MIN;
+    double last = now_s();
+    struct timespec tick = {0, 250 * 1000 * 1000};
+    while (!stop && (count == 0 || got < count)) {
+        vlsync_daemon_status st;
+        int r = vlsync_status_latest(c, &st, err, sizeof err);
+        if (r < 0) {
+            fprintf(stderr, "vlsync_echo: %s\n", err);
+            status = 2;
+            break;
+        }
+        if (r == 0 || st.publish_ns == last_publish) {
+            if (timeout > 0 && now_s() - last > timeout) {
+                fprintf(stderr, "vlsync_echo: no status on %s/status for %.1f s\n", prefix, timeout);
+                status = 1;
+                break;
+            }
+            nanosleep(&tick, NULL); /* a signal ends it early */
+            continue;
+        }
+        last_publish = st.publish_ns;
+        last = now_s();
+        got++;
+        printf("status %-9s received %llu %llu rejected %llu %llu lost %llu %llu estimates %llu "
+               "overruns %llu degraded %u p99 %.1f us\n",
+               st.state == VLSYNC_STATE_NONE ? "none" : vlsync_state_name(st.state),
+               (unsigned long long)st.received[0], (unsigned long long)st.received[1],
+               rejected(&st, 0), rejected(&st, 1), (unsigned long long)st.lost[0],
+               (unsigned long long)st.lost[1], (unsigned long long)st.estimates_published,
+               (unsigned long long)st.budget_overruns, (unsigned)st.degraded,
+               st.end_to_end_ns[1] * 1e-3);
+        if (!flushed(&status)) break;
+    }
+    vlsync_status_close(c);
+    return status;
+}
+
 int main(int argc, char **argv) {
     const char *prefix = "vlsync/robot";
     double count = 0.0, timeout = 0.0;
+    int want_status = 0;
     for (int i = 1; i < argc; i++) {
         const char *opt = argv[i];
+        if (!strcmp(opt, "--status")) {
+            want_status = 1;
+            continue;
+        }
         if (strcmp(opt, "--prefix") && strcmp(opt, "--count") && strcmp(opt, "--timeout"))
             return usage("unknown option ", opt);
         if (i + 1 >= argc) return usage("a value is missing after ", opt);
@@ -71,6 +143,8 @@ int main(int argc, char **argv) {
     sa.sa_handler = on_signal;
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
+
+    if (want_status) return echo_status(prefix, (long)count, timeout);
 
     char err[512];
     vlsync_client *c = vlsync_client_open(prefix, err, sizeof err);
@@ -102,14 +176,7 @@ int main(int argc, char **argv) {
         printf("seq %llu %-9s t_ref %.3f s offset %+.3f ms +- %.3f ms drift %+.2f ppm\n",
                (unsigned long long)e.seq, vlsync_state_name(e.state), e.t_ref_ns * 1e-9,
                e.offset_s * 1e3, e.offset_std_s * 1e3, e.drift * 1e6);
-        if (fflush(stdout) != 0) {
-            /* a signal can interrupt a blocked write: that is a stop, not an error */
-            if (!stop) {
-                fprintf(stderr, "vlsync_echo: writing to stdout: %s\n", strerror(errno));
-                status = 2;
-            }
-            break;
-        }
+        if (!flushed(&status)) break;
     }
     vlsync_client_close(c);
     return status;

@@ -7,7 +7,7 @@
 use core::mem::{offset_of, size_of};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use vlsync_client::{OffsetEstimate, VlsyncConversion};
+use vlsync_client::{OffsetEstimate, Status, VlsyncConversion};
 use vlsync_common::Stream;
 use vlsync_tests::{capi_lib_dir, Rig};
 
@@ -88,11 +88,15 @@ int main(void) {
          offsetof(vlsync_estimate, measured_offset_s), offsetof(vlsync_estimate, publish_ns),
          offsetof(vlsync_estimate, state), offsetof(vlsync_estimate, polarity),
          sizeof(vlsync_conversion), offsetof(vlsync_conversion, estimate));
+  printf("%zu %zu %zu %zu %zu %zu %zu\n", sizeof(vlsync_daemon_status),
+         offsetof(vlsync_daemon_status, rejected), offsetof(vlsync_daemon_status, lost),
+         offsetof(vlsync_daemon_status, end_to_end_ns), offsetof(vlsync_daemon_status, latency_count),
+         offsetof(vlsync_daemon_status, state), offsetof(vlsync_daemon_status, degraded));
   return vlsync_client_abi_version() == VLSYNC_CLIENT_ABI_VERSION ? 0 : 3;
 }
 "#;
     let want = format!(
-        "{} {} {} {} {} {} {} {}\n",
+        "{} {} {} {} {} {} {} {}\n{} {} {} {} {} {} {}\n",
         size_of::<OffsetEstimate>(),
         offset_of!(OffsetEstimate, t_ref_ns),
         offset_of!(OffsetEstimate, measured_offset_s),
@@ -101,6 +105,13 @@ int main(void) {
         offset_of!(OffsetEstimate, polarity),
         size_of::<VlsyncConversion>(),
         offset_of!(VlsyncConversion, estimate),
+        size_of::<Status>(),
+        offset_of!(Status, rejected),
+        offset_of!(Status, lost),
+        offset_of!(Status, end_to_end_ns),
+        offset_of!(Status, latency_count),
+        offset_of!(Status, state),
+        offset_of!(Status, degraded),
     );
     for (name, cxx) in [("layout.c", false), ("layout.cpp", true)] {
         let path = tmp.join(name);
@@ -160,6 +171,27 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         "vlsync_echo: {text}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // the daemon's counters through the status API: two statuses, one per second
+    let status = run(
+        &echo,
+        &[
+            "--prefix",
+            &rig.prefix,
+            "--status",
+            "--count",
+            "2",
+            "--timeout",
+            "5",
+        ],
+        "",
+    );
+    let status_text = String::from_utf8_lossy(&status.stdout).to_string();
+    assert_eq!(
+        status.status.code(),
+        Some(0),
+        "vlsync_echo --status: {status_text}\n{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     // camera stamps two seconds apart, from the run's first frame on
     let t0 = rig.sim.cam[0].t_ns;
     let stamps: Vec<i64> = (0..5).map(|i| t0 + i * 2_000_000_000).collect();
@@ -209,6 +241,47 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         "vlsync_convert: {conv_text}\n{}",
         String::from_utf8_lossy(&conv.stderr)
     );
+    let statuses: Vec<Vec<&str>> = status_text
+        .lines()
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    assert_eq!(statuses.len(), 2, "{status_text}");
+    let mut estimates = Vec::new();
+    for w in &statuses {
+        assert_eq!(w.len(), 20, "{status_text}");
+        assert_eq!(
+            (w[0], w[2], w[5], w[8], w[11], w[13], w[15], w[17], w[19]),
+            (
+                "status",
+                "received",
+                "rejected",
+                "lost",
+                "estimates",
+                "overruns",
+                "degraded",
+                "p99",
+                "us"
+            ),
+            "{status_text}"
+        );
+        assert!(
+            ["tracking", "holding"].contains(&w[1]),
+            "a lock by now: {status_text}"
+        );
+        let num = |i: usize| w[i].parse::<u64>().unwrap();
+        // both streams flow, nothing rejected or lost on a clean run (a debug build
+        // beside other work may overrun its budget: not judged here)
+        assert!(w[16] == "0" || w[16] == "1", "{status_text}");
+        assert!(w[18].parse::<f64>().unwrap() > 0.0, "{status_text}");
+        assert!(num(3) > 100 && num(4) > 30, "{status_text}");
+        assert_eq!(
+            (num(6), num(7), num(9), num(10)),
+            (0, 0, 0, 0),
+            "{status_text}"
+        );
+        estimates.push(num(12));
+    }
+    assert!(estimates[1] > estimates[0], "{status_text}");
     let big_err = String::from_utf8_lossy(&big.stderr);
     assert_eq!(big.status.code(), Some(2), "{big_err}");
     assert!(
@@ -303,6 +376,12 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
             1,
             "no lock on",
         ),
+        (
+            &echo,
+            vec!["--prefix", &silent, "--status", "--timeout", "0.5"],
+            1,
+            "no status on",
+        ),
     ] {
         let out = run(exe, &args, "");
         let err = String::from_utf8_lossy(&out.stderr);
@@ -314,7 +393,8 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
 
 /// The C++ wrapper's `close()` from another thread throws and leaves the handle open
 /// for its own thread; a `Client` destroyed on another thread says on stderr that its
-/// handle leaks instead of leaking it silently.
+/// handle leaks instead of leaking it silently; a `StatusClient` of a silent prefix
+/// has no status, moved or not.
 #[test]
 fn the_cpp_wrapper_reports_a_close_from_another_thread() {
     let tmp = scratch("cppthread");
@@ -339,6 +419,10 @@ int main(int argc, char **argv) {
   c.close();  // closed: nothing to do
   vlsync::Client d(argv[1]);
   std::thread([d = std::move(d)]() mutable { vlsync::Client gone = std::move(d); }).join();
+  vlsync::StatusClient s(argv[1]);
+  if (s.latest()) return 6;  // no daemon: no status
+  vlsync::StatusClient t = std::move(s);
+  if (t.latest()) return 7;
   return 0;
 }
 "#,
