@@ -4,7 +4,8 @@
  * Link with libvlsync_client.so (`cargo build --release -p vlsync-capi` writes it to
  * target/release/). The library opens <prefix>/offset of the daemon's iceoryx2 services,
  * validates every payload as the Rust and Python clients do, and converts camera stamps
- * to the LiDAR time base. No iceoryx2 C/C++ bindings are needed.
+ * to the LiDAR time base; a second handle type reads the daemon's counters
+ * (<prefix>/status, vlsync_status_*). No iceoryx2 C/C++ bindings are needed.
  *
  *   char err[256];
  *   vlsync_client *c = vlsync_client_open("vlsync/robot", err, sizeof err);
