@@ -330,6 +330,35 @@ unsafe fn wait_into(
     what: &str,
     wait: impl FnOnce(&mut OffsetClient, Duration) -> Result<Option<(Estimate, Nanos)>, IpcError>,
 ) -> c_int {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        fetch_into(c, out, err, err_len, what, |h| {
+            let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
+            match wait(h, timeout).map_err(|e| format!("{what}: {e}"))? {
+                Some((e, publish_ns)) => Ok(Some(c_estimate(&e, publish_ns)?)),
+                None => Ok(None),
+            }
+        })
+    }
+}
+
+/// The shape of every call that hands a value out: `fetch` runs guarded on the client
+/// behind `c` (on its own thread) and its value is written to `out`. Returns 1 when
+/// written, 0 when `fetch` had nothing, -1 on error (a NULL argument, another thread,
+/// what `fetch` failed with) with the reason, prefixed with `what`, in `err`.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable `V`; `err` is
+/// NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+unsafe fn fetch_into<T, V>(
+    c: *mut Handle<T>,
+    out: *mut V,
+    err: *mut c_char,
+    err_len: usize,
+    what: &str,
+    fetch: impl FnOnce(&mut T) -> CallResult<Option<V>>,
+) -> c_int {
     let r = guarded(what, || {
         // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
         // only for this call
@@ -337,17 +366,15 @@ unsafe fn wait_into(
         if out.is_null() {
             return Err(format!("{what}: out is NULL"));
         }
-        let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
-        match wait(h, timeout).map_err(|e| format!("{what}: {e}"))? {
-            Some((e, publish_ns)) => {
-                let v = c_estimate(&e, publish_ns)?;
-                // SAFETY: `out` is not NULL (checked) and points to a writable
-                // `vlsync_estimate` (the caller's promise)
+        Ok(match fetch(h)? {
+            Some(v) => {
+                // SAFETY: `out` is not NULL (checked) and points to a writable `V`
+                // (the caller's promise)
                 unsafe { put(out, v) };
-                Ok(1)
+                1
             }
-            None => Ok(0),
-        }
+            None => 0,
+        })
     });
     r.unwrap_or_else(|m| {
         // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
@@ -404,25 +431,15 @@ pub unsafe extern "C" fn vlsync_client_latest(
     c: *mut VlsyncClient,
     out: *mut OffsetEstimate,
 ) -> c_int {
-    let r = guarded("vlsync_client_latest", || {
-        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
-        // only for this call
-        let h = unsafe { handle(c, "vlsync_client_latest") }?;
-        if out.is_null() {
-            return Err("out is NULL".into());
-        }
-        Ok(match h.latest() {
-            Some(e) => {
-                let v = c_estimate(&e, h.latest_publish_ns())?;
-                // SAFETY: `out` is not NULL (checked) and points to a writable
-                // `vlsync_estimate` (the caller's promise)
-                unsafe { put(out, v) };
-                1
-            }
-            None => 0,
+    let what = "vlsync_client_latest";
+    // SAFETY: the caller's promises, passed on unchanged (no error buffer)
+    unsafe {
+        fetch_into(c, out, std::ptr::null_mut(), 0, what, |h| {
+            h.latest()
+                .map(|e| c_estimate(&e, h.latest_publish_ns()))
+                .transpose()
         })
-    });
-    r.unwrap_or(-1)
+    }
 }
 
 /// Converts camera stamp `t_cam_ns` to the LiDAR time base with the latest estimate
@@ -442,29 +459,21 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
     t_cam_ns: i64,
     out: *mut VlsyncConversion,
 ) -> c_int {
-    let r = guarded("vlsync_client_camera_to_lidar", || {
-        // SAFETY: `c` is NULL or an open handle (the caller's promise); `h` lives
-        // only for this call
-        let h = unsafe { handle(c, "vlsync_client_camera_to_lidar") }?;
-        if out.is_null() {
-            return Err("out is NULL".into());
-        }
-        Ok(match h.camera_to_lidar(t_cam_ns) {
-            Some(v) => {
-                let conv = VlsyncConversion {
-                    t_lidar_ns: v.t_lidar_ns,
-                    std_s: v.std_s,
-                    estimate: c_estimate(&v.estimate, h.latest_publish_ns())?,
-                };
-                // SAFETY: `out` is not NULL (checked) and points to a writable
-                // `vlsync_conversion` (the caller's promise)
-                unsafe { put(out, conv) };
-                1
-            }
-            None => 0,
+    let what = "vlsync_client_camera_to_lidar";
+    // SAFETY: the caller's promises, passed on unchanged (no error buffer)
+    unsafe {
+        fetch_into(c, out, std::ptr::null_mut(), 0, what, |h| {
+            h.camera_to_lidar(t_cam_ns)
+                .map(|v| {
+                    Ok(VlsyncConversion {
+                        t_lidar_ns: v.t_lidar_ns,
+                        std_s: v.std_s,
+                        estimate: c_estimate(&v.estimate, h.latest_publish_ns())?,
+                    })
+                })
+                .transpose()
         })
-    });
-    r.unwrap_or(-1)
+    }
 }
 
 /// Sets the offset's random walk (s/√s) that conversions assume while tracking and
@@ -572,31 +581,13 @@ pub unsafe extern "C" fn vlsync_status_latest(
     err: *mut c_char,
     err_len: usize,
 ) -> c_int {
-    let r = guarded("vlsync_status_latest", || {
-        // SAFETY: `c` is NULL or an open status handle (the caller's promise); `h`
-        // lives only for this call
-        let h = unsafe { handle(c, "vlsync_status_latest") }?;
-        if out.is_null() {
-            return Err("vlsync_status_latest: out is NULL".into());
-        }
-        match h
-            .latest()
-            .map_err(|e| format!("vlsync_status_latest: {e}"))?
-        {
-            Some(st) => {
-                // SAFETY: `out` is not NULL (checked) and points to a writable
-                // `vlsync_daemon_status` (the caller's promise)
-                unsafe { put(out, st) };
-                Ok(1)
-            }
-            None => Ok(0),
-        }
-    });
-    r.unwrap_or_else(|m| {
-        // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
-        unsafe { write_message(err, err_len, &m) };
-        -1
-    })
+    let what = "vlsync_status_latest";
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        fetch_into(c, out, err, err_len, what, |h| {
+            h.latest().map_err(|e| format!("{what}: {e}"))
+        })
+    }
 }
 
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
