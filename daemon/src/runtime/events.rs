@@ -54,9 +54,18 @@ pub(super) fn log_event(ev: &RtEvent, throttle: &mut journal::Throttle, now: Nan
             }
         }
         RtEvent::InvalidEstimate { seq } => {
-            tracing::error!("estimate #{seq} has an invalid field; not published")
+            if let Some(n) = throttle.admit(journal::INVALID_ESTIMATE_KEY, 1, now) {
+                tracing::error!(
+                    "estimate #{seq} has an invalid field; not published{}",
+                    more(n)
+                )
+            }
         }
-        RtEvent::PublishFailed { seq } => tracing::warn!("estimate #{seq} could not be published"),
+        RtEvent::PublishFailed { seq } => {
+            if let Some(n) = throttle.admit(journal::PUBLISH_FAILED_KEY, 1, now) {
+                tracing::warn!("estimate #{seq} could not be published{}", more(n))
+            }
+        }
         RtEvent::Degraded { on, processing_ns } => {
             if !*on {
                 tracing::debug!("no budget overrun for {DEGRADED_QUIET:?}: degraded mode off")
@@ -144,5 +153,59 @@ pub(super) fn report_suppressed(key: usize, n: u64) {
             "{n} more {} since the last such line",
             journal::kind_text(key)
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    /// A log writer into memory.
+    #[derive(Clone, Default)]
+    struct Buf(Arc<Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Buf {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().expect("log buffer").extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn estimates_not_published_are_logged_once_per_period_with_the_count() {
+        let buf = Buf::default();
+        let w = buf.clone();
+        let sub = tracing_subscriber::fmt()
+            .with_writer(move || w.clone())
+            .with_ansi(false)
+            .finish();
+        tracing::subscriber::with_default(sub, || {
+            let mut t = journal::Throttle::new(10_000_000_000);
+            // a lasting fault: both kinds at every hop (0.5 s) for 20 s
+            for seq in 0..40u64 {
+                let now = seq as Nanos * 500_000_000;
+                log_event(&RtEvent::PublishFailed { seq }, &mut t, now);
+                log_event(&RtEvent::InvalidEstimate { seq }, &mut t, now);
+            }
+        });
+        let text = String::from_utf8(buf.0.lock().expect("log buffer").clone()).expect("utf-8");
+        assert_eq!(text.matches("could not be published").count(), 2, "{text}");
+        assert_eq!(text.matches("has an invalid field").count(), 2, "{text}");
+        assert!(
+            text.contains("estimate #0 could not be published\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("estimate #20 could not be published (19 more since the last such line)"),
+            "{text}"
+        );
+        assert!(
+            text.contains("estimate #20 has an invalid field; not published (19 more since"),
+            "{text}"
+        );
     }
 }

@@ -18,10 +18,11 @@ pub const SUMMARY_NS: Nanos = 600_000_000_000;
 /// per stream and the offset steps found in the data (information, not warnings:
 /// a load change), then the moves of the search (a warning), the (re)starts of each
 /// stream's driver (information: a publisher that flags every sample as its first
-/// would log one a sample), the errors of the real-time loop, and the changes of the
+/// would log one a sample), the errors of the real-time loop, the changes of the
 /// estimator state per new state (information: a flapping estimator would log two
-/// lines a hop).
-pub const KINDS: usize = 2 * REJECT_REASONS + 14;
+/// lines a hop), and the estimates not published, invalid or refused by the offset
+/// service (a lasting fault would log one line per estimate, 170,000 a day).
+pub const KINDS: usize = 2 * REJECT_REASONS + 16;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -55,6 +56,12 @@ pub const RT_ERROR_KEY: usize = DEGRADED_KEY + 7;
 pub fn state_key(to: EstimatorState) -> usize {
     DEGRADED_KEY + 8 + to as usize % 4
 }
+
+/// Throttle key of an estimate with an invalid field (not published).
+pub const INVALID_ESTIMATE_KEY: usize = DEGRADED_KEY + 12;
+
+/// Throttle key of an estimate the offset service did not take (no free sample).
+pub const PUBLISH_FAILED_KEY: usize = DEGRADED_KEY + 13;
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
@@ -127,7 +134,11 @@ fn events_logged(log: &str, named: impl Fn(&str) -> bool, held: &str) -> usize {
 
 /// Whether the kind of throttle key `key` is information (not a warning).
 pub fn is_info(key: usize) -> bool {
-    key > DEGRADED_KEY && key != SEARCH_MOVE_KEY && key != RT_ERROR_KEY
+    key > DEGRADED_KEY
+        && !matches!(
+            key,
+            SEARCH_MOVE_KEY | RT_ERROR_KEY | INVALID_ESTIMATE_KEY | PUBLISH_FAILED_KEY
+        )
 }
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
@@ -217,6 +228,10 @@ pub fn kind_text(key: usize) -> String {
         "moves of the search (no lock where it searched)".to_string()
     } else if key == RT_ERROR_KEY {
         "errors of the real-time loop".to_string()
+    } else if key == INVALID_ESTIMATE_KEY {
+        "estimates with an invalid field (not published)".to_string()
+    } else if key == PUBLISH_FAILED_KEY {
+        "estimates the offset service did not take".to_string()
     } else if key >= state_key(EstimatorState::Acquiring) {
         let to = [
             EstimatorState::Acquiring,
@@ -414,7 +429,13 @@ mod tests {
             kind_text(state_key(EstimatorState::Acquiring)),
             "changes of the estimator state to acquiring"
         );
-        assert_eq!(state_key(EstimatorState::Lost), KINDS - 1);
+        assert_eq!(state_key(EstimatorState::Lost), INVALID_ESTIMATE_KEY - 1);
+        assert_eq!(PUBLISH_FAILED_KEY, KINDS - 1);
+        assert!(!is_info(INVALID_ESTIMATE_KEY) && !is_info(PUBLISH_FAILED_KEY));
+        assert_eq!(
+            kind_text(PUBLISH_FAILED_KEY),
+            "estimates the offset service did not take"
+        );
         assert!(is_info(state_key(EstimatorState::Tracking)));
         assert!(RT_ERROR_KEY < KINDS && !is_info(RT_ERROR_KEY));
         // every key has its own text
