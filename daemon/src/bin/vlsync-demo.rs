@@ -20,7 +20,7 @@ use vlsyncd::harness::console::Out;
 use vlsyncd::harness::session::{
     counters_line, stop_words, ProcessArgs, Received, Role, Session, Source, Stamping,
 };
-use vlsyncd::harness::stats::ErrorStats;
+use vlsyncd::harness::stats::{ErrorStats, Periods};
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
 
 #[derive(Parser)]
@@ -53,6 +53,10 @@ struct Args {
     /// at each end), which halves the LiDAR signature's noise variance.
     #[arg(long)]
     front_wall_only: bool,
+    /// On long runs, a summary line every this many seconds of reference time (error,
+    /// states, the σ's honesty, drift against the truth), with `--quiet` too; 0: none.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 300.0)]
+    summary_every: f64,
     /// Where to write the plot of the estimates (±2σ, raw measurements) against the
     /// truth, SVG (default: `demo.svg` in the log directory).
     #[arg(long)]
@@ -94,6 +98,14 @@ fn check_args(a: &Args) -> Result<(), String> {
         vlsync_sim::families::MAX_DURATION_S,
     )?;
     check_arg("--speed", a.speed, MIN_SPEED, MAX_SPEED)?;
+    if a.summary_every != 0.0 {
+        check_arg(
+            "--summary-every",
+            a.summary_every,
+            1.0,
+            vlsync_sim::families::MAX_DURATION_S,
+        )?;
+    }
     if let Some(p) = &a.plot {
         check_plot_path(p)?;
     }
@@ -174,6 +186,8 @@ fn run(a: Args) -> Result<(), String> {
             "truth ppm"
         ));
     }
+    let mut periods = (a.summary_every > 0.0).then(|| Periods::new(a.summary_every));
+    let mut period_lines = 0usize;
     let end = s.end_ns() + 1_500_000_000;
     let mut interrupted = false;
     while vlsync_ipc::monotonic_ns() < end {
@@ -198,11 +212,21 @@ fn run(a: Args) -> Result<(), String> {
                     truth.drift * 1e6
                 ));
             }
+            if let Some(done) = periods.as_mut().and_then(|p| p.add(e, t)) {
+                out.line(format_args!("{}", done.describe(truth.drift)));
+                period_lines += 1;
+            }
         }
         if s.drivers_done() {
             // both drivers finished their run: the last estimates follow shortly
             s.poll(Duration::from_millis(300))?;
             break;
+        }
+    }
+    // the last period too, unless it would repeat the summary below
+    if let Some(last) = periods.as_mut().and_then(Periods::finish) {
+        if period_lines > 0 {
+            out.line(format_args!("{}", last.describe(truth.drift)));
         }
     }
     let clean = s.stop()?;
@@ -318,12 +342,17 @@ mod tests {
     fn bad_numbers_are_refused_naming_the_flag() {
         assert!(check_args(&args(&[])).is_ok());
         assert!(check_args(&args(&["--family", "robot", "--speed", "10"])).is_ok());
+        assert!(check_args(&args(&["--summary-every", "0"])).is_ok());
+        assert!(check_args(&args(&["--summary-every", "60"])).is_ok());
         for (argv, flag) in [
             (&["--speed", "0"][..], "--speed"),
             (&["--speed=-1"][..], "--speed"),
             (&["--speed", "nan"][..], "--speed"),
             (&["--duration", "0"][..], "--duration"),
             (&["--duration", "inf"][..], "--duration"),
+            (&["--summary-every", "0.5"][..], "--summary-every"),
+            (&["--summary-every", "nan"][..], "--summary-every"),
+            (&["--summary-every=-60"][..], "--summary-every"),
             (
                 &["--family", "robot", "--duration", "1.5"][..],
                 "--duration",

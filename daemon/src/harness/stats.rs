@@ -1,5 +1,8 @@
-//! Small statistics of the harness: error summaries and latency percentiles
-//! merged from per-period status snapshots.
+//! Small statistics of the harness: error summaries, summaries of a long run by
+//! periods of reference time, and latency percentiles merged from per-period
+//! status snapshots.
+
+use vlsync_common::{Estimate, EstimatorState, Nanos};
 
 /// The `q` quantile (0..=1) of `v` by the nearest-rank rule (smallest value with
 /// at least `q` of the data at or below it); `None` when empty.
@@ -58,6 +61,172 @@ impl ErrorStats {
             self.p95 * 1e3,
             self.max * 1e3
         )
+    }
+}
+
+/// One period of a long run ([`Periods`]): its locked estimates scored against the
+/// truth, the estimates per state, the σ's honesty and the drift at its end.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PeriodSummary {
+    /// The period, seconds of LiDAR reference time: `[start_s, end_s)`.
+    pub start_s: f64,
+    pub end_s: f64,
+    /// Error of the locked (tracking or holding) estimates.
+    pub errors: ErrorStats,
+    pub tracking: usize,
+    pub holding: usize,
+    /// Estimates acquiring or lost.
+    pub unlocked: usize,
+    /// Share of the tracking estimates within 2σ + 1 ms of the truth (`None`
+    /// without a tracking estimate).
+    pub within_2sigma: Option<f64>,
+    /// Drift of the period's last estimate (dimensionless).
+    pub drift: f64,
+}
+
+impl PeriodSummary {
+    /// One line: `--- 300-600 s: 600 estimates (468 tracking, 132 holding), MAE ...`.
+    pub fn describe(&self, truth_drift: f64) -> String {
+        let n = self.tracking + self.holding + self.unlocked;
+        let mut s = format!(
+            "--- {:.0}-{:.0} s: {n} estimate(s) ({} tracking, {} holding",
+            self.start_s, self.end_s, self.tracking, self.holding
+        );
+        if self.unlocked > 0 {
+            s += &format!(", {} acquiring or lost", self.unlocked);
+        }
+        s += "); ";
+        if self.errors.n > 0 {
+            s += &format!(
+                "MAE {:.2} ms, p95 {:.2} ms, max {:.2} ms",
+                self.errors.mae * 1e3,
+                self.errors.p95 * 1e3,
+                self.errors.max * 1e3
+            );
+        } else {
+            s += "no locked estimate";
+        }
+        if let Some(c) = self.within_2sigma {
+            s += &format!("; tracking within 2σ+1 ms {:.1} %", c * 100.0);
+        }
+        s += &format!(
+            "; drift {:+.1} ppm (truth {:+.1} ppm)",
+            self.drift * 1e6,
+            truth_drift * 1e6
+        );
+        s
+    }
+}
+
+/// Summaries of a long run by periods of reference time (the demo's `--summary-every`):
+/// estimates go in as they arrive with the truth at their reference time; when one
+/// falls into another period than the one being filled, that period's summary comes
+/// out. A restart whose reference times go back starts a new period too.
+///
+/// ```
+/// use vlsync_common::{Estimate, EstimatorState, Polarity};
+/// use vlsyncd::harness::stats::Periods;
+/// let mut p = Periods::new(10.0);
+/// let est = |t_s: f64, off: f64| Estimate {
+///     seq: 0,
+///     t_ref_ns: (t_s * 1e9) as i64,
+///     offset_s: off,
+///     drift: 0.0,
+///     offset_std_s: 0.001,
+///     drift_std: 0.0,
+///     state: EstimatorState::Tracking,
+///     polarity: Polarity::Negative,
+///     peak_score: 0.9,
+///     peak_ratio: 2.0,
+///     measured_offset_s: off,
+/// };
+/// assert!(p.add(&est(1.0, 0.002), 0.0).is_none());
+/// assert!(p.add(&est(9.5, -0.001), 0.0).is_none());
+/// let s = p.add(&est(10.5, 0.0), 0.0).expect("the first 10 s are complete");
+/// assert_eq!((s.start_s, s.end_s, s.tracking), (0.0, 10.0, 2));
+/// assert!((s.errors.mae - 0.0015).abs() < 1e-12);
+/// assert_eq!(s.within_2sigma, Some(1.0));
+/// assert_eq!(p.finish().map(|s| s.start_s), Some(10.0));
+/// ```
+#[derive(Debug, Clone)]
+pub struct Periods {
+    period_ns: Nanos,
+    /// Index of the period being filled, if any estimate is in it.
+    current: Option<i64>,
+    errs: Vec<f64>,
+    tracking: usize,
+    holding: usize,
+    unlocked: usize,
+    tracking_within: usize,
+    drift: f64,
+}
+
+impl Periods {
+    /// Periods of `period_s` seconds (at least 1 ms).
+    pub fn new(period_s: f64) -> Self {
+        Self {
+            period_ns: ((period_s * 1e9) as Nanos).max(1_000_000),
+            current: None,
+            errs: Vec::new(),
+            tracking: 0,
+            holding: 0,
+            unlocked: 0,
+            tracking_within: 0,
+            drift: 0.0,
+        }
+    }
+
+    /// Adds an estimate and the true offset at its reference time; returns the
+    /// summary of the period it closes, if it starts another.
+    pub fn add(&mut self, e: &Estimate, truth_s: f64) -> Option<PeriodSummary> {
+        let idx = e.t_ref_ns.div_euclid(self.period_ns);
+        let done = match self.current {
+            Some(c) if c != idx => self.finish(),
+            _ => None,
+        };
+        self.current = Some(idx);
+        let err = e.offset_s - truth_s;
+        match e.state {
+            EstimatorState::Tracking => {
+                self.tracking += 1;
+                self.errs.push(err);
+                if err.abs() <= 2.0 * e.offset_std_s + 1e-3 {
+                    self.tracking_within += 1;
+                }
+            }
+            EstimatorState::Holding => {
+                self.holding += 1;
+                self.errs.push(err);
+            }
+            EstimatorState::Acquiring | EstimatorState::Lost => self.unlocked += 1,
+        }
+        self.drift = e.drift;
+        done
+    }
+
+    /// The summary of the period being filled (then empty), if any.
+    pub fn finish(&mut self) -> Option<PeriodSummary> {
+        let idx = self.current.take()?;
+        let start_s = (idx * self.period_ns) as f64 * 1e-9;
+        let s = PeriodSummary {
+            start_s,
+            end_s: start_s + self.period_ns as f64 * 1e-9,
+            errors: ErrorStats::of(&self.errs),
+            tracking: self.tracking,
+            holding: self.holding,
+            unlocked: self.unlocked,
+            within_2sigma: (self.tracking > 0)
+                .then(|| self.tracking_within as f64 / self.tracking as f64),
+            drift: self.drift,
+        };
+        self.errs.clear();
+        (
+            self.tracking,
+            self.holding,
+            self.unlocked,
+            self.tracking_within,
+        ) = (0, 0, 0, 0);
+        Some(s)
     }
 }
 
@@ -132,6 +301,62 @@ mod tests {
         assert!((s.p95 - 0.003).abs() < 1e-12);
         assert!(s.describe().contains("MAE 2.00 ms"));
         assert_eq!(ErrorStats::of(&[]).describe(), "no estimate to score");
+    }
+
+    fn est(t_s: f64, offset_s: f64, std_s: f64, state: EstimatorState) -> Estimate {
+        Estimate {
+            seq: 0,
+            t_ref_ns: (t_s * 1e9) as i64,
+            offset_s,
+            drift: 20e-6,
+            offset_std_s: std_s,
+            drift_std: 1e-6,
+            state,
+            polarity: vlsync_common::Polarity::Positive,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: offset_s,
+        }
+    }
+
+    #[test]
+    fn periods_score_locked_estimates_and_count_the_rest() {
+        use EstimatorState::*;
+        let mut p = Periods::new(300.0);
+        // before the first lock (negative reference times fall in period -1)
+        assert!(p.add(&est(-2.0, 0.5, 0.5, Acquiring), 0.1).is_none());
+        let first = p.add(&est(0.5, 0.5, 0.5, Acquiring), 0.1).unwrap();
+        assert_eq!((first.start_s, first.end_s), (-300.0, 0.0));
+        assert_eq!(
+            (first.unlocked, first.errors.n, first.within_2sigma),
+            (1, 0, None)
+        );
+        assert!(first.describe(25e-6).contains("no locked estimate"));
+        // tracking: 2 ms off with σ 1 ms is within 2σ + 1 ms, 4 ms off is not
+        assert!(p.add(&est(10.0, 0.102, 0.001, Tracking), 0.1).is_none());
+        assert!(p.add(&est(20.0, 0.096, 0.001, Tracking), 0.1).is_none());
+        // holding is scored but not in the σ check
+        assert!(p.add(&est(299.0, 0.1, 0.0001, Holding), 0.0999).is_none());
+        let s = p.add(&est(300.0, 0.1, 0.001, Tracking), 0.1).unwrap();
+        assert_eq!((s.start_s, s.end_s), (0.0, 300.0));
+        assert_eq!((s.tracking, s.holding, s.unlocked), (2, 1, 1));
+        assert_eq!(s.errors.n, 3);
+        assert!((s.errors.max - 0.004).abs() < 1e-9);
+        assert!((s.errors.mae - (0.002 + 0.004 + 0.0001) / 3.0).abs() < 1e-9);
+        assert_eq!(s.within_2sigma, Some(0.5));
+        let line = s.describe(25e-6);
+        assert!(
+            line.starts_with("--- 0-300 s: 4 estimate(s) (2 tracking, 1 holding, 1 acquiring or lost); MAE 2.03 ms")
+                && line.contains("within 2σ+1 ms 50.0 %")
+                && line.ends_with("drift +20.0 ppm (truth +25.0 ppm)"),
+            "{line}"
+        );
+        // a restart whose reference times go back closes the period too
+        let back = p.add(&est(5.0, 0.1, 0.001, Tracking), 0.1).unwrap();
+        assert_eq!((back.start_s, back.tracking), (300.0, 1));
+        let last = p.finish().unwrap();
+        assert_eq!((last.start_s, last.tracking), (0.0, 1));
+        assert!(p.finish().is_none());
     }
 
     #[test]
