@@ -118,10 +118,12 @@ impl PeriodSummary {
     }
 }
 
-/// Summaries of a long run by periods of reference time (the demo's `--summary-every`):
-/// estimates go in as they arrive with the truth at their reference time; when one
-/// falls into another period than the one being filled, that period's summary comes
-/// out. A restart whose reference times go back starts a new period too.
+/// Summaries of a long run by periods of reference time (the demo's `--summary-every`),
+/// counted from the first estimate's: estimates go in as they arrive with the truth at
+/// their reference time; when one falls into another period than the one being
+/// filled, that period's summary comes out. A restart whose reference times go back
+/// starts a new period too. A run shorter than one period has one period, which
+/// [`Periods::finish`] gives.
 ///
 /// ```
 /// use vlsync_common::{Estimate, EstimatorState, Polarity};
@@ -141,16 +143,18 @@ impl PeriodSummary {
 ///     measured_offset_s: off,
 /// };
 /// assert!(p.add(&est(1.0, 0.002), 0.0).is_none());
-/// assert!(p.add(&est(9.5, -0.001), 0.0).is_none());
-/// let s = p.add(&est(10.5, 0.0), 0.0).expect("the first 10 s are complete");
-/// assert_eq!((s.start_s, s.end_s, s.tracking), (0.0, 10.0, 2));
+/// assert!(p.add(&est(10.5, -0.001), 0.0).is_none());
+/// let s = p.add(&est(11.5, 0.0), 0.0).expect("the first 10 s are complete");
+/// assert_eq!((s.start_s, s.end_s, s.tracking), (1.0, 11.0, 2));
 /// assert!((s.errors.mae - 0.0015).abs() < 1e-12);
 /// assert_eq!(s.within_2sigma, Some(1.0));
-/// assert_eq!(p.finish().map(|s| s.start_s), Some(10.0));
+/// assert_eq!(p.finish().map(|s| s.start_s), Some(11.0));
 /// ```
 #[derive(Debug, Clone)]
 pub struct Periods {
     period_ns: Nanos,
+    /// Reference time of the first estimate: period 0 starts there.
+    origin: Option<Nanos>,
     /// Index of the period being filled, if any estimate is in it.
     current: Option<i64>,
     errs: Vec<f64>,
@@ -166,6 +170,7 @@ impl Periods {
     pub fn new(period_s: f64) -> Self {
         Self {
             period_ns: ((period_s * 1e9) as Nanos).max(1_000_000),
+            origin: None,
             current: None,
             errs: Vec::new(),
             tracking: 0,
@@ -179,7 +184,8 @@ impl Periods {
     /// Adds an estimate and the true offset at its reference time; returns the
     /// summary of the period it closes, if it starts another.
     pub fn add(&mut self, e: &Estimate, truth_s: f64) -> Option<PeriodSummary> {
-        let idx = e.t_ref_ns.div_euclid(self.period_ns);
+        let origin = *self.origin.get_or_insert(e.t_ref_ns);
+        let idx = e.t_ref_ns.saturating_sub(origin).div_euclid(self.period_ns);
         let done = match self.current {
             Some(c) if c != idx => self.finish(),
             _ => None,
@@ -207,7 +213,7 @@ impl Periods {
     /// The summary of the period being filled (then empty), if any.
     pub fn finish(&mut self) -> Option<PeriodSummary> {
         let idx = self.current.take()?;
-        let start_s = (idx * self.period_ns) as f64 * 1e-9;
+        let start_s = (self.origin.unwrap_or(0) as f64 + idx as f64 * self.period_ns as f64) * 1e-9;
         let s = PeriodSummary {
             start_s,
             end_s: start_s + self.period_ns as f64 * 1e-9,
@@ -323,40 +329,45 @@ mod tests {
     fn periods_score_locked_estimates_and_count_the_rest() {
         use EstimatorState::*;
         let mut p = Periods::new(300.0);
-        // before the first lock (negative reference times fall in period -1)
+        // periods count from the first estimate's reference time, here -2 s
         assert!(p.add(&est(-2.0, 0.5, 0.5, Acquiring), 0.1).is_none());
-        let first = p.add(&est(0.5, 0.5, 0.5, Acquiring), 0.1).unwrap();
-        assert_eq!((first.start_s, first.end_s), (-300.0, 0.0));
-        assert_eq!(
-            (first.unlocked, first.errors.n, first.within_2sigma),
-            (1, 0, None)
-        );
-        assert!(first.describe(25e-6).contains("no locked estimate"));
+        assert!(p.add(&est(0.5, 0.5, 0.5, Acquiring), 0.1).is_none());
         // tracking: 2 ms off with σ 1 ms is within 2σ + 1 ms, 4 ms off is not
         assert!(p.add(&est(10.0, 0.102, 0.001, Tracking), 0.1).is_none());
         assert!(p.add(&est(20.0, 0.096, 0.001, Tracking), 0.1).is_none());
         // holding is scored but not in the σ check
-        assert!(p.add(&est(299.0, 0.1, 0.0001, Holding), 0.0999).is_none());
-        let s = p.add(&est(300.0, 0.1, 0.001, Tracking), 0.1).unwrap();
-        assert_eq!((s.start_s, s.end_s), (0.0, 300.0));
-        assert_eq!((s.tracking, s.holding, s.unlocked), (2, 1, 1));
+        assert!(p.add(&est(297.9, 0.1, 0.0001, Holding), 0.0999).is_none());
+        let s = p.add(&est(298.0, 0.1, 0.001, Tracking), 0.1).unwrap();
+        assert_eq!((s.start_s, s.end_s), (-2.0, 298.0));
+        assert_eq!((s.tracking, s.holding, s.unlocked), (2, 1, 2));
         assert_eq!(s.errors.n, 3);
         assert!((s.errors.max - 0.004).abs() < 1e-9);
         assert!((s.errors.mae - (0.002 + 0.004 + 0.0001) / 3.0).abs() < 1e-9);
         assert_eq!(s.within_2sigma, Some(0.5));
         let line = s.describe(25e-6);
         assert!(
-            line.starts_with("--- 0-300 s: 4 estimate(s) (2 tracking, 1 holding, 1 acquiring or lost); MAE 2.03 ms")
+            line.starts_with("--- -2-298 s: 5 estimate(s) (2 tracking, 1 holding, 2 acquiring or lost); MAE 2.03 ms")
                 && line.contains("within 2σ+1 ms 50.0 %")
                 && line.ends_with("drift +20.0 ppm (truth +25.0 ppm)"),
             "{line}"
         );
         // a restart whose reference times go back closes the period too
         let back = p.add(&est(5.0, 0.1, 0.001, Tracking), 0.1).unwrap();
-        assert_eq!((back.start_s, back.tracking), (300.0, 1));
+        assert_eq!((back.start_s, back.end_s, back.tracking), (298.0, 598.0, 1));
         let last = p.finish().unwrap();
-        assert_eq!((last.start_s, last.tracking), (0.0, 1));
+        assert_eq!((last.start_s, last.tracking), (-2.0, 1));
         assert!(p.finish().is_none());
+        // a run shorter than one period: nothing until `finish`, then one period
+        let mut short = Periods::new(300.0);
+        for t in [-2.0, 20.0, 57.5] {
+            assert!(short.add(&est(t, 0.5, 0.5, Acquiring), 0.1).is_none());
+        }
+        let only = short.finish().unwrap();
+        assert_eq!(
+            (only.unlocked, only.errors.n, only.within_2sigma),
+            (3, 0, None)
+        );
+        assert!(only.describe(0.0).contains("no locked estimate"));
     }
 
     #[test]
