@@ -137,12 +137,28 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
     // one after the other: a second demo would show up in the first one's resources
     let out = interrupt_demo(
         "sim",
-        &["--family", "robot", "--duration", "60", "--speed", "2"],
+        &[
+            "--family",
+            "robot",
+            "--duration",
+            "60",
+            "--speed",
+            "2",
+            "--summary-every",
+            "2",
+        ],
         Duration::from_secs(6),
         |_| true,
         Duration::ZERO,
     );
     assert!(out.contains("signature simulator `robot`"), "{out}");
+    // 6 s at 2x is about 12 s of reference time: stretch lines of 2 s as the run goes
+    // (and the last one when it is interrupted)
+    let stretches = out
+        .lines()
+        .filter(|l| l.starts_with("--- ") && l.contains(" estimate(s) ("))
+        .count();
+    assert!(stretches >= 2, "{stretches} stretch line(s):\n{out}");
     // the default source: rendered frames and scans, scored against the render's truth;
     // until the first locked estimate (about 6 s after the drivers' start on an idle
     // machine; up to 45 s of the 60 s run on a loaded one)
