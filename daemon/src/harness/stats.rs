@@ -85,7 +85,9 @@ pub struct PeriodSummary {
 }
 
 impl PeriodSummary {
-    /// One line: `--- 300-600 s: 600 estimates (468 tracking, 132 holding), MAE ...`.
+    /// One line: `--- 298-598 s: 600 estimate(s) (468 tracking, 132 holding); locked:
+    /// 600 estimates: MAE ... ms, RMS ..., p95 ..., max ...; tracking within 2σ+1 ms
+    /// 100.0 %; drift +24.4 ppm (truth +25.0 ppm)`.
     pub fn describe(&self, truth_drift: f64) -> String {
         let n = self.tracking + self.holding + self.unlocked;
         let mut s = format!(
@@ -95,17 +97,8 @@ impl PeriodSummary {
         if self.unlocked > 0 {
             s += &format!(", {} acquiring or lost", self.unlocked);
         }
-        s += "); ";
-        if self.errors.n > 0 {
-            s += &format!(
-                "MAE {:.2} ms, p95 {:.2} ms, max {:.2} ms",
-                self.errors.mae * 1e3,
-                self.errors.p95 * 1e3,
-                self.errors.max * 1e3
-            );
-        } else {
-            s += "no locked estimate";
-        }
+        s += "); locked: ";
+        s += &self.errors.describe();
         if let Some(c) = self.within_2sigma {
             s += &format!("; tracking within 2σ+1 ms {:.1} %", c * 100.0);
         }
@@ -346,7 +339,7 @@ mod tests {
         assert_eq!(s.within_2sigma, Some(0.5));
         let line = s.describe(25e-6);
         assert!(
-            line.starts_with("--- -2-298 s: 5 estimate(s) (2 tracking, 1 holding, 2 acquiring or lost); MAE 2.03 ms")
+            line.starts_with("--- -2-298 s: 5 estimate(s) (2 tracking, 1 holding, 2 acquiring or lost); locked: 3 estimates: MAE 2.03 ms")
                 && line.contains("within 2σ+1 ms 50.0 %")
                 && line.ends_with("drift +20.0 ppm (truth +25.0 ppm)"),
             "{line}"
@@ -367,7 +360,9 @@ mod tests {
             (only.unlocked, only.errors.n, only.within_2sigma),
             (3, 0, None)
         );
-        assert!(only.describe(0.0).contains("no locked estimate"));
+        assert!(only
+            .describe(0.0)
+            .contains("; locked: no estimate to score;"));
     }
 
     #[test]
