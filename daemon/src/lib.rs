@@ -5,6 +5,7 @@ pub mod bench;
 pub mod check;
 pub mod harness;
 pub mod plot;
+pub mod record;
 pub mod replay;
 pub mod runtime;
 pub mod state;

@@ -40,6 +40,9 @@ enum Cmd {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Record the live signature streams and estimates of a prefix as the CSV files
+    /// `replay` reads and writes (cam.csv, lidar.csv, est.csv), until --duration or Ctrl-C.
+    Record(vlsyncd::record::RecordArgs),
     /// Accuracy benchmark: every simulated family over several seeds, against the seed baseline.
     Bench(vlsyncd::bench::BenchArgs),
     /// Run the real-time estimator service on the iceoryx2 services (until SIGINT/SIGTERM).
@@ -74,6 +77,7 @@ fn main() -> ExitCode {
             truth: truth.as_deref(),
             plot: plot.as_deref(),
         }),
+        Cmd::Record(args) => vlsyncd::record::run_cli(&args),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),
         Cmd::Run(args) => match vlsyncd::runtime::load_config(&args) {
             Ok(cfg) => vlsyncd::runtime::run_cli(cfg),

@@ -481,6 +481,63 @@ impl SignaturePublisher {
     }
 }
 
+/// Subscribes to one signature stream beside the daemon: what a recorder
+/// (`vlsyncd record`) or a monitor reads. The signature services allow four
+/// subscribers, the daemon being one; safe overflow means a subscriber that falls
+/// behind loses its own oldest samples (a gap in their sequence numbers) and
+/// slows neither the drivers nor the daemon.
+pub struct SignatureSubscriber {
+    subscriber: Subscriber<Svc, SignatureSample, ()>,
+    buffer: SubscriberBuffer,
+    /// `<prefix>/<stream>/signature`, for error messages.
+    service: String,
+    _service: PubSubFactory<Svc, SignatureSample, ()>,
+}
+
+impl SignatureSubscriber {
+    /// Opens (or creates, with the QoS the drivers would) `<prefix>/<stream>/signature`
+    /// and subscribes with `buffer` samples, clamped to the service's maximum
+    /// ([`Self::buffer`] says what was granted).
+    pub fn open(
+        node: &IpcNode,
+        names: &ServiceNames,
+        stream: Stream,
+        buffer: usize,
+    ) -> Result<Self, IpcError> {
+        let service = names.signature(stream);
+        let svc = open_or_create_pubsub::<SignatureSample>(
+            node,
+            &service,
+            Qos::signature(DEFAULT_SIGNATURE_BUFFER),
+        )?;
+        let (subscriber, buffer) = subscriber(&svc, buffer, &service)?;
+        Ok(Self {
+            subscriber,
+            buffer,
+            service,
+            _service: svc,
+        })
+    }
+
+    /// The buffer asked for and the one granted.
+    pub fn buffer(&self) -> SubscriberBuffer {
+        self.buffer
+    }
+
+    /// The oldest pending sample, as published (unvalidated: see
+    /// [`SignatureSample::validate`]); `Ok(None)` when none is pending.
+    pub fn receive(&mut self) -> Result<Option<SignatureSample>, IpcError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(*s.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(IpcError::new(
+                format!("receive on `{}`", self.service),
+                format!("{e:?}"),
+            )),
+        }
+    }
+}
+
 /// The longest single sleep of [`OffsetClient::wait_next`],
 /// [`OffsetClient::wait_all`] and [`OffsetClient::wait_one`]; a longer timeout sleeps again. The last estimate
 /// handed to a new subscriber (history 1) comes without an event, so a client that

@@ -1,0 +1,606 @@
+//! `vlsyncd record`: the live signature streams of one prefix, and the daemon's
+//! estimates, written as the CSV files `vlsyncd replay` reads and writes, so a run
+//! on the robot can be replayed offline (another configuration, a bug report, a
+//! regression test).
+//!
+//! Files in the output directory, written row by row as samples arrive and flushed
+//! every second (a recorder killed outright leaves complete files up to its last
+//! flush):
+//! * `cam.csv`, `lidar.csv`: header `t,value,seq,publish,flags`. `t` is the stamp on
+//!   the sensor's clock and `publish` the driver's `CLOCK_MONOTONIC` publish time,
+//!   both seconds with nine decimals (exact nanoseconds); the value in shortest
+//!   round-trip notation, NaN and infinities kept as published (the estimator rejects
+//!   and counts them on replay as it did live). `replay` reads the first two
+//!   columns and ignores the rest.
+//! * `est.csv`: the estimates the daemon published while recording (not the last one
+//!   before, which a new subscriber is handed), in `replay`'s own format
+//!   ([`crate::replay::ESTIMATE_HEADER`]), so the two compare row by row.
+//!
+//! A payload whose structure is invalid (unknown flags, non-zero padding) is skipped
+//! and counted, as the daemon refuses it. Sequence numbers tell lost samples (a jump)
+//! and driver restarts (`FLAG_FIRST`, or a number that goes back).
+//!
+//! ```
+//! use vlsync_common::{wire::SignatureSample, Stream};
+//! use vlsyncd::record::Recording;
+//! let mut r = Recording::new(Vec::new(), Vec::new(), Vec::new()).unwrap();
+//! r.signature(Stream::Cam, &SignatureSample::new(1_500_000_000, 0.25, 0, 7_000_000_000))
+//!     .unwrap();
+//! r.signature(Stream::Cam, &SignatureSample::new(1_533_333_333, 0.5, 2, 7_033_000_000))
+//!     .unwrap();
+//! let (cam, _, _) = r.into_writers();
+//! assert_eq!(
+//!     String::from_utf8(cam).unwrap(),
+//!     "t,value,seq,publish,flags\n1.500000000,0.25,0,7.000000000,0\n1.533333333,0.5,2,7.033000000,0\n"
+//! );
+//! ```
+
+use std::fmt::Write as _;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use vlsync_common::wire::SignatureSample;
+use vlsync_common::{nanos_to_secs, Estimate, EstimatorState, Nanos, Stream};
+use vlsync_sim::io::format_secs;
+
+/// The header of the recorded signature files.
+pub const SIGNATURE_HEADER: &str = "t,value,seq,publish,flags";
+
+/// The files a recording writes into its directory: camera, LiDAR, estimates.
+pub const FILES: [&str; 3] = ["cam.csv", "lidar.csv", "est.csv"];
+
+/// What one stream's recording saw.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StreamCounts {
+    /// Rows written.
+    pub rows: u64,
+    /// Samples missing between received ones (sequence-number jumps): lost by the
+    /// recorder's buffer or before it.
+    pub lost: u64,
+    /// Driver restarts seen (`FLAG_FIRST` after the first row, or a sequence
+    /// number that went back).
+    pub restarts: u64,
+    /// Payloads skipped because their structure is invalid.
+    pub malformed: u64,
+    /// Rows written whose value is NaN or infinite.
+    pub non_finite: u64,
+}
+
+/// A recording in progress: three CSV writers and what went into them.
+pub struct Recording<W: Write> {
+    out: [W; 3],
+    counts: [StreamCounts; 2],
+    last_seq: [Option<u64>; 2],
+    states: [u64; 4],
+    last_estimate: Option<Estimate>,
+    line: String,
+}
+
+impl<W: Write> Recording<W> {
+    /// Starts a recording into the camera, LiDAR and estimate writers: writes the
+    /// headers. An error names the file ([`FILES`]) that could not be written.
+    pub fn new(cam: W, lidar: W, est: W) -> Result<Self, String> {
+        let mut r = Self {
+            out: [cam, lidar, est],
+            counts: [StreamCounts::default(); 2],
+            last_seq: [None; 2],
+            states: [0; 4],
+            last_estimate: None,
+            line: String::with_capacity(128),
+        };
+        r.write(0, SIGNATURE_HEADER)?;
+        r.write(1, SIGNATURE_HEADER)?;
+        r.write(2, crate::replay::ESTIMATE_HEADER)?;
+        Ok(r)
+    }
+
+    fn write(&mut self, file: usize, row: &str) -> Result<(), String> {
+        writeln!(self.out[file], "{row}").map_err(|e| format!("cannot write {}: {e}", FILES[file]))
+    }
+
+    /// Writes one received signature sample (or skips and counts it when its
+    /// structure is invalid).
+    pub fn signature(&mut self, stream: Stream, s: &SignatureSample) -> Result<(), String> {
+        let i = vlsync_ipc::stream_index(stream);
+        if s.validate().is_err() {
+            self.counts[i].malformed += 1;
+            return Ok(());
+        }
+        let c = &mut self.counts[i];
+        match self.last_seq[i] {
+            Some(_) if s.is_first() => c.restarts += 1,
+            Some(last) if s.seq <= last => c.restarts += 1,
+            Some(last) => c.lost += s.seq - last - 1,
+            None => {}
+        }
+        self.last_seq[i] = Some(s.seq);
+        c.rows += 1;
+        if !s.value.is_finite() {
+            c.non_finite += 1;
+        }
+        let mut line = std::mem::take(&mut self.line);
+        line.clear();
+        let _ = write!(
+            line,
+            "{},{},{},{},{}",
+            format_secs(s.t_ns),
+            s.value,
+            s.seq,
+            format_secs(s.publish_ns),
+            s.flags
+        );
+        let r = self.write(i, &line);
+        self.line = line;
+        r
+    }
+
+    /// Writes one estimate the daemon published.
+    pub fn estimate(&mut self, e: &Estimate) -> Result<(), String> {
+        let mut line = std::mem::take(&mut self.line);
+        crate::replay::estimate_row(e, &mut line);
+        let r = self.write(2, &line);
+        self.line = line;
+        r?;
+        self.states[e.state as usize] += 1;
+        self.last_estimate = Some(*e);
+        Ok(())
+    }
+
+    /// Flushes the three writers.
+    pub fn flush(&mut self) -> Result<(), String> {
+        for (w, name) in self.out.iter_mut().zip(FILES) {
+            w.flush().map_err(|e| format!("cannot write {name}: {e}"))?;
+        }
+        Ok(())
+    }
+
+    /// What each stream's recording saw (0 camera, 1 LiDAR).
+    pub fn counts(&self) -> [StreamCounts; 2] {
+        self.counts
+    }
+
+    /// Estimates written.
+    pub fn estimates(&self) -> u64 {
+        self.states.iter().sum()
+    }
+
+    /// One line on the recording so far (the progress line).
+    pub fn progress(&self, elapsed_s: f64) -> String {
+        let [c, l] = self.counts;
+        let last = match &self.last_estimate {
+            Some(e) => format!(
+                " (last {}, offset {:+.3} ms ± {:.3} ms)",
+                e.state.name(),
+                e.offset_s * 1e3,
+                e.offset_std_s * 1e3
+            ),
+            None => String::new(),
+        };
+        format!(
+            "{elapsed_s:.0} s: cam {} samples ({} lost), lidar {} ({} lost), {} estimates{last}",
+            c.rows,
+            c.lost,
+            l.rows,
+            l.lost,
+            self.estimates()
+        )
+    }
+
+    /// The closing summary, a line per file.
+    pub fn summary(&self) -> String {
+        let mut s = String::new();
+        for (name, c) in ["cam", "lidar"].iter().zip(self.counts) {
+            let _ = writeln!(
+                s,
+                "{name:>9}: {} samples, {} lost (sequence gaps), {} driver restarts, {} malformed payloads skipped, {} non-finite values kept",
+                c.rows, c.lost, c.restarts, c.malformed, c.non_finite
+            );
+        }
+        let st = |x: EstimatorState| self.states[x as usize];
+        let _ = write!(
+            s,
+            "estimates: {} ({} tracking, {} holding, {} acquiring, {} lost)",
+            self.estimates(),
+            st(EstimatorState::Tracking),
+            st(EstimatorState::Holding),
+            st(EstimatorState::Acquiring),
+            st(EstimatorState::Lost)
+        );
+        match &self.last_estimate {
+            Some(e) => {
+                let _ = writeln!(
+                    s,
+                    "; the last at t={:.3} s: offset {:+.4} ms ± {:.4} ms (1σ), drift {:+.2} ppm, {}",
+                    nanos_to_secs(e.t_ref_ns),
+                    e.offset_s * 1e3,
+                    e.offset_std_s * 1e3,
+                    e.drift * 1e6,
+                    e.state
+                );
+            }
+            None => s.push('\n'),
+        }
+        s
+    }
+
+    /// The three writers, camera, LiDAR, estimates (tests read what was written).
+    pub fn into_writers(self) -> (W, W, W) {
+        let [c, l, e] = self.out;
+        (c, l, e)
+    }
+}
+
+/// Arguments of `vlsyncd record`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RecordArgs {
+    /// Directory to write cam.csv, lidar.csv and est.csv into (created when missing).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Service prefix (`services.prefix`); overrides the one of --config.
+    #[arg(long)]
+    pub prefix: Option<String>,
+    /// Configuration file of the daemon: its `services.prefix` (the default prefix
+    /// without either), and the replay command printed at the end uses it too.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Stop after this many seconds (0: at Ctrl-C or SIGTERM).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    pub duration: f64,
+    /// A progress line on stderr every this many seconds (0: none).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
+    pub progress_every: f64,
+    /// Overwrite the files of an earlier recording in --out.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// After this long without any sample or estimate, the recorder says what it waits for.
+const QUIET_NOTICE: Duration = Duration::from_secs(5);
+/// How often the files are flushed.
+const FLUSH_EVERY: Duration = Duration::from_secs(1);
+/// The longest sleep between two reads of the signature subscribers: their buffer
+/// holds 256 samples, 64 ms at 100x the nominal 30 + 10 Hz.
+const POLL: Duration = Duration::from_millis(20);
+/// The subscriber buffer asked for (the services grant their maximum, 256 by default).
+const BUFFER: usize = 4096;
+
+fn check_args(a: &RecordArgs) -> Result<String, String> {
+    if !(a.duration.is_finite() && a.duration >= 0.0) {
+        return Err(format!(
+            "--duration {} must be a finite number of seconds >= 0",
+            a.duration
+        ));
+    }
+    if !(a.progress_every.is_finite() && a.progress_every >= 0.0) {
+        return Err(format!(
+            "--progress-every {} must be a finite number of seconds >= 0",
+            a.progress_every
+        ));
+    }
+    let cfg = match &a.config {
+        Some(p) => vlsync_config::Config::load(p).map_err(|e| e.to_string())?,
+        None => vlsync_config::Config::default(),
+    };
+    let prefix = a.prefix.clone().unwrap_or(cfg.services.prefix);
+    vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
+    Ok(prefix)
+}
+
+/// Creates `dir` and the three files in it; refuses to overwrite an earlier
+/// recording unless `force`.
+fn create_files(dir: &Path, force: bool) -> Result<[std::io::BufWriter<std::fs::File>; 3], String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    if !force {
+        if let Some(p) = FILES.iter().map(|f| dir.join(f)).find(|p| p.exists()) {
+            return Err(format!(
+                "{} exists: refusing to overwrite a recording (--force overwrites it)",
+                p.display()
+            ));
+        }
+    }
+    let open = |f: &str| {
+        let p = dir.join(f);
+        std::fs::File::create(&p)
+            .map(std::io::BufWriter::new)
+            .map_err(|e| format!("cannot create {}: {e}", p.display()))
+    };
+    Ok([open(FILES[0])?, open(FILES[1])?, open(FILES[2])?])
+}
+
+/// Reads every pending sample of both streams into the recording.
+fn drain_signatures<W: Write>(
+    subs: &mut [vlsync_ipc::SignatureSubscriber; 2],
+    rec: &mut Recording<W>,
+) -> Result<bool, String> {
+    let mut any = false;
+    for (sub, stream) in subs.iter_mut().zip([Stream::Cam, Stream::Lidar]) {
+        while let Some(s) = sub.receive().map_err(|e| e.to_string())? {
+            rec.signature(stream, &s)?;
+            any = true;
+        }
+    }
+    Ok(any)
+}
+
+/// The `record` command.
+pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
+    let prefix = check_args(a)?;
+    let [cam, lidar, est] = create_files(&a.out, a.force)?;
+    let mut rec = Recording::new(cam, lidar, est).map_err(|e| in_dir(&a.out, &e))?;
+    let names = vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
+    // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the recording cleanly
+    let node = vlsync_ipc::create_node("vlsyncd-record", true).map_err(|e| e.to_string())?;
+    let open = |s| vlsync_ipc::SignatureSubscriber::open(&node, &names, s, BUFFER);
+    let mut subs = [
+        open(Stream::Cam).map_err(|e| e.to_string())?,
+        open(Stream::Lidar).map_err(|e| e.to_string())?,
+    ];
+    let mut offsets = vlsync_ipc::OffsetClient::open(&prefix).map_err(|e| e.to_string())?;
+    let start_ns: Nanos = vlsync_ipc::monotonic_ns();
+    let err = vlsync_common::console::print_err;
+    err(&format!(
+        "vlsyncd record: recording prefix `{prefix}` into {} (subscriber buffer {} samples){}; Ctrl-C stops\n",
+        a.out.display(),
+        subs[0].buffer().granted.min(subs[1].buffer().granted),
+        if a.duration > 0.0 {
+            format!(" for {} s", a.duration)
+        } else {
+            String::new()
+        }
+    ));
+    let t0 = Instant::now();
+    let (mut last_flush, mut next_progress) = (t0, a.progress_every);
+    let mut told = false;
+    let mut heard = false;
+    let result = loop {
+        let step = (|| -> Result<(), String> {
+            heard |= drain_signatures(&mut subs, &mut rec)?;
+            // the sleep: until an estimate comes or POLL passes
+            for (e, publish_ns) in offsets.wait_all(POLL).map_err(|e| e.to_string())? {
+                // the estimate handed to every new subscriber was published before
+                if publish_ns >= start_ns {
+                    rec.estimate(&e)?;
+                    heard = true;
+                }
+            }
+            Ok(())
+        })();
+        if let Err(e) = step {
+            break Err(in_dir(&a.out, &e));
+        }
+        let elapsed = t0.elapsed();
+        if last_flush.elapsed() >= FLUSH_EVERY {
+            if let Err(e) = rec.flush() {
+                break Err(in_dir(&a.out, &e));
+            }
+            last_flush = Instant::now();
+        }
+        if !heard && !told && elapsed >= QUIET_NOTICE {
+            told = true;
+            err(&format!(
+                "vlsyncd record: nothing received on prefix `{prefix}` for {} s; waiting (are the drivers running with this prefix? vlsync-demo prints its own at its start)\n",
+                QUIET_NOTICE.as_secs()
+            ));
+        }
+        if a.progress_every > 0.0 && elapsed.as_secs_f64() >= next_progress {
+            err(&format!(
+                "vlsyncd record: {}\n",
+                rec.progress(elapsed.as_secs_f64())
+            ));
+            next_progress += a.progress_every;
+        }
+        if vlsync_ipc::termination_requested()
+            || (a.duration > 0.0 && elapsed.as_secs_f64() >= a.duration)
+        {
+            // what arrived up to the stop belongs to the recording
+            break drain_signatures(&mut subs, &mut rec)
+                .map(|_| ())
+                .map_err(|e| in_dir(&a.out, &e));
+        }
+    };
+    // whatever ended the loop, what was received is flushed and summarised
+    let flushed = rec.flush().map_err(|e| in_dir(&a.out, &e));
+    err(&format!(
+        "vlsyncd record: {:.1} s on prefix `{prefix}` into {}\n{}",
+        t0.elapsed().as_secs_f64(),
+        a.out.display(),
+        rec.summary()
+    ));
+    if rec.estimates() == 0 {
+        err(&format!(
+            "no estimate was published while recording (is vlsyncd running with services.prefix = \"{prefix}\"?)\n"
+        ));
+    }
+    err(&format!(
+        "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv{1}\n",
+        a.out.display(),
+        a.config
+            .as_ref()
+            .map(|c| format!(" --config {}", c.display()))
+            .unwrap_or_default()
+    ));
+    result.and(flushed)
+}
+
+/// An error about one of the files, with its directory.
+fn in_dir(dir: &Path, e: &str) -> String {
+    format!("{}: {e}", dir.display())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlsync_common::wire::FLAG_FIRST;
+    use vlsync_common::Polarity;
+
+    fn sample(t_ms: i64, v: f64, seq: u64) -> SignatureSample {
+        SignatureSample::new(t_ms * 1_000_000, v, seq, 5_000_000_000 + t_ms * 1_000_000)
+    }
+
+    #[test]
+    fn rows_read_back_as_replay_input_with_their_exact_stamps_and_values() {
+        let mut r = Recording::new(vec![], vec![], vec![]).unwrap();
+        let sent = [
+            sample(1_700_000_000_123, 0.1 + 0.2, 0),
+            sample(1_700_000_000_156, -3.5e-7, 1),
+            sample(1_700_000_000_190, f64::NAN, 2),
+        ];
+        for s in &sent {
+            r.signature(Stream::Lidar, s).unwrap();
+        }
+        assert_eq!(r.counts()[1].non_finite, 1);
+        let (_, lidar, _) = r.into_writers();
+        let (back, stats) = vlsync_sim::io::parse_signature_csv(&lidar, "lidar.csv").unwrap();
+        assert_eq!(back.len(), 3);
+        assert_eq!(stats.extra_column_rows, 3);
+        for (b, s) in back.iter().zip(&sent) {
+            assert_eq!(b.t_ns, s.t_ns);
+            assert!(b.value == s.value || (b.value.is_nan() && s.value.is_nan()));
+        }
+    }
+
+    #[test]
+    fn gaps_restarts_and_malformed_payloads_are_counted() {
+        let mut r = Recording::new(vec![], vec![], vec![]).unwrap();
+        // joined mid-stream at 40: no gap before it
+        for seq in [40, 41, 44, 45] {
+            r.signature(Stream::Cam, &sample(seq as i64 * 33, 1.0, seq))
+                .unwrap();
+        }
+        // a restarted driver: FLAG_FIRST, then a number that goes back without it
+        let mut first = sample(10, 1.0, 0);
+        first.flags |= FLAG_FIRST;
+        r.signature(Stream::Cam, &first).unwrap();
+        r.signature(Stream::Cam, &sample(12, 1.0, 1)).unwrap();
+        r.signature(Stream::Cam, &sample(20, 1.0, 0)).unwrap();
+        // unknown flags and non-zero padding: skipped, as the daemon refuses them
+        let mut bad = sample(30, 1.0, 1);
+        bad.flags = 0x80;
+        r.signature(Stream::Cam, &bad).unwrap();
+        bad.flags = 0;
+        bad.reserved = 1;
+        r.signature(Stream::Cam, &bad).unwrap();
+        let c = r.counts()[0];
+        assert_eq!(
+            c,
+            StreamCounts {
+                rows: 7,
+                lost: 2,
+                restarts: 2,
+                malformed: 2,
+                non_finite: 0
+            }
+        );
+        assert_eq!(r.counts()[1], StreamCounts::default());
+        let summary = r.summary();
+        assert!(
+            summary.contains("cam: 7 samples, 2 lost (sequence gaps), 2 driver restarts, 2 malformed payloads skipped"),
+            "{summary}"
+        );
+        assert!(summary.contains("estimates: 0 ("), "{summary}");
+        let (cam, _, _) = r.into_writers();
+        assert_eq!(String::from_utf8(cam).unwrap().lines().count(), 8);
+    }
+
+    #[test]
+    fn estimates_are_written_in_the_replay_format_and_summarised() {
+        let mut r = Recording::new(vec![], vec![], vec![]).unwrap();
+        let e = Estimate {
+            seq: 9,
+            t_ref_ns: 12_500_000_000,
+            offset_s: 0.0251,
+            drift: 2.5e-5,
+            offset_std_s: 0.0008,
+            drift_std: 1e-5,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: f64::INFINITY,
+            measured_offset_s: 0.025,
+        };
+        r.estimate(&e).unwrap();
+        r.estimate(&Estimate {
+            seq: 10,
+            state: EstimatorState::Holding,
+            ..e
+        })
+        .unwrap();
+        assert_eq!(r.estimates(), 2);
+        let summary = r.summary();
+        assert!(
+            summary.contains("estimates: 2 (1 tracking, 1 holding, 0 acquiring, 0 lost); the last at t=12.500 s: offset +25.1000 ms ± 0.8000 ms (1σ), drift +25.00 ppm, holding"),
+            "{summary}"
+        );
+        assert!(r.progress(3.0).starts_with("3 s: cam 0 samples (0 lost), lidar 0 (0 lost), 2 estimates (last holding, offset +25.100 ms"));
+        let (_, _, est) = r.into_writers();
+        let text = String::from_utf8(est).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some(crate::replay::ESTIMATE_HEADER));
+        let mut row = String::new();
+        crate::replay::estimate_row(&e, &mut row);
+        assert_eq!(lines.next(), Some(row.as_str()));
+        assert!(lines.next().unwrap().ends_with(",10"));
+    }
+
+    /// A writer that takes `ok` bytes, then fails.
+    struct Failing {
+        ok: usize,
+    }
+    impl Write for Failing {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            if self.ok < buf.len() {
+                return Err(std::io::Error::other("disk full"));
+            }
+            self.ok -= buf.len();
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_write_error_names_the_file() {
+        let header = SIGNATURE_HEADER.len() + 1;
+        let big = Failing { ok: 1 << 20 };
+        let mut r = Recording::new(Failing { ok: 1 << 20 }, Failing { ok: header }, big).unwrap();
+        let e = r.signature(Stream::Lidar, &sample(1, 1.0, 0)).unwrap_err();
+        assert_eq!(e, "cannot write lidar.csv: disk full");
+        let e = Recording::new(Failing { ok: 3 }, Failing { ok: 99 }, Failing { ok: 999 });
+        assert_eq!(e.err().unwrap(), "cannot write cam.csv: disk full");
+    }
+
+    #[test]
+    fn arguments_out_of_range_and_an_earlier_recording_are_refused() {
+        let dir = std::env::temp_dir().join(format!("vlsync-record-unit-{}", std::process::id()));
+        let args = |d: f64, p: f64| RecordArgs {
+            out: dir.clone(),
+            prefix: None,
+            config: None,
+            duration: d,
+            progress_every: p,
+            force: false,
+        };
+        assert!(check_args(&args(-1.0, 10.0))
+            .unwrap_err()
+            .starts_with("--duration -1 must be"));
+        assert!(check_args(&args(1.0, f64::NAN))
+            .unwrap_err()
+            .starts_with("--progress-every NaN must be"));
+        assert_eq!(check_args(&args(0.0, 0.0)).unwrap(), "vlsync/robot");
+        let mut bad = args(0.0, 0.0);
+        bad.prefix = Some("no spaces allowed".into());
+        assert!(check_args(&bad).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+        drop(create_files(&dir, false).unwrap());
+        let e = create_files(&dir, false).err().unwrap();
+        assert!(
+            e.ends_with(
+                "cam.csv exists: refusing to overwrite a recording (--force overwrites it)"
+            ),
+            "{e}"
+        );
+        assert!(create_files(&dir, true).is_ok());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
