@@ -352,19 +352,21 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
     let (mut last_flush, mut next_progress) = (t0, a.progress_every);
     let mut told = false;
     let mut heard = false;
-    let result = loop {
-        let step = (|| -> Result<(), String> {
-            heard |= drain_signatures(&mut subs, &mut rec)?;
-            // the sleep: until an estimate comes or POLL passes
-            for (e, publish_ns) in offsets.wait_all(POLL).map_err(|e| e.to_string())? {
-                // the estimate handed to every new subscriber was published before
-                if publish_ns >= start_ns {
-                    rec.estimate(&e)?;
-                    heard = true;
-                }
+    // one round: every pending sample, then the estimates, waiting up to `wait` for one
+    let mut round = |rec: &mut Recording<_>, wait: Duration| -> Result<bool, String> {
+        let mut any = drain_signatures(&mut subs, rec)?;
+        for (e, publish_ns) in offsets.wait_all(wait).map_err(|e| e.to_string())? {
+            // the estimate handed to every new subscriber was published before
+            if publish_ns >= start_ns {
+                rec.estimate(&e)?;
+                any = true;
             }
-            Ok(())
-        })();
+        }
+        Ok(any)
+    };
+    let result = loop {
+        // the sleep: until an estimate comes or POLL passes
+        let step = round(&mut rec, POLL).map(|any| heard |= any);
         if let Err(e) = step {
             break Err(in_dir(&a.out, &e));
         }
@@ -393,7 +395,7 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
             || (a.duration > 0.0 && elapsed.as_secs_f64() >= a.duration)
         {
             // what arrived up to the stop belongs to the recording
-            break drain_signatures(&mut subs, &mut rec)
+            break round(&mut rec, Duration::ZERO)
                 .map(|_| ())
                 .map_err(|e| in_dir(&a.out, &e));
         }

@@ -6,9 +6,10 @@
 use std::process::Command;
 use std::time::Duration;
 use vlsync_common::Stream;
-use vlsync_ipc::monotonic_ns;
+use vlsync_ipc::{monotonic_ns, StatusClient};
 use vlsync_tests::{
-    assert_nothing_left, assert_serving, bin, ipc_resources, write_daemon_config, Managed, Rig,
+    assert_nothing_left, assert_serving, bin, ipc_resources, status_when, write_daemon_config,
+    Managed, Rig,
 };
 
 #[test]
@@ -28,6 +29,7 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
     )
     .unwrap();
     assert_serving(&mut daemon, &dlog);
+    let mut status = StatusClient::open(&rig.prefix).unwrap();
 
     let dir = rig.logs.join("rec");
     let rlog = rig.logs.join("record.log");
@@ -56,8 +58,19 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
         let st = d.wait_up_to(limit).expect("the driver finishes its run");
         assert!(st.success(), "{}", rig.log("vlsync-cam-0.log"));
     }
-    // the last hop's estimate is published as the last LiDAR sample arrives
-    std::thread::sleep(Duration::from_millis(500));
+    // once the daemon has taken every sample it has published every estimate (the
+    // real-time loop publishes as it pushes); the recorder reads them within 20 ms
+    let all = [rig.sim.cam.len() as u64, rig.sim.lidar.len() as u64];
+    let st = status_when(&mut status, Duration::from_secs(10), |st| {
+        st.received == all
+    });
+    assert_eq!(
+        st.map(|s| s.received),
+        Some(all),
+        "{}",
+        rig.log("vlsyncd-0.log")
+    );
+    std::thread::sleep(Duration::from_millis(300));
     assert!(
         rec.stop(Duration::from_secs(6)),
         "{}",
@@ -124,6 +137,7 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
         "{err}"
     );
 
+    drop(status);
     assert!(
         daemon.stop(Duration::from_secs(3)),
         "{}",
