@@ -39,6 +39,11 @@ enum Cmd {
         /// Write an SVG plot of the estimates (and the truth, when given).
         #[arg(long)]
         plot: Option<PathBuf>,
+        /// Compare with another run's estimates (`vlsyncd record`'s est.csv, or an earlier
+        /// replay's --out): prints how many are identical and how far the offsets differ,
+        /// and draws them in the --plot.
+        #[arg(long)]
+        compare: Option<PathBuf>,
     },
     /// Record the live signature streams and estimates of a prefix as the CSV files
     /// `replay` reads and writes (cam.csv, lidar.csv, est.csv), until --duration or Ctrl-C.
@@ -69,6 +74,7 @@ fn main() -> ExitCode {
             config,
             truth,
             plot,
+            compare,
         } => vlsyncd::replay::run_cli(&vlsyncd::replay::ReplayArgs {
             cam: &cam,
             lidar: &lidar,
@@ -76,6 +82,7 @@ fn main() -> ExitCode {
             config: config.as_deref(),
             truth: truth.as_deref(),
             plot: plot.as_deref(),
+            compare: compare.as_deref(),
         }),
         Cmd::Record(args) => vlsyncd::record::run_cli(&args),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),

@@ -48,6 +48,18 @@ pub fn offset_svg(
     truth: Option<&[(Nanos, f64)]>,
     shaded: &[(Nanos, Nanos, String)],
 ) -> String {
+    offset_svg_compared(title, ests, truth, shaded, &[])
+}
+
+/// [`offset_svg`] with another run's locked estimates drawn beside them (a dashed
+/// line, "compared" in the legend): `vlsyncd replay --compare`.
+pub fn offset_svg_compared(
+    title: &str,
+    ests: &[Estimate],
+    truth: Option<&[(Nanos, f64)]>,
+    shaded: &[(Nanos, Nanos, String)],
+    compared: &[Estimate],
+) -> String {
     // values that cannot be placed (NaN, inf, beyond ±1e12 s) are left out
     let plottable = |ms: f64| ms.abs() <= MAX_PLOT_MS;
     let locked: Vec<&Estimate> = ests
@@ -59,6 +71,14 @@ pub fn offset_svg(
         .iter()
         .copied()
         .filter(|p| plottable(p.1 * 1e3))
+        .collect();
+    let compared: Vec<(Nanos, f64)> = compared
+        .iter()
+        .filter(|e| {
+            matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding)
+                && plottable(e.offset_s * 1e3)
+        })
+        .map(|e| (e.t_ref_ns, e.offset_s))
         .collect();
     let mut s = String::new();
     let _ = writeln!(
@@ -82,7 +102,7 @@ pub fn offset_svg(
     let t0 = nanos_to_secs(ests.first().map_or(0, |e| e.t_ref_ns));
     let t1 = nanos_to_secs(ests.last().map_or(0, |e| e.t_ref_ns)).max(t0 + 1.0);
     let mut ys: Vec<f64> = locked.iter().map(|e| e.offset_s * 1e3).collect();
-    ys.extend(truth.iter().map(|p| p.1 * 1e3));
+    ys.extend(truth.iter().chain(&compared).map(|p| p.1 * 1e3));
     ys.sort_by(f64::total_cmp);
     // robust range: ignore the extreme 1 % so one wild estimate cannot flatten the plot
     let lo_i = ys.len() / 100;
@@ -191,8 +211,18 @@ pub fn offset_svg(
             py(e.measured_offset_s * 1e3)
         );
     }
-    if !truth.is_empty() {
-        let pts: String = truth
+    // the truth and the compared run, each a line within the estimates' time span
+    for (points, style) in [
+        (&truth, r#"stroke="black" stroke-width="1.5""#),
+        (
+            &compared,
+            r##"stroke="#8250df" stroke-width="1.5" stroke-dasharray="5 3""##,
+        ),
+    ] {
+        if points.is_empty() {
+            continue;
+        }
+        let pts: String = points
             .iter()
             .filter(|p| {
                 let t = nanos_to_secs(p.0);
@@ -200,10 +230,7 @@ pub fn offset_svg(
             })
             .map(|p| format!("{:.1},{:.1} ", px(nanos_to_secs(p.0)), py(p.1 * 1e3)))
             .collect();
-        let _ = writeln!(
-            s,
-            r#"<polyline points="{pts}" fill="none" stroke="black" stroke-width="1.5"/>"#
-        );
+        let _ = writeln!(s, r#"<polyline points="{pts}" fill="none" {style}/>"#);
     }
     let pts: String = locked
         .iter()
@@ -235,6 +262,14 @@ pub fn offset_svg(
         r##"<g transform="translate({lx},{})"><line x1="0" y1="0" x2="18" y2="0" stroke="#0969da" stroke-width="2"/><text x="22" y="4">estimate ±2σ</text><line x1="105" y1="0" x2="123" y2="0" stroke="black" stroke-width="2"/><text x="127" y="4">truth</text><circle cx="175" cy="0" r="2" fill="#999"/><text x="181" y="4">measured</text><rect x="245" y="-4" width="6" height="8" fill="#1a7f37"/><text x="254" y="4">tracking</text></g>"##,
         T - 10.0
     );
+    if !compared.is_empty() {
+        let _ = writeln!(
+            s,
+            r##"<g transform="translate({},{})"><line x1="0" y1="0" x2="18" y2="0" stroke="#8250df" stroke-width="2" stroke-dasharray="5 3"/><text x="22" y="4">compared</text></g>"##,
+            lx - 90.0,
+            T - 10.0
+        );
+    }
     let _ = writeln!(s, "</svg>");
     s
 }
@@ -351,6 +386,27 @@ mod tests {
             .collect();
         let svg = offset_svg("t", &far, None, &[]);
         assert!(!svg.contains("NaN") && svg.matches("<line").count() < 300);
+    }
+
+    #[test]
+    fn a_compared_run_is_a_dashed_line_with_its_legend_entry() {
+        let ests: Vec<Estimate> = (0..20)
+            .map(|i| est(i as f64, 0.1, EstimatorState::Tracking))
+            .collect();
+        let plain = offset_svg("t", &ests, None, &[]);
+        assert!(!plain.contains("stroke-dasharray") && !plain.contains(">compared<"));
+        let mut other = ests.clone();
+        other[0].state = EstimatorState::Acquiring;
+        other[1].offset_s = f64::NAN;
+        let svg = offset_svg_compared("t", &ests, None, &[], &other);
+        assert_eq!(svg.matches(">compared<").count(), 1);
+        let line = svg
+            .lines()
+            .find(|l| l.starts_with("<polyline") && l.contains("stroke-dasharray"))
+            .expect("the compared line");
+        // its locked, plottable estimates only: 18 points
+        let pts = &line[line.find("points=\"").unwrap() + 8..];
+        assert_eq!(pts[..pts.find('"').unwrap()].split_whitespace().count(), 18);
     }
 
     #[test]

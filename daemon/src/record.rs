@@ -414,7 +414,7 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
         ));
     }
     err(&format!(
-        "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv{1}\n",
+        "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv --compare {0}/est.csv{1}\n",
         a.out.display(),
         a.config
             .as_ref()

@@ -186,6 +186,8 @@ pub struct ReplayArgs<'a> {
     pub truth: Option<&'a Path>,
     /// SVG plot to write.
     pub plot: Option<&'a Path>,
+    /// Another run's estimates file to compare with (e.g. `vlsyncd record`'s `est.csv`).
+    pub compare: Option<&'a Path>,
 }
 
 /// Refuses outputs that name an input or each other: `--out` and `--plot` are
@@ -199,6 +201,7 @@ fn check_outputs(a: &ReplayArgs<'_>) -> Result<(), String> {
         ("--lidar", Some(a.lidar)),
         ("--truth", a.truth),
         ("--config", a.config),
+        ("--compare", a.compare),
     ];
     for (i, (out_flag, out)) in files.iter().take(2).enumerate() {
         let Some(out) = out else { continue };
@@ -271,6 +274,10 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
         Some(p) => Some(vlsync_sim::io::read_truth_csv(p).map_err(|e| e.to_string())?),
         None => None,
     };
+    let compared = match a.compare {
+        Some(p) => crate::compare::read_estimates_csv(p).map_err(|e| e.to_string())?,
+        None => Vec::new(),
+    };
     let t0 = std::time::Instant::now();
     let (ests, stats) = run_estimator(&cfg.estimator, &cam_s, &lidar_s);
     let elapsed = t0.elapsed();
@@ -281,13 +288,17 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
     if let Some(tr) = &truth {
         err(&format!("{}\n", error_summary(&ests, tr)));
     }
+    if let Some(p) = a.compare {
+        let c = crate::compare::compare(&ests, &compared);
+        err(&format!("{}\n", c.describe(&p.display().to_string())));
+    }
     if let Some(p) = a.plot {
         let title = format!(
             "vlsyncd replay: {} + {}",
             a.cam.display(),
             a.lidar.display()
         );
-        let svg = crate::plot::offset_svg(&title, &ests, truth.as_deref(), &[]);
+        let svg = crate::plot::offset_svg_compared(&title, &ests, truth.as_deref(), &[], &compared);
         std::fs::write(p, svg).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
         err(&format!("wrote plot {}\n", p.display()));
     }

@@ -1,7 +1,8 @@
 //! `vlsyncd record` beside a live daemon: the recorded streams are exactly what
 //! the drivers published, the recorded estimates exactly what the daemon
 //! published, and `vlsyncd replay` of the recording reproduces those estimates
-//! byte for byte. A second recording into the same directory is refused.
+//! byte for byte (and says so with `--compare`). A second recording into the same
+//! directory is refused.
 
 use std::process::Command;
 use std::time::Duration;
@@ -100,6 +101,8 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
         .arg(dir.join("lidar.csv"))
         .arg("--out")
         .arg(dir.join("replayed.csv"))
+        .arg("--compare")
+        .arg(dir.join("est.csv"))
         .output()
         .unwrap();
     assert!(
@@ -124,6 +127,11 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
             rig.log("vlsyncd-0.log")
         );
     }
+
+    // and replay says so itself
+    let said = String::from_utf8_lossy(&out.stderr);
+    let want = format!("{rows} of {rows} estimates at reference times it has ({rows} rows); {rows} identical, 0 in another state");
+    assert!(said.contains(&want), "`{want}` missing:\n{said}");
 
     // a second recording into the same directory is refused, and names the file
     let again = Command::new(bin("vlsyncd"))
