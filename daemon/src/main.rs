@@ -44,6 +44,11 @@ enum Cmd {
         /// and draws them in the --plot.
         #[arg(long)]
         compare: Option<PathBuf>,
+        /// How the two files are merged: `publish` in the order the daemon read them
+        /// (the `publish` column `vlsyncd record` writes), `stamp` by their stamps, `auto`
+        /// by publish time when both files carry it.
+        #[arg(long, value_enum, default_value_t)]
+        order: vlsyncd::replay::OrderArg,
     },
     /// Record the live signature streams and estimates of a prefix as the CSV files
     /// `replay` reads and writes (cam.csv, lidar.csv, est.csv), until --duration or Ctrl-C.
@@ -75,6 +80,7 @@ fn main() -> ExitCode {
             truth,
             plot,
             compare,
+            order,
         } => vlsyncd::replay::run_cli(&vlsyncd::replay::ReplayArgs {
             cam: &cam,
             lidar: &lidar,
@@ -83,6 +89,7 @@ fn main() -> ExitCode {
             truth: truth.as_deref(),
             plot: plot.as_deref(),
             compare: compare.as_deref(),
+            order,
         }),
         Cmd::Record(args) => vlsyncd::record::run_cli(&args),
         Cmd::Bench(args) => vlsyncd::bench::run_cli(&args),

@@ -17,6 +17,28 @@ pub fn run_estimator(
     run_estimator_with_changes(cfg, cam, lidar, &[], None)
 }
 
+/// The order in which the two streams are pushed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Order<'a> {
+    /// By stamp, the camera's sample first on a tie: as the samples would have
+    /// arrived if both clocks ran on.
+    Stamp,
+    /// By each sample's publish time (camera, LiDAR; one per sample, as `vlsyncd
+    /// record` writes them), the camera's first on a tie: the order the daemon read
+    /// them in.
+    Publish(&'a [Nanos], &'a [Nanos]),
+}
+
+/// [`run_estimator`] with the samples pushed in `order`.
+pub fn run_estimator_in_order(
+    cfg: &EstimatorConfig,
+    cam: &[Sample],
+    lidar: &[Sample],
+    order: Order<'_>,
+) -> (Vec<Estimate>, EstimatorStats) {
+    run_merged(cfg, cam, lidar, order, &[], None)
+}
+
 /// [`run_estimator`], announcing each of `changes` (LiDAR times, ns, sorted) to the
 /// estimator when the first LiDAR sample at or after it is pushed: as a certain
 /// change ([`Estimator::declare_change`]), or with `hint_std_s` as a hint of a step
@@ -28,11 +50,32 @@ pub fn run_estimator_with_changes(
     changes: &[Nanos],
     hint_std_s: Option<f64>,
 ) -> (Vec<Estimate>, EstimatorStats) {
+    run_merged(cfg, cam, lidar, Order::Stamp, changes, hint_std_s)
+}
+
+fn run_merged(
+    cfg: &EstimatorConfig,
+    cam: &[Sample],
+    lidar: &[Sample],
+    order: Order<'_>,
+    changes: &[Nanos],
+    hint_std_s: Option<f64>,
+) -> (Vec<Estimate>, EstimatorStats) {
+    // a sample's merge key: its stamp, or its publish time (the stamp for a sample
+    // without one, which the command line never hands in)
+    let key = |s: &[Sample], k: usize, publish: Option<&[Nanos]>| {
+        publish.and_then(|p| p.get(k).copied()).unwrap_or(s[k].t_ns)
+    };
+    let (pub_cam, pub_lidar) = match order {
+        Order::Stamp => (None, None),
+        Order::Publish(c, l) => (Some(c), Some(l)),
+    };
     let mut est = Estimator::new(cfg);
     let mut out = Vec::with_capacity(lidar.len() / 2 + 16);
     let (mut i, mut j, mut c) = (0, 0, 0);
     while i < cam.len() || j < lidar.len() {
-        let take_cam = j >= lidar.len() || (i < cam.len() && cam[i].t_ns <= lidar[j].t_ns);
+        let take_cam =
+            j >= lidar.len() || (i < cam.len() && key(cam, i, pub_cam) <= key(lidar, j, pub_lidar));
         let r = if take_cam {
             i += 1;
             est.push(Stream::Cam, cam[i - 1])
@@ -171,6 +214,18 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
     s
 }
 
+/// `replay --order`: how the two files are merged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum OrderArg {
+    /// By publish time when both files carry it (`vlsyncd record`'s), else by stamp.
+    #[default]
+    Auto,
+    /// By stamp.
+    Stamp,
+    /// By publish time (both files must carry it).
+    Publish,
+}
+
 /// Arguments of the `replay` command.
 #[derive(Debug, Clone, Copy)]
 pub struct ReplayArgs<'a> {
@@ -188,6 +243,8 @@ pub struct ReplayArgs<'a> {
     pub plot: Option<&'a Path>,
     /// Another run's estimates file to compare with (e.g. `vlsyncd record`'s `est.csv`).
     pub compare: Option<&'a Path>,
+    /// How the two files are merged.
+    pub order: OrderArg,
 }
 
 /// Refuses outputs that name an input or each other: `--out` and `--plot` are
@@ -268,8 +325,23 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
         Some(p) => Config::load(p).map_err(|e| e.to_string())?,
         None => Config::default(),
     };
-    let (cam_s, _) = vlsync_sim::io::read_signature_csv(a.cam).map_err(|e| e.to_string())?;
-    let (lidar_s, _) = vlsync_sim::io::read_signature_csv(a.lidar).map_err(|e| e.to_string())?;
+    let read = |p| vlsync_sim::io::read_recorded_csv(p).map_err(|e| e.to_string());
+    let (cam, lidar) = (read(a.cam)?, read(a.lidar)?);
+    let (cam_s, cam_pub, lidar_s, lidar_pub) =
+        (cam.samples, cam.publish, lidar.samples, lidar.publish);
+    let order = match (a.order, cam_pub.as_deref(), lidar_pub.as_deref()) {
+        (OrderArg::Stamp, _, _) | (OrderArg::Auto, None, _) | (OrderArg::Auto, _, None) => {
+            Order::Stamp
+        }
+        (_, Some(c), Some(l)) => Order::Publish(c, l),
+        (OrderArg::Publish, c, _) => {
+            let without = if c.is_none() { a.cam } else { a.lidar };
+            return Err(format!(
+                "--order publish: {} has no `publish` column (the fourth, as `vlsyncd record` writes it)",
+                without.display()
+            ));
+        }
+    };
     let truth = match a.truth {
         Some(p) => Some(vlsync_sim::io::read_truth_csv(p).map_err(|e| e.to_string())?),
         None => None,
@@ -279,11 +351,15 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
         None => Vec::new(),
     };
     let t0 = std::time::Instant::now();
-    let (ests, stats) = run_estimator(&cfg.estimator, &cam_s, &lidar_s);
+    let (ests, stats) = run_estimator_in_order(&cfg.estimator, &cam_s, &lidar_s, order);
     let elapsed = t0.elapsed();
     write_estimates(a.out, &ests)?;
     // stderr through `print_err`: a closed or full one must not panic
     let err = vlsync_common::console::print_err;
+    err(match order {
+        Order::Stamp => "merged by stamp\n",
+        Order::Publish(..) => "merged by publish time (the order the daemon read the samples in)\n",
+    });
     err(&summary(&stats, &ests, [cam_s.len(), lidar_s.len()]));
     if let Some(tr) = &truth {
         err(&format!("{}\n", error_summary(&ests, tr)));

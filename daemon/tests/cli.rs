@@ -163,3 +163,76 @@ fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
     assert_eq!(code, 0, "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-order-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let plain = dir.join("plain.csv");
+    let recorded = dir.join("recorded.csv");
+    std::fs::write(&plain, "t,value\n0.0,1.0\n0.1,2.0\n").unwrap();
+    std::fs::write(
+        &recorded,
+        "t,value,seq,publish,flags\n0.0,1.0,0,5.0,1\n0.1,2.0,1,5.1,0\n",
+    )
+    .unwrap();
+    let bad = dir.join("bad.csv");
+    std::fs::write(
+        &bad,
+        "t,value,seq,publish,flags\n0.0,1.0,0,5.0,1\n0.1,2.0,1,,0\n",
+    )
+    .unwrap();
+    let (est, cmp) = (dir.join("est.csv"), dir.join("cmp.csv"));
+    let p = |x: &std::path::Path| x.to_str().unwrap().to_string();
+    let vlsyncd = env!("CARGO_BIN_EXE_vlsyncd");
+    let replay = |cam: &std::path::Path, lidar: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "replay".to_string(),
+            "--cam".into(),
+            p(cam),
+            "--lidar".into(),
+        ];
+        args.extend([p(lidar), "--out".into(), p(&est)]);
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        run(vlsyncd, &args)
+    };
+    let (code, _, err) = replay(&recorded, &recorded, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("merged by publish time"), "{err}");
+    for (cam, lidar, extra) in [
+        (&plain, &recorded, &[][..]),
+        (&recorded, &recorded, &["--order", "stamp"][..]),
+    ] {
+        let (code, _, err) = replay(cam, lidar, extra);
+        assert_eq!(code, 0, "{err}");
+        assert!(err.contains("merged by stamp"), "{err}");
+    }
+    let (code, _, err) = replay(&recorded, &plain, &["--order", "publish"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!(
+            "--order publish: {} has no `publish` column",
+            p(&plain)
+        )),
+        "{err}"
+    );
+    let (code, _, err) = replay(&bad, &recorded, &[]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!("{}:3: missing column 4 (publish)", p(&bad))),
+        "{err}"
+    );
+    // --compare: a file that is no estimates file is an error naming it
+    std::fs::write(&cmp, "t,value\n0.0,1.0\n").unwrap();
+    let (code, _, err) = replay(&plain, &plain, &["--compare", &p(&cmp)]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:1: expected the header of an estimates file",
+            p(&cmp)
+        )),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -307,6 +307,79 @@ pub fn read_signature_csv(path: impl AsRef<Path>) -> Result<(Vec<Sample>, CsvSta
     parse_signature_csv(&bytes, &path.display().to_string())
 }
 
+/// The publish times of a signature CSV whose header names a fourth column `publish`
+/// (what `vlsyncd record` writes: `t,value,seq,publish,flags`, the driver's
+/// `CLOCK_MONOTONIC` publish time in seconds), one per data row of
+/// [`parse_signature_csv`] in the same order; `Ok(None)` when the header names no such
+/// column. Call it on bytes [`parse_signature_csv`] accepted: a row without a valid
+/// fourth column is an error naming the file and line.
+///
+/// ```
+/// use vlsync_sim::io::parse_publish_column;
+/// let text = b"t,value,seq,publish,flags\n0.1,1.5,0,7.25,1\n\n0.2,1.0,1,7.5,0\n";
+/// assert_eq!(parse_publish_column(text, "cam.csv"), Ok(Some(vec![7_250_000_000, 7_500_000_000])));
+/// assert_eq!(parse_publish_column(b"t,value\n0.1,1.5\n", "cam.csv"), Ok(None));
+/// let err = parse_publish_column(b"t,value,seq,publish\n0.1,1.5,0\n", "cam.csv").unwrap_err();
+/// assert_eq!(err.to_string(), "cam.csv:2: missing column 4 (publish)");
+/// ```
+pub fn parse_publish_column(bytes: &[u8], source: &str) -> Result<Option<Vec<Nanos>>, CsvError> {
+    let err = |line: usize, message: String| CsvError {
+        path: PathBuf::from(source),
+        line: Some(line),
+        message,
+    };
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let mut lines = bytes.split(|&b| b == b'\n').enumerate();
+    let header = lines.next().map_or(&b""[..], |(_, l)| l);
+    let named = String::from_utf8_lossy(header)
+        .split(',')
+        .nth(3)
+        .is_some_and(|c| c.trim().trim_matches('"').eq_ignore_ascii_case("publish"));
+    if !named {
+        return Ok(None);
+    }
+    let mut out = Vec::new();
+    for (idx, raw) in lines {
+        let line = String::from_utf8_lossy(raw);
+        let line = line.strip_suffix('\r').unwrap_or(&line);
+        if line.trim().is_empty() {
+            continue;
+        }
+        let col = line
+            .split(',')
+            .nth(3)
+            .filter(|c| !c.trim().is_empty())
+            .ok_or_else(|| err(idx + 1, "missing column 4 (publish)".into()))?;
+        out.push(parse_secs(col).map_err(|m| err(idx + 1, format!("column 4 (publish): {m}")))?);
+    }
+    Ok(Some(out))
+}
+
+/// A signature CSV with the publish times `vlsyncd record` writes beside the samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recorded {
+    /// The samples ([`parse_signature_csv`]).
+    pub samples: Vec<Sample>,
+    /// Their publish times, when the file has the column ([`parse_publish_column`]).
+    pub publish: Option<Vec<Nanos>>,
+    /// What the reader saw besides.
+    pub stats: CsvStats,
+}
+
+/// [`read_signature_csv`] and [`parse_publish_column`] of one file, read once.
+pub fn read_recorded_csv(path: impl AsRef<Path>) -> Result<Recorded, CsvError> {
+    let path = path.as_ref();
+    let bytes = read_input(path)?;
+    let source = path.display().to_string();
+    let (samples, stats) = parse_signature_csv(&bytes, &source)?;
+    let publish = parse_publish_column(&bytes, &source)?;
+    Ok(Recorded {
+        samples,
+        publish,
+        stats,
+    })
+}
+
 /// Renders samples as a signature CSV (header `t,value`).
 pub fn signature_csv_string(samples: &[Sample]) -> String {
     let mut s = String::with_capacity(24 * samples.len() + 8);
@@ -602,6 +675,30 @@ mod tests {
         #[test]
         fn reader_never_panics_on_csvish_text(text in "[t,value0-9.eE+\\-naif \r\n]{0,200}") {
             let _ = parse_signature_csv(text.as_bytes(), "fuzz");
+        }
+
+        /// A file the signature reader accepts gives one publish time per sample, or
+        /// an error naming its line, never a panic.
+        #[test]
+        fn publish_column_has_one_time_per_sample_or_names_the_line(
+            rows in proptest::collection::vec(
+                (-1_000_000_000_000i64..1_000_000_000_000, "[0-9.\\-]{0,6}", any::<bool>()),
+                0..30,
+            )
+        ) {
+            let mut text = String::from("t,value,seq,publish,flags\n");
+            for (k, (t, publish, blank)) in rows.iter().enumerate() {
+                if *blank {
+                    text.push_str(" \r\n");
+                }
+                text.push_str(&format!("{},0.5,{k},{publish},0\n", format_secs(*t)));
+            }
+            let (samples, _) = parse_signature_csv(text.as_bytes(), "rec.csv").unwrap();
+            match parse_publish_column(text.as_bytes(), "rec.csv") {
+                Ok(Some(p)) => prop_assert_eq!(p.len(), samples.len()),
+                Ok(None) => prop_assert!(false, "the header names the column"),
+                Err(e) => prop_assert!(e.to_string().starts_with("rec.csv:") && e.line.is_some()),
+            }
         }
 
         #[test]
