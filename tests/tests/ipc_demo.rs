@@ -135,6 +135,8 @@ fn close_the_reader() {
 #[test]
 fn demo_ctrl_c_stops_children_and_leaves_nothing() {
     // one after the other: a second demo would show up in the first one's resources
+    let rec = std::env::temp_dir().join(format!("vlsync-demo-test-rec-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&rec);
     let out = interrupt_demo(
         "sim",
         &[
@@ -146,12 +148,47 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
             "2",
             "--summary-every",
             "2",
+            "--record",
+            rec.to_str().unwrap(),
         ],
         Duration::from_secs(6),
         |_| true,
         Duration::ZERO,
     );
     assert!(out.contains("signature simulator `robot`"), "{out}");
+    // --record: the streams, the estimates and the truth, which replay reads back
+    let r = rec.display();
+    assert!(
+        out.contains(&format!("recorded: {r}/{{cam,lidar,est,truth}}.csv")),
+        "{out}"
+    );
+    let rows = |f: &str| {
+        std::fs::read_to_string(rec.join(f))
+            .unwrap_or_default()
+            .lines()
+            .count()
+    };
+    assert!(rows("cam.csv") > 100 && rows("lidar.csv") > 30, "{out}");
+    assert!(rows("est.csv") > 5 && rows("truth.csv") > 100, "{out}");
+    let mut replay = std::process::Command::new(bin("vlsyncd"));
+    replay.arg("replay");
+    for (flag, file) in [
+        ("--cam", "cam.csv"),
+        ("--lidar", "lidar.csv"),
+        ("--out", "replayed.csv"),
+        ("--truth", "truth.csv"),
+        ("--compare", "est.csv"),
+    ] {
+        replay.arg(flag).arg(rec.join(file));
+    }
+    let replay = replay.output().unwrap();
+    let said = String::from_utf8_lossy(&replay.stderr);
+    assert!(replay.status.success(), "{said}");
+    assert!(
+        said.contains("error vs truth over ") && said.contains(&format!("against {r}/est.csv: ")),
+        "{said}"
+    );
+    std::fs::remove_dir_all(&rec).unwrap();
     // 6 s at 2x is about 12 s of reference time: stretch lines of 2 s as the run goes
     // (and the last one when it is interrupted)
     let stretches = out

@@ -61,7 +61,14 @@ struct Args {
     /// truth, SVG (default: `demo.svg` in the log directory).
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Record the run into this directory as `vlsyncd record` does (cam.csv, lidar.csv,
+    /// est.csv), with the truth (truth.csv), for `vlsyncd replay --truth --compare`.
+    #[arg(long)]
+    record: Option<PathBuf>,
 }
+
+/// The truth file `--record` adds to the recording.
+const TRUTH_FILE: &str = "truth.csv";
 
 /// Error bound of the convergence figure (issue 3: within 3 ms in 15 s).
 const CONVERGED_S: f64 = 0.003;
@@ -109,6 +116,16 @@ fn check_args(a: &Args) -> Result<(), String> {
     if let Some(p) = &a.plot {
         check_plot_path(p)?;
     }
+    if let Some(dir) = &a.record {
+        let files = vlsyncd::record::FILES.iter().chain([&TRUTH_FILE]);
+        if let Some(f) = files.map(|f| dir.join(f)).find(|f| f.exists()) {
+            return Err(format!(
+                "--record {}: {} exists: refusing to overwrite a recording",
+                dir.display(),
+                f.display()
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -141,6 +158,27 @@ fn truth_points(truth: &vlsync_sim::Truth) -> Vec<(Nanos, f64)> {
         .collect()
 }
 
+/// Adds the truth to the recording in `dir` and says how to replay it.
+fn record_truth(
+    dir: &Path,
+    truth: &vlsync_sim::Truth,
+    config: Option<&Path>,
+    recorder_log: &Path,
+    out: &mut Out,
+) -> Result<(), String> {
+    let path = dir.join(TRUTH_FILE);
+    vlsync_sim::io::write_truth_csv(&path, truth).map_err(|e| e.to_string())?;
+    let d = dir.display();
+    out.line(format_args!(
+        "recorded: {d}/{{cam,lidar,est,truth}}.csv (the recorder's summary: {}); replay it: \
+         vlsyncd replay --cam {d}/cam.csv --lidar {d}/lidar.csv --out {d}/replayed.csv \
+         --truth {d}/truth.csv --compare {d}/est.csv{}",
+        recorder_log.display(),
+        config.map_or(String::new(), |c| format!(" --config {}", c.display()))
+    ));
+    Ok(())
+}
+
 fn run(a: Args) -> Result<(), String> {
     check_args(&a)?;
     let mut out = Out::new();
@@ -162,11 +200,11 @@ fn run(a: Args) -> Result<(), String> {
     let truth = source
         .known_truth()?
         .ok_or("the demo's sources have a known truth")?;
-    let mut s = Session::start(a.procs.session_options(
-        "vlsync-demo",
-        source,
-        Duration::from_millis(1500),
-    ))?;
+    let mut options = a
+        .procs
+        .session_options("vlsync-demo", source, Duration::from_millis(1500));
+    options.record = a.record.clone();
+    let mut s = Session::start(options)?;
     out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
         s.source.describe(),
@@ -306,6 +344,10 @@ fn run(a: Args) -> Result<(), String> {
         ));
     }
     out.line(format_args!("children stopped {}", stop_words(clean)));
+    if let Some(dir) = &a.record {
+        let log = s.log_dir.join(vlsyncd::harness::session::RECORDER_LOG);
+        record_truth(dir, &truth, a.procs.config.as_deref(), &log, &mut out)?;
+    }
     // the plot last: everything above is printed even if it cannot be written
     let plot = a.plot.unwrap_or_else(|| s.log_dir.join("demo.svg"));
     let ests: Vec<Estimate> = s.estimates.iter().map(|r| r.est).collect();
@@ -361,6 +403,25 @@ mod tests {
             let e = check_args(&args(argv)).unwrap_err();
             assert!(e.starts_with(&format!("{flag} ")), "{argv:?}: {e}");
         }
+    }
+
+    #[test]
+    fn a_recording_is_not_written_over() {
+        let dir = std::env::temp_dir().join(format!("vlsync-demo-record-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let d = dir.to_str().unwrap();
+        assert!(check_args(&args(&["--record", d])).is_ok());
+        for f in ["est.csv", TRUTH_FILE] {
+            std::fs::write(dir.join(f), "t\n").unwrap();
+            let e = check_args(&args(&["--record", d])).unwrap_err();
+            assert!(
+                e.starts_with("--record ")
+                    && e.ends_with(&format!("{f} exists: refusing to overwrite a recording")),
+                "{e}"
+            );
+            std::fs::remove_file(dir.join(f)).unwrap();
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

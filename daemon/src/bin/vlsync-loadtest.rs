@@ -255,6 +255,7 @@ fn run(a: &Args) -> Result<bool, String> {
         },
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),
+        record: None,
     })?;
     let rt = rt_lines(&session.log("vlsyncd.log"));
     for l in &rt {

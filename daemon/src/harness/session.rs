@@ -174,6 +174,9 @@ pub struct SessionOptions {
     pub source: Source,
     /// From the drivers' spawn to their common start instant.
     pub start_delay: Duration,
+    /// Also run `vlsyncd record` into this directory, from before the drivers start
+    /// until the daemon has taken their last sample.
+    pub record: Option<PathBuf>,
 }
 
 /// The command-line options the live runs share: the daemon's configuration,
@@ -206,6 +209,7 @@ impl ProcessArgs {
             daemon_config: self.config.clone(),
             source,
             start_delay,
+            record: None,
         }
     }
 }
@@ -315,6 +319,8 @@ pub struct Session {
     last_usage: Instant,
     offsets: OffsetClient,
     status: StatusClient,
+    /// `vlsyncd record`, when asked for ([`SessionOptions::record`]).
+    recorder: Option<Managed>,
     _node: IpcNode,
 }
 
@@ -371,6 +377,10 @@ impl Session {
                 daemon_log.display()
             ));
         }
+        let recorder = match &o.record {
+            Some(dir) => Some(spawn_recorder(&daemon_bin, &prefix, dir, &log_dir)?),
+            None => None,
+        };
         let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
         let [(cam, cam_t), (lidar, lidar_t)] =
             spawn_drivers(&driver_bins, &o.source, &prefix, start_at, &log_dir, "")?;
@@ -391,6 +401,7 @@ impl Session {
             last_usage: Instant::now() - Duration::from_secs(1),
             offsets,
             status,
+            recorder,
             _node: node,
         })
     }
@@ -551,8 +562,16 @@ impl Session {
         // the estimates published before the drivers stopped
         self.receive_estimates(Duration::from_millis(10))?;
         self.sample_usage(true);
+        // the recorder has read them too (it reads an estimate within 20 ms)
+        let clean_recorder = self
+            .recorder
+            .as_mut()
+            .is_none_or(|r| r.stop(Duration::from_secs(6)));
         let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
-        Ok(clean_drivers.iter().all(|c| *c) && clean_daemon && self.replaced_clean)
+        Ok(clean_drivers.iter().all(|c| *c)
+            && clean_daemon
+            && clean_recorder
+            && self.replaced_clean)
     }
 
     /// The truth of this run: the known model, or the measured one from the
@@ -606,6 +625,31 @@ pub fn stop_words(clean: bool) -> &'static str {
 }
 
 /// Spawns both drivers of `src` (logs `vlsync-<stream><suffix>.log`).
+/// Log file of the session's `vlsyncd record`.
+pub const RECORDER_LOG: &str = "vlsyncd-record.log";
+
+/// Starts `vlsyncd record` into `dir` and waits (up to [`DAEMON_READY_WAIT`]) until it
+/// has subscribed, so that it sees the drivers' first samples.
+fn spawn_recorder(bin: &Path, prefix: &str, dir: &Path, log_dir: &Path) -> Result<Managed, String> {
+    let log = log_dir.join(RECORDER_LOG);
+    let args = [
+        "record",
+        "--prefix",
+        prefix,
+        "--out",
+        &dir.display().to_string(),
+        "--progress-every",
+        "0",
+    ]
+    .map(String::from);
+    let mut r = Managed::spawn("vlsyncd record", bin, &args, Some(&log))?;
+    match r.wait_for_log(&log, "Ctrl-C stops", DAEMON_READY_WAIT) {
+        Err(text) => Err(format!("vlsyncd record exited at start:\n{text}")),
+        // a recorder still starting is left to catch up: it misses the first samples
+        Ok(_) => Ok(r),
+    }
+}
+
 fn spawn_drivers(
     bins: &[PathBuf; 2],
     src: &Source,
@@ -725,6 +769,7 @@ mod tests {
                 speed: 1.0,
             },
             start_delay: Duration::from_secs(1),
+            record: None,
         })
         .err()
         .expect("a bad prefix starts no session");
@@ -864,6 +909,7 @@ mod tests {
             daemon_config: Some(PathBuf::from(config)),
             source,
             start_delay: Duration::ZERO,
+            record: None,
         };
         let e = Session::start(opts(sim, "/nonexistent/vlsync.toml"))
             .err()
