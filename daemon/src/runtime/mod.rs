@@ -78,7 +78,7 @@ pub mod procs;
 
 mod events;
 mod instance;
-mod rt;
+pub(crate) mod rt;
 
 use events::{log_event, report_suppressed};
 pub use instance::{lock_path, single_instance_lock, InstanceLock};

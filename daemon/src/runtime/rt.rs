@@ -50,8 +50,9 @@ pub(super) fn first_published(
     }
 }
 
-/// The largest sequence jump counted as lost samples (see [`sequence_gap`]).
-pub(super) const MAX_COUNTED_GAP: u64 = 1 << 32;
+/// The largest sequence jump counted as lost samples (see [`sequence_gap`]); the
+/// recorder (`vlsyncd record`) judges gaps by the same rule.
+pub(crate) const MAX_COUNTED_GAP: u64 = 1 << 32;
 
 /// Tracks the sequence of each publisher of a stream; returns samples lost
 /// before `seq` (0 for the first sample of a publisher or a restart, and for a
