@@ -624,7 +624,6 @@ pub fn stop_words(clean: bool) -> &'static str {
     }
 }
 
-/// Spawns both drivers of `src` (logs `vlsync-<stream><suffix>.log`).
 /// Log file of the session's `vlsyncd record`.
 pub const RECORDER_LOG: &str = "vlsyncd-record.log";
 
@@ -650,6 +649,7 @@ fn spawn_recorder(bin: &Path, prefix: &str, dir: &Path, log_dir: &Path) -> Resul
     }
 }
 
+/// Spawns both drivers of `src` (logs `vlsync-<stream><suffix>.log`).
 fn spawn_drivers(
     bins: &[PathBuf; 2],
     src: &Source,
