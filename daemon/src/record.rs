@@ -71,6 +71,8 @@ pub struct StreamCounts {
 /// A recording in progress: three CSV writers and what went into them.
 pub struct Recording<W: Write> {
     out: [W; 3],
+    /// How errors name the three files.
+    names: [String; 3],
     counts: [StreamCounts; 2],
     last_seq: [Option<u64>; 2],
     states: [u64; 4],
@@ -82,8 +84,14 @@ impl<W: Write> Recording<W> {
     /// Starts a recording into the camera, LiDAR and estimate writers: writes the
     /// headers. An error names the file ([`FILES`]) that could not be written.
     pub fn new(cam: W, lidar: W, est: W) -> Result<Self, String> {
+        Self::named([cam, lidar, est], FILES.map(String::from))
+    }
+
+    /// [`Recording::new`] with the names errors give the files (their paths).
+    pub fn named(out: [W; 3], names: [String; 3]) -> Result<Self, String> {
         let mut r = Self {
-            out: [cam, lidar, est],
+            out,
+            names,
             counts: [StreamCounts::default(); 2],
             last_seq: [None; 2],
             states: [0; 4],
@@ -97,7 +105,8 @@ impl<W: Write> Recording<W> {
     }
 
     fn write(&mut self, file: usize, row: &str) -> Result<(), String> {
-        writeln!(self.out[file], "{row}").map_err(|e| format!("cannot write {}: {e}", FILES[file]))
+        let name = &self.names[file];
+        writeln!(self.out[file], "{row}").map_err(|e| format!("cannot write {name}: {e}"))
     }
 
     /// Writes one received signature sample (or skips and counts it when its
@@ -152,7 +161,7 @@ impl<W: Write> Recording<W> {
 
     /// Flushes the three writers.
     pub fn flush(&mut self) -> Result<(), String> {
-        for (w, name) in self.out.iter_mut().zip(FILES) {
+        for (w, name) in self.out.iter_mut().zip(&self.names) {
             w.flush().map_err(|e| format!("cannot write {name}: {e}"))?;
         }
         Ok(())
@@ -273,7 +282,7 @@ const POLL: Duration = Duration::from_millis(20);
 /// The subscriber buffer asked for (the services grant their maximum, 256 by default).
 const BUFFER: usize = 4096;
 
-fn check_args(a: &RecordArgs) -> Result<String, String> {
+fn check_args(a: &RecordArgs) -> Result<vlsync_ipc::ServiceNames, String> {
     if !(a.duration.is_finite() && a.duration >= 0.0) {
         return Err(format!(
             "--duration {} must be a finite number of seconds >= 0",
@@ -297,8 +306,7 @@ fn check_args(a: &RecordArgs) -> Result<String, String> {
         None => vlsync_config::Config::default(),
     };
     let prefix = a.prefix.clone().unwrap_or(cfg.services.prefix);
-    vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
-    Ok(prefix)
+    vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())
 }
 
 /// Creates `dir` and the three files in it; refuses to overwrite an earlier
@@ -339,7 +347,8 @@ fn drain_signatures<W: Write>(
 
 /// The `record` command.
 pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
-    let prefix = check_args(a)?;
+    let names = check_args(a)?;
+    let prefix = names.prefix.clone();
     let err = vlsync_common::console::print_err;
     if a.nice > 0 {
         // raising one's own nice value needs no privilege; should it fail, say so
@@ -347,9 +356,9 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
             err(&format!("vlsyncd record: {e}; recording anyway\n"));
         }
     }
-    let [cam, lidar, est] = create_files(&a.out, a.force)?;
-    let mut rec = Recording::new(cam, lidar, est).map_err(|e| in_dir(&a.out, &e))?;
-    let names = vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
+    let files = create_files(&a.out, a.force)?;
+    let paths = FILES.map(|f| a.out.join(f).display().to_string());
+    let mut rec = Recording::named(files, paths)?;
     // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the recording cleanly
     let node = vlsync_ipc::create_node("vlsyncd-record", true).map_err(|e| e.to_string())?;
     let open = |s| vlsync_ipc::SignatureSubscriber::open(&node, &names, s, BUFFER);
@@ -393,12 +402,12 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
     let result = loop {
         let step = round(&mut rec).map(|any| heard |= any);
         if let Err(e) = step {
-            break Err(in_dir(&a.out, &e));
+            break Err(e);
         }
         let elapsed = t0.elapsed();
         if last_flush.elapsed() >= FLUSH_EVERY {
             if let Err(e) = rec.flush() {
-                break Err(in_dir(&a.out, &e));
+                break Err(e);
             }
             last_flush = Instant::now();
         }
@@ -420,12 +429,12 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
             || (a.duration > 0.0 && elapsed.as_secs_f64() >= a.duration)
         {
             // what arrived up to the stop belongs to the recording
-            break round(&mut rec).map(|_| ()).map_err(|e| in_dir(&a.out, &e));
+            break round(&mut rec).map(|_| ());
         }
         std::thread::sleep(POLL);
     };
     // whatever ended the loop, what was received is flushed and summarised
-    let flushed = rec.flush().map_err(|e| in_dir(&a.out, &e));
+    let flushed = rec.flush();
     err(&format!(
         "vlsyncd record: {:.1} s on prefix `{prefix}` into {}\n{}",
         t0.elapsed().as_secs_f64(),
@@ -446,11 +455,6 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
             .unwrap_or_default()
     ));
     result.and(flushed)
-}
-
-/// An error about one of the files, with its directory.
-fn in_dir(dir: &Path, e: &str) -> String {
-    format!("{}: {e}", dir.display())
 }
 
 #[cfg(test)]
@@ -648,7 +652,7 @@ mod tests {
         assert!(check_args(&args(1.0, f64::NAN))
             .unwrap_err()
             .starts_with("--progress-every NaN must be"));
-        assert_eq!(check_args(&args(0.0, 0.0)).unwrap(), "vlsync/robot");
+        assert_eq!(check_args(&args(0.0, 0.0)).unwrap().prefix, "vlsync/robot");
         for nice in [-1, 20] {
             let mut a = args(0.0, 0.0);
             a.nice = nice;

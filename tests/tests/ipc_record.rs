@@ -169,9 +169,12 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
     let limit = rig.remaining() + Duration::from_secs(20);
-    for d in [&mut cam, &mut lidar] {
+    for (d, log) in [
+        (&mut cam, "vlsync-cam-0.log"),
+        (&mut lidar, "vlsync-lidar-0.log"),
+    ] {
         let st = d.wait_up_to(limit).expect("the driver finishes its run");
-        assert!(st.success(), "{}", rig.log("vlsync-cam-0.log"));
+        assert!(st.success(), "{log}:\n{}", rig.log(log));
     }
     let log = r.stop(&rig);
     assert!(log.contains("s: cam "), "no progress line:\n{log}");
