@@ -72,6 +72,16 @@ fn a_negative_number_is_the_flags_value_and_its_error_names_the_flag() {
             &["--speed", "-100"][..],
             "--speed",
         ),
+        (
+            env!("CARGO_BIN_EXE_vlsync-demo"),
+            &["--fifo", "-1"][..],
+            "'-1' for '--fifo",
+        ),
+        (
+            env!("CARGO_BIN_EXE_vlsyncd"),
+            &["run", "--fifo-priority", "100"][..],
+            "'100' for '--fifo-priority",
+        ),
     ] {
         let (code, _, err) = run(bin, args);
         assert_ne!(code, 0, "{bin} {args:?}");

@@ -57,6 +57,17 @@ fn interrupt_demo(
     assert!(status.success(), "demo exit {status}:\n{out}");
     assert!(out.contains("=== summary (interrupted) ==="), "{out}");
     assert!(out.contains("children stopped cleanly"), "{out}");
+    // the daemon's real-time thread as the kernel reports it: SCHED_FIFO 50 (the demo's
+    // default) where the machine grants it, else the normal scheduler and why
+    let rt = out
+        .lines()
+        .find_map(|l| l.strip_prefix("daemon's real-time thread: "))
+        .unwrap_or_else(|| panic!("no real-time thread line:\n{out}"));
+    assert!(
+        rt.starts_with("SCHED_FIFO priority 50, on core ")
+            || rt.contains("(SCHED_FIFO priority 50 refused: the daemon's log says why"),
+        "{rt}"
+    );
     // an interrupted run still gets its plot, by default in the log directory
     let plot = dir.join("children").join("demo.svg");
     let svg = std::fs::read_to_string(&plot).unwrap_or_default();

@@ -16,7 +16,10 @@ use std::time::{Duration, Instant};
 use vlsync_ipc::{create_node, monotonic_ns, termination_requested, StatusClient};
 use vlsync_sim::families::{MAX_DURATION_S, MIN_DURATION_S};
 use vlsyncd::harness::{check_arg, MAX_SPEED, MIN_SPEED};
-use vlsyncd::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
+use vlsyncd::runtime::procs::{
+    cpu_seconds, describe_rt_thread, rss_kb, sibling_binary, thread_sched, Managed,
+};
+use vlsyncd::runtime::RT_THREAD_NAME;
 
 #[derive(Parser)]
 #[command(
@@ -172,6 +175,16 @@ fn measure(
         return Err(format!("vlsyncd exited at start: {}", said.trim()));
     }
 
+    let asked = match &a.config {
+        Some(c) => {
+            vlsync_config::Config::load(c)
+                .map_err(|e| format!("--config: {e}"))?
+                .daemon
+                .fifo_priority
+        }
+        None => 0,
+    };
+
     // ---- phase 1: 100x ----
     let cpu0 = cpu_seconds(daemon.pid())?;
     let t0 = Instant::now();
@@ -182,10 +195,13 @@ fn measure(
         Duration::from_secs_f64(a.fast_sim_s / a.speed + 20.0),
     )?;
     let fast_wall = t0.elapsed().as_secs_f64();
+    // the real-time thread serves by now: what the kernel gave it
+    let rt = describe_rt_thread(&thread_sched(daemon.pid(), RT_THREAD_NAME), asked);
     let fast_cpu = cpu_seconds(daemon.pid())? - cpu0;
     let s1 = latest_status(&mut status)?;
     let received = s1.received[0].saturating_add(s1.received[1]);
     let lost = s1.lost[0].saturating_add(s1.lost[1]);
+    out.line(format_args!("daemon's real-time thread: {rt}"));
     out.line(format_args!(
         "phase 1: {}x real time, {received} samples through driver -> daemon -> estimate",
         a.speed

@@ -244,6 +244,7 @@ fn run(a: &Args) -> Result<bool, String> {
         prefix: None,
         log_dir: Some(out.clone()),
         daemon_config: Some(cfg_path),
+        daemon_fifo_priority: None,
         source: Source::Render {
             seed: a.seed,
             duration_s: prof.duration_s() + 1.0,

@@ -4,7 +4,10 @@
 //! clean stop. `vlsync-demo` and `vlsync-loadtest` are thin layers over it.
 
 use super::truth::{read_truth_csv, MeasuredTruth, TruthModel};
-use crate::runtime::procs::{cpu_seconds, rss_kb, sibling_binary, Managed};
+use crate::runtime::procs::{
+    cpu_seconds, rss_kb, sibling_binary, thread_sched, Managed, ThreadSched,
+};
+use crate::runtime::RT_THREAD_NAME;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use vlsync_common::wire::Status;
@@ -170,6 +173,8 @@ pub struct SessionOptions {
     pub log_dir: Option<PathBuf>,
     /// `vlsyncd run --config`.
     pub daemon_config: Option<PathBuf>,
+    /// `vlsyncd run --fifo-priority` (overrides the configuration's).
+    pub daemon_fifo_priority: Option<i64>,
     /// What the drivers publish.
     pub source: Source,
     /// From the drivers' spawn to their common start instant.
@@ -207,6 +212,7 @@ impl ProcessArgs {
             prefix: self.prefix.clone(),
             log_dir: self.log_dir.clone(),
             daemon_config: self.config.clone(),
+            daemon_fifo_priority: None,
             source,
             start_delay,
             record: None,
@@ -321,6 +327,9 @@ pub struct Session {
     status: StatusClient,
     /// `vlsyncd record`, when asked for ([`SessionOptions::record`]).
     recorder: Option<Managed>,
+    /// The scheduling of the daemon's real-time thread once it served (`None`: no
+    /// thread of that name, e.g. a daemon that ended at start).
+    pub daemon_rt: Result<Option<ThreadSched>, String>,
     _node: IpcNode,
 }
 
@@ -363,6 +372,10 @@ impl Session {
             dargs.push("--config".into());
             dargs.push(c.display().to_string());
         }
+        if let Some(p) = o.daemon_fifo_priority {
+            dargs.push("--fifo-priority".into());
+            dargs.push(p.to_string());
+        }
         let daemon_log = log_dir.join("vlsyncd.log");
         let mut daemon = Managed::spawn("vlsyncd", &daemon_bin, &dargs, Some(&daemon_log))?;
         let daemon_started = Instant::now();
@@ -377,6 +390,9 @@ impl Session {
                 daemon_log.display()
             ));
         }
+        // what the kernel gave the real-time thread (it applies its settings before
+        // the daemon serves)
+        let daemon_rt = thread_sched(daemon.pid(), RT_THREAD_NAME);
         let recorder = match &o.record {
             Some(dir) => Some(spawn_recorder(&daemon_bin, &prefix, dir, &log_dir)?),
             None => None,
@@ -402,6 +418,7 @@ impl Session {
             offsets,
             status,
             recorder,
+            daemon_rt,
             _node: node,
         })
     }
@@ -762,6 +779,7 @@ mod tests {
             prefix: Some("a b".into()),
             log_dir: Some(dir.clone()),
             daemon_config: None,
+            daemon_fifo_priority: None,
             source: Source::Sim {
                 family: vlsync_sim::Family::Robot,
                 seed: 1,
@@ -907,6 +925,7 @@ mod tests {
             prefix: None,
             log_dir: Some(dir.clone()),
             daemon_config: Some(PathBuf::from(config)),
+            daemon_fifo_priority: None,
             source,
             start_delay: Duration::ZERO,
             record: None,

@@ -120,6 +120,9 @@ pub const MAX_SAMPLES_PER_WAKE: usize = 512;
 /// latency: a foreign host's or a hostile `publish_ns`. Such a sample is neither in
 /// the end-to-end histogram nor dates a load hint.
 pub const MAX_LATENCY_NS: Nanos = 10_000_000_000;
+/// Name of the real-time thread (its `comm` in `/proc`, where the demo reads the
+/// scheduling the kernel gave it).
+pub const RT_THREAD_NAME: &str = "vlsync-rt";
 /// Capacity of the event channel between the threads.
 pub const EVENT_CAPACITY: usize = 1024;
 /// Capacity of the status channel between the threads: statuses the service thread
@@ -143,6 +146,11 @@ pub struct RunArgs {
     /// Service prefix; overrides `services.prefix` of the configuration.
     #[arg(long)]
     pub prefix: Option<String>,
+    /// SCHED_FIFO priority of the real-time thread, 0-99 (0: the normal scheduler);
+    /// overrides `daemon.fifo_priority` of the configuration. Where the system refuses
+    /// it, the daemon says so and runs.
+    #[arg(long, value_parser = clap::value_parser!(i64).range(0..=99))]
+    pub fifo_priority: Option<i64>,
 }
 
 /// What the real-time thread tells the service thread. `Copy`, no heap: sending
@@ -280,6 +288,10 @@ pub fn load_config(args: &RunArgs) -> Result<Config, String> {
         cfg.services.prefix = p.clone();
         cfg.validate("--prefix").map_err(|e| e.to_string())?;
     }
+    if let Some(p) = args.fifo_priority {
+        cfg.daemon.fifo_priority = p;
+        cfg.validate("--fifo-priority").map_err(|e| e.to_string())?;
+    }
     Ok(cfg)
 }
 
@@ -371,7 +383,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         hints: hint_rx,
     };
     let rt = std::thread::Builder::new()
-        .name("vlsync-rt".into())
+        .name(RT_THREAD_NAME.into())
         .spawn(move || rt_thread(setup, ready_tx))
         .map_err(|e| format!("cannot spawn the real-time thread: {e}"))?;
     let report = match ready_rx.recv() {
@@ -560,6 +572,31 @@ mod tests {
     use super::*;
     use vlsync_common::wire::STATE_NONE;
     use vlsync_common::RejectReason;
+
+    #[test]
+    fn the_command_lines_fifo_priority_overrides_the_configurations() {
+        let dir = std::env::temp_dir().join(format!("vlsyncd-fifo-arg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("rt.toml");
+        std::fs::write(&file, "[daemon]\nfifo_priority = 80\n").unwrap();
+        let args = |config: Option<&std::path::Path>, fifo: Option<i64>| RunArgs {
+            config: config.map(|p| p.to_path_buf()),
+            prefix: None,
+            fifo_priority: fifo,
+        };
+        let prio = |a: &RunArgs| load_config(a).unwrap().daemon.fifo_priority;
+        assert_eq!(prio(&args(None, None)), 0, "the shipped default");
+        assert_eq!(prio(&args(Some(&file), None)), 80);
+        assert_eq!(prio(&args(Some(&file), Some(0))), 0);
+        assert_eq!(prio(&args(None, Some(50))), 50);
+        // out of range (clap refuses it first): the configuration's error, naming the flag
+        let e = load_config(&args(None, Some(100))).unwrap_err();
+        assert!(
+            e.contains("--fifo-priority") && e.contains("fifo_priority"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn pid(n: u8) -> UniquePublisherId {
         // distinct ids come from real publishers

@@ -190,6 +190,92 @@ pub fn rss_kb(pid: u32) -> Result<u64, String> {
         .ok_or_else(|| format!("{path}: no VmRSS line"))
 }
 
+/// Scheduling of one thread as the kernel reports it (`/proc/<pid>/task/<tid>/stat`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ThreadSched {
+    /// Scheduling policy (`SCHED_OTHER` 0, `SCHED_FIFO` 1, `SCHED_RR` 2, ...).
+    pub policy: u32,
+    /// Real-time priority (1..=99 under `SCHED_FIFO` / `SCHED_RR`, else 0).
+    pub rt_priority: u32,
+    /// The CPU it last ran on.
+    pub cpu: u32,
+}
+
+impl ThreadSched {
+    /// `SCHED_FIFO`.
+    pub const FIFO: u32 = 1;
+
+    /// "SCHED_FIFO priority 50, on core 1" / "the normal scheduler (SCHED_OTHER), on core 1".
+    pub fn describe(&self) -> String {
+        let policy = match self.policy {
+            0 => "the normal scheduler (SCHED_OTHER)".to_string(),
+            1 => format!("SCHED_FIFO priority {}", self.rt_priority),
+            2 => format!("SCHED_RR priority {}", self.rt_priority),
+            3 => "SCHED_BATCH".to_string(),
+            5 => "SCHED_IDLE".to_string(),
+            6 => "SCHED_DEADLINE".to_string(),
+            p => format!("scheduling policy {p}"),
+        };
+        format!("{policy}, on core {}", self.cpu)
+    }
+}
+
+/// Parses a `/proc/<pid>/task/<tid>/stat` line: the CPU it last ran on (field 39),
+/// its real-time priority (40) and policy (41). `what` names the file in errors.
+pub fn parse_thread_sched(text: &str, what: &str) -> Result<ThreadSched, String> {
+    // the command name (field 2) may contain spaces and ')': fields follow the last ')'
+    let rest = text
+        .rfind(')')
+        .map(|i| &text[i + 1..])
+        .ok_or_else(|| format!("{what}: no ')' in the stat line"))?;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // after ')' the state is field 3, at index 0: field n is at index n - 3
+    let get = |n: usize, name: &str| -> Result<u32, String> {
+        f.get(n - 3)
+            .and_then(|v| v.parse::<u32>().ok())
+            .ok_or_else(|| format!("{what}: cannot read {name} (field {n})"))
+    };
+    Ok(ThreadSched {
+        cpu: get(39, "processor")?,
+        rt_priority: get(40, "rt_priority")?,
+        policy: get(41, "policy")?,
+    })
+}
+
+/// The scheduling of the thread named `name` (its `comm`) in process `pid`; `None`
+/// when the process has no such thread.
+pub fn thread_sched(pid: u32, name: &str) -> Result<Option<ThreadSched>, String> {
+    let dir = format!("/proc/{pid}/task");
+    let tasks = std::fs::read_dir(&dir).map_err(|e| format!("{dir}: {e}"))?;
+    for t in tasks.flatten() {
+        let comm = std::fs::read_to_string(t.path().join("comm")).unwrap_or_default();
+        if comm.trim_end_matches('\n') != name {
+            continue;
+        }
+        let path = t.path().join("stat");
+        let what = path.display().to_string();
+        let text = std::fs::read_to_string(&path).map_err(|e| format!("{what}: {e}"))?;
+        return parse_thread_sched(&text, &what).map(Some);
+    }
+    Ok(None)
+}
+
+/// A report's account of the daemon's real-time thread: what the kernel gave it
+/// (`got`, from [`thread_sched`]), and whether the SCHED_FIFO priority the daemon was
+/// given (`asked`, 0: none) was refused.
+pub fn describe_rt_thread(got: &Result<Option<ThreadSched>, String>, asked: i64) -> String {
+    match got {
+        Ok(Some(t)) if asked > 0 && t.policy != ThreadSched::FIFO => format!(
+            "{} (SCHED_FIFO priority {asked} refused: the daemon's log says why; latency is \
+             then the normal scheduler's)",
+            t.describe()
+        ),
+        Ok(Some(t)) => t.describe(),
+        Ok(None) => "not found (no thread named vlsync-rt while the daemon served)".into(),
+        Err(e) => format!("unknown ({e})"),
+    }
+}
+
 /// Files in `/dev/shm` and iceoryx2's directory (`/tmp/iceoryx2`), sorted: what a
 /// clean shutdown must leave as it found it. iceoryx2's global management
 /// segment (`*.global_mgmt`) is left out: iceoryx2 creates it with the first
@@ -232,6 +318,88 @@ mod tests {
         assert!(cpu_seconds(pid).unwrap() > 0.0);
         assert!(rss_kb(pid).unwrap() > 100);
         assert!(cpu_seconds(u32::MAX).is_err());
+    }
+
+    #[test]
+    fn a_thread_stat_line_gives_its_scheduling() {
+        // a thread named with spaces and a ')' (fields from the last ')' on), SCHED_FIFO 50 on CPU 1
+        let mut fields: Vec<String> = (3..=52).map(|n| n.to_string()).collect();
+        fields[0] = "S".into();
+        fields[39 - 3] = "1".into();
+        fields[40 - 3] = "50".into();
+        fields[41 - 3] = "1".into();
+        let line = format!("1234 (a) b) {}\n", fields.join(" "));
+        let s = parse_thread_sched(&line, "stat").unwrap();
+        assert_eq!(
+            s,
+            ThreadSched {
+                policy: ThreadSched::FIFO,
+                rt_priority: 50,
+                cpu: 1
+            }
+        );
+        assert_eq!(s.describe(), "SCHED_FIFO priority 50, on core 1");
+        // a line cut short names the field it lacks
+        let short = format!("1234 (x) {}", fields[..37].join(" "));
+        let e = parse_thread_sched(&short, "/proc/1/task/1/stat").unwrap_err();
+        assert!(
+            e.contains("/proc/1/task/1/stat") && e.contains("field 40"),
+            "{e}"
+        );
+        assert!(parse_thread_sched("no paren", "stat").is_err());
+    }
+
+    #[test]
+    fn this_threads_scheduling_is_readable() {
+        let name = "vlsync-schedtst";
+        let got = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || thread_sched(std::process::id(), name))
+            .unwrap()
+            .join()
+            .unwrap()
+            .unwrap()
+            .expect("the thread is listed under its name");
+        assert_eq!(got.policy, 0, "test threads run under the normal scheduler");
+        assert_eq!(got.rt_priority, 0);
+        assert_eq!(thread_sched(std::process::id(), "no-such-thread"), Ok(None));
+        assert!(thread_sched(u32::MAX, name).is_err());
+    }
+
+    proptest::proptest! {
+        /// Any text read from /proc (or elsewhere) gives a value or an error, never a panic.
+        #[test]
+        fn any_stat_text_parses_or_errs(text in ".{0,400}") {
+            let _ = parse_thread_sched(&text, "stat");
+        }
+    }
+
+    #[test]
+    fn the_summary_says_what_scheduling_the_daemon_got() {
+        let t = |policy, rt_priority| {
+            Ok(Some(ThreadSched {
+                policy,
+                rt_priority,
+                cpu: 1,
+            }))
+        };
+        assert_eq!(
+            describe_rt_thread(&t(1, 50), 50),
+            "SCHED_FIFO priority 50, on core 1"
+        );
+        let refused = describe_rt_thread(&t(0, 0), 50);
+        assert!(
+            refused.starts_with("the normal scheduler (SCHED_OTHER), on core 1")
+                && refused.contains("SCHED_FIFO priority 50 refused"),
+            "{refused}"
+        );
+        // asked for none: nothing was refused
+        assert_eq!(
+            describe_rt_thread(&t(0, 0), 0),
+            "the normal scheduler (SCHED_OTHER), on core 1"
+        );
+        assert!(describe_rt_thread(&Ok(None), 50).starts_with("not found"));
+        assert!(describe_rt_thread(&Err("/proc/1/task: gone".into()), 0).contains("/proc/1/task"));
     }
 
     /// The signal that ended the (stopped) child.
