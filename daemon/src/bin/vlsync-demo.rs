@@ -49,8 +49,8 @@ struct Args {
     /// SCHED_FIFO priority of the daemon's real-time thread, 0-99 (0: the normal
     /// scheduler). Default: 50 (a robot's daemon runs under SCHED_FIFO too, see
     /// deploy/vlsync.toml), unless --config is given, whose `daemon.fifo_priority` then
-    /// holds. Where the system refuses it, the
-    /// daemon runs on the normal scheduler; the summary says which it got.
+    /// holds. Where the system refuses it, the daemon runs on the normal scheduler; the
+    /// summary says which it got.
     #[arg(long, allow_negative_numbers = true, value_parser = clap::value_parser!(i64).range(0..=99))]
     fifo: Option<i64>,
     /// Print only the summary.
@@ -75,11 +75,11 @@ struct Args {
     record: Option<PathBuf>,
 }
 
-/// The daemon's SCHED_FIFO priority when neither --fifo nor --config is given:
-/// the real-time thread preempts the renderer and the drivers as on a robot, where
-/// the rendered camera's 15-20 % of a core would otherwise delay a sample by a
-/// scheduler slice (driver to daemon done p99 4-5 ms on this 2-core machine, 0.1-0.2 ms
-/// with it; README "Live demo").
+/// The daemon's SCHED_FIFO priority when neither --fifo nor --config is given: the
+/// real-time thread preempts the renderer and the drivers as on a robot, where the
+/// rendered camera's 15-20 % of a core would otherwise delay a sample by up to a
+/// scheduler slice (driver to daemon done on this 2-core machine: max 4.8-5.5 ms, p99 up
+/// to 4.7 ms; with it 0.28-0.48 ms and 0.20-0.21 ms; README, "The two commands").
 const DEMO_FIFO_PRIORITY: i64 = 50;
 
 /// The truth file `--record` adds to the recording.

@@ -327,8 +327,8 @@ pub struct Session {
     status: StatusClient,
     /// `vlsyncd record`, when asked for ([`SessionOptions::record`]).
     recorder: Option<Managed>,
-    /// The scheduling of the daemon's real-time thread once it served (`None`: no
-    /// thread of that name, e.g. a daemon that ended at start).
+    /// The scheduling the kernel gave the daemon's real-time thread, read once the
+    /// daemon served (`Ok(None)`: it had no thread of that name).
     pub daemon_rt: Result<Option<ThreadSched>, String>,
     _node: IpcNode,
 }
