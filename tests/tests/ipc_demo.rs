@@ -231,4 +231,82 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
     );
     assert!(locked(&out), "no locked estimate in 45 s:\n{out}");
     close_the_reader();
+    // last: the daemon it kills leaves its files to the next daemon's clean-up
+    a_child_killed_mid_run_is_a_failure();
+}
+
+/// The pid of the running `vlsyncd run --prefix <prefix>`, from `/proc/*/cmdline`.
+fn daemon_pid(prefix: &str) -> Option<u32> {
+    let want = format!("run\0--prefix\0{prefix}\0");
+    std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
+        let pid: u32 = e.file_name().to_str()?.parse().ok()?;
+        let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
+        String::from_utf8_lossy(&cmd).contains(&want).then_some(pid)
+    })
+}
+
+/// A daemon killed during the run (a crash, someone's `kill -9`) is reported as such,
+/// with its log, and the demo fails (exit 2) instead of saying its children stopped
+/// cleanly.
+fn a_child_killed_mid_run_is_a_failure() {
+    let prefix = format!("vlsync-test/demo-crash-{}", std::process::id());
+    let dir = std::env::temp_dir().join(format!("vlsync-demo-crash-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let demo = std::process::Command::new(bin("vlsync-demo"))
+        .args([
+            "--family",
+            "robot",
+            "--duration",
+            "20",
+            "--speed",
+            "2",
+            "--quiet",
+        ])
+        .args(["--prefix", &prefix, "--log-dir"])
+        .arg(dir.join("logs"))
+        .arg("--record")
+        .arg(dir.join("rec"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let pid = loop {
+        if let Some(pid) = daemon_pid(&prefix) {
+            break pid;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "no daemon on {prefix}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    std::thread::sleep(Duration::from_secs(2));
+    let killed = std::process::Command::new("kill")
+        .args(["-KILL", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let out = demo.wait_with_output().unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(2), "{stdout}\n{stderr}");
+    assert!(
+        t0.elapsed() < Duration::from_secs(15),
+        "the demo ran on after its daemon died:\n{stdout}"
+    );
+    let log = dir.join("logs").join("vlsyncd.log");
+    let said = format!(
+        "vlsyncd: killed by signal 9 (SIGKILL) (log: {})",
+        log.display()
+    );
+    assert!(
+        stdout.contains(&format!("ended with a failure: {said}")),
+        "{stdout}"
+    );
+    assert!(stderr.contains(&said), "{stderr}");
+    assert!(!stdout.contains("children stopped cleanly"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

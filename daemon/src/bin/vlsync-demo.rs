@@ -289,6 +289,14 @@ fn run(a: Args) -> Result<(), String> {
                 period_lines += 1;
             }
         }
+        if s.check_children() || !s.failures.is_empty() {
+            // a process of the run died (a crash, someone's kill): the run cannot
+            // show what it was for; say so and stop the others
+            for f in &s.failures {
+                out.line(format_args!("ended during the run: {f}"));
+            }
+            break;
+        }
         if s.drivers_done() {
             // both drivers finished their run: the last estimates follow shortly
             s.poll(Duration::from_millis(300))?;
@@ -381,10 +389,21 @@ fn run(a: Args) -> Result<(), String> {
             s.implausible, s.prefix
         ));
     }
+    for f in &s.failures {
+        out.line(format_args!("ended with a failure: {f}"));
+    }
     out.line(format_args!("children stopped {}", stop_words(clean)));
     if let Some(dir) = &a.record {
         let log = s.log_dir.join(vlsyncd::harness::session::RECORDER_LOG);
-        record_truth(dir, &truth, a.procs.config.as_deref(), &log, &mut out)?;
+        if s.recorder_failed() {
+            out.line(format_args!(
+                "the recording in {} is incomplete: vlsyncd record failed (see its log, {})",
+                dir.display(),
+                log.display()
+            ));
+        } else {
+            record_truth(dir, &truth, a.procs.config.as_deref(), &log, &mut out)?;
+        }
     }
     // the plot last: everything above is printed even if it cannot be written
     let plot = a.plot.unwrap_or_else(|| s.log_dir.join("demo.svg"));
@@ -407,7 +426,13 @@ fn run(a: Args) -> Result<(), String> {
         "plot: {} (estimate ±2σ, raw measurements and truth against LiDAR time)",
         plot.display()
     ));
-    Ok(())
+    match s.failures.len() {
+        0 => Ok(()),
+        n => Err(format!(
+            "{n} process(es) of the run ended with a failure: {}",
+            s.failures.join("; ")
+        )),
+    }
 }
 
 #[cfg(test)]

@@ -401,6 +401,9 @@ fn run(a: &Args) -> Result<bool, String> {
     if !cam_report.is_empty() {
         md.push_str(&format!("- {}\n", cam_report.trim()));
     }
+    for f in &session.failures {
+        md.push_str(&format!("\nEnded with a failure: {f}.\n"));
+    }
     md.push_str(&format!(
         "\nAll processes stopped {}.\n",
         vlsyncd::harness::session::stop_words(clean)

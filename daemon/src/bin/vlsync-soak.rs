@@ -368,6 +368,9 @@ fn run(a: Args) -> Result<bool, String> {
         vlsyncd::runtime::journal::offset_steps_logged(&log),
         count(" ERROR ")
     ));
+    for f in &s.failures {
+        out.line(format_args!("ended with a failure: {f}"));
+    }
     out.line(format_args!("children stopped {}", stop_words(clean)));
     if !a.check {
         return Ok(true);

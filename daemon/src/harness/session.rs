@@ -320,6 +320,13 @@ pub struct Session {
     suffix: String,
     /// False once a replaced driver needed more than SIGINT to stop.
     replaced_clean: bool,
+    /// Processes that ended on their own with a failure (a non-zero exit, a signal
+    /// such as someone's `kill -9`), each once, with its log: "vlsyncd: killed by
+    /// signal 9 (SIGKILL) (log: /tmp/.../vlsyncd.log)". Found by
+    /// [`Session::check_children`] and [`Session::stop`].
+    pub failures: Vec<String>,
+    /// Which of `procs` (then the recorder) already has its entry in `failures`.
+    failure_noted: [bool; 4],
     started: [Instant; 3],
     usage: [Usage; 3],
     last_usage: Instant,
@@ -412,6 +419,8 @@ impl Session {
             driver_bins,
             suffix: String::new(),
             replaced_clean: true,
+            failures: vec![],
+            failure_noted: [false; 4],
             started: [daemon_started, cam_t, lidar_t],
             usage: [Usage::default(); 3],
             last_usage: Instant::now() - Duration::from_secs(1),
@@ -436,6 +445,7 @@ impl Session {
     ) -> Result<(), String> {
         source.check()?;
         self.sample_usage(true);
+        self.check_children();
         for i in [1, 2] {
             if self.procs[i].running() {
                 self.replaced_clean &= self.procs[i].stop(Duration::from_secs(3));
@@ -461,6 +471,9 @@ impl Session {
         self.start_at = start_at;
         self.source = source;
         self.suffix = suffix;
+        // the new pair's failures are its own
+        self.failure_noted[1] = false;
+        self.failure_noted[2] = false;
         Ok(())
     }
 
@@ -482,6 +495,44 @@ impl Session {
     /// True while `role` runs.
     pub fn running(&mut self, role: Role) -> bool {
         self.procs[role.index()].running()
+    }
+
+    /// Notes in [`Session::failures`] every process of the session (daemon, drivers,
+    /// recorder) that has ended on its own with a failure since it started; returns
+    /// whether the daemon is among them (the run cannot go on without it).
+    pub fn check_children(&mut self) -> bool {
+        let logs = [
+            self.log_dir.join("vlsyncd.log"),
+            self.log_dir.join(format!("vlsync-cam{}.log", self.suffix)),
+            self.log_dir
+                .join(format!("vlsync-lidar{}.log", self.suffix)),
+            self.log_dir.join(RECORDER_LOG),
+        ];
+        let names = ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsyncd record"];
+        let mut found: Vec<(usize, String)> = vec![];
+        for (i, m) in self.procs.iter_mut().enumerate() {
+            if !self.failure_noted[i] {
+                if let Some(f) = m.failure() {
+                    found.push((i, f));
+                }
+            }
+        }
+        if !self.failure_noted[3] {
+            if let Some(f) = self.recorder.as_mut().and_then(Managed::failure) {
+                found.push((3, f));
+            }
+        }
+        for (i, f) in found {
+            self.failure_noted[i] = true;
+            self.failures
+                .push(format!("{}: {f} (log: {})", names[i], logs[i].display()));
+        }
+        self.failure_noted[0]
+    }
+
+    /// Whether `vlsyncd record` (`SessionOptions::record`) ended with a failure.
+    pub fn recorder_failed(&self) -> bool {
+        self.failure_noted[3]
     }
 
     /// True once both drivers have exited.
@@ -561,6 +612,7 @@ impl Session {
     /// cleanly.
     pub fn stop(&mut self) -> Result<bool, String> {
         self.sample_usage(true);
+        self.check_children();
         let clean_drivers = [
             self.procs[1].stop(Duration::from_secs(3)),
             self.procs[2].stop(Duration::from_secs(3)),
@@ -632,12 +684,12 @@ pub fn counters_line(st: &Status) -> String {
     )
 }
 
-/// How the children stopped, for the summaries: `cleanly` or `(some needed SIGKILL)`.
+/// How the children stopped, for the summaries: `cleanly`, or not (a failure or SIGKILL).
 pub fn stop_words(clean: bool) -> &'static str {
     if clean {
         "cleanly"
     } else {
-        "(some needed SIGKILL)"
+        "(not all cleanly: one ended with a failure or needed SIGKILL)"
     }
 }
 
@@ -858,7 +910,10 @@ mod tests {
             "daemon: received cam 300 lidar 100, lost cam 0 lidar 2, rejected cam 3 lidar 0, 12 estimates, 0 budget overruns"
         );
         assert_eq!(stop_words(true), "cleanly");
-        assert_eq!(stop_words(false), "(some needed SIGKILL)");
+        assert_eq!(
+            stop_words(false),
+            "(not all cleanly: one ended with a failure or needed SIGKILL)"
+        );
     }
 
     #[test]

@@ -119,9 +119,12 @@ impl Managed {
     /// non-interactive shell (`cmd &`, `nohup`): its children then inherit SIGINT
     /// ignored, and a child that installs no handler of its own would otherwise
     /// only ever stop by SIGKILL.
+    ///
+    /// A process that had already exited is clean only if it exited with success: one
+    /// that failed or was killed on its own (a crash, someone's `kill -9`) is not.
     pub fn stop(&mut self, grace: Duration) -> bool {
-        if !self.running() {
-            return true;
+        if let Ok(Some(st)) = self.child.try_wait() {
+            return st.success();
         }
         let _ = self.signal("INT");
         if let Some(st) = self.wait_up_to(grace / 2) {
@@ -134,6 +137,15 @@ impl Managed {
         let _ = self.child.kill();
         let _ = self.child.wait();
         false
+    }
+
+    /// How the process ended, when it ended on its own with a failure (`None`: still
+    /// running, or exited with success): "exit status 3", "killed by signal 9 (SIGKILL)".
+    pub fn failure(&mut self) -> Option<String> {
+        match self.child.try_wait() {
+            Ok(Some(st)) if !st.success() => Some(describe_exit(st)),
+            _ => None,
+        }
     }
 
     /// The exit status, once the process exited within `limit` (`None`: it still runs).
@@ -154,6 +166,26 @@ impl Managed {
 impl Drop for Managed {
     fn drop(&mut self) {
         self.stop(Duration::from_secs(3));
+    }
+}
+
+/// "exit status 3", "killed by signal 9 (SIGKILL)".
+pub fn describe_exit(st: std::process::ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (st.code(), st.signal()) {
+        (Some(c), _) => format!("exit status {c}"),
+        (None, Some(sig)) => {
+            let name = match sig {
+                2 => " (SIGINT)",
+                6 => " (SIGABRT)",
+                9 => " (SIGKILL)",
+                11 => " (SIGSEGV)",
+                15 => " (SIGTERM)",
+                _ => "",
+            };
+            format!("killed by signal {sig}{name}")
+        }
+        (None, None) => format!("{st}"),
     }
 }
 
@@ -400,6 +432,30 @@ mod tests {
         );
         assert!(describe_rt_thread(&Ok(None), 50).starts_with("not found"));
         assert!(describe_rt_thread(&Err("/proc/1/task: gone".into()), 0).contains("/proc/1/task"));
+    }
+
+    #[test]
+    fn a_child_that_failed_on_its_own_is_no_clean_stop() {
+        let sh = Path::new("/bin/sh");
+        let mut failed = Managed::spawn("sh", sh, &["-c".into(), "exit 3".into()], None).unwrap();
+        let _ = failed.wait_up_to(Duration::from_secs(5));
+        assert_eq!(failed.failure().as_deref(), Some("exit status 3"));
+        assert!(!failed.stop(Duration::from_secs(1)));
+        let mut killed =
+            Managed::spawn("sh", sh, &["-c".into(), "kill -9 $$".into()], None).unwrap();
+        let _ = killed.wait_up_to(Duration::from_secs(5));
+        assert_eq!(
+            killed.failure().as_deref(),
+            Some("killed by signal 9 (SIGKILL)")
+        );
+        assert!(!killed.stop(Duration::from_secs(1)));
+        let mut done = Managed::spawn("sh", sh, &["-c".into(), "exit 0".into()], None).unwrap();
+        let _ = done.wait_up_to(Duration::from_secs(5));
+        assert_eq!(done.failure(), None);
+        assert!(
+            done.stop(Duration::from_secs(1)),
+            "ended by itself with success"
+        );
     }
 
     /// The signal that ended the (stopped) child.
