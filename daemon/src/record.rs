@@ -434,27 +434,36 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
         std::thread::sleep(POLL);
     };
     // whatever ended the loop, what was received is flushed and summarised
-    let flushed = rec.flush();
+    let result = result.and(rec.flush());
+    let stopped_by = match &result {
+        Ok(()) => String::new(),
+        Err(e) => format!(
+            "; cut short after {:.1} s by an error ({e}): the files hold what was written before it",
+            t0.elapsed().as_secs_f64()
+        ),
+    };
     err(&format!(
-        "vlsyncd record: {:.1} s on prefix `{prefix}` into {}\n{}",
+        "vlsyncd record: {:.1} s on prefix `{prefix}` into {}{stopped_by}\n{}",
         t0.elapsed().as_secs_f64(),
         a.out.display(),
         rec.summary()
     ));
-    if rec.estimates() == 0 {
+    if result.is_ok() && rec.estimates() == 0 {
         err(&format!(
             "no estimate was published while recording (is vlsyncd running with services.prefix = \"{prefix}\"?)\n"
         ));
     }
-    err(&format!(
-        "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv --compare {0}/est.csv{1}\n",
-        a.out.display(),
-        a.config
-            .as_ref()
-            .map(|c| format!(" --config {}", c.display()))
-            .unwrap_or_default()
-    ));
-    result.and(flushed)
+    if result.is_ok() && rec.counts().iter().all(|c| c.rows > 0) {
+        err(&format!(
+            "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv --compare {0}/est.csv{1}\n",
+            a.out.display(),
+            a.config
+                .as_ref()
+                .map(|c| format!(" --config {}", c.display()))
+                .unwrap_or_default()
+        ));
+    }
+    result
 }
 
 #[cfg(test)]

@@ -246,3 +246,39 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `vlsyncd record` whose file cannot be written stops at the first flush, says in its
+/// summary that the recording was cut short and why, offers no replay, and exits 2.
+#[test]
+fn a_recording_cut_short_by_a_write_error_says_so() {
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-recfull-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::os::unix::fs::symlink("/dev/full", dir.join("est.csv")).unwrap();
+    let prefix = format!("vlsync-test/recfull-{}", std::process::id());
+    let (code, _, err) = run(
+        env!("CARGO_BIN_EXE_vlsyncd"),
+        &[
+            "record",
+            "--prefix",
+            &prefix,
+            "--out",
+            dir.to_str().unwrap(),
+            "--duration",
+            "5",
+            "--force",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    let path = dir.join("est.csv");
+    assert!(
+        err.contains("cut short after")
+            && err.contains(&format!(
+                "cannot write {}: No space left on device",
+                path.display()
+            )),
+        "{err}"
+    );
+    assert!(!err.contains("replay it"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
