@@ -50,7 +50,8 @@ pub fn pin_current_thread(core: usize) -> Result<(), RtRefused> {
 
 /// Switches the calling thread to SCHED_FIFO at `priority` (1..=99).
 pub fn set_current_thread_fifo(priority: i32) -> Result<(), RtRefused> {
-    let setting = format!("daemon.fifo_priority = {priority}");
+    let setting =
+        format!("SCHED_FIFO priority {priority} (daemon.fifo_priority, or --fifo-priority)");
     if !(1..=99).contains(&priority) {
         return Err(RtRefused {
             setting,

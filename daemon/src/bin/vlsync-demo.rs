@@ -133,7 +133,8 @@ fn check_args(a: &Args) -> Result<(), String> {
             a.summary_every,
             1.0,
             vlsync_sim::families::MAX_DURATION_S,
-        )?;
+        )
+        .map_err(|e| format!("{e} (or 0: no summary lines)"))?;
     }
     if let Some(p) = &a.plot {
         check_plot_path(p)?;
