@@ -111,6 +111,86 @@ pub fn dir_of(p: &Path) -> &Path {
     }
 }
 
+/// Checks, before a long run whose output is written at its end, that `path` can be
+/// written: not a directory, in a directory that exists, and writable: an existing
+/// file is opened for writing (not truncated), a new one is created and removed at
+/// once. Errors name `flag` and the path.
+///
+/// ```
+/// use vlsync_common::file::check_writable;
+/// let dir = std::env::temp_dir();
+/// assert!(check_writable("--plot", &dir.join("vlsync-doc-probe.svg")).is_ok());
+/// assert!(!dir.join("vlsync-doc-probe.svg").exists());
+/// let e = check_writable("--plot", &dir).unwrap_err();
+/// assert!(e.starts_with("--plot ") && e.ends_with("is a directory"), "{e}");
+/// ```
+pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
+    let say = |why: String| format!("{flag} {}: {why}", path.display());
+    if path.is_dir() {
+        return Err(say("is a directory".into()));
+    }
+    let dir = dir_of(path);
+    if !dir.is_dir() {
+        return Err(say(format!("directory {} does not exist", dir.display())));
+    }
+    if path.exists() {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open(path)
+            .map(drop)
+            .map_err(|e| say(format!("cannot be written: {e}")))
+    } else {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|e| say(format!("cannot be created: {e}")))?;
+        std::fs::remove_file(path).map_err(|e| say(format!("cannot remove the probe: {e}")))
+    }
+}
+
+/// Writes `contents` to `path` so that a failure leaves no partial file: into a
+/// temporary file beside it, renamed over it once complete (an error removes the
+/// temporary file and leaves an earlier `path` as it was). A path that exists and is
+/// not a regular file (a device such as `/dev/stdout`, a pipe) is written directly.
+/// Errors name `path`.
+///
+/// ```
+/// use vlsync_common::file::write_atomically;
+/// let p = std::env::temp_dir().join(format!("vlsync-doc-atomic-{}.csv", std::process::id()));
+/// write_atomically(&p, b"t,value\n").unwrap();
+/// assert_eq!(std::fs::read_to_string(&p).unwrap(), "t,value\n");
+/// std::fs::remove_file(&p).unwrap();
+/// ```
+pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
+    use std::io::Write;
+    let say = |e: io::Error| format!("cannot write {}: {e}", path.display());
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => return std::fs::write(path, contents).map_err(say),
+        _ => {}
+    }
+    // a symlink to a regular file: replace the file it names, not the link
+    let target = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+    let name = target
+        .file_name()
+        .ok_or_else(|| format!("cannot write {}: no file name", path.display()))?;
+    let tmp = dir_of(&target).join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let written = (|| {
+        let mut f = File::create(&tmp)?;
+        f.write_all(contents)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, &target)
+    })();
+    written.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        say(e)
+    })
+}
+
 /// `p`'s directory made canonical, joined with its file name.
 fn resolved(p: &Path) -> Option<std::path::PathBuf> {
     let name = p.file_name()?;
@@ -120,6 +200,60 @@ fn resolved(p: &Path) -> Option<std::path::PathBuf> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::os::unix::fs::FileTypeExt;
+    use std::path::PathBuf;
+
+    #[test]
+    fn a_failed_atomic_write_leaves_the_earlier_file_and_no_temporary() {
+        let dir = std::env::temp_dir().join(format!("vlsync-atomic-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("est.csv");
+        write_atomically(&p, b"old\n").unwrap();
+        // through a symlink: the file it names is replaced, the link stays
+        let link = dir.join("link.csv");
+        std::os::unix::fs::symlink(&p, &link).unwrap();
+        write_atomically(&link, b"new\n").unwrap();
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "new\n");
+        // a device is written directly (and /dev/full fails, naming the path)
+        let e = write_atomically(Path::new("/dev/full"), b"x").unwrap_err();
+        assert!(e.starts_with("cannot write /dev/full: "), "{e}");
+        assert!(std::fs::metadata("/dev/full")
+            .unwrap()
+            .file_type()
+            .is_char_device());
+        // a directory that does not exist: an error naming the path, nothing left
+        let e = write_atomically(&dir.join("no/such.csv"), b"x").unwrap_err();
+        assert!(e.contains("no/such.csv"), "{e}");
+        let left: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(left.len(), 2, "{left:?}");
+        // the probe: writable paths pass and leave nothing; others name the flag
+        assert!(check_writable("--out", &dir.join("new.csv")).is_ok());
+        assert!(!dir.join("new.csv").exists());
+        assert!(check_writable("--out", &p).is_ok());
+        assert_eq!(
+            std::fs::read_to_string(&p).unwrap(),
+            "new\n",
+            "not truncated"
+        );
+        for (bad, why) in [
+            (dir.clone(), "is a directory"),
+            (dir.join("no/such.csv"), "does not exist"),
+            (PathBuf::from("/proc/vlsync-probe.svg"), "cannot be created"),
+        ] {
+            let e = check_writable("--plot", &bad).unwrap_err();
+            assert!(e.starts_with("--plot ") && e.contains(why), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn only_regular_files_are_read() {

@@ -1,7 +1,6 @@
 //! `vlsyncd replay`: the estimator offline on recorded signature CSV files.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::Path;
 use vlsync_common::{nanos_to_secs, Estimate, Nanos, RejectReason, Sample, Stream};
 use vlsync_config::{Config, EstimatorConfig};
@@ -127,19 +126,19 @@ pub fn estimate_row(e: &Estimate, buf: &mut String) {
     );
 }
 
-/// Writes estimates as CSV.
+/// Writes estimates as CSV, atomically: a failed write leaves no partial file
+/// ([`vlsync_common::file::write_atomically`]).
 pub fn write_estimates(path: &Path, ests: &[Estimate]) -> Result<(), String> {
-    let f = std::fs::File::create(path)
-        .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
-    let mut w = std::io::BufWriter::new(f);
+    let mut text = String::with_capacity(160 * (ests.len() + 1));
     let mut line = String::new();
-    let io = |e: std::io::Error| format!("cannot write {}: {e}", path.display());
-    writeln!(w, "{ESTIMATE_HEADER}").map_err(io)?;
+    text.push_str(ESTIMATE_HEADER);
+    text.push('\n');
     for e in ests {
         estimate_row(e, &mut line);
-        writeln!(w, "{line}").map_err(io)?;
+        text.push_str(&line);
+        text.push('\n');
     }
-    w.flush().map_err(io)
+    vlsync_common::file::write_atomically(path, text.as_bytes())
 }
 
 /// Human summary of a replay.
@@ -321,6 +320,11 @@ pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
 /// The `replay` command.
 pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
     check_outputs(a)?;
+    // before the run, so that a typo in a path does not cost it
+    vlsync_common::file::check_writable("--out", a.out)?;
+    if let Some(p) = a.plot {
+        vlsync_common::file::check_writable("--plot", p)?;
+    }
     let cfg = match a.config {
         Some(p) => Config::load(p).map_err(|e| e.to_string())?,
         None => Config::default(),
@@ -375,7 +379,7 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
             a.lidar.display()
         );
         let svg = crate::plot::offset_svg_compared(&title, &ests, truth.as_deref(), &[], &compared);
-        std::fs::write(p, svg).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+        vlsync_common::file::write_atomically(p, svg.as_bytes())?;
         err(&format!("wrote plot {}\n", p.display()));
     }
     err(&format!(

@@ -163,6 +163,24 @@ fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
         assert_eq!(std::fs::read_to_string(&lidar).unwrap(), rows);
         assert!(!dir.join("est.csv").exists(), "{args:?}");
     }
+    // an output that cannot be written is refused before the run, naming its flag
+    for (flag, bad) in [
+        ("--out", "/proc/vlsync-est.csv"),
+        ("--plot", "/proc/vlsync.svg"),
+    ] {
+        let mut args = vec!["replay", "--cam", &cam_s, "--lidar", &lidar_s];
+        if flag == "--plot" {
+            args.extend(["--out", &est]);
+        }
+        args.extend([flag, bad]);
+        let (code, _, err) = run(vlsyncd, &args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(
+            err.contains(&format!("{flag} {bad}: cannot be created")),
+            "{err}"
+        );
+        assert!(!dir.join("est.csv").exists(), "{args:?}");
+    }
     // distinct files: accepted
     let (code, _, err) = run(
         vlsyncd,
@@ -171,6 +189,13 @@ fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
         ],
     );
     assert_eq!(code, 0, "{err}");
+    // written whole, with no temporary file beside it
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.contains(".tmp-")), "{names:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

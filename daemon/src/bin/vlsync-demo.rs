@@ -152,24 +152,10 @@ fn check_args(a: &Args) -> Result<(), String> {
     Ok(())
 }
 
-/// A plot path the end of the run can write: not a directory, in a directory
-/// that exists (checked before the run, so a typo does not cost the run).
+/// A plot path the end of the run can write (checked before the run, so a typo
+/// does not cost the run).
 fn check_plot_path(p: &Path) -> Result<(), String> {
-    if p.is_dir() {
-        return Err(format!("--plot {}: is a directory", p.display()));
-    }
-    let parent = p
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !parent.is_dir() {
-        return Err(format!(
-            "--plot {}: directory {} does not exist",
-            p.display(),
-            parent.display()
-        ));
-    }
-    Ok(())
+    vlsync_common::file::check_writable("--plot", p)
 }
 
 /// Truth sampled every 50 ms over the run, for the plot.
@@ -421,8 +407,7 @@ fn run(a: Args) -> Result<(), String> {
         secs(stays)
     );
     let svg = vlsyncd::plot::offset_svg(&title, &ests, Some(&truth_points(&truth)), &[]);
-    std::fs::write(&plot, svg)
-        .map_err(|e| format!("cannot write the plot {}: {e}", plot.display()))?;
+    vlsync_common::file::write_atomically(&plot, svg.as_bytes())?;
     out.line(format_args!(
         "plot: {} (estimate ±2σ, raw measurements and truth against LiDAR time)",
         plot.display()
@@ -516,6 +501,9 @@ mod tests {
         );
         let e = check_args(&args(&["--plot", dir.to_str().unwrap()])).unwrap_err();
         assert!(e.contains("is a directory"), "{e}");
+        // a directory no file can be created in
+        let e = check_args(&args(&["--plot", "/proc/vlsync-demo.svg"])).unwrap_err();
+        assert!(e.contains("cannot be created"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
