@@ -292,24 +292,49 @@ pub fn truth_at(truth: &[(Nanos, f64)], t: Nanos) -> Option<f64> {
 }
 
 /// Error summary of locked estimates (tracking or holding) against a truth table.
+/// Only estimates within the truth's time span are scored (the table is not
+/// extrapolated): the others are counted and named, so a truth file of another
+/// length or another run does not pass unnoticed.
 pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
-    let mut errs: Vec<f64> = ests
-        .iter()
-        .filter(|e| {
-            matches!(
-                e.state,
-                vlsync_common::EstimatorState::Tracking | vlsync_common::EstimatorState::Holding
-            )
+    let (Some(first), Some(last)) = (truth.first(), truth.last()) else {
+        return "error vs truth: the truth table is empty".to_string();
+    };
+    let span = format!(
+        "{:.3}..{:.3} s",
+        first.0 as f64 * 1e-9,
+        last.0 as f64 * 1e-9
+    );
+    let locked = ests.iter().filter(|e| {
+        matches!(
+            e.state,
+            vlsync_common::EstimatorState::Tracking | vlsync_common::EstimatorState::Holding
+        )
+    });
+    let mut outside = 0usize;
+    let mut errs: Vec<f64> = locked
+        .filter_map(|e| {
+            if (first.0..=last.0).contains(&e.t_ref_ns) {
+                truth_at(truth, e.t_ref_ns).map(|o| (e.offset_s - o).abs())
+            } else {
+                outside += 1;
+                None
+            }
         })
-        .filter_map(|e| truth_at(truth, e.t_ref_ns).map(|o| (e.offset_s - o).abs()))
         .collect();
+    let left_out = if outside > 0 {
+        format!(
+            "; {outside} locked estimate(s) outside the truth's time span ({span}) not scored: is it this run's truth?"
+        )
+    } else {
+        String::new()
+    };
     if errs.is_empty() {
-        return "error vs truth: no locked estimate".to_string();
+        return format!("error vs truth: no locked estimate to score{left_out}");
     }
     errs.sort_by(f64::total_cmp);
     let n = errs.len();
     format!(
-        "error vs truth over {n} locked estimates: MAE {:.3} ms, p95 {:.3} ms, max {:.3} ms, >20 ms {:.1} %",
+        "error vs truth over {n} locked estimates: MAE {:.3} ms, p95 {:.3} ms, max {:.3} ms, >20 ms {:.1} %{left_out}",
         errs.iter().sum::<f64>() / n as f64 * 1e3,
         errs[(n * 95 / 100).min(n - 1)] * 1e3,
         errs[n - 1] * 1e3,
@@ -393,7 +418,50 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
 
 #[cfg(test)]
 mod tests {
-    use super::truth_at;
+    use super::{error_summary, truth_at};
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+
+    fn est(t_s: f64, offset_s: f64) -> Estimate {
+        Estimate {
+            seq: 0,
+            t_ref_ns: (t_s * 1e9) as i64,
+            offset_s,
+            drift: 0.0,
+            offset_std_s: 1e-3,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Positive,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: f64::NAN,
+        }
+    }
+
+    #[test]
+    fn estimates_outside_the_truths_span_are_counted_not_scored() {
+        let truth = [(0, 0.010), (10_000_000_000, 0.010)];
+        let ests = [est(5.0, 0.011), est(9.0, 0.012), est(30.0, 0.5)];
+        let s = error_summary(&ests, &truth);
+        assert!(
+            s.starts_with("error vs truth over 2 locked estimates: MAE 1.500 ms")
+                && s.ends_with(
+                    "; 1 locked estimate(s) outside the truth's time span (0.000..10.000 s) \
+                     not scored: is it this run's truth?"
+                ),
+            "{s}"
+        );
+        let s = error_summary(&ests[..2], &truth);
+        assert!(!s.contains("outside"), "{s}");
+        let s = error_summary(&ests[2..], &truth);
+        assert!(
+            s.starts_with("error vs truth: no locked estimate to score; 1 locked"),
+            "{s}"
+        );
+        assert_eq!(
+            error_summary(&ests, &[]),
+            "error vs truth: the truth table is empty"
+        );
+    }
 
     #[test]
     fn the_truth_is_interpolated_and_clamped_even_across_the_whole_stamp_range() {

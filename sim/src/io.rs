@@ -240,6 +240,32 @@ fn parse_rows(
             };
             let mut names = line.split(',');
             let (c1, c2) = (name(names.next()), name(names.next()));
+            // a signature file where a truth file belongs, or the other way round
+            let other = if value_name == "offset" {
+                "value"
+            } else {
+                "offset"
+            };
+            if c1 == "t" && c2 == other {
+                return Err(err(
+                    Some(1),
+                    format!(
+                        "the header `{}` names a `{other}` column: {}, not a {} file \
+                         (expected `t,{value_name}`)",
+                        clip(line),
+                        if other == "value" {
+                            "a signature file"
+                        } else {
+                            "a truth or estimates file"
+                        },
+                        if other == "value" {
+                            "truth"
+                        } else {
+                            "signature"
+                        }
+                    ),
+                ));
+            }
             if c1 == value_name || c2 == "t" {
                 return Err(err(
                     Some(1),
@@ -482,6 +508,24 @@ pub fn read_truth_csv(path: impl AsRef<Path>) -> Result<Vec<(Nanos, f64)>, CsvEr
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn a_signature_file_is_no_truth_file_and_the_other_way_round() {
+        let e = parse_truth_csv(b"t,value\n0.1,1.0\n", "f").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "f:1: the header `t,value` names a `value` column: a signature file, not a truth \
+             file (expected `t,offset`)"
+        );
+        let e = parse_signature_csv(b"t,offset,drift\n0.1,1.0,0\n", "g").unwrap_err();
+        assert!(
+            e.to_string().contains(
+                "names a `offset` column: a truth or estimates file, not a signature file"
+            ),
+            "{e}"
+        );
+        assert!(parse_truth_csv(b"t,offset\n0.1,0.01\n", "f").is_ok());
+    }
 
     #[test]
     fn errors_name_line_and_problem() {

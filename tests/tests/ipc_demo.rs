@@ -64,8 +64,8 @@ fn interrupt_demo(
         .find_map(|l| l.strip_prefix("daemon's real-time thread: "))
         .unwrap_or_else(|| panic!("no real-time thread line:\n{out}"));
     assert!(
-        rt.starts_with("SCHED_FIFO priority 50, on core ")
-            || rt.contains("(SCHED_FIFO priority 50 refused: the daemon's log says why"),
+        rt.starts_with("SCHED_FIFO priority 50, pinned to core 1")
+            || rt.contains("SCHED_FIFO priority 50 refused: "),
         "{rt}"
     );
     // an interrupted run still gets its plot, by default in the log directory

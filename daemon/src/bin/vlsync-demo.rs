@@ -214,17 +214,14 @@ fn run(a: Args) -> Result<(), String> {
         .session_options("vlsync-demo", source, Duration::from_millis(1500));
     options.record = a.record.clone();
     options.daemon_fifo_priority = daemon_fifo(&a);
-    // the priority the daemon was given: ours, else its configuration's
-    let asked_fifo = match (options.daemon_fifo_priority, &a.procs.config) {
-        (Some(p), _) => p,
-        (None, Some(c)) => {
-            vlsync_config::Config::load(c)
-                .map_err(|e| format!("--config: {e}"))?
-                .daemon
-                .fifo_priority
-        }
-        (None, None) => 0,
+    // what the daemon was asked for: its configuration, with our priority
+    let daemon_cfg = match &a.procs.config {
+        Some(c) => vlsync_config::Config::load(c).map_err(|e| format!("--config: {e}"))?,
+        None => vlsync_config::Config::default(),
     };
+    let asked_fifo = options
+        .daemon_fifo_priority
+        .unwrap_or(daemon_cfg.daemon.fifo_priority);
     let mut s = Session::start(options)?;
     out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
@@ -365,7 +362,12 @@ fn run(a: Args) -> Result<(), String> {
     }
     out.line(format_args!(
         "daemon's real-time thread: {}",
-        describe_rt_thread(&s.daemon_rt, asked_fifo)
+        describe_rt_thread(
+            &s.daemon_rt,
+            asked_fifo,
+            daemon_cfg.daemon.core,
+            &s.log_dir.join("vlsyncd.log")
+        )
     ));
     for r in Role::ALL {
         out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));

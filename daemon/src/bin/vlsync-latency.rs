@@ -175,15 +175,12 @@ fn measure(
         return Err(format!("vlsyncd exited at start: {}", said.trim()));
     }
 
+    // what the daemon was asked for
     let asked = match &a.config {
-        Some(c) => {
-            vlsync_config::Config::load(c)
-                .map_err(|e| format!("--config: {e}"))?
-                .daemon
-                .fifo_priority
-        }
-        None => 0,
-    };
+        Some(c) => vlsync_config::Config::load(c).map_err(|e| format!("--config: {e}"))?,
+        None => vlsync_config::Config::default(),
+    }
+    .daemon;
 
     // ---- phase 1: 100x ----
     let cpu0 = cpu_seconds(daemon.pid())?;
@@ -196,7 +193,12 @@ fn measure(
     )?;
     let fast_wall = t0.elapsed().as_secs_f64();
     // the real-time thread serves by now: what the kernel gave it
-    let rt = describe_rt_thread(&thread_sched(daemon.pid(), RT_THREAD_NAME), asked);
+    let rt = describe_rt_thread(
+        &thread_sched(daemon.pid(), RT_THREAD_NAME),
+        asked.fifo_priority,
+        asked.core,
+        log,
+    );
     let fast_cpu = cpu_seconds(daemon.pid())? - cpu0;
     let s1 = latest_status(&mut status)?;
     let received = s1.received[0].saturating_add(s1.received[1]);

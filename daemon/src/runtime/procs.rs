@@ -231,13 +231,17 @@ pub struct ThreadSched {
     pub rt_priority: u32,
     /// The CPU it last ran on.
     pub cpu: u32,
+    /// The one core it may run on, when its affinity allows only one (`None`: more,
+    /// or unknown).
+    pub pinned: Option<u32>,
 }
 
 impl ThreadSched {
     /// `SCHED_FIFO`.
     pub const FIFO: u32 = 1;
 
-    /// "SCHED_FIFO priority 50, on core 1" / "the normal scheduler (SCHED_OTHER), on core 1".
+    /// "SCHED_FIFO priority 50, pinned to core 1" / "the normal scheduler (SCHED_OTHER),
+    /// not pinned (last on core 0)".
     pub fn describe(&self) -> String {
         let policy = match self.policy {
             0 => "the normal scheduler (SCHED_OTHER)".to_string(),
@@ -248,8 +252,21 @@ impl ThreadSched {
             6 => "SCHED_DEADLINE".to_string(),
             p => format!("scheduling policy {p}"),
         };
-        format!("{policy}, on core {}", self.cpu)
+        match self.pinned {
+            Some(c) => format!("{policy}, pinned to core {c}"),
+            None => format!("{policy}, not pinned (last on core {})", self.cpu),
+        }
     }
+}
+
+/// The single core of a `Cpus_allowed_list:` line of `/proc/<pid>/task/<tid>/status`
+/// (`None` for a list of several, such as `0-3` or `0,2`, or no such line).
+pub fn parse_pinned(status: &str) -> Option<u32> {
+    let list = status
+        .lines()
+        .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))?
+        .trim();
+    list.parse().ok()
 }
 
 /// Parses a `/proc/<pid>/task/<tid>/stat` line: the CPU it last ran on (field 39),
@@ -271,6 +288,7 @@ pub fn parse_thread_sched(text: &str, what: &str) -> Result<ThreadSched, String>
         cpu: get(39, "processor")?,
         rt_priority: get(40, "rt_priority")?,
         policy: get(41, "policy")?,
+        pinned: None,
     })
 }
 
@@ -287,22 +305,47 @@ pub fn thread_sched(pid: u32, name: &str) -> Result<Option<ThreadSched>, String>
         let path = t.path().join("stat");
         let what = path.display().to_string();
         let text = std::fs::read_to_string(&path).map_err(|e| format!("{what}: {e}"))?;
-        return parse_thread_sched(&text, &what).map(Some);
+        let status = std::fs::read_to_string(t.path().join("status")).unwrap_or_default();
+        return parse_thread_sched(&text, &what).map(|ts| {
+            Some(ThreadSched {
+                pinned: parse_pinned(&status),
+                ..ts
+            })
+        });
     }
     Ok(None)
 }
 
 /// A report's account of the daemon's real-time thread: what the kernel gave it
-/// (`got`, from [`thread_sched`]), and whether the SCHED_FIFO priority the daemon was
-/// given (`asked`, 0: none) was refused.
-pub fn describe_rt_thread(got: &Result<Option<ThreadSched>, String>, asked: i64) -> String {
+/// (`got`, from [`thread_sched`]), and what of the daemon's settings it refused: the
+/// SCHED_FIFO priority (`fifo`, 0: none asked) and the core (`core`, -1: none asked);
+/// `log` is the daemon's log, which says why.
+pub fn describe_rt_thread(
+    got: &Result<Option<ThreadSched>, String>,
+    fifo: i64,
+    core: i64,
+    log: &Path,
+) -> String {
     match got {
-        Ok(Some(t)) if asked > 0 && t.policy != ThreadSched::FIFO => format!(
-            "{} (SCHED_FIFO priority {asked} refused: the daemon's log says why; latency is \
-             then the normal scheduler's)",
-            t.describe()
-        ),
-        Ok(Some(t)) => t.describe(),
+        Ok(Some(t)) => {
+            let mut refused = vec![];
+            if fifo > 0 && t.policy != ThreadSched::FIFO {
+                refused.push(format!("SCHED_FIFO priority {fifo}"));
+            }
+            if core >= 0 && t.pinned.map(i64::from) != Some(core) {
+                refused.push(format!("pinning to core {core}"));
+            }
+            if refused.is_empty() {
+                t.describe()
+            } else {
+                format!(
+                    "{} ({} refused: {} says why)",
+                    t.describe(),
+                    refused.join(" and "),
+                    log.display()
+                )
+            }
+        }
         Ok(None) => "not found (no thread named vlsync-rt while the daemon served)".into(),
         Err(e) => format!("unknown ({e})"),
     }
@@ -367,10 +410,20 @@ mod tests {
             ThreadSched {
                 policy: ThreadSched::FIFO,
                 rt_priority: 50,
-                cpu: 1
+                cpu: 1,
+                pinned: None,
             }
         );
-        assert_eq!(s.describe(), "SCHED_FIFO priority 50, on core 1");
+        assert_eq!(
+            s.describe(),
+            "SCHED_FIFO priority 50, not pinned (last on core 1)"
+        );
+        // the affinity from the status file
+        let status = "Name:\tvlsync-rt\nCpus_allowed:\t2\nCpus_allowed_list:\t1\n";
+        assert_eq!(parse_pinned(status), Some(1));
+        assert_eq!(parse_pinned("Cpus_allowed_list:\t0-3\n"), None);
+        assert_eq!(parse_pinned("Cpus_allowed_list:\t0,2\n"), None);
+        assert_eq!(parse_pinned(""), None);
         // a line cut short names the field it lacks
         let short = format!("1234 (x) {}", fields[..37].join(" "));
         let e = parse_thread_sched(&short, "/proc/1/task/1/stat").unwrap_err();
@@ -394,6 +447,9 @@ mod tests {
             .expect("the thread is listed under its name");
         assert_eq!(got.policy, 0, "test threads run under the normal scheduler");
         assert_eq!(got.rt_priority, 0);
+        // the thread inherits this process's affinity
+        let own = std::fs::read_to_string("/proc/self/status").unwrap();
+        assert_eq!(got.pinned, parse_pinned(&own), "{got:?}");
         assert_eq!(thread_sched(std::process::id(), "no-such-thread"), Ok(None));
         assert!(thread_sched(u32::MAX, name).is_err());
     }
@@ -403,35 +459,45 @@ mod tests {
         #[test]
         fn any_stat_text_parses_or_errs(text in ".{0,400}") {
             let _ = parse_thread_sched(&text, "stat");
+            let _ = parse_pinned(&text);
         }
     }
 
     #[test]
     fn the_summary_says_what_scheduling_the_daemon_got() {
-        let t = |policy, rt_priority| {
+        let log = Path::new("/tmp/x/vlsyncd.log");
+        let t = |policy, rt_priority, pinned| {
             Ok(Some(ThreadSched {
                 policy,
                 rt_priority,
                 cpu: 1,
+                pinned,
             }))
         };
         assert_eq!(
-            describe_rt_thread(&t(1, 50), 50),
-            "SCHED_FIFO priority 50, on core 1"
+            describe_rt_thread(&t(1, 50, Some(1)), 50, 1, log),
+            "SCHED_FIFO priority 50, pinned to core 1"
         );
-        let refused = describe_rt_thread(&t(0, 0), 50);
-        assert!(
-            refused.starts_with("the normal scheduler (SCHED_OTHER), on core 1")
-                && refused.contains("SCHED_FIFO priority 50 refused"),
-            "{refused}"
-        );
-        // asked for none: nothing was refused
+        let refused = describe_rt_thread(&t(0, 0, Some(1)), 50, 1, log);
         assert_eq!(
-            describe_rt_thread(&t(0, 0), 0),
-            "the normal scheduler (SCHED_OTHER), on core 1"
+            refused,
+            "the normal scheduler (SCHED_OTHER), pinned to core 1 (SCHED_FIFO priority 50 \
+             refused: /tmp/x/vlsyncd.log says why)"
         );
-        assert!(describe_rt_thread(&Ok(None), 50).starts_with("not found"));
-        assert!(describe_rt_thread(&Err("/proc/1/task: gone".into()), 0).contains("/proc/1/task"));
+        let unpinned = describe_rt_thread(&t(1, 50, None), 50, 1, log);
+        assert_eq!(
+            unpinned,
+            "SCHED_FIFO priority 50, not pinned (last on core 1) (pinning to core 1 refused: \
+             /tmp/x/vlsyncd.log says why)"
+        );
+        // asked for neither: nothing was refused
+        assert_eq!(
+            describe_rt_thread(&t(0, 0, None), 0, -1, log),
+            "the normal scheduler (SCHED_OTHER), not pinned (last on core 1)"
+        );
+        assert!(describe_rt_thread(&Ok(None), 50, 1, log).starts_with("not found"));
+        let gone = describe_rt_thread(&Err("/proc/1/task: gone".into()), 0, -1, log);
+        assert!(gone.contains("/proc/1/task"), "{gone}");
     }
 
     #[test]
