@@ -149,6 +149,33 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     }
 }
 
+/// Creates the output directory `path` (and its parents) given by option `flag`; an
+/// existing directory is fine, an existing file is an error saying so (rather than
+/// the system's "File exists").
+///
+/// ```
+/// use vlsync_common::file::create_out_dir;
+/// let file = std::env::temp_dir().join(format!("vlsync-doc-outdir-{}", std::process::id()));
+/// std::fs::write(&file, "x").unwrap();
+/// let e = create_out_dir("--out", &file).unwrap_err();
+/// assert!(e.ends_with("exists and is not a directory"), "{e}");
+/// std::fs::remove_file(&file).unwrap();
+/// ```
+pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
+    if path.exists() && !path.is_dir() {
+        return Err(format!(
+            "{flag} {}: exists and is not a directory",
+            path.display()
+        ));
+    }
+    std::fs::create_dir_all(path).map_err(|e| {
+        format!(
+            "{flag} {}: cannot create the directory: {e}",
+            path.display()
+        )
+    })
+}
+
 /// Writes `contents` to `path` so that a failure leaves no partial file: into a
 /// temporary file beside it, renamed over it once complete (an error removes the
 /// temporary file and leaves an earlier `path` as it was). A path that exists and is

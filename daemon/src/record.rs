@@ -312,7 +312,7 @@ fn check_args(a: &RecordArgs) -> Result<vlsync_ipc::ServiceNames, String> {
 /// Creates `dir` and the three files in it; refuses to overwrite an earlier
 /// recording unless `force`.
 fn create_files(dir: &Path, force: bool) -> Result<[std::io::BufWriter<std::fs::File>; 3], String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    vlsync_common::file::create_out_dir("--out", dir)?;
     if !force {
         if let Some(p) = FILES.iter().map(|f| dir.join(f)).find(|p| p.exists()) {
             return Err(format!(

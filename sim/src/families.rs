@@ -1511,9 +1511,9 @@ mod tests {
         assert_eq!(lines.len(), 1 + 3001);
         assert!(lines[1].starts_with("0.000000000,"));
         assert!(lines[3001].starts_with("30.000000000,"));
-        let (s, _) = crate::io::parse_signature_csv(text.as_bytes(), "truth").unwrap();
-        for x in s.iter().step_by(97) {
-            assert!((x.value - run.truth.offset_at(x.t_ns)).abs() < 1e-9);
+        let rows = crate::io::parse_truth_csv(text.as_bytes(), "truth").unwrap();
+        for &(t, offset) in rows.iter().step_by(97) {
+            assert!((offset - run.truth.offset_at(t)).abs() < 1e-9);
         }
     }
 

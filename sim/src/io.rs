@@ -417,10 +417,15 @@ pub fn signature_csv_string(samples: &[Sample]) -> String {
 }
 
 fn write_file(path: &Path, text: &str) -> Result<(), CsvError> {
-    std::fs::write(path, text).map_err(|e| CsvError {
+    // whole or not at all: a failed write leaves no file cut mid-row
+    vlsync_common::file::write_atomically(path, text.as_bytes()).map_err(|m| CsvError {
         path: path.to_path_buf(),
         line: None,
-        message: format!("cannot write: {e}"),
+        // the path is the error's own prefix
+        message: match m.strip_prefix(&format!("cannot write {}: ", path.display())) {
+            Some(why) => format!("cannot write: {why}"),
+            None => m,
+        },
     })
 }
 

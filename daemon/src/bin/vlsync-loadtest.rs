@@ -214,7 +214,7 @@ fn run(a: &Args) -> Result<bool, String> {
         vlsyncd::runtime::procs::sibling_binary(r.name())?;
     }
     // every argument is checked: only now is the output directory made
-    std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    vlsync_common::file::create_out_dir("--out", &out)?;
     // an earlier run's report must not stand beside this run's logs if this one fails
     for name in REPORTS {
         match std::fs::remove_file(out.join(name)) {

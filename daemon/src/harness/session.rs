@@ -370,8 +370,7 @@ impl Session {
             .log_dir
             .clone()
             .unwrap_or_else(|| std::env::temp_dir().join(format!("{}-{pid}", o.name)));
-        std::fs::create_dir_all(&log_dir)
-            .map_err(|e| format!("cannot create {}: {e}", log_dir.display()))?;
+        vlsync_common::file::create_out_dir("--log-dir", &log_dir)?;
         // our own node: handles Ctrl-C for this process
         let node = create_node(&o.name, true).map_err(|e| e.to_string())?;
         let mut dargs = vec!["run".to_string(), "--prefix".into(), prefix.clone()];

@@ -61,13 +61,31 @@ fn run(args: &Args) -> Result<(), String> {
         .map_err(|e: families::UnknownFamily| e.to_string())?;
     let run = families::try_generate_with(family, args.seed, args.duration, args.noise_scale)
         .map_err(|e| e.to_string())?;
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output directory {}: {e}", out.display()))?;
-    io::write_signature_csv(out.join("cam.csv"), &run.cam).map_err(|e| e.to_string())?;
-    io::write_signature_csv(out.join("lidar.csv"), &run.lidar).map_err(|e| e.to_string())?;
-    run.truth
-        .write_csv(out.join("truth.csv"))
-        .map_err(|e| e.to_string())?;
+    vlsync_common::file::create_out_dir("--out", out)?;
+    // each file checked before any is written, then written whole (a temporary file
+    // renamed into place): a run is not left half new, half old or cut mid-row
+    let files = [
+        ("cam.csv", io::signature_csv_string(&run.cam)),
+        ("lidar.csv", io::signature_csv_string(&run.lidar)),
+        ("truth.csv", io::truth_csv_string(&run.truth, 10_000_000)),
+    ];
+    for (name, _) in &files {
+        vlsync_common::file::check_writable("--out", &out.join(name))?;
+    }
+    for (i, (name, text)) in files.iter().enumerate() {
+        vlsync_common::file::write_atomically(&out.join(name), text.as_bytes()).map_err(|e| {
+            let done: Vec<&str> = files[..i].iter().map(|f| f.0).collect();
+            if done.is_empty() {
+                e
+            } else {
+                format!(
+                    "{e} ({} written before it: the run in {} is incomplete)",
+                    done.join(", "),
+                    out.display()
+                )
+            }
+        })?;
+    }
     let base = score::score_pairs(
         &baseline::seed_chunked(&run.cam, &run.lidar, run.cam_hz),
         &run,
