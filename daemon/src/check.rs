@@ -23,6 +23,9 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
             ));
         }
     }
+    if let Some(note) = core_note(cfg.daemon.core, &vlsync_ipc::rt::available_cores()) {
+        out.push_str(&format!("{comment}{note}\n"));
+    }
     if print {
         let text = toml::to_string(&cfg)
             .map_err(|e| format!("cannot print the configuration of {}: {e}", path.display()))?;
@@ -31,8 +34,36 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
     Ok(out)
 }
 
+/// A note when `daemon.core` names a core this process may not run on here (not an
+/// error: the check often runs on another machine than the robot, as for the state
+/// file). `cores`: the CPUs it may run on (empty: unknown).
+fn core_note(core: i64, cores: &[usize]) -> Option<String> {
+    if core < 0 || cores.is_empty() || cores.iter().any(|&c| c as i64 == core) {
+        return None;
+    }
+    let list: Vec<String> = cores.iter().map(|c| c.to_string()).collect();
+    Some(format!(
+        "note: daemon.core = {core}: not a CPU this process may use on this machine (available: \
+         [{}]); here the daemon would run unpinned, and say so at start",
+        list.join(", ")
+    ))
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_core_this_machine_lacks_gets_a_note() {
+        assert_eq!(super::core_note(1, &[0, 1]), None);
+        assert_eq!(super::core_note(-1, &[0]), None);
+        assert_eq!(super::core_note(3, &[]), None);
+        assert_eq!(super::core_note(3, &[2, 3]), None);
+        let n = super::core_note(3, &[0, 1]).unwrap();
+        assert!(
+            n.starts_with("note: daemon.core = 3: not a CPU this process may use on this machine (available: [0, 1])"),
+            "{n}"
+        );
+    }
+
     use super::*;
 
     fn file(name: &str, text: &str) -> std::path::PathBuf {

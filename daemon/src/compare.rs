@@ -94,6 +94,29 @@ pub fn parse_estimates_csv(bytes: &[u8], source: &str) -> Result<Vec<Estimate>, 
                 )
             })
         };
+        // the required numbers are finite (the daemon and replay write no other), the
+        // deviations not negative: a NaN would pass as "not identical" without a word
+        let finite = |i: usize| -> Result<f64, CsvError> {
+            let v = num(i)?;
+            let ok = v.is_finite() && (i < 3 || v >= 0.0);
+            if ok {
+                Ok(v)
+            } else {
+                Err(err(
+                    Some(lineno),
+                    format!(
+                        "column {} ({}): {v} is not a {}number",
+                        i + 1,
+                        REQUIRED[i],
+                        if i < 3 {
+                            "finite "
+                        } else {
+                            "finite, non-negative "
+                        }
+                    ),
+                ))
+            }
+        };
         let t_ref_ns =
             parse_secs(cols[0]).map_err(|m| err(Some(lineno), format!("column 1 (t): {m}")))?;
         let state = EstimatorState::from_name(cols[5]).ok_or_else(|| {
@@ -144,10 +167,10 @@ pub fn parse_estimates_csv(bytes: &[u8], source: &str) -> Result<Vec<Estimate>, 
         out.push(Estimate {
             seq,
             t_ref_ns,
-            offset_s: num(1)?,
-            drift: num(2)?,
-            offset_std_s: num(3)?,
-            drift_std: num(4)?,
+            offset_s: finite(1)?,
+            drift: finite(2)?,
+            offset_std_s: finite(3)?,
+            drift_std: finite(4)?,
             state,
             polarity,
             peak_score: opt(1)?,
@@ -334,7 +357,15 @@ mod tests {
         assert_eq!(ests.len(), 1);
         assert_eq!(ests[0].state, EstimatorState::Lost);
         assert!(ests[0].peak_score.is_nan() && ests[0].polarity == Polarity::Unknown);
-        let cases: [(&[u8], &str); 5] = [
+        let cases: [(&[u8], &str); 7] = [
+            (
+                b"t,offset,drift,offset_std,drift_std,state\n1.0,NaN,0,0,0,lost\n",
+                "e.csv:2: column 2 (offset): NaN is not a finite number",
+            ),
+            (
+                b"t,offset,drift,offset_std,drift_std,state\n1.0,0,0,-0.1,0,lost\n",
+                "e.csv:2: column 4 (offset_std): -0.1 is not a finite, non-negative number",
+            ),
             (b"", "e.csv:1: expected the header of an estimates file"),
             (b"t,value\n1,2\n", "e.csv:1: expected the header"),
             (

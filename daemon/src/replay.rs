@@ -259,6 +259,12 @@ fn check_outputs(a: &ReplayArgs<'_>) -> Result<(), String> {
         ("--config", a.config),
         ("--compare", a.compare),
     ];
+    if vlsync_common::file::same_file(a.cam, a.lidar) {
+        return Err(format!(
+            "--cam and --lidar name the same file ({}): the two streams come from two sensors",
+            a.cam.display()
+        ));
+    }
     for (i, (out_flag, out)) in files.iter().take(2).enumerate() {
         let Some(out) = out else { continue };
         for (flag, other) in &files[i + 1..] {

@@ -163,6 +163,25 @@ fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
         assert_eq!(std::fs::read_to_string(&lidar).unwrap(), rows);
         assert!(!dir.join("est.csv").exists(), "{args:?}");
     }
+    // one file for both streams
+    let (code, _, err) = run(
+        vlsyncd,
+        &[
+            "replay",
+            "--cam",
+            &cam_s,
+            "--lidar",
+            &cam_spelled,
+            "--out",
+            &est,
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--cam and --lidar name the same file"),
+        "{err}"
+    );
+    assert!(!dir.join("est.csv").exists());
     // an output that cannot be written is refused before the run, naming its flag
     for (flag, bad) in [
         ("--out", "/proc/vlsync-est.csv"),
@@ -211,6 +230,9 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
         "t,value,seq,publish,flags\n0.0,1.0,0,5.0,1\n0.1,2.0,1,5.1,0\n",
     )
     .unwrap();
+    // the LiDAR's: another file with the same rows (one file for both is refused)
+    let recorded_l = dir.join("recorded-lidar.csv");
+    std::fs::copy(&recorded, &recorded_l).unwrap();
     let bad = dir.join("bad.csv");
     std::fs::write(
         &bad,
@@ -232,12 +254,12 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         run(vlsyncd, &args)
     };
-    let (code, _, err) = replay(&recorded, &recorded, &[]);
+    let (code, _, err) = replay(&recorded, &recorded_l, &[]);
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("merged by publish time"), "{err}");
     for (cam, lidar, extra) in [
         (&plain, &recorded, &[][..]),
-        (&recorded, &recorded, &["--order", "stamp"][..]),
+        (&recorded, &recorded_l, &["--order", "stamp"][..]),
     ] {
         let (code, _, err) = replay(cam, lidar, extra);
         assert_eq!(code, 0, "{err}");
@@ -260,7 +282,7 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
     );
     // --compare: a file that is no estimates file is an error naming it
     std::fs::write(&cmp, "t,value\n0.0,1.0\n").unwrap();
-    let (code, _, err) = replay(&plain, &plain, &["--compare", &p(&cmp)]);
+    let (code, _, err) = replay(&plain, &recorded_l, &["--compare", &p(&cmp)]);
     assert_eq!(code, 2, "{err}");
     assert!(
         err.contains(&format!(

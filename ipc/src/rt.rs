@@ -24,6 +24,17 @@ impl fmt::Display for RtRefused {
     }
 }
 
+/// The CPUs the calling thread may run on (its affinity), in order.
+pub fn available_cores() -> Vec<usize> {
+    let mut ids: Vec<usize> = core_affinity::get_core_ids()
+        .unwrap_or_default()
+        .iter()
+        .map(|c| c.id)
+        .collect();
+    ids.sort_unstable();
+    ids
+}
+
 /// Pins the calling thread to CPU `core`.
 pub fn pin_current_thread(core: usize) -> Result<(), RtRefused> {
     let setting = format!("daemon.core = {core}");

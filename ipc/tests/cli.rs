@@ -17,6 +17,17 @@ fn echo_has_help_and_rejects_an_unknown_argument() {
     let out = Command::new(bin).arg("--bogus").output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--bogus"));
+    // a prefix no service can be named with is a bad argument too, named once
+    let out = Command::new(bin)
+        .args(["--prefix", "bad!!"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with("vlsync-echo: error: --prefix: `services.prefix` = \"bad!!\" is invalid"),
+        "{err}"
+    );
 }
 
 /// The state letter of process `pid` (`R`, `S`, `T` stopped, ...) from /proc.

@@ -182,6 +182,11 @@ fn main() -> ExitCode {
         );
         return ExitCode::from(2);
     }
+    // a bad prefix is a bad argument (exit 2, as clap's), found before anything opens
+    if let Err(e) = vlsync_ipc::ServiceNames::new(&args.prefix) {
+        vlsync_common::console::print_err(&format!("vlsync-echo: error: {e}\n"));
+        return ExitCode::from(2);
+    }
     // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the loop cleanly
     let _signals = match vlsync_ipc::create_node("vlsync-echo", true) {
         Ok(n) => n,
