@@ -514,9 +514,19 @@ impl EstimatorConfig {
         // a reference further back than the window never locks
         let window = self.effective_window_s();
         c.rule(self.reference_lag_s <= window + 1e-9, || {
+            // a shorter window_s alone trips this rule on a key the file may not set
+            let default = self.reference_lag_s == EstimatorConfig::default().reference_lag_s;
             format!(
-                "`estimator.reference_lag_s` = {} must not exceed the acquisition window: `estimator.window_s` = {} in whole hops of {} s is {} s",
-                self.reference_lag_s, self.window_s, num(self.effective_hop_s()), num(window)
+                "`estimator.reference_lag_s` = {} must not exceed the acquisition window: `estimator.window_s` = {} in whole hops of {} s is {} s{}",
+                self.reference_lag_s,
+                self.window_s,
+                num(self.effective_hop_s()),
+                num(window),
+                if default {
+                    " (reference_lag_s is at its default: set it within the window too, or lengthen window_s)"
+                } else {
+                    ""
+                }
             )
         })?;
         c.rule(self.step_window_s <= self.window_s, || {
@@ -795,10 +805,10 @@ mod tests {
         // a reference time the acquisition window never covers: no lock, ever
         assert_eq!(
             err("[estimator]\nwindow_s = 2.0\n"),
-            "`estimator.reference_lag_s` = 3 must not exceed the acquisition window: `estimator.window_s` = 2 in whole hops of 0.5 s is 2 s"
+            "`estimator.reference_lag_s` = 3 must not exceed the acquisition window: `estimator.window_s` = 2 in whole hops of 0.5 s is 2 s (reference_lag_s is at its default: set it within the window too, or lengthen window_s)"
         );
         let e = err("[estimator]\nreference_lag_s = 6.5\n");
-        assert!(e.contains("is 6 s"), "{e}");
+        assert!(e.contains("is 6 s") && !e.contains("default"), "{e}");
         // in whole hops: 2.75 s runs as 3 s, which covers the 3 s reference
         assert!(Config::from_toml_str("[estimator]\nwindow_s = 2.75\n", "x").is_ok());
         assert!(Config::from_toml_str("[estimator]\nwindow_s = 2.7\n", "x").is_err());

@@ -88,6 +88,22 @@ fn writes_the_generated_run() {
     assert!(truth
         .iter()
         .all(|&(t, o)| (o - run.truth.offset_at(t)).abs() < 1e-9));
+    assert!(!text.contains("note:"), "{text}");
+    // a second run into the directory: what an earlier replay left there is named
+    std::fs::write(dir.join("est.csv"), "t,offset\n").unwrap();
+    let out = bin()
+        .args(["--family", "robot", "--duration", "10", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains(&format!(
+            "note: {} also holds est.csv from before: not of this run",
+            dir.display()
+        )),
+        "{text}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -143,7 +143,7 @@ fn check_args(a: &Args) -> Result<(), String> {
         let files = vlsyncd::record::FILES.iter().chain([&TRUTH_FILE]);
         if let Some(f) = files.map(|f| dir.join(f)).find(|f| f.exists()) {
             return Err(format!(
-                "--record {}: {} exists: refusing to overwrite a recording",
+                "--record {}: {} exists: refusing to overwrite a recording (give another directory, or remove it first)",
                 dir.display(),
                 f.display()
             ));
@@ -477,7 +477,7 @@ mod tests {
             let e = check_args(&args(&["--record", d])).unwrap_err();
             assert!(
                 e.starts_with("--record ")
-                    && e.ends_with(&format!("{f} exists: refusing to overwrite a recording")),
+                    && e.ends_with(&format!("{f} exists: refusing to overwrite a recording (give another directory, or remove it first)")),
                 "{e}"
             );
             std::fs::remove_file(dir.join(f)).unwrap();

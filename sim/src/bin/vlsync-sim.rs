@@ -142,5 +142,23 @@ fn run(args: &Args) -> Result<(), String> {
         win(6.0)
     );
     let _ = writeln!(text, "  seed baseline (bugs fixed): {base}");
+    // files an earlier run left beside the new one (a replay's est.csv, a plot)
+    let mut stale: Vec<String> = std::fs::read_dir(out)
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| !files.iter().any(|f| f.0 == n) && !n.starts_with('.'))
+                .collect()
+        })
+        .unwrap_or_default();
+    stale.sort();
+    if !stale.is_empty() {
+        let _ = writeln!(
+            text,
+            "  note: {} also holds {} from before: not of this run",
+            out.display(),
+            stale.join(", ")
+        );
+    }
     vlsync_common::console::print_out(&text)
 }
