@@ -114,7 +114,8 @@ pub fn dir_of(p: &Path) -> &Path {
 /// Checks, before a long run whose output is written at its end, that `path` can be
 /// written: not a directory, in a directory that exists, and writable: an existing
 /// file is opened for writing (not truncated), a new one is created and removed at
-/// once. Errors name `flag` and the path.
+/// once (a device or a named pipe is left to the write). Errors name `flag` and the
+/// path.
 ///
 /// ```
 /// use vlsync_common::file::check_writable;
@@ -133,7 +134,11 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     if !dir.is_dir() {
         return Err(say(format!("directory {} does not exist", dir.display())));
     }
-    if path.exists() {
+    if let Ok(m) = std::fs::metadata(path) {
+        if !m.is_file() {
+            // a device or a pipe: opening a pipe would wait for its reader here
+            return Ok(());
+        }
         std::fs::OpenOptions::new()
             .write(true)
             .open(path)
@@ -208,6 +213,10 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
     ));
     let written = (|| {
         let mut f = File::create(&tmp)?;
+        // a file written over keeps its permissions
+        if let Ok(m) = std::fs::metadata(&target) {
+            f.set_permissions(m.permissions())?;
+        }
         f.write_all(contents)?;
         f.sync_all()?;
         std::fs::rename(&tmp, &target)
@@ -237,6 +246,12 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("est.csv");
         write_atomically(&p, b"old\n").unwrap();
+        // written over, it keeps its permissions
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
+        write_atomically(&p, b"older\n").unwrap();
+        let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o600);
         // through a symlink: the file it names is replaced, the link stays
         let link = dir.join("link.csv");
         std::os::unix::fs::symlink(&p, &link).unwrap();
