@@ -127,31 +127,51 @@ pub fn dir_of(p: &Path) -> &Path {
 /// ```
 pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     let say = |why: String| format!("{flag} {}: {why}", path.display());
-    if path.is_dir() {
+    // a symlink, dangling or not, is checked as the file it names
+    let target = link_target(path);
+    if target.is_dir() {
         return Err(say("is a directory".into()));
     }
-    let dir = dir_of(path);
+    let dir = dir_of(&target);
     if !dir.is_dir() {
         return Err(say(format!("directory {} does not exist", dir.display())));
     }
-    if let Ok(m) = std::fs::metadata(path) {
+    if let Ok(m) = std::fs::metadata(&target) {
         if !m.is_file() {
             // a device or a pipe: opening a pipe would wait for its reader here
             return Ok(());
         }
         std::fs::OpenOptions::new()
             .write(true)
-            .open(path)
+            .open(&target)
             .map(drop)
             .map_err(|e| say(format!("cannot be written: {e}")))
     } else {
         std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
-            .open(path)
+            .open(&target)
             .map_err(|e| say(format!("cannot be created: {e}")))?;
-        std::fs::remove_file(path).map_err(|e| say(format!("cannot remove the probe: {e}")))
+        std::fs::remove_file(&target).map_err(|e| say(format!("cannot remove the probe: {e}")))
     }
+}
+
+/// The path a chain of symlinks at `path` ends at (at most 16 links; `path` itself
+/// when it is no symlink). The end need not exist: a dangling link names the file
+/// a write creates.
+fn link_target(path: &Path) -> std::path::PathBuf {
+    let mut p = path.to_path_buf();
+    for _ in 0..16 {
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.file_type().is_symlink() => match std::fs::read_link(&p) {
+                Ok(t) if t.is_absolute() => p = t,
+                Ok(t) => p = dir_of(&p).join(t),
+                Err(_) => break,
+            },
+            _ => break,
+        }
+    }
+    p
 }
 
 /// Creates the output directory `path` (and its parents) given by option `flag`; an
@@ -183,9 +203,11 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 
 /// Writes `contents` to `path` so that a failure leaves no partial file: into a
 /// temporary file beside it, renamed over it once complete (an error removes the
-/// temporary file and leaves an earlier `path` as it was). A path that exists and is
-/// not a regular file (a device such as `/dev/stdout`, a pipe) is written directly.
-/// Errors name `path`.
+/// temporary file and leaves an earlier `path` as it was). A file written over keeps
+/// its permissions; a symlink's target is written, not the link. A path that exists
+/// and is not a regular file (a device such as `/dev/stdout`, a pipe) is written
+/// directly, and so is an existing file in a directory where no temporary file can
+/// be created (it is writable, its directory is not). Errors name `path`.
 ///
 /// ```
 /// use vlsync_common::file::write_atomically;
@@ -197,12 +219,11 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
     use std::io::Write;
     let say = |e: io::Error| format!("cannot write {}: {e}", path.display());
-    match std::fs::metadata(path) {
-        Ok(m) if !m.is_file() => return std::fs::write(path, contents).map_err(say),
-        _ => {}
+    let target = link_target(path);
+    let existing = std::fs::metadata(&target).ok();
+    if existing.as_ref().is_some_and(|m| !m.is_file()) {
+        return std::fs::write(&target, contents).map_err(say);
     }
-    // a symlink to a regular file: replace the file it names, not the link
-    let target = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
     let name = target
         .file_name()
         .ok_or_else(|| format!("cannot write {}: no file name", path.display()))?;
@@ -211,14 +232,21 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
         name.to_string_lossy(),
         std::process::id()
     ));
+    let mut f = match File::create(&tmp) {
+        Ok(f) => f,
+        // the directory refuses new files, the file itself may still be writable
+        Err(e) if existing.is_some() && e.kind() == io::ErrorKind::PermissionDenied => {
+            return std::fs::write(&target, contents).map_err(say);
+        }
+        Err(e) => return Err(say(e)),
+    };
     let written = (|| {
-        let mut f = File::create(&tmp)?;
-        // a file written over keeps its permissions
-        if let Ok(m) = std::fs::metadata(&target) {
+        if let Some(m) = &existing {
             f.set_permissions(m.permissions())?;
         }
         f.write_all(contents)?;
         f.sync_all()?;
+        drop(f);
         std::fs::rename(&tmp, &target)
     })();
     written.map_err(|e| {
@@ -240,7 +268,7 @@ mod tests {
     use std::path::PathBuf;
 
     #[test]
-    fn a_failed_atomic_write_leaves_the_earlier_file_and_no_temporary() {
+    fn atomic_writes_replace_whole_files_keep_links_and_permissions_and_leave_no_temporary() {
         let dir = std::env::temp_dir().join(format!("vlsync-atomic-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -268,15 +296,40 @@ mod tests {
             .unwrap()
             .file_type()
             .is_char_device());
-        // a directory that does not exist: an error naming the path, nothing left
+        // a directory that does not exist: an error naming the path
         let e = write_atomically(&dir.join("no/such.csv"), b"x").unwrap_err();
         assert!(e.contains("no/such.csv"), "{e}");
-        let left: Vec<_> = std::fs::read_dir(&dir)
+        // a dangling symlink: the file it names is created, the link stays
+        let dangling = dir.join("dangling.csv");
+        std::os::unix::fs::symlink("made.csv", &dangling).unwrap();
+        assert!(check_writable("--out", &dangling).is_ok());
+        write_atomically(&dangling, b"made\n").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(dir.join("made.csv")).unwrap(),
+            "made\n"
+        );
+        assert!(std::fs::symlink_metadata(&dangling)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        // no temporary file is left beside the outputs
+        let mut left: Vec<_> = std::fs::read_dir(&dir)
             .unwrap()
             .flatten()
-            .map(|e| e.file_name())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
             .collect();
-        assert_eq!(left.len(), 2, "{left:?}");
+        left.sort();
+        assert_eq!(left, ["dangling.csv", "est.csv", "link.csv", "made.csv"]);
+        // a named pipe is not opened by the probe (that would wait for a reader)
+        let fifo = dir.join("fifo");
+        if std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .is_ok_and(|s| s.success())
+        {
+            assert!(check_writable("--out", &fifo).is_ok());
+            std::fs::remove_file(&fifo).unwrap();
+        }
         // the probe: writable paths pass and leave nothing; others name the flag
         assert!(check_writable("--out", &dir.join("new.csv")).is_ok());
         assert!(!dir.join("new.csv").exists());

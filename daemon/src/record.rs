@@ -438,7 +438,7 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
     let stopped_by = match &result {
         Ok(()) => String::new(),
         Err(e) => format!(
-            "; cut short after {:.1} s by an error ({e}): the files hold what was written before it",
+            "; ended after {:.1} s by an error ({e}): the files hold what was written before it",
             t0.elapsed().as_secs_f64()
         ),
     };

@@ -82,6 +82,11 @@ fn a_negative_number_is_the_flags_value_and_its_error_names_the_flag() {
             &["run", "--fifo-priority", "100"][..],
             "'100' for '--fifo-priority",
         ),
+        (
+            env!("CARGO_BIN_EXE_vlsyncd"),
+            &["run", "--fifo-priority", "-1"][..],
+            "'-1' for '--fifo-priority",
+        ),
     ] {
         let (code, _, err) = run(bin, args);
         assert_ne!(code, 0, "{bin} {args:?}");
@@ -319,7 +324,7 @@ fn a_recording_cut_short_by_a_write_error_says_so() {
     assert_eq!(code, 2, "{err}");
     let path = dir.join("est.csv");
     assert!(
-        err.contains("cut short after")
+        err.contains("ended after")
             && err.contains(&format!(
                 "cannot write {}: No space left on device",
                 path.display()

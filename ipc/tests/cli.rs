@@ -25,7 +25,9 @@ fn echo_has_help_and_rejects_an_unknown_argument() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
-        err.starts_with("vlsync-echo: error: --prefix: `services.prefix` = \"bad!!\" is invalid"),
+        err.starts_with(
+            "vlsync-echo: error: service prefix: `services.prefix` = \"bad!!\" is invalid"
+        ),
         "{err}"
     );
 }

@@ -219,6 +219,11 @@ fn run(a: Args) -> Result<bool, String> {
                 break;
             }
             s.poll(Duration::from_millis(200))?;
+            if s.check_children() {
+                // the daemon died: the sessions left cannot run without it
+                interrupted = true;
+                break;
+            }
             if s.drivers_done() {
                 // the last hops follow the drivers' last samples shortly
                 s.poll(Duration::from_millis(300))?;
@@ -378,6 +383,12 @@ fn run(a: Args) -> Result<bool, String> {
     let mut failed = vec![];
     if interrupted {
         failed.push("interrupted".to_string());
+    }
+    for f in &s.failures {
+        failed.push(format!("ended with a failure: {f}"));
+    }
+    if !clean && s.failures.is_empty() {
+        failed.push("a child needed SIGKILL to stop".to_string());
     }
     if never > 0 {
         failed.push(format!("{never} sessions never locked"));

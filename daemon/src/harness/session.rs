@@ -500,6 +500,14 @@ impl Session {
     /// recorder) that has ended on its own with a failure since it started; returns
     /// whether the daemon is among them (the run cannot go on without it).
     pub fn check_children(&mut self) -> bool {
+        self.note_failures(false)
+    }
+
+    /// [`Session::check_children`]; `stopped`: the children were just stopped, so a
+    /// signal that ended one was ours (a stop that needed SIGKILL is counted as such)
+    /// and only an exit status other than 0 is a failure (a recorder whose last
+    /// flush failed exits 2 on SIGINT).
+    fn note_failures(&mut self, stopped: bool) -> bool {
         let logs = [
             self.log_dir.join("vlsyncd.log"),
             self.log_dir.join(format!("vlsync-cam{}.log", self.suffix)),
@@ -509,15 +517,21 @@ impl Session {
         ];
         let names = ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsyncd record"];
         let mut found: Vec<(usize, String)> = vec![];
+        let counts = |f: &String| !stopped || f.starts_with("exit status");
         for (i, m) in self.procs.iter_mut().enumerate() {
             if !self.failure_noted[i] {
-                if let Some(f) = m.failure() {
+                if let Some(f) = m.failure().filter(counts) {
                     found.push((i, f));
                 }
             }
         }
         if !self.failure_noted[3] {
-            if let Some(f) = self.recorder.as_mut().and_then(Managed::failure) {
+            if let Some(f) = self
+                .recorder
+                .as_mut()
+                .and_then(Managed::failure)
+                .filter(counts)
+            {
                 found.push((3, f));
             }
         }
@@ -636,10 +650,12 @@ impl Session {
             .as_mut()
             .is_none_or(|r| r.stop(Duration::from_secs(6)));
         let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
+        self.note_failures(true);
         Ok(clean_drivers.iter().all(|c| *c)
             && clean_daemon
             && clean_recorder
-            && self.replaced_clean)
+            && self.replaced_clean
+            && self.failures.is_empty())
     }
 
     /// The truth of this run: the known model, or the measured one from the

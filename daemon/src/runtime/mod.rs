@@ -149,7 +149,7 @@ pub struct RunArgs {
     /// SCHED_FIFO priority of the real-time thread, 0-99 (0: the normal scheduler);
     /// overrides `daemon.fifo_priority` of the configuration. Where the system refuses
     /// it, the daemon says so and runs.
-    #[arg(long, value_parser = clap::value_parser!(i64).range(0..=99))]
+    #[arg(long, allow_negative_numbers = true, value_parser = clap::value_parser!(i64).range(0..=99))]
     pub fifo_priority: Option<i64>,
 }
 

@@ -146,6 +146,7 @@ fn run(args: &Args) -> Result<(), String> {
     let mut stale: Vec<String> = std::fs::read_dir(out)
         .map(|d| {
             d.flatten()
+                .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
                 .map(|e| e.file_name().to_string_lossy().into_owned())
                 .filter(|n| !files.iter().any(|f| f.0 == n) && !n.starts_with('.'))
                 .collect()
