@@ -112,7 +112,7 @@ impl ServiceNames {
             ..Default::default()
         };
         cfg.validate("--prefix")
-            .map_err(|e| IpcError::new("service prefix", e.message))?;
+            .map_err(|e| IpcError::new("service prefix (--prefix)", e.message))?;
         Ok(Self {
             prefix: prefix.to_string(),
         })

@@ -26,7 +26,7 @@ fn echo_has_help_and_rejects_an_unknown_argument() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
         err.starts_with(
-            "vlsync-echo: error: service prefix: `services.prefix` = \"bad!!\" is invalid"
+            "vlsync-echo: error: service prefix (--prefix): `services.prefix` = \"bad!!\" is invalid"
         ),
         "{err}"
     );
