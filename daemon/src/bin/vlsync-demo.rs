@@ -137,7 +137,8 @@ fn check_args(a: &Args) -> Result<(), String> {
         .map_err(|e| format!("{e} (or 0: no summary lines)"))?;
     }
     if let Some(p) = &a.plot {
-        check_plot_path(p)?;
+        // before the run, so that a typo does not cost it
+        vlsync_common::file::check_writable("--plot", p)?;
     }
     if let Some(dir) = &a.record {
         let files = vlsyncd::record::FILES.iter().chain([&TRUTH_FILE]);
@@ -150,12 +151,6 @@ fn check_args(a: &Args) -> Result<(), String> {
         }
     }
     Ok(())
-}
-
-/// A plot path the end of the run can write (checked before the run, so a typo
-/// does not cost the run).
-fn check_plot_path(p: &Path) -> Result<(), String> {
-    vlsync_common::file::check_writable("--plot", p)
 }
 
 /// Truth sampled every 50 ms over the run, for the plot.
@@ -214,14 +209,13 @@ fn run(a: Args) -> Result<(), String> {
         .session_options("vlsync-demo", source, Duration::from_millis(1500));
     options.record = a.record.clone();
     options.daemon_fifo_priority = daemon_fifo(&a);
-    // what the daemon was asked for: its configuration, with our priority
-    let daemon_cfg = match &a.procs.config {
-        Some(c) => vlsync_config::Config::load(c).map_err(|e| format!("--config: {e}"))?,
-        None => vlsync_config::Config::default(),
-    };
-    let asked_fifo = options
-        .daemon_fifo_priority
-        .unwrap_or(daemon_cfg.daemon.fifo_priority);
+    // what the daemon was asked for: the configuration `vlsyncd run` computes
+    let daemon_cfg = vlsyncd::runtime::load_config(&vlsyncd::runtime::RunArgs {
+        config: a.procs.config.clone(),
+        prefix: None,
+        fifo_priority: options.daemon_fifo_priority,
+    })
+    .map_err(|e| format!("--config: {e}"))?;
     let mut s = Session::start(options)?;
     out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
@@ -364,7 +358,7 @@ fn run(a: Args) -> Result<(), String> {
         "daemon's real-time thread: {}",
         describe_rt_thread(
             &s.daemon_rt,
-            asked_fifo,
+            daemon_cfg.daemon.fifo_priority,
             daemon_cfg.daemon.core,
             &s.log_dir.join("vlsyncd.log")
         )

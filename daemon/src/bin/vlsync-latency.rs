@@ -175,11 +175,12 @@ fn measure(
         return Err(format!("vlsyncd exited at start: {}", said.trim()));
     }
 
-    // what the daemon was asked for
-    let asked = match &a.config {
-        Some(c) => vlsync_config::Config::load(c).map_err(|e| format!("--config: {e}"))?,
-        None => vlsync_config::Config::default(),
-    }
+    // what the daemon was asked for: the configuration `vlsyncd run` computes
+    let asked = vlsyncd::runtime::load_config(&vlsyncd::runtime::RunArgs {
+        config: a.config.clone(),
+        ..Default::default()
+    })
+    .map_err(|e| format!("--config: {e}"))?
     .daemon;
 
     // ---- phase 1: 100x ----

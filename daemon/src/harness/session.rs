@@ -5,7 +5,7 @@
 
 use super::truth::{read_truth_csv, MeasuredTruth, TruthModel};
 use crate::runtime::procs::{
-    cpu_seconds, rss_kb, sibling_binary, thread_sched, Managed, ThreadSched,
+    cpu_seconds, describe_exit, rss_kb, sibling_binary, thread_sched, Managed, ThreadSched,
 };
 use crate::runtime::RT_THREAD_NAME;
 use std::path::{Path, PathBuf};
@@ -517,22 +517,15 @@ impl Session {
         ];
         let names = ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsyncd record"];
         let mut found: Vec<(usize, String)> = vec![];
-        let counts = |f: &String| !stopped || f.starts_with("exit status");
-        for (i, m) in self.procs.iter_mut().enumerate() {
-            if !self.failure_noted[i] {
-                if let Some(f) = m.failure().filter(counts) {
-                    found.push((i, f));
-                }
+        let counts = |st: &std::process::ExitStatus| !stopped || st.code().is_some();
+        let recorder = self.recorder.as_mut();
+        let children = self.procs.iter_mut().map(Some).chain([recorder]);
+        for (i, m) in children.enumerate() {
+            if self.failure_noted[i] {
+                continue;
             }
-        }
-        if !self.failure_noted[3] {
-            if let Some(f) = self
-                .recorder
-                .as_mut()
-                .and_then(Managed::failure)
-                .filter(counts)
-            {
-                found.push((3, f));
+            if let Some(st) = m.and_then(Managed::failed_status).filter(counts) {
+                found.push((i, describe_exit(st)));
             }
         }
         for (i, f) in found {

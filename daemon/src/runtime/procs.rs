@@ -142,8 +142,13 @@ impl Managed {
     /// How the process ended, when it ended on its own with a failure (`None`: still
     /// running, or exited with success): "exit status 3", "killed by signal 9 (SIGKILL)".
     pub fn failure(&mut self) -> Option<String> {
+        self.failed_status().map(describe_exit)
+    }
+
+    /// The exit status, when the process ended with a failure ([`Managed::failure`]).
+    pub fn failed_status(&mut self) -> Option<std::process::ExitStatus> {
         match self.child.try_wait() {
-            Ok(Some(st)) if !st.success() => Some(describe_exit(st)),
+            Ok(Some(st)) if !st.success() => Some(st),
             _ => None,
         }
     }
