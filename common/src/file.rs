@@ -204,7 +204,8 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 /// Writes `contents` to `path` so that a failure leaves no partial file: into a
 /// temporary file beside it, renamed over it once complete (an error removes the
 /// temporary file and leaves an earlier `path` as it was). A file written over keeps
-/// its permissions; a symlink's target is written, not the link. A path that exists
+/// its permissions, owner and group (written in place when its owner cannot be kept);
+/// a symlink's target is written, not the link. A path that exists
 /// and is not a regular file (a device such as `/dev/stdout`, a pipe) is written
 /// directly, and so is an existing file in a directory where no temporary file can
 /// be created (it is writable, its directory is not). Errors name `path`.
@@ -240,6 +241,20 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
         }
         Err(e) => return Err(say(e)),
     };
+    // a file written over keeps its owner and group; where they cannot be kept (another
+    // user's file, written by a user who may not give files away), it is written in
+    // place, as its own permissions allow, rather than replaced by one of ours
+    if let Some(m) = &existing {
+        if let Err(e) = keep_owner(&f, m) {
+            drop(f);
+            let _ = std::fs::remove_file(&tmp);
+            return if e.kind() == io::ErrorKind::PermissionDenied {
+                std::fs::write(&target, contents).map_err(say)
+            } else {
+                Err(say(e))
+            };
+        }
+    }
     let written = (|| {
         if let Some(m) = &existing {
             f.set_permissions(m.permissions())?;
@@ -253,6 +268,17 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
         let _ = std::fs::remove_file(&tmp);
         say(e)
     })
+}
+
+/// Gives `f` the owner and group of `was` where they differ (a no-op for one's own
+/// files; root replacing another user's file keeps it theirs).
+fn keep_owner(f: &File, was: &std::fs::Metadata) -> io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let now = f.metadata()?;
+    if (now.uid(), now.gid()) == (was.uid(), was.gid()) {
+        return Ok(());
+    }
+    std::os::unix::fs::fchown(f, Some(was.uid()), Some(was.gid()))
 }
 
 /// `p`'s directory made canonical, joined with its file name.
@@ -280,6 +306,17 @@ mod tests {
         write_atomically(&p, b"older\n").unwrap();
         let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o600);
+        // another user's file, written over by root, stays theirs (the suite runs as
+        // root in CI; a user who may not give files away writes such a file in place)
+        use std::os::unix::fs::MetadataExt;
+        if std::fs::metadata(&p).unwrap().uid() == 0 {
+            std::os::unix::fs::chown(&p, Some(65534), Some(65534)).unwrap();
+            write_atomically(&p, b"theirs\n").unwrap();
+            let m = std::fs::metadata(&p).unwrap();
+            assert_eq!((m.uid(), m.gid(), m.mode() & 0o777), (65534, 65534, 0o600));
+            assert_eq!(std::fs::read_to_string(&p).unwrap(), "theirs\n");
+            std::os::unix::fs::chown(&p, Some(0), Some(0)).unwrap();
+        }
         // through a symlink: the file it names is replaced, the link stays
         let link = dir.join("link.csv");
         std::os::unix::fs::symlink(&p, &link).unwrap();
