@@ -73,6 +73,9 @@ struct Args {
     /// est.csv), with the truth (truth.csv), for `vlsyncd replay --truth --compare`.
     #[arg(long)]
     record: Option<PathBuf>,
+    /// With `--record`: write over a recording already in that directory.
+    #[arg(long, requires = "record")]
+    force: bool,
 }
 
 /// The daemon's SCHED_FIFO priority when neither --fifo nor --config is given: the
@@ -140,11 +143,11 @@ fn check_args(a: &Args) -> Result<(), String> {
         // before the run, so that a typo does not cost it
         vlsync_common::file::check_writable("--plot", p)?;
     }
-    if let Some(dir) = &a.record {
+    if let Some(dir) = a.record.as_ref().filter(|_| !a.force) {
         let files = vlsyncd::record::FILES.iter().chain([&TRUTH_FILE]);
         if let Some(f) = files.map(|f| dir.join(f)).find(|f| f.exists()) {
             return Err(format!(
-                "--record {}: {} exists: refusing to overwrite a recording (give another directory, or remove it first)",
+                "--record {}: {} exists: refusing to overwrite a recording (give another directory, or --force)",
                 dir.display(),
                 f.display()
             ));
@@ -208,6 +211,7 @@ fn run(a: Args) -> Result<(), String> {
         .procs
         .session_options("vlsync-demo", source, Duration::from_millis(1500));
     options.record = a.record.clone();
+    options.record_force = a.force;
     options.daemon_fifo_priority = daemon_fifo(&a);
     // what the daemon was asked for: the configuration `vlsyncd run` computes
     let daemon_cfg = vlsyncd::runtime::load_config(&vlsyncd::runtime::RunArgs {
@@ -471,11 +475,15 @@ mod tests {
             let e = check_args(&args(&["--record", d])).unwrap_err();
             assert!(
                 e.starts_with("--record ")
-                    && e.ends_with(&format!("{f} exists: refusing to overwrite a recording (give another directory, or remove it first)")),
+                    && e.ends_with(&format!("{f} exists: refusing to overwrite a recording (give another directory, or --force)")),
                 "{e}"
             );
+            // --force writes over it
+            assert!(check_args(&args(&["--record", d, "--force"])).is_ok());
             std::fs::remove_file(dir.join(f)).unwrap();
         }
+        // --force alone is refused: it goes with --record
+        assert!(Args::try_parse_from(["vlsync-demo", "--force"]).is_err());
         let _ = std::fs::remove_dir_all(&dir);
     }
 

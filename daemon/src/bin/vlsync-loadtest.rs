@@ -257,6 +257,7 @@ fn run(a: &Args) -> Result<bool, String> {
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),
         record: None,
+        record_force: false,
     })?;
     let rt = rt_lines(&session.log("vlsyncd.log"));
     for l in &rt {

@@ -182,6 +182,8 @@ pub struct SessionOptions {
     /// Also run `vlsyncd record` into this directory, from before the drivers start
     /// until the daemon has taken their last sample.
     pub record: Option<PathBuf>,
+    /// The recorder may write over a recording already in `record` (its `--force`).
+    pub record_force: bool,
 }
 
 /// The command-line options the live runs share: the daemon's configuration,
@@ -216,6 +218,7 @@ impl ProcessArgs {
             source,
             start_delay,
             record: None,
+            record_force: false,
         }
     }
 }
@@ -400,7 +403,13 @@ impl Session {
         // the daemon serves)
         let daemon_rt = thread_sched(daemon.pid(), RT_THREAD_NAME);
         let recorder = match &o.record {
-            Some(dir) => Some(spawn_recorder(&daemon_bin, &prefix, dir, &log_dir)?),
+            Some(dir) => Some(spawn_recorder(
+                &daemon_bin,
+                &prefix,
+                dir,
+                o.record_force,
+                &log_dir,
+            )?),
             None => None,
         };
         let start_at = monotonic_ns() + o.start_delay.as_nanos() as Nanos;
@@ -706,9 +715,15 @@ pub const RECORDER_LOG: &str = "vlsyncd-record.log";
 
 /// Starts `vlsyncd record` into `dir` and waits (up to [`DAEMON_READY_WAIT`]) until it
 /// has subscribed, so that it sees the drivers' first samples.
-fn spawn_recorder(bin: &Path, prefix: &str, dir: &Path, log_dir: &Path) -> Result<Managed, String> {
+fn spawn_recorder(
+    bin: &Path,
+    prefix: &str,
+    dir: &Path,
+    force: bool,
+    log_dir: &Path,
+) -> Result<Managed, String> {
     let log = log_dir.join(RECORDER_LOG);
-    let args = [
+    let mut args = [
         "record",
         "--prefix",
         prefix,
@@ -717,7 +732,11 @@ fn spawn_recorder(bin: &Path, prefix: &str, dir: &Path, log_dir: &Path) -> Resul
         "--progress-every",
         "0",
     ]
-    .map(String::from);
+    .map(String::from)
+    .to_vec();
+    if force {
+        args.push("--force".into());
+    }
     let mut r = Managed::spawn("vlsyncd record", bin, &args, Some(&log))?;
     match r.wait_for_log(&log, "Ctrl-C stops", DAEMON_READY_WAIT) {
         Err(text) => Err(format!("vlsyncd record exited at start:\n{text}")),
@@ -848,6 +867,7 @@ mod tests {
             },
             start_delay: Duration::from_secs(1),
             record: None,
+            record_force: false,
         })
         .err()
         .expect("a bad prefix starts no session");
@@ -992,6 +1012,7 @@ mod tests {
             source,
             start_delay: Duration::ZERO,
             record: None,
+            record_force: false,
         };
         let e = Session::start(opts(sim, "/nonexistent/vlsync.toml"))
             .err()
