@@ -45,8 +45,9 @@ enum Cmd {
         #[arg(long)]
         compare: Option<PathBuf>,
         /// How the two files are merged: `publish` in the order the daemon read them
-        /// (the `publish` column `vlsyncd record` writes), `stamp` by their stamps, `auto`
-        /// by publish time when both files carry it.
+        /// (the `publish` column `vlsyncd record` writes), `stamp` by their stamps (the
+        /// camera's moved by `estimator.lag_center_s`), `auto` by publish time when both
+        /// files carry it.
         #[arg(long, value_enum, default_value_t)]
         order: vlsyncd::replay::OrderArg,
     },

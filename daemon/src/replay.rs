@@ -19,8 +19,10 @@ pub fn run_estimator(
 /// The order in which the two streams are pushed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Order<'a> {
-    /// By stamp, the camera's sample first on a tie: as the samples would have
-    /// arrived if both clocks ran on.
+    /// By stamp, the camera's moved onto the LiDAR clock by the configuration's prior
+    /// (`lag_center_s`), the camera's sample first on a tie: as the samples would have
+    /// arrived if both clocks ran on. (Merged by their raw stamps, clocks seconds
+    /// apart would look like a stalled stream to the estimator.)
     Stamp,
     /// By each sample's publish time (camera, LiDAR; one per sample, as `vlsyncd
     /// record` writes them), the camera's first on a tie: the order the daemon read
@@ -60,10 +62,14 @@ fn run_merged(
     changes: &[Nanos],
     hint_std_s: Option<f64>,
 ) -> (Vec<Estimate>, EstimatorStats) {
-    // a sample's merge key: its stamp, or its publish time (the stamp for a sample
-    // without one, which the command line never hands in)
-    let key = |s: &[Sample], k: usize, publish: Option<&[Nanos]>| {
-        publish.and_then(|p| p.get(k).copied()).unwrap_or(s[k].t_ns)
+    // a sample's merge key: its publish time, or its stamp on the LiDAR clock (the
+    // camera's moved by the prior offset; also for a sample without a publish time,
+    // which the command line never hands in)
+    let prior = (cfg.lag_center_s * 1e9).round() as Nanos;
+    let key = |s: &[Sample], k: usize, publish: Option<&[Nanos]>, shift: Nanos| {
+        publish
+            .and_then(|p| p.get(k).copied())
+            .unwrap_or(s[k].t_ns.saturating_add(shift))
     };
     let (pub_cam, pub_lidar) = match order {
         Order::Stamp => (None, None),
@@ -73,8 +79,8 @@ fn run_merged(
     let mut out = Vec::with_capacity(lidar.len() / 2 + 16);
     let (mut i, mut j, mut c) = (0, 0, 0);
     while i < cam.len() || j < lidar.len() {
-        let take_cam =
-            j >= lidar.len() || (i < cam.len() && key(cam, i, pub_cam) <= key(lidar, j, pub_lidar));
+        let take_cam = j >= lidar.len()
+            || (i < cam.len() && key(cam, i, pub_cam, prior) <= key(lidar, j, pub_lidar, 0));
         let r = if take_cam {
             i += 1;
             est.push(Stream::Cam, cam[i - 1])
@@ -441,6 +447,46 @@ mod tests {
             peak_ratio: 2.0,
             measured_offset_s: f64::NAN,
         }
+    }
+
+    #[test]
+    fn clocks_seconds_apart_are_merged_by_the_prior_and_lock() {
+        // a robot run whose camera clock is 5 s behind the LiDAR's (offset +5 s),
+        // with the prior set to it: merged by raw stamps, every camera sample came
+        // 5 s early and the estimator took the LiDAR for stalled (no lock at all)
+        let run =
+            vlsync_sim::families::generate(vlsync_sim::families::Family::Robot, 3, Some(60.0));
+        let shift = 5_000_000_000;
+        let cam: Vec<_> = run
+            .cam
+            .iter()
+            .map(|s| vlsync_common::Sample {
+                t_ns: s.t_ns - shift,
+                ..*s
+            })
+            .collect();
+        let cfg = vlsync_config::EstimatorConfig {
+            lag_center_s: 5.0,
+            ..Default::default()
+        };
+        let (ests, _) = super::run_estimator(&cfg, &cam, &run.lidar);
+        let tracking: Vec<_> = ests
+            .iter()
+            .filter(|e| e.state == EstimatorState::Tracking)
+            .collect();
+        assert!(
+            tracking.len() > ests.len() / 2,
+            "{} of {}",
+            tracking.len(),
+            ests.len()
+        );
+        let last = tracking.last().unwrap();
+        let truth = run.truth.offset_at(last.t_ref_ns) + 5.0;
+        assert!(
+            (last.offset_s - truth).abs() < 0.01,
+            "{} vs {truth}",
+            last.offset_s
+        );
     }
 
     #[test]
