@@ -567,6 +567,9 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         Some(Progress {
             every: PROGRESS_EVERY,
             report: &mut report,
+            notice: &mut |line| {
+                vlsync_common::console::print_err(&format!("vlsync-{stream}: {line}\n"))
+            },
         }),
     );
     if let Some(r) = source.report() {
@@ -635,10 +638,16 @@ pub fn main(stream: Stream) -> ExitCode {
     match run_driver(stream, &args) {
         Ok(s) => {
             vlsync_common::console::print_err(&format!(
-                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}{}\n",
+                "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}{}{}\n",
                 s.published,
                 s.skipped,
                 s.failed,
+                when_any(s.steps_back, |n| {
+                    format!(
+                    "; {n} stamp step(s) back by more than {} s: pacing went on in real time from each",
+                    crate::STEP_BACK_NS / 1_000_000_000
+                )
+                }),
                 when_any(s.unreached, |n| format!(
                     "; {n} reached no subscriber (no daemon running on this prefix then)"
                 )),

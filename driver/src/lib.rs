@@ -255,6 +255,10 @@ pub struct RunSummary {
     /// Published samples whose wake-up of the daemon failed: it read them at its next
     /// periodic wake-up, up to 0.1 s late.
     pub unwoken: u64,
+    /// Stamps that stepped back by more than [`STEP_BACK_NS`] (a restarted sensor,
+    /// concatenated recordings): real-time pacing went on from the previous sample's
+    /// instant instead of publishing everything up to the old stamps at once.
+    pub steps_back: u64,
 }
 
 /// A progress report of a long run: every `every`, [`run`] calls `report` with the
@@ -265,6 +269,10 @@ pub struct Progress<'a> {
     pub every: Duration,
     /// Called with the totals so far and the source's report.
     pub report: &'a mut dyn FnMut(&RunSummary, Option<String>),
+    /// Called once for each sample real-time pacing waits longer than
+    /// [`LONG_WAIT`] for after the previous one (the stamps jump ahead), with a
+    /// line that says so: a driver that falls silent for days should say why.
+    pub notice: &'a mut dyn FnMut(String),
 }
 
 /// A driver failure.
@@ -293,6 +301,58 @@ impl std::error::Error for DriverError {}
 /// Longest single sleep, so a stop request is seen within this.
 const MAX_SLEEP: Duration = Duration::from_millis(50);
 
+/// A stamp this far before the previous one is a clock step back, not jitter:
+/// real-time pacing restarts from the previous sample's instant.
+pub const STEP_BACK_NS: Nanos = 1_000_000_000;
+
+/// A wait this long between two samples under real-time pacing is noticed
+/// ([`Progress::notice`]): the stamps jump ahead (a clock step, a file of two
+/// recordings), or the sensor was silent that long.
+pub const LONG_WAIT: Duration = Duration::from_secs(10);
+
+/// When each sample of a real-time run is due on `CLOCK_MONOTONIC`: its stamp's
+/// distance from an anchor, scaled by the speed, after the start instant. A stamp
+/// that steps back by more than [`STEP_BACK_NS`] moves the anchor to itself at the
+/// previous sample's instant, so pacing goes on in real time (a step ahead is
+/// waited for: it may be a silence of the sensor, which the other stream's driver
+/// does not share).
+#[derive(Debug, Clone, Copy)]
+struct Pacer {
+    speed: f64,
+    anchor_ns: Nanos,
+    start_ns: Nanos,
+    prev: Option<(Nanos, Nanos)>,
+}
+
+impl Pacer {
+    /// The instant sample `t_ns` is due, and whether its stamp stepped back.
+    fn due(&mut self, t_ns: Nanos) -> (Nanos, bool) {
+        let mut stepped = false;
+        if let Some((t, due)) = self.prev {
+            if t.saturating_sub(t_ns) > STEP_BACK_NS {
+                (self.anchor_ns, self.start_ns) = (t_ns, due);
+                stepped = true;
+            }
+        }
+        let due = self
+            .start_ns
+            .saturating_add((t_ns.saturating_sub(self.anchor_ns) as f64 / self.speed) as i64);
+        self.prev = Some((t_ns, due));
+        (due, stepped)
+    }
+}
+
+/// A wait as a person reads it: seconds, minutes, hours or days.
+fn wait_text(ns: Nanos) -> String {
+    let s = vlsync_common::nanos_to_secs(ns);
+    match s {
+        s if s < 120.0 => format!("{s:.1} s"),
+        s if s < 7200.0 => format!("{:.1} min", s / 60.0),
+        s if s < 172_800.0 => format!("{:.1} h", s / 3600.0),
+        s => format!("{:.1} days", s / 86_400.0),
+    }
+}
+
 /// Publishes every sample of `source` with `pacing` until it ends or `stop()`
 /// returns true. Publish failures are counted, not fatal (the daemon may be
 /// restarting); more than `max_consecutive_failures` in a row is an error.
@@ -307,7 +367,7 @@ pub fn run(
 ) -> Result<RunSummary, DriverError> {
     const MAX_CONSECUTIVE_FAILURES: u64 = 1000;
     let started = monotonic_ns();
-    let (speed, anchor, start) = match pacing {
+    let (mut pacer, start) = match pacing {
         Pacing::Scaled {
             speed,
             anchor_ns,
@@ -318,9 +378,16 @@ pub fn run(
                     "speed {speed} must be a finite number > 0"
                 )));
             }
-            (Some(speed), anchor_ns, start_mono_ns.unwrap_or(started))
+            let start_ns = start_mono_ns.unwrap_or(started);
+            let pacer = Pacer {
+                speed,
+                anchor_ns,
+                start_ns,
+                prev: None,
+            };
+            (Some(pacer), start_ns)
         }
-        Pacing::Fast => (None, 0, started),
+        Pacing::Fast => (None, started),
     };
     let mut sum = RunSummary::default();
     let mut consecutive = 0u64;
@@ -339,12 +406,25 @@ pub fn run(
             sum.interrupted = true;
             return Ok(sum);
         }
-        if let Some(speed) = speed {
-            let due = start.saturating_add(((s.t_ns.saturating_sub(anchor)) as f64 / speed) as i64);
+        if let Some(pacer) = pacer.as_mut() {
+            let prev = pacer.prev;
+            let (due, stepped) = pacer.due(s.t_ns);
+            sum.steps_back += u64::from(stepped);
             if due < started && start < started {
                 // restarted mid-run: this sample belongs to the past
                 sum.skipped += 1;
                 continue;
+            }
+            if let (Some(p), Some((prev_t, prev_due))) = (progress.as_mut(), prev) {
+                let wait = due.saturating_sub(prev_due.max(monotonic_ns()));
+                if wait > LONG_WAIT.as_nanos() as Nanos {
+                    (p.notice)(format!(
+                        "the next sample (stamp {:.3} s, {:.3} s after the previous one's) is due in {}; pacing waits for it in real time (--fast publishes without pacing)",
+                        vlsync_common::nanos_to_secs(s.t_ns),
+                        vlsync_common::nanos_to_secs(s.t_ns.saturating_sub(prev_t)),
+                        wait_text(wait),
+                    ));
+                }
             }
             loop {
                 let now = monotonic_ns();
@@ -417,7 +497,7 @@ mod tests {
         samples: Vec<Sample>,
         tag: &str,
     ) -> (RunSummary, Vec<SignatureSample>, Duration) {
-        publish_run_reporting(pacing, samples, tag, None)
+        publish_run_reporting(pacing, samples, tag, None, &|| false)
     }
 
     /// [`publish_run`] with a progress report.
@@ -426,6 +506,7 @@ mod tests {
         samples: Vec<Sample>,
         tag: &str,
         progress: Option<Progress<'_>>,
+        stop: &dyn Fn() -> bool,
     ) -> (RunSummary, Vec<SignatureSample>, Duration) {
         let names =
             ServiceNames::new(&format!("vlsync-test/driver-{tag}-{}", std::process::id())).unwrap();
@@ -440,13 +521,80 @@ mod tests {
         let mut p = SignaturePublisher::open(&node, &names, Stream::Cam).unwrap();
         let mut src = VecSource::new(samples, "test");
         let t0 = std::time::Instant::now();
-        let sum = run(&mut src, &mut p, pacing, &|| false, None, progress).unwrap();
+        let sum = run(&mut src, &mut p, pacing, stop, None, progress).unwrap();
         let el = t0.elapsed();
         let mut got = vec![];
         while let Some(s) = sub.receive().unwrap() {
             got.push(*s.payload());
         }
         (sum, got, el)
+    }
+
+    const S: Nanos = 1_000_000_000;
+
+    #[test]
+    fn pacing_goes_on_in_real_time_across_a_stamp_step_back() {
+        let mut p = Pacer {
+            speed: 2.0,
+            anchor_ns: 1000 * S,
+            start_ns: 5 * S,
+            prev: None,
+        };
+        // 1000.0, 1000.2 s, then the sensor restarts at 16 s: due 5.0, 5.1, 5.1, 5.2 s
+        let got: Vec<_> = [1000 * S, 1000 * S + S / 5, 16 * S, 16 * S + S / 5]
+            .map(|t| p.due(t))
+            .to_vec();
+        let want = [
+            (5 * S, false),
+            (5 * S + S / 10, false),
+            (5 * S + S / 10, true),
+            (5 * S + S / 5, false),
+        ];
+        assert_eq!(got, want);
+        // a step back within a second (jitter, a reordered sample) keeps the anchor:
+        // it is due at once, and the pacing after it is as before
+        assert_eq!(p.due(16 * S - S / 2), (4 * S + 85 * S / 100, false));
+        assert_eq!(p.due(16 * S + S / 2), (5 * S + 35 * S / 100, false));
+        // a step ahead is waited for
+        assert_eq!(p.due(1016 * S + S / 2), (505 * S + 35 * S / 100, false));
+    }
+
+    #[test]
+    fn a_long_wait_for_a_stamp_far_ahead_is_noticed() {
+        // two samples, then one stamped 11.6 days later: the driver says why it is silent
+        use std::cell::RefCell;
+        let samples = vec![
+            Sample::new(0, 0.0),
+            Sample::new(S / 10, 1.0),
+            Sample::new(1_000_000 * S, 2.0),
+        ];
+        let lines = RefCell::new(vec![]);
+        let mut report = |_: &RunSummary, _: Option<String>| {};
+        let mut notice = |l: String| lines.borrow_mut().push(l);
+        let progress = Progress {
+            every: Duration::from_secs(3600),
+            report: &mut report,
+            notice: &mut notice,
+        };
+        let pacing = Pacing::Scaled {
+            speed: 1.0,
+            anchor_ns: 0,
+            start_mono_ns: None,
+        };
+        // (and after 5 s, so that a missing notice fails the test instead of hanging it)
+        let t0 = std::time::Instant::now();
+        let stop = || !lines.borrow().is_empty() || t0.elapsed() > Duration::from_secs(5);
+        let (sum, got, el) =
+            publish_run_reporting(pacing, samples, "long-wait", Some(progress), &stop);
+        assert_eq!((got.len(), sum.interrupted), (2, true));
+        assert!(el < Duration::from_secs(5), "{el:?}");
+        let lines = lines.into_inner();
+        assert_eq!(lines.len(), 1);
+        assert!(
+            lines[0].starts_with("the next sample (stamp 1000000.000 s, 999999.900 s after the previous one's) is due in 11.6 days;"),
+            "{}",
+            lines[0]
+        );
     }
 
     #[test]
@@ -457,9 +605,10 @@ mod tests {
         let progress = Progress {
             every: Duration::ZERO,
             report: &mut report,
+            notice: &mut |_| {},
         };
         let (sum, got, _) =
-            publish_run_reporting(Pacing::Fast, samples, "progress", Some(progress));
+            publish_run_reporting(Pacing::Fast, samples, "progress", Some(progress), &|| false);
         assert_eq!(got.len(), 5);
         assert_eq!(sum.published, 5);
         // before each sample after the first: the totals published so far

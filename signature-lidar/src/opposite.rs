@@ -69,7 +69,9 @@ impl OppositeWindows {
 
     /// Feeds `scan` to both windows; `emit` gets their samples (the one behind
     /// negated) in increasing time, each after the last one emitted (a sample that
-    /// is not is dropped and counted). Returns the number emitted.
+    /// is not is dropped and counted, unless the clock stepped back by more than
+    /// `max_gap_ns`: the stream then restarts, as each window does). Returns the
+    /// number emitted.
     pub fn push_scan(&mut self, scan: &Scan, mut emit: impl FnMut(Sample)) -> usize {
         let mut buf = [Sample::new(0, 0.0); 2 * PER_SCAN];
         let mut n = 0;
@@ -88,10 +90,17 @@ impl OppositeWindows {
         self.out_of_order += over;
         buf[..n].sort_unstable_by_key(|s| s.t_ns);
         let mut emitted = 0;
+        let max_gap = self.ahead.config().max_gap_ns;
         for s in &buf[..n] {
-            if self.last_t.is_some_and(|l| s.t_ns <= l) {
-                self.out_of_order += 1;
-                continue;
+            if let Some(l) = self.last_t.filter(|l| s.t_ns <= *l) {
+                // a step back beyond the gap limit is the clock's (a restarted sensor,
+                // concatenated recordings): both windows restarted on it, and so does
+                // the merge, instead of dropping everything until time passes the old
+                // stamps
+                if l.saturating_sub(s.t_ns) <= max_gap {
+                    self.out_of_order += 1;
+                    continue;
+                }
             }
             self.last_t = Some(s.t_ns);
             emit(*s);
@@ -158,5 +167,69 @@ impl WallFront {
             Self::One(_) => None,
             Self::Two(w) => Some(w),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scan::{Ray, Rotation, ScanTiming};
+
+    /// A scan of a corridor (2 m ahead, 3 m behind at `x = 0`) at position `x`, from
+    /// `start_ns`: 360 rays counter-clockwise from the front, 10 Hz.
+    fn corridor(x: f64, start_ns: Nanos) -> Scan {
+        let rays = (0..360)
+            .map(|i| {
+                let c = (i as f64).to_radians().cos();
+                let r = if c > 0.3 {
+                    (2.0 - x) / c
+                } else if c < -0.3 {
+                    -(3.0 + x) / c
+                } else {
+                    0.0
+                };
+                Ray::new((i as f64).to_radians(), r, 50.0, r > 0.0)
+            })
+            .collect();
+        let timing = ScanTiming {
+            start_ns,
+            period_ns: 100_000_000,
+            rotation: Rotation::Ccw,
+            start_bearing_rad: 0.0,
+        };
+        Scan::from_uniform(timing, rays)
+    }
+
+    #[test]
+    fn a_clock_step_back_restarts_the_merged_stream() {
+        // scans at 1000 s, then the sensor restarts at 16 s (or the next recording of
+        // a concatenation begins): the stream goes on from there
+        let mut w = OppositeWindows::new(SignatureConfig::default()).unwrap();
+        let mut out = Vec::new();
+        for k in 0..10 {
+            w.push_scan(
+                &corridor(0.05 * k as f64, 1_000_000_000_000 + k * 100_000_000),
+                |s| out.push(s),
+            );
+        }
+        let before = out.len();
+        assert!(before >= 10, "{before}");
+        for k in 0..10 {
+            w.push_scan(
+                &corridor(0.05 * k as f64, 16_000_000_000 + k * 100_000_000),
+                |s| out.push(s),
+            );
+        }
+        let after = &out[before..];
+        assert!(after.len() >= 10, "{} after the step", after.len());
+        assert!(after
+            .iter()
+            .all(|s| s.t_ns < 20_000_000_000 && (s.value + 0.5).abs() < 0.01));
+        assert!(after.windows(2).all(|p| p[0].t_ns < p[1].t_ns));
+        // a small step back (within the gap limit) is no restart: nothing at or
+        // before the last sample is emitted
+        let (n, last) = (out.len(), out.last().unwrap().t_ns);
+        w.push_scan(&corridor(0.5, last - 150_000_000), |s| out.push(s));
+        assert!(out[n..].iter().all(|s| s.t_ns > last), "{:?}", &out[n..]);
     }
 }
