@@ -201,7 +201,8 @@ pub(crate) fn decode_chunk(
 fn declared_within(uncompressed_size: u64, limit: usize, by: &str) -> Result<u64, ChunkError> {
     if uncompressed_size > limit as u64 {
         return Err(ChunkError::Corrupt(format!(
-            "{by} declares {uncompressed_size} uncompressed bytes, over the limit of {limit}"
+            "{by} declares {uncompressed_size} uncompressed bytes, over the limit of {limit} \
+             a record may have here (vlsync_mcap::ReaderOptions::max_record_bytes)"
         )));
     }
     Ok(uncompressed_size)
@@ -421,7 +422,9 @@ mod tests {
                 (
                     n,
                     100,
-                    "BY declares 5000 uncompressed bytes, over the limit of 100".to_string(),
+                    "BY declares 5000 uncompressed bytes, over the limit of 100 a record may have \
+                     here (vlsync_mcap::ReaderOptions::max_record_bytes)"
+                        .to_string(),
                 ),
             ] {
                 assert_eq!(

@@ -21,8 +21,9 @@
 //!
 //! `CompressedImage`: PNG and JPEG, recognised by their signature bytes (the
 //! `format` field, e.g. `bgr8; jpeg compressed bgr8`, is only used in error
-//! messages); `compressedDepth` and other codecs are errors. Decoding is bounded
-//! by [`ImageSourceOptions::max_pixels`].
+//! messages); `compressedDepth` and other codecs are errors. Both kinds are
+//! bounded by [`ImageSourceOptions::max_pixels`] (decoding also by bytes: 4 per
+//! pixel of that limit).
 //!
 //! Raw images allocate nothing per message after the first (buffers are
 //! reused); PNG/JPEG decoders allocate their own working memory per image.
@@ -56,7 +57,9 @@ pub struct ImageSourceOptions {
     pub stamp: StampSource,
     /// Reader limits.
     pub reader: ReaderOptions,
-    /// Largest decoded PNG/JPEG, pixels (default 64 Mpx).
+    /// Largest image, raw or decoded PNG/JPEG, pixels (default 64 Mpx); a decoded
+    /// image may take at most 4 bytes per pixel of that (16-bit or alpha images
+    /// accordingly fewer pixels).
     pub max_pixels: u64,
 }
 
@@ -176,7 +179,10 @@ impl McapImageSource {
         } else {
             Image::decode(msg.data)
                 .map_err(|e| e.to_string())
-                .and_then(|m| raw_to_gray(&m, gray).map(|wh| (wh, m.header.stamp.to_nanos())))
+                .and_then(|m| {
+                    within_pixels(m.width, m.height, *max_pixels)?;
+                    raw_to_gray(&m, gray).map(|wh| (wh, m.header.stamp.to_nanos()))
+                })
         };
         let fail = |reason: String| Error::Message {
             path: reader.path().to_path_buf(),
@@ -310,21 +316,42 @@ pub fn decode_compressed(
     }
 }
 
+/// Refuses an image of no pixels or of more than `max_pixels`.
+fn within_pixels(w: u32, h: u32, max_pixels: u64) -> Result<(), String> {
+    let pixels = u64::from(w) * u64::from(h);
+    if pixels == 0 || pixels > max_pixels {
+        return Err(format!(
+            "image {w}x{h} is empty or exceeds the limit of {max_pixels} pixels"
+        ));
+    }
+    Ok(())
+}
+
+/// Bytes a decoded image may take: 4 per pixel of the limit (an 8-bit RGBA image
+/// at the limit; 16-bit or alpha images accordingly fewer pixels).
+fn decoded_bytes_limit(max_pixels: u64) -> u64 {
+    max_pixels.saturating_mul(4)
+}
+
 fn decode_with(
     mut d: impl ImageDecoder,
     max_pixels: u64,
     gray: &mut Vec<u8>,
     scratch: &mut Vec<u8>,
 ) -> image::ImageResult<(usize, usize)> {
+    let other = |e: String| image::ImageError::IoError(std::io::Error::other(e));
     let (w, h) = d.dimensions();
-    let pixels = u64::from(w) * u64::from(h);
-    if pixels == 0 || pixels > max_pixels {
-        return Err(image::ImageError::IoError(std::io::Error::other(format!(
-            "image {w}x{h} is empty or exceeds the limit of {max_pixels} pixels"
-        ))));
+    within_pixels(w, h, max_pixels).map_err(other)?;
+    let bytes = decoded_bytes_limit(max_pixels);
+    if d.total_bytes() > bytes {
+        return Err(other(format!(
+            "image {w}x{h} ({:?}) decodes to {} bytes, over the limit of {bytes}",
+            d.color_type(),
+            d.total_bytes()
+        )));
     }
     let mut limits = image::Limits::default();
-    limits.max_alloc = Some(max_pixels.saturating_mul(8));
+    limits.max_alloc = Some(bytes);
     d.set_limits(limits)?;
     let (w, h) = (w as usize, h as usize);
     let total = usize::try_from(d.total_bytes()).unwrap_or(usize::MAX);
@@ -337,9 +364,10 @@ fn decode_with(
         ColorType::Rgb8 => PixelFormat::Rgb8,
         ColorType::Rgba8 => PixelFormat::Rgba8,
         _ => {
-            let img = image::DynamicImage::from_decoder(d)?.into_luma8();
-            gray.clear();
-            gray.extend_from_slice(img.as_raw());
+            // the gray image's own buffer becomes the frame's (no third copy)
+            *gray = image::DynamicImage::from_decoder(d)?
+                .into_luma8()
+                .into_raw();
             return Ok((w, h));
         }
     };
@@ -428,6 +456,39 @@ mod tests {
         };
         let e = decode_compressed(&tiff, 100, &mut gray, &mut scratch).unwrap_err();
         assert!(e.contains("`tiff`"), "{e}");
+    }
+
+    #[test]
+    fn a_decoded_image_is_bounded_by_bytes_too() {
+        // 16-bit RGBA, 4x2: 64 bytes decoded. A limit of 10 pixels allows 40 bytes:
+        // refused before decoding (such an image at the pixel limit took 8 bytes a
+        // pixel, twice over); at 16 pixels (64 bytes) it decodes to its luma
+        let px: Vec<u16> = (0..8)
+            .flat_map(|i| [i * 8000, i * 8000, i * 8000, 65535])
+            .collect();
+        let img = image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(4, 2, px).unwrap();
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        let m = CompressedImage {
+            header: Header::default(),
+            format: "png",
+            data: &png,
+        };
+        let (mut gray, mut scratch) = (Vec::new(), Vec::new());
+        let e = decode_compressed(&m, 10, &mut gray, &mut scratch).unwrap_err();
+        assert!(
+            e.contains("image 4x2 (Rgba16) decodes to 64 bytes, over the limit of 40"),
+            "{e}"
+        );
+        assert_eq!(
+            decode_compressed(&m, 16, &mut gray, &mut scratch),
+            Ok((4, 2))
+        );
+        let want: Vec<u8> = (0..8u32)
+            .map(|i| ((i * 8000) as f64 / 257.0).round() as u8)
+            .collect();
+        assert_eq!(gray, want);
     }
 
     #[test]

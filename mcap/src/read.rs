@@ -51,14 +51,17 @@ pub enum Select {
 /// Reader limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ReaderOptions {
-    /// Largest record (and decompressed chunk) accepted, bytes. Default 1 GiB.
+    /// Largest record (and decompressed chunk) accepted, bytes. Default 256 MiB:
+    /// recorders write chunks of a few MiB (a chunk holds at least one message, and a
+    /// raw 8K frame is about 100 MB), and a few KB of compressed chunk can declare
+    /// any size, which a robot's computer should not have to hold.
     pub max_record_bytes: usize,
 }
 
 impl Default for ReaderOptions {
     fn default() -> Self {
         Self {
-            max_record_bytes: 1 << 30,
+            max_record_bytes: 256 << 20,
         }
     }
 }

@@ -20,6 +20,8 @@
 //!   `[range_min, range_max]` (REP-117: ±Inf and NaN are not measurements;
 //!   drivers that mean "no return" by 0 are covered by "positive").
 //! * `intensities` may be empty (intensity 0) or have one value per range.
+//! * At most [`MAX_RAYS_PER_SCAN`] ranges per scan (a scanner gives a few
+//!   thousand); a longer scan is an error naming the message.
 //!
 //! With [`StampSource::LogTime`] the MCAP log time replaces `header.stamp` as
 //! the first ray's time.
@@ -34,6 +36,7 @@ use crate::image::StampSource;
 use crate::read::{McapReader, ReaderOptions, Select, TopicInfo};
 use std::path::Path;
 use vlsync_common::Nanos;
+use vlsync_signature_lidar::csv::MAX_RAYS_PER_SCAN;
 use vlsync_signature_lidar::scan::wrap_pi;
 use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
 
@@ -164,6 +167,12 @@ pub fn laser_scan_to_rays(
         }
     }
     let n = m.ranges.len();
+    if n > MAX_RAYS_PER_SCAN {
+        // each 4-byte range becomes a 32-byte ray: refused before any is made
+        return Err(format!(
+            "{n} ranges in one scan, more than the {MAX_RAYS_PER_SCAN} a scan may have"
+        ));
+    }
     if !m.intensities.is_empty() && m.intensities.len() != n {
         return Err(format!(
             "{} intensities for {n} ranges (must be 0 or one per range)",
@@ -229,6 +238,30 @@ mod tests {
     use super::*;
     use crate::cdr::{F32Seq, Header, Time};
     use proptest::prelude::*;
+
+    #[test]
+    fn a_scan_of_more_rays_than_any_scanner_gives_is_refused_before_any_is_made() {
+        let ranges = vec![1.0f32; MAX_RAYS_PER_SCAN + 1];
+        let m = LaserScan {
+            angle_increment: 0.001,
+            range_max: 12.0,
+            ranges: F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        };
+        let mut rays = Vec::new();
+        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
+        assert_eq!(
+            e,
+            "1048577 ranges in one scan, more than the 1048576 a scan may have"
+        );
+        assert_eq!(rays.capacity(), 0);
+        let m = LaserScan {
+            ranges: F32Seq::from_slice(&ranges[1..]),
+            ..m
+        };
+        assert!(laser_scan_to_rays(&m, 0, &mut rays).is_ok());
+        assert_eq!(rays.len(), MAX_RAYS_PER_SCAN);
+    }
 
     #[test]
     fn validity_times_and_direction() {

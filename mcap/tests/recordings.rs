@@ -104,6 +104,38 @@ fn images_round_trip_exactly() {
 }
 
 #[test]
+fn images_over_the_pixel_limit_are_refused_raw_and_compressed() {
+    // 64x48 = 3072 pixels against a limit of 3000: one frame's error naming the size
+    // (raw images were not bounded), before any buffer of that size is made
+    let tmp = Tmp::new("images-limit");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    w.write_image("/raw", 1, &frame(0, 64, 48)).unwrap();
+    w.write_image("/raw", 2, &frame(1, 32, 24)).unwrap();
+    w.write_compressed_png("/png", 1, &frame(0, 64, 48))
+        .unwrap();
+    w.write_compressed_png("/png", 2, &frame(1, 32, 24))
+        .unwrap();
+    w.finish().unwrap();
+    for topic in ["/raw", "/png"] {
+        let opts = ImageSourceOptions {
+            max_pixels: 3000,
+            ..ImageSourceOptions::topic(topic)
+        };
+        let mut src = McapImageSource::open(&tmp.0, opts).unwrap();
+        let e = src.next_frame().map(|_| ()).unwrap_err();
+        assert!(e.is_one_frame(), "{topic}: {e}");
+        let text = e.to_string();
+        assert!(
+            text.contains("image 64x48 is empty or exceeds the limit of 3000 pixels"),
+            "{topic}: {text}"
+        );
+        // the next frame is read
+        let (f, _) = src.next_frame().unwrap().unwrap();
+        assert_eq!(f, frame(1, 32, 24).view(), "{topic}");
+    }
+}
+
+#[test]
 fn scans_round_trip_exactly() {
     let tmp = Tmp::new("scans");
     let mut w = McapWriter::create(&tmp.0).unwrap();
@@ -655,7 +687,7 @@ fn a_compressed_chunk_with_a_wrong_crc_is_refused() {
 }
 
 /// A summary with two indexes of one chunk that disagree (the first, earliest in log
-/// time, declaring 1 GiB uncompressed) is refused at open: the size check must see
+/// time, declaring just under the 256 MiB limit uncompressed) is refused at open: the size check must see
 /// the index the reader uses.
 #[test]
 fn conflicting_indexes_of_one_chunk_are_refused() {
@@ -677,7 +709,7 @@ fn conflicting_indexes_of_one_chunk_are_refused() {
                 let mut liar = body.clone();
                 liar[..8].copy_from_slice(&0u64.to_le_bytes());
                 let n = liar.len();
-                liar[n - 8..].copy_from_slice(&((1u64 << 30) - 1).to_le_bytes());
+                liar[n - 8..].copy_from_slice(&((256u64 << 20) - 1).to_le_bytes());
                 out.push(0x08);
                 out.extend_from_slice(&(liar.len() as u64).to_le_bytes());
                 out.extend_from_slice(&liar);
@@ -701,7 +733,7 @@ fn conflicting_indexes_of_one_chunk_are_refused() {
             .to_string();
         assert!(
             e.contains("two indexes of the chunk at byte")
-                && e.contains("uncompressed size 1073741823 and"),
+                && e.contains("uncompressed size 268435455 and"),
             "{name}: {e}"
         );
     }
