@@ -711,6 +711,104 @@ fn unchanged(saved: &Estimate, new: &Estimate) -> bool {
         && new.offset_std_s >= SHRUNK_STD * saved.offset_std_s
 }
 
+/// A save that takes longer than this is logged: the storage stalls (an SD card
+/// collecting garbage under a recording's writes can hold an fsync for seconds).
+pub const SLOW_SAVE: Duration = Duration::from_secs(1);
+
+/// How long the daemon's stop waits for its last save.
+pub const FINAL_SAVE_WAIT: Duration = Duration::from_secs(3);
+
+/// Where a [`Saver`]'s files are written: on the caller's thread, or on a thread of
+/// their own (the daemon's), so that storage that stalls cannot stop the service
+/// thread (its status, its watchdog pings, its reaction to SIGTERM).
+#[derive(Debug)]
+enum Writer {
+    Inline { last_error: Option<String> },
+    Thread(SaveThread),
+}
+
+/// The thread that writes the state file: one save at a time, handed over through a
+/// one-slot channel; it logs what fails (once until a save succeeds again) and
+/// what is slow.
+#[derive(Debug)]
+struct SaveThread {
+    jobs: Option<crossbeam::channel::Sender<SavedState>>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+impl SaveThread {
+    fn spawn(path: PathBuf) -> std::io::Result<Self> {
+        let (tx, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        let handle = std::thread::Builder::new()
+            .name("vlsync-state".into())
+            .spawn(move || {
+                let mut last_error = None;
+                for s in rx {
+                    let t0 = Instant::now();
+                    let r = save(&path, &s);
+                    let took = t0.elapsed();
+                    if took > SLOW_SAVE {
+                        tracing::warn!(
+                            "state file {}: a save took {:.1} s (the storage stalls)",
+                            path.display(),
+                            took.as_secs_f64()
+                        );
+                    }
+                    report(&path, r, &mut last_error);
+                }
+            })?;
+        Ok(Self {
+            jobs: Some(tx),
+            handle: Some(handle),
+        })
+    }
+
+    /// Hands `s` over; false while the previous save is still being written.
+    fn offer(&self, s: SavedState) -> bool {
+        self.jobs.as_ref().is_some_and(|j| j.try_send(s).is_ok())
+    }
+
+    /// Hands `s` over (waiting up to `wait` for the previous save), then waits up to
+    /// what is left of `wait` for it to be written. True when it was.
+    fn finish(&mut self, s: Option<SavedState>, wait: Duration) -> bool {
+        let deadline = Instant::now() + wait;
+        let handed = match (s, self.jobs.take()) {
+            (Some(s), Some(jobs)) => jobs.send_timeout(s, wait).is_ok(),
+            _ => false,
+        };
+        let Some(h) = self.handle.take() else {
+            return false;
+        };
+        while !h.is_finished() {
+            if Instant::now() >= deadline {
+                // left behind: the process ends without it
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        h.join().is_ok() && handed
+    }
+}
+
+/// Logs the outcome of a save: an error once until a save succeeds again.
+fn report(path: &Path, r: Result<(), String>, last_error: &mut Option<String>) -> bool {
+    match r {
+        Ok(()) => {
+            if last_error.take().is_some() {
+                tracing::info!("state file {}: saving works again", path.display());
+            }
+            true
+        }
+        Err(msg) => {
+            if last_error.as_deref() != Some(msg.as_str()) {
+                tracing::warn!("{msg}; the last good estimate is not persisted");
+                *last_error = Some(msg);
+            }
+            false
+        }
+    }
+}
+
 /// Saves the newest estimate worth saving at most every `period` (service thread).
 #[derive(Debug)]
 pub struct Saver {
@@ -721,7 +819,7 @@ pub struct Saver {
     pending: Option<Estimate>,
     last_save: Option<Instant>,
     last_saved: Option<Estimate>,
-    last_error: Option<String>,
+    writer: Writer,
 }
 
 impl Saver {
@@ -737,8 +835,22 @@ impl Saver {
             pending: None,
             last_save: None,
             last_saved: None,
-            last_error: None,
+            writer: Writer::Inline { last_error: None },
         }
+    }
+
+    /// The same saver writing on a thread of its own ([`SaveThread`]): its
+    /// [`Saver::tick`] and [`Saver::flush`] hand the estimate over and return at
+    /// once. Stays inline, saying why, when no thread can be started.
+    pub fn in_background(mut self) -> Self {
+        match SaveThread::spawn(self.path.clone()) {
+            Ok(t) => self.writer = Writer::Thread(t),
+            Err(e) => tracing::warn!(
+                "state file {}: no thread for saving ({e}); saving on the service thread",
+                self.path.display()
+            ),
+        }
+        self
     }
 
     /// The file.
@@ -755,7 +867,8 @@ impl Saver {
 
     /// Saves the pending estimate if the period since the last save has passed
     /// (the refresh period if it tells nothing new: [`UNCHANGED_S`]). Returns whether it
-    /// saved; an error is logged once until a save succeeds.
+    /// saved (in the background: handed it over); an error is logged once until a
+    /// save succeeds.
     pub fn tick(&mut self, now: Instant) -> bool {
         let Some(p) = self.pending else {
             return false;
@@ -772,31 +885,60 @@ impl Saver {
         false
     }
 
-    /// Saves the pending estimate now (shutdown). Returns whether it saved.
+    /// Saves the pending estimate now. Returns whether it saved (in the background:
+    /// handed it over; while the previous save is still being written it stays
+    /// pending, for the next tick).
     pub fn flush(&mut self) -> bool {
         let Some(e) = self.pending.take() else {
             return false;
         };
-        let s = SavedState {
-            prefix: Some(self.prefix.clone()),
-            saved_unix_ns: unix_now_ns(),
-            estimate: e,
-        };
-        match save(&self.path, &s) {
-            Ok(()) => {
-                self.last_saved = Some(e);
-                if self.last_error.take().is_some() {
-                    tracing::info!("state file {}: saving works again", self.path.display());
+        let s = self.state_of(e);
+        let done = match &mut self.writer {
+            Writer::Inline { last_error } => report(&self.path, save(&self.path, &s), last_error),
+            Writer::Thread(t) => {
+                if !t.offer(s) {
+                    self.pending = Some(e);
+                    return false;
                 }
                 true
             }
-            Err(msg) => {
-                if self.last_error.as_deref() != Some(msg.as_str()) {
-                    tracing::warn!("{msg}; the last good estimate is not persisted");
-                    self.last_error = Some(msg);
-                }
-                false
+        };
+        if done {
+            self.last_saved = Some(e);
+        }
+        done
+    }
+
+    /// The daemon's stop: saves the pending estimate and, in the background, waits
+    /// up to `wait` in all for it (and a save still being written) to be on disk.
+    /// Returns whether the pending estimate was saved; false with nothing pending.
+    pub fn finish(&mut self, wait: Duration) -> bool {
+        let pending = self.pending.take();
+        let s = pending.map(|e| self.state_of(e));
+        match &mut self.writer {
+            Writer::Inline { last_error } => {
+                s.is_some_and(|s| report(&self.path, save(&self.path, &s), last_error))
             }
+            Writer::Thread(t) => {
+                let had = s.is_some();
+                let done = t.finish(s, wait);
+                if !done && had {
+                    tracing::warn!(
+                        "state file {}: the last save was not written within {:.0} s (the storage stalls); stopping without it",
+                        self.path.display(),
+                        wait.as_secs_f64()
+                    );
+                }
+                done
+            }
+        }
+    }
+
+    fn state_of(&self, e: Estimate) -> SavedState {
+        SavedState {
+            prefix: Some(self.prefix.clone()),
+            saved_unix_ns: unix_now_ns(),
+            estimate: e,
         }
     }
 }
@@ -1130,6 +1272,72 @@ mod tests {
         let e = save(&gone, &new).unwrap_err();
         assert!(e.contains("missing/vlsync.state.tmp"), "{e}");
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn saving_in_the_background_writes_the_file_and_waits_for_it_at_stop() {
+        let d = dir("background");
+        let p = d.join("s");
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        sv.offer(&est());
+        assert!(sv.tick(Instant::now()));
+        sv.offer(&Estimate {
+            offset_s: 0.25,
+            ..est()
+        });
+        // the stop waits for both saves and leaves the last one on disk
+        assert!(sv.finish(Duration::from_secs(10)));
+        let (back, _) = load(&p, "vlsync/robot", unix_now_ns(), 60.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.estimate.offset_s, 0.25);
+        // nothing pending: nothing to save
+        assert!(!sv.finish(Duration::from_secs(1)));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_stalled_save_stops_neither_the_service_thread_nor_the_daemons_stop() {
+        // the temporary file is a FIFO nobody reads: opening it blocks, as an fsync
+        // on stalled storage does. Saved inline, every tick would hang on it
+        let d = dir("stalled");
+        let p = d.join("s");
+        let fifo = temp_path(&p);
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        // the service thread's part on a thread of the test's, so that a regression
+        // fails the test instead of hanging it
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let t0 = Instant::now();
+            for k in 0..20u32 {
+                sv.offer(&Estimate {
+                    offset_s: f64::from(k) * 1e-3,
+                    ..est()
+                });
+                sv.tick(t0 + Duration::from_secs(5 * u64::from(k)));
+            }
+            let ticks = t0.elapsed();
+            let stop = Instant::now();
+            let saved = sv.finish(Duration::from_millis(300));
+            let _ = tx.send((ticks, saved, stop.elapsed()));
+        });
+        let (ticks, saved, waited) = rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("the service thread blocked on a stalled save");
+        assert!(ticks < Duration::from_secs(2), "{ticks:?}");
+        assert!(!saved);
+        assert!(
+            waited >= Duration::from_millis(300) && waited < Duration::from_secs(2),
+            "{waited:?}"
+        );
+        // release the writer (it writes into the FIFO, whose content is discarded)
+        let _ = std::fs::File::open(&fifo).map(|mut f| {
+            let mut sink = Vec::new();
+            let _ = f.read_to_end(&mut sink);
+        });
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

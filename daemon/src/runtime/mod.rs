@@ -363,7 +363,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let status_ev = open_or_create_event(&node, &names.status()).map_err(|e| e.to_string())?;
     let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
 
-    let (restore, mut saver) = crate::state::startup(&cfg.daemon, &names.prefix);
+    let (restore, saver) = crate::state::startup(&cfg.daemon, &names.prefix);
+    // saved on a thread of its own: a stalled fsync must not stop the service
+    // thread's status, watchdog pings and reaction to SIGTERM
+    let mut saver = saver.map(crate::state::Saver::in_background);
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
@@ -542,7 +545,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // every warning still held back (the channel was drained: the loop ends on disconnect)
     throttle.due(Nanos::MAX, report_suppressed);
     if let Some(sv) = saver.as_mut() {
-        if sv.flush() {
+        if sv.finish(crate::state::FINAL_SAVE_WAIT) {
             tracing::info!("last good estimate saved to {}", sv.path().display());
         }
     }
