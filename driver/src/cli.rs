@@ -273,6 +273,15 @@ pub fn select_source(
             "--duration applies to --sim and --render only; {flag} lasts as long as its data"
         )));
     }
+    if flag == "--v4l2" && !cfg!(feature = "v4l2") {
+        // an options error (exit 78): a unit restarting it every 2 s would fail the
+        // same way forever
+        return Err(DriverError::Options(format!(
+            "--v4l2 {}: this vlsync-cam is built without V4L2 support; rebuild with \
+             --features vlsync-driver/v4l2",
+            args.v4l2.as_deref().unwrap_or(Path::new("")).display()
+        )));
+    }
     let live = ["--v4l2", "--ld06", "--rplidar"];
     // `--speed 1` is what a live device does anyway: accepted, as `--stamp` accepts it
     if live.contains(&flag) && (args.fast || args.speed.is_some_and(|s| s != 1.0)) {
@@ -391,9 +400,7 @@ pub fn select_source(
         }
         ("--v4l2", Stream::Cam) => {
             let d = args.v4l2.as_deref().unwrap_or(Path::new(""));
-            // a build without V4L2 says so at once instead of waiting for a camera
-            let waits = args.wait_device && cfg!(feature = "v4l2");
-            if waits && !wait_for_device(d, stream, stop, DEVICE_POLL) {
+            if args.wait_device && !wait_for_device(d, stream, stop, DEVICE_POLL) {
                 return Ok(stopped_while_waiting(d));
             }
             Ok(Selected {

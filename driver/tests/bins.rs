@@ -396,5 +396,21 @@ fn option_and_configuration_errors_exit_78_source_errors_2() {
         assert_eq!(c, Some(want), "{bin} {args:?}: {err}");
         assert!(err.contains(names), "{bin} {args:?}: {err}");
     }
+    // a build without V4L2 asked for a camera: the options are wrong for this binary
+    // (it exited 2, and the unit restarted it every 2 s forever), even when told to
+    // wait for the device
+    if !cfg!(feature = "v4l2") {
+        for args in [
+            vec!["--v4l2", "/dev/video0"],
+            vec!["--v4l2", "/dev/video-vlsync-missing", "--wait-device"],
+        ] {
+            let (c, err) = code(cam, &args);
+            assert_eq!(c, Some(78), "{args:?}: {err}");
+            assert!(
+                err.contains("built without V4L2 support"),
+                "{args:?}: {err}"
+            );
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
