@@ -147,7 +147,8 @@ pub struct Selected {
     pub start_at: Option<i64>,
 }
 
-/// How long a serial LiDAR may stay silent before the driver gives up.
+/// How long a serial LiDAR may stay silent before the driver says so and reopens its
+/// port (again after each such period while the silence lasts).
 const SERIAL_SILENCE: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Serial rates `--baud` accepts (the LD06's 230400 and the RPLIDARs' 115200 to

@@ -264,21 +264,57 @@ fn the_rplidar_node_rate_follows_the_model_the_baud_rate_names() {
     assert_eq!(vlsync_driver::raw::rplidar_node_rate_hz(115_200), 2000);
 }
 
+static QUIET_STOP: AtomicBool = AtomicBool::new(false);
+
+/// A LiDAR that falls silent while its port stays (powered down on a parked robot):
+/// the driver reopens the port and waits instead of ending (its unit restarted it
+/// every 12 s for as long as that lasted), and goes on when scans come again; a
+/// port that is gone is an error naming it.
 #[test]
-fn a_silent_serial_device_is_an_error_naming_it() {
+fn a_silent_serial_device_is_waited_for_with_its_port_reopened() {
     use serialport::SerialPort;
-    let (_master, slave) = serialport::TTYPort::pair().expect("pty pair");
+    let (master, slave) = serialport::TTYPort::pair().expect("pty pair");
     let path = slave.name().expect("slave path");
     let mut src = LidarSource::serial(
         SerialKind::Ld06,
         &path,
         None,
         Duration::from_millis(200),
-        never,
+        || QUIET_STOP.load(Ordering::Relaxed),
     )
     .unwrap();
-    let e = src.next_sample().unwrap_err().to_string();
-    assert!(e.contains(&path) && e.contains("no data"), "{e}");
+    drop(slave);
+    // 1 s of silence, then 2 s of scans
+    let bytes = vlsync_signature_lidar::encode::ld06_stream(3600, 0, 2.0, |t, b| {
+        if b.abs() < 0.3 {
+            3.0 - 0.5 * t
+        } else {
+            6.0
+        }
+    });
+    let rate = bytes.len() as f64 / 2.0;
+    let writer = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs(1));
+        feed(master, bytes, rate).join().unwrap();
+    });
+    let mut got = 0;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while got < 15 && Instant::now() < deadline {
+        match src.next_sample() {
+            Ok(Some(_)) => got += 1,
+            other => panic!("{other:?}; {:?}", src.report()),
+        }
+    }
+    let report = src.report().unwrap();
+    QUIET_STOP.store(true, Ordering::Relaxed);
+    assert_eq!(src.next_sample().unwrap(), None);
+    writer.join().unwrap();
+    assert_eq!(got, 15, "{report}");
+    assert!(
+        report.contains("the port reopened") && report.contains("after silences of 0.2 s"),
+        "{report}"
+    );
+    // the port gone: an error naming it
     let e = LidarSource::serial(
         SerialKind::Ld06,
         "/dev/does-not-exist-vlsync",

@@ -36,14 +36,106 @@ enum Parser {
 
 /// A live serial LiDAR.
 struct Serial {
-    port: SerialLidar,
+    /// `None` only after a reopen failed (the source has then ended with an error).
+    port: Option<SerialLidar>,
     parser: Parser,
     stop: StopFn,
-    /// No bytes for this long is an error.
+    kind: SerialKind,
+    path: String,
+    baud: u32,
+    /// No bytes (or no complete scan) for this long reopens the port.
     silence: Duration,
     last_bytes: Instant,
     last_scan: Instant,
     scans: u64,
+    /// The silence going on, if any.
+    quiet: Option<Quiet>,
+    /// Reopens of the port over the run.
+    reopens: u64,
+}
+
+/// A silence of a serial LiDAR: since when, when it was last said, reopens in it.
+#[derive(Debug, Clone, Copy)]
+struct Quiet {
+    since: Instant,
+    said: Instant,
+    reopens: u64,
+}
+
+/// While a serial LiDAR stays silent, how often the driver says so again.
+pub const SILENCE_REPEAT: Duration = Duration::from_secs(600);
+
+/// Opens the serial port of a `kind` LiDAR at `baud` (an RPLIDAR is asked to scan).
+fn open_serial(kind: SerialKind, path: &str, baud: u32) -> Result<SerialLidar, SourceError> {
+    let flag = kind.flag();
+    let mut port = SerialLidar::open(path, baud, Duration::from_millis(50))
+        .map_err(|e| SourceError(format!("{flag}: {e}")))?;
+    if kind == SerialKind::Rplidar {
+        // the A1/A2 USB adapter runs the motor while DTR is released, and Linux
+        // asserted it on open; a C1 or a port without modem lines ignores or refuses
+        // this, which does not matter to the scan
+        let _ = port.set_dtr(false);
+        port.write_request(&lidar::rplidar::scan_request())
+            .map_err(|e| SourceError(format!("{flag}: scan request: {e}")))?;
+    }
+    Ok(port)
+}
+
+impl Serial {
+    /// After `silence` without bytes or without a complete scan: says so (once, then
+    /// every [`SILENCE_REPEAT`]) and reopens the port, instead of ending the driver
+    /// (whose unit would restart it every few seconds for as long as a parked robot's
+    /// LiDAR is off). A port that cannot be reopened (the adapter unplugged) is an
+    /// error.
+    fn on_silence(&mut self, what: &str, now: Instant, why: &str) -> Result<(), SourceError> {
+        match &mut self.quiet {
+            None => {
+                vlsync_common::console::print_err(&format!(
+                    "vlsync-lidar: {what}: {why}; reopening the port and waiting for it (said again every {} min while it lasts)\n",
+                    SILENCE_REPEAT.as_secs() / 60
+                ));
+                self.quiet = Some(Quiet {
+                    since: now - self.silence,
+                    said: now,
+                    reopens: 0,
+                });
+            }
+            Some(q) if now.duration_since(q.said) >= SILENCE_REPEAT => {
+                vlsync_common::console::print_err(&format!(
+                    "vlsync-lidar: {what}: still silent after {:.0} min ({} reopens of the port)\n",
+                    now.duration_since(q.since).as_secs_f64() / 60.0,
+                    q.reopens
+                ));
+                q.said = now;
+            }
+            Some(_) => {}
+        }
+        // closed first: a port is opened exclusively
+        self.port = None;
+        self.port = Some(open_serial(self.kind, &self.path, self.baud).map_err(|e| {
+            SourceError(format!(
+                "{what}: reopening the port after {:.1} s of silence: {e}",
+                self.silence.as_secs_f64()
+            ))
+        })?);
+        self.reopens += 1;
+        if let Some(q) = &mut self.quiet {
+            q.reopens += 1;
+        }
+        (self.last_bytes, self.last_scan) = (now, now);
+        Ok(())
+    }
+
+    /// A complete scan came: ends a silence, saying how long it lasted.
+    fn on_scan(&mut self, what: &str, now: Instant) {
+        if let Some(q) = self.quiet.take() {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-lidar: {what}: scans again after {:.1} s of silence ({} reopens of the port)\n",
+                now.duration_since(q.since).as_secs_f64(),
+                q.reopens
+            ));
+        }
+    }
 }
 
 impl Drop for Serial {
@@ -52,7 +144,9 @@ impl Drop for Serial {
             // stop the scan stream; nothing to do if the device is gone. The A1/A2
             // motor keeps spinning: asserting DTR here would not outlast the close,
             // whose hang-up (HUPCL, which serialport leaves set) releases it again
-            let _ = self.port.write_request(&lidar::rplidar::stop_request());
+            if let Some(port) = &mut self.port {
+                let _ = port.write_request(&lidar::rplidar::stop_request());
+            }
         }
     }
 }
@@ -212,39 +306,36 @@ impl LidarSource {
         stop: StopFn,
     ) -> Result<Self, SourceError> {
         let baud = baud.unwrap_or(kind.default_baud());
-        let flag = kind.flag();
-        let mut port = SerialLidar::open(path, baud, Duration::from_millis(50))
-            .map_err(|e| SourceError(format!("{flag}: {e}")))?;
+        let port = open_serial(kind, path, baud)?;
+        // one parser for the whole run, across reopens of the port: both find their
+        // packets (the RPLIDAR's response descriptor too) anywhere in the stream
         let parser = match kind {
             SerialKind::Ld06 => Parser::Ld06(Ld06Parser::new(Ld06Config {
                 baud,
                 ..Ld06Config::default()
             })),
-            SerialKind::Rplidar => {
-                // the A1/A2 USB adapter runs the motor while DTR is released, and
-                // Linux asserted it on open; a C1 or a port without modem lines
-                // ignores or refuses this, which does not matter to the scan
-                let _ = port.set_dtr(false);
-                port.write_request(&lidar::rplidar::scan_request())
-                    .map_err(|e| SourceError(format!("{flag}: scan request: {e}")))?;
-                Parser::Rplidar(RplidarParser::new(RplidarConfig {
-                    baud,
-                    sample_rate_hz: rplidar_node_rate_hz(baud),
-                    ..RplidarConfig::default()
-                }))
-            }
+            SerialKind::Rplidar => Parser::Rplidar(RplidarParser::new(RplidarConfig {
+                baud,
+                sample_rate_hz: rplidar_node_rate_hz(baud),
+                ..RplidarConfig::default()
+            })),
         };
         let now = Instant::now();
-        let what = format!("{} {path} at {baud} baud", &flag[2..]);
+        let what = format!("{} {path} at {baud} baud", &kind.flag()[2..]);
         Self::new(
             ScanInput::Serial(Box::new(Serial {
-                port,
+                port: Some(port),
                 parser,
                 stop,
+                kind,
+                path: path.to_string(),
+                baud,
                 silence,
                 last_bytes: now,
                 last_scan: now,
                 scans: 0,
+                quiet: None,
+                reopens: 0,
             })),
             what,
         )
@@ -345,9 +436,13 @@ impl LidarSource {
                     last_bytes,
                     last_scan,
                     scans: serial_scans,
-                    silence,
                     ..
                 } = &mut **s;
+                let Some(port) = port.as_mut() else {
+                    return Err(SourceError(format!(
+                        "{what}: the port is closed (its reopening failed)"
+                    )));
+                };
                 let (chunk, t) = port
                     .read_chunk(&vlsync_ipc::monotonic_ns)
                     .map_err(|e| SourceError(format!("{what}: {e}")))?;
@@ -366,18 +461,21 @@ impl LidarSource {
                 }
                 if *serial_scans != before {
                     *last_scan = now;
+                    s.on_scan(what, now);
                 }
-                if now.duration_since(*last_bytes) > *silence {
-                    return Err(SourceError(format!(
-                        "{what}: no data for {:.1} s (is the LiDAR powered and the baud rate right?)",
+                let silence = s.silence;
+                if now.duration_since(s.last_bytes) > silence {
+                    let why = format!(
+                        "no data for {:.1} s (is the LiDAR powered and the baud rate right?)",
                         silence.as_secs_f64()
-                    )));
-                }
-                if now.duration_since(*last_scan) > *silence {
-                    return Err(SourceError(format!(
-                        "{what}: bytes but no complete scan for {:.1} s (wrong device type or baud rate?)",
+                    );
+                    s.on_silence(what, now, &why)?;
+                } else if now.duration_since(s.last_scan) > silence {
+                    let why = format!(
+                        "bytes but no complete scan for {:.1} s (wrong device type or baud rate?)",
                         silence.as_secs_f64()
-                    )));
+                    );
+                    s.on_silence(what, now, &why)?;
                 }
                 Ok(true)
             }
@@ -460,6 +558,19 @@ impl Source for LidarSource {
                         st.bytes, st.nodes, st.skipped_bytes, st.false_starts
                     ));
                 }
+            }
+            if ser.reopens > 0 {
+                s.push_str(&format!(
+                    "; the port reopened {} times after silences of {:.1} s",
+                    ser.reopens,
+                    ser.silence.as_secs_f64()
+                ));
+            }
+            if let Some(q) = &ser.quiet {
+                s.push_str(&format!(
+                    "; silent for {:.0} s now",
+                    q.since.elapsed().as_secs_f64()
+                ));
             }
         }
         Some(s)
