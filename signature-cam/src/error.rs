@@ -98,6 +98,14 @@ pub enum Error {
         /// What went wrong.
         reason: String,
     },
+    /// The video device delivered no frame for `after` (a camera that hung, or
+    /// stopped streaming): a reopen of the device may bring it back.
+    Stalled {
+        /// The device path.
+        path: PathBuf,
+        /// How long it has been silent.
+        after: std::time::Duration,
+    },
 }
 
 impl Error {
@@ -160,6 +168,12 @@ impl fmt::Display for Error {
             Error::BadFrameTime { reason } => write!(f, "bad frame time: {reason}"),
             Error::NoDevice { path } => write!(f, "{}: no such device", path.display()),
             Error::Device { path, reason } => write!(f, "{}: {reason}", path.display()),
+            Error::Stalled { path, after } => write!(
+                f,
+                "{}: no frame for {:.1} s (the camera stalled: unplugged, or its USB link hung)",
+                path.display(),
+                after.as_secs_f64()
+            ),
         }
     }
 }

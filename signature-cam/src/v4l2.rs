@@ -29,9 +29,9 @@
 //! the driver: the wait for a buffer (a `poll` of the device before each dequeue, so a
 //! camera slower than the slice loses no frame) wakes every [`POLL_SLICE`], checks the stop
 //! function ([`V4l2Source::set_stop`]: a stop ends the stream, `Ok(None)`), and after
-//! [`V4l2Config::stall`] without a frame the stream ends with an error naming the
-//! device (the driver exits non-zero; systemd restarts it, which reopens the
-//! device). A signal that interrupts the wait is a wake-up like a timeout.
+//! [`V4l2Config::stall`] without a frame the stream ends with [`Error::Stalled`]
+//! naming the device (`vlsync-cam` then reopens the device and waits on, saying so
+//! once and every 10 minutes). A signal that interrupts the wait is a wake-up like a timeout.
 //!
 //! ```
 //! use vlsync_signature_cam::v4l2::{V4l2Config, V4l2Source};
@@ -59,8 +59,8 @@ pub struct V4l2Config {
     pub height: u32,
     /// Driver buffers (default 4).
     pub buffers: u32,
-    /// No frame for this long is an error (default 10 s, as the serial LiDARs'
-    /// silence).
+    /// No frame for this long is an error, [`Error::Stalled`] (default 10 s, as the
+    /// serial LiDARs' silence).
     pub stall: std::time::Duration,
 }
 
@@ -306,10 +306,10 @@ mod imp {
                     return Ok(None);
                 }
                 if since.elapsed() >= self.stall {
-                    return Err(self.device_error(format!(
-                        "no frame for {:.1} s (the camera stalled: unplugged, or its USB link hung)",
-                        self.stall.as_secs_f64()
-                    )));
+                    return Err(Error::Stalled {
+                        path: self.path.clone(),
+                        after: self.stall,
+                    });
                 }
                 if self.started {
                     // wait here, a slice at a time, for a filled buffer: the others

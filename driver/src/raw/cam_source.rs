@@ -37,6 +37,46 @@ trait Frames {
 /// A front-end frame source: no truth.
 struct Plain(Box<dyn FrameSource>);
 
+/// Opens a live camera again after it stalled.
+type Reopen = Box<dyn FnMut() -> Result<Box<dyn FrameSource>, cam::Error>>;
+
+/// While a live camera stays stalled, how often the driver says so again.
+pub const STALL_REPEAT: Duration = Duration::from_secs(600);
+
+/// What stands for a camera between its close and its reopen (and after a reopen
+/// that failed: the source has then ended with that error).
+struct Closed;
+
+impl FrameSource for Closed {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+        Err(cam::Error::Device {
+            path: "camera".into(),
+            reason: "closed (its reopening failed)".into(),
+        })
+    }
+}
+
+/// A live camera's stall going on: since when, when it was last said, reopens in it.
+#[derive(Debug, Clone, Copy)]
+struct Stall {
+    since: Instant,
+    said: Instant,
+    reopens: u64,
+}
+
+/// A frame came: ends the stall of camera `what`, if any, saying how long it lasted.
+fn end_stall(stall: &mut Option<Stall>, what: &str) {
+    if let Some(s) = stall.take() {
+        vlsync_common::console::print_err(&format!(
+            "vlsync-cam: {what}: frames again after {:.1} s of stall ({} reopens of the device)\n",
+            s.since.elapsed().as_secs_f64(),
+            s.reopens
+        ));
+    }
+}
+
 impl Frames for Plain {
     fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
         Ok(self.0.next_frame()?.map(|(f, t)| (f, t, None)))
@@ -329,6 +369,12 @@ pub struct CamSource {
     /// Frames of a recording that could not be read (an undecodable or missing
     /// image): skipped as dropped frames, until too many come in a row.
     skipped: cam::UnusableFrames,
+    /// A live camera: how to open it again after it stalled ([`cam::Error::Stalled`]).
+    reopen: Option<Reopen>,
+    /// The stall going on, if any.
+    stall: Option<Stall>,
+    /// Reopens after stalls over the run.
+    reopens: u64,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -365,7 +411,60 @@ impl CamSource {
             last_truth: None,
             frame_cpu_ns: 0,
             skipped: cam::UnusableFrames::default(),
+            reopen: None,
+            stall: None,
+            reopens: 0,
         })
+    }
+
+    /// A live camera that stalled ([`cam::Error::Stalled`]): says so (once, then every
+    /// [`STALL_REPEAT`]) and opens it again with `self.reopen`, instead of ending the
+    /// driver, whose unit would restart it every few seconds for as long as the
+    /// camera hangs. A camera that cannot be opened again (unplugged) is an error.
+    fn on_stall(&mut self, e: &cam::Error) -> Result<(), SourceError> {
+        let what = &self.what;
+        if self.reopen.is_none() {
+            return Err(SourceError(format!("{what}: {e}")));
+        }
+        let now = Instant::now();
+        match &mut self.stall {
+            None => {
+                let since = match e {
+                    cam::Error::Stalled { after, .. } => now.checked_sub(*after).unwrap_or(now),
+                    _ => now,
+                };
+                vlsync_common::console::print_err(&format!(
+                    "vlsync-cam: {what}: {e}; reopening the device and waiting for it (said again every {} min while it lasts)\n",
+                    STALL_REPEAT.as_secs() / 60
+                ));
+                self.stall = Some(Stall {
+                    since,
+                    said: now,
+                    reopens: 0,
+                });
+            }
+            Some(s) if now.duration_since(s.said) >= STALL_REPEAT => {
+                vlsync_common::console::print_err(&format!(
+                    "vlsync-cam: {what}: still no frame after {:.0} min ({} reopens of the device)\n",
+                    now.duration_since(s.since).as_secs_f64() / 60.0,
+                    s.reopens
+                ));
+                s.said = now;
+            }
+            Some(_) => {}
+        }
+        // closed first: a device that streams to one handle refuses another's format
+        self.frames = Box::new(Plain(Box::new(Closed)));
+        if let Some(reopen) = self.reopen.as_mut() {
+            let src = reopen()
+                .map_err(|e| SourceError(format!("{}: reopening after a stall: {e}", self.what)))?;
+            self.frames = Box::new(Plain(src));
+        }
+        self.reopens += 1;
+        if let Some(s) = &mut self.stall {
+            s.reopens += 1;
+        }
+        Ok(())
     }
 
     /// With software stamping: keep each frame's thread busy until it has spent
@@ -410,17 +509,25 @@ impl CamSource {
             device: device.to_path_buf(),
             ..cam::V4l2Config::default()
         };
-        let mut src =
-            cam::V4l2Source::open(&cfg).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
-        // a stalled camera's wait wakes to check the stop (and ends in an error after
-        // `V4l2Config::stall`), instead of blocking the driver for good
-        src.set_stop(stop);
+        // a stalled camera's wait wakes to check the stop (and ends in
+        // `Error::Stalled` after `V4l2Config::stall`, on which the device is opened
+        // again), instead of blocking the driver for good
+        let open = move || -> Result<cam::V4l2Source, cam::Error> {
+            let mut src = cam::V4l2Source::open(&cfg)?;
+            src.set_stop(stop);
+            Ok(src)
+        };
+        let src = open().map_err(|e| SourceError(format!("--v4l2: {e}")))?;
         let (w, h) = src.frame_size();
-        Self::new(
+        let mut me = Self::new(
             Box::new(src),
             format!("v4l2 {} ({w}x{h})", device.display()),
             stop,
-        )
+        )?;
+        me.reopen = Some(Box::new(move || {
+            open().map(|s| Box::new(s) as Box<dyn FrameSource>)
+        }));
+        Ok(me)
     }
 
     /// The frames of rendered run `seed` on the rendered camera clock (see [`renderer`]).
@@ -498,10 +605,16 @@ impl Source for CamSource {
                 last_truth,
                 frame_cpu_ns,
                 skipped,
+                stall,
                 ..
             } = self;
             let next = match frames.next() {
                 Ok(next) => next,
+                // a live camera that hung is opened again
+                Err(e @ cam::Error::Stalled { .. }) => {
+                    self.on_stall(&e)?;
+                    continue;
+                }
                 // one bad image of a recording is a dropped frame, not the end of it
                 Err(e) if e.is_one_frame() => {
                     skipped
@@ -515,6 +628,7 @@ impl Source for CamSource {
                 return Ok(None);
             };
             skipped.used();
+            end_stall(stall, what);
             counts.frames += 1;
             let t_in = monotonic_ns();
             let cpu_in = (*frame_cpu_ns > 0)
@@ -622,6 +736,18 @@ impl Source for CamSource {
         {
             s.push_str(&format!("; {n} unusable frames skipped (last: {last})"));
         }
+        if self.reopens > 0 {
+            s.push_str(&format!(
+                "; the device reopened {} times after stalls",
+                self.reopens
+            ));
+        }
+        if let Some(st) = &self.stall {
+            s.push_str(&format!(
+                "; stalled for {:.0} s now",
+                st.since.elapsed().as_secs_f64()
+            ));
+        }
         if let Some((l, nice)) = self.frames.live() {
             s.push_str(&format!(
                 "; real time: {} frames delivered, {} skipped (before a restart), {} rendered late \
@@ -634,5 +760,91 @@ impl Source for CamSource {
             ));
         }
         Some(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::cell::Cell;
+    use std::rc::Rc;
+
+    /// A camera that stalls `stalls` times, then delivers `frames` flat frames and ends.
+    struct Fake {
+        stalls: u32,
+        frames: u32,
+        t: Nanos,
+        buf: Vec<u8>,
+    }
+
+    impl FrameSource for Fake {
+        fn next_frame(
+            &mut self,
+        ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+            if self.stalls > 0 {
+                self.stalls -= 1;
+                return Err(cam::Error::Stalled {
+                    path: "/dev/video-fake".into(),
+                    after: Duration::from_secs(10),
+                });
+            }
+            if self.frames == 0 {
+                return Ok(None);
+            }
+            self.frames -= 1;
+            self.t += 33_333_333;
+            let f = cam::GrayFrame::borrowed(64, 48, &self.buf)?;
+            Ok(Some((f, cam::FrameTime::Instant(self.t))))
+        }
+    }
+
+    fn fake(stalls: u32, frames: u32) -> Box<dyn FrameSource> {
+        Box::new(Fake {
+            stalls,
+            frames,
+            t: 0,
+            buf: vec![128; 64 * 48],
+        })
+    }
+
+    #[test]
+    fn a_stalled_live_camera_is_opened_again_and_read_on() {
+        // stalls at once; the first reopen stalls again, the second delivers
+        let opened = Rc::new(Cell::new(0));
+        let mut src = CamSource::new(fake(1, 0), "v4l2 fake".into(), never).unwrap();
+        let n = opened.clone();
+        src.reopen = Some(Box::new(move || {
+            n.set(n.get() + 1);
+            Ok(if n.get() == 1 { fake(1, 0) } else { fake(0, 5) })
+        }));
+        // flat frames give no sample: the stream's end after them
+        assert_eq!(src.next_sample().unwrap(), None);
+        assert_eq!(opened.get(), 2);
+        let report = src.report().unwrap();
+        assert!(
+            report.starts_with("5 frames,")
+                && report.contains("the device reopened 2 times after stalls"),
+            "{report}"
+        );
+        assert!(!report.contains("stalled for"), "{report}");
+        // a camera that cannot be opened again (unplugged): an error naming both
+        let mut src = CamSource::new(fake(1, 0), "v4l2 fake".into(), never).unwrap();
+        src.reopen = Some(Box::new(|| {
+            Err(cam::Error::NoDevice {
+                path: "/dev/video-fake".into(),
+            })
+        }));
+        let e = src.next_sample().unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "v4l2 fake: reopening after a stall: /dev/video-fake: no such device"
+        );
+        // sources that are not live cameras end on a stall, as before
+        let mut src = CamSource::new(fake(1, 0), "fake".into(), never).unwrap();
+        let e = src.next_sample().unwrap_err().to_string();
+        assert!(
+            e.starts_with("fake: /dev/video-fake: no frame for 10.0 s"),
+            "{e}"
+        );
     }
 }

@@ -95,7 +95,7 @@ impl Serial {
                     SILENCE_REPEAT.as_secs() / 60
                 ));
                 self.quiet = Some(Quiet {
-                    since: now - self.silence,
+                    since: now.checked_sub(self.silence).unwrap_or(now),
                     said: now,
                     reopens: 0,
                 });
