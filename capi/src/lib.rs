@@ -157,14 +157,38 @@ unsafe fn handle<'a, T>(c: *mut Handle<T>, what: &str) -> CallResult<&'a mut T> 
     Ok(unsafe { &mut *std::ptr::addr_of_mut!((*c).inner) })
 }
 
-/// Writes `v` to `out`.
+/// Writes `v` to `out`, aligned or not (a caller's packed or byte buffer).
 ///
 /// # Safety
-/// `out` points to a writable, aligned `T`.
+/// `out` points to `size_of::<T>()` writable bytes.
 #[allow(unsafe_code)]
 unsafe fn put<T>(out: *mut T, v: T) {
-    // SAFETY: this function's contract.
-    unsafe { out.write(v) }
+    // SAFETY: this function's contract; `write_unaligned` needs no alignment.
+    unsafe { out.write_unaligned(v) }
+}
+
+/// The prefix string at `prefix`, read up to its NUL but never more than one byte
+/// beyond the longest valid prefix: a string without its NUL within that is refused
+/// rather than read on into whatever memory follows it.
+///
+/// # Safety
+/// `prefix` is non-NULL and points to a NUL-terminated string, or to at least
+/// `MAX_PREFIX_BYTES + 2` readable bytes.
+#[allow(unsafe_code)]
+unsafe fn bounded_prefix<'a>(prefix: *const c_char, what: &str) -> Result<&'a CStr, String> {
+    let limit = vlsync_config::MAX_PREFIX_BYTES + 1;
+    // SAFETY: byte i is read only after bytes 0..i were all non-NUL, so it lies
+    // within the caller's string (its NUL at the latest) or within the bytes promised
+    let len = (0..=limit).find(|&i| unsafe { *prefix.add(i) } == 0);
+    let Some(len) = len else {
+        return Err(format!(
+            "{what}: the prefix is longer than {} bytes (or not NUL-terminated)",
+            vlsync_config::MAX_PREFIX_BYTES
+        ));
+    };
+    // SAFETY: bytes 0..len are readable and byte len is the NUL (found above)
+    let bytes = unsafe { std::slice::from_raw_parts(prefix.cast::<u8>(), len + 1) };
+    CStr::from_bytes_with_nul(bytes).map_err(|e| format!("{what}: the prefix: {e}"))
 }
 
 /// The ABI version the library was built with (`VLSYNC_CLIENT_ABI_VERSION`).
@@ -218,7 +242,7 @@ unsafe fn open_handle<T>(
             return Err(format!("{what}: the prefix is NULL"));
         }
         // SAFETY: non-NULL and NUL-terminated, as the caller promised.
-        let p = unsafe { CStr::from_ptr(prefix) };
+        let p = unsafe { bounded_prefix(prefix, what) }?;
         let p = p
             .to_str()
             .map_err(|_| format!("{what}: the prefix {:?} is not UTF-8", p.to_string_lossy()))?;
@@ -807,6 +831,28 @@ mod tests {
         };
         assert!(c.is_null());
         assert!(text(&long).contains("not UTF-8"), "{}", text(&long));
+        // a prefix without its NUL within 202 bytes: refused after reading those
+        // bytes, not read on; one of 201 bytes is the ordinary too-long prefix
+        let unterminated = [b'a'; 202];
+        // SAFETY: 202 readable bytes, all that the bounded read may touch.
+        let c = unsafe {
+            vlsync_client_open(
+                unterminated.as_ptr().cast(),
+                long.as_mut_ptr().cast(),
+                long.len(),
+            )
+        };
+        assert!(c.is_null());
+        assert_eq!(
+            text(&long),
+            "vlsync_client_open: the prefix is longer than 200 bytes (or not NUL-terminated)"
+        );
+        let too_long = std::ffi::CString::new("a".repeat(201)).unwrap();
+        // SAFETY: a C string.
+        let c =
+            unsafe { vlsync_client_open(too_long.as_ptr(), long.as_mut_ptr().cast(), long.len()) };
+        assert!(c.is_null());
+        assert!(text(&long).contains("is invalid"), "{}", text(&long));
     }
 
     #[test]

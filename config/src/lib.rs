@@ -616,12 +616,15 @@ impl DaemonConfig {
     }
 }
 
+/// The longest `services.prefix`, bytes.
+pub const MAX_PREFIX_BYTES: usize = 200;
+
 /// Whether `p` is a `services.prefix` a daemon accepts: non-empty, at most 200
 /// bytes, only ASCII letters, digits, `_`, `-`, `.` and `/`, no leading or trailing
 /// `/`, no `//`.
 pub fn prefix_is_valid(p: &str) -> bool {
     !p.is_empty()
-        && p.len() <= 200
+        && p.len() <= MAX_PREFIX_BYTES
         && p.chars()
             .all(|ch| ch.is_ascii_alphanumeric() || "_-./".contains(ch))
         && !p.starts_with('/')

@@ -9,8 +9,8 @@
  * One line per estimate, every one in order (vlsync_client_wait_one): sequence number, state, reference time on the LiDAR clock,
  * offset +- one standard deviation, drift. With --status, one line per status the daemon
  * publishes instead (its counters: state, samples received, rejected and lost per stream,
- * estimates, budget overruns, end-to-end p99). Exit status: 0 after --count lines or on
- * Ctrl-C / SIGTERM; 1 when --timeout seconds pass without an estimate; 2 on a bad
+ * estimates, budget overruns, end-to-end p99). Exit status: 0 after --count lines, on
+ * Ctrl-C / SIGTERM or when the reader of its output goes away; 1 when --timeout seconds pass without an estimate; 2 on a bad
  * argument or a library error (its message on stderr).
  */
 #define _POSIX_C_SOURCE 200809L
@@ -47,10 +47,12 @@ static double now_s(void) {
 }
 
 /* Flushes stdout: 1, or 0 to stop, with *status 2 and a message on a write error. A
- * signal can interrupt a blocked write: that is a stop, not an error. */
+ * signal can interrupt a blocked write: that is a stop, not an error; and so is a
+ * reader that went away (EPIPE: `| head -1`; SIGPIPE is ignored, so the client is
+ * closed and its iceoryx2 resources released instead of the process being killed). */
 static int flushed(int *status) {
     if (fflush(stdout) == 0) return 1;
-    if (!stop) {
+    if (!stop && errno != EPIPE) {
         fprintf(stderr, "vlsync_echo: writing to stdout: %s\n", strerror(errno));
         *status = 2;
     }
@@ -143,6 +145,7 @@ int main(int argc, char **argv) {
     sa.sa_handler = on_signal;
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN); /* a closed pipe is EPIPE from the write: see flushed() */
 
     if (want_status) return echo_status(prefix, (long)count, timeout);
 

@@ -6,20 +6,39 @@
 //       -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_convert   (one line)
 //   ./vlsync_convert --prefix vlsync/robot [--timeout S] < camera_stamps_ns.txt
 //
-// Waits (up to --timeout seconds, default 30) for the estimator's lock, then reads one
-// camera stamp per line (integer ns on the camera's clock) and prints
+// Waits (up to --timeout seconds, default 30; 0: no limit) for the estimator's lock, then
+// reads one camera stamp per line (integer ns on the camera's clock) and prints
 // `t_cam_ns t_lidar_ns std_us state` for each, with the newest estimate at that moment.
-// Exit status: 0 at the end of the input; 1 when no lock came within the timeout; 2 on a
-// bad argument, a line that is not a 64-bit integer (named by its number), or a library
-// error.
+// Exit status: 0 at the end of the input, on Ctrl-C / SIGTERM, or when the reader of its
+// output goes away; 1 when no lock came within the timeout; 2 on a bad argument, a line
+// that is not a 64-bit integer (named by its number), an output that cannot be written,
+// or a library error. Each path out closes the client (its iceoryx2 resources released).
 #include <cerrno>
 #include <chrono>
+#include <csignal>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <iostream>
 #include <string>
 
+#include <signal.h>
+
 #include "vlsync_client.hpp"
+
+namespace {
+volatile std::sig_atomic_t stop = 0;
+extern "C" void on_signal(int) { stop = 1; }
+
+// After a line: 0 to go on; else the exit status (a reader that went away, EPIPE, is a
+// normal end; any other write error is 2, with its reason).
+int written() {
+    if (std::cout.flush()) return -1;
+    if (errno == EPIPE || stop) return 0;
+    std::cerr << "vlsync_convert: writing to stdout: " << std::strerror(errno) << "\n";
+    return 2;
+}
+}  // namespace
 
 int main(int argc, char **argv) {
     std::string prefix = "vlsync/robot";
@@ -46,14 +65,22 @@ int main(int argc, char **argv) {
             }
         }
     }
+    // no SA_RESTART: a signal ends the library's wait and the read of stdin
+    struct sigaction sa;
+    std::memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, nullptr);
+    sigaction(SIGTERM, &sa, nullptr);
+    std::signal(SIGPIPE, SIG_IGN);  // a closed pipe is EPIPE from the write: see written()
     try {
         vlsync::Client c(prefix);
         using clock = std::chrono::steady_clock;
         auto deadline = clock::now() + std::chrono::duration<double>(timeout_s);
         for (;;) {
+            if (stop) return 0;
             auto e = c.latest();
             if (e && vlsync::is_locked(*e)) break;
-            if (clock::now() >= deadline) {
+            if (timeout_s > 0 && clock::now() >= deadline) {
                 std::cerr << "vlsync_convert: no lock on " << prefix << "/offset within "
                           << timeout_s << " s\n";
                 return 1;
@@ -61,7 +88,7 @@ int main(int argc, char **argv) {
             c.wait_next(std::chrono::milliseconds(250));
         }
         std::string line;
-        for (long n = 1; std::getline(std::cin, line); n++) {
+        for (long n = 1; !stop && std::getline(std::cin, line); n++) {
             char *end = nullptr;
             errno = 0;
             long long t_cam = std::strtoll(line.c_str(), &end, 10);
@@ -72,7 +99,8 @@ int main(int argc, char **argv) {
             }
             auto v = c.camera_to_lidar(t_cam);  // a lock was seen, so never empty
             std::cout << t_cam << " " << v->t_lidar_ns << " " << v->std_s * 1e6 << " "
-                      << vlsync::state_name(v->estimate) << std::endl;
+                      << vlsync::state_name(v->estimate) << "\n";
+            if (int status = written(); status >= 0) return status;
         }
     } catch (const vlsync::Error &e) {
         std::cerr << "vlsync_convert: " << e.what() << "\n";

@@ -194,6 +194,7 @@ fn c_and_cpp_programs_read_a_live_daemon() {
     );
     // camera stamps two seconds apart, from the run's first frame on
     let t0 = rig.sim.cam[0].t_ns;
+    let stamps_text = |t: i64| t.to_string();
     let stamps: Vec<i64> = (0..5).map(|i| t0 + i * 2_000_000_000).collect();
     let input: String = stamps.iter().map(|t| format!("{t}\n")).collect();
     let conv = run(
@@ -202,6 +203,28 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         &input,
     );
     let conv_text = String::from_utf8_lossy(&conv.stdout).to_string();
+    // a reader that goes away (`| head -1`) ends both with 0, their clients closed
+    // (SIGPIPE killed them with 141, leaving their iceoryx2 nodes behind); an output
+    // that cannot be written is an error (the C++ one ignored it and exited 0); and
+    // the C++ one's --timeout 0 is no limit, as the C one's (it gave up at once)
+    let piped = |script: &str| {
+        Command::new("bash")
+            .args(["-c", &format!("set -o pipefail; {script}"), "piped"])
+            .arg(&echo)
+            .arg(&convert)
+            .arg(&rig.prefix)
+            .arg(stamps_text(t0))
+            .output()
+            .expect("run bash")
+    };
+    let c_head = piped(r#""$1" --prefix "$3" --timeout 20 | head -1"#);
+    let many = tmp.join("stamps.txt");
+    std::fs::write(&many, format!("{}\n", stamps_text(t0)).repeat(20_000)).unwrap();
+    let cpp_head = piped(&format!(
+        r#""$2" --prefix "$3" --timeout 0 < {} | head -1"#,
+        many.display()
+    ));
+    let cpp_full = piped(r#"echo "$4" | "$2" --prefix "$3" --timeout 20 > /dev/full"#);
     // a stamp beyond 64 bits is refused by its line number, not wrapped to the limit
     let big = run(
         &convert,
@@ -213,6 +236,27 @@ fn c_and_cpp_programs_read_a_live_daemon() {
     );
     assert!(daemon.stop(std::time::Duration::from_secs(3)));
 
+    for (what, out, code, says) in [
+        ("vlsync_echo | head -1", &c_head, 0, "seq "),
+        ("vlsync_convert --timeout 0 | head -1", &cpp_head, 0, ""),
+        ("vlsync_convert > /dev/full", &cpp_full, 2, ""),
+    ] {
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        assert_eq!(out.status.code(), Some(code), "{what}: {stdout}\n{stderr}");
+        assert!(stdout.starts_with(says), "{what}: {stdout}");
+        if code == 0 {
+            assert_eq!(stdout.lines().count(), 1, "{what}: {stdout}");
+            assert!(stderr.is_empty(), "{what}: {stderr}");
+        } else {
+            assert!(
+                stderr.contains("vlsync_convert: writing to stdout: No space left on device"),
+                "{what}: {stderr}"
+            );
+        }
+    }
     let lines: Vec<_> = text.lines().map(echo_line).collect();
     assert_eq!(lines.len(), 24, "{text}");
     // vlsync_client_wait_one hands out every estimate: no sequence number is skipped
