@@ -202,7 +202,8 @@ fn declared_within(uncompressed_size: u64, limit: usize, by: &str) -> Result<u64
     if uncompressed_size > limit as u64 {
         return Err(ChunkError::Corrupt(format!(
             "{by} declares {uncompressed_size} uncompressed bytes, over the limit of {limit} \
-             a record may have here (vlsync_mcap::ReaderOptions::max_record_bytes)"
+             a record may have here (a bound of this reader, not of the format: a recording \
+             written with smaller chunks reads)"
         )));
     }
     Ok(uncompressed_size)
@@ -423,7 +424,8 @@ mod tests {
                     n,
                     100,
                     "BY declares 5000 uncompressed bytes, over the limit of 100 a record may have \
-                     here (vlsync_mcap::ReaderOptions::max_record_bytes)"
+                     here (a bound of this reader, not of the format: a recording written with \
+                     smaller chunks reads)"
                         .to_string(),
                 ),
             ] {
