@@ -74,7 +74,8 @@ pub enum Error {
         reason: String,
     },
     /// The file's content is inconsistent (a chunk's records overrun it, its
-    /// declared size is not what it holds, ...).
+    /// declared size is not what it holds, ...) or beyond this reader's bounds (a
+    /// chunk larger than `ReaderOptions::max_record_bytes`).
     Corrupt {
         /// The file.
         path: PathBuf,
@@ -104,7 +105,7 @@ impl Error {
             Error::Topic { reason, .. } => reason.clone(),
             Error::Message { at, reason, .. } => format!("{at}: {reason}"),
             Error::Write { topic, reason, .. } => format!("writing topic `{topic}`: {reason}"),
-            Error::Corrupt { at, reason, .. } => format!("corrupt MCAP {at}: {reason}"),
+            Error::Corrupt { at, reason, .. } => format!("unusable MCAP {at}: {reason}"),
         }
     }
 
