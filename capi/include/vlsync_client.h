@@ -5,7 +5,11 @@
  * target/release/). The library opens <prefix>/offset of the daemon's iceoryx2 services,
  * validates every payload as the Rust and Python clients do, and converts camera stamps
  * to the LiDAR time base; a second handle type reads the daemon's counters
- * (<prefix>/status, vlsync_status_*). No iceoryx2 C/C++ bindings are needed.
+ * (<prefix>/status, vlsync_status_*). No iceoryx2 C/C++ bindings are needed, and a
+ * process should not load them beside this library: it carries its own iceoryx2, and
+ * exports one of iceoryx2's symbols besides vlsync_* (__internal_default_logger, which
+ * rustc exports from every cdylib and a version script cannot hide), so the two copies
+ * would share that one. Use one or the other in a process.
  *
  *   char err[256];
  *   vlsync_client *c = vlsync_client_open("vlsync/robot", err, sizeof err);
