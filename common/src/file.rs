@@ -204,7 +204,7 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 /// Writes `contents` to `path` so that a failure leaves no partial file: into a
 /// temporary file beside it, renamed over it once complete (an error removes the
 /// temporary file and leaves an earlier `path` as it was). A file written over keeps
-/// its permissions, owner and group (written in place when its owner cannot be kept);
+/// its permissions, and its owner and group where the process may give them (root);
 /// a symlink's target is written, not the link. A path that exists
 /// and is not a regular file (a device such as `/dev/stdout`, a pipe) is written
 /// directly, and so is an existing file in a directory where no temporary file can
@@ -241,19 +241,11 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
         }
         Err(e) => return Err(say(e)),
     };
-    // a file written over keeps its owner and group; where they cannot be kept (another
-    // user's file, written by a user who may not give files away), it is written in
-    // place, as its own permissions allow, rather than replaced by one of ours
+    // a file written over keeps its owner and group where this process may give it
+    // them (root writing over a user's output); otherwise it becomes this user's, as
+    // any file replaced through its directory does
     if let Some(m) = &existing {
-        if let Err(e) = keep_owner(&f, m) {
-            drop(f);
-            let _ = std::fs::remove_file(&tmp);
-            return if e.kind() == io::ErrorKind::PermissionDenied {
-                std::fs::write(&target, contents).map_err(say)
-            } else {
-                Err(say(e))
-            };
-        }
+        let _ = keep_owner(&f, m);
     }
     let written = (|| {
         if let Some(m) = &existing {
@@ -307,7 +299,7 @@ mod tests {
         let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o600);
         // another user's file, written over by root, stays theirs (the suite runs as
-        // root in CI; a user who may not give files away writes such a file in place)
+        // root in CI; a user who may not give files away replaces it with their own)
         use std::os::unix::fs::MetadataExt;
         if std::fs::metadata(&p).unwrap().uid() == 0 {
             std::os::unix::fs::chown(&p, Some(65534), Some(65534)).unwrap();
