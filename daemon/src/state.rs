@@ -3,7 +3,8 @@
 //!
 //! The service thread (never the real-time thread) keeps the newest estimate
 //! worth saving ([`worth_saving`]: tracking, or holding with a small standard
-//! deviation) and writes it at most every [`SAVE_PERIOD`] while it tells a restart
+//! deviation) and has it written (by a thread of its own in the daemon,
+//! [`Saver::in_background`]) at most every [`SAVE_PERIOD`] while it tells a restart
 //! something new (its offset off what the saved one predicts by more than the
 //! smaller of their standard deviations, its drift off the saved one by more than
 //! the smaller drift deviation, a standard deviation shrunk by more than a fifth,
@@ -729,16 +730,19 @@ enum Writer {
 
 /// The thread that writes the state file: one save at a time, handed over through a
 /// one-slot channel; it logs what fails (once until a save succeeds again) and
-/// what is slow.
+/// what is slow, and sends each save's outcome back (the estimate saved, or `None`).
 #[derive(Debug)]
 struct SaveThread {
     jobs: Option<crossbeam::channel::Sender<SavedState>>,
+    done: crossbeam::channel::Receiver<Option<Estimate>>,
     handle: Option<std::thread::JoinHandle<()>>,
 }
 
 impl SaveThread {
     fn spawn(path: PathBuf) -> std::io::Result<Self> {
         let (tx, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        // at most two saves are in flight (one written, one waiting): never full
+        let (done_tx, done) = crossbeam::channel::bounded(4);
         let handle = std::thread::Builder::new()
             .name("vlsync-state".into())
             .spawn(move || {
@@ -754,11 +758,13 @@ impl SaveThread {
                             took.as_secs_f64()
                         );
                     }
-                    report(&path, r, &mut last_error);
+                    let ok = report(&path, r, &mut last_error);
+                    let _ = done_tx.try_send(ok.then_some(s.estimate));
                 }
             })?;
         Ok(Self {
             jobs: Some(tx),
+            done,
             handle: Some(handle),
         })
     }
@@ -768,8 +774,13 @@ impl SaveThread {
         self.jobs.as_ref().is_some_and(|j| j.try_send(s).is_ok())
     }
 
+    /// The outcomes of the saves finished since the last call, oldest first.
+    fn outcomes(&self) -> impl Iterator<Item = Option<Estimate>> + '_ {
+        self.done.try_iter()
+    }
+
     /// Hands `s` over (waiting up to `wait` for the previous save), then waits up to
-    /// what is left of `wait` for it to be written. True when it was.
+    /// what is left of `wait` for it to be written. True when it was written.
     fn finish(&mut self, s: Option<SavedState>, wait: Duration) -> bool {
         let deadline = Instant::now() + wait;
         let handed = match (s, self.jobs.take()) {
@@ -786,7 +797,9 @@ impl SaveThread {
             }
             std::thread::sleep(Duration::from_millis(5));
         }
-        h.join().is_ok() && handed
+        // the last outcome is the handed estimate's (it was the last job)
+        let last = self.done.try_iter().last();
+        h.join().is_ok() && handed && last.is_some_and(|o| o.is_some())
     }
 }
 
@@ -870,6 +883,12 @@ impl Saver {
     /// saved (in the background: handed it over); an error is logged once until a
     /// save succeeds.
     pub fn tick(&mut self, now: Instant) -> bool {
+        if let Writer::Thread(t) = &self.writer {
+            // what the thread saved is what a restart would find
+            for saved in t.outcomes().flatten() {
+                self.last_saved = Some(saved);
+            }
+        }
         let Some(p) = self.pending else {
             return false;
         };
@@ -879,22 +898,35 @@ impl Saver {
             _ => self.period,
         };
         if since.is_none_or(|d| d >= wait) {
-            self.last_save = Some(now);
-            return self.flush();
+            let before = self.last_save.replace(now);
+            let done = self.flush();
+            if !done && self.pending.is_some() {
+                // the thread still writes the previous save: again at the next tick
+                self.last_save = before;
+            }
+            return done;
         }
         false
     }
 
     /// Saves the pending estimate now. Returns whether it saved (in the background:
     /// handed it over; while the previous save is still being written it stays
-    /// pending, for the next tick).
+    /// pending, and [`Saver::tick`] tries again at its next call).
     pub fn flush(&mut self) -> bool {
         let Some(e) = self.pending.take() else {
             return false;
         };
         let s = self.state_of(e);
-        let done = match &mut self.writer {
-            Writer::Inline { last_error } => report(&self.path, save(&self.path, &s), last_error),
+        match &mut self.writer {
+            Writer::Inline { last_error } => {
+                let done = report(&self.path, save(&self.path, &s), last_error);
+                if done {
+                    self.last_saved = Some(e);
+                }
+                done
+            }
+            // `last_saved` follows the thread's outcomes (`tick`): a failed save is
+            // retried a period later, as inline
             Writer::Thread(t) => {
                 if !t.offer(s) {
                     self.pending = Some(e);
@@ -902,11 +934,7 @@ impl Saver {
                 }
                 true
             }
-        };
-        if done {
-            self.last_saved = Some(e);
         }
-        done
     }
 
     /// The daemon's stop: saves the pending estimate and, in the background, waits
@@ -1294,6 +1322,76 @@ mod tests {
         // nothing pending: nothing to save
         assert!(!sv.finish(Duration::from_secs(1)));
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_failed_background_save_is_retried_a_period_later_and_reported_at_stop() {
+        let d = dir("background-fail");
+        let p = d.join("missing").join("s");
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        let t0 = Instant::now();
+        sv.offer(&est());
+        assert!(sv.tick(t0), "handed over");
+        // the outcome arrives; the same estimate is tried again after the period (5 s),
+        // not after the refresh period (60 s) of an estimate already saved
+        std::thread::sleep(Duration::from_millis(200));
+        sv.offer(&est());
+        assert!(!sv.tick(t0 + Duration::from_secs(4)));
+        assert!(sv.tick(t0 + Duration::from_secs(5)), "retried");
+        // the stop reports a save that failed as not saved
+        sv.offer(&est());
+        assert!(!sv.finish(Duration::from_secs(5)));
+        // and one that works as saved
+        std::fs::create_dir_all(d.join("missing")).unwrap();
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        sv.offer(&est());
+        assert!(sv.finish(Duration::from_secs(5)));
+        assert!(p.exists());
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_busy_save_thread_is_offered_the_estimate_again_at_the_next_tick() {
+        // the temporary file is a FIFO nobody reads until the test does: the first
+        // save blocks in it, the second waits in the slot, the third is refused
+        let d = dir("busy");
+        let p = d.join("s");
+        let fifo = temp_path(&p);
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        let t0 = Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        let e = |k: u32| Estimate {
+            offset_s: f64::from(k) * 1e-3,
+            ..est()
+        };
+        sv.offer(&e(1));
+        assert!(sv.tick(at(0)));
+        std::thread::sleep(Duration::from_millis(200)); // the thread takes it, and blocks
+        sv.offer(&e(2));
+        assert!(sv.tick(at(5)), "into the slot");
+        sv.offer(&e(3));
+        assert!(!sv.tick(at(10)), "refused: the slot is full");
+        // not a period later: at the next tick
+        assert!(!sv.tick(at(10) + Duration::from_millis(100)));
+        // release the writer: it drains the FIFO's job and the slot's
+        let reader = std::thread::spawn(move || {
+            let mut sink = Vec::new();
+            let _ = std::fs::File::open(&fifo).map(|mut f| f.read_to_end(&mut sink));
+        });
+        let mut handed = false;
+        for k in 0..100u64 {
+            std::thread::sleep(Duration::from_millis(20));
+            if sv.tick(at(10) + Duration::from_millis(200 + k)) {
+                handed = true;
+                break;
+            }
+        }
+        assert!(handed, "the pending estimate was offered again within 2 s");
+        let _ = sv.finish(Duration::from_millis(300));
+        let _ = reader.join();
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

@@ -63,9 +63,12 @@
 //! thread runs, a `STATUS=` line per status period, and pets the watchdog only
 //! while the real-time thread's heartbeat (incremented every loop) moves;
 //! `STOPPING=1` on shutdown. With `daemon.state_file` set ([`crate::state`]) the
-//! service thread saves the last good estimate (handed over as
-//! [`RtEvent::Estimate`]) atomically (at most every 5 s while it changes, every 60 s
-//! while it does not: `state::SAVE_PERIOD`, `state::REFRESH_PERIOD`) and on shutdown, and a
+//! service thread keeps the last good estimate (handed over as
+//! [`RtEvent::Estimate`]) and has it saved atomically by the state thread
+//! (`vlsync-state`: an fsync that stalls holds neither the watchdog pings nor the
+//! status) at most every 5 s while it changes, every 60 s while it does not
+//! (`state::SAVE_PERIOD`, `state::REFRESH_PERIOD`), and on shutdown (waiting up to
+//! `state::FINAL_SAVE_WAIT`), and a
 //! fresh enough saved estimate is restored into the estimator before the
 //! real-time loop starts.
 #![forbid(unsafe_code)]
