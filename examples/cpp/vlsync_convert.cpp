@@ -30,8 +30,8 @@ namespace {
 volatile std::sig_atomic_t stop = 0;
 extern "C" void on_signal(int) { stop = 1; }
 
-// After a line: 0 to go on; else the exit status (a reader that went away, EPIPE, is a
-// normal end; any other write error is 2, with its reason).
+// After a line: -1 to go on; else the exit status (a reader that went away, EPIPE, is a
+// normal end, 0; any other write error is 2, with its reason).
 int written() {
     if (std::cout.flush()) return -1;
     if (errno == EPIPE || stop) return 0;
