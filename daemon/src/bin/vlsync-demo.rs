@@ -188,6 +188,20 @@ fn record_truth(
 
 fn run(a: Args) -> Result<(), String> {
     check_args(&a)?;
+    if let (Some(dir), true) = (&a.record, a.force) {
+        // the recorder writes over cam, lidar and est; an earlier run's truth must not
+        // stay beside them if this run ends before it writes its own
+        let truth = dir.join(TRUTH_FILE);
+        match std::fs::remove_file(&truth) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(format!(
+                    "--record --force: cannot remove {}: {e}",
+                    truth.display()
+                ))
+            }
+            _ => {}
+        }
+    }
     let mut out = Out::new();
     let source = match &a.family {
         Some(f) => Source::Sim {
