@@ -40,9 +40,6 @@ struct Plain(Box<dyn FrameSource>);
 /// Opens a live camera again after it stalled.
 type Reopen = Box<dyn FnMut() -> Result<Box<dyn FrameSource>, cam::Error>>;
 
-/// While a live camera stays stalled, how often the driver says so again.
-pub const STALL_REPEAT: Duration = Duration::from_secs(600);
-
 /// What stands for a camera between its close and its reopen (and after a reopen
 /// that failed: the source has then ended with that error).
 struct Closed;
@@ -58,21 +55,12 @@ impl FrameSource for Closed {
     }
 }
 
-/// A live camera's stall going on: since when, when it was last said, reopens in it.
-#[derive(Debug, Clone, Copy)]
-struct Stall {
-    since: Instant,
-    said: Instant,
-    reopens: u64,
-}
-
 /// A frame came: ends the stall of camera `what`, if any, saying how long it lasted.
-fn end_stall(stall: &mut Option<Stall>, what: &str) {
-    if let Some(s) = stall.take() {
+fn end_stall(stall: &mut Option<Silence>, what: &str) {
+    if let Some((lasted, reopens)) = Silence::end(stall) {
         vlsync_common::console::print_err(&format!(
-            "vlsync-cam: {what}: frames again after {:.1} s of stall ({} reopens of the device)\n",
-            s.since.elapsed().as_secs_f64(),
-            s.reopens
+            "vlsync-cam: {what}: frames again after {:.1} s of stall ({reopens} reopens of the device)\n",
+            lasted.as_secs_f64()
         ));
     }
 }
@@ -372,7 +360,7 @@ pub struct CamSource {
     /// A live camera: how to open it again after it stalled ([`cam::Error::Stalled`]).
     reopen: Option<Reopen>,
     /// The stall going on, if any.
-    stall: Option<Stall>,
+    stall: Option<Silence>,
     /// Reopens after stalls over the run.
     reopens: u64,
 }
@@ -418,7 +406,7 @@ impl CamSource {
     }
 
     /// A live camera that stalled ([`cam::Error::Stalled`]): says so (once, then every
-    /// [`STALL_REPEAT`]) and opens it again with `self.reopen`, instead of ending the
+    /// [`SILENCE_REPEAT`]) and opens it again with `self.reopen`, instead of ending the
     /// driver, whose unit would restart it every few seconds for as long as the
     /// camera hangs. A camera that cannot be opened again (unplugged) is an error.
     fn on_stall(&mut self, e: &cam::Error) -> Result<(), SourceError> {
@@ -426,32 +414,19 @@ impl CamSource {
         if self.reopen.is_none() {
             return Err(SourceError(format!("{what}: {e}")));
         }
-        let now = Instant::now();
-        match &mut self.stall {
-            None => {
-                let since = match e {
-                    cam::Error::Stalled { after, .. } => now.checked_sub(*after).unwrap_or(now),
-                    _ => now,
-                };
-                vlsync_common::console::print_err(&format!(
-                    "vlsync-cam: {what}: {e}; reopening the device and waiting for it (said again every {} min while it lasts)\n",
-                    STALL_REPEAT.as_secs() / 60
-                ));
-                self.stall = Some(Stall {
-                    since,
-                    said: now,
-                    reopens: 0,
-                });
-            }
-            Some(s) if now.duration_since(s.said) >= STALL_REPEAT => {
-                vlsync_common::console::print_err(&format!(
-                    "vlsync-cam: {what}: still no frame after {:.0} min ({} reopens of the device)\n",
-                    now.duration_since(s.since).as_secs_f64() / 60.0,
-                    s.reopens
-                ));
-                s.said = now;
-            }
-            Some(_) => {}
+        let so_far = match e {
+            cam::Error::Stalled { after, .. } => *after,
+            _ => Duration::ZERO,
+        };
+        match Silence::note(&mut self.stall, Instant::now(), so_far) {
+            Say::Began => vlsync_common::console::print_err(&format!(
+                "vlsync-cam: {what}: {e}; reopening the device and waiting for it (said again every {} min while it lasts)\n",
+                SILENCE_REPEAT.as_secs() / 60
+            )),
+            Say::Still { minutes, reopens } => vlsync_common::console::print_err(&format!(
+                "vlsync-cam: {what}: still no frame after {minutes:.0} min ({reopens} reopens of the device)\n"
+            )),
+            Say::Nothing => {}
         }
         // closed first: a device that streams to one handle refuses another's format
         self.frames = Box::new(Plain(Box::new(Closed)));
@@ -461,9 +436,7 @@ impl CamSource {
             self.frames = Box::new(Plain(src));
         }
         self.reopens += 1;
-        if let Some(s) = &mut self.stall {
-            s.reopens += 1;
-        }
+        Silence::reopened(&mut self.stall);
         Ok(())
     }
 
@@ -742,11 +715,8 @@ impl Source for CamSource {
                 self.reopens
             ));
         }
-        if let Some(st) = &self.stall {
-            s.push_str(&format!(
-                "; stalled for {:.0} s now",
-                st.since.elapsed().as_secs_f64()
-            ));
+        if let Some(lasted) = Silence::lasted(&self.stall) {
+            s.push_str(&format!("; stalled for {:.0} s now", lasted.as_secs_f64()));
         }
         if let Some((l, nice)) = self.frames.live() {
             s.push_str(&format!(

@@ -49,21 +49,10 @@ struct Serial {
     last_scan: Instant,
     scans: u64,
     /// The silence going on, if any.
-    quiet: Option<Quiet>,
+    quiet: Option<Silence>,
     /// Reopens of the port over the run.
     reopens: u64,
 }
-
-/// A silence of a serial LiDAR: since when, when it was last said, reopens in it.
-#[derive(Debug, Clone, Copy)]
-struct Quiet {
-    since: Instant,
-    said: Instant,
-    reopens: u64,
-}
-
-/// While a serial LiDAR stays silent, how often the driver says so again.
-pub const SILENCE_REPEAT: Duration = Duration::from_secs(600);
 
 /// Opens the serial port of a `kind` LiDAR at `baud` (an RPLIDAR is asked to scan).
 fn open_serial(kind: SerialKind, path: &str, baud: u32) -> Result<SerialLidar, SourceError> {
@@ -88,27 +77,15 @@ impl Serial {
     /// LiDAR is off). A port that cannot be reopened (the adapter unplugged) is an
     /// error.
     fn on_silence(&mut self, what: &str, now: Instant, why: &str) -> Result<(), SourceError> {
-        match &mut self.quiet {
-            None => {
-                vlsync_common::console::print_err(&format!(
-                    "vlsync-lidar: {what}: {why}; reopening the port and waiting for it (said again every {} min while it lasts)\n",
-                    SILENCE_REPEAT.as_secs() / 60
-                ));
-                self.quiet = Some(Quiet {
-                    since: now.checked_sub(self.silence).unwrap_or(now),
-                    said: now,
-                    reopens: 0,
-                });
-            }
-            Some(q) if now.duration_since(q.said) >= SILENCE_REPEAT => {
-                vlsync_common::console::print_err(&format!(
-                    "vlsync-lidar: {what}: still silent after {:.0} min ({} reopens of the port)\n",
-                    now.duration_since(q.since).as_secs_f64() / 60.0,
-                    q.reopens
-                ));
-                q.said = now;
-            }
-            Some(_) => {}
+        match Silence::note(&mut self.quiet, now, self.silence) {
+            Say::Began => vlsync_common::console::print_err(&format!(
+                "vlsync-lidar: {what}: {why}; reopening the port and waiting for it (said again every {} min while it lasts)\n",
+                SILENCE_REPEAT.as_secs() / 60
+            )),
+            Say::Still { minutes, reopens } => vlsync_common::console::print_err(&format!(
+                "vlsync-lidar: {what}: still silent after {minutes:.0} min ({reopens} reopens of the port)\n"
+            )),
+            Say::Nothing => {}
         }
         // closed first: a port is opened exclusively
         self.port = None;
@@ -119,20 +96,17 @@ impl Serial {
             ))
         })?);
         self.reopens += 1;
-        if let Some(q) = &mut self.quiet {
-            q.reopens += 1;
-        }
+        Silence::reopened(&mut self.quiet);
         (self.last_bytes, self.last_scan) = (now, now);
         Ok(())
     }
 
     /// A complete scan came: ends a silence, saying how long it lasted.
-    fn on_scan(&mut self, what: &str, now: Instant) {
-        if let Some(q) = self.quiet.take() {
+    fn on_scan(&mut self, what: &str) {
+        if let Some((lasted, reopens)) = Silence::end(&mut self.quiet) {
             vlsync_common::console::print_err(&format!(
-                "vlsync-lidar: {what}: scans again after {:.1} s of silence ({} reopens of the port)\n",
-                now.duration_since(q.since).as_secs_f64(),
-                q.reopens
+                "vlsync-lidar: {what}: scans again after {:.1} s of silence ({reopens} reopens of the port)\n",
+                lasted.as_secs_f64()
             ));
         }
     }
@@ -461,7 +435,7 @@ impl LidarSource {
                 }
                 if *serial_scans != before {
                     *last_scan = now;
-                    s.on_scan(what, now);
+                    s.on_scan(what);
                 }
                 let silence = s.silence;
                 if now.duration_since(s.last_bytes) > silence {
@@ -566,11 +540,8 @@ impl Source for LidarSource {
                     ser.silence.as_secs_f64()
                 ));
             }
-            if let Some(q) = &ser.quiet {
-                s.push_str(&format!(
-                    "; silent for {:.0} s now",
-                    q.since.elapsed().as_secs_f64()
-                ));
+            if let Some(lasted) = Silence::lasted(&ser.quiet) {
+                s.push_str(&format!("; silent for {:.0} s now", lasted.as_secs_f64()));
             }
         }
         Some(s)

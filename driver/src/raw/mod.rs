@@ -69,6 +69,99 @@ fn never() -> bool {
     false
 }
 
+/// While a live device stays silent, how often its driver says so again.
+pub const SILENCE_REPEAT: Duration = Duration::from_secs(600);
+
+/// A live device's silence going on (a serial LiDAR without data, a V4L2 camera
+/// without frames) while its driver reopens it: since when, when it was last said,
+/// how many reopens it took.
+#[derive(Debug, Clone, Copy)]
+struct Silence {
+    since: Instant,
+    said: Instant,
+    reopens: u64,
+}
+
+/// What to say about a silence now.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Say {
+    /// It began (the first line).
+    Began,
+    /// It goes on: minutes so far, reopens so far (every [`SILENCE_REPEAT`]).
+    Still { minutes: f64, reopens: u64 },
+    /// Nothing yet.
+    Nothing,
+}
+
+impl Silence {
+    /// Notes in `slot` a silence at `now` that has lasted `so_far`: what to say.
+    fn note(slot: &mut Option<Silence>, now: Instant, so_far: Duration) -> Say {
+        match slot {
+            None => {
+                *slot = Some(Silence {
+                    since: now.checked_sub(so_far).unwrap_or(now),
+                    said: now,
+                    reopens: 0,
+                });
+                Say::Began
+            }
+            Some(s) if now.duration_since(s.said) >= SILENCE_REPEAT => {
+                s.said = now;
+                Say::Still {
+                    minutes: now.duration_since(s.since).as_secs_f64() / 60.0,
+                    reopens: s.reopens,
+                }
+            }
+            Some(_) => Say::Nothing,
+        }
+    }
+
+    /// Counts a reopen of the device in the silence in `slot`.
+    fn reopened(slot: &mut Option<Silence>) {
+        if let Some(s) = slot {
+            s.reopens += 1;
+        }
+    }
+
+    /// Ends the silence in `slot`, if any: how long it lasted and its reopens.
+    fn end(slot: &mut Option<Silence>) -> Option<(Duration, u64)> {
+        slot.take().map(|s| (s.since.elapsed(), s.reopens))
+    }
+
+    /// How long the silence in `slot` has lasted, if one goes on.
+    fn lasted(slot: &Option<Silence>) -> Option<Duration> {
+        slot.map(|s| s.since.elapsed())
+    }
+}
+
+#[cfg(test)]
+mod silence_tests {
+    use super::*;
+
+    #[test]
+    fn a_silence_is_said_once_then_every_repeat_period_with_its_reopens() {
+        let t0 = Instant::now();
+        let mut slot = None;
+        let ten = Duration::from_secs(10);
+        assert_eq!(Silence::note(&mut slot, t0, ten), Say::Began);
+        Silence::reopened(&mut slot);
+        assert_eq!(Silence::note(&mut slot, t0 + ten, ten), Say::Nothing);
+        Silence::reopened(&mut slot);
+        let later = t0 + SILENCE_REPEAT;
+        assert_eq!(
+            Silence::note(&mut slot, later, ten),
+            Say::Still {
+                minutes: (SILENCE_REPEAT + ten).as_secs_f64() / 60.0,
+                reopens: 2
+            }
+        );
+        assert_eq!(Silence::note(&mut slot, later + ten, ten), Say::Nothing);
+        assert!(Silence::lasted(&slot).is_some());
+        assert_eq!(Silence::end(&mut slot).map(|(_, n)| n), Some(2));
+        assert!(slot.is_none() && Silence::end(&mut slot).is_none());
+    }
+}
+
 /// Default render duration when none is given, seconds.
 pub const DEFAULT_RENDER_DURATION_S: f64 = 60.0;
 
