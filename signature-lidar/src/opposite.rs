@@ -92,15 +92,9 @@ impl OppositeWindows {
         let mut emitted = 0;
         let max_gap = self.ahead.config().max_gap_ns;
         for s in &buf[..n] {
-            if let Some(l) = self.last_t.filter(|l| s.t_ns <= *l) {
-                // a step back beyond the gap limit is the clock's (a restarted sensor,
-                // concatenated recordings): both windows restarted on it, and so does
-                // the merge, instead of dropping everything until time passes the old
-                // stamps
-                if l.saturating_sub(s.t_ns) <= max_gap {
-                    self.out_of_order += 1;
-                    continue;
-                }
+            if !admits(self.last_t, s.t_ns, max_gap) {
+                self.out_of_order += 1;
+                continue;
             }
             self.last_t = Some(s.t_ns);
             emit(*s);
@@ -123,6 +117,15 @@ impl OppositeWindows {
     pub fn out_of_order(&self) -> u64 {
         self.out_of_order
     }
+}
+
+/// Whether the merged stream takes a sample at `t` after the last one emitted at
+/// `last`: one after it, or one before it by more than `max_gap` (the clock stepped
+/// back, a restarted sensor or concatenated recordings: both windows restarted on it,
+/// and so does the merge, instead of dropping everything until time passes the old
+/// stamps). A sample at or just before `last` is out of order.
+fn admits(last: Option<Nanos>, t: Nanos, max_gap: Nanos) -> bool {
+    last.is_none_or(|l| t > l || l.saturating_sub(t) > max_gap)
 }
 
 /// The wall front-end a LiDAR driver runs: the window of a configuration alone, or
@@ -226,10 +229,19 @@ mod tests {
             .iter()
             .all(|s| s.t_ns < 20_000_000_000 && (s.value + 0.5).abs() < 0.01));
         assert!(after.windows(2).all(|p| p[0].t_ns < p[1].t_ns));
-        // a small step back (within the gap limit) is no restart: nothing at or
-        // before the last sample is emitted
-        let (n, last) = (out.len(), out.last().unwrap().t_ns);
-        w.push_scan(&corridor(0.5, last - 150_000_000), |s| out.push(s));
-        assert!(out[n..].iter().all(|s| s.t_ns > last), "{:?}", &out[n..]);
+    }
+
+    #[test]
+    fn the_merge_drops_a_sample_at_or_just_before_the_last_and_restarts_after_a_clock_step() {
+        let gap = 500_000_000;
+        let last = Some(10_000_000_000);
+        assert!(admits(None, 5, gap));
+        assert!(admits(last, 10_000_000_001, gap));
+        // out of order: the same stamp, or one earlier within the gap limit
+        assert!(!admits(last, 10_000_000_000, gap));
+        assert!(!admits(last, 9_500_000_000, gap));
+        // the clock stepped back: a restart
+        assert!(admits(last, 9_499_999_999, gap));
+        assert!(admits(last, i64::MIN, gap));
     }
 }
