@@ -1354,12 +1354,7 @@ mod tests {
     fn a_busy_save_thread_is_offered_the_estimate_again_at_the_next_tick() {
         // the temporary file is a FIFO nobody reads until the test does: the first
         // save blocks in it, the second waits in the slot, the third is refused
-        let d = dir("busy");
-        let p = d.join("s");
-        let fifo = temp_path(&p);
-        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
-        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
-        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        let (d, fifo, mut sv) = saver_over_a_fifo("busy");
         let t0 = Instant::now();
         let at = |s: u64| t0 + Duration::from_secs(s);
         let e = |k: u32| Estimate {
@@ -1394,16 +1389,24 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
     }
 
-    #[test]
-    fn a_stalled_save_stops_neither_the_service_thread_nor_the_daemons_stop() {
-        // the temporary file is a FIFO nobody reads: opening it blocks, as an fsync
-        // on stalled storage does. Saved inline, every tick would hang on it
-        let d = dir("stalled");
+    /// A background saver (period 5 s) whose temporary file is a FIFO nobody reads:
+    /// opening it to save blocks, as an fsync on stalled storage does. Returns the
+    /// test's directory, the FIFO and the saver.
+    fn saver_over_a_fifo(tag: &str) -> (PathBuf, PathBuf, Saver) {
+        let d = dir(tag);
         let p = d.join("s");
         let fifo = temp_path(&p);
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
-        let mut sv = Saver::new(p.clone(), "vlsync/robot", Duration::from_secs(5)).in_background();
+        let sv = Saver::new(p, "vlsync/robot", Duration::from_secs(5)).in_background();
+        (d, fifo, sv)
+    }
+
+    #[test]
+    fn a_stalled_save_stops_neither_the_service_thread_nor_the_daemons_stop() {
+        // the temporary file is a FIFO nobody reads: opening it blocks, as an fsync
+        // on stalled storage does. Saved inline, every tick would hang on it
+        let (d, fifo, mut sv) = saver_over_a_fifo("stalled");
         // the service thread's part on a thread of the test's, so that a regression
         // fails the test instead of hanging it
         let (tx, rx) = std::sync::mpsc::channel();

@@ -155,17 +155,22 @@ fn feed(
 
 static LD06_STOP: AtomicBool = AtomicBool::new(false);
 
-#[test]
-fn ld06_through_a_pty() {
-    use serialport::SerialPort;
-    // a wall straight ahead approaching at 0.5 m/s, 2 s of output at the real byte rate
-    let bytes = vlsync_signature_lidar::encode::ld06_stream(3600, 0, 2.0, |t, b| {
+/// 2 s of LD06 output: a wall straight ahead approaching at 0.5 m/s.
+fn approaching_wall_ld06() -> Vec<u8> {
+    vlsync_signature_lidar::encode::ld06_stream(3600, 0, 2.0, |t, b| {
         if b.abs() < 0.3 {
             3.0 - 0.5 * t
         } else {
             6.0
         }
-    });
+    })
+}
+
+#[test]
+fn ld06_through_a_pty() {
+    use serialport::SerialPort;
+    // a wall straight ahead approaching at 0.5 m/s, 2 s of output at the real byte rate
+    let bytes = approaching_wall_ld06();
     let rate = bytes.len() as f64 / 2.0;
     let (master, slave) = serialport::TTYPort::pair().expect("pty pair");
     let path = slave.name().expect("slave path");
@@ -285,13 +290,7 @@ fn a_silent_serial_device_is_waited_for_with_its_port_reopened() {
     .unwrap();
     drop(slave);
     // 1 s of silence, then 2 s of scans
-    let bytes = vlsync_signature_lidar::encode::ld06_stream(3600, 0, 2.0, |t, b| {
-        if b.abs() < 0.3 {
-            3.0 - 0.5 * t
-        } else {
-            6.0
-        }
-    });
+    let bytes = approaching_wall_ld06();
     let rate = bytes.len() as f64 / 2.0;
     let writer = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_secs(1));

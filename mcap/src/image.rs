@@ -424,17 +424,32 @@ mod tests {
         assert!(raw_to_gray(&img("uyvy", 3, 1, 6, &[0; 6]), &mut out).is_err());
     }
 
-    #[test]
-    fn compressed_png_and_garbage() {
+    /// `img` as PNG bytes.
+    fn png_of<P, C>(img: &image::ImageBuffer<P, C>) -> Vec<u8>
+    where
+        P: image::PixelWithColorType,
+        [P::Subpixel]: image::EncodableLayout,
+        C: std::ops::Deref<Target = [P::Subpixel]>,
+    {
         let mut png = Vec::new();
-        let g = image::GrayImage::from_raw(3, 2, vec![1, 2, 3, 4, 5, 6]).unwrap();
-        g.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .unwrap();
-        let m = CompressedImage {
+        png
+    }
+
+    /// A `CompressedImage` of PNG bytes.
+    fn png_message(png: &[u8]) -> CompressedImage<'_> {
+        CompressedImage {
             header: Header::default(),
             format: "png",
-            data: &png,
-        };
+            data: png,
+        }
+    }
+
+    #[test]
+    fn compressed_png_and_garbage() {
+        let png = png_of(&image::GrayImage::from_raw(3, 2, vec![1, 2, 3, 4, 5, 6]).unwrap());
+        let m = png_message(&png);
         let (mut gray, mut scratch) = (Vec::new(), Vec::new());
         assert_eq!(
             decode_compressed(&m, 100, &mut gray, &mut scratch),
@@ -466,15 +481,8 @@ mod tests {
         let px: Vec<u16> = (0..8)
             .flat_map(|i| [i * 8000, i * 8000, i * 8000, 65535])
             .collect();
-        let img = image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(4, 2, px).unwrap();
-        let mut png = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .unwrap();
-        let m = CompressedImage {
-            header: Header::default(),
-            format: "png",
-            data: &png,
-        };
+        let png = png_of(&image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(4, 2, px).unwrap());
+        let m = png_message(&png);
         let (mut gray, mut scratch) = (Vec::new(), Vec::new());
         let e = decode_compressed(&m, 10, &mut gray, &mut scratch).unwrap_err();
         assert!(
