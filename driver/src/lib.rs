@@ -559,6 +559,33 @@ mod tests {
         assert_eq!(p.due(1016 * S + S / 2), (505 * S + 35 * S / 100, false));
     }
 
+    proptest::proptest! {
+        /// Whatever the stamps do, pacing never schedules a sample more than a step
+        /// back's worth (1 s at this speed) before the previous one, re-anchors exactly
+        /// on the steps back beyond it, and between steps keeps the stamps' spacing.
+        #[test]
+        fn pacing_keeps_the_stamps_spacing_and_never_goes_back_beyond_a_step(
+            first in -1_000_000_000_000i64..1_000_000_000_000,
+            deltas in proptest::collection::vec(-3_000_000_000i64..200_000_000, 1..200),
+            speed in 0.5f64..50.0,
+        ) {
+            let mut p = Pacer { speed, anchor_ns: first, start_ns: 7 * S, prev: None };
+            let (mut t, (mut due, _)) = (first, p.due(first));
+            for d in deltas {
+                let (next, stepped) = p.due(t + d);
+                proptest::prop_assert_eq!(stepped, -d > STEP_BACK_NS);
+                if stepped {
+                    proptest::prop_assert_eq!(next, due);
+                } else {
+                    let want = due as f64 + d as f64 / speed;
+                    proptest::prop_assert!((next as f64 - want).abs() <= 2.0, "{next} vs {want}");
+                }
+                proptest::prop_assert!(next as f64 >= due as f64 - STEP_BACK_NS as f64 / speed - 2.0);
+                (t, due) = (t + d, next);
+            }
+        }
+    }
+
     #[test]
     fn a_long_wait_for_a_stamp_far_ahead_is_noticed() {
         // two samples, then one stamped 11.6 days later: the driver says why it is silent
