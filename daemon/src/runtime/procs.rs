@@ -198,20 +198,23 @@ pub fn describe_exit(st: std::process::ExitStatus) -> String {
 pub fn cpu_seconds(pid: u32) -> Result<f64, String> {
     let path = format!("/proc/{pid}/stat");
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{path}: {e}"))?;
-    // the command name (field 2) may contain spaces: parse after the last ')'
+    let ticks = stat_field(&text, 14, "utime", &path)? + stat_field(&text, 15, "stime", &path)?;
+    Ok(ticks as f64 / CLOCK_TICKS_PER_SEC)
+}
+
+/// Field `n` (1-based, as proc(5) numbers them) of a `/proc/.../stat` line, named
+/// `name` in errors about file `what`. The command name (field 2) may contain spaces
+/// and ')': the fields are counted after the last ')'.
+fn stat_field(text: &str, n: usize, name: &str, what: &str) -> Result<u64, String> {
     let rest = text
         .rfind(')')
         .map(|i| &text[i + 1..])
-        .ok_or_else(|| format!("{path}: no ')' in {text:?}"))?;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // after ')': state is field 3, so utime (14) and stime (15) are at 11 and 12
-    let get = |i: usize, what: &str| -> Result<f64, String> {
-        f.get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .ok_or_else(|| format!("{path}: cannot read {what}"))
-    };
-    let ticks = get(11, "utime")? + get(12, "stime")?;
-    Ok(ticks / CLOCK_TICKS_PER_SEC)
+        .ok_or_else(|| format!("{what}: no ')' in the stat line"))?;
+    // after ')' the state is field 3: field n is the (n - 3)th
+    n.checked_sub(3)
+        .and_then(|i| rest.split_whitespace().nth(i))
+        .and_then(|v| v.parse::<u64>().ok())
+        .ok_or_else(|| format!("{what}: cannot read {name} (field {n})"))
 }
 
 /// `sysconf(_SC_CLK_TCK)`: 100 on every Linux architecture vlsync targets.
@@ -277,17 +280,9 @@ pub fn parse_pinned(status: &str) -> Option<u32> {
 /// Parses a `/proc/<pid>/task/<tid>/stat` line: the CPU it last ran on (field 39),
 /// its real-time priority (40) and policy (41). `what` names the file in errors.
 pub fn parse_thread_sched(text: &str, what: &str) -> Result<ThreadSched, String> {
-    // the command name (field 2) may contain spaces and ')': fields follow the last ')'
-    let rest = text
-        .rfind(')')
-        .map(|i| &text[i + 1..])
-        .ok_or_else(|| format!("{what}: no ')' in the stat line"))?;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // after ')' the state is field 3, at index 0: field n is at index n - 3
     let get = |n: usize, name: &str| -> Result<u32, String> {
-        f.get(n - 3)
-            .and_then(|v| v.parse::<u32>().ok())
-            .ok_or_else(|| format!("{what}: cannot read {name} (field {n})"))
+        let v = stat_field(text, n, name, what)?;
+        u32::try_from(v).map_err(|_| format!("{what}: {name} (field {n}) is {v}"))
     };
     Ok(ThreadSched {
         cpu: get(39, "processor")?,
