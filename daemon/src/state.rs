@@ -780,26 +780,26 @@ impl SaveThread {
     }
 
     /// Hands `s` over (waiting up to `wait` for the previous save), then waits up to
-    /// what is left of `wait` for it to be written. True when it was written.
-    fn finish(&mut self, s: Option<SavedState>, wait: Duration) -> bool {
+    /// what is left of `wait` for the thread to end. `None` when it did not in time
+    /// (the storage stalls); else whether `s` was written (false with no `s`, or a
+    /// save that failed, which the thread has logged with its reason).
+    fn finish(&mut self, s: Option<SavedState>, wait: Duration) -> Option<bool> {
         let deadline = Instant::now() + wait;
         let handed = match (s, self.jobs.take()) {
             (Some(s), Some(jobs)) => jobs.send_timeout(s, wait).is_ok(),
             _ => false,
         };
-        let Some(h) = self.handle.take() else {
-            return false;
-        };
+        let h = self.handle.take()?;
         while !h.is_finished() {
             if Instant::now() >= deadline {
                 // left behind: the process ends without it
-                return false;
+                return None;
             }
             std::thread::sleep(Duration::from_millis(5));
         }
         // the last outcome is the handed estimate's (it was the last job)
         let last = self.done.try_iter().last();
-        h.join().is_ok() && handed && last.is_some_and(|o| o.is_some())
+        Some(h.join().is_ok() && handed && last.is_some_and(|o| o.is_some()))
     }
 }
 
@@ -950,14 +950,14 @@ impl Saver {
             Writer::Thread(t) => {
                 let had = s.is_some();
                 let done = t.finish(s, wait);
-                if !done && had {
+                if done.is_none() && had {
                     tracing::warn!(
                         "state file {}: the last save was not written within {:.0} s (the storage stalls); stopping without it",
                         self.path.display(),
                         wait.as_secs_f64()
                     );
                 }
-                done
+                done == Some(true)
             }
         }
     }
