@@ -51,6 +51,13 @@ pub trait FrameSource {
     fn unusable(&self) -> Option<(u64, &str)> {
         None
     }
+
+    /// A one-time remark on how the stream is timed, for the driver's log (a live
+    /// camera whose buffer stamps are not on `CLOCK_MONOTONIC`); each remark is
+    /// handed out once.
+    fn take_note(&mut self) -> Option<String> {
+        None
+    }
 }
 
 /// Unusable frames in a row after which a stream ends with an error (a second at

@@ -12,7 +12,12 @@
 //! ([`FrameTime::Instant`]), normally `CLOCK_MONOTONIC`; whether that is the
 //! start of exposure or the end of the frame depends on the driver
 //! (`V4L2_BUF_FLAG_TSTAMP_SRC_*`), so the constant part of that difference shows
-//! up in the estimated offset.
+//! up in the estimated offset. A driver whose stamps are on another clock (flagged
+//! `V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN`, or all zero, or on the wall clock, which NTP
+//! steps) would otherwise give the daemon stamps that repeat or jump: each opening
+//! checks the first frame's stamp against `CLOCK_MONOTONIC` read at its dequeue
+//! ([`StampCheck`]), and a stamp that cannot be on that clock makes the stream stamp
+//! its frames at dequeue instead, said once ([`FrameSource::take_note`]).
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
 //! when a transfer is cut) or one too short for its frame is skipped and counted
@@ -47,6 +52,7 @@ use crate::signature::FrameTime;
 use crate::source::FrameSource;
 use crate::Error;
 use std::path::PathBuf;
+use vlsync_common::Nanos;
 
 /// What to open and how.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -83,6 +89,142 @@ impl Default for V4l2Config {
 /// rather than the stream's format, which every frame would repeat.
 pub fn skippable(e: &Error) -> bool {
     matches!(e, Error::BufferSize { .. })
+}
+
+/// The clock a V4L2 driver says its buffer stamps are on
+/// (`V4L2_BUF_FLAG_TIMESTAMP_*`, bits 13-15 of a buffer's flags).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StampClock {
+    /// `V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN`: older drivers, often the wall clock.
+    Unknown,
+    /// `V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC`: `CLOCK_MONOTONIC`, as the daemon uses.
+    Monotonic,
+    /// `V4L2_BUF_FLAG_TIMESTAMP_COPY`: copied from an output buffer (memory-to-memory
+    /// devices), whatever clock its writer used.
+    Copied,
+}
+
+impl StampClock {
+    /// The clock named by a buffer's flags.
+    pub fn from_flags(flags: u32) -> Self {
+        match flags & 0xe000 {
+            0x2000 => Self::Monotonic,
+            0x4000 => Self::Copied,
+            _ => Self::Unknown,
+        }
+    }
+
+    /// How the log names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unknown => "of unknown clock",
+            Self::Monotonic => "on CLOCK_MONOTONIC",
+            Self::Copied => "copied from an output buffer",
+        }
+    }
+}
+
+/// Where a stream's frame times come from, decided at its first frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameStamps {
+    /// The driver's buffer stamps.
+    Driver,
+    /// `CLOCK_MONOTONIC` read when each buffer is dequeued: later than the frame by
+    /// the driver's delivery latency (its constant part shows up in the offset) and
+    /// with its jitter.
+    Dequeue,
+}
+
+/// The oldest first-frame stamp taken as `CLOCK_MONOTONIC`: one second before the
+/// clock's reading at the frame's dequeue (a frame is stamped when it is exposed or
+/// read out, and delivered a frame or two later).
+pub const MAX_FIRST_AGE_NS: Nanos = 1_000_000_000;
+
+/// How far a first-frame stamp may lie after the clock's reading at its dequeue and
+/// still be taken as `CLOCK_MONOTONIC` (a driver's stamp is never later than its
+/// delivery; this margin only covers rounding to microseconds).
+pub const MAX_FIRST_AHEAD_NS: Nanos = 1_000_000;
+
+/// Decides, at a stream's first frame, whether the driver's buffer stamps are on
+/// `CLOCK_MONOTONIC`: a first stamp from [`MAX_FIRST_AGE_NS`] before the clock's
+/// reading at its dequeue to [`MAX_FIRST_AHEAD_NS`] after it is taken as that clock,
+/// whatever the flags say; any other (zero, the wall clock, a device's own counter)
+/// makes every frame of the stream stamped at dequeue. The choice holds for the
+/// stream: switching clocks within it would step its times.
+///
+/// ```
+/// use vlsync_signature_cam::v4l2::{FrameStamps, StampCheck, StampClock};
+/// let mut check = StampCheck::default();
+/// // a driver that leaves its stamps at zero
+/// assert_eq!(check.stamp(StampClock::Unknown, 0, 5_000_000_000), 5_000_000_000);
+/// assert_eq!(check.chosen(), Some(FrameStamps::Dequeue));
+/// assert!(check.take_note().unwrap().contains("stamped at dequeue"));
+/// assert_eq!(check.take_note(), None);
+/// ```
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct StampCheck {
+    chosen: Option<FrameStamps>,
+    note: Option<String>,
+}
+
+impl StampCheck {
+    /// The time of a frame whose buffer carried `driver_ns` and the flags' `clock`,
+    /// dequeued when `CLOCK_MONOTONIC` read `now_ns`.
+    pub fn stamp(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> Nanos {
+        let chosen = match self.chosen {
+            Some(c) => c,
+            None => {
+                let (c, note) = Self::decide(clock, driver_ns, now_ns);
+                self.chosen = Some(c);
+                self.note = note;
+                c
+            }
+        };
+        match chosen {
+            FrameStamps::Driver => driver_ns,
+            FrameStamps::Dequeue => now_ns,
+        }
+    }
+
+    fn decide(clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> (FrameStamps, Option<String>) {
+        let age = now_ns.saturating_sub(driver_ns);
+        let ms = age as f64 * 1e-6;
+        if (-MAX_FIRST_AHEAD_NS..=MAX_FIRST_AGE_NS).contains(&age) {
+            let note = (clock != StampClock::Monotonic).then(|| {
+                format!(
+                    "the driver's buffer stamps are flagged {} but its first is {ms:.1} ms \
+                     before CLOCK_MONOTONIC at its dequeue: taken as CLOCK_MONOTONIC",
+                    clock.name()
+                )
+            });
+            return (FrameStamps::Driver, note);
+        }
+        let when = if age > 0 {
+            format!("{:.3} s before", age as f64 * 1e-9)
+        } else {
+            format!("{:.3} s after", -(age as f64) * 1e-9)
+        };
+        let note = format!(
+            "the driver's buffer stamps (flagged {}) are not on CLOCK_MONOTONIC: the first \
+             is {when} its dequeue (stamp {:.6} s); frames are stamped at dequeue instead, \
+             later by the driver's delivery latency (its constant part shows up in the \
+             offset) and with its jitter",
+            clock.name(),
+            driver_ns as f64 * 1e-9
+        );
+        (FrameStamps::Dequeue, Some(note))
+    }
+
+    /// The choice, once the first frame made it.
+    pub fn chosen(&self) -> Option<FrameStamps> {
+        self.chosen
+    }
+
+    /// The remark on the choice, once: why the frames are stamped at dequeue, or that
+    /// stamps flagged as another clock were found on `CLOCK_MONOTONIC`.
+    pub fn take_note(&mut self) -> Option<String> {
+        self.note.take()
+    }
 }
 
 /// A V4L2 capture stream converted to gray.
@@ -176,6 +318,17 @@ impl FrameSource for V4l2Source {
             match self._never {}
         }
     }
+
+    fn take_note(&mut self) -> Option<String> {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.stamps.take_note()
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
 }
 
 #[cfg(feature = "v4l2")]
@@ -201,6 +354,8 @@ mod imp {
         pub(super) unusable: UnusableFrames,
         pub(super) stop: fn() -> bool,
         stall: std::time::Duration,
+        /// Whose stamps the frames carry (decided at the first frame).
+        pub(super) stamps: StampCheck,
         /// The stream runs (the first `next` queued every buffer and started it).
         started: bool,
         /// A `next` whose wait for a buffer timed out (or was interrupted) left the
@@ -223,6 +378,16 @@ mod imp {
 
     fn never() -> bool {
         false
+    }
+
+    /// `CLOCK_MONOTONIC` now, ns.
+    fn monotonic_ns() -> Nanos {
+        let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+        // tv_nsec is a C long: i32 on 32-bit ARM
+        #[allow(clippy::useless_conversion)]
+        t.tv_sec
+            .saturating_mul(1_000_000_000)
+            .saturating_add(i64::from(t.tv_nsec))
     }
 
     impl Inner {
@@ -282,6 +447,7 @@ mod imp {
                 unusable: UnusableFrames::named("buffers"),
                 stop: never,
                 stall: cfg.stall,
+                stamps: StampCheck::default(),
                 started: false,
                 waiting: false,
             })
@@ -301,7 +467,7 @@ mod imp {
                 self.stride
             };
             let since = std::time::Instant::now();
-            let ts = loop {
+            let (ts, flags) = loop {
                 if (self.stop)() {
                     return Ok(None);
                 }
@@ -365,7 +531,7 @@ mod imp {
                 match raw.to_gray_into(&mut self.gray) {
                     Ok(()) => {
                         self.unusable.used();
-                        break meta.timestamp;
+                        break (meta.timestamp, u32::from(meta.flags));
                     }
                     Err(e) if skippable(&e) => {
                         let why = format!("buffer {}: {e}", meta.sequence);
@@ -377,11 +543,15 @@ mod imp {
                     Err(e) => return Err(e),
                 }
             };
+            let now_ns = monotonic_ns();
             // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
             #[allow(clippy::unnecessary_cast)]
-            let t_ns = (ts.sec as i64)
+            let driver_ns = (ts.sec as i64)
                 .saturating_mul(1_000_000_000)
                 .saturating_add((ts.usec as i64).saturating_mul(1_000));
+            let t_ns = self
+                .stamps
+                .stamp(StampClock::from_flags(flags), driver_ns, now_ns);
             let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
             Ok(Some((frame, FrameTime::Instant(t_ns))))
         }
@@ -441,5 +611,119 @@ mod tests {
             ..V4l2Config::default()
         };
         assert!(V4l2Source::open(&cfg).is_err());
+    }
+
+    const S: Nanos = 1_000_000_000;
+    const MS: Nanos = 1_000_000;
+
+    #[test]
+    fn the_flags_name_the_clock() {
+        assert_eq!(StampClock::from_flags(0x2000), StampClock::Monotonic);
+        // with other bits set (MAPPED, DONE, TSTAMP_SRC_SOE)
+        assert_eq!(StampClock::from_flags(0x1_2005), StampClock::Monotonic);
+        assert_eq!(StampClock::from_flags(0x4000), StampClock::Copied);
+        assert_eq!(StampClock::from_flags(0), StampClock::Unknown);
+        assert_eq!(StampClock::from_flags(0xe000), StampClock::Unknown);
+    }
+
+    #[test]
+    fn monotonic_stamps_are_used_as_they_are_and_said_nothing_of() {
+        let mut c = StampCheck::default();
+        // exposed 40 ms before the dequeue
+        assert_eq!(
+            c.stamp(StampClock::Monotonic, 100 * S, 100 * S + 40 * MS),
+            100 * S
+        );
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        assert_eq!(c.take_note(), None);
+        // later frames keep the driver's stamps, even one dequeued late
+        assert_eq!(c.stamp(StampClock::Monotonic, 101 * S, 103 * S), 101 * S);
+    }
+
+    #[test]
+    fn unflagged_stamps_on_the_monotonic_clock_are_used_and_said_so() {
+        let mut c = StampCheck::default();
+        assert_eq!(
+            c.stamp(StampClock::Unknown, 50 * S, 50 * S + 33 * MS),
+            50 * S
+        );
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains("flagged of unknown clock but its first is 33.0 ms before"),
+            "{note}"
+        );
+        assert!(note.contains("taken as CLOCK_MONOTONIC"), "{note}");
+        assert_eq!(c.take_note(), None);
+    }
+
+    #[test]
+    fn stamps_off_the_monotonic_clock_give_way_to_the_dequeue_time() {
+        // zero stamps: every frame would repeat the last one's time
+        let mut c = StampCheck::default();
+        assert_eq!(c.stamp(StampClock::Monotonic, 0, 7 * S), 7 * S);
+        assert_eq!(
+            c.stamp(StampClock::Monotonic, 0, 7 * S + 33 * MS),
+            7 * S + 33 * MS
+        );
+        assert_eq!(c.chosen(), Some(FrameStamps::Dequeue));
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains("(flagged on CLOCK_MONOTONIC) are not on CLOCK_MONOTONIC"),
+            "{note}"
+        );
+        assert!(
+            note.contains("the first is 7.000 s before its dequeue"),
+            "{note}"
+        );
+        assert!(note.contains("stamped at dequeue instead"), "{note}");
+        // the wall clock: decades after the monotonic clock's reading
+        let mut c = StampCheck::default();
+        let wall = 1_796_000_000 * S;
+        assert_eq!(c.stamp(StampClock::Unknown, wall, 9 * S), 9 * S);
+        let note = c.take_note().unwrap();
+        assert!(note.contains("s after its dequeue"), "{note}");
+        // the choice holds: a later stamp that would pass is not switched to
+        assert_eq!(
+            c.stamp(StampClock::Unknown, 10 * S, 10 * S + MS),
+            10 * S + MS
+        );
+        // a stamp just past the margin ahead of the clock
+        let mut c = StampCheck::default();
+        c.stamp(StampClock::Monotonic, S + MAX_FIRST_AHEAD_NS + 1, S);
+        assert_eq!(c.chosen(), Some(FrameStamps::Dequeue));
+        let mut c = StampCheck::default();
+        c.stamp(StampClock::Monotonic, S + MAX_FIRST_AHEAD_NS, S);
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+    }
+
+    proptest::proptest! {
+        /// Any flags and times: no panic; the first frame decides by the window alone,
+        /// and every frame after it gets the same clock's time.
+        #[test]
+        fn the_first_frame_decides_for_the_stream(
+            flags in proptest::prelude::any::<u32>(),
+            d0 in proptest::prelude::any::<i64>(),
+            // about half of the first frames within the window or near its edges
+            first_age in proptest::prop_oneof![
+                -2 * MAX_FIRST_AHEAD_NS..2 * MAX_FIRST_AGE_NS,
+                proptest::prelude::any::<i64>(),
+            ],
+            mut frames in proptest::collection::vec(
+                (proptest::prelude::any::<i64>(), proptest::prelude::any::<i64>()), 0..20),
+        ) {
+            let mut c = StampCheck::default();
+            let clock = StampClock::from_flags(flags);
+            frames.insert(0, (d0, d0.saturating_add(first_age)));
+            let (d0, n0) = frames[0];
+            let age = n0.saturating_sub(d0);
+            let driver = (-MAX_FIRST_AHEAD_NS..=MAX_FIRST_AGE_NS).contains(&age);
+            for (d, n) in frames {
+                let t = c.stamp(clock, d, n);
+                proptest::prop_assert_eq!(t, if driver { d } else { n });
+            }
+            let note = c.take_note();
+            proptest::prop_assert_eq!(note.is_some(), !driver || clock != StampClock::Monotonic);
+        }
     }
 }

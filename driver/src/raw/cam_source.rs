@@ -32,6 +32,10 @@ trait Frames {
     fn unusable(&self) -> Option<(u64, &str)> {
         None
     }
+    /// A one-time remark on how the frames are timed ([`FrameSource::take_note`]).
+    fn take_note(&mut self) -> Option<String> {
+        None
+    }
 }
 
 /// A front-end frame source: no truth.
@@ -71,6 +75,9 @@ impl Frames for Plain {
     }
     fn unusable(&self) -> Option<(u64, &str)> {
         self.0.unusable()
+    }
+    fn take_note(&mut self) -> Option<String> {
+        self.0.take_note()
     }
 }
 
@@ -567,6 +574,11 @@ impl Source for CamSource {
             if (self.stop)() {
                 return Ok(None);
             }
+            // the source's remark on the previous frame (a live camera's first frame
+            // decides whose clock stamps its frames)
+            if let Some(note) = self.frames.take_note() {
+                vlsync_common::console::print_err(&format!("vlsync-cam: {}: {note}\n", self.what));
+            }
             let Self {
                 frames,
                 proc,
@@ -766,6 +778,45 @@ mod tests {
             let f = cam::GrayFrame::borrowed(64, 48, &self.buf)?;
             Ok(Some((f, cam::FrameTime::Instant(self.t))))
         }
+    }
+
+    /// A camera with a remark on its timing after its first frame, counting the
+    /// times the remark was asked for and handed out.
+    struct Noting {
+        inner: Fake,
+        asked: Rc<Cell<(u32, u32)>>,
+    }
+
+    impl FrameSource for Noting {
+        fn next_frame(
+            &mut self,
+        ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+            self.inner.next_frame()
+        }
+        fn take_note(&mut self) -> Option<String> {
+            let (asked, given) = self.asked.get();
+            let give = self.inner.frames < 5 && given == 0;
+            self.asked.set((asked + 1, given + u32::from(give)));
+            give.then(|| "stamped at dequeue (test)".to_string())
+        }
+    }
+
+    #[test]
+    fn the_sources_timing_remark_is_taken_after_each_frame() {
+        let asked = Rc::new(Cell::new((0, 0)));
+        let src = Noting {
+            inner: Fake {
+                stalls: 0,
+                frames: 5,
+                t: 0,
+                buf: vec![128; 64 * 48],
+            },
+            asked: asked.clone(),
+        };
+        let mut src = CamSource::new(Box::new(src), "v4l2 fake".into(), never).unwrap();
+        assert_eq!(src.next_sample().unwrap(), None);
+        // once before each of the 5 frames and before the end: handed out once
+        assert_eq!(asked.get(), (6, 1));
     }
 
     fn fake(stalls: u32, frames: u32) -> Box<dyn FrameSource> {
