@@ -243,6 +243,9 @@ pub struct DaemonConfig {
     /// status period (the histograms restart after each status) instead of the
     /// whole run; a load test reads them per phase.
     pub latency_per_period: bool,
+    /// Period of the log's summary lines, seconds: the estimates and stream counters
+    /// of the stretch, and its latency percentiles (whatever `latency_per_period` says).
+    pub summary_period_s: f64,
     /// Where the last good estimate is saved; empty: no persistence.
     pub state_file: String,
     /// A saved state older than this is ignored at start, seconds (one saved up to
@@ -270,6 +273,7 @@ impl Default for DaemonConfig {
             latency_budget_us: 200.0,
             status_period_s: 1.0,
             latency_per_period: false,
+            summary_period_s: 600.0,
             state_file: String::new(),
             state_max_age_s: 3600.0,
             load_hints: false,
@@ -601,6 +605,12 @@ impl DaemonConfig {
         c.int_range("daemon.cpu_latency_us", self.cpu_latency_us, -1, 1_000_000)?;
         c.range("daemon.latency_budget_us", self.latency_budget_us, 1.0, 1e6)?;
         c.range("daemon.status_period_s", self.status_period_s, 0.05, 3600.0)?;
+        c.range(
+            "daemon.summary_period_s",
+            self.summary_period_s,
+            1.0,
+            86400.0,
+        )?;
         c.range("daemon.state_max_age_s", self.state_max_age_s, 0.0, 1e9)?;
         c.range(
             "daemon.load_hint_threshold",

@@ -207,14 +207,25 @@ impl Rig {
     /// can outlast the drivers' start lead, and waiting here makes that a clear
     /// failure instead of counts that come up short.
     pub fn daemon(&self, n: u32) -> Managed {
-        let log = self.logs.join(format!("vlsyncd-{n}.log"));
-        let mut m = Managed::spawn(
-            "vlsyncd",
-            &bin("vlsyncd"),
-            &["run".into(), "--prefix".into(), self.prefix.clone()],
-            Some(&log),
+        self.spawn_daemon(n, &["run".into(), "--prefix".into(), self.prefix.clone()])
+    }
+
+    /// [`Rig::daemon`] with `[daemon]` keys of a configuration (written by
+    /// [`write_daemon_config`] as `vlsync-<n>.toml` in the log directory: no pinning).
+    pub fn daemon_with(&self, n: u32, daemon_keys: &str) -> Managed {
+        let cfg = write_daemon_config(&self.logs, &self.prefix, daemon_keys);
+        let own = self.logs.join(format!("vlsync-{n}.toml"));
+        std::fs::rename(&cfg, &own).expect("name the daemon configuration");
+        self.spawn_daemon(
+            n,
+            &["run".into(), "--config".into(), own.display().to_string()],
         )
-        .expect("spawn vlsyncd");
+    }
+
+    fn spawn_daemon(&self, n: u32, args: &[String]) -> Managed {
+        let log = self.logs.join(format!("vlsyncd-{n}.log"));
+        let mut m =
+            Managed::spawn("vlsyncd", &bin("vlsyncd"), args, Some(&log)).expect("spawn vlsyncd");
         assert_serving(&mut m, &log);
         if n == 0 && monotonic_ns() > self.start_at {
             eprintln!(

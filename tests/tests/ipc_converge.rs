@@ -15,7 +15,8 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let before = ipc_resources();
     // 60 simulated seconds at 6x: 10 s of wall time
     let rig = Rig::new("converge", "robot", 2, 60.0, 6.0);
-    let mut daemon = rig.daemon(0);
+    // summaries every 2 s instead of 10 min: the log's periodic lines show up
+    let mut daemon = rig.daemon_with(0, "summary_period_s = 2.0");
     let mut client = OffsetClient::open(&rig.prefix).unwrap();
     let mut status = StatusClient::open(&rig.prefix).unwrap();
     let mut cam = rig.driver(Stream::Cam, 0);
@@ -122,6 +123,29 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
         text.lines()
             .all(|l| l.starts_with("up ") && l.contains(" received, ")),
         "{text}"
+    );
+
+    // the log's periodic summaries: the estimates and counters of each stretch, and
+    // its latency (which the status's whole-run percentiles would hide after months)
+    let log = rig.log("vlsyncd-0.log");
+    let latency: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("latency, last 2 s: "))
+        .collect();
+    assert!(latency.len() >= 3, "{log}");
+    assert!(
+        latency
+            .iter()
+            .all(|l| l.contains(" samples, processing p50 ")
+                && l.contains(" µs budget; driver publish to done p50 ")),
+        "{log}"
+    );
+    assert!(
+        log.lines()
+            .filter(|l| l.contains("last 2 s: ") && l.contains(" estimates"))
+            .count()
+            >= 3,
+        "{log}"
     );
 
     drop((client, status));

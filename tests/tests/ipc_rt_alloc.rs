@@ -23,6 +23,9 @@ fn daemon_allocates_nothing_in_steady_state() {
     let rig = Rig::new("alloc", "robot", 6, 80.0, 5.0);
     let mut cfg = vlsync_config::Config::default();
     cfg.services.prefix = rig.prefix.clone();
+    // a summary period within the window: the ends of the latency stretches (their
+    // percentiles and the event that carries them) are measured too
+    cfg.daemon.summary_period_s = 1.0;
     let stop = Arc::new(AtomicBool::new(false));
     let stop2 = stop.clone();
     let daemon = std::thread::spawn(move || vlsyncd::runtime::run(cfg, stop2));

@@ -3,7 +3,13 @@
 
 use super::*;
 
-pub(super) fn log_event(ev: &RtEvent, throttle: &mut journal::Throttle, now: Nanos) {
+/// Logs `ev`; `budget_us` is the processing budget a latency line names.
+pub(super) fn log_event(
+    ev: &RtEvent,
+    throttle: &mut journal::Throttle,
+    now: Nanos,
+    budget_us: f64,
+) {
     let more = |n: u64| {
         if n > 0 {
             format!(" ({n} more since the last such line)")
@@ -79,6 +85,8 @@ pub(super) fn log_event(ev: &RtEvent, throttle: &mut journal::Throttle, now: Nan
         }
         // persisted and shown by the service loop itself
         RtEvent::Estimate(_) => {}
+        // one a summary period: not throttled
+        RtEvent::Latency(l) => tracing::info!("{}", journal::latency_line(l, budget_us)),
         RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
             "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s",
             *t_lidar_ns as f64 * 1e-9
@@ -188,8 +196,8 @@ mod tests {
             // a lasting fault: both kinds at every hop (0.5 s) for 20 s
             for seq in 0..40u64 {
                 let now = seq as Nanos * 500_000_000;
-                log_event(&RtEvent::PublishFailed { seq }, &mut t, now);
-                log_event(&RtEvent::InvalidEstimate { seq }, &mut t, now);
+                log_event(&RtEvent::PublishFailed { seq }, &mut t, now, 200.0);
+                log_event(&RtEvent::InvalidEstimate { seq }, &mut t, now, 200.0);
             }
         });
         let text = String::from_utf8(buf.0.lock().expect("log buffer").clone()).expect("utf-8");

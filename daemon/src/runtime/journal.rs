@@ -253,6 +253,81 @@ pub fn kind_text(key: usize) -> String {
     }
 }
 
+/// The real-time thread's latency over one stretch of the run (a summary period),
+/// for the log: a change after months shows there, where the status's whole-run
+/// percentiles would hide it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LatencyStretch {
+    /// The stretch's length, ns.
+    pub span_ns: Nanos,
+    /// Samples processed.
+    pub samples: u64,
+    /// Processing time per sample, `[p50, p99, max]` ns.
+    pub processing_ns: [u64; 3],
+    /// Samples with a driver's publish time, timed from it to done.
+    pub timed: u64,
+    /// Driver publish to done with the sample (estimate out), `[p50, p99, max]` ns.
+    pub end_to_end_ns: [u64; 3],
+    /// Samples over the processing budget.
+    pub overruns: u64,
+}
+
+/// A summary's span as the log says it: seconds under two minutes, else minutes.
+fn span_text(ns: Nanos) -> String {
+    if ns < 120_000_000_000 {
+        format!("{:.0} s", ns as f64 / 1e9)
+    } else {
+        format!("{:.0} min", ns as f64 / 60e9)
+    }
+}
+
+/// The log line of a latency stretch.
+///
+/// ```
+/// use vlsyncd::runtime::journal::{latency_line, LatencyStretch};
+/// let s = LatencyStretch {
+///     span_ns: 600_000_000_000,
+///     samples: 24_000,
+///     processing_ns: [9_100, 61_000, 180_000],
+///     timed: 24_000,
+///     end_to_end_ns: [95_000, 210_000, 480_000],
+///     overruns: 0,
+/// };
+/// assert_eq!(
+///     latency_line(&s, 200.0),
+///     "latency, last 10 min: 24000 samples, processing p50 9.1 µs, p99 61.0 µs, \
+///      max 180.0 µs, 0 over the 200 µs budget; driver publish to done p50 95.0 µs, \
+///      p99 210.0 µs, max 480.0 µs"
+/// );
+/// ```
+pub fn latency_line(s: &LatencyStretch, budget_us: f64) -> String {
+    let us = |ns: u64| ns as f64 / 1e3;
+    let [p50, p99, max] = s.processing_ns;
+    let mut out = format!(
+        "latency, last {}: {} samples, processing p50 {:.1} µs, p99 {:.1} µs, \
+         max {:.1} µs, {} over the {budget_us:.0} µs budget",
+        span_text(s.span_ns),
+        s.samples,
+        us(p50),
+        us(p99),
+        us(max),
+        s.overruns
+    );
+    if s.timed > 0 {
+        let [p50, p99, max] = s.end_to_end_ns;
+        out.push_str(&format!(
+            "; driver publish to done p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+            us(p50),
+            us(p99),
+            us(max)
+        ));
+        if s.timed < s.samples {
+            out.push_str(&format!(" ({} of the samples timed)", s.timed));
+        }
+    }
+    out
+}
+
 /// The periodic summary of estimates and stream counters.
 #[derive(Debug, Clone)]
 pub struct Summary {
@@ -321,7 +396,7 @@ impl Summary {
 
     fn line(&self, span_ns: Nanos) -> String {
         let n: u64 = self.per_state.iter().sum();
-        let mut out = format!("last {:.0} min: {n} estimates", span_ns as f64 / 60e9);
+        let mut out = format!("last {}: {n} estimates", span_text(span_ns));
         if n > 0 {
             let shares: Vec<String> = [
                 EstimatorState::Tracking,
@@ -525,6 +600,31 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
             peak_ratio: 2.0,
             measured_offset_s: f64::NAN,
         }
+    }
+
+    #[test]
+    fn a_latency_line_says_which_samples_were_timed() {
+        let s = LatencyStretch {
+            span_ns: 120 * S,
+            samples: 10,
+            processing_ns: [1_000, 2_000, 3_000],
+            timed: 4,
+            end_to_end_ns: [50_000, 60_000, 70_000],
+            overruns: 2,
+        };
+        let line = latency_line(&s, 150.0);
+        assert!(
+            line.starts_with("latency, last 2 min: 10 samples, processing p50 1.0 µs"),
+            "{line}"
+        );
+        assert!(line.contains("2 over the 150 µs budget"), "{line}");
+        assert!(
+            line.ends_with("max 70.0 µs (4 of the samples timed)"),
+            "{line}"
+        );
+        // no driver publish time at all: no end-to-end part
+        let line = latency_line(&LatencyStretch { timed: 0, ..s }, 150.0);
+        assert!(line.ends_with("over the 150 µs budget"), "{line}");
     }
 
     #[test]

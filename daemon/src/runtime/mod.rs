@@ -34,7 +34,10 @@
 //!
 //! The latency percentiles of a status cover the whole run, or only the last
 //! status period with `daemon.latency_per_period` (the load harness reads them
-//! per phase).
+//! per phase). Every `daemon.summary_period_s` (10 min) the real-time thread also
+//! hands over the percentiles of that stretch alone ([`journal::LatencyStretch`],
+//! from a second pair of histograms), logged as one line beside the summary of the
+//! estimates: after months a whole-run p99 would no longer move.
 //!
 //! Over budget (`daemon.latency_budget_us` for one sample) the estimator is put
 //! in degraded mode (`Estimator::set_degraded(true)`: a narrower search per
@@ -220,6 +223,9 @@ pub enum RtEvent {
     OffsetStep(vlsync_estimator::OffsetStep),
     /// The acquisition moved its lag range (nothing found where it searched).
     SearchMoved(vlsync_estimator::SearchMove),
+    /// The latency of the stretch of the run that just ended (the log's summary
+    /// period): logged as one line.
+    Latency(journal::LatencyStretch),
     /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
     /// goes on (a failed receive marks that stream empty until the next wake-up).
     /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
@@ -446,7 +452,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     };
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
-    let mut summary = journal::Summary::new(journal::SUMMARY_NS);
+    let mut summary = journal::Summary::new((cfg.daemon.summary_period_s * 1e9) as Nanos);
     // The service thread polls its channels and never blocks on them: a receiver
     // blocked in `recv`/`Select` registers with the channel's waker, and every
     // `try_send` of the real-time thread would then take the waker's mutex (no
@@ -478,7 +484,12 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                         RtEvent::SearchMoved(_) => summary.on_search_move(),
                         _ => {}
                     }
-                    log_event(&ev, &mut throttle, monotonic_ns())
+                    log_event(
+                        &ev,
+                        &mut throttle,
+                        monotonic_ns(),
+                        cfg.daemon.latency_budget_us,
+                    )
                 }
                 Err(crossbeam::channel::TryRecvError::Empty) => break,
                 Err(crossbeam::channel::TryRecvError::Disconnected) => {

@@ -12,6 +12,17 @@ pub struct RtCounters {
     pub(super) end_to_end: Histogram,
     pub(super) last_seq: [[Option<(UniquePublisherId, u64)>; 4]; 2],
     pub(super) events_dropped: u64,
+    /// The current stretch's latency (the log's summary period), beside the run's.
+    stretch: Stretch,
+}
+
+/// Latency histograms of one stretch of the run.
+#[derive(Debug)]
+struct Stretch {
+    start_ns: Nanos,
+    processing: Histogram,
+    end_to_end: Histogram,
+    overruns_before: u64,
 }
 
 impl RtCounters {
@@ -22,7 +33,52 @@ impl RtCounters {
             end_to_end: Histogram::new(),
             last_seq: [[None; 4]; 2],
             events_dropped: 0,
+            stretch: Stretch {
+                start_ns: 0,
+                processing: Histogram::new(),
+                end_to_end: Histogram::new(),
+                overruns_before: 0,
+            },
         }
+    }
+
+    /// Records one sample's processing time and, when its driver's publish time
+    /// gave one, its end-to-end latency, in the run's and the stretch's histograms.
+    pub(super) fn record_latency(&mut self, processing_ns: u64, end_to_end_ns: Option<u64>) {
+        self.processing.record(processing_ns);
+        self.stretch.processing.record(processing_ns);
+        if let Some(e) = end_to_end_ns {
+            self.end_to_end.record(e);
+            self.stretch.end_to_end.record(e);
+        }
+    }
+
+    /// Starts the first stretch at `now`.
+    pub(super) fn start_stretch(&mut self, now: Nanos) {
+        self.stretch.start_ns = now;
+        self.stretch.overruns_before = self.status.budget_overruns;
+    }
+
+    /// Ends the stretch at `now` and starts the next: its latency, `None` when it
+    /// processed no sample (an idle daemon logs no latency line). No allocation.
+    pub(super) fn end_stretch(&mut self, now: Nanos) -> Option<journal::LatencyStretch> {
+        let st = &mut self.stretch;
+        let out = (st.processing.count() > 0).then(|| journal::LatencyStretch {
+            span_ns: now.saturating_sub(st.start_ns).max(0),
+            samples: st.processing.count(),
+            processing_ns: st.processing.summary(),
+            timed: st.end_to_end.count(),
+            end_to_end_ns: st.end_to_end.summary(),
+            overruns: self
+                .status
+                .budget_overruns
+                .saturating_sub(st.overruns_before),
+        });
+        st.processing.clear();
+        st.end_to_end.clear();
+        st.start_ns = now;
+        st.overruns_before = self.status.budget_overruns;
+        out
     }
 }
 
@@ -191,6 +247,10 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
     let mut last_overrun: Nanos = 0;
     let mut last_state: Option<EstimatorState> = None;
     let mut next_status = monotonic_ns() + status_period_ns;
+    // the log's latency line, every summary period (`daemon.summary_period_s`)
+    let stretch_ns = (s.cfg.daemon.summary_period_s * 1e9) as i64;
+    let mut next_stretch = monotonic_ns() + stretch_ns;
+    c.start_stretch(monotonic_ns());
     // the newest LiDAR sample: its stamp and when its driver published it
     // (`CLOCK_MONOTONIC`), which dates a load hint on the LiDAR clock
     let mut lidar_clock: Option<(Nanos, Nanos)> = None;
@@ -355,16 +415,14 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             }
             let t1 = monotonic_ns();
             let proc_ns = (t1 - t0).max(0) as u64;
-            c.processing.record(proc_ns);
             // driver publish -> done with the sample (estimate published if one was due);
             // a hostile or foreign-host publish_ns outside 0..MAX_LATENCY_NS is not a
             // latency (a positive one cannot overflow the difference)
-            if w.publish_ns > 0 {
-                let e2e = t1 - w.publish_ns;
-                if (0..MAX_LATENCY_NS).contains(&e2e) {
-                    c.end_to_end.record(e2e as u64);
-                }
-            }
+            let e2e = (w.publish_ns > 0)
+                .then(|| t1 - w.publish_ns)
+                .filter(|e| (0..MAX_LATENCY_NS).contains(e))
+                .map(|e| e as u64);
+            c.record_latency(proc_ns, e2e);
             if proc_ns > budget_ns {
                 c.status.budget_overruns += 1;
                 last_overrun = t1;
@@ -426,6 +484,12 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
                 c.end_to_end.clear();
             }
         }
+        if now >= next_stretch {
+            next_stretch = now + stretch_ns;
+            if let Some(l) = c.end_stretch(now) {
+                emit(&s.tx, &mut c, RtEvent::Latency(l));
+            }
+        }
     }
     // final status so the last counters are not lost
     let now = monotonic_ns();
@@ -477,5 +541,49 @@ pub(super) fn publish_estimate(
         let _ = off_not.notify();
     } else {
         emit(tx, c, RtEvent::PublishFailed { seq: e.seq });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const S: Nanos = 1_000_000_000;
+
+    #[test]
+    fn each_stretch_reports_only_its_own_latency() {
+        let mut c = RtCounters::new();
+        c.start_stretch(10 * S);
+        // a slow first stretch: 99 samples of 10 µs, one of 500 µs over budget
+        for _ in 0..99 {
+            c.record_latency(10_000, Some(100_000));
+        }
+        c.record_latency(500_000, None);
+        c.status.budget_overruns += 1;
+        let first = c.end_stretch(610 * S).unwrap();
+        assert_eq!(first.span_ns, 600 * S);
+        assert_eq!((first.samples, first.timed, first.overruns), (100, 99, 1));
+        assert_eq!(first.processing_ns[2], 500_000);
+        assert!(
+            (10_000..=10_700).contains(&first.processing_ns[0]),
+            "{first:?}"
+        );
+        // a quiet second stretch: the first one's outlier is gone from it
+        for _ in 0..50 {
+            c.record_latency(8_000, Some(90_000));
+        }
+        let second = c.end_stretch(1210 * S).unwrap();
+        assert_eq!((second.samples, second.timed, second.overruns), (50, 50, 0));
+        assert_eq!(second.processing_ns[2], 8_000);
+        assert_eq!(second.end_to_end_ns[2], 90_000);
+        // the run's histograms keep everything
+        assert_eq!(c.processing.count(), 150);
+        assert_eq!(c.processing.max(), 500_000);
+        assert_eq!(c.end_to_end.count(), 149);
+        // an idle stretch: no line
+        assert_eq!(c.end_stretch(1810 * S), None);
+        c.record_latency(7_000, None);
+        let after_idle = c.end_stretch(2410 * S).unwrap();
+        assert_eq!((after_idle.span_ns, after_idle.samples), (600 * S, 1));
     }
 }
