@@ -15,8 +15,8 @@
 //! up in the estimated offset. A driver whose stamps are on another clock (flagged
 //! `V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN`, or all zero, or on the wall clock, which NTP
 //! steps) would otherwise give the daemon stamps that repeat or jump: each opening
-//! checks the first frame's stamp against `CLOCK_MONOTONIC` read at its dequeue
-//! ([`StampCheck`]), and a stamp that cannot be on that clock makes the stream stamp
+//! checks its first frames' stamps against `CLOCK_MONOTONIC` read at their dequeue
+//! ([`StampCheck`]), and stamps that cannot be on that clock make the stream stamp
 //! its frames at dequeue instead, said once ([`FrameSource::take_note`]).
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
@@ -124,7 +124,7 @@ impl StampClock {
     }
 }
 
-/// Where a stream's frame times come from, decided at its first frame.
+/// Where a stream's frame times come from, decided at its first frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FrameStamps {
     /// The driver's buffer stamps.
@@ -135,28 +135,38 @@ pub enum FrameStamps {
     Dequeue,
 }
 
-/// The oldest first-frame stamp taken as `CLOCK_MONOTONIC`: one second before the
-/// clock's reading at the frame's dequeue (a frame is stamped when it is exposed or
-/// read out, and delivered a frame or two later).
-pub const MAX_FIRST_AGE_NS: Nanos = 1_000_000_000;
+/// The oldest stamp taken as `CLOCK_MONOTONIC`: one second before the clock's
+/// reading at the frame's dequeue (a frame is stamped when it is exposed or read
+/// out, and delivered a frame or two later).
+pub const MAX_STAMP_AGE_NS: Nanos = 1_000_000_000;
 
-/// How far a first-frame stamp may lie after the clock's reading at its dequeue and
-/// still be taken as `CLOCK_MONOTONIC` (a driver's stamp is never later than its
-/// delivery; this margin only covers rounding to microseconds).
-pub const MAX_FIRST_AHEAD_NS: Nanos = 1_000_000;
+/// How far a stamp may lie after the clock's reading at its dequeue and still be
+/// taken as `CLOCK_MONOTONIC` (a driver's stamp is never later than its delivery;
+/// this margin only covers rounding to microseconds).
+pub const MAX_STAMP_AHEAD_NS: Nanos = 1_000_000;
 
-/// Decides, at a stream's first frame, whether the driver's buffer stamps are on
-/// `CLOCK_MONOTONIC`: a first stamp from [`MAX_FIRST_AGE_NS`] before the clock's
-/// reading at its dequeue to [`MAX_FIRST_AHEAD_NS`] after it is taken as that clock,
-/// whatever the flags say; any other (zero, the wall clock, a device's own counter)
-/// makes every frame of the stream stamped at dequeue. The choice holds for the
-/// stream: switching clocks within it would step its times.
+/// Frames a stream's stamps get to show they are on `CLOCK_MONOTONIC`: a first
+/// frame dequeued late (the process held up between the stream's start and its
+/// first read) does not decide alone.
+pub const DECIDE_FRAMES: u32 = 4;
+
+/// Decides, at a stream's first frames, whether the driver's buffer stamps are on
+/// `CLOCK_MONOTONIC`, whatever the flags say: the first stamp from
+/// [`MAX_STAMP_AGE_NS`] before the clock's reading at its dequeue to
+/// [`MAX_STAMP_AHEAD_NS`] after it, within the first [`DECIDE_FRAMES`], makes the
+/// stream keep the driver's stamps from that frame on (the frames before it are
+/// stamped at dequeue); none such (stamps at zero, on the wall clock, a device's own
+/// counter) makes every frame of the stream stamped at dequeue. The choice then
+/// holds for the stream: switching clocks within it would step its times.
 ///
 /// ```
-/// use vlsync_signature_cam::v4l2::{FrameStamps, StampCheck, StampClock};
+/// use vlsync_signature_cam::v4l2::{FrameStamps, StampCheck, StampClock, DECIDE_FRAMES};
 /// let mut check = StampCheck::default();
 /// // a driver that leaves its stamps at zero
-/// assert_eq!(check.stamp(StampClock::Unknown, 0, 5_000_000_000), 5_000_000_000);
+/// for i in 0..DECIDE_FRAMES as i64 {
+///     let now = 5_000_000_000 + i * 33_000_000;
+///     assert_eq!(check.stamp(StampClock::Unknown, 0, now), now);
+/// }
 /// assert_eq!(check.chosen(), Some(FrameStamps::Dequeue));
 /// assert!(check.take_note().unwrap().contains("stamped at dequeue"));
 /// assert_eq!(check.take_note(), None);
@@ -164,6 +174,10 @@ pub const MAX_FIRST_AHEAD_NS: Nanos = 1_000_000;
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct StampCheck {
     chosen: Option<FrameStamps>,
+    /// Frames seen while undecided.
+    seen: u32,
+    /// The first of them: its stamp's age at its dequeue, ns.
+    first_age: Option<Nanos>,
     note: Option<String>,
 }
 
@@ -171,57 +185,69 @@ impl StampCheck {
     /// The time of a frame whose buffer carried `driver_ns` and the flags' `clock`,
     /// dequeued when `CLOCK_MONOTONIC` read `now_ns`.
     pub fn stamp(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> Nanos {
-        let chosen = match self.chosen {
-            Some(c) => c,
-            None => {
-                let (c, note) = Self::decide(clock, driver_ns, now_ns);
-                self.chosen = Some(c);
-                self.note = note;
-                c
+        if self.chosen.is_none() {
+            let age = now_ns.saturating_sub(driver_ns);
+            self.seen += 1;
+            let first_age = *self.first_age.get_or_insert(age);
+            if (-MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS).contains(&age) {
+                self.chosen = Some(FrameStamps::Driver);
+                self.note = (clock != StampClock::Monotonic || self.seen > 1).then(|| {
+                    let flagged = if clock == StampClock::Monotonic {
+                        String::new()
+                    } else {
+                        format!("flagged {} but ", clock.name())
+                    };
+                    let late = if self.seen > 1 {
+                        format!(
+                            " (the {} frame(s) before it, {:.3} s old at their dequeue, were \
+                             stamped at dequeue)",
+                            self.seen - 1,
+                            first_age as f64 * 1e-9
+                        )
+                    } else {
+                        String::new()
+                    };
+                    format!(
+                        "the driver's buffer stamps are {flagged}{:.1} ms before \
+                         CLOCK_MONOTONIC at frame {}'s dequeue: taken as CLOCK_MONOTONIC{late}",
+                        age as f64 * 1e-6,
+                        self.seen
+                    )
+                });
+            } else if self.seen >= DECIDE_FRAMES {
+                self.chosen = Some(FrameStamps::Dequeue);
+                let when = if first_age > 0 {
+                    format!("{:.3} s before", first_age as f64 * 1e-9)
+                } else {
+                    format!("{:.3} s after", -(first_age as f64) * 1e-9)
+                };
+                self.note = Some(format!(
+                    "the driver's buffer stamps (flagged {}) are not on CLOCK_MONOTONIC: none \
+                     of the first {} frames' is within {:.0} s before its dequeue (the first \
+                     was {when} it; the last stamp {:.6} s); frames are stamped at dequeue instead, later by the \
+                     driver's delivery latency (its constant part shows up in the offset) and \
+                     with its jitter",
+                    clock.name(),
+                    self.seen,
+                    MAX_STAMP_AGE_NS as f64 * 1e-9,
+                    driver_ns as f64 * 1e-9
+                ));
             }
-        };
-        match chosen {
-            FrameStamps::Driver => driver_ns,
-            FrameStamps::Dequeue => now_ns,
+        }
+        match self.chosen {
+            Some(FrameStamps::Driver) => driver_ns,
+            _ => now_ns,
         }
     }
 
-    fn decide(clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> (FrameStamps, Option<String>) {
-        let age = now_ns.saturating_sub(driver_ns);
-        let ms = age as f64 * 1e-6;
-        if (-MAX_FIRST_AHEAD_NS..=MAX_FIRST_AGE_NS).contains(&age) {
-            let note = (clock != StampClock::Monotonic).then(|| {
-                format!(
-                    "the driver's buffer stamps are flagged {} but its first is {ms:.1} ms \
-                     before CLOCK_MONOTONIC at its dequeue: taken as CLOCK_MONOTONIC",
-                    clock.name()
-                )
-            });
-            return (FrameStamps::Driver, note);
-        }
-        let when = if age > 0 {
-            format!("{:.3} s before", age as f64 * 1e-9)
-        } else {
-            format!("{:.3} s after", -(age as f64) * 1e-9)
-        };
-        let note = format!(
-            "the driver's buffer stamps (flagged {}) are not on CLOCK_MONOTONIC: the first \
-             is {when} its dequeue (stamp {:.6} s); frames are stamped at dequeue instead, \
-             later by the driver's delivery latency (its constant part shows up in the \
-             offset) and with its jitter",
-            clock.name(),
-            driver_ns as f64 * 1e-9
-        );
-        (FrameStamps::Dequeue, Some(note))
-    }
-
-    /// The choice, once the first frame made it.
+    /// The choice, once the first frames made it.
     pub fn chosen(&self) -> Option<FrameStamps> {
         self.chosen
     }
 
     /// The remark on the choice, once: why the frames are stamped at dequeue, or that
-    /// stamps flagged as another clock were found on `CLOCK_MONOTONIC`.
+    /// stamps flagged as another clock, or first frames dequeued late, were found on
+    /// `CLOCK_MONOTONIC`.
     pub fn take_note(&mut self) -> Option<String> {
         self.note.take()
     }
@@ -650,7 +676,9 @@ mod tests {
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
         let note = c.take_note().unwrap();
         assert!(
-            note.contains("flagged of unknown clock but its first is 33.0 ms before"),
+            note.contains(
+                "flagged of unknown clock but 33.0 ms before CLOCK_MONOTONIC at frame 1's dequeue"
+            ),
             "{note}"
         );
         assert!(note.contains("taken as CLOCK_MONOTONIC"), "{note}");
@@ -658,72 +686,120 @@ mod tests {
     }
 
     #[test]
+    fn a_first_frame_dequeued_late_does_not_decide_alone() {
+        // the process held up 3 s before its first read: that buffer is old, the
+        // next one is fresh
+        let mut c = StampCheck::default();
+        assert_eq!(c.stamp(StampClock::Monotonic, 10 * S, 13 * S), 13 * S);
+        assert_eq!(c.chosen(), None);
+        assert_eq!(c.take_note(), None);
+        assert_eq!(
+            c.stamp(StampClock::Monotonic, 13 * S, 13 * S + 5 * MS),
+            13 * S
+        );
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains("5.0 ms before CLOCK_MONOTONIC at frame 2's dequeue"),
+            "{note}"
+        );
+        assert!(
+            note.contains("(the 1 frame(s) before it, 3.000 s old"),
+            "{note}"
+        );
+        // from then on the driver's stamps, whatever their age
+        assert_eq!(c.stamp(StampClock::Monotonic, 14 * S, 20 * S), 14 * S);
+    }
+
+    #[test]
     fn stamps_off_the_monotonic_clock_give_way_to_the_dequeue_time() {
         // zero stamps: every frame would repeat the last one's time
         let mut c = StampCheck::default();
-        assert_eq!(c.stamp(StampClock::Monotonic, 0, 7 * S), 7 * S);
-        assert_eq!(
-            c.stamp(StampClock::Monotonic, 0, 7 * S + 33 * MS),
-            7 * S + 33 * MS
-        );
+        for i in 0..DECIDE_FRAMES as i64 {
+            let now = 7 * S + i * 33 * MS;
+            assert_eq!(c.stamp(StampClock::Monotonic, 0, now), now);
+            let decided = i + 1 == DECIDE_FRAMES as i64;
+            assert_eq!(c.chosen().is_some(), decided);
+            assert_eq!(c.take_note().is_some(), decided);
+        }
         assert_eq!(c.chosen(), Some(FrameStamps::Dequeue));
-        let note = c.take_note().unwrap();
-        assert!(
-            note.contains("(flagged on CLOCK_MONOTONIC) are not on CLOCK_MONOTONIC"),
-            "{note}"
-        );
-        assert!(
-            note.contains("the first is 7.000 s before its dequeue"),
-            "{note}"
-        );
-        assert!(note.contains("stamped at dequeue instead"), "{note}");
         // the wall clock: decades after the monotonic clock's reading
         let mut c = StampCheck::default();
         let wall = 1_796_000_000 * S;
-        assert_eq!(c.stamp(StampClock::Unknown, wall, 9 * S), 9 * S);
+        for i in 0..DECIDE_FRAMES as i64 {
+            assert_eq!(
+                c.stamp(StampClock::Unknown, wall + i * S, 9 * S + i * S),
+                9 * S + i * S
+            );
+        }
         let note = c.take_note().unwrap();
-        assert!(note.contains("s after its dequeue"), "{note}");
+        assert!(
+            note.contains("(flagged of unknown clock) are not on CLOCK_MONOTONIC"),
+            "{note}"
+        );
+        assert!(
+            note.contains("none of the first 4 frames' is within 1 s before its dequeue"),
+            "{note}"
+        );
+        assert!(note.contains("s after it;"), "{note}");
+        assert!(note.contains("stamped at dequeue instead"), "{note}");
         // the choice holds: a later stamp that would pass is not switched to
         assert_eq!(
-            c.stamp(StampClock::Unknown, 10 * S, 10 * S + MS),
-            10 * S + MS
+            c.stamp(StampClock::Unknown, 20 * S, 20 * S + MS),
+            20 * S + MS
         );
-        // a stamp just past the margin ahead of the clock
+        // the margins, exactly
         let mut c = StampCheck::default();
-        c.stamp(StampClock::Monotonic, S + MAX_FIRST_AHEAD_NS + 1, S);
-        assert_eq!(c.chosen(), Some(FrameStamps::Dequeue));
+        c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS + 1, S);
+        assert_eq!(c.chosen(), None);
         let mut c = StampCheck::default();
-        c.stamp(StampClock::Monotonic, S + MAX_FIRST_AHEAD_NS, S);
+        c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS, S);
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        let mut c = StampCheck::default();
+        c.stamp(StampClock::Monotonic, S, S + MAX_STAMP_AGE_NS);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
     }
 
     proptest::proptest! {
-        /// Any flags and times: no panic; the first frame decides by the window alone,
-        /// and every frame after it gets the same clock's time.
+        /// Any flags and times: no panic; the first frame within the window among the
+        /// first DECIDE_FRAMES decides for the driver from that frame on, and without
+        /// one every frame gets its dequeue time.
         #[test]
-        fn the_first_frame_decides_for_the_stream(
+        fn the_first_frames_decide_for_the_stream(
             flags in proptest::prelude::any::<u32>(),
-            d0 in proptest::prelude::any::<i64>(),
-            // about half of the first frames within the window or near its edges
-            first_age in proptest::prop_oneof![
-                -2 * MAX_FIRST_AHEAD_NS..2 * MAX_FIRST_AGE_NS,
-                proptest::prelude::any::<i64>(),
-            ],
-            mut frames in proptest::collection::vec(
-                (proptest::prelude::any::<i64>(), proptest::prelude::any::<i64>()), 0..20),
+            // about half of the frames within the window or near its edges
+            frames in proptest::collection::vec(
+                (
+                    proptest::prelude::any::<i64>(),
+                    proptest::prop_oneof![
+                        -2 * MAX_STAMP_AHEAD_NS..2 * MAX_STAMP_AGE_NS,
+                        proptest::prelude::any::<i64>(),
+                    ],
+                ),
+                1..12,
+            ),
         ) {
             let mut c = StampCheck::default();
             let clock = StampClock::from_flags(flags);
-            frames.insert(0, (d0, d0.saturating_add(first_age)));
-            let (d0, n0) = frames[0];
-            let age = n0.saturating_sub(d0);
-            let driver = (-MAX_FIRST_AHEAD_NS..=MAX_FIRST_AGE_NS).contains(&age);
-            for (d, n) in frames {
+            let window = -MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS;
+            let first_in = frames
+                .iter()
+                .take(DECIDE_FRAMES as usize)
+                .position(|&(d, age)| window.contains(&d.saturating_add(age).saturating_sub(d)));
+            for (i, &(d, age)) in frames.iter().enumerate() {
+                let n = d.saturating_add(age);
                 let t = c.stamp(clock, d, n);
+                let driver = first_in.is_some_and(|k| i >= k);
                 proptest::prop_assert_eq!(t, if driver { d } else { n });
             }
+            let decided = first_in.is_some() || frames.len() >= DECIDE_FRAMES as usize;
+            proptest::prop_assert_eq!(c.chosen().is_some(), decided);
             let note = c.take_note();
-            proptest::prop_assert_eq!(note.is_some(), !driver || clock != StampClock::Monotonic);
+            let expect_note = match first_in {
+                Some(k) => k > 0 || clock != StampClock::Monotonic,
+                None => decided,
+            };
+            proptest::prop_assert_eq!(note.is_some(), expect_note);
         }
     }
 }
