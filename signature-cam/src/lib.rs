@@ -60,4 +60,4 @@ pub use signature::{
     Step,
 };
 pub use source::{DirSource, FrameSource, UnusableFrames, MAX_UNUSABLE_IN_ROW};
-pub use v4l2::{V4l2Config, V4l2Source};
+pub use v4l2::{FrameStamps, V4l2Config, V4l2Source};

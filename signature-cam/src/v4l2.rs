@@ -68,6 +68,11 @@ pub struct V4l2Config {
     /// No frame for this long is an error, [`Error::Stalled`] (default 10 s, as the
     /// serial LiDARs' silence).
     pub stall: std::time::Duration,
+    /// Where the frames' times come from, as an earlier opening of the same device
+    /// found ([`V4l2Source::stamp_choice`]): kept, so a reopen after a stall does not
+    /// switch clocks mid-run. `None` (the default): decided at the first frames
+    /// ([`StampCheck`]).
+    pub stamps: Option<FrameStamps>,
 }
 
 /// The longest single wait for a buffer: the stop function is checked this often.
@@ -81,6 +86,7 @@ impl Default for V4l2Config {
             height: 480,
             buffers: 4,
             stall: std::time::Duration::from_secs(10),
+            stamps: None,
         }
     }
 }
@@ -114,12 +120,12 @@ impl StampClock {
         }
     }
 
-    /// How the log names it.
+    /// The kernel's name of the flag.
     pub fn name(self) -> &'static str {
         match self {
-            Self::Unknown => "of unknown clock",
-            Self::Monotonic => "on CLOCK_MONOTONIC",
-            Self::Copied => "copied from an output buffer",
+            Self::Unknown => "V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN",
+            Self::Monotonic => "V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC",
+            Self::Copied => "V4L2_BUF_FLAG_TIMESTAMP_COPY",
         }
     }
 }
@@ -145,34 +151,37 @@ pub const MAX_STAMP_AGE_NS: Nanos = 1_000_000_000;
 /// this margin only covers rounding to microseconds).
 pub const MAX_STAMP_AHEAD_NS: Nanos = 1_000_000;
 
-/// Frames a stream's stamps get to show they are on `CLOCK_MONOTONIC`: a first
-/// frame dequeued late (the process held up between the stream's start and its
-/// first read) does not decide alone.
-pub const DECIDE_FRAMES: u32 = 4;
+/// Frames beyond the driver's queued buffers that a stream's stamps get to show
+/// they are on `CLOCK_MONOTONIC`: a driver held up between the stream's start and
+/// its first read finds every queued buffer filled, each with an old stamp, and only
+/// the frames after them are fresh.
+pub const DECIDE_EXTRA_FRAMES: u32 = 2;
 
 /// Decides, at a stream's first frames, whether the driver's buffer stamps are on
-/// `CLOCK_MONOTONIC`, whatever the flags say: the first stamp from
+/// `CLOCK_MONOTONIC`, whatever the flags say. The first stamp found from
 /// [`MAX_STAMP_AGE_NS`] before the clock's reading at its dequeue to
-/// [`MAX_STAMP_AHEAD_NS`] after it, within the first [`DECIDE_FRAMES`], makes the
-/// stream keep the driver's stamps from that frame on (the frames before it are
-/// stamped at dequeue); none such (stamps at zero, on the wall clock, a device's own
-/// counter) makes every frame of the stream stamped at dequeue. The choice then
-/// holds for the stream: switching clocks within it would step its times.
+/// [`MAX_STAMP_AHEAD_NS`] after it, within the first `decide_frames`, makes the
+/// stream keep the driver's stamps from that frame on; none such (stamps at zero, on
+/// the wall clock, a device's own counter) makes every frame from the last of them on
+/// stamped at dequeue. The frames before the decision are dropped, not published on
+/// a clock that might not be the stream's: a stream's times never switch clocks.
 ///
 /// ```
-/// use vlsync_signature_cam::v4l2::{FrameStamps, StampCheck, StampClock, DECIDE_FRAMES};
-/// let mut check = StampCheck::default();
-/// // a driver that leaves its stamps at zero
-/// for i in 0..DECIDE_FRAMES as i64 {
-///     let now = 5_000_000_000 + i * 33_000_000;
-///     assert_eq!(check.stamp(StampClock::Unknown, 0, now), now);
+/// use vlsync_signature_cam::v4l2::{FrameStamps, StampCheck, StampClock};
+/// let mut check = StampCheck::new(4);
+/// // a driver that leaves its stamps at zero: three frames dropped, then the
+/// // dequeue's time
+/// for i in 0..3 {
+///     assert_eq!(check.stamp(StampClock::Unknown, 0, 5_000_000_000 + i * 33_000_000), None);
 /// }
+/// assert_eq!(check.stamp(StampClock::Unknown, 0, 5_100_000_000), Some(5_100_000_000));
 /// assert_eq!(check.chosen(), Some(FrameStamps::Dequeue));
 /// assert!(check.take_note().unwrap().contains("stamped at dequeue"));
 /// assert_eq!(check.take_note(), None);
 /// ```
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct StampCheck {
+    decide_frames: u32,
     chosen: Option<FrameStamps>,
     /// Frames seen while undecided.
     seen: u32,
@@ -182,61 +191,98 @@ pub struct StampCheck {
 }
 
 impl StampCheck {
+    /// Decides within the first `decide_frames` frames (at least 1).
+    pub fn new(decide_frames: u32) -> Self {
+        Self {
+            decide_frames: decide_frames.max(1),
+            chosen: None,
+            seen: 0,
+            first_age: None,
+            note: None,
+        }
+    }
+
+    /// The choice an earlier opening of the same device made: kept, said nothing of.
+    pub fn decided(choice: FrameStamps) -> Self {
+        Self {
+            chosen: Some(choice),
+            ..Self::new(1)
+        }
+    }
+
     /// The time of a frame whose buffer carried `driver_ns` and the flags' `clock`,
-    /// dequeued when `CLOCK_MONOTONIC` read `now_ns`.
-    pub fn stamp(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> Nanos {
+    /// dequeued when `CLOCK_MONOTONIC` read `now_ns`; `None`: drop the frame (the
+    /// stamps' clock is not decided yet).
+    pub fn stamp(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) -> Option<Nanos> {
         if self.chosen.is_none() {
-            let age = now_ns.saturating_sub(driver_ns);
-            self.seen += 1;
-            let first_age = *self.first_age.get_or_insert(age);
-            if (-MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS).contains(&age) {
-                self.chosen = Some(FrameStamps::Driver);
-                self.note = (clock != StampClock::Monotonic || self.seen > 1).then(|| {
-                    let flagged = if clock == StampClock::Monotonic {
-                        String::new()
-                    } else {
-                        format!("flagged {} but ", clock.name())
-                    };
-                    let late = if self.seen > 1 {
-                        format!(
-                            " (the {} frame(s) before it, {:.3} s old at their dequeue, were \
-                             stamped at dequeue)",
-                            self.seen - 1,
-                            first_age as f64 * 1e-9
-                        )
-                    } else {
-                        String::new()
-                    };
-                    format!(
-                        "the driver's buffer stamps are {flagged}{:.1} ms before \
-                         CLOCK_MONOTONIC at frame {}'s dequeue: taken as CLOCK_MONOTONIC{late}",
-                        age as f64 * 1e-6,
-                        self.seen
-                    )
-                });
-            } else if self.seen >= DECIDE_FRAMES {
-                self.chosen = Some(FrameStamps::Dequeue);
-                let when = if first_age > 0 {
-                    format!("{:.3} s before", first_age as f64 * 1e-9)
-                } else {
-                    format!("{:.3} s after", -(first_age as f64) * 1e-9)
-                };
-                self.note = Some(format!(
-                    "the driver's buffer stamps (flagged {}) are not on CLOCK_MONOTONIC: none \
-                     of the first {} frames' is within {:.0} s before its dequeue (the first \
-                     was {when} it; the last stamp {:.6} s); frames are stamped at dequeue instead, later by the \
-                     driver's delivery latency (its constant part shows up in the offset) and \
-                     with its jitter",
+            self.decide(clock, driver_ns, now_ns);
+        }
+        match self.chosen? {
+            FrameStamps::Driver => Some(driver_ns),
+            FrameStamps::Dequeue => Some(now_ns),
+        }
+    }
+
+    fn decide(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) {
+        let age = now_ns.saturating_sub(driver_ns);
+        self.seen += 1;
+        let first_age = *self.first_age.get_or_insert(age);
+        let dropped = self.seen - 1;
+        let dropped_text = match dropped {
+            0 => String::new(),
+            1 => format!(
+                "; the frame before it, {:.3} s old at its dequeue, was dropped",
+                first_age as f64 * 1e-9
+            ),
+            n => format!(
+                "; the {n} frames before it, the first {:.3} s old at its dequeue, were dropped",
+                first_age as f64 * 1e-9
+            ),
+        };
+        if (-MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS).contains(&age) {
+            self.chosen = Some(FrameStamps::Driver);
+            self.note = (clock != StampClock::Monotonic || dropped > 0).then(|| {
+                format!(
+                    "the driver's buffer stamps ({}) are on CLOCK_MONOTONIC: frame {}'s is \
+                     {:.1} ms before its dequeue; its stamps are used{dropped_text}",
                     clock.name(),
                     self.seen,
-                    MAX_STAMP_AGE_NS as f64 * 1e-9,
-                    driver_ns as f64 * 1e-9
-                ));
-            }
-        }
-        match self.chosen {
-            Some(FrameStamps::Driver) => driver_ns,
-            _ => now_ns,
+                    age as f64 * 1e-6,
+                )
+            });
+        } else if self.seen >= self.decide_frames {
+            self.chosen = Some(FrameStamps::Dequeue);
+            let when = if first_age > 0 {
+                format!("{:.3} s before", first_age as f64 * 1e-9)
+            } else {
+                format!("{:.3} s after", -(first_age as f64) * 1e-9)
+            };
+            let looks = if driver_ns == 0 {
+                " (zero)"
+            } else if driver_ns > 946_684_800 * 1_000_000_000 {
+                // after 2000-01-01 as a date: a system up for 30 years is not likely
+                " (the wall clock, CLOCK_REALTIME, as it looks)"
+            } else {
+                ""
+            };
+            self.note = Some(format!(
+                "the driver's buffer stamps ({}) are not on CLOCK_MONOTONIC: none of the \
+                 first {} frames' stamps is within {:.0} s before its dequeue (the first \
+                 was {when} it; the last stamp {:.6} s{looks}); from frame {} on, frames \
+                 are stamped at dequeue instead, later by the driver's delivery latency \
+                 (its constant part shows up in the offset) and with its jitter, and \
+                 frames queued while the driver falls behind get bunched times{}",
+                clock.name(),
+                self.seen,
+                MAX_STAMP_AGE_NS as f64 * 1e-9,
+                driver_ns as f64 * 1e-9,
+                self.seen,
+                if dropped > 0 {
+                    format!("; the {dropped} frame(s) before were dropped")
+                } else {
+                    String::new()
+                }
+            ));
         }
     }
 
@@ -305,6 +351,19 @@ impl V4l2Source {
         #[cfg(not(feature = "v4l2"))]
         {
             let _ = stop;
+            match self._never {}
+        }
+    }
+
+    /// Where the frames' times come from, once the first frames decided it (for
+    /// [`V4l2Config::stamps`] of a reopen).
+    pub fn stamp_choice(&self) -> Option<FrameStamps> {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.stamps.chosen()
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
             match self._never {}
         }
     }
@@ -473,7 +532,10 @@ mod imp {
                 unusable: UnusableFrames::named("buffers"),
                 stop: never,
                 stall: cfg.stall,
-                stamps: StampCheck::default(),
+                stamps: match cfg.stamps {
+                    Some(c) => StampCheck::decided(c),
+                    None => StampCheck::new(cfg.buffers.max(2) + DECIDE_EXTRA_FRAMES),
+                },
                 started: false,
                 waiting: false,
             })
@@ -493,7 +555,7 @@ mod imp {
                 self.stride
             };
             let since = std::time::Instant::now();
-            let (ts, flags) = loop {
+            let t_ns = loop {
                 if (self.stop)() {
                     return Ok(None);
                 }
@@ -544,6 +606,8 @@ mod imp {
                         })
                     }
                 };
+                // the clock read at once: a dequeue stamp carries no conversion time
+                let now_ns = monotonic_ns();
                 if meta.flags.contains(v4l::buffer::Flags::ERROR) {
                     let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
                     self.unusable
@@ -551,13 +615,23 @@ mod imp {
                         .map_err(|reason| self.device_error(reason))?;
                     continue;
                 }
+                // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
+                #[allow(clippy::unnecessary_cast)]
+                let driver_ns = (meta.timestamp.sec as i64)
+                    .saturating_mul(1_000_000_000)
+                    .saturating_add((meta.timestamp.usec as i64).saturating_mul(1_000));
+                let clock = StampClock::from_flags(u32::from(meta.flags));
+                let Some(t_ns) = self.stamps.stamp(clock, driver_ns, now_ns) else {
+                    // the stamps' clock is not decided yet: dropped, not converted
+                    continue;
+                };
                 let used = (meta.bytesused as usize).min(buf.len());
                 let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
                     .with_stride(stride);
                 match raw.to_gray_into(&mut self.gray) {
                     Ok(()) => {
                         self.unusable.used();
-                        break (meta.timestamp, u32::from(meta.flags));
+                        break t_ns;
                     }
                     Err(e) if skippable(&e) => {
                         let why = format!("buffer {}: {e}", meta.sequence);
@@ -569,15 +643,6 @@ mod imp {
                     Err(e) => return Err(e),
                 }
             };
-            let now_ns = monotonic_ns();
-            // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
-            #[allow(clippy::unnecessary_cast)]
-            let driver_ns = (ts.sec as i64)
-                .saturating_mul(1_000_000_000)
-                .saturating_add((ts.usec as i64).saturating_mul(1_000));
-            let t_ns = self
-                .stamps
-                .stamp(StampClock::from_flags(flags), driver_ns, now_ns);
             let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
             Ok(Some((frame, FrameTime::Instant(t_ns))))
         }
@@ -652,121 +717,155 @@ mod tests {
         assert_eq!(StampClock::from_flags(0xe000), StampClock::Unknown);
     }
 
+    /// Frames to decide in (the default 4 buffers and the extra 2).
+    const N: u32 = 6;
+
     #[test]
     fn monotonic_stamps_are_used_as_they_are_and_said_nothing_of() {
-        let mut c = StampCheck::default();
+        let mut c = StampCheck::new(N);
         // exposed 40 ms before the dequeue
         assert_eq!(
             c.stamp(StampClock::Monotonic, 100 * S, 100 * S + 40 * MS),
-            100 * S
+            Some(100 * S)
         );
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
         assert_eq!(c.take_note(), None);
         // later frames keep the driver's stamps, even one dequeued late
-        assert_eq!(c.stamp(StampClock::Monotonic, 101 * S, 103 * S), 101 * S);
+        assert_eq!(
+            c.stamp(StampClock::Monotonic, 101 * S, 103 * S),
+            Some(101 * S)
+        );
     }
 
     #[test]
     fn unflagged_stamps_on_the_monotonic_clock_are_used_and_said_so() {
-        let mut c = StampCheck::default();
+        let mut c = StampCheck::new(N);
         assert_eq!(
             c.stamp(StampClock::Unknown, 50 * S, 50 * S + 33 * MS),
-            50 * S
+            Some(50 * S)
         );
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
         let note = c.take_note().unwrap();
-        assert!(
-            note.contains(
-                "flagged of unknown clock but 33.0 ms before CLOCK_MONOTONIC at frame 1's dequeue"
-            ),
-            "{note}"
+        assert_eq!(
+            note,
+            "the driver's buffer stamps (V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN) are on \
+             CLOCK_MONOTONIC: frame 1's is 33.0 ms before its dequeue; its stamps are used"
         );
-        assert!(note.contains("taken as CLOCK_MONOTONIC"), "{note}");
         assert_eq!(c.take_note(), None);
     }
 
     #[test]
-    fn a_first_frame_dequeued_late_does_not_decide_alone() {
-        // the process held up 3 s before its first read: that buffer is old, the
-        // next one is fresh
-        let mut c = StampCheck::default();
-        assert_eq!(c.stamp(StampClock::Monotonic, 10 * S, 13 * S), 13 * S);
-        assert_eq!(c.chosen(), None);
+    fn frames_queued_while_the_driver_was_held_up_are_dropped_not_mixed() {
+        // held up 3 s before the first read: the 4 queued buffers are old, the
+        // frame after them fresh
+        let mut c = StampCheck::new(N);
+        for i in 0..4 {
+            assert_eq!(
+                c.stamp(StampClock::Monotonic, 10 * S + i * 33 * MS, 13 * S),
+                None
+            );
+            assert_eq!(c.chosen(), None);
+        }
         assert_eq!(c.take_note(), None);
-        assert_eq!(
-            c.stamp(StampClock::Monotonic, 13 * S, 13 * S + 5 * MS),
-            13 * S
-        );
+        let t = 13 * S - 5 * MS;
+        assert_eq!(c.stamp(StampClock::Monotonic, t, 13 * S), Some(t));
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
         let note = c.take_note().unwrap();
         assert!(
-            note.contains("5.0 ms before CLOCK_MONOTONIC at frame 2's dequeue"),
+            note.contains("frame 5's is 5.0 ms before its dequeue"),
             "{note}"
         );
         assert!(
-            note.contains("(the 1 frame(s) before it, 3.000 s old"),
+            note.ends_with(
+                "the 4 frames before it, the first 3.000 s old at its dequeue, were dropped"
+            ),
             "{note}"
         );
         // from then on the driver's stamps, whatever their age
-        assert_eq!(c.stamp(StampClock::Monotonic, 14 * S, 20 * S), 14 * S);
+        assert_eq!(c.stamp(StampClock::Monotonic, 14 * S, 20 * S), Some(14 * S));
     }
 
     #[test]
     fn stamps_off_the_monotonic_clock_give_way_to_the_dequeue_time() {
         // zero stamps: every frame would repeat the last one's time
-        let mut c = StampCheck::default();
-        for i in 0..DECIDE_FRAMES as i64 {
+        let mut c = StampCheck::new(N);
+        for i in 0..N as i64 {
             let now = 7 * S + i * 33 * MS;
-            assert_eq!(c.stamp(StampClock::Monotonic, 0, now), now);
-            let decided = i + 1 == DECIDE_FRAMES as i64;
-            assert_eq!(c.chosen().is_some(), decided);
-            assert_eq!(c.take_note().is_some(), decided);
+            let last = i + 1 == N as i64;
+            assert_eq!(c.stamp(StampClock::Monotonic, 0, now), last.then_some(now));
+            assert_eq!(c.chosen().is_some(), last);
+            assert_eq!(c.take_note().is_some(), last);
         }
         assert_eq!(c.chosen(), Some(FrameStamps::Dequeue));
         // the wall clock: decades after the monotonic clock's reading
-        let mut c = StampCheck::default();
+        let mut c = StampCheck::new(N);
         let wall = 1_796_000_000 * S;
-        for i in 0..DECIDE_FRAMES as i64 {
-            assert_eq!(
-                c.stamp(StampClock::Unknown, wall + i * S, 9 * S + i * S),
-                9 * S + i * S
-            );
+        for i in 0..N as i64 {
+            c.stamp(StampClock::Unknown, wall + i * S, 9 * S + i * S);
         }
         let note = c.take_note().unwrap();
         assert!(
-            note.contains("(flagged of unknown clock) are not on CLOCK_MONOTONIC"),
+            note.starts_with("the driver's buffer stamps (V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN) are not on CLOCK_MONOTONIC: none of the first 6 frames' stamps is within 1 s before its dequeue"),
             "{note}"
         );
         assert!(
-            note.contains("none of the first 4 frames' is within 1 s before its dequeue"),
+            note.contains("s after it; the last stamp 1796000005.000000 s (the wall clock"),
             "{note}"
         );
-        assert!(note.contains("s after it;"), "{note}");
-        assert!(note.contains("stamped at dequeue instead"), "{note}");
+        assert!(
+            note.contains("from frame 6 on, frames are stamped at dequeue instead"),
+            "{note}"
+        );
+        assert!(
+            note.ends_with("the 5 frame(s) before were dropped"),
+            "{note}"
+        );
         // the choice holds: a later stamp that would pass is not switched to
         assert_eq!(
             c.stamp(StampClock::Unknown, 20 * S, 20 * S + MS),
-            20 * S + MS
+            Some(20 * S + MS)
         );
         // the margins, exactly
-        let mut c = StampCheck::default();
-        c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS + 1, S);
-        assert_eq!(c.chosen(), None);
-        let mut c = StampCheck::default();
+        let mut c = StampCheck::new(N);
+        assert_eq!(
+            c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS + 1, S),
+            None
+        );
+        let mut c = StampCheck::new(N);
         c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS, S);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
-        let mut c = StampCheck::default();
+        let mut c = StampCheck::new(N);
         c.stamp(StampClock::Monotonic, S, S + MAX_STAMP_AGE_NS);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
     }
 
+    #[test]
+    fn a_reopen_keeps_the_earlier_choice_and_says_nothing() {
+        for choice in [FrameStamps::Driver, FrameStamps::Dequeue] {
+            let mut c = StampCheck::decided(choice);
+            // a zero stamp, and one the window would take: the choice holds for both
+            let first = c.stamp(StampClock::Monotonic, 0, 5 * S);
+            let second = c.stamp(StampClock::Monotonic, 6 * S, 6 * S + MS);
+            match choice {
+                FrameStamps::Driver => assert_eq!((first, second), (Some(0), Some(6 * S))),
+                FrameStamps::Dequeue => {
+                    assert_eq!((first, second), (Some(5 * S), Some(6 * S + MS)))
+                }
+            }
+            assert_eq!(c.take_note(), None);
+        }
+        assert_eq!(V4l2Config::default().stamps, None);
+    }
+
     proptest::proptest! {
         /// Any flags and times: no panic; the first frame within the window among the
-        /// first DECIDE_FRAMES decides for the driver from that frame on, and without
-        /// one every frame gets its dequeue time.
+        /// first `n` decides for the driver from that frame on, without one the
+        /// n-th frame decides for the dequeue time; frames before the decision are
+        /// dropped.
         #[test]
         fn the_first_frames_decide_for_the_stream(
             flags in proptest::prelude::any::<u32>(),
+            n in 1u32..8,
             // about half of the frames within the window or near its edges
             frames in proptest::collection::vec(
                 (
@@ -779,27 +878,30 @@ mod tests {
                 1..12,
             ),
         ) {
-            let mut c = StampCheck::default();
+            let mut c = StampCheck::new(n);
             let clock = StampClock::from_flags(flags);
             let window = -MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS;
             let first_in = frames
                 .iter()
-                .take(DECIDE_FRAMES as usize)
+                .take(n as usize)
                 .position(|&(d, age)| window.contains(&d.saturating_add(age).saturating_sub(d)));
             for (i, &(d, age)) in frames.iter().enumerate() {
-                let n = d.saturating_add(age);
-                let t = c.stamp(clock, d, n);
-                let driver = first_in.is_some_and(|k| i >= k);
-                proptest::prop_assert_eq!(t, if driver { d } else { n });
+                let now = d.saturating_add(age);
+                let expect = match first_in {
+                    Some(k) if i >= k => Some(d),
+                    Some(_) => None,
+                    None if i + 1 >= n as usize => Some(now),
+                    None => None,
+                };
+                proptest::prop_assert_eq!(c.stamp(clock, d, now), expect);
             }
-            let decided = first_in.is_some() || frames.len() >= DECIDE_FRAMES as usize;
+            let decided = first_in.is_some() || frames.len() >= n as usize;
             proptest::prop_assert_eq!(c.chosen().is_some(), decided);
-            let note = c.take_note();
             let expect_note = match first_in {
                 Some(k) => k > 0 || clock != StampClock::Monotonic,
                 None => decided,
             };
-            proptest::prop_assert_eq!(note.is_some(), expect_note);
+            proptest::prop_assert_eq!(c.take_note().is_some(), expect_note);
         }
     }
 }

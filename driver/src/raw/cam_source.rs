@@ -2,6 +2,8 @@
 //! through the optical-flow front-end.
 
 use super::*;
+use std::cell::Cell;
+use std::rc::Rc;
 
 /// What the driver knows about a rendered frame beyond its image and time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -40,6 +42,31 @@ trait Frames {
 
 /// A front-end frame source: no truth.
 struct Plain(Box<dyn FrameSource>);
+
+/// A V4L2 camera that shares, once its first frames decided it, where its frames'
+/// times come from, for its reopening after a stall.
+struct V4l2Frames {
+    src: cam::V4l2Source,
+    choice: Rc<Cell<Option<cam::FrameStamps>>>,
+}
+
+impl FrameSource for V4l2Frames {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+        // the previous frames' decision (this frame borrows the source)
+        if self.choice.get().is_none() {
+            self.choice.set(self.src.stamp_choice());
+        }
+        self.src.next_frame()
+    }
+    fn unusable(&self) -> Option<(u64, &str)> {
+        self.src.unusable()
+    }
+    fn take_note(&mut self) -> Option<String> {
+        self.src.take_note()
+    }
+}
 
 /// Opens a live camera again after it stalled.
 type Reopen = Box<dyn FnMut() -> Result<Box<dyn FrameSource>, cam::Error>>;
@@ -489,23 +516,37 @@ impl CamSource {
             device: device.to_path_buf(),
             ..cam::V4l2Config::default()
         };
+        // where the frames' times come from, once an opening's first frames decided
+        // it: a reopen keeps it (the stamps' clock does not change with a stall)
+        let choice = Rc::new(Cell::new(None));
         // a stalled camera's wait wakes to check the stop (and ends in
         // `Error::Stalled` after `V4l2Config::stall`, on which the device is opened
         // again), instead of blocking the driver for good
-        let open = move || -> Result<cam::V4l2Source, cam::Error> {
-            let mut src = cam::V4l2Source::open(&cfg)?;
+        let open = move |stamps: Option<cam::FrameStamps>| -> Result<cam::V4l2Source, cam::Error> {
+            let mut src = cam::V4l2Source::open(&cam::V4l2Config {
+                stamps,
+                ..cfg.clone()
+            })?;
             src.set_stop(stop);
             Ok(src)
         };
-        let src = open().map_err(|e| SourceError(format!("--v4l2: {e}")))?;
+        let src = open(None).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
         let (w, h) = src.frame_size();
         let mut me = Self::new(
-            Box::new(src),
+            Box::new(V4l2Frames {
+                src,
+                choice: choice.clone(),
+            }),
             format!("v4l2 {} ({w}x{h})", device.display()),
             stop,
         )?;
         me.reopen = Some(Box::new(move || {
-            open().map(|s| Box::new(s) as Box<dyn FrameSource>)
+            open(choice.get()).map(|src| {
+                Box::new(V4l2Frames {
+                    src,
+                    choice: choice.clone(),
+                }) as Box<dyn FrameSource>
+            })
         }));
         Ok(me)
     }
@@ -571,13 +612,13 @@ impl CamSource {
 impl Source for CamSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
         loop {
-            if (self.stop)() {
-                return Ok(None);
-            }
-            // the source's remark on the previous frame (a live camera's first frame
-            // decides whose clock stamps its frames)
+            // the source's remark on the previous frame (a live camera's first frames
+            // decide whose clock stamps its frames)
             if let Some(note) = self.frames.take_note() {
                 vlsync_common::console::print_err(&format!("vlsync-cam: {}: {note}\n", self.what));
+            }
+            if (self.stop)() {
+                return Ok(None);
             }
             let Self {
                 frames,
@@ -748,8 +789,6 @@ impl Source for CamSource {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::cell::Cell;
-    use std::rc::Rc;
 
     /// A camera that stalls `stalls` times, then delivers `frames` flat frames and ends.
     struct Fake {
