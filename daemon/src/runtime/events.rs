@@ -85,8 +85,12 @@ pub(super) fn log_event(
         }
         // persisted and shown by the service loop itself
         RtEvent::Estimate(_) => {}
-        // one a summary period: not throttled
-        RtEvent::Latency(l) => tracing::info!("{}", journal::latency_line(l, budget_us)),
+        // one a summary period: not throttled; an idle stretch has no latency to tell
+        RtEvent::Latency(l) => {
+            if l.samples > 0 {
+                tracing::info!("{}", journal::latency_line(l, budget_us))
+            }
+        }
         RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
             "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s",
             *t_lidar_ns as f64 * 1e-9

@@ -1,17 +1,17 @@
 //! What the daemon writes to its log over months of running: a warning that repeats
 //! (a driver sending NaN at 30 Hz, a lossy link) is logged at once, then at most once
 //! per [`THROTTLE_NS`] with the count of those suppressed meanwhile; and every
-//! [`SUMMARY_NS`] one line says how the estimate and the streams fared. Pure logic,
-//! driven by the service thread with monotonic times; the real-time thread never
-//! sees it.
+//! summary period (`daemon.summary_period_s`, 10 minutes by default) one line says
+//! how the estimate and the streams fared ([`Summary`]) and one what the latency was
+//! ([`LatencyStretch`], which the real-time thread measures and hands over as the
+//! event that ends the period). Pure logic, driven by the service thread with
+//! monotonic times.
 
 use vlsync_common::wire::{Status, REJECT_NAMES, REJECT_REASONS};
 use vlsync_common::{Estimate, EstimatorState, Nanos};
 
 /// A repeated warning of one kind is logged at most once per this period, ns.
 pub const THROTTLE_NS: Nanos = 10_000_000_000;
-/// Period of the summary line, ns (10 minutes).
-pub const SUMMARY_NS: Nanos = 600_000_000_000;
 
 /// Kinds of throttled lines: rejections per stream and reason, losses per stream,
 /// the switches to degraded mode (budget overruns), then the stamping-latency steps
@@ -274,10 +274,13 @@ pub struct LatencyStretch {
 
 /// A summary's span as the log says it: seconds under two minutes, else minutes.
 fn span_text(ns: Nanos) -> String {
+    let min = ns as f64 / 60e9;
     if ns < 120_000_000_000 {
         format!("{:.0} s", ns as f64 / 1e9)
+    } else if (min - min.round()).abs() < 0.05 {
+        format!("{min:.0} min")
     } else {
-        format!("{:.0} min", ns as f64 / 60e9)
+        format!("{min:.1} min")
     }
 }
 
@@ -328,11 +331,14 @@ pub fn latency_line(s: &LatencyStretch, budget_us: f64) -> String {
     out
 }
 
-/// The periodic summary of estimates and stream counters.
+/// The periodic summary of estimates and stream counters. Its line is written when
+/// the real-time thread's latency stretch ends ([`Summary::close`]), so the two lines
+/// of a period cover the same stretch; [`Summary::due`] writes it when that event
+/// has not come for two periods (a flood that filled the event channel dropped it).
 #[derive(Debug, Clone)]
 pub struct Summary {
     period: Nanos,
-    since: Option<Nanos>,
+    since: Nanos,
     per_state: [u64; 4],
     /// Offset steps found in the data, and moves of the search, this period.
     steps: u64,
@@ -343,11 +349,11 @@ pub struct Summary {
 }
 
 impl Summary {
-    /// A summary every `period`.
-    pub fn new(period: Nanos) -> Self {
+    /// A summary every `period`, the first counted from `now`.
+    pub fn new(period: Nanos, now: Nanos) -> Self {
         Self {
             period,
-            since: None,
+            since: now,
             per_state: [0; 4],
             steps: 0,
             search_moves: 0,
@@ -378,20 +384,22 @@ impl Summary {
         self.status_now = Some(*s);
     }
 
-    /// The summary line once a period has passed since the last one (the first period
-    /// starts at the first call).
+    /// The summary line when two periods have passed since the last one without a
+    /// [`Summary::close`] (the real-time thread's event that ends a period was lost).
     pub fn due(&mut self, now: Nanos) -> Option<String> {
-        let since = *self.since.get_or_insert(now);
-        if now.saturating_sub(since) < self.period {
-            return None;
-        }
-        self.since = Some(now);
+        (now.saturating_sub(self.since) >= self.period.saturating_mul(2)).then(|| self.close(now))
+    }
+
+    /// The summary line of everything since the last one, and a new period from `now`.
+    pub fn close(&mut self, now: Nanos) -> String {
+        let since = self.since;
+        self.since = now;
         let line = self.line(now.saturating_sub(since));
         self.per_state = [0; 4];
         self.steps = 0;
         self.search_moves = 0;
         self.status_then = self.status_now;
-        Some(line)
+        line
     }
 
     fn line(&self, span_ns: Nanos) -> String {
@@ -618,6 +626,33 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
             "{line}"
         );
         assert!(line.contains("2 over the 150 µs budget"), "{line}");
+        let short = latency_line(
+            &LatencyStretch {
+                span_ns: 5 * S,
+                ..s
+            },
+            150.0,
+        );
+        assert!(
+            short.starts_with("latency, last 5 s: 10 samples"),
+            "{short}"
+        );
+        let odd = latency_line(
+            &LatencyStretch {
+                span_ns: 150 * S,
+                ..s
+            },
+            150.0,
+        );
+        assert!(odd.starts_with("latency, last 2.5 min: "), "{odd}");
+        let late = latency_line(
+            &LatencyStretch {
+                span_ns: 600 * S + 20_000_000,
+                ..s
+            },
+            150.0,
+        );
+        assert!(late.starts_with("latency, last 10 min: "), "{late}");
         assert!(
             line.ends_with("max 70.0 µs (4 of the samples timed)"),
             "{line}"
@@ -629,7 +664,7 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
 
     #[test]
     fn summary_every_period_with_shares_and_counter_deltas() {
-        let mut s = Summary::new(600 * S);
+        let mut s = Summary::new(600 * S, 0);
         assert_eq!(s.due(0), None);
         let mut st = Status {
             received: [18_000, 6_000],
@@ -648,8 +683,9 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
         s.on_offset_step();
         s.on_offset_step();
         s.on_search_move();
-        assert_eq!(s.due(599 * S), None);
-        let line = s.due(600 * S).unwrap();
+        // written when the real-time thread's stretch ends
+        assert_eq!(s.due(1199 * S), None);
+        let line = s.close(600 * S);
         assert!(
             line.starts_with(
                 "last 10 min: 10 estimates (tracking 90 %, holding 10 %), 2 offset steps, 1 search moves;"
@@ -672,9 +708,11 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
         st.received = [18_100, 6_030];
         st.rejected[0][0] = 2;
         s.on_status(&st);
-        let line = s.due(1200 * S).unwrap();
+        // that event lost (a flooded channel): written after two periods all the same
+        assert_eq!(s.due(1799 * S), None);
+        let line = s.due(1800 * S).unwrap();
         // the step and move counts are per period too
-        assert!(line.starts_with("last 10 min: 0 estimates;"), "{line}");
+        assert!(line.starts_with("last 20 min: 0 estimates;"), "{line}");
         assert!(
             line.contains("cam 100 received, 2 rejected, 0 lost"),
             "{line}"

@@ -224,7 +224,8 @@ pub enum RtEvent {
     /// The acquisition moved its lag range (nothing found where it searched).
     SearchMoved(vlsync_estimator::SearchMove),
     /// The latency of the stretch of the run that just ended (the log's summary
-    /// period): logged as one line.
+    /// period, sent even when idle): ends the period's summary, and its latency is
+    /// logged as one line when it processed samples.
     Latency(journal::LatencyStretch),
     /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
     /// goes on (a failed receive marks that stream empty until the next wake-up).
@@ -452,7 +453,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     };
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
-    let mut summary = journal::Summary::new((cfg.daemon.summary_period_s * 1e9) as Nanos);
+    let mut summary =
+        journal::Summary::new((cfg.daemon.summary_period_s * 1e9) as Nanos, monotonic_ns());
     // The service thread polls its channels and never blocks on them: a receiver
     // blocked in `recv`/`Select` registers with the channel's waker, and every
     // `try_send` of the real-time thread would then take the waker's mutex (no
@@ -482,6 +484,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                     match &ev {
                         RtEvent::OffsetStep(_) => summary.on_offset_step(),
                         RtEvent::SearchMoved(_) => summary.on_search_move(),
+                        // the real-time thread's stretch ended: the period's summary,
+                        // then its latency line (`log_event`), over the same stretch
+                        RtEvent::Latency(_) => tracing::info!("{}", summary.close(monotonic_ns())),
                         _ => {}
                     }
                     log_event(

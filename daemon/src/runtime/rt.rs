@@ -59,11 +59,11 @@ impl RtCounters {
         self.stretch.overruns_before = self.status.budget_overruns;
     }
 
-    /// Ends the stretch at `now` and starts the next: its latency, `None` when it
-    /// processed no sample (an idle daemon logs no latency line). No allocation.
-    pub(super) fn end_stretch(&mut self, now: Nanos) -> Option<journal::LatencyStretch> {
+    /// Ends the stretch at `now` and starts the next: its latency (`samples` 0 for
+    /// an idle stretch). No allocation.
+    pub(super) fn end_stretch(&mut self, now: Nanos) -> journal::LatencyStretch {
         let st = &mut self.stretch;
-        let out = (st.processing.count() > 0).then(|| journal::LatencyStretch {
+        let out = journal::LatencyStretch {
             span_ns: now.saturating_sub(st.start_ns).max(0),
             samples: st.processing.count(),
             processing_ns: st.processing.summary(),
@@ -73,7 +73,7 @@ impl RtCounters {
                 .status
                 .budget_overruns
                 .saturating_sub(st.overruns_before),
-        });
+        };
         st.processing.clear();
         st.end_to_end.clear();
         st.start_ns = now;
@@ -475,7 +475,11 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
                 },
             );
         }
-        if now >= next_status {
+        // a stretch's end comes with a status of its own: the service thread reads
+        // statuses before events, so the summary it writes at the stretch's end
+        // counts the samples up to it, as the latency line does
+        let stretch_ends = now >= next_stretch;
+        if now >= next_status || stretch_ends {
             next_status = now + status_period_ns;
             let st = snapshot(&mut c, degraded, s.start_ns, now);
             hand_status(&s.status_tx, &mut c, st);
@@ -484,11 +488,10 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
                 c.end_to_end.clear();
             }
         }
-        if now >= next_stretch {
+        if stretch_ends {
             next_stretch = now + stretch_ns;
-            if let Some(l) = c.end_stretch(now) {
-                emit(&s.tx, &mut c, RtEvent::Latency(l));
-            }
+            let l = c.end_stretch(now);
+            emit(&s.tx, &mut c, RtEvent::Latency(l));
         }
     }
     // final status so the last counters are not lost
@@ -560,7 +563,7 @@ mod tests {
         }
         c.record_latency(500_000, None);
         c.status.budget_overruns += 1;
-        let first = c.end_stretch(610 * S).unwrap();
+        let first = c.end_stretch(610 * S);
         assert_eq!(first.span_ns, 600 * S);
         assert_eq!((first.samples, first.timed, first.overruns), (100, 99, 1));
         assert_eq!(first.processing_ns[2], 500_000);
@@ -572,7 +575,7 @@ mod tests {
         for _ in 0..50 {
             c.record_latency(8_000, Some(90_000));
         }
-        let second = c.end_stretch(1210 * S).unwrap();
+        let second = c.end_stretch(1210 * S);
         assert_eq!((second.samples, second.timed, second.overruns), (50, 50, 0));
         assert_eq!(second.processing_ns[2], 8_000);
         assert_eq!(second.end_to_end_ns[2], 90_000);
@@ -580,10 +583,37 @@ mod tests {
         assert_eq!(c.processing.count(), 150);
         assert_eq!(c.processing.max(), 500_000);
         assert_eq!(c.end_to_end.count(), 149);
-        // an idle stretch: no line
-        assert_eq!(c.end_stretch(1810 * S), None);
+        // an idle stretch: nothing processed
+        let idle = c.end_stretch(1810 * S);
+        assert_eq!(
+            (idle.samples, idle.timed, idle.processing_ns),
+            (0, 0, [0; 3])
+        );
         c.record_latency(7_000, None);
-        let after_idle = c.end_stretch(2410 * S).unwrap();
+        let after_idle = c.end_stretch(2410 * S);
         assert_eq!((after_idle.span_ns, after_idle.samples), (600 * S, 1));
+    }
+
+    #[test]
+    fn a_stretch_is_recorded_ended_and_sent_without_allocating() {
+        let mut c = RtCounters::new();
+        let (tx, rx) = crossbeam::channel::bounded(4);
+        c.start_stretch(0);
+        let before = vlsync_alloc_count::this_thread();
+        for k in 0..3 {
+            for i in 0..1000u64 {
+                c.record_latency(1_000 + i * 37, (i % 3 != 0).then_some(50_000 + i));
+            }
+            let l = c.end_stretch((k + 1) * 600 * S);
+            emit(&tx, &mut c, RtEvent::Latency(l));
+        }
+        let allocated = vlsync_alloc_count::this_thread() - before;
+        // it ran: three stretches reached the channel, each its own
+        let got: Vec<_> = rx.try_iter().collect();
+        assert_eq!(got.len(), 3);
+        assert!(got
+            .iter()
+            .all(|e| matches!(e, RtEvent::Latency(l) if l.samples == 1000 && l.timed == 666)));
+        assert_eq!(allocated, 0);
     }
 }
