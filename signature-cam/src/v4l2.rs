@@ -151,11 +151,13 @@ pub const MAX_STAMP_AGE_NS: Nanos = 1_000_000_000;
 /// this margin only covers rounding to microseconds).
 pub const MAX_STAMP_AHEAD_NS: Nanos = 1_000_000;
 
-/// Frames beyond the driver's queued buffers that a stream's stamps get to show
-/// they are on `CLOCK_MONOTONIC`: a driver held up between the stream's start and
-/// its first read finds every queued buffer filled, each with an old stamp, and only
-/// the frames after them are fresh.
-pub const DECIDE_EXTRA_FRAMES: u32 = 2;
+/// Frames beyond the buffers requested that a stream's stamps get to show they are
+/// on `CLOCK_MONOTONIC`: a driver held up between the stream's start and its first
+/// read finds every queued buffer filled, each with an old stamp, and only the
+/// frames after them are fresh; a V4L2 driver may also grant a few more buffers than
+/// requested. Only a stream whose stamps are not on that clock waits out all of them
+/// (8 frames at the default 4 buffers: a quarter of a second at 30 Hz).
+pub const DECIDE_EXTRA_FRAMES: u32 = 4;
 
 /// Decides, at a stream's first frames, whether the driver's buffer stamps are on
 /// `CLOCK_MONOTONIC`, whatever the flags say. The first stamp found from
@@ -277,10 +279,10 @@ impl StampCheck {
                 MAX_STAMP_AGE_NS as f64 * 1e-9,
                 driver_ns as f64 * 1e-9,
                 self.seen,
-                if dropped > 0 {
-                    format!("; the {dropped} frame(s) before were dropped")
-                } else {
-                    String::new()
+                match dropped {
+                    0 => String::new(),
+                    1 => "; the frame before it was dropped".to_string(),
+                    n => format!("; the {n} frames before it were dropped"),
                 }
             ));
         }
@@ -717,8 +719,8 @@ mod tests {
         assert_eq!(StampClock::from_flags(0xe000), StampClock::Unknown);
     }
 
-    /// Frames to decide in (the default 4 buffers and the extra 2).
-    const N: u32 = 6;
+    /// Frames to decide in (the default 4 buffers and the extra 4).
+    const N: u32 = 8;
 
     #[test]
     fn monotonic_stamps_are_used_as_they_are_and_said_nothing_of() {
@@ -805,19 +807,19 @@ mod tests {
         }
         let note = c.take_note().unwrap();
         assert!(
-            note.starts_with("the driver's buffer stamps (V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN) are not on CLOCK_MONOTONIC: none of the first 6 frames' stamps is within 1 s before its dequeue"),
+            note.starts_with("the driver's buffer stamps (V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN) are not on CLOCK_MONOTONIC: none of the first 8 frames' stamps is within 1 s before its dequeue"),
             "{note}"
         );
         assert!(
-            note.contains("s after it; the last stamp 1796000005.000000 s (the wall clock"),
+            note.contains("s after it; the last stamp 1796000007.000000 s (the wall clock"),
             "{note}"
         );
         assert!(
-            note.contains("from frame 6 on, frames are stamped at dequeue instead"),
+            note.contains("from frame 8 on, frames are stamped at dequeue instead"),
             "{note}"
         );
         assert!(
-            note.ends_with("the 5 frame(s) before were dropped"),
+            note.ends_with("the 7 frames before it were dropped"),
             "{note}"
         );
         // the choice holds: a later stamp that would pass is not switched to
