@@ -237,7 +237,8 @@ pub struct DaemonConfig {
     /// Processing budget per sample, microseconds.
     pub latency_budget_us: f64,
     /// Status publication period, seconds (while no samples arrive the real-time
-    /// loop wakes every 0.1 s, so no faster than that then).
+    /// loop wakes every 0.1 s, so no faster than that then); one more status comes
+    /// at the end of each summary period (`summary_period_s`).
     pub status_period_s: f64,
     /// When true, the latency percentiles of each status cover only the last
     /// status period (the histograms restart after each status) instead of the

@@ -14,10 +14,11 @@
 //! (`V4L2_BUF_FLAG_TSTAMP_SRC_*`), so the constant part of that difference shows
 //! up in the estimated offset. A driver whose stamps are on another clock (flagged
 //! `V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN`, or all zero, or on the wall clock, which NTP
-//! steps) would otherwise give the daemon stamps that repeat or jump: each opening
+//! steps) would otherwise give the daemon stamps that repeat or jump: an opening
 //! checks its first frames' stamps against `CLOCK_MONOTONIC` read at their dequeue
 //! ([`StampCheck`]), and stamps that cannot be on that clock make the stream stamp
-//! its frames at dequeue instead, said once ([`FrameSource::take_note`]).
+//! its frames at dequeue instead, said once ([`FrameSource::take_note`]); a reopen
+//! keeps the earlier opening's choice ([`V4l2Config::stamps`]).
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
 //! when a transfer is cut) or one too short for its frame is skipped and counted
@@ -70,7 +71,7 @@ pub struct V4l2Config {
     pub stall: std::time::Duration,
     /// Where the frames' times come from, as an earlier opening of the same device
     /// found ([`V4l2Source::stamp_choice`]): kept, so a reopen after a stall does not
-    /// switch clocks mid-run. `None` (the default): decided at the first frames
+    /// switch clocks mid-run. `None` (the default): decided within the first frames
     /// ([`StampCheck`]).
     pub stamps: Option<FrameStamps>,
 }
@@ -244,12 +245,16 @@ impl StampCheck {
         if (-MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS).contains(&age) {
             self.chosen = Some(FrameStamps::Driver);
             self.note = (clock != StampClock::Monotonic || dropped > 0).then(|| {
+                let when = if age >= 0 {
+                    format!("{:.1} ms before", age as f64 * 1e-6)
+                } else {
+                    format!("{:.3} ms after", -(age as f64) * 1e-6)
+                };
                 format!(
                     "the driver's buffer stamps ({}) are on CLOCK_MONOTONIC: frame {}'s is \
-                     {:.1} ms before its dequeue; its stamps are used{dropped_text}",
+                     {when} its dequeue; its stamps are used{dropped_text}",
                     clock.name(),
                     self.seen,
-                    age as f64 * 1e-6,
                 )
             });
         } else if self.seen >= self.decide_frames {
@@ -441,7 +446,7 @@ mod imp {
         pub(super) unusable: UnusableFrames,
         pub(super) stop: fn() -> bool,
         stall: std::time::Duration,
-        /// Whose stamps the frames carry (decided at the first frame).
+        /// Whose stamps the frames carry (decided within the first frames).
         pub(super) stamps: StampCheck,
         /// The stream runs (the first `next` queued every buffer and started it).
         started: bool,
@@ -536,7 +541,7 @@ mod imp {
                 stall: cfg.stall,
                 stamps: match cfg.stamps {
                     Some(c) => StampCheck::decided(c),
-                    None => StampCheck::new(cfg.buffers.max(2) + DECIDE_EXTRA_FRAMES),
+                    None => StampCheck::new(cfg.buffers.max(2).saturating_add(DECIDE_EXTRA_FRAMES)),
                 },
                 started: false,
                 waiting: false,
@@ -556,7 +561,7 @@ mod imp {
             } else {
                 self.stride
             };
-            let since = std::time::Instant::now();
+            let mut since = std::time::Instant::now();
             let t_ns = loop {
                 if (self.stop)() {
                     return Ok(None);
@@ -624,7 +629,10 @@ mod imp {
                     .saturating_add((meta.timestamp.usec as i64).saturating_mul(1_000));
                 let clock = StampClock::from_flags(u32::from(meta.flags));
                 let Some(t_ns) = self.stamps.stamp(clock, driver_ns, now_ns) else {
-                    // the stamps' clock is not decided yet: dropped, not converted
+                    // the stamps' clock is not decided yet: dropped, not converted; the
+                    // camera delivers, so the stall limit counts from here (a slow
+                    // camera must not stall out before its decision)
+                    since = std::time::Instant::now();
                     continue;
                 };
                 let used = (meta.bytesused as usize).min(buf.len());
@@ -834,8 +842,13 @@ mod tests {
             None
         );
         let mut c = StampCheck::new(N);
-        c.stamp(StampClock::Monotonic, S + MAX_STAMP_AHEAD_NS, S);
+        c.stamp(StampClock::Unknown, S + MAX_STAMP_AHEAD_NS, S);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains("frame 1's is 1.000 ms after its dequeue"),
+            "{note}"
+        );
         let mut c = StampCheck::new(N);
         c.stamp(StampClock::Monotonic, S, S + MAX_STAMP_AGE_NS);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));

@@ -334,7 +334,9 @@ pub fn latency_line(s: &LatencyStretch, budget_us: f64) -> String {
 /// The periodic summary of estimates and stream counters. Its line is written when
 /// the real-time thread's latency stretch ends ([`Summary::close`]), so the two lines
 /// of a period cover the same stretch; [`Summary::due`] writes it when that event
-/// has not come for two periods (a flood that filled the event channel dropped it).
+/// has not come for two and a half periods (a flood that filled the event channel
+/// dropped it; at two, the next event, a little late, would follow within a
+/// fraction of a second with an empty line).
 #[derive(Debug, Clone)]
 pub struct Summary {
     period: Nanos,
@@ -384,10 +386,13 @@ impl Summary {
         self.status_now = Some(*s);
     }
 
-    /// The summary line when two periods have passed since the last one without a
-    /// [`Summary::close`] (the real-time thread's event that ends a period was lost).
+    /// The summary line when two and a half periods have passed since the last one
+    /// without a [`Summary::close`] (the real-time thread's event that ends a period
+    /// was lost twice in a row; one lost event makes the next one's line cover two
+    /// periods).
     pub fn due(&mut self, now: Nanos) -> Option<String> {
-        (now.saturating_sub(self.since) >= self.period.saturating_mul(2)).then(|| self.close(now))
+        let limit = self.period.saturating_mul(5) / 2;
+        (now.saturating_sub(self.since) >= limit).then(|| self.close(now))
     }
 
     /// The summary line of everything since the last one, and a new period from `now`.
@@ -708,11 +713,12 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
         st.received = [18_100, 6_030];
         st.rejected[0][0] = 2;
         s.on_status(&st);
-        // that event lost (a flooded channel): written after two periods all the same
-        assert_eq!(s.due(1799 * S), None);
-        let line = s.due(1800 * S).unwrap();
+        // that event lost twice (a flooded channel): written after two and a half
+        // periods all the same
+        assert_eq!(s.due(2099 * S), None);
+        let line = s.due(2100 * S).unwrap();
         // the step and move counts are per period too
-        assert!(line.starts_with("last 20 min: 0 estimates;"), "{line}");
+        assert!(line.starts_with("last 25 min: 0 estimates;"), "{line}");
         assert!(
             line.contains("cam 100 received, 2 rejected, 0 lost"),
             "{line}"

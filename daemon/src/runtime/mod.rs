@@ -24,7 +24,7 @@
 //!   pins that bound;
 //! * the **service thread** (the main thread) logs those events with tracing
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
-//!   `daemon.status_period_s`, polling both channels every [`SERVICE_POLL_BUSY`]
+//!   `daemon.status_period_s` (and at the end of each `daemon.summary_period_s`), polling both channels every [`SERVICE_POLL_BUSY`]
 //!   while events come, every [`SERVICE_POLL_IDLE`] when they do not, and again
 //!   at once after a poll that met [`EVENTS_PER_POLL`]. Statuses have a channel
 //!   of their own (capacity [`STATUS_CAPACITY`]), which the service thread reads
@@ -485,8 +485,19 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                         RtEvent::OffsetStep(_) => summary.on_offset_step(),
                         RtEvent::SearchMoved(_) => summary.on_search_move(),
                         // the real-time thread's stretch ended: the period's summary,
-                        // then its latency line (`log_event`), over the same stretch
-                        RtEvent::Latency(_) => tracing::info!("{}", summary.close(monotonic_ns())),
+                        // then its latency line (`log_event`), over the same stretch.
+                        // The status it handed over just before may have come after
+                        // this poll's drain: read it first, so the summary counts the
+                        // samples up to the stretch's end
+                        RtEvent::Latency(_) => {
+                            while let Ok(st) = status_rx.try_recv() {
+                                systemd.on_status(&st);
+                                summary.on_status(&st);
+                                publish_status(&st);
+                                got += 1;
+                            }
+                            tracing::info!("{}", summary.close(monotonic_ns()))
+                        }
                         _ => {}
                     }
                     log_event(
