@@ -24,20 +24,21 @@
 //!   pins that bound;
 //! * the **service thread** (the main thread) logs those events with tracing
 //!   and publishes the [`Status`] snapshots the real-time thread hands it every
-//!   `daemon.status_period_s` (and at the end of each `daemon.summary_period_s`), polling both channels every [`SERVICE_POLL_BUSY`]
-//!   while events come, every [`SERVICE_POLL_IDLE`] when they do not, and again
-//!   at once after a poll that met [`EVENTS_PER_POLL`]. Statuses have a channel
-//!   of their own (capacity [`STATUS_CAPACITY`]), which the service thread reads
-//!   before each event: a
+//!   `daemon.status_period_s` (and at the end of each `daemon.summary_period_s`),
+//!   polling both channels every [`SERVICE_POLL_BUSY`] while events come, every
+//!   [`SERVICE_POLL_IDLE`] when they do not, and again at once after a poll that
+//!   met [`EVENTS_PER_POLL`]. Statuses have a channel of their own (capacity
+//!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
 //!   flood of events that fills the event channel (a publisher faster than the
 //!   daemon) drops events, never the statuses that report it.
 //!
 //! The latency percentiles of a status cover the whole run, or only the last
 //! status period with `daemon.latency_per_period` (the load harness reads them
-//! per phase). Every `daemon.summary_period_s` (10 min) the real-time thread also
-//! hands over the percentiles of that stretch alone ([`journal::LatencyStretch`],
-//! from a second pair of histograms), logged as one line beside the summary of the
-//! estimates: after months a whole-run p99 would no longer move.
+//! per phase). Every `daemon.summary_period_s` (10 min by default) the real-time
+//! thread also hands over the percentiles of that stretch alone
+//! ([`journal::LatencyStretch`], from a second pair of histograms), logged as one
+//! line beside the summary of the estimates: after months a whole-run p99 would
+//! no longer move.
 //!
 //! Over budget (`daemon.latency_budget_us` for one sample) the estimator is put
 //! in degraded mode (`Estimator::set_degraded(true)`: a narrower search per
