@@ -86,15 +86,14 @@ impl FrameSource for Closed {
     }
 }
 
-/// A frame came: ends the stall of camera `what`, if any, saying how long it lasted.
-fn end_stall(stall: &mut Option<Silence>, what: &str) {
-    if let Some((lasted, reopens)) = Silence::end(stall) {
-        vlsync_common::console::print_err(&format!(
-            "vlsync-cam: {what}: frames again after {:.1} s of stall ({reopens} reopens of the device)\n",
-            lasted.as_secs_f64()
-        ));
-    }
-}
+/// How the camera driver names a stalled camera's silence.
+pub(super) const CAM_STALL: SilenceWords = SilenceWords {
+    program: "vlsync-cam",
+    unit: "device",
+    still: "still no frame",
+    again: "frames again",
+    kind: "stall",
+};
 
 impl Frames for Plain {
     fn next(&mut self) -> Result<Option<TimedFrame<'_>>, cam::Error> {
@@ -452,16 +451,7 @@ impl CamSource {
             cam::Error::Stalled { after, .. } => *after,
             _ => Duration::ZERO,
         };
-        match Silence::note(&mut self.stall, Instant::now(), so_far) {
-            Say::Began => vlsync_common::console::print_err(&format!(
-                "vlsync-cam: {what}: {e}; reopening the device and waiting for it (said again every {} min while it lasts)\n",
-                SILENCE_REPEAT.as_secs() / 60
-            )),
-            Say::Still { minutes, reopens } => vlsync_common::console::print_err(&format!(
-                "vlsync-cam: {what}: still no frame after {minutes:.0} min ({reopens} reopens of the device)\n"
-            )),
-            Say::Nothing => {}
-        }
+        Silence::say(&mut self.stall, Instant::now(), so_far, &CAM_STALL, what, e);
         // closed first: a device that streams to one handle refuses another's format
         self.frames = Box::new(Plain(Box::new(Closed)));
         if let Some(reopen) = self.reopen.as_mut() {
@@ -654,7 +644,7 @@ impl Source for CamSource {
                 return Ok(None);
             };
             skipped.used();
-            end_stall(stall, what);
+            Silence::say_end(stall, &CAM_STALL, what);
             counts.frames += 1;
             let t_in = monotonic_ns();
             let cpu_in = (*frame_cpu_ns > 0)

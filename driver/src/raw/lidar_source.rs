@@ -70,6 +70,15 @@ fn open_serial(kind: SerialKind, path: &str, baud: u32) -> Result<SerialLidar, S
     Ok(port)
 }
 
+/// How the LiDAR driver names a silent port.
+pub(super) const LIDAR_SILENCE: SilenceWords = SilenceWords {
+    program: "vlsync-lidar",
+    unit: "port",
+    still: "still silent",
+    again: "scans again",
+    kind: "silence",
+};
+
 impl Serial {
     /// After `silence` without bytes or without a complete scan: says so (once, then
     /// every [`SILENCE_REPEAT`]) and reopens the port, instead of ending the driver
@@ -77,16 +86,14 @@ impl Serial {
     /// LiDAR is off). A port that cannot be reopened (the adapter unplugged) is an
     /// error.
     fn on_silence(&mut self, what: &str, now: Instant, why: &str) -> Result<(), SourceError> {
-        match Silence::note(&mut self.quiet, now, self.silence) {
-            Say::Began => vlsync_common::console::print_err(&format!(
-                "vlsync-lidar: {what}: {why}; reopening the port and waiting for it (said again every {} min while it lasts)\n",
-                SILENCE_REPEAT.as_secs() / 60
-            )),
-            Say::Still { minutes, reopens } => vlsync_common::console::print_err(&format!(
-                "vlsync-lidar: {what}: still silent after {minutes:.0} min ({reopens} reopens of the port)\n"
-            )),
-            Say::Nothing => {}
-        }
+        Silence::say(
+            &mut self.quiet,
+            now,
+            self.silence,
+            &LIDAR_SILENCE,
+            what,
+            &why,
+        );
         // closed first: a port is opened exclusively
         self.port = None;
         self.port = Some(open_serial(self.kind, &self.path, self.baud).map_err(|e| {
@@ -103,12 +110,7 @@ impl Serial {
 
     /// A complete scan came: ends a silence, saying how long it lasted.
     fn on_scan(&mut self, what: &str) {
-        if let Some((lasted, reopens)) = Silence::end(&mut self.quiet) {
-            vlsync_common::console::print_err(&format!(
-                "vlsync-lidar: {what}: scans again after {:.1} s of silence ({reopens} reopens of the port)\n",
-                lasted.as_secs_f64()
-            ));
-        }
+        Silence::say_end(&mut self.quiet, &LIDAR_SILENCE, what);
     }
 }
 

@@ -132,11 +132,101 @@ impl Silence {
     fn lasted(slot: &Option<Silence>) -> Option<Duration> {
         slot.map(|s| s.since.elapsed())
     }
+
+    /// Notes a silence as [`Silence::note`] does and prints what there is to say
+    /// ([`Silence::line`]).
+    fn say(
+        slot: &mut Option<Silence>,
+        now: Instant,
+        so_far: Duration,
+        w: &SilenceWords,
+        what: &str,
+        why: &dyn std::fmt::Display,
+    ) {
+        if let Some(line) = Silence::line(Silence::note(slot, now, so_far), w, what, why) {
+            vlsync_common::console::print_err(&line);
+        }
+    }
+
+    /// The line for `say`: `why` when the silence begins, how long so far every
+    /// [`SILENCE_REPEAT`], nothing between.
+    fn line(say: Say, w: &SilenceWords, what: &str, why: &dyn std::fmt::Display) -> Option<String> {
+        match say {
+            Say::Began => Some(format!(
+                "{}: {what}: {why}; reopening the {} and waiting for it (said again every {} min while it lasts)\n",
+                w.program,
+                w.unit,
+                SILENCE_REPEAT.as_secs() / 60
+            )),
+            Say::Still { minutes, reopens } => Some(format!(
+                "{}: {what}: {} after {minutes:.0} min ({reopens} reopens of the {})\n",
+                w.program, w.still, w.unit
+            )),
+            Say::Nothing => None,
+        }
+    }
+
+    /// Ends the silence in `slot`, if any, printing how long it lasted.
+    fn say_end(slot: &mut Option<Silence>, w: &SilenceWords, what: &str) {
+        if let Some((lasted, reopens)) = Silence::end(slot) {
+            vlsync_common::console::print_err(&Silence::end_line(w, what, lasted, reopens));
+        }
+    }
+
+    /// The line for `say_end`.
+    fn end_line(w: &SilenceWords, what: &str, lasted: Duration, reopens: u64) -> String {
+        format!(
+            "{}: {what}: {} after {:.1} s of {} ({reopens} reopens of the {})\n",
+            w.program,
+            w.again,
+            lasted.as_secs_f64(),
+            w.kind,
+            w.unit
+        )
+    }
+}
+
+/// How a driver's lines name its device's silence.
+struct SilenceWords {
+    /// The driver, e.g. `vlsync-cam`.
+    program: &'static str,
+    /// What is reopened: `device`, `port`.
+    unit: &'static str,
+    /// The silence so far: `still no frame`, `still silent`.
+    still: &'static str,
+    /// Its end: `frames again`, `scans again`.
+    again: &'static str,
+    /// What it was: `stall`, `silence`.
+    kind: &'static str,
 }
 
 #[cfg(test)]
 mod silence_tests {
     use super::*;
+
+    #[test]
+    fn each_driver_words_its_silence_as_before() {
+        let cam = cam_source::CAM_STALL;
+        let lidar = lidar_source::LIDAR_SILENCE;
+        assert_eq!(
+            Silence::line(Say::Began, &cam, "v4l2 /dev/video0", &"no frame for 10.0 s").unwrap(),
+            "vlsync-cam: v4l2 /dev/video0: no frame for 10.0 s; reopening the device and waiting for it (said again every 10 min while it lasts)\n"
+        );
+        assert_eq!(
+            Silence::line(Say::Still { minutes: 20.2, reopens: 121 }, &lidar, "ld06 /dev/ttyUSB0", &"")
+                .unwrap(),
+            "vlsync-lidar: ld06 /dev/ttyUSB0: still silent after 20 min (121 reopens of the port)\n"
+        );
+        assert_eq!(Silence::line(Say::Nothing, &lidar, "x", &""), None);
+        assert_eq!(
+            Silence::end_line(&cam, "v4l2 /dev/video0", Duration::from_millis(12_340), 1),
+            "vlsync-cam: v4l2 /dev/video0: frames again after 12.3 s of stall (1 reopens of the device)\n"
+        );
+        assert_eq!(
+            Silence::end_line(&lidar, "ld06 /dev/ttyUSB0", Duration::from_secs(3), 0),
+            "vlsync-lidar: ld06 /dev/ttyUSB0: scans again after 3.0 s of silence (0 reopens of the port)\n"
+        );
+    }
 
     #[test]
     fn a_silence_is_said_once_then_every_repeat_period_with_its_reopens() {
