@@ -452,6 +452,17 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             st.estimates_published
         );
     };
+    // every status waiting: to systemd, the summary and the status service; how many
+    let drain_statuses = |systemd: &mut notify::Supervisor, summary: &mut journal::Summary| {
+        let mut n = 0;
+        while let Ok(st) = status_rx.try_recv() {
+            systemd.on_status(&st);
+            summary.on_status(&st);
+            publish_status(&st);
+            n += 1;
+        }
+        n
+    };
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
     let mut summary =
@@ -467,12 +478,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         let mut got = 0usize;
         let mut disconnected = false;
         while got < EVENTS_PER_POLL {
-            while let Ok(st) = status_rx.try_recv() {
-                systemd.on_status(&st);
-                summary.on_status(&st);
-                publish_status(&st);
-                got += 1;
-            }
+            got += drain_statuses(&mut systemd, &mut summary);
             match rx.try_recv() {
                 Ok(RtEvent::Estimate(e)) => {
                     systemd.on_estimate(&e);
@@ -491,12 +497,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                         // this poll's drain: read it first, so the summary counts the
                         // samples up to the stretch's end
                         RtEvent::Latency(_) => {
-                            while let Ok(st) = status_rx.try_recv() {
-                                systemd.on_status(&st);
-                                summary.on_status(&st);
-                                publish_status(&st);
-                                got += 1;
-                            }
+                            got += drain_statuses(&mut systemd, &mut summary);
                             tracing::info!("{}", summary.close(monotonic_ns()))
                         }
                         _ => {}
