@@ -608,7 +608,9 @@ impl Ld06Parser {
             return self.reject(offset, Ld06ErrorKind::ImplausibleSpan { span_cdeg: span });
         }
         let wrap = self.cfg.timestamp_wrap_ms.max(1);
-        if p.timestamp_ms >= wrap {
+        // only a device clock reads the stamp: on the host clock a firmware whose
+        // stamp wraps elsewhere still gives its scans
+        if self.cfg.clock == Ld06Clock::Device && p.timestamp_ms >= wrap {
             return self.reject(
                 offset,
                 Ld06ErrorKind::TimestampOutOfRange {
@@ -910,6 +912,34 @@ mod tests {
         let e = p.last_error().unwrap();
         assert_eq!(e.offset, 47);
         assert!(matches!(e.kind, Ld06ErrorKind::AngleOutOfRange { .. }));
+    }
+
+    #[test]
+    fn a_stamp_beyond_the_wrap_is_refused_only_where_the_stamp_is_read() {
+        let odd = Ld06Packet {
+            speed_dps: 3600,
+            start_angle_cdeg: 1000,
+            end_angle_cdeg: 1100,
+            timestamp_ms: 40_000,
+            ..Default::default()
+        }
+        .encode();
+        for (clock, refused) in [(Ld06Clock::Device, 1), (Ld06Clock::Host, 0)] {
+            let mut p = Ld06Parser::new(Ld06Config {
+                clock,
+                ..Ld06Config::default()
+            });
+            p.push(&odd, 1_000_000_000, |_| {});
+            assert_eq!(p.stats().invalid_packets, refused, "{clock:?}");
+            if refused == 1 {
+                assert!(matches!(
+                    p.last_error().unwrap().kind,
+                    Ld06ErrorKind::TimestampOutOfRange {
+                        timestamp_ms: 40_000
+                    }
+                ));
+            }
+        }
     }
 
     proptest! {

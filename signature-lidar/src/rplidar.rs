@@ -35,8 +35,14 @@
 //! next byte (as the SDK does), so a corrupted or truncated node costs at
 //! most itself and garbage costs nothing but its own bytes. The checks are
 //! weak (two bits and a range; there is no checksum), so a start flag is
-//! only honoured when the angle wraps through 0° from the previous node
-//! (drops by more than 180°); [`RplidarStats::false_starts`] counts the others. A response
+//! only honoured after more than half a turn, back near the angle the
+//! revolution began at; [`RplidarStats::false_starts`] counts the others.
+//! A lost flagged node is made up for: a valid node (one with a return: the
+//! SDK does not trust the angles of the others) that falls more than half a
+//! turn behind the last valid one starts the next revolution
+//! ([`RplidarStats::implicit_starts`]), and a revolution that lasted over 1.5
+//! times the last good period is dropped rather than timed as one turn
+//! ([`RplidarStats::implausible_periods`]). A response
 //! descriptor anywhere in the stream is recognised (it can never pass as a
 //! node: its byte 1 `0x5A` has C = 0) and restarts scan assembly. Every
 //! failure is counted in [`RplidarStats`]; the latest is kept as an
@@ -237,9 +243,17 @@ pub struct RplidarStats {
     pub descriptor_errors: u64,
     /// Valid nodes dropped because no revolution start had been seen yet.
     pub nodes_before_start: u64,
-    /// Start flags ignored because the angle did not wrap through 0° from
-    /// the previous node (a corrupted or misframed node).
+    /// Start flags ignored because the revolution before had not swept more
+    /// than half a turn beyond the flagged node's angle (a corrupted or
+    /// misframed node).
     pub false_starts: u64,
+    /// Revolutions started without a start flag: a valid node fell more than
+    /// half a turn behind the last valid one, so the flagged node was lost
+    /// (without this the two revolutions would be timed as one).
+    pub implicit_starts: u64,
+    /// Revolutions dropped because the time between their start and the next
+    /// was over 1.5 times the last good period (not a revolution of this motor).
+    pub implausible_periods: u64,
     /// Scans emitted.
     pub scans: u64,
 }
@@ -293,7 +307,28 @@ pub struct RplidarParser {
     rays: Vec<Ray>,
     scan: Scan,
     scan_start: Option<(Nanos, f64)>,
+    /// Largest angle swept from the revolution's first node by any node.
+    swept_max_deg: f64,
+    /// Angle swept by the revolution's last valid node (distance > 0).
+    last_valid_swept: Option<f64>,
     last_period: Option<Nanos>,
+}
+
+/// A node this far (degrees) behind its revolution's first node, before the
+/// revolution has swept half a turn, counts as swept at the start rather than a
+/// whole turn later: the first nodes' angles jitter.
+pub const START_JITTER_DEG: f64 = 5.0;
+
+/// Angle swept clockwise from `angle0` to `angle`, in `[0, 360)`, given the
+/// farthest the revolution has swept so far (`swept_max`): early in the
+/// revolution, a node up to [`START_JITTER_DEG`] behind `angle0` counts as 0.
+fn swept_deg(angle0: f64, angle: f64, swept_max: f64) -> f64 {
+    let d = (angle - angle0).rem_euclid(360.0);
+    if d > 360.0 - START_JITTER_DEG && swept_max < 180.0 {
+        0.0
+    } else {
+        d
+    }
 }
 
 impl RplidarParser {
@@ -311,6 +346,8 @@ impl RplidarParser {
             rays: Vec::with_capacity(1024),
             scan: Scan::with_capacity(1024),
             scan_start: None,
+            swept_max_deg: 0.0,
+            last_valid_swept: None,
             last_period: None,
         }
     }
@@ -461,23 +498,30 @@ impl RplidarParser {
         on_scan: &mut impl FnMut(&Scan),
     ) {
         let angle = node.angle_deg();
+        let valid = node.distance_q2 > 0;
         let mut start = node.start;
-        if start && self.scan_start.is_some() {
-            // a real start follows the end of the previous revolution: the
-            // angle wraps through 0 (e.g. 359.5 -> 0.2 deg)
-            if let Some(last) = self.rays.last() {
-                if bearing_to_cw_degrees(last.bearing_rad) - angle <= 180.0 {
-                    self.stats.false_starts += 1;
-                    start = false;
-                }
+        if let Some((_, angle0)) = self.scan_start {
+            // a real start comes after more than half a turn, back near the angle the
+            // revolution began at (e.g. 359.5 -> 0.2 deg): its angle lies over 180 deg
+            // behind the farthest swept, or just short of a whole turn
+            let here = swept_deg(angle0, angle, self.swept_max_deg);
+            let back_near_start = self.swept_max_deg >= 180.0
+                && (self.swept_max_deg - here > 180.0 || here >= 360.0 - START_JITTER_DEG);
+            if start && !back_near_start {
+                self.stats.false_starts += 1;
+                start = false;
             }
-        }
-        if start {
-            if let (Some((_, angle0)), Some(last)) = (self.scan_start, self.rays.last()) {
-                let swept = (bearing_to_cw_degrees(last.bearing_rad) - angle0).rem_euclid(360.0);
-                if swept < 180.0 {
-                    self.stats.false_starts += 1;
-                    start = false;
+            if !start && !node.start && valid {
+                // the flagged node was lost when a valid node falls half a turn behind
+                // the last valid one: without a start here the next flag would make one
+                // scan of two revolutions, timed as one. (Only valid nodes: the SDK
+                // treats the angles of nodes without a return as unreliable.)
+                if self
+                    .last_valid_swept
+                    .is_some_and(|last| last - here > 180.0)
+                {
+                    self.stats.implicit_starts += 1;
+                    start = true;
                 }
             }
         }
@@ -490,9 +534,18 @@ impl RplidarParser {
                 self.emit(t, on_scan);
             }
             self.scan_start = Some((t, angle));
+            self.swept_max_deg = 0.0;
+            self.last_valid_swept = None;
         } else if self.scan_start.is_none() {
             self.stats.nodes_before_start += 1;
             return;
+        }
+        if let Some((_, angle0)) = self.scan_start {
+            let here = swept_deg(angle0, angle, self.swept_max_deg);
+            self.swept_max_deg = self.swept_max_deg.max(here);
+            if valid {
+                self.last_valid_swept = Some(here);
+            }
         }
         let mm = node.distance_mm();
         self.rays.push(Ray::new(
@@ -516,6 +569,17 @@ impl RplidarParser {
             return;
         };
         let measured = end_ns.saturating_sub(start);
+        if let Some(last) = self.last_period {
+            if measured > last.saturating_add(last / 2) && measured <= self.cfg.max_period_ns {
+                // not one revolution of this motor (two merged, or a stall): its rays'
+                // times would be wrong by up to a turn. The next period is measured
+                // afresh, so a motor that really slowed loses one scan, not all.
+                self.stats.implausible_periods += 1;
+                self.last_period = None;
+                self.rays.clear();
+                return;
+            }
+        }
         let period = if measured > 0 && measured <= self.cfg.max_period_ns {
             self.last_period = Some(measured);
             measured
@@ -530,11 +594,18 @@ impl RplidarParser {
         };
         self.scan.clear();
         self.scan.set_timing(timing);
+        let mut swept_max = 0.0f64;
         for r in self.rays.drain(..) {
-            self.scan.push(Ray {
-                t_ns: timing.time_at_bearing(r.bearing_rad),
-                ..r
-            });
+            // a first node jittered a little behind the start is measured at the
+            // start, not a turn later
+            let swept = swept_deg(angle0, bearing_to_cw_degrees(r.bearing_rad), swept_max);
+            swept_max = swept_max.max(swept);
+            let t_ns = if swept == 0.0 {
+                start
+            } else {
+                timing.time_at_bearing(r.bearing_rad)
+            };
+            self.scan.push(Ray { t_ns, ..r });
         }
         if !self.scan.is_empty() {
             self.stats.scans += 1;
@@ -639,6 +710,108 @@ mod tests {
         assert_eq!(r[90].t_ns - r[0].t_ns, 50_000_000);
         assert!((r[90].bearing_rad + std::f64::consts::FRAC_PI_2).abs() < 1e-9);
         assert!((r[90].range_m - 1.09).abs() < 1e-9);
+    }
+
+    /// One revolution of `per` nodes from 0° as nodes: a return (1 m) where
+    /// `valid(angle)`, the start flag on the first.
+    fn rev_nodes(per: usize, valid: impl Fn(f64) -> bool) -> Vec<RplidarNode> {
+        (0..per)
+            .map(|i| {
+                let angle_q6 = (i * MAX_ANGLE_Q6 as usize / per) as u16;
+                let v = valid(angle_q6 as f64 / 64.0);
+                RplidarNode {
+                    start: i == 0,
+                    quality: if v { 40 } else { 0 },
+                    angle_q6,
+                    distance_q2: if v { 4000 } else { 0 },
+                }
+            })
+            .collect()
+    }
+
+    fn bytes_of(nodes: &[RplidarNode]) -> Vec<u8> {
+        nodes.iter().flat_map(|n| n.encode()).collect()
+    }
+
+    /// Pushes each revolution as one chunk, 200 ms apart; returns the scans.
+    fn scans_of(revolutions: &[Vec<RplidarNode>]) -> (Vec<Scan>, RplidarStats) {
+        let mut p = RplidarParser::new(RplidarConfig::default());
+        let mut scans = Vec::new();
+        for (k, r) in revolutions.iter().enumerate() {
+            p.push(&bytes_of(r), 1_000_000_000 + k as i64 * 200_000_000, |s| {
+                scans.push(s.clone())
+            });
+        }
+        (scans, *p.stats())
+    }
+
+    #[test]
+    fn a_start_after_a_node_without_return_that_already_wrapped_is_kept() {
+        // the SDK does not trust the angles of nodes without a return: here the last
+        // node of each revolution has none and an angle already past 0°
+        let revs: Vec<_> = (0..4)
+            .map(|_| {
+                let mut r = rev_nodes(360, |_| true);
+                let last = r.last_mut().unwrap();
+                (last.angle_q6, last.distance_q2, last.quality) = (2 * 64, 0, 0);
+                r
+            })
+            .collect();
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(stats.false_starts, 0, "{stats:?}");
+        assert_eq!(scans.len(), 3, "{stats:?}");
+        assert!(scans.iter().all(|s| s.len() == 360));
+        assert_eq!(scans[1].timing().period_ns, 200_000_000);
+    }
+
+    #[test]
+    fn a_lost_start_node_splits_at_the_wrap_instead_of_merging_two_turns() {
+        let mut revs: Vec<_> = (0..4).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[2].remove(0); // the third revolution's flagged node is lost
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(stats.implicit_starts, 1, "{stats:?}");
+        assert_eq!(scans.len(), 3, "{stats:?}");
+        // the third scan starts at its first node (1°); no scan spans two turns
+        for s in &scans {
+            let span = s.rays().last().unwrap().t_ns - s.rays()[0].t_ns;
+            assert!(span < 200_000_000, "{span} ns: {:?}", s.timing());
+            assert!((180_000_000..=220_000_000).contains(&s.timing().period_ns));
+        }
+        assert!((scans[2].rays()[0].bearing_deg() + 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn two_turns_that_cannot_be_split_are_dropped_not_timed_as_one() {
+        // returns in a quarter turn only (an open space), and the third
+        // revolution's flag lost: no valid node falls half a turn behind another
+        let quarter = |a: f64| (45.0..135.0).contains(&a);
+        let mut revs: Vec<_> = (0..5).map(|_| rev_nodes(360, quarter)).collect();
+        revs[2].remove(0);
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(stats.implicit_starts, 0, "{stats:?}");
+        assert_eq!(stats.implausible_periods, 1, "{stats:?}");
+        assert_eq!(scans.len(), 2, "{stats:?}");
+        assert!(scans
+            .iter()
+            .all(|s| s.timing().period_ns == 200_000_000 && s.len() == 360));
+    }
+
+    #[test]
+    fn a_node_just_behind_the_start_is_timed_at_the_start() {
+        let revs: Vec<_> = (0..3)
+            .map(|_| {
+                let mut r = rev_nodes(360, |_| true);
+                r[0].angle_q6 = 64; // the flagged node at 1°
+                r[1].angle_q6 = 32; // the next jittered back to 0.5°
+                r
+            })
+            .collect();
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!((scans.len(), stats.false_starts), (2, 0), "{stats:?}");
+        let r = scans[0].rays();
+        assert_eq!(r[1].t_ns, r[0].t_ns, "a turn late: {:?}", &r[..3]);
+        // and the revolution's end is still its end
+        assert!(r[359].t_ns - r[0].t_ns > 190_000_000);
     }
 
     #[test]
