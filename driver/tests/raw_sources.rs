@@ -218,8 +218,43 @@ static RP_STOP: AtomicBool = AtomicBool::new(false);
 #[test]
 fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
     use serialport::SerialPort;
+    use vlsync_signature_lidar::rplidar_start::{
+        answer, parse_request, ANS_ACC_BOARD_FLAG, ANS_HEALTH,
+    };
     let (mut master, slave) = serialport::TTYPort::pair().expect("pty pair");
     let path = slave.name().expect("slave path");
+    master.set_timeout(Duration::from_millis(50)).unwrap();
+    // an A2 on Slamtec's accessory board: answers health and the board flag
+    // (motor control), and streams once asked to scan
+    let device = std::thread::spawn(move || {
+        let (mut inbox, mut log) = (Vec::new(), Vec::new());
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            let mut buf = [0u8; 64];
+            if let Ok(n) = master.read(&mut buf) {
+                inbox.extend_from_slice(&buf[..n]);
+            }
+            while let Some((cmd, payload, used)) = parse_request(&inbox) {
+                let payload = payload.to_vec();
+                inbox.drain(..used);
+                match cmd {
+                    0x52 => master.write_all(&answer(ANS_HEALTH, &[0, 0, 0])).unwrap(),
+                    0xFF => master
+                        .write_all(&answer(ANS_ACC_BOARD_FLAG, &1u32.to_le_bytes()))
+                        .unwrap(),
+                    _ => {}
+                }
+                log.push((cmd, payload));
+                if cmd == 0x20 {
+                    return (master, log);
+                }
+            }
+            if inbox.first().is_some_and(|&b| b != 0xA5) {
+                inbox.remove(0);
+            }
+            assert!(Instant::now() < deadline, "no scan request: {log:?}");
+        }
+    });
     let mut src = LidarSource::serial(
         SerialKind::Rplidar,
         &path,
@@ -229,10 +264,11 @@ fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
     )
     .unwrap();
     drop(slave);
-    master.set_timeout(Duration::from_secs(2)).unwrap();
-    let mut req = [0u8; 2];
-    master.read_exact(&mut req).expect("scan request");
-    assert_eq!(req, vlsync_signature_lidar::rplidar::scan_request());
+    let (master, log) = device.join().unwrap();
+    let commands: Vec<u8> = log.iter().map(|r| r.0).collect();
+    // stop, health, board flag, the motor's PWM (660), scan: as Slamtec's SDK
+    assert_eq!(commands, [0x25, 0x52, 0xFF, 0xF0, 0x20], "{log:?}");
+    assert_eq!(log[3].1, 660u16.to_le_bytes());
     // 5.5 Hz, 360 nodes per revolution, wall straight ahead receding at 1 m/s
     let period = 1.0 / 5.5;
     let mut bytes = vlsync_signature_lidar::rplidar::SCAN_DESCRIPTOR.to_vec();

@@ -15,6 +15,8 @@
 //!   360° scan assembly with per-point times, encoder.
 //! * [`rplidar`]: Slamtec RPLIDAR standard scan (A1/A2/C1): requests,
 //!   resynchronising node parser, scan assembly, encoder.
+//! * [`rplidar_start`]: the RPLIDAR's start sequence as Slamtec's SDK runs it
+//!   (stop, health and reset, the A2's motor PWM, scan).
 //! * [`csv`]: scans as CSV, one row per ray, with exact decimal-second times.
 //! * [`serial`]: opening a serial port and pumping its bytes into a parser.
 //! * [`encode`]: byte-stream encoders for simulators and tests.
@@ -48,6 +50,7 @@ pub mod encode;
 pub mod ld06;
 pub mod opposite;
 pub mod rplidar;
+pub mod rplidar_start;
 pub mod scan;
 pub mod serial;
 pub mod signature;

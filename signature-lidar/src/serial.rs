@@ -237,7 +237,25 @@ impl SerialLidar {
             Err(e) => Err(self.io_error("read failed", e)),
         }
     }
+}
 
+impl crate::rplidar_start::Link for SerialLidar {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), String> {
+        self.write_request(bytes).map_err(|e| e.to_string())
+    }
+
+    fn receive(&mut self, into: &mut Vec<u8>) -> Result<(), String> {
+        let (chunk, _) = self.read_chunk(&host_clock_ns).map_err(|e| e.to_string())?;
+        into.extend_from_slice(chunk);
+        Ok(())
+    }
+
+    fn pause(&mut self, d: Duration) {
+        std::thread::sleep(d);
+    }
+}
+
+impl SerialLidar {
     /// Reads for `duration`, pushing every chunk into `parser` and calling
     /// `on_scan` for each scan. Returns the number of bytes read.
     pub fn pump(

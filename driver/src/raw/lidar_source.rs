@@ -54,20 +54,33 @@ struct Serial {
     reopens: u64,
 }
 
-/// Opens the serial port of a `kind` LiDAR at `baud` (an RPLIDAR is asked to scan).
-fn open_serial(kind: SerialKind, path: &str, baud: u32) -> Result<SerialLidar, SourceError> {
+/// How long the RPLIDAR's start sequence waits for each answer.
+const RPLIDAR_ANSWER_WAIT: Duration = Duration::from_millis(500);
+
+/// Opens the serial port of a `kind` LiDAR at `baud`; an RPLIDAR is started as
+/// Slamtec's SDK starts it (`rplidar_start`: stop, health and a reset after a
+/// protection stop, the A2's motor PWM, scan), and what that found is returned
+/// for the log.
+fn open_serial(
+    kind: SerialKind,
+    path: &str,
+    baud: u32,
+) -> Result<(SerialLidar, Option<StartReport>), SourceError> {
     let flag = kind.flag();
     let mut port = SerialLidar::open(path, baud, Duration::from_millis(50))
         .map_err(|e| SourceError(format!("{flag}: {e}")))?;
+    let mut report = None;
     if kind == SerialKind::Rplidar {
         // the A1/A2 USB adapter runs the motor while DTR is released, and Linux
         // asserted it on open; a C1 or a port without modem lines ignores or refuses
         // this, which does not matter to the scan
         let _ = port.set_dtr(false);
-        port.write_request(&lidar::rplidar::scan_request())
-            .map_err(|e| SourceError(format!("{flag}: scan request: {e}")))?;
+        report = Some(
+            lidar::rplidar_start::start_scan(&mut port, RPLIDAR_ANSWER_WAIT)
+                .map_err(|e| SourceError(format!("{flag}: starting the scan: {e}")))?,
+        );
     }
-    Ok(port)
+    Ok((port, report))
 }
 
 /// How the LiDAR driver names a silent port.
@@ -96,12 +109,16 @@ impl Serial {
         );
         // closed first: a port is opened exclusively
         self.port = None;
-        self.port = Some(open_serial(self.kind, &self.path, self.baud).map_err(|e| {
+        let (port, report) = open_serial(self.kind, &self.path, self.baud).map_err(|e| {
             SourceError(format!(
                 "{what}: reopening the port after {:.1} s of silence: {e}",
                 self.silence.as_secs_f64()
             ))
-        })?);
+        })?;
+        self.port = Some(port);
+        if let Some(r) = report.filter(StartReport::is_remarkable) {
+            vlsync_common::console::print_err(&format!("vlsync-lidar: {what}: reopened: {r}\n"));
+        }
         self.reopens += 1;
         Silence::reopened(&mut self.quiet);
         (self.last_bytes, self.last_scan) = (now, now);
@@ -282,7 +299,11 @@ impl LidarSource {
         stop: StopFn,
     ) -> Result<Self, SourceError> {
         let baud = baud.unwrap_or(kind.default_baud());
-        let port = open_serial(kind, path, baud)?;
+        let (port, report) = open_serial(kind, path, baud)?;
+        let what = format!("{} {path} at {baud} baud", &kind.flag()[2..]);
+        if let Some(r) = report {
+            vlsync_common::console::print_err(&format!("vlsync-lidar: {what}: {r}\n"));
+        }
         // one parser for the whole run, across reopens of the port: both find their
         // packets (the RPLIDAR's response descriptor too) anywhere in the stream
         let parser = match kind {
@@ -297,7 +318,6 @@ impl LidarSource {
             })),
         };
         let now = Instant::now();
-        let what = format!("{} {path} at {baud} baud", &kind.flag()[2..]);
         Self::new(
             ScanInput::Serial(Box::new(Serial {
                 port: Some(port),

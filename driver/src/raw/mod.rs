@@ -60,6 +60,7 @@ use vlsync_signature_lidar as lidar;
 use cam::FrameSource;
 use lidar::ld06::{Ld06Config, Ld06Parser};
 use lidar::rplidar::{RplidarConfig, RplidarParser};
+use lidar::rplidar_start::StartReport;
 use lidar::serial::SerialLidar;
 
 /// Returns true when the driver should stop (a live source checks it while it waits).
