@@ -969,6 +969,45 @@ mod tests {
             }
         }
 
+        /// Real keys with values of any type and size: what is accepted validates,
+        /// and what is refused names the key it refuses. (Random text above rarely
+        /// parses at all.)
+        #[test]
+        fn any_value_of_a_real_key_is_validated_or_named(
+            picks in proptest::collection::vec((any::<proptest::sample::Index>(), 0u8..6, any::<f64>(), any::<i64>(), any::<bool>()), 1..4),
+        ) {
+            let defaults: toml::Table = toml::from_str(&toml::to_string(&Config::default()).unwrap()).unwrap();
+            let keys: Vec<(String, String)> = defaults
+                .iter()
+                .flat_map(|(sec, t)| {
+                    t.as_table().into_iter().flat_map(move |t| t.keys().map(move |k| (sec.clone(), k.clone())))
+                })
+                .collect();
+            let mut table = defaults.clone();
+            let mut changed = Vec::new();
+            for (at, kind, x, n, b) in picks {
+                let (sec, key) = &keys[at.index(keys.len())];
+                let value = match kind {
+                    0 if x.is_finite() => toml::Value::Float(x),
+                    0 | 1 => toml::Value::Float((n % 10_000) as f64 / 7.0),
+                    2 => toml::Value::Integer(n),
+                    3 => toml::Value::Integer(n % 100),
+                    4 => toml::Value::Boolean(b),
+                    _ => toml::Value::String(format!("v{n}")),
+                };
+                table[sec.as_str()][key.as_str()] = value;
+                changed.push(key.clone());
+            }
+            let text = toml::to_string(&table).unwrap();
+            match Config::from_toml_str(&text, "p") {
+                Ok(cfg) => prop_assert!(cfg.validate("p").is_ok()),
+                Err(e) => {
+                    let e = e.to_string();
+                    prop_assert!(changed.iter().any(|k| e.contains(k.as_str())), "{e}\n{text}");
+                }
+            }
+        }
+
         #[test]
         fn window_values_accepted_iff_in_range(w in -10.0f64..200.0) {
             let text = format!("[estimator]\nwindow_s = {w:?}\n");

@@ -680,6 +680,44 @@ proptest! {
         }
     }
 
+    /// Regular streams from any start, with hostile samples mixed in (NaN, infinite
+    /// and huge values, stamps a little back, rare jumps an hour ahead): no panic,
+    /// estimates come out (the test above rarely gets that far: random stamps are
+    /// mostly rejected or reset a stream), and every one is finite.
+    #[test]
+    fn hostile_samples_in_regular_streams_never_panic(
+        start in -(1i64 << 60)..(1i64 << 60),
+        steps in proptest::collection::vec((any::<bool>(), 5i64..60, -10.0f64..10.0, 0u16..400), 600..1200),
+    ) {
+        const MS: i64 = 1_000_000;
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        let (mut tc, mut tl) = (start, start);
+        let mut n = 0usize;
+        for (cam, gap_ms, v, bad) in steps {
+            let t = if cam { &mut tc } else { &mut tl };
+            *t = t.saturating_add(gap_ms * MS);
+            let mut s = Sample::new(*t, v);
+            match bad {
+                0 => s.value = f64::NAN,
+                1 => s.value = f64::NEG_INFINITY,
+                2 => s.value = 1e300,
+                3 => s.t_ns = s.t_ns.saturating_sub(20 * MS),
+                4 => {
+                    *t = t.saturating_add(3_600_000 * MS);
+                    s.t_ns = *t;
+                }
+                _ => {}
+            }
+            let _ = est.push(if cam { Stream::Cam } else { Stream::Lidar }, s);
+            while let Some(e) = est.poll() {
+                n += 1;
+                prop_assert!(e.offset_s.is_finite() && e.offset_std_s.is_finite(), "{e:?}");
+                prop_assert!(e.drift.is_finite() && e.drift_std.is_finite(), "{e:?}");
+            }
+        }
+        prop_assert!(n > 0, "no estimate from {} samples", est.stats().accepted[0]);
+    }
+
     /// Announced changes at any time (far past, far future, extremes) on a locked
     /// run: no panic, every estimate finite.
     #[test]

@@ -10,9 +10,10 @@ static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 #[test]
 fn push_and_poll_allocate_nothing() {
-    // a full simulated run with drops, jitter, a gap, load steps, hints and bad samples,
+    // an hour of a simulated run with drops, jitter, a gap, load steps, hints and bad
+    // samples (long enough for a rare periodic allocation to show),
     // generated before arming so only the estimator is observed
-    let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(90.0));
+    let run = vlsync_sim::families::generate(vlsync_sim::families::Family::Clocks, 7, Some(3600.0));
     let steps =
         vlsync_sim::families::generate(vlsync_sim::families::Family::LoadSteps, 3, Some(60.0));
     // the second configuration pushes as the daemon does: push_urgent, poll, idle

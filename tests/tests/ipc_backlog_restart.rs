@@ -36,10 +36,19 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
     let start_at = monotonic_ns() + 1_500_000_000;
     let mut next =
         [Stream::Cam, Stream::Lidar].map(|st| rig.session_driver(st, seed, 60.0, start_at, "new"));
-    std::thread::sleep(Duration::from_millis(1200));
+    // stopped 0.3 s before the drivers begin, however long their start took
+    let lead = start_at - 300_000_000 - monotonic_ns();
+    std::thread::sleep(Duration::from_nanos(lead.max(0) as u64));
     daemon.signal("STOP").unwrap();
+    // stopped after the session began, the daemon would have read its start live and
+    // the backlog this test is about would not exist
+    let stopped = monotonic_ns();
+    assert!(
+        stopped < start_at,
+        "the daemon was stopped {:.0} ms after the new session began: no backlog",
+        (stopped - start_at) as f64 / 1e6
+    );
     let resume = start_at + 1_000_000_000 - monotonic_ns();
-    assert!(resume > 0, "the daemon was stopped too late for a backlog");
     std::thread::sleep(Duration::from_nanos(resume as u64));
     daemon.signal("CONT").unwrap();
 

@@ -160,8 +160,18 @@ fn assert_same_rows(a: &str, b: &str, what: &str, log: &Path) {
     }
 }
 
+/// Held by each test of this file for its whole run: both end by checking that
+/// no shared-memory resource is left on the machine, which the other test's
+/// processes, still running, would fail.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 #[test]
 fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
+    let _alone = one_at_a_time();
     let before = ipc_resources();
     // 40 simulated seconds at 8x: 5 s of wall time
     let mut rig = Rig::new("record", "robot", 4, 40.0, 8.0);
@@ -221,6 +231,7 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
 
 #[test]
 fn a_driver_restarting_its_clock_replays_right_in_the_order_the_daemon_read() {
+    let _alone = one_at_a_time();
     let before = ipc_resources();
     // 60 simulated seconds at 8x; the camera driver is restarted after about 25 s,
     // its new session stamped from the start of its run again, 25 s behind the LiDAR
