@@ -179,6 +179,9 @@ pub fn parse_signature_csv(
 
 /// Parses a two-column CSV (`t,<value_name>`), handing each data row to `row`; an
 /// `Err` from `row` becomes the error of that row's line.
+/// Columns only an estimates file has: a truth file holding one of them is refused.
+const ESTIMATE_ONLY_COLUMNS: [&str; 4] = ["offset_std", "drift_std", "state", "polarity"];
+
 fn parse_rows(
     bytes: &[u8],
     source: &str,
@@ -265,6 +268,24 @@ fn parse_rows(
                         }
                     ),
                 ));
+            }
+            // an estimates file (`vlsyncd replay --out`, `vlsync-echo --csv`) begins
+            // `t,offset` too: scored as the truth, it would grade a run against itself
+            if value_name == "offset" {
+                if let Some(col) = line
+                    .split(',')
+                    .skip(2)
+                    .map(|c| name(Some(c)))
+                    .find(|c| ESTIMATE_ONLY_COLUMNS.contains(&c.as_str()))
+                {
+                    return Err(err(
+                        Some(1),
+                        format!(
+                            "the header has a column `{col}`: an estimates file, not a truth \
+                             file (expected `t,offset`, as the simulator writes it)"
+                        ),
+                    ));
+                }
             }
             if c1 == value_name || c2 == "t" {
                 return Err(err(
@@ -530,6 +551,18 @@ mod tests {
             "{e}"
         );
         assert!(parse_truth_csv(b"t,offset\n0.1,0.01\n", "f").is_ok());
+        let e = parse_truth_csv(
+            b"t,offset,drift,offset_std,drift_std,state\n0.1,0.01,0,0.001,0,tracking\n",
+            "est.csv",
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "est.csv:1: the header has a column `offset_std`: an estimates file, not a truth \
+             file (expected `t,offset`, as the simulator writes it)"
+        );
+        // other extra columns stay ignored, as documented
+        assert!(parse_truth_csv(b"t,offset,note\n0.1,0.01,x\n", "f").is_ok());
     }
 
     #[test]
