@@ -133,7 +133,7 @@ pub fn run_family(
             let svg = crate::plot::offset_svg(&title, &ests, Some(&truth), &[]);
             let path = dir.join(format!("{}.svg", family.name()));
             std::fs::write(&path, svg)
-                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                .map_err(|e| format!("--plots: cannot write {}: {e}", path.display()))?;
         }
         base.push(score_pairs(
             &seed_chunked(&run.cam, &run.lidar, run.cam_hz),
@@ -380,7 +380,8 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         }
     }
     if let Some(d) = &args.plots {
-        std::fs::create_dir_all(d).map_err(|e| format!("cannot create {}: {e}", d.display()))?;
+        std::fs::create_dir_all(d)
+            .map_err(|e| format!("--plots {}: cannot create the directory: {e}", d.display()))?;
     }
     let total = families.len();
     let failure = std::sync::Mutex::new(None::<String>);
@@ -439,7 +440,7 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     let written = args.json.as_ref().map(|p| {
         std::fs::write(p, json(&results))
             .map(|()| p)
-            .map_err(|e| format!("cannot write {}: {e}", p.display()))
+            .map_err(|e| format!("--json {}: cannot write: {e}", p.display()))
     });
     let printed = vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base));
     if let Some(Ok(p)) = &written {

@@ -334,3 +334,49 @@ fn a_recording_cut_short_by_a_write_error_says_so() {
     assert!(!err.contains("replay it"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `vlsyncd bench` whose output cannot be written names the option: a directory for
+/// `--plots` that cannot be made fails before any run; a `--json` file that cannot be
+/// written fails after the table, which is still printed.
+#[test]
+fn bench_outputs_that_cannot_be_written_name_their_option() {
+    let vlsyncd = env!("CARGO_BIN_EXE_vlsyncd");
+    let (code, out, err) = run(
+        vlsyncd,
+        &["bench", "--seeds", "1", "--plots", "/dev/null/plots"],
+    );
+    assert_ne!(code, 0, "{err}");
+    assert!(
+        err.contains("--plots /dev/null/plots: cannot create the directory"),
+        "{err}"
+    );
+    assert!(out.is_empty(), "no run before the refusal: {out}");
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-benchjson-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("b.json");
+    std::os::unix::fs::symlink("/dev/full", &json).unwrap();
+    let (code, out, err) = run(
+        vlsyncd,
+        &[
+            "bench",
+            "--seeds",
+            "1",
+            "--families",
+            "seed",
+            "--json",
+            json.to_str().unwrap(),
+        ],
+    );
+    assert_ne!(code, 0, "{err}");
+    let want = format!(
+        "--json {}: cannot write: No space left on device",
+        json.display()
+    );
+    assert!(err.contains(&want), "{err}");
+    assert!(
+        out.contains("seed"),
+        "the table is printed all the same: {out}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
