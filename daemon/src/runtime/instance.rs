@@ -27,28 +27,59 @@ impl Drop for InstanceLock {
 
 /// Takes the single-instance lock of `prefix`.
 pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
-    use std::os::unix::fs::MetadataExt;
     let path = lock_path(prefix);
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir)
             .map_err(|e| format!("cannot create lock directory {}: {e}", dir.display()))?;
     }
+    lock_file(path, prefix)
+}
+
+/// Takes the lock on `path` (its directory exists).
+///
+/// A lock file this user may not write (a daemon run by hand as root left it, and the
+/// unit's user meets it) is opened read-only instead: `flock` needs no write access.
+/// Locked, it proves no daemon uses it, so it is replaced by a file of our own where the
+/// directory lets us (the units' tmpfiles.d entry gives `/tmp/vlsync` to their user);
+/// where not, the read-only lock serves as it is, without our pid in it.
+pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, String> {
+    use std::os::unix::fs::MetadataExt;
     // a few rounds at most: each retry means another daemon released the file
-    // between our open and our lock
+    // between our open and our lock, or we replaced a file we could not write
     for _ in 0..8 {
-        let mut f = std::fs::OpenOptions::new()
+        let (mut f, writable) = match std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .create(true)
             .truncate(false)
             .open(&path)
-            .map_err(|e| format!("cannot open lock file {}: {e}", path.display()))?;
+        {
+            Ok(f) => (f, true),
+            Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => match File::open(&path) {
+                Ok(f) => (f, false),
+                Err(_) => {
+                    return Err(format!(
+                        "cannot open lock file {}: {e} (it or its directory belongs to \
+                             another user: with no vlsyncd running, remove the file, or give \
+                             the directory to this user)",
+                        path.display()
+                    ))
+                }
+            },
+            Err(e) => return Err(format!("cannot open lock file {}: {e}", path.display())),
+        };
         match f.try_lock() {
             Ok(()) => {
                 let ours = f.metadata().map(|m| (m.dev(), m.ino())).ok();
                 let at_path = std::fs::metadata(&path).map(|m| (m.dev(), m.ino())).ok();
                 if ours.is_none() || ours != at_path {
                     continue; // the holder removed it after our open: lock the new one
+                }
+                if !writable {
+                    if std::fs::remove_file(&path).is_ok() {
+                        continue; // a stale file of another user: make our own
+                    }
+                    return Ok(InstanceLock { path, _file: f });
                 }
                 f.set_len(0)
                     .and_then(|_| writeln!(f, "{}", std::process::id()))
@@ -57,10 +88,13 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
             }
             Err(std::fs::TryLockError::WouldBlock) => {
                 let holder = std::fs::read_to_string(&path).unwrap_or_default();
+                let holder = match holder.trim() {
+                    "" => "unknown".to_string(),
+                    h => h.to_string(),
+                };
                 return Err(format!(
-                    "another vlsyncd already serves prefix `{prefix}` (lock {} held by pid {})",
+                    "another vlsyncd already serves prefix `{prefix}` (lock {} held by pid {holder})",
                     path.display(),
-                    holder.trim()
                 ));
             }
             Err(std::fs::TryLockError::Error(e)) => {
@@ -72,4 +106,119 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
         "cannot take the lock {}: it was replaced 8 times in a row while locking",
         path.display()
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+
+    /// Run as `nobody` by the test below: takes the lock in `VLSYNC_LOCK_CHILD_DIR` and
+    /// prints what it found, one line per fact.
+    fn child(dir: &Path) {
+        let path = dir.join("p.lock");
+        match lock_file(path.clone(), "p") {
+            Ok(l) => {
+                let m = std::fs::metadata(&path).unwrap();
+                let text = std::fs::read_to_string(&path).unwrap();
+                println!("locked uid={} text={}", m.uid(), text.trim());
+                drop(l);
+                println!("left={}", path.exists());
+            }
+            Err(e) => println!("error {e}"),
+        }
+    }
+
+    /// A daemon of the units' user meets the lock file a daemon run by hand as root
+    /// left behind (`rw-r--r--`, root's): it takes the lock all the same and replaces
+    /// the file where the directory is its own; where not, it holds a read-only lock.
+    /// A file root still holds locked is refused as before. Needs root (two users).
+    #[test]
+    fn a_lock_file_left_by_another_user_does_not_stop_the_daemon() {
+        if let Some(dir) = std::env::var_os("VLSYNC_LOCK_CHILD_DIR") {
+            child(Path::new(&dir));
+            return;
+        }
+        if !std::fs::metadata("/proc/self").is_ok_and(|m| m.uid() == 0) {
+            eprintln!("not root: a second user cannot be played, test skipped");
+            return;
+        }
+        const NOBODY: u32 = 65534;
+        let base = std::env::temp_dir().join(format!("vlsync-lock-users-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        std::fs::create_dir_all(&base).unwrap();
+        std::fs::set_permissions(&base, std::fs::Permissions::from_mode(0o755)).unwrap();
+        // the test binary where `nobody` may run it, whatever the checkout's permissions
+        let exe = base.join("t");
+        std::fs::copy(std::env::current_exe().unwrap(), &exe).unwrap();
+        let run_as_nobody = |dir: &Path| -> String {
+            let out = std::process::Command::new("setpriv")
+                .args([
+                    &format!("--reuid={NOBODY}"),
+                    &format!("--regid={NOBODY}"),
+                    "--clear-groups",
+                ])
+                .arg(&exe)
+                .args([
+                    "--exact",
+                    "runtime::instance::tests::a_lock_file_left_by_another_user_does_not_stop_the_daemon",
+                    "--nocapture",
+                    "--test-threads=1",
+                ])
+                .env("VLSYNC_LOCK_CHILD_DIR", dir)
+                .output()
+                .expect("setpriv (util-linux) runs");
+            let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+            assert!(
+                out.status.success(),
+                "{stdout}{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            stdout
+        };
+        let stale = |dir: &Path| {
+            let p = dir.join("p.lock");
+            std::fs::write(&p, "4242\n").unwrap();
+            std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o644)).unwrap();
+            p
+        };
+        // the directory is nobody's (as tmpfiles.d makes /tmp/vlsync the units' user's)
+        let own = base.join("own");
+        std::fs::create_dir(&own).unwrap();
+        std::os::unix::fs::chown(&own, Some(NOBODY), Some(NOBODY)).unwrap();
+        stale(&own);
+        let out = run_as_nobody(&own);
+        assert!(out.contains(&format!("locked uid={NOBODY} text=")), "{out}");
+        assert!(
+            !out.contains("text=4242"),
+            "the stale pid is replaced: {out}"
+        );
+        assert!(out.contains("left=false"), "{out}");
+        // the directory is root's: the stale file stays, locked read-only
+        let roots = base.join("roots");
+        std::fs::create_dir(&roots).unwrap();
+        std::fs::set_permissions(&roots, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let p = stale(&roots);
+        let out = run_as_nobody(&roots);
+        assert!(out.contains("locked uid=0 text=4242"), "{out}");
+        assert!(out.contains("left=true"), "{out}");
+        // root's daemon still runs: refused, naming the holder
+        let held = lock_file(p, "p").unwrap();
+        let out = run_as_nobody(&roots);
+        assert!(
+            out.contains("error another vlsyncd already serves prefix `p`")
+                && out.contains(&format!("held by pid {}", std::process::id())),
+            "{out}"
+        );
+        drop(held);
+        // no file and a directory it may not write: the error says what to do
+        let out = run_as_nobody(&roots);
+        assert!(
+            out.contains("error cannot open lock file")
+                && out.contains("Permission denied")
+                && out.contains("give the directory to this user"),
+            "{out}"
+        );
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 }

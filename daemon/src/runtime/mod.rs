@@ -52,7 +52,9 @@
 //! guessing (pid files, timeouts) is needed; a second daemon on the same prefix
 //! fails at once naming the lock and the pid holding it. A clean stop removes the
 //! file (per-run prefixes such as the demo's would pile up otherwise); a starting
-//! daemon checks that the file it locked is still the one at the path.
+//! daemon checks that the file it locked is still the one at the path. A file it may
+//! not write (another user's, e.g. a daemon run by hand as root) is locked read-only
+//! and replaced where the directory allows.
 //!
 //! # Crash clean-up
 //!
