@@ -64,6 +64,10 @@ command -v cc >/dev/null 2>&1 || install_deb gcc "the C client tests will fail"
 command -v c++ >/dev/null 2>&1 || install_deb g++ "the C++ client test will fail"
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
 command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"
+# The units test (tests/tests/systemd_units.rs) runs `systemd-analyze verify`; once it is
+# there, the test must find it rather than skip.
+command -v systemd-analyze >/dev/null 2>&1 || install_deb systemd "the systemd units will not be verified"
+if command -v systemd-analyze >/dev/null 2>&1; then export VLSYNC_REQUIRE_SYSTEMD_ANALYZE=1; fi
 # The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang.
 if ! dpkg -s libclang-dev >/dev/null 2>&1; then
     install_deb libclang-dev "the V4L2 source's tests will fail to build"
