@@ -219,13 +219,14 @@ static RP_STOP: AtomicBool = AtomicBool::new(false);
 fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
     use serialport::SerialPort;
     use vlsync_signature_lidar::rplidar_start::{
-        answer, parse_request, ANS_ACC_BOARD_FLAG, ANS_HEALTH,
+        answer, parse_request, ANS_ACC_BOARD_FLAG, ANS_HEALTH, ANS_SAMPLE_RATE,
     };
     let (mut master, slave) = serialport::TTYPort::pair().expect("pty pair");
     let path = slave.name().expect("slave path");
     master.set_timeout(Duration::from_millis(50)).unwrap();
-    // an A2 on Slamtec's accessory board: answers health and the board flag
-    // (motor control), and streams once asked to scan
+    // an A2 on Slamtec's accessory board: answers health, its sample durations
+    // (500 µs standard, 250 µs express) and the board flag (motor control), and
+    // streams once asked to scan
     let device = std::thread::spawn(move || {
         let (mut inbox, mut log) = (Vec::new(), Vec::new());
         let deadline = Instant::now() + Duration::from_secs(10);
@@ -239,6 +240,9 @@ fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
                 inbox.drain(..used);
                 match cmd {
                     0x52 => master.write_all(&answer(ANS_HEALTH, &[0, 0, 0])).unwrap(),
+                    0x59 => master
+                        .write_all(&answer(ANS_SAMPLE_RATE, &[0xF4, 0x01, 0xFA, 0x00]))
+                        .unwrap(),
                     0xFF => master
                         .write_all(&answer(ANS_ACC_BOARD_FLAG, &1u32.to_le_bytes()))
                         .unwrap(),
@@ -266,9 +270,10 @@ fn rplidar_gets_the_scan_request_and_its_scans_through_a_pty() {
     drop(slave);
     let (master, log) = device.join().unwrap();
     let commands: Vec<u8> = log.iter().map(|r| r.0).collect();
-    // stop, health, board flag, the motor's PWM (660), scan: as Slamtec's SDK
-    assert_eq!(commands, [0x25, 0x52, 0xFF, 0xF0, 0x20], "{log:?}");
-    assert_eq!(log[3].1, 660u16.to_le_bytes());
+    // stop, health, sample rate, board flag, the motor's PWM (660), scan: as
+    // Slamtec's SDK
+    assert_eq!(commands, [0x25, 0x52, 0x59, 0xFF, 0xF0, 0x20], "{log:?}");
+    assert_eq!(log[4].1, 660u16.to_le_bytes());
     // 5.5 Hz, 360 nodes per revolution, wall straight ahead receding at 1 m/s
     let period = 1.0 / 5.5;
     let mut bytes = vlsync_signature_lidar::rplidar::SCAN_DESCRIPTOR.to_vec();

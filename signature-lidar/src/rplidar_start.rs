@@ -12,13 +12,19 @@
 //!    (e.g. the laser's protection stop) the device takes no `SCAN` until
 //!    `RESET` (`A5 40`): it is sent, and after a second the health is asked
 //!    again.
-//! 3. `GET_ACC_BOARD_FLAG` (`A5 FF 04 00 00 00 00 5E`), answered by
+//! 3. `GET_SAMPLERATE` (`A5 59`), answered by `A5 5A 04 00 00 00 15` and two
+//!    16-bit durations in µs: one sample of the standard scan, one of the
+//!    express scan (firmware 1.17 on; older devices do not answer). The
+//!    standard one gives the node rate the parser dates revolution starts with
+//!    ([`StartReport::standard_rate_hz`]); without an answer the caller assumes
+//!    one from the baud rate.
+//! 4. `GET_ACC_BOARD_FLAG` (`A5 FF 04 00 00 00 00 5E`), answered by
 //!    `A5 5A 04 00 00 00 FF` and a 32-bit flag word. With bit 0 set (an A2/A3 on
 //!    Slamtec's accessory board), the motor runs only on `SET_MOTOR_PWM`
 //!    (`A5 F0 02 <pwm, little-endian> <checksum>`), sent at the SDK's default
 //!    660 with half a second to spin up. An A1 or C1 does not answer; its motor
 //!    runs from DTR (released by the caller) or by itself.
-//! 4. `SCAN` (`A5 20`).
+//! 5. `SCAN` (`A5 20`).
 //!
 //! A request with a payload is `A5 <cmd> <len> <payload> <checksum>`, the
 //! checksum the XOR of every byte before it. An answer is found anywhere in
@@ -39,12 +45,16 @@ use std::time::{Duration, Instant};
 pub const CMD_RESET: u8 = 0x40;
 /// Ask the device's health.
 pub const CMD_GET_HEALTH: u8 = 0x52;
+/// Ask the durations of one sample in the standard and the express scan.
+pub const CMD_GET_SAMPLERATE: u8 = 0x59;
 /// Ask whether the accessory board controls the motor (A2/A3).
 pub const CMD_GET_ACC_BOARD_FLAG: u8 = 0xFF;
 /// Set the motor's PWM duty through the accessory board (0-1023).
 pub const CMD_SET_MOTOR_PWM: u8 = 0xF0;
 /// Answer type of [`CMD_GET_HEALTH`].
 pub const ANS_HEALTH: u8 = 0x06;
+/// Answer type of [`CMD_GET_SAMPLERATE`].
+pub const ANS_SAMPLE_RATE: u8 = 0x15;
 /// Answer type of [`CMD_GET_ACC_BOARD_FLAG`].
 pub const ANS_ACC_BOARD_FLAG: u8 = 0xFF;
 /// The SDK's motor PWM (`DEFAULT_MOTOR_PWM`).
@@ -173,6 +183,9 @@ pub struct StartReport {
     pub health: Option<Health>,
     /// The health after the reset, if one was sent.
     pub after_reset: Option<Option<Health>>,
+    /// What `GET_SAMPLERATE` answered: µs per sample of the standard and the
+    /// express scan (`None`: no answer).
+    pub sample_us: Option<(u16, u16)>,
     /// Whether the accessory board answered, and its flags.
     pub board_flags: Option<u32>,
     /// The PWM the motor was started with (accessory board only).
@@ -184,6 +197,16 @@ impl StartReport {
     /// answer, a health other than good, or a reset.
     pub fn is_remarkable(&self) -> bool {
         self.health != Some(Health::Good) || self.after_reset.is_some()
+    }
+
+    /// Nodes per second of the standard scan, from the device's answer; `None`
+    /// without an answer or when the duration is outside 25-5000 µs (200-40000
+    /// nodes/s: no RPLIDAR's, so a misread).
+    pub fn standard_rate_hz(&self) -> Option<u32> {
+        let (us, _) = self.sample_us?;
+        (25..=5000)
+            .contains(&us)
+            .then(|| (1_000_000.0 / f64::from(us)).round() as u32)
     }
 }
 
@@ -201,6 +224,17 @@ impl fmt::Display for StartReport {
                 Some(h) => write!(f, "; reset, then health {h}")?,
                 None => write!(f, "; reset, then no answer")?,
             }
+        }
+        match (self.sample_us, self.standard_rate_hz()) {
+            (Some(_), Some(hz)) => write!(f, "; standard scan at {hz} nodes/s")?,
+            (Some((us, _)), None) => write!(
+                f,
+                "; implausible sample duration {us} µs (rate assumed from the baud rate)"
+            )?,
+            (None, _) => write!(
+                f,
+                "; no sample-rate answer (firmware before 1.17?: rate assumed from the baud rate)"
+            )?,
         }
         match (self.board_flags, self.motor_pwm) {
             (_, Some(pwm)) => write!(f, "; motor started by the accessory board at PWM {pwm}"),
@@ -270,6 +304,19 @@ pub fn start_scan(link: &mut dyn Link, wait: Duration) -> Result<StartReport, St
         drain(link, Duration::from_millis(200))?;
         after_reset = Some(health_now(link)?);
     }
+    let sample_us = ask(
+        link,
+        &request(CMD_GET_SAMPLERATE, &[]),
+        ANS_SAMPLE_RATE,
+        4,
+        wait,
+    )?
+    .map(|p| {
+        (
+            u16::from_le_bytes([p[0], p[1]]),
+            u16::from_le_bytes([p[2], p[3]]),
+        )
+    });
     let board_flags = ask(
         link,
         &request(CMD_GET_ACC_BOARD_FLAG, &[0; 4]),
@@ -291,6 +338,7 @@ pub fn start_scan(link: &mut dyn Link, wait: Duration) -> Result<StartReport, St
     Ok(StartReport {
         health,
         after_reset,
+        sample_us,
         board_flags,
         motor_pwm,
     })
@@ -308,6 +356,7 @@ mod tests {
         health: Option<[u8; 3]>,
         after_reset: Option<[u8; 3]>,
         board: Option<u32>,
+        sample_us: Option<[u16; 2]>,
         streaming: bool,
         pending: Vec<u8>,
         requests: Vec<(u8, Vec<u8>)>,
@@ -320,6 +369,7 @@ mod tests {
                 health,
                 after_reset: health,
                 board,
+                sample_us: Some([500, 250]), // an A1's
                 streaming: true,
                 pending: Vec::new(),
                 requests: Vec::new(),
@@ -346,6 +396,13 @@ mod tests {
                         }
                     }
                     CMD_RESET => self.health = self.after_reset,
+                    CMD_GET_SAMPLERATE => {
+                        if let Some([std, exp]) = self.sample_us {
+                            let mut p = std.to_le_bytes().to_vec();
+                            p.extend(exp.to_le_bytes());
+                            self.pending.extend(answer(ANS_SAMPLE_RATE, &p));
+                        }
+                    }
                     CMD_GET_ACC_BOARD_FLAG => {
                         if let Some(b) = self.board {
                             self.pending
@@ -380,14 +437,19 @@ mod tests {
     fn an_a2_on_its_accessory_board_gets_its_motor_started() {
         let mut d = Device::new(Some([0, 0, 0]), Some(1));
         let r = start_scan(&mut d, WAIT).unwrap();
-        assert_eq!(d.commands(), [0x25, 0x52, 0xFF, 0xF0, 0x20]);
-        assert_eq!(d.requests[2].1, [0, 0, 0, 0]);
-        assert_eq!(d.requests[3].1, 660u16.to_le_bytes());
+        assert_eq!(d.commands(), [0x25, 0x52, 0x59, 0xFF, 0xF0, 0x20]);
+        assert_eq!(d.requests[3].1, [0, 0, 0, 0]);
+        assert_eq!(d.requests[4].1, 660u16.to_le_bytes());
         assert_eq!(r.motor_pwm, Some(660));
+        assert_eq!(
+            (r.sample_us, r.standard_rate_hz()),
+            (Some((500, 250)), Some(2000))
+        );
         assert!(!r.is_remarkable());
         assert_eq!(
             r.to_string(),
-            "health good; motor started by the accessory board at PWM 660"
+            "health good; standard scan at 2000 nodes/s; motor started by the accessory \
+             board at PWM 660"
         );
     }
 
@@ -395,7 +457,7 @@ mod tests {
     fn an_a1_without_board_answer_is_asked_to_scan_without_pwm() {
         let mut d = Device::new(Some([0, 0, 0]), None);
         let r = start_scan(&mut d, WAIT).unwrap();
-        assert_eq!(d.commands(), [0x25, 0x52, 0xFF, 0x20]);
+        assert_eq!(d.commands(), [0x25, 0x52, 0x59, 0xFF, 0x20]);
         assert_eq!((r.board_flags, r.motor_pwm), (None, None));
         assert!(r
             .to_string()
@@ -407,14 +469,15 @@ mod tests {
         let mut d = Device::new(Some([2, 0x34, 0x12]), Some(0));
         d.after_reset = Some([0, 0, 0]);
         let r = start_scan(&mut d, WAIT).unwrap();
-        assert_eq!(d.commands(), [0x25, 0x52, 0x40, 0x52, 0xFF, 0x20]);
+        assert_eq!(d.commands(), [0x25, 0x52, 0x40, 0x52, 0x59, 0xFF, 0x20]);
         assert_eq!(r.health, Some(Health::Error(0x1234)));
         assert_eq!(r.after_reset, Some(Some(Health::Good)));
         assert!(r.is_remarkable());
         assert_eq!(
             r.to_string(),
-            "health error (error code 0x1234); reset, then health good; accessory board \
-             without motor control (flags 0x00000000), motor on DTR"
+            "health error (error code 0x1234); reset, then health good; standard scan at \
+             2000 nodes/s; accessory board without motor control (flags 0x00000000), motor \
+             on DTR"
         );
     }
 
@@ -422,11 +485,29 @@ mod tests {
     fn a_silent_device_is_still_asked_to_scan_and_the_report_says_so() {
         let mut d = Device::new(None, None);
         d.streaming = false;
+        d.sample_us = None;
         let r = start_scan(&mut d, WAIT).unwrap();
-        assert_eq!(d.commands(), [0x25, 0x52, 0xFF, 0x20]);
+        assert_eq!(d.commands(), [0x25, 0x52, 0x59, 0xFF, 0x20]);
+        assert_eq!(r.standard_rate_hz(), None);
+        assert!(r.to_string().contains("no sample-rate answer"), "{r}");
         assert!(r.is_remarkable());
         assert!(
             r.to_string().starts_with("no answer to the health request"),
+            "{r}"
+        );
+    }
+
+    #[test]
+    fn the_sample_rate_comes_from_the_device_and_a_misread_is_not_used() {
+        let mut d = Device::new(Some([0, 0, 0]), None);
+        d.sample_us = Some([200, 100]); // a C1's 5000 nodes/s
+        let r = start_scan(&mut d, WAIT).unwrap();
+        assert_eq!(r.standard_rate_hz(), Some(5000));
+        d.sample_us = Some([0, 0]);
+        let r = start_scan(&mut d, WAIT).unwrap();
+        assert_eq!(r.standard_rate_hz(), None);
+        assert!(
+            r.to_string().contains("implausible sample duration 0 µs"),
             "{r}"
         );
     }

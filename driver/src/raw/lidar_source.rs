@@ -144,7 +144,8 @@ impl Drop for Serial {
     }
 }
 
-/// Nodes per second an RPLIDAR sends in standard scan mode at `baud`: the C1
+/// Nodes per second an RPLIDAR sends in standard scan mode at `baud`, assumed when
+/// it does not answer `GET_SAMPLERATE` (firmware before 1.17): the C1
 /// (460800 baud) 5000, the A1/A2 (115200) 2000. It dates a revolution's start from
 /// the bytes that came after its start node in the same read, so a wrong rate
 /// biases every stamp by up to a read's worth of bytes (tens of ms at 460800).
@@ -301,7 +302,7 @@ impl LidarSource {
         let baud = baud.unwrap_or(kind.default_baud());
         let (port, report) = open_serial(kind, path, baud)?;
         let what = format!("{} {path} at {baud} baud", &kind.flag()[2..]);
-        if let Some(r) = report {
+        if let Some(r) = &report {
             vlsync_common::console::print_err(&format!("vlsync-lidar: {what}: {r}\n"));
         }
         // one parser for the whole run, across reopens of the port: both find their
@@ -313,7 +314,11 @@ impl LidarSource {
             })),
             SerialKind::Rplidar => Parser::Rplidar(RplidarParser::new(RplidarConfig {
                 baud,
-                sample_rate_hz: rplidar_node_rate_hz(baud),
+                // the device's own answer (GET_SAMPLERATE) where it gives one
+                sample_rate_hz: report
+                    .as_ref()
+                    .and_then(StartReport::standard_rate_hz)
+                    .unwrap_or_else(|| rplidar_node_rate_hz(baud)),
                 ..RplidarConfig::default()
             })),
         };
