@@ -143,7 +143,10 @@ if [ -f "$capi_lib" ]; then
     for h in "${capi_headers[@]}"; do
         run install -m 0644 "$h" "$include_dir/$(basename "$h")"
     done
-    version="$(sed -n 's/^version = "\(.*\)"/\1/p' "$repo/Cargo.toml" 2>/dev/null | head -1 || true)"
+    # the version of the binaries installed (`vlsyncd 0.1.0`), which a cross build's
+    # bin dir has without the checkout's Cargo.toml; the checkout's as a fallback
+    version="$("$bin_dir/vlsyncd" --version 2>/dev/null | sed -n 's/^vlsyncd \([0-9][^ ]*\)$/\1/p' | head -1 || true)"
+    [ -n "$version" ] || version="$(sed -n 's/^version = "\(.*\)"/\1/p' "$repo/Cargo.toml" 2>/dev/null | head -1 || true)"
     pc="$lib_dir/pkgconfig/vlsync_client.pc"
     if [ "$dry_run" -eq 1 ]; then
         echo "would write: $pc (prefix /usr/local, version ${version:-0})"

@@ -391,6 +391,53 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
         "{lib_text}"
     );
     assert!(lib_text.contains("would run: ldconfig"), "{lib_text}");
+    // a cross build's layout: deploy/ copied alone, the headers and the pkg-config
+    // template next to the binaries; the version comes from the binary then
+    let cross = std::env::temp_dir().join(format!("vlsync-install-cross-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cross);
+    let cross_bins = staged("crossbins");
+    std::fs::create_dir_all(&cross).unwrap();
+    let st = Command::new("cp")
+        .arg("-r")
+        .arg(deploy())
+        .arg(cross.join("deploy"))
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let capi = deploy().join("../capi");
+    std::os::unix::fs::symlink(capi.join("include"), cross_bins.join("include")).unwrap();
+    std::fs::copy(
+        capi.join("vlsync_client.pc.in"),
+        cross_bins.join("vlsync_client.pc.in"),
+    )
+    .unwrap();
+    std::os::unix::fs::symlink(
+        capi_lib_dir().join("libvlsync_client.so"),
+        cross_bins.join("libvlsync_client.so"),
+    )
+    .unwrap();
+    let out = Command::new("bash")
+        .arg(cross.join("deploy/install.sh"))
+        .arg("--dry-run")
+        .arg("--bin-dir")
+        .arg(&cross_bins)
+        .output()
+        .unwrap();
+    std::fs::remove_dir_all(&cross).unwrap();
+    std::fs::remove_dir_all(&cross_bins).unwrap();
+    let cross_text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{cross_text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        cross_text.contains(&format!(
+            "would write: /usr/local/lib/pkgconfig/vlsync_client.pc (prefix /usr/local, version {})",
+            env!("CARGO_PKG_VERSION")
+        )),
+        "{cross_text}"
+    );
     // without it, the script says how to build it
     let bare = staged("bare");
     let out = install_sh()
