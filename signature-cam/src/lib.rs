@@ -18,7 +18,8 @@
 //!    stamping, mid-exposure times, px/s scaled by whole frame periods, gap
 //!    restart).
 //! 5. [`source`]: a directory of PNG/JPEG frames with `frames.csv`; [`v4l2`]:
-//!    a V4L2 camera behind the `v4l2` cargo feature.
+//!    a V4L2 camera behind the `v4l2` cargo feature; [`pipe`]: raw frames a
+//!    camera program writes to a pipe (`rpicam-vid` for a Pi camera module).
 //!
 //! ```
 //! use vlsync_signature_cam::{FrameTime, GrayFrame, SignatureConfig, SignatureProcessor, Step};
@@ -46,6 +47,7 @@
 mod error;
 pub mod flow;
 pub mod image;
+pub mod pipe;
 pub mod reduce;
 pub mod signature;
 pub mod source;

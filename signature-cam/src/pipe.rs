@@ -1,0 +1,565 @@
+//! Raw frames from a pipe: what a camera program writes to its standard output,
+//! one uncompressed frame after another (`rpicam-vid --codec yuv420 -o -` for a
+//! Raspberry Pi camera module, `gst-launch-1.0 ... ! fdsink`, `ffmpeg -f rawvideo`).
+//!
+//! The frames carry no stamps: each is stamped with the caller's clock (the
+//! driver's `CLOCK_MONOTONIC`) when its first byte arrives, i.e. when the writer
+//! began to write it. What lies before that (exposure, the camera's and the
+//! writer's pipeline) is a delay vlsync measures like any other, as long as it
+//! stays constant.
+//!
+//! A frame already waiting in the pipe when the source asks for the next one
+//! (the reader was held up: its stamp would be late by an unknown amount) is read
+//! and dropped, counted as *queued*; reading it takes microseconds, so the frame
+//! after it is waited for and stamped on time again. The source waits with
+//! `poll`, so it notices a stop request and a writer that went silent.
+//!
+//! Formats: `gray` (8-bit luma), `i420` (planar YUV 4:2:0, what `rpicam-vid
+//! --codec yuv420` writes), `nv12` (luma plane, then interleaved chroma) and
+//! `yuyv` (packed 4:2:2). Only the luma is used. Rows may be padded to a stride
+//! (`rpicam-vid` pads rows to its buffer's stride, 64-byte aligned on a Pi: use a
+//! width that is a multiple of 64, or give the stride).
+//!
+//! ```
+//! use vlsync_signature_cam::pipe::PipeFormat;
+//! // 320x240 I420: 76800 bytes of luma, two 160x120 chroma planes
+//! assert_eq!(PipeFormat::parse("i420").unwrap().frame_bytes(320, 240, 320), Some(115_200));
+//! assert_eq!(PipeFormat::Yuyv.frame_bytes(320, 240, 640), Some(153_600));
+//! assert!(PipeFormat::parse("mjpeg").unwrap_err().contains("gray, i420, nv12, yuyv"));
+//! ```
+
+use crate::image::GrayFrame;
+use crate::signature::FrameTime;
+use crate::source::{FrameSource, MAX_UNUSABLE_IN_ROW};
+use crate::Error;
+use std::io::{ErrorKind, Read};
+use std::os::fd::AsFd;
+use std::path::PathBuf;
+use std::time::Duration;
+use vlsync_common::Nanos;
+
+/// The layout of the frames in the pipe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PipeFormat {
+    /// 8-bit luma, `stride` bytes a row.
+    Gray,
+    /// Planar YUV 4:2:0: luma rows of `stride` bytes, then the U and V planes,
+    /// each `height / 2` (rounded up) rows of `stride / 2` (rounded up) bytes.
+    I420,
+    /// Luma rows of `stride` bytes, then `height / 2` (rounded up) rows of
+    /// interleaved chroma of `stride` bytes.
+    Nv12,
+    /// Packed 4:2:2, `Y0 U Y1 V`: rows of `stride` (at least `2 × width`) bytes.
+    Yuyv,
+}
+
+impl PipeFormat {
+    /// The names [`PipeFormat::parse`] takes.
+    pub const NAMES: &'static str = "gray, i420, nv12, yuyv";
+
+    /// A format from its name (`yuv420` is `i420`, `grey`/`y8` are `gray`).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "gray" | "grey" | "y8" => Ok(Self::Gray),
+            "i420" | "yuv420" | "yu12" => Ok(Self::I420),
+            "nv12" => Ok(Self::Nv12),
+            "yuyv" | "yuy2" => Ok(Self::Yuyv),
+            _ => Err(format!(
+                "`{}` is not a raw frame format this source reads (one of: {})",
+                vlsync_common::text::clip(s),
+                Self::NAMES
+            )),
+        }
+    }
+
+    /// The smallest stride of a `width`-pixel row.
+    pub fn min_stride(self, width: usize) -> Option<usize> {
+        match self {
+            Self::Yuyv => width.checked_mul(2),
+            _ => Some(width),
+        }
+    }
+
+    /// Bytes of one frame; `None` on overflow.
+    pub fn frame_bytes(self, width: usize, height: usize, stride: usize) -> Option<usize> {
+        let luma = stride.checked_mul(height)?;
+        let half_h = height.div_ceil(2);
+        match self {
+            Self::Gray | Self::Yuyv => Some(luma),
+            Self::I420 => luma.checked_add(stride.div_ceil(2).checked_mul(half_h)?.checked_mul(2)?),
+            Self::Nv12 => luma.checked_add(stride.checked_mul(half_h)?),
+        }
+        .filter(|_| width > 0)
+    }
+}
+
+impl std::fmt::Display for PipeFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Gray => "gray",
+            Self::I420 => "i420",
+            Self::Nv12 => "nv12",
+            Self::Yuyv => "yuyv",
+        })
+    }
+}
+
+/// What the pipe holds and how long it may stay silent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PipeConfig {
+    /// Frame width, pixels.
+    pub width: usize,
+    /// Frame height, pixels.
+    pub height: usize,
+    /// Bytes per row of the luma plane (`None`: the format's smallest).
+    pub stride: Option<usize>,
+    /// The frames' layout.
+    pub format: PipeFormat,
+    /// No frame for this long is an error ([`Error::Stalled`]).
+    pub silence: Duration,
+}
+
+/// Frames read from a pipe (module docs). `R` is the pipe's read end (stdin, a
+/// named FIFO, [`std::io::PipeReader`]); the clock stamps frames.
+pub struct PipeSource<R: Read + AsFd> {
+    reader: R,
+    name: PathBuf,
+    cfg: PipeConfig,
+    stride: usize,
+    clock: fn() -> Nanos,
+    stop: fn() -> bool,
+    frame: Vec<u8>,
+    gray: Vec<u8>,
+    frames: u64,
+    queued: u64,
+    queued_in_row: u32,
+    ended: bool,
+}
+
+/// How often a wait for the next frame checks the stop request.
+const STOP_CHECK: Duration = Duration::from_millis(100);
+
+impl<R: Read + AsFd> PipeSource<R> {
+    /// A source reading `cfg`'s frames from `reader`, called `name` in messages
+    /// (`stdin`, the FIFO's path). The buffers are made here; reading frames
+    /// allocates nothing.
+    pub fn new(
+        reader: R,
+        name: impl Into<PathBuf>,
+        cfg: PipeConfig,
+        clock: fn() -> Nanos,
+    ) -> Result<Self, Error> {
+        let name = name.into();
+        let bad = |reason: &'static str| Error::BadDimensions {
+            width: cfg.width,
+            height: cfg.height,
+            reason,
+        };
+        if cfg.width == 0 || cfg.height == 0 {
+            return Err(bad("zero width or height"));
+        }
+        if cfg.format == PipeFormat::Yuyv && cfg.width % 2 == 1 {
+            return Err(bad("YUYV needs an even width"));
+        }
+        let min = cfg
+            .format
+            .min_stride(cfg.width)
+            .ok_or_else(|| bad("row size overflows"))?;
+        let stride = cfg.stride.unwrap_or(min);
+        if stride < min {
+            return Err(Error::InvalidConfig {
+                field: "stride",
+                reason: format!(
+                    "{stride} bytes is less than a {} row of {} pixels ({min} bytes)",
+                    cfg.format, cfg.width
+                ),
+            });
+        }
+        let bytes = cfg
+            .format
+            .frame_bytes(cfg.width, cfg.height, stride)
+            .filter(|&b| b <= 1 << 28)
+            .ok_or_else(|| bad("a frame over 256 MiB"))?;
+        let gray_len = if cfg.format == PipeFormat::Yuyv || stride != cfg.width {
+            cfg.width * cfg.height
+        } else {
+            0 // the luma plane is used where it lies
+        };
+        Ok(Self {
+            reader,
+            name,
+            cfg,
+            stride,
+            clock,
+            stop: || false,
+            frame: vec![0; bytes],
+            gray: vec![0; gray_len],
+            frames: 0,
+            queued: 0,
+            queued_in_row: 0,
+            ended: false,
+        })
+    }
+
+    /// Makes waits end (`Ok(None)`) once `stop` returns true (a signal handler's
+    /// flag); checked every 100 ms while no frame comes.
+    pub fn set_stop(&mut self, stop: fn() -> bool) {
+        self.stop = stop;
+    }
+
+    /// Frames read, and of them dropped as queued (stamp unknown).
+    pub fn counts(&self) -> (u64, u64) {
+        (self.frames, self.queued)
+    }
+
+    /// One line on what the source reads.
+    pub fn describe(&self) -> String {
+        format!(
+            "raw {} frames {}x{} (stride {}, {} bytes each) from {}",
+            self.cfg.format,
+            self.cfg.width,
+            self.cfg.height,
+            self.stride,
+            self.frame.len(),
+            self.name.display()
+        )
+    }
+
+    fn read_error(&self, reason: String) -> Error {
+        Error::Read {
+            path: self.name.clone(),
+            reason,
+        }
+    }
+
+    /// Waits up to `d` for the pipe to be readable (data or the writer's end).
+    fn readable_within(&self, d: Duration) -> Result<bool, Error> {
+        let mut fds = [rustix::event::PollFd::new(
+            &self.reader,
+            rustix::event::PollFlags::IN,
+        )];
+        let ts = rustix::event::Timespec {
+            tv_sec: d.as_secs() as _,
+            tv_nsec: d.subsec_nanos() as _,
+        };
+        match rustix::event::poll(&mut fds, Some(&ts)) {
+            Ok(n) => Ok(n > 0),
+            Err(rustix::io::Errno::INTR) => Ok(false),
+            Err(e) => Err(self.read_error(format!("waiting for a frame: {e}"))),
+        }
+    }
+
+    /// Reads one whole frame into the buffer. `Ok(false)`: the writer closed the
+    /// pipe before the frame's first byte.
+    fn read_frame(&mut self) -> Result<bool, Error> {
+        let mut got = 0;
+        while got < self.frame.len() {
+            match self.reader.read(&mut self.frame[got..]) {
+                Ok(0) if got == 0 => return Ok(false),
+                Ok(0) => {
+                    return Err(self.read_error(format!(
+                        "the writer closed the pipe inside frame {} ({got} of its {} bytes): \
+                         a wrong size, stride or format?",
+                        self.frames + 1,
+                        self.frame.len()
+                    )))
+                }
+                Ok(n) => got += n,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(self.read_error(format!("reading frame {}: {e}", self.frames + 1)))
+                }
+            }
+        }
+        self.frames += 1;
+        Ok(true)
+    }
+
+    /// The luma of the frame in the buffer.
+    fn luma(&mut self) -> Result<GrayFrame<'_, u8>, Error> {
+        let (w, h, stride) = (self.cfg.width, self.cfg.height, self.stride);
+        if self.gray.is_empty() {
+            return GrayFrame::borrowed(w, h, &self.frame[..w * h]);
+        }
+        for (y, out) in self.gray.chunks_exact_mut(w).enumerate() {
+            let row = &self.frame[y * stride..];
+            match self.cfg.format {
+                PipeFormat::Yuyv => {
+                    for (o, px) in out.iter_mut().zip(row.chunks_exact(2)) {
+                        *o = px[0];
+                    }
+                }
+                _ => out.copy_from_slice(&row[..w]),
+            }
+        }
+        GrayFrame::borrowed(w, h, &self.gray)
+    }
+}
+
+impl<R: Read + AsFd> FrameSource for PipeSource<R> {
+    fn next_frame(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
+        if self.ended {
+            return Ok(None);
+        }
+        loop {
+            // a frame already there was held up by this reader (or, the first one,
+            // written before it started): its stamp is unknown
+            if self.readable_within(Duration::ZERO)? {
+                if !self.read_frame()? {
+                    self.ended = true;
+                    return Ok(None);
+                }
+                self.queued += 1;
+                self.queued_in_row += 1;
+                if self.queued_in_row >= MAX_UNUSABLE_IN_ROW {
+                    return Err(self.read_error(format!(
+                        "{} frames in a row were already waiting in the pipe: its writer runs \
+                         ahead of real time (a file?), or this reader cannot keep up",
+                        self.queued_in_row
+                    )));
+                }
+                continue;
+            }
+            let asked = (self.clock)();
+            loop {
+                if (self.stop)() {
+                    return Ok(None);
+                }
+                if self.readable_within(STOP_CHECK)? {
+                    break;
+                }
+                let quiet = (self.clock)().saturating_sub(asked);
+                if quiet >= self.cfg.silence.as_nanos() as Nanos {
+                    return Err(Error::Stalled {
+                        path: self.name.clone(),
+                        after: Duration::from_nanos(quiet.max(0) as u64),
+                    });
+                }
+            }
+            let t = (self.clock)();
+            if !self.read_frame()? {
+                self.ended = true;
+                return Ok(None);
+            }
+            self.queued_in_row = 0;
+            let frame = self.luma()?;
+            return Ok(Some((frame, FrameTime::Instant(t))));
+        }
+    }
+
+    fn unusable(&self) -> Option<(u64, &str)> {
+        (self.queued > 0).then_some((
+            self.queued,
+            "already waiting in the pipe when asked for (its stamp would be late)",
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::io::Write;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::OnceLock;
+    use std::time::Instant;
+
+    /// Nanoseconds since the first call: a clock a `fn` pointer can be.
+    fn clock() -> Nanos {
+        static START: OnceLock<Instant> = OnceLock::new();
+        START.get_or_init(Instant::now).elapsed().as_nanos() as Nanos
+    }
+
+    fn cfg(format: PipeFormat, width: usize, height: usize, stride: Option<usize>) -> PipeConfig {
+        PipeConfig {
+            width,
+            height,
+            stride,
+            format,
+            silence: Duration::from_secs(5),
+        }
+    }
+
+    /// A `w`×`h` frame of `format` whose luma at (x, y) is `x + 10 y + k`, padding
+    /// and chroma 0xEE (never a luma value here).
+    fn frame(format: PipeFormat, w: usize, h: usize, stride: usize, k: u8) -> Vec<u8> {
+        let mut out = vec![0xEE; format.frame_bytes(w, h, stride).unwrap()];
+        for y in 0..h {
+            for x in 0..w {
+                let v = (x + 10 * y) as u8 + k;
+                match format {
+                    PipeFormat::Yuyv => out[y * stride + 2 * x] = v,
+                    _ => out[y * stride + x] = v,
+                }
+            }
+        }
+        out
+    }
+
+    fn luma_ok(f: &GrayFrame<'_, u8>, w: usize, h: usize, k: u8) -> bool {
+        (f.width(), f.height()) == (w, h)
+            && (0..h).all(|y| (0..w).all(|x| f.get(x, y) == Some((x + 10 * y) as u8 + k)))
+    }
+
+    #[test]
+    fn each_format_gives_its_luma_stamped_when_the_frame_arrives() {
+        for (format, stride) in [
+            (PipeFormat::Gray, None),
+            (PipeFormat::Gray, Some(9)),
+            (PipeFormat::I420, None),
+            (PipeFormat::I420, Some(8)),
+            (PipeFormat::Nv12, Some(7)),
+            (PipeFormat::Yuyv, None),
+            (PipeFormat::Yuyv, Some(14)),
+        ] {
+            let (w, h) = (6, 5);
+            let (r, mut wr) = std::io::pipe().unwrap();
+            let mut src =
+                PipeSource::new(r, "test pipe", cfg(format, w, h, stride), clock).unwrap();
+            let st = stride.unwrap_or(format.min_stride(w).unwrap());
+            let writer = std::thread::spawn(move || {
+                let mut sent = vec![];
+                for k in 0..3u8 {
+                    std::thread::sleep(Duration::from_millis(30));
+                    sent.push(clock());
+                    wr.write_all(&frame(format, w, h, st, k)).unwrap();
+                }
+                sent
+            });
+            let mut got = vec![];
+            for k in 0..3u8 {
+                let (f, t) = src.next_frame().unwrap().expect("a frame");
+                assert!(luma_ok(&f, w, h, k), "{format} stride {stride:?} frame {k}");
+                got.push(t.instant_ns().unwrap());
+            }
+            let sent = writer.join().unwrap();
+            // the writer closed its end: the stream ends
+            assert!(src.next_frame().unwrap().is_none());
+            assert!(src.next_frame().unwrap().is_none());
+            for (s, g) in sent.iter().zip(&got) {
+                // stamped after the write began, and well before the next one
+                assert!(*g >= *s && *g < *s + 25_000_000, "sent {s}, stamped {g}");
+            }
+            assert_eq!(src.counts(), (3, 0));
+            assert_eq!(src.unusable(), None);
+        }
+    }
+
+    #[test]
+    fn frames_that_waited_in_the_pipe_are_dropped_not_stamped_late() {
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 4, 4, None), clock).unwrap();
+        // two frames there before the first ask, a third written while it waits
+        wr.write_all(&frame(PipeFormat::Gray, 4, 4, 4, 0)).unwrap();
+        wr.write_all(&frame(PipeFormat::Gray, 4, 4, 4, 1)).unwrap();
+        let writer = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(50));
+            let t = clock();
+            wr.write_all(&frame(PipeFormat::Gray, 4, 4, 4, 2)).unwrap();
+            (t, wr)
+        });
+        let (f, t) = src.next_frame().unwrap().unwrap();
+        assert!(luma_ok(&f, 4, 4, 2));
+        let (sent, _wr) = writer.join().unwrap();
+        assert!(t.instant_ns().unwrap() >= sent);
+        assert_eq!(src.counts(), (3, 2));
+        let (n, why) = src.unusable().unwrap();
+        assert_eq!(n, 2);
+        assert!(why.contains("already waiting"), "{why}");
+    }
+
+    #[test]
+    fn a_writer_always_ahead_is_an_error_not_a_silent_spin() {
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src =
+            PipeSource::new(r, "fast.yuv", cfg(PipeFormat::Gray, 4, 4, None), clock).unwrap();
+        for k in 0..40 {
+            wr.write_all(&frame(PipeFormat::Gray, 4, 4, 4, k)).unwrap();
+        }
+        let e = src.next_frame().expect_err("an error").to_string();
+        assert!(
+            e.starts_with("fast.yuv: 30 frames in a row were already waiting in the pipe"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_frame_cut_short_names_the_bytes_and_silence_is_a_stall() {
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src =
+            PipeSource::new(r, "stdin", cfg(PipeFormat::I420, 4, 4, None), clock).unwrap();
+        let writer = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(20));
+            wr.write_all(&[1; 10]).unwrap();
+        });
+        let e = src.next_frame().expect_err("an error").to_string();
+        writer.join().unwrap();
+        assert_eq!(
+            e,
+            "stdin: the writer closed the pipe inside frame 1 (10 of its 24 bytes): a wrong \
+             size, stride or format?"
+        );
+        let (r, _wr) = std::io::pipe().unwrap();
+        let mut c = cfg(PipeFormat::Gray, 4, 4, None);
+        c.silence = Duration::from_millis(250);
+        let mut src = PipeSource::new(r, "stdin", c, clock).unwrap();
+        match src.next_frame() {
+            Err(Error::Stalled { path, after }) => {
+                assert_eq!(path, PathBuf::from("stdin"));
+                assert!(after >= Duration::from_millis(250), "{after:?}");
+            }
+            other => panic!("{:?}", other.map(|o| o.is_some())),
+        }
+    }
+
+    #[test]
+    fn a_stop_request_ends_a_wait() {
+        static STOP: AtomicBool = AtomicBool::new(false);
+        let (r, _wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 4, 4, None), clock).unwrap();
+        src.set_stop(|| STOP.load(Ordering::Relaxed));
+        let stopper = std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_millis(150));
+            STOP.store(true, Ordering::Relaxed);
+        });
+        assert!(src.next_frame().unwrap().is_none());
+        stopper.join().unwrap();
+    }
+
+    #[test]
+    fn bad_geometry_is_refused_naming_what() {
+        let (r, _w) = std::io::pipe().unwrap();
+        let e = PipeSource::new(r, "p", cfg(PipeFormat::Yuyv, 5, 4, None), clock)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("YUYV needs an even width"), "{e}");
+        let (r, _w) = std::io::pipe().unwrap();
+        let e = PipeSource::new(r, "p", cfg(PipeFormat::Yuyv, 6, 4, Some(10)), clock)
+            .err()
+            .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "invalid configuration `stride`: 10 bytes is less than a yuyv row of 6 pixels (12 bytes)"
+        );
+        let (r, _w) = std::io::pipe().unwrap();
+        assert!(PipeSource::new(r, "p", cfg(PipeFormat::Gray, 0, 4, None), clock).is_err());
+        assert_eq!(PipeFormat::parse(" YUV420 "), Ok(PipeFormat::I420));
+    }
+
+    proptest! {
+        #[test]
+        fn any_geometry_is_accepted_or_refused_never_panics(
+            w in 0usize..100_000, h in 0usize..100_000, stride in proptest::option::of(0usize..300_000),
+            f in 0usize..4,
+        ) {
+            let format = [PipeFormat::Gray, PipeFormat::I420, PipeFormat::Nv12, PipeFormat::Yuyv][f];
+            let (r, _w) = std::io::pipe().unwrap();
+            if let Ok(src) = PipeSource::new(r, "p", cfg(format, w, h, stride), clock) {
+                // an accepted geometry holds its luma within the frame
+                let st = src.stride;
+                prop_assert!(st >= format.min_stride(w).unwrap());
+                prop_assert!(src.frame.len() >= st * (h - 1) + format.min_stride(w).unwrap());
+            }
+        }
+    }
+}
