@@ -536,7 +536,9 @@ mod imp {
                 match stream.stop() {
                     Err(e) if e.raw_os_error() != Some(negotiate::errno::ENODEV) => {
                         say(format!(
-                            "VIDIOC_STREAMOFF: {e}; its buffers stay mapped until the driver ends"
+                            "VIDIOC_STREAMOFF: {e}; the stream is left as it is (its buffers \
+                             mapped, the device open until the driver ends: a reopen may find \
+                             it busy)"
                         ));
                         std::mem::forget(stream);
                     }
@@ -545,7 +547,7 @@ mod imp {
                             drop(stream);
                             Ok(())
                         }) {
-                            say(e.to_string());
+                            say(reason_of(e));
                         }
                     }
                 }
@@ -555,7 +557,7 @@ mod imp {
                     drop(dev);
                     Ok(())
                 }) {
-                    say(e.to_string());
+                    say(reason_of(e));
                 }
             }
         }

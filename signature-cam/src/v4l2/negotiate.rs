@@ -279,8 +279,8 @@ pub fn choose_format(offered: &[Offered]) -> Result<PixelFormat, String> {
         .collect::<Vec<_>>()
         .join(", ");
     let why = if offered.iter().any(|o| is_mjpeg(&o.fourcc)) {
-        "MJPEG is not supported (decoding every frame would cost more than the flow, and a \
-         JPEG's stamp is its transfer's): pick a camera or mode with an uncompressed format"
+        "MJPEG is not supported (this source decodes no JPEG): pick a camera with an \
+         uncompressed format"
     } else if offered.iter().all(|o| o.compressed) {
         "compressed formats are not supported"
     } else {
@@ -824,10 +824,9 @@ mod tests {
         let e = choose_format(&[mjpg, offered(b"H264", "H.264", true)]).unwrap_err();
         assert_eq!(
             e,
-            "offers only MJPG (Motion-JPEG), H264 (H.264); MJPEG is not supported (decoding \
-             every frame would cost more than the flow, and a JPEG's stamp is its transfer's): \
-             pick a camera or mode with an uncompressed format; this source reads GREY, NV12, \
-             NV21, YU12, YV12, YUYV, UYVY, RGB3, BGR3"
+            "offers only MJPG (Motion-JPEG), H264 (H.264); MJPEG is not supported (this source \
+             decodes no JPEG): pick a camera with an uncompressed format; this source reads \
+             GREY, NV12, NV21, YU12, YV12, YUYV, UYVY, RGB3, BGR3"
         );
         let e = choose_format(&[offered(b"H264", "H.264", true)]).unwrap_err();
         assert!(e.contains("compressed formats are not supported"), "{e}");
