@@ -709,7 +709,9 @@ mod imp {
             let stride =
                 negotiate::check_geometry(format, got.width, got.height, got.stride, got.size)
                     .map_err(|r| id_err(format!("at {}: {r}", negotiate::fourcc_text(code))))?;
-            // the frame rate after the format: a format change resets it (uvcvideo)
+            // the frame rate after the format: the rates offered depend on the format and
+            // size, and a format change may change the rate (uvcvideo fits it to the new
+            // frame's)
             let rate = match (cfg.fps, interval) {
                 (Some(fps), Some((num, den))) => {
                     let now = guarded(p, "get streaming parameters (VIDIOC_G_PARM)", || {
@@ -729,7 +731,7 @@ mod imp {
                         return Err(id_err(format!(
                             "cannot set its frame rate (VIDIOC_G_PARM reports no \
                              V4L2_CAP_TIMEPERFRAME), so {} cannot be asked for: leave the rate \
-                             to the camera (no --fps, camera.v4l2.fps = 0)",
+                             to the camera (no --fps, camera.v4l2_fps = 0)",
                             negotiate::hz(fps)
                         )));
                     }

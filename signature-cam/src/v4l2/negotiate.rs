@@ -124,8 +124,9 @@ fn device_error(path: &Path, reason: String) -> Error {
 /// Checks that a node can be read by this source: single-planar video capture
 /// (`V4L2_CAP_VIDEO_CAPTURE`) with streaming I/O (`V4L2_CAP_STREAMING`) among
 /// `caps`, the node's own capabilities (`device_caps`, which every driver fills since
-/// Linux 3.3 and which the kernel refuses to register a video node without since
-/// 5.3; the `v4l` crate reports only them). The error names the device, its card and
+/// Linux 3.3, and without which newer kernels do not register a video node; the
+/// `v4l` crate reports only them, not `capabilities` nor its `V4L2_CAP_DEVICE_CAPS`
+/// flag). The error names the device, its card and
 /// driver, and what is missing, with the way out for the usual cases: a UVC
 /// camera's metadata node, a multi-planar CSI node (a Raspberry Pi camera module,
 /// which needs libcamera).
@@ -355,7 +356,7 @@ pub fn check_geometry(
     Ok(stride)
 }
 
-/// Frame rates that can be asked for, Hz (as `camera.v4l2.fps` of vlsync-config).
+/// Frame rates that can be asked for, Hz (as `camera.v4l2_fps` of vlsync-config).
 pub const FPS_RANGE: std::ops::RangeInclusive<f64> = 1.0..=1000.0;
 
 fn gcd(a: u32, b: u32) -> u32 {
@@ -623,9 +624,10 @@ pub mod errno {
 
 /// The reason an ioctl of step `what` failed with `e`, with the way out when the
 /// error number has a usual cause: `EBUSY` (another process holds the camera),
-/// `ENOSPC` (not enough USB bandwidth for the format, size and rate: uvcvideo's
-/// answer at `VIDIOC_STREAMON`), `ENODEV` (unplugged), `EACCES`/`EPERM`, `ENOMEM`,
-/// `EIO`.
+/// `ENOSPC` (not enough USB bandwidth left on the host controller for the format,
+/// size and rate, at `VIDIOC_STREAMON`), `EIO` (there, uvcvideo's answer when no
+/// alternate setting of the camera is fast enough), `ENODEV` (unplugged),
+/// `EACCES`/`EPERM`, `ENOMEM`.
 ///
 /// ```
 /// use vlsync_signature_cam::v4l2::negotiate::io_reason;
@@ -641,9 +643,10 @@ pub fn io_reason(what: &str, e: &std::io::Error) -> String {
              (`fuser -v` on the device names it), or it is still being released"
         }
         Some(errno::ENOSPC) => {
-            "not enough USB bandwidth for this format, size and frame rate: lower the \
-             resolution or the rate (--fps, camera.v4l2.fps), or plug the camera into another \
-             USB port or controller (a camera sharing the bus takes its bandwidth)"
+            "not enough USB bandwidth left for this format, size and frame rate (the host \
+             controller's refusal of the camera's isochronous transfers): lower the resolution \
+             or the rate (--fps, camera.v4l2_fps), or plug the camera into another USB port or \
+             controller (a camera sharing the bus takes its bandwidth)"
         }
         Some(errno::ENODEV) => "the device is gone (unplugged?)",
         Some(errno::EACCES | errno::EPERM) => {
@@ -653,7 +656,10 @@ pub fn io_reason(what: &str, e: &std::io::Error) -> String {
             "the driver could not allocate its buffers (fewer buffers, a smaller size)"
         }
         Some(errno::EIO) => {
-            "the device failed the request (a USB link problem: cable, hub, power?)"
+            "the device failed the request: when the stream starts, uvcvideo's answer when none \
+             of the camera's USB alternate settings is fast enough for this format, size and \
+             rate (lower them); else a USB link problem (cable, hub, power); the kernel log \
+             (dmesg) says which"
         }
         _ => "",
     };
@@ -1050,6 +1056,9 @@ mod tests {
         assert!(r.contains("another process streams from it"), "{r}");
         assert!(io_reason("open", &e(13)).contains("`video` group"));
         assert!(io_reason("dequeue", &e(19)).contains("unplugged"));
+        // uvcvideo's own answer when no alternate setting is fast enough
+        let r = io_reason("start streaming (VIDIOC_STREAMON)", &e(5));
+        assert!(r.contains("alternate settings is fast enough"), "{r}");
         // no hint for the others
         let r = io_reason("get format (VIDIOC_G_FMT)", &e(22));
         assert_eq!(r, format!("get format (VIDIOC_G_FMT): {}", e(22)));
