@@ -46,6 +46,8 @@ pub struct Config {
     pub services: ServicesConfig,
     /// The LiDAR driver's front-end: where the wall is.
     pub lidar: LidarConfig,
+    /// The camera driver: what it asks of a V4L2 camera.
+    pub camera: CameraConfig,
 }
 
 /// Estimator parameters. Times in seconds.
@@ -326,6 +328,50 @@ impl LidarConfig {
             90.0,
         )?;
         Ok(())
+    }
+}
+
+/// Frame rates `camera.v4l2_fps` may ask for, Hz (0 asks for none).
+pub const CAMERA_FPS_RANGE: std::ops::RangeInclusive<f64> = 1.0..=1000.0;
+
+/// The camera driver (`vlsync-cam`): what it asks of a V4L2 camera (`--v4l2`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Frame rate asked of a V4L2 camera (`VIDIOC_S_PARM`), Hz; the rate it grants is
+    /// said when the driver starts. 0: the camera's own rate is kept.
+    pub v4l2_fps: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self { v4l2_fps: 0.0 }
+    }
+}
+
+impl CameraConfig {
+    /// The frame rate to ask a V4L2 camera for (`None`: keep its own).
+    pub fn v4l2_fps(&self) -> Option<f64> {
+        (self.v4l2_fps != 0.0).then_some(self.v4l2_fps)
+    }
+
+    /// Whether a frame rate can be asked for: 0 (none asked) or within
+    /// [`CAMERA_FPS_RANGE`].
+    pub fn fps_is_valid(fps: f64) -> bool {
+        fps == 0.0 || (fps.is_finite() && CAMERA_FPS_RANGE.contains(&fps))
+    }
+
+    /// Checks every value.
+    pub fn validate(&self, source: &str) -> Result<(), ConfigError> {
+        let c = Checker { source };
+        c.rule(Self::fps_is_valid(self.v4l2_fps), || {
+            format!(
+                "`camera.v4l2_fps` = {} is out of range: allowed 0 (the camera's own rate) or {} ..= {}",
+                num(self.v4l2_fps),
+                num(*CAMERA_FPS_RANGE.start()),
+                num(*CAMERA_FPS_RANGE.end())
+            )
+        })
     }
 }
 
@@ -705,6 +751,7 @@ impl Config {
         self.daemon.validate(source_name)?;
         self.services.validate(source_name)?;
         self.lidar.validate(source_name)?;
+        self.camera.validate(source_name)?;
         Ok(())
     }
 }
@@ -790,6 +837,29 @@ mod tests {
             e.to_string().contains("estimator.cadence_min_step_s"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_camera_frame_rate_is_none_or_in_range() {
+        let c = Config::from_toml_str("[camera]\nv4l2_fps = 30.0\n", "x").unwrap();
+        assert_eq!(c.camera.v4l2_fps(), Some(30.0));
+        let c = Config::from_toml_str("[camera]\nv4l2_fps = 7.5\n", "x").unwrap();
+        assert_eq!(c.camera.v4l2_fps(), Some(7.5));
+        assert_eq!(Config::default().camera.v4l2_fps(), None);
+        for bad in ["0.5", "1000.5", "-30.0", "nan", "inf"] {
+            let e = Config::from_toml_str(&format!("[camera]\nv4l2_fps = {bad}\n"), "my.toml")
+                .unwrap_err();
+            let s = e.to_string();
+            assert!(
+                s.starts_with("config my.toml: `camera.v4l2_fps` = ")
+                    && s.ends_with(
+                        "is out of range: allowed 0 (the camera's own rate) or 1 ..= 1000"
+                    ),
+                "{s}"
+            );
+        }
+        let e = Config::from_toml_str("[camera]\nfps = 30.0\n", "x").unwrap_err();
+        assert!(e.to_string().contains("fps"), "{e}");
     }
 
     #[test]

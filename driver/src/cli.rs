@@ -25,7 +25,8 @@ pub struct DriverArgs {
     #[arg(long)]
     pub prefix: Option<String>,
     /// Configuration file (`[services]`; `vlsync-lidar` also reads `[lidar]`, the
-    /// bearing window of the wall its front-end fits).
+    /// bearing window of the wall its front-end fits, and `vlsync-cam` `[camera]`,
+    /// the frame rate it asks of a V4L2 camera).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// LiDAR front-ends: also fit the wall opposite the window and publish its rate,
@@ -50,6 +51,11 @@ pub struct DriverArgs {
     /// Camera: a V4L2 device, e.g. /dev/video0 (needs the `v4l2` cargo feature).
     #[arg(long, value_name = "DEVICE")]
     pub v4l2: Option<PathBuf>,
+    /// With --v4l2: the frame rate to ask the camera for, Hz (VIDIOC_S_PARM; the rate
+    /// it grants is said at the start); overrides `camera.v4l2_fps` of --config.
+    /// 0: the camera's own rate. 0 or 1..=1000.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    pub fps: Option<f64>,
     /// LiDAR: an LD06/LD19 on this serial port, e.g. /dev/ttyUSB0.
     #[arg(long, value_name = "DEVICE")]
     pub ld06: Option<String>,
@@ -247,6 +253,20 @@ pub fn select_source(
             "--truth-out needs --render (only the rendering simulator knows the truth)".into(),
         ));
     }
+    if let Some(fps) = args.fps {
+        if flag != "--v4l2" {
+            return Err(DriverError::Options(
+                "--fps applies to --v4l2 only (other sources keep their own times)".into(),
+            ));
+        }
+        if !vlsync_config::CameraConfig::fps_is_valid(fps) {
+            return Err(DriverError::Options(format!(
+                "--fps {fps} is out of range: allowed 0 (the camera's own rate) or {} ..= {}",
+                vlsync_config::CAMERA_FPS_RANGE.start(),
+                vlsync_config::CAMERA_FPS_RANGE.end()
+            )));
+        }
+    }
     if args.baud.is_some() && args.ld06.is_none() && args.rplidar.is_none() {
         return Err(DriverError::Options(
             "--baud applies to --ld06 and --rplidar only".into(),
@@ -405,7 +425,7 @@ pub fn select_source(
                 return Ok(stopped_while_waiting(d));
             }
             Ok(Selected {
-                source: Box::new(raw::CamSource::v4l2(d, stop).map_err(src)?),
+                source: Box::new(raw::CamSource::v4l2_at(d, camera_fps(args)?, stop).map_err(src)?),
                 anchor_ns: None,
                 start_at: None,
             })
@@ -505,6 +525,15 @@ fn lidar_front(args: &DriverArgs) -> Result<vlsync_config::LidarConfig, DriverEr
     let mut f = config(args)?.lidar;
     f.opposite_window |= args.opposite_window;
     Ok(f)
+}
+
+/// The frame rate asked of a V4L2 camera: `--fps`, else `camera.v4l2_fps` of
+/// --config; `None` (0 in either): the camera's own.
+fn camera_fps(args: &DriverArgs) -> Result<Option<f64>, DriverError> {
+    match args.fps {
+        Some(fps) => Ok((fps != 0.0).then_some(fps)),
+        None => Ok(config(args)?.camera.v4l2_fps()),
+    }
 }
 
 /// `--prefix`, else `services.prefix` of --config.
@@ -685,5 +714,76 @@ fn when_any(n: u64, text: impl FnOnce(u64) -> String) -> String {
         text(n)
     } else {
         String::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn never() -> bool {
+        false
+    }
+
+    fn args(a: &[&str]) -> DriverArgs {
+        DriverArgs::try_parse_from(std::iter::once("vlsync-cam").chain(a.iter().copied())).unwrap()
+    }
+
+    fn options_error(a: &[&str]) -> String {
+        match select_source(&args(a), Stream::Cam, never) {
+            Err(DriverError::Options(e)) => e,
+            Err(e) => panic!("not an options error: {e}"),
+            Ok(_) => panic!("accepted: {a:?}"),
+        }
+    }
+
+    #[test]
+    fn fps_applies_to_v4l2_only_and_within_its_range() {
+        assert_eq!(
+            options_error(&["--csv", "/nonexistent.csv", "--fps", "30"]),
+            "--fps applies to --v4l2 only (other sources keep their own times)"
+        );
+        for bad in ["0.5", "1001", "-30", "NaN"] {
+            assert_eq!(
+                options_error(&["--v4l2", "/dev/video-vlsync-none", "--fps", bad]),
+                format!(
+                    "--fps {} is out of range: allowed 0 (the camera's own rate) or 1 ..= 1000",
+                    bad.parse::<f64>().unwrap()
+                )
+            );
+        }
+    }
+
+    #[test]
+    fn fps_overrides_the_configuration_and_zero_keeps_the_cameras_rate() {
+        let dir = std::env::temp_dir().join(format!("vlsync-cli-fps-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = dir.join("cam.toml");
+        std::fs::write(&cfg, "[camera]\nv4l2_fps = 25.0\n").unwrap();
+        let c = cfg.to_str().unwrap();
+        let v4l2 = ["--v4l2", "/dev/video-vlsync-none"];
+        assert_eq!(camera_fps(&args(&v4l2)).unwrap(), None);
+        assert_eq!(
+            camera_fps(&args(&[&v4l2[..], &["--config", c]].concat())).unwrap(),
+            Some(25.0)
+        );
+        assert_eq!(
+            camera_fps(&args(
+                &[&v4l2[..], &["--config", c, "--fps", "7.5"]].concat()
+            ))
+            .unwrap(),
+            Some(7.5)
+        );
+        assert_eq!(
+            camera_fps(&args(&[&v4l2[..], &["--config", c, "--fps", "0"]].concat())).unwrap(),
+            None
+        );
+        // a rate out of range in the file is an options error naming the key
+        std::fs::write(&cfg, "[camera]\nv4l2_fps = 0.5\n").unwrap();
+        match camera_fps(&args(&[&v4l2[..], &["--config", c]].concat())) {
+            Err(DriverError::Options(e)) => assert!(e.contains("`camera.v4l2_fps` = 0.5"), "{e}"),
+            other => panic!("{:?}", other.map_err(|e| e.to_string())),
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,4 +1,5 @@
-//! Grayscale frames and conversion of raw camera buffers (RGB, RGBA, YUYV) to gray.
+//! Grayscale frames and conversion of raw camera buffers (gray, RGB, BGR, RGBA, YUYV,
+//! UYVY, and the planar 4:2:0 NV12, NV21, YU12, YV12 by their luma plane) to gray.
 //!
 //! A [`GrayFrame`] is a `width x height` row-major array of `u8` or `f32` pixels,
 //! borrowed from a caller's buffer or owned. Pixel values are on the 0..=255 gray
@@ -150,29 +151,98 @@ impl GrayFrame<'static, f32> {
 }
 
 /// Layout of a raw camera buffer.
+///
+/// The planar 4:2:0 formats (`Nv12`, `Nv21`, `Yu12`, `Yv12`) start with their luma
+/// plane, `height` rows `stride` bytes apart; gray is that plane, and the chroma
+/// planes after it are not read (nor required to be in the buffer).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PixelFormat {
-    /// 8-bit gray, 1 byte per pixel.
+    /// 8-bit gray, 1 byte per pixel (V4L2 `GREY`).
     Gray8,
-    /// 8-bit R, G, B: 3 bytes per pixel.
+    /// 8-bit R, G, B: 3 bytes per pixel (V4L2 `RGB3`).
     Rgb8,
-    /// 8-bit B, G, R: 3 bytes per pixel.
+    /// 8-bit B, G, R: 3 bytes per pixel (V4L2 `BGR3`).
     Bgr8,
     /// 8-bit R, G, B, A: 4 bytes per pixel.
     Rgba8,
     /// Packed YUV 4:2:2, `Y0 U Y1 V` (V4L2 `YUYV`): 2 bytes per pixel, even width.
     Yuyv,
+    /// Packed YUV 4:2:2, `U Y0 V Y1` (V4L2 `UYVY`): 2 bytes per pixel, even width.
+    Uyvy,
+    /// Planar YUV 4:2:0, a luma plane then one plane of interleaved Cb Cr (V4L2 `NV12`).
+    Nv12,
+    /// Planar YUV 4:2:0, a luma plane then one plane of interleaved Cr Cb (V4L2 `NV21`).
+    Nv21,
+    /// Planar YUV 4:2:0, a luma plane then a Cb and a Cr plane (V4L2 `YU12`, I420).
+    Yu12,
+    /// Planar YUV 4:2:0, a luma plane then a Cr and a Cb plane (V4L2 `YV12`).
+    Yv12,
 }
 
 impl PixelFormat {
-    /// Bytes per pixel (YUYV: 2, averaged over a pixel pair).
+    /// Every layout, for tests and listings.
+    pub const ALL: [PixelFormat; 10] = [
+        PixelFormat::Gray8,
+        PixelFormat::Rgb8,
+        PixelFormat::Bgr8,
+        PixelFormat::Rgba8,
+        PixelFormat::Yuyv,
+        PixelFormat::Uyvy,
+        PixelFormat::Nv12,
+        PixelFormat::Nv21,
+        PixelFormat::Yu12,
+        PixelFormat::Yv12,
+    ];
+
+    /// Bytes per pixel of a row of the buffer's first plane, the one `stride` steps
+    /// through (YUYV and UYVY: 2, averaged over a pixel pair; the planar 4:2:0
+    /// formats: 1, their luma plane).
     pub fn bytes_per_pixel(self) -> usize {
         match self {
-            PixelFormat::Gray8 => 1,
-            PixelFormat::Yuyv => 2,
+            PixelFormat::Gray8
+            | PixelFormat::Nv12
+            | PixelFormat::Nv21
+            | PixelFormat::Yu12
+            | PixelFormat::Yv12 => 1,
+            PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
             PixelFormat::Rgb8 | PixelFormat::Bgr8 => 3,
             PixelFormat::Rgba8 => 4,
         }
+    }
+
+    /// Whether a row holds pixel pairs (YUYV, UYVY): the width must be even.
+    pub fn packed_pairs(self) -> bool {
+        matches!(self, PixelFormat::Yuyv | PixelFormat::Uyvy)
+    }
+
+    /// The V4L2 four-character code of the layout (`None`: RGBA, which the V4L2
+    /// source does not ask for).
+    pub fn fourcc(self) -> Option<[u8; 4]> {
+        Some(match self {
+            PixelFormat::Gray8 => *b"GREY",
+            PixelFormat::Rgb8 => *b"RGB3",
+            PixelFormat::Bgr8 => *b"BGR3",
+            PixelFormat::Rgba8 => return None,
+            PixelFormat::Yuyv => *b"YUYV",
+            PixelFormat::Uyvy => *b"UYVY",
+            PixelFormat::Nv12 => *b"NV12",
+            PixelFormat::Nv21 => *b"NV21",
+            PixelFormat::Yu12 => *b"YU12",
+            PixelFormat::Yv12 => *b"YV12",
+        })
+    }
+
+    /// The layout of a V4L2 four-character code, if it is one of these.
+    ///
+    /// ```
+    /// use vlsync_signature_cam::PixelFormat;
+    /// assert_eq!(PixelFormat::from_fourcc(b"NV12"), Some(PixelFormat::Nv12));
+    /// assert_eq!(PixelFormat::from_fourcc(b"MJPG"), None);
+    /// ```
+    pub fn from_fourcc(code: &[u8; 4]) -> Option<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|f| f.fourcc().as_ref() == Some(code))
     }
 
     pub(crate) fn name(self) -> &'static str {
@@ -182,6 +252,11 @@ impl PixelFormat {
             PixelFormat::Bgr8 => "BGR8",
             PixelFormat::Rgba8 => "RGBA8",
             PixelFormat::Yuyv => "YUYV",
+            PixelFormat::Uyvy => "UYVY",
+            PixelFormat::Nv12 => "NV12",
+            PixelFormat::Nv21 => "NV21",
+            PixelFormat::Yu12 => "YU12",
+            PixelFormat::Yv12 => "YV12",
         }
     }
 }
@@ -195,7 +270,8 @@ pub struct RawFrame<'a> {
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Bytes from one row to the next (V4L2 `bytesperline`); at least `width * bpp`.
+    /// Bytes from one row to the next (V4L2 `bytesperline`; of the luma plane for
+    /// the planar formats); at least `width * bytes_per_pixel`.
     pub stride: usize,
     /// Layout.
     pub format: PixelFormat,
@@ -229,11 +305,14 @@ impl<'a> RawFrame<'a> {
     fn check(&self) -> Result<usize, Error> {
         let (w, h) = (self.width, self.height);
         let n = pixel_count(w, h)?;
-        if self.format == PixelFormat::Yuyv && !w.is_multiple_of(2) {
+        if self.format.packed_pairs() && !w.is_multiple_of(2) {
             return Err(Error::BadDimensions {
                 width: w,
                 height: h,
-                reason: "YUYV needs an even width",
+                reason: match self.format {
+                    PixelFormat::Uyvy => "UYVY needs an even width",
+                    _ => "YUYV needs an even width",
+                },
             });
         }
         let row = w
@@ -251,7 +330,8 @@ impl<'a> RawFrame<'a> {
                 actual: self.stride,
             });
         }
-        // the last row needs only `row` bytes, not a full stride
+        // the last row needs only `row` bytes, not a full stride (and a planar
+        // format's chroma planes after the luma are not read)
         let need = (h - 1)
             .checked_mul(self.stride)
             .and_then(|v| v.checked_add(row))
@@ -281,7 +361,12 @@ impl<'a> RawFrame<'a> {
             let start = y * self.stride;
             let src = &self.data[start..start + w * bpp];
             match self.format {
-                PixelFormat::Gray8 => dst.copy_from_slice(src),
+                // the planar formats' luma plane is a gray image
+                PixelFormat::Gray8
+                | PixelFormat::Nv12
+                | PixelFormat::Nv21
+                | PixelFormat::Yu12
+                | PixelFormat::Yv12 => dst.copy_from_slice(src),
                 PixelFormat::Rgb8 => {
                     for (d, s) in dst.iter_mut().zip(src.chunks_exact(3)) {
                         *d = luma(s[0], s[1], s[2]);
@@ -300,6 +385,12 @@ impl<'a> RawFrame<'a> {
                 PixelFormat::Yuyv => {
                     // luma is every other byte
                     for (d, s) in dst.iter_mut().zip(src.iter().step_by(2)) {
+                        *d = *s;
+                    }
+                }
+                PixelFormat::Uyvy => {
+                    // luma is every other byte, from the second
+                    for (d, s) in dst.iter_mut().zip(src.iter().skip(1).step_by(2)) {
                         *d = *s;
                     }
                 }
@@ -396,18 +487,188 @@ mod tests {
         assert!(e.to_string().contains("YUYV 4x2"), "{e}");
     }
 
+    /// 4x2 frames with 2 bytes of padding per row (stride > row), the padding and
+    /// the chroma filled with 0xEE, which must never reach the gray image.
+    #[test]
+    fn every_format_converts_a_padded_frame() {
+        const P: u8 = 0xEE;
+        let want = [10u8, 20, 30, 40, 50, 60, 70, 80];
+        // YUYV: Y0 U Y1 V; the last row without its padding
+        let yuyv = [
+            10, P, 20, P, 30, P, 40, P, /* pad */ P, P, //
+            50, P, 60, P, 70, P, 80, P,
+        ];
+        // UYVY: U Y0 V Y1
+        let uyvy = [
+            P, 10, P, 20, P, 30, P, 40, P, P, //
+            P, 50, P, 60, P, 70, P, 80,
+        ];
+        for (fmt, buf, stride) in [
+            (PixelFormat::Yuyv, &yuyv[..], 10),
+            (PixelFormat::Uyvy, &uyvy[..], 10),
+        ] {
+            let g = RawFrame::new(buf, 4, 2, fmt)
+                .with_stride(stride)
+                .to_gray()
+                .unwrap();
+            assert_eq!(g.pixels(), &want, "{fmt:?}");
+        }
+        // the planar 4:2:0 formats: a luma plane of 2 rows, stride 6, then chroma
+        // (NV12/NV21: one 2x1 plane of pairs, stride 6; YU12/YV12: two 2x1 planes,
+        // stride 3) that is not read
+        let mut planar = vec![10, 20, 30, 40, P, P, 50, 60, 70, 80, P, P];
+        planar.extend([P; 6]);
+        for fmt in [
+            PixelFormat::Nv12,
+            PixelFormat::Nv21,
+            PixelFormat::Yu12,
+            PixelFormat::Yv12,
+        ] {
+            let g = RawFrame::new(&planar, 4, 2, fmt)
+                .with_stride(6)
+                .to_gray()
+                .unwrap();
+            assert_eq!(g.pixels(), &want, "{fmt:?}");
+            // a buffer cut after the luma plane still holds the whole gray image...
+            let luma_only = RawFrame::new(&planar[..10], 4, 2, fmt).with_stride(6);
+            assert_eq!(luma_only.to_gray().unwrap().pixels(), &want, "{fmt:?}");
+            // ...one cut inside it does not: a short buffer, skippable
+            let cut = RawFrame::new(&planar[..9], 4, 2, fmt).with_stride(6);
+            assert!(
+                matches!(
+                    cut.to_gray(),
+                    Err(Error::BufferSize {
+                        expected: 10,
+                        actual: 9,
+                        ..
+                    })
+                ),
+                "{fmt:?}"
+            );
+        }
+        // gray, RGB and BGR with padding
+        let grey = [10u8, 20, 30, 40, P, 50, 60, 70, 80];
+        let g = RawFrame::new(&grey, 4, 2, PixelFormat::Gray8)
+            .with_stride(5)
+            .to_gray()
+            .unwrap();
+        assert_eq!(g.pixels(), &want);
+        let rgb: Vec<u8> = [10u8, 20, 30, 40]
+            .iter()
+            .flat_map(|&v| [v, v, v])
+            .chain([P, P])
+            .chain([50u8, 60, 70, 80].iter().flat_map(|&v| [v, v, v]))
+            .collect();
+        for fmt in [PixelFormat::Rgb8, PixelFormat::Bgr8] {
+            let g = RawFrame::new(&rgb, 4, 2, fmt)
+                .with_stride(14)
+                .to_gray()
+                .unwrap();
+            assert_eq!(g.pixels(), &want, "{fmt:?}");
+        }
+    }
+
+    #[test]
+    fn a_stride_shorter_than_a_row_and_short_buffers_are_errors() {
+        for fmt in PixelFormat::ALL {
+            let row = 4 * fmt.bytes_per_pixel();
+            let buf = vec![0u8; 4 * row];
+            // a stride one byte short of a row
+            let e = RawFrame::new(&buf, 4, 2, fmt)
+                .with_stride(row - 1)
+                .to_gray()
+                .unwrap_err();
+            assert!(matches!(e, Error::BufferSize { .. }), "{fmt:?}: {e}");
+            // exactly enough: one stride and a row
+            assert!(RawFrame::new(&buf[..2 * row + row], 4, 2, fmt)
+                .with_stride(2 * row)
+                .to_gray()
+                .is_ok());
+            // one byte less
+            let e = RawFrame::new(&buf[..3 * row - 1], 4, 2, fmt)
+                .with_stride(2 * row)
+                .to_gray()
+                .unwrap_err();
+            assert!(
+                matches!(e, Error::BufferSize { expected, actual, .. }
+                    if expected == 3 * row && actual == 3 * row - 1),
+                "{fmt:?}: {e}"
+            );
+        }
+        // UYVY, as YUYV, needs pixel pairs
+        let e = RawFrame::new(&[0u8; 12], 3, 2, PixelFormat::Uyvy)
+            .to_gray()
+            .unwrap_err();
+        assert!(e.to_string().contains("UYVY needs an even width"), "{e}");
+        // the planar formats read their luma plane at any width
+        assert!(RawFrame::new(&[0u8; 6], 3, 2, PixelFormat::Nv12)
+            .to_gray()
+            .is_ok());
+    }
+
+    #[test]
+    fn fourcc_codes_round_trip() {
+        for fmt in PixelFormat::ALL {
+            match fmt.fourcc() {
+                Some(code) => assert_eq!(PixelFormat::from_fourcc(&code), Some(fmt)),
+                None => assert_eq!(fmt, PixelFormat::Rgba8),
+            }
+        }
+        for code in [b"MJPG", b"H264", b"BA81", b"NM12", b"\0\0\0\0"] {
+            assert_eq!(PixelFormat::from_fourcc(code), None);
+        }
+    }
+
     proptest! {
+        /// Any buffer length, stride, size and layout: an error or a gray image of
+        /// `w * h` pixels, never a panic or a slice out of bounds.
         #[test]
         fn conversion_never_panics(
-            data in proptest::collection::vec(any::<u8>(), 0..200),
-            w in 0usize..20, h in 0usize..20, stride in 0usize..90, f in 0usize..5,
+            data in proptest::collection::vec(any::<u8>(), 0..400),
+            w in 0usize..24, h in 0usize..24,
+            stride in prop_oneof![0usize..120, any::<usize>()],
+            f in 0usize..PixelFormat::ALL.len(),
         ) {
-            let fmt = [PixelFormat::Gray8, PixelFormat::Rgb8, PixelFormat::Bgr8,
-                       PixelFormat::Rgba8, PixelFormat::Yuyv][f];
+            let fmt = PixelFormat::ALL[f];
             let raw = RawFrame::new(&data, w, h, fmt).with_stride(stride);
             if let Ok(g) = raw.to_gray() {
                 prop_assert_eq!(g.pixels().len(), w * h);
             }
+        }
+
+        /// Huge dimensions (a hostile driver's) are errors, not overflows.
+        #[test]
+        fn huge_geometry_is_an_error(
+            w in any::<usize>(), h in any::<usize>(), stride in any::<usize>(),
+            f in 0usize..PixelFormat::ALL.len(),
+        ) {
+            let raw = RawFrame::new(&[0u8; 64], w, h, PixelFormat::ALL[f]).with_stride(stride);
+            if let Ok(g) = raw.to_gray() {
+                prop_assert_eq!(g.pixels().len(), w * h);
+                prop_assert!(w * h <= 64);
+            }
+        }
+
+        /// Padding after each row changes nothing: the gray image of a padded
+        /// buffer is the tight one's.
+        #[test]
+        fn padding_is_skipped(
+            seed in proptest::collection::vec(any::<u8>(), 1..200),
+            half_w in 1usize..6, h in 1usize..6, pad in 0usize..7,
+            f in 0usize..PixelFormat::ALL.len(),
+        ) {
+            let fmt = PixelFormat::ALL[f];
+            let w = 2 * half_w;
+            let row = w * fmt.bytes_per_pixel();
+            let tight: Vec<u8> = (0..row * h).map(|i| seed[i % seed.len()]).collect();
+            let mut padded = Vec::new();
+            for r in tight.chunks(row) {
+                padded.extend_from_slice(r);
+                padded.extend(std::iter::repeat_n(0xEEu8, pad));
+            }
+            let a = RawFrame::new(&tight, w, h, fmt).to_gray().unwrap();
+            let b = RawFrame::new(&padded, w, h, fmt).with_stride(row + pad).to_gray().unwrap();
+            prop_assert_eq!(a, b);
         }
 
         #[test]

@@ -5,7 +5,8 @@
 //! Pipeline:
 //!
 //! 1. [`image`]: gray frames ([`image::GrayFrame`], `u8` or `f32`, borrowed or
-//!    owned) and RGB/RGBA/BGR/YUYV to gray conversion ([`image::RawFrame`]).
+//!    owned) and gray/RGB/BGR/RGBA/YUYV/UYVY/NV12/NV21/YU12/YV12 to gray conversion
+//!    ([`image::RawFrame`]; the planar formats by their luma plane).
 //! 2. [`flow`]: pyramidal Lucas-Kanade on a grid of points in the ROI, with a
 //!    Shi-Tomasi texture test, each point started from its last flow, tracked
 //!    both ways and checked against its neighbours; allocation-free after the

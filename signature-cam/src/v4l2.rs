@@ -6,9 +6,40 @@
 //! still exists and [`V4l2Source::open`] returns an error saying so (after
 //! reporting a missing device as `/dev/video0: no such device`).
 //!
-//! Frames are requested as YUYV (the usual format of the Pi camera stack and of
-//! USB cameras); GREY, RGB3 and BGR3 are accepted if the driver insists on one of
-//! them. Each frame is stamped with the driver's buffer timestamp
+//! An opening ([`V4l2Source::open`]; every decision is a function of the driver's
+//! answers in [`negotiate`], tested without a camera):
+//!
+//! * checks the node's capabilities (`VIDIOC_QUERYCAP`): single-planar video capture
+//!   with streaming I/O, else an error naming the device, its card and driver and
+//!   what is missing (a UVC camera's metadata node; a multi-planar CSI node, as the
+//!   Raspberry Pi camera modules', which need libcamera);
+//! * lists the node's formats (`VIDIOC_ENUM_FMT`) and asks for the cheapest to
+//!   reduce to gray ([`negotiate::PREFERENCE`]: GREY, NV12, NV21, YU12, YV12 by
+//!   their luma plane, YUYV, UYVY, RGB3, BGR3) at the size asked; a camera offering
+//!   none of them (MJPEG only, say) is an error listing what it offers. The
+//!   negotiated stride (`bytesperline`) and image size are checked against the
+//!   geometry before any frame is read;
+//! * sets the frame rate asked ([`V4l2Config::fps`], `VIDIOC_S_PARM`) and reads back
+//!   what the camera granted (`VIDIOC_G_PARM`), or the camera's own rate;
+//! * reads the exposure controls, and warns when the exposure is automatic (it
+//!   moves the stamps by up to half its range);
+//! * maps the buffers and starts the stream, so that the usual refusals come here,
+//!   each labelled with its step and the way out: `EBUSY` (another process holds the
+//!   camera), `ENOSPC` at `VIDIOC_STREAMON` (not enough USB bandwidth for the format,
+//!   size and rate);
+//! * says what it negotiated in one line (device, card, driver, format, size, stride,
+//!   frame rate, exposure, buffers, where the stamps come from) through
+//!   [`FrameSource::take_note`], with the exposure warning after it.
+//!
+//! The `v4l` crate panics on some answers of a driver (an unknown colorspace or
+//! field in `Format::from`, a card name cut inside a UTF-8 character, a failed
+//! `VIDIOC_STREAMOFF` when its stream is dropped): every call into it is made through
+//! [`negotiate::guarded`], which turns such a panic into an error naming the device
+//! (the workspace's profiles unwind on panic; none sets `panic = "abort"`), and the
+//! stream is stopped before it is dropped, so that its `Drop` never meets a failing
+//! `VIDIOC_STREAMOFF`.
+//!
+//! Each frame is stamped with the driver's buffer timestamp
 //! ([`FrameTime::Instant`]), normally `CLOCK_MONOTONIC`; whether that is the
 //! start of exposure or the end of the frame depends on the driver
 //! (`V4L2_BUF_FLAG_TSTAMP_SRC_*`), so the constant part of that difference shows
@@ -27,9 +58,9 @@
 //! signature's `max_gap_ns`, restarts the pair (a counted gap). Only
 //! [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) such buffers in a
 //! row (a second at 30 Hz: a device that delivers nothing usable) end the stream
-//! with an error saying why; a frame format the converter cannot read at all (an
-//! odd YUYV width) ends it at the first frame, and a negotiated stride shorter than
-//! a row is refused at [`V4l2Source::open`].
+//! with an error saying why; a geometry the converter cannot read at all (a stride
+//! shorter than a row, an odd width of pixel pairs, an image size smaller than the
+//! rows read) is refused at [`V4l2Source::open`].
 //!
 //! A camera that stops delivering without an error (a hung USB link) does not hang
 //! the driver: the wait for a buffer (a `poll` of the device before each dequeue, so a
@@ -46,6 +77,8 @@
 //! assert_eq!(err.to_string(), "/dev/video-does-not-exist: no such device");
 //! ```
 
+pub mod negotiate;
+
 use crate::image::GrayFrame;
 #[cfg(feature = "v4l2")]
 use crate::image::{PixelFormat, RawFrame};
@@ -56,7 +89,7 @@ use std::path::PathBuf;
 use vlsync_common::Nanos;
 
 /// What to open and how.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct V4l2Config {
     /// Device node (default `/dev/video0`).
     pub device: PathBuf,
@@ -64,8 +97,12 @@ pub struct V4l2Config {
     pub width: u32,
     /// Requested height (default 480); the driver may pick another.
     pub height: u32,
-    /// Driver buffers (default 4).
+    /// Driver buffers (default 4; at least 2 are asked for).
     pub buffers: u32,
+    /// Frame rate to ask the camera for, Hz, within [`negotiate::FPS_RANGE`]
+    /// (`VIDIOC_S_PARM`; the rate granted is read back and said). `None` (the
+    /// default): the camera's own rate is kept.
+    pub fps: Option<f64>,
     /// No frame for this long is an error, [`Error::Stalled`] (default 10 s, as the
     /// serial LiDARs' silence).
     pub stall: std::time::Duration,
@@ -86,6 +123,7 @@ impl Default for V4l2Config {
             width: 640,
             height: 480,
             buffers: 4,
+            fps: None,
             stall: std::time::Duration::from_secs(10),
             stamps: None,
         }
@@ -375,6 +413,33 @@ impl V4l2Source {
         }
     }
 
+    /// What the opening negotiated (device, format, size, stride, frame rate,
+    /// exposure), as its first note says.
+    pub fn negotiated(&self) -> &negotiate::Negotiated {
+        #[cfg(feature = "v4l2")]
+        {
+            &self.inner.negotiated
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
+
+    /// Drops the opening's notes not yet taken (the line of what was negotiated and
+    /// the exposure warning): for a reopen that negotiated what the last opening
+    /// said, which a stalled camera would otherwise repeat at every reopen.
+    pub fn skip_opening_notes(&mut self) {
+        #[cfg(feature = "v4l2")]
+        {
+            self.inner.notes.clear();
+        }
+        #[cfg(not(feature = "v4l2"))]
+        {
+            match self._never {}
+        }
+    }
+
     /// The frame size delivered, (width, height).
     pub fn frame_size(&self) -> (usize, usize) {
         #[cfg(feature = "v4l2")]
@@ -411,10 +476,16 @@ impl FrameSource for V4l2Source {
         }
     }
 
+    /// The opening's line of what it negotiated, then its exposure warning (if the
+    /// exposure is automatic), then the remark on the stamps' clock once the first
+    /// frames decided it.
     fn take_note(&mut self) -> Option<String> {
         #[cfg(feature = "v4l2")]
         {
-            self.inner.stamps.take_note()
+            self.inner
+                .notes
+                .pop_front()
+                .or_else(|| self.inner.stamps.take_note())
         }
         #[cfg(not(feature = "v4l2"))]
         {
@@ -425,19 +496,76 @@ impl FrameSource for V4l2Source {
 
 #[cfg(feature = "v4l2")]
 mod imp {
+    use super::negotiate::{
+        self, caught, guarded, io_reason, DeviceId, Exposure, Negotiated, Offered, Rate, StampPlan,
+    };
     use super::*;
     use crate::source::UnusableFrames;
+    use std::collections::VecDeque;
+    use std::path::Path;
     use v4l::buffer::Type;
+    use v4l::control::Value;
     use v4l::io::mmap::Stream;
-    use v4l::io::traits::CaptureStream;
+    use v4l::io::traits::{CaptureStream, Stream as StreamTrait};
+    use v4l::video::capture::Parameters;
     use v4l::video::Capture;
-    use v4l::{Device, FourCC};
+    use v4l::{Device, Format, FourCC, Fraction};
+
+    /// The device and its stream, closed in that order when dropped. The stream is
+    /// stopped first (`VIDIOC_STREAMOFF`, whose failure the `v4l` crate's `Drop`
+    /// would turn into a panic, and its arena's `Drop` into a second one, an abort):
+    /// a stream that stopped, or whose device is gone (`ENODEV`, which the crate
+    /// ignores), is dropped with any panic caught; one that cannot be stopped is
+    /// leaked (its buffers and file stay until the process ends) rather than dropped.
+    /// Either is said on stderr, naming the device.
+    struct Live {
+        path: PathBuf,
+        stream: Option<Stream<'static>>,
+        dev: Option<Device>,
+    }
+
+    impl Drop for Live {
+        fn drop(&mut self) {
+            let say = |what: String| {
+                vlsync_common::console::print_err(&format!(
+                    "{}: closing the stream: {what}\n",
+                    self.path.display()
+                ))
+            };
+            if let Some(mut stream) = self.stream.take() {
+                match stream.stop() {
+                    Err(e) if e.raw_os_error() != Some(negotiate::errno::ENODEV) => {
+                        say(format!(
+                            "VIDIOC_STREAMOFF: {e}; the stream is left as it is (its buffers \
+                             mapped, the device open until the driver ends: a reopen may find \
+                             it busy)"
+                        ));
+                        std::mem::forget(stream);
+                    }
+                    _ => {
+                        if let Err(e) = caught(&self.path, "release the buffers", move || {
+                            drop(stream);
+                            Ok(())
+                        }) {
+                            say(reason_of(e));
+                        }
+                    }
+                }
+            }
+            if let Some(dev) = self.dev.take() {
+                if let Err(e) = caught(&self.path, "close the device", move || {
+                    drop(dev);
+                    Ok(())
+                }) {
+                    say(reason_of(e));
+                }
+            }
+        }
+    }
 
     pub(super) struct Inner {
         path: PathBuf,
-        // the stream keeps its own handle to the device
-        stream: Stream<'static>,
-        _dev: Device,
+        live: Live,
         pub(super) width: usize,
         pub(super) height: usize,
         stride: usize,
@@ -448,8 +576,10 @@ mod imp {
         stall: std::time::Duration,
         /// Whose stamps the frames carry (decided within the first frames).
         pub(super) stamps: StampCheck,
-        /// The stream runs (the first `next` queued every buffer and started it).
-        started: bool,
+        /// What the opening negotiated.
+        pub(super) negotiated: Negotiated,
+        /// The opening's notes not yet taken.
+        pub(super) notes: VecDeque<String>,
         /// A `next` whose wait for a buffer timed out (or was interrupted) left the
         /// buffer it handed back queued, and holds none: the next filled buffer is
         /// taken with a plain dequeue and handed back unread (a second `next` would
@@ -464,7 +594,9 @@ mod imp {
     fn transient(e: &std::io::Error) -> bool {
         matches!(
             e.kind(),
-            std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+            std::io::ErrorKind::TimedOut
+                | std::io::ErrorKind::Interrupted
+                | std::io::ErrorKind::WouldBlock
         )
     }
 
@@ -482,58 +614,201 @@ mod imp {
             .saturating_add(i64::from(t.tv_nsec))
     }
 
+    fn device_error(path: &Path, reason: String) -> Error {
+        Error::Device {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+
+    /// The reason of a [`guarded`] call's error (for a line that names the device
+    /// already).
+    fn reason_of(e: Error) -> String {
+        match e {
+            Error::Device { reason, .. } => reason,
+            e => e.to_string(),
+        }
+    }
+
+    /// An integer control's value (`None`: no such control, or unreadable).
+    fn control(path: &Path, dev: &Device, id: u32) -> Option<i64> {
+        match guarded(path, "read a control (VIDIOC_G_EXT_CTRLS)", || {
+            dev.control(id)
+        }) {
+            Ok(c) => match c.value {
+                Value::Integer(v) => Some(v),
+                Value::Boolean(b) => Some(i64::from(b)),
+                _ => None,
+            },
+            Err(_) => None,
+        }
+    }
+
     impl Inner {
         pub(super) fn open(cfg: &V4l2Config) -> Result<Self, Error> {
             let path = cfg.device.clone();
-            let dev_err = |what: &str, e: std::io::Error| Error::Device {
+            let p = path.as_path();
+            let interval =
+                match cfg.fps {
+                    None => None,
+                    Some(fps) => Some(negotiate::interval_for_fps(fps).ok_or_else(|| {
+                        Error::InvalidConfig {
+                            field: "V4l2Config::fps",
+                            reason: format!(
+                                "{fps} Hz is out of range: allowed {} ..= {} Hz",
+                                negotiate::FPS_RANGE.start(),
+                                negotiate::FPS_RANGE.end()
+                            ),
+                        }
+                    })?),
+                };
+            // from here on, whatever returns early drops the device through `Live`
+            let mut live = Live {
                 path: path.clone(),
-                reason: format!("{what}: {e}"),
+                stream: None,
+                dev: None,
             };
-            let dev = Device::with_path(&path).map_err(|e| dev_err("open", e))?;
-            let mut fmt = dev.format().map_err(|e| dev_err("get format", e))?;
-            fmt.width = cfg.width;
-            fmt.height = cfg.height;
-            fmt.fourcc = FourCC::new(b"YUYV");
-            let fmt = dev.set_format(&fmt).map_err(|e| dev_err("set format", e))?;
-            let format = match &fmt.fourcc.repr {
-                b"YUYV" => PixelFormat::Yuyv,
-                b"GREY" => PixelFormat::Gray8,
-                b"RGB3" => PixelFormat::Rgb8,
-                b"BGR3" => PixelFormat::Bgr8,
-                other => {
-                    return Err(Error::Device {
-                        path,
-                        reason: format!(
-                            "unsupported pixel format {} (need YUYV, GREY, RGB3 or BGR3)",
-                            String::from_utf8_lossy(other)
-                        ),
+            let dev: &Device = live
+                .dev
+                .insert(guarded(p, "open", || Device::with_path(p))?);
+            let caps = guarded(p, "query capabilities (VIDIOC_QUERYCAP)", || {
+                dev.query_caps()
+            })?;
+            let id = DeviceId {
+                card: caps.card,
+                driver: caps.driver,
+                bus: caps.bus,
+            };
+            negotiate::check_caps(p, &id, caps.capabilities.bits())?;
+            let id_err = |reason: String| device_error(p, format!("{id} {reason}"));
+            let offered: Vec<Offered> =
+                guarded(p, "list formats (VIDIOC_ENUM_FMT)", || dev.enum_formats())?
+                    .into_iter()
+                    .map(|d| Offered {
+                        fourcc: d.fourcc.repr,
+                        description: d.description,
+                        compressed: d
+                            .flags
+                            .contains(v4l::format::description::Flags::COMPRESSED),
                     })
+                    .collect();
+            let want = negotiate::choose_format(&offered).map_err(id_err)?;
+            let code = want
+                .fourcc()
+                .ok_or_else(|| id_err(format!("{} has no V4L2 code", want.name())))?;
+            let asked = Format::new(cfg.width, cfg.height, FourCC::new(&code));
+            let got = guarded(p, "set format (VIDIOC_S_FMT)", || dev.set_format(&asked))?;
+            // the driver may answer with another format than the one asked for
+            let format = PixelFormat::from_fourcc(&got.fourcc.repr).ok_or_else(|| {
+                id_err(format!(
+                    "answered the format {} asked for with {}, which this source cannot read",
+                    negotiate::fourcc_text(code),
+                    negotiate::fourcc_text(got.fourcc.repr)
+                ))
+            })?;
+            let stride =
+                negotiate::check_geometry(format, got.width, got.height, got.stride, got.size)
+                    .map_err(|r| id_err(format!("at {}: {r}", negotiate::fourcc_text(code))))?;
+            // the frame rate after the format: the rates offered depend on the format and
+            // size, and a format change may change the rate (uvcvideo fits it to the new
+            // frame's)
+            let rate = match (cfg.fps, interval) {
+                (Some(fps), Some((num, den))) => {
+                    let now = guarded(p, "get streaming parameters (VIDIOC_G_PARM)", || {
+                        dev.params()
+                    })
+                    .map_err(|e| {
+                        id_err(format!(
+                            "cannot be asked for {}: {}",
+                            negotiate::hz(fps),
+                            reason_of(e)
+                        ))
+                    })?;
+                    if !now
+                        .capabilities
+                        .contains(v4l::parameters::Capabilities::TIME_PER_FRAME)
+                    {
+                        return Err(id_err(format!(
+                            "cannot set its frame rate (VIDIOC_G_PARM reports no \
+                             V4L2_CAP_TIMEPERFRAME), so {} cannot be asked for: leave the rate \
+                             to the camera (no --fps, camera.v4l2_fps = 0)",
+                            negotiate::hz(fps)
+                        )));
+                    }
+                    let set = guarded(p, "set the frame rate (VIDIOC_S_PARM)", || {
+                        dev.set_params(&Parameters::new(Fraction::new(num, den)))
+                    })?;
+                    Rate {
+                        asked: Some(fps),
+                        granted: interval_rate(set.interval),
+                    }
                 }
+                _ => Rate {
+                    asked: None,
+                    granted: match guarded(p, "VIDIOC_G_PARM", || dev.params()) {
+                        Ok(now) => interval_rate(now.interval),
+                        Err(e) => Err(reason_of(e)),
+                    },
+                },
             };
-            let row = (fmt.width as usize).saturating_mul(format.bytes_per_pixel());
-            if fmt.stride != 0 && (fmt.stride as usize) < row {
-                return Err(Error::Device {
-                    path,
-                    reason: format!(
-                        "the driver's stride {} is shorter than a {}x{} {} row ({row} bytes)",
-                        fmt.stride,
-                        fmt.width,
-                        fmt.height,
-                        format.name()
-                    ),
-                });
-            }
+            let exposure = Exposure {
+                mode: control(p, dev, negotiate::CID_EXPOSURE_AUTO),
+                time_100us: control(p, dev, negotiate::CID_EXPOSURE_ABSOLUTE),
+                dynamic_framerate: control(p, dev, negotiate::CID_EXPOSURE_AUTO_PRIORITY)
+                    .map(|v| v != 0),
+            };
             // two at least: one the driver fills while the other is read
-            let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, cfg.buffers.max(2))
-                .map_err(|e| dev_err("start mmap stream", e))?;
+            let asked_buffers = cfg.buffers.max(2);
+            let stream: &mut Stream<'static> = live.stream.insert(guarded(
+                p,
+                "request buffers (VIDIOC_REQBUFS, VIDIOC_QUERYBUF, mmap)",
+                || Stream::with_buffers(dev, Type::VideoCapture, asked_buffers),
+            )?);
             stream.set_timeout(POLL_SLICE);
+            // every buffer but the first is queued here and the stream started, so that
+            // a refusal to start (EBUSY, ENOSPC: USB bandwidth) comes from this step,
+            // named; the first `next` queues buffer 0 (the crate's `next` queues the
+            // buffer it handed out last, 0 at first) and dequeues the first frame.
+            // Buffers the driver did not grant end the queueing (EINVAL: an index
+            // beyond them; the crate does not say how many it mapped).
+            let mut buffers = 1;
+            for i in 1..asked_buffers as usize {
+                match CaptureStream::queue(stream, i) {
+                    Ok(()) => buffers += 1,
+                    Err(e) if e.raw_os_error() == Some(negotiate::errno::EINVAL) => break,
+                    Err(e) => {
+                        return Err(device_error(
+                            p,
+                            io_reason(&format!("queue buffer {i} (VIDIOC_QBUF)"), &e),
+                        ))
+                    }
+                }
+            }
+            guarded(p, "start streaming (VIDIOC_STREAMON)", || stream.start())?;
+            let decide_frames = asked_buffers.saturating_add(DECIDE_EXTRA_FRAMES);
+            let plan = match cfg.stamps {
+                Some(c) => StampPlan::Kept(c),
+                None => StampPlan::Check(decide_frames),
+            };
+            let negotiated = Negotiated {
+                path: path.clone(),
+                id,
+                format,
+                width: got.width,
+                height: got.height,
+                stride,
+                rate,
+                exposure,
+                buffers,
+            };
+            let mut notes = VecDeque::from([format!("{negotiated}; {plan}")]);
+            notes.extend(exposure.warning(p));
             Ok(Self {
                 path,
-                stream,
-                _dev: dev,
-                width: fmt.width as usize,
-                height: fmt.height as usize,
-                stride: fmt.stride as usize,
+                live,
+                width: got.width as usize,
+                height: got.height as usize,
+                stride,
                 format,
                 gray: Vec::new(),
                 unusable: UnusableFrames::named("buffers"),
@@ -541,25 +816,18 @@ mod imp {
                 stall: cfg.stall,
                 stamps: match cfg.stamps {
                     Some(c) => StampCheck::decided(c),
-                    None => StampCheck::new(cfg.buffers.max(2).saturating_add(DECIDE_EXTRA_FRAMES)),
+                    None => StampCheck::new(decide_frames),
                 },
-                started: false,
+                negotiated,
+                notes,
                 waiting: false,
             })
         }
 
-        fn device_error(&self, reason: String) -> Error {
-            Error::Device {
-                path: self.path.clone(),
-                reason,
-            }
-        }
-
         pub(super) fn next(&mut self) -> Result<Option<(GrayFrame<'_, u8>, FrameTime)>, Error> {
-            let stride = if self.stride == 0 {
-                self.width.saturating_mul(self.format.bytes_per_pixel())
-            } else {
-                self.stride
+            let path = self.path.as_path();
+            let Some(stream) = self.live.stream.as_mut() else {
+                return Err(device_error(path, "the stream is closed".into()));
             };
             let mut since = std::time::Instant::now();
             let t_ns = loop {
@@ -568,50 +836,55 @@ mod imp {
                 }
                 if since.elapsed() >= self.stall {
                     return Err(Error::Stalled {
-                        path: self.path.clone(),
+                        path: path.to_path_buf(),
                         after: self.stall,
                     });
                 }
-                if self.started {
-                    // wait here, a slice at a time, for a filled buffer: the others
-                    // are queued, so `next` below (which hands the last one back and
-                    // dequeues) finds one at once and never times out with a buffer
-                    // of ours queued unread; a slow camera's frames are all read
-                    let slice = POLL_SLICE.as_millis() as i32;
-                    match self.stream.handle().poll(POLLIN, slice) {
-                        Ok(0) => continue,
-                        Ok(_) => {}
-                        Err(e) if transient(&e) => continue,
-                        Err(e) => return Err(self.device_error(format!("wait for a buffer: {e}"))),
-                    }
-                    if self.waiting {
-                        // the first `next` gave up: take this buffer with a plain
-                        // dequeue; the next `next` hands it back (unread: its bytes are
-                        // reachable only through `next`) and reads the frame after it
-                        match CaptureStream::dequeue(&mut self.stream) {
-                            Ok(_) => self.waiting = false,
-                            Err(e) if transient(&e) => {}
-                            Err(e) => return Err(self.device_error(format!("dequeue buffer: {e}"))),
-                        }
-                        continue;
+                // wait here, a slice at a time, for a filled buffer: the others are
+                // queued, so `next` below (which hands the last one back and dequeues)
+                // finds one at once and never times out with a buffer of ours queued
+                // unread; a slow camera's frames are all read
+                let slice = POLL_SLICE.as_millis() as i32;
+                match stream.handle().poll(POLLIN, slice) {
+                    Ok(0) => continue,
+                    Ok(_) => {}
+                    Err(e) if transient(&e) => continue,
+                    Err(e) => {
+                        return Err(device_error(
+                            path,
+                            io_reason("wait for a buffer (poll)", &e),
+                        ))
                     }
                 }
-                let result = self.stream.next();
-                // the first call queued every buffer and started the stream, whether
-                // or not its wait then timed out
-                self.started = true;
-                let (buf, meta) = match result {
+                if self.waiting {
+                    // the first `next` gave up: take this buffer with a plain dequeue;
+                    // the next `next` hands it back (unread: its bytes are reachable
+                    // only through `next`) and reads the frame after it
+                    let s = &mut *stream;
+                    match caught(path, "dequeue buffer (VIDIOC_DQBUF)", move || {
+                        CaptureStream::dequeue(s)
+                    })? {
+                        Ok(_) => self.waiting = false,
+                        Err(e) if transient(&e) => {}
+                        Err(e) => {
+                            return Err(device_error(
+                                path,
+                                io_reason("dequeue buffer (VIDIOC_DQBUF)", &e),
+                            ))
+                        }
+                    }
+                    continue;
+                }
+                const NEXT: &str = "hand the last buffer back and dequeue the next \
+                                    (VIDIOC_QBUF, VIDIOC_DQBUF)";
+                let s = &mut *stream;
+                let (buf, meta) = match caught(path, NEXT, move || s.next())? {
                     Ok(x) => x,
                     Err(e) if transient(&e) => {
                         self.waiting = true;
                         continue;
                     }
-                    Err(e) => {
-                        return Err(Error::Device {
-                            path: self.path.clone(),
-                            reason: format!("dequeue buffer: {e}"),
-                        })
-                    }
+                    Err(e) => return Err(device_error(path, io_reason(NEXT, &e))),
                 };
                 // the clock read at once: a dequeue stamp carries no conversion time
                 let now_ns = monotonic_ns();
@@ -619,7 +892,7 @@ mod imp {
                     let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
                     self.unusable
                         .skip(why)
-                        .map_err(|reason| self.device_error(reason))?;
+                        .map_err(|reason| device_error(path, reason))?;
                     continue;
                 }
                 // time_t is i32 on 32-bit ARM (32-bit Raspberry Pi OS), i64 elsewhere
@@ -637,7 +910,7 @@ mod imp {
                 };
                 let used = (meta.bytesused as usize).min(buf.len());
                 let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
-                    .with_stride(stride);
+                    .with_stride(self.stride);
                 match raw.to_gray_into(&mut self.gray) {
                     Ok(()) => {
                         self.unusable.used();
@@ -647,7 +920,7 @@ mod imp {
                         let why = format!("buffer {}: {e}", meta.sequence);
                         self.unusable
                             .skip(why)
-                            .map_err(|reason| self.device_error(reason))?;
+                            .map_err(|reason| device_error(path, reason))?;
                     }
                     // the frame's geometry, not one buffer: every frame would fail
                     Err(e) => return Err(e),
@@ -656,6 +929,16 @@ mod imp {
             let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
             Ok(Some((frame, FrameTime::Instant(t_ns))))
         }
+    }
+
+    /// The rate of an interval the driver reports, or why it is none.
+    fn interval_rate(i: Fraction) -> Result<f64, String> {
+        negotiate::fps_of_interval(i.numerator, i.denominator).ok_or_else(|| {
+            format!(
+                "VIDIOC_G_PARM gave the frame interval {}/{}",
+                i.numerator, i.denominator
+            )
+        })
     }
 }
 
@@ -707,11 +990,42 @@ mod tests {
     #[cfg(feature = "v4l2")]
     #[test]
     fn a_non_device_is_an_error_not_a_panic() {
+        let dir = std::env::temp_dir();
         let cfg = V4l2Config {
-            device: std::env::temp_dir(),
+            device: dir.clone(),
             ..V4l2Config::default()
         };
-        assert!(V4l2Source::open(&cfg).is_err());
+        let e = V4l2Source::open(&cfg).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("{}: open: ", dir.display())), "{e}");
+        // a regular file opens, and is no V4L2 node: the first ioctl says so, named
+        let file = dir.join(format!("vlsync-v4l2-not-a-device-{}", std::process::id()));
+        std::fs::write(&file, b"").unwrap();
+        let cfg = V4l2Config {
+            device: file.clone(),
+            ..V4l2Config::default()
+        };
+        let e = V4l2Source::open(&cfg).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!(
+                "{}: query capabilities (VIDIOC_QUERYCAP): ",
+                file.display()
+            )),
+            "{e}"
+        );
+        // a frame rate out of range is refused before the device is touched
+        for fps in [0.5, 1e4, f64::NAN] {
+            let e = V4l2Source::open(&V4l2Config {
+                fps: Some(fps),
+                ..cfg.clone()
+            })
+            .unwrap_err();
+            assert!(
+                matches!(&e, Error::InvalidConfig { field: "V4l2Config::fps", reason }
+                    if reason.ends_with("allowed 1 ..= 1000 Hz")),
+                "{e}"
+            );
+        }
+        std::fs::remove_file(&file).unwrap();
     }
 
     const S: Nanos = 1_000_000_000;

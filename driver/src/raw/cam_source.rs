@@ -2,7 +2,7 @@
 //! through the optical-flow front-end.
 
 use super::*;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 /// What the driver knows about a rendered frame beyond its image and time.
@@ -494,8 +494,17 @@ impl CamSource {
         Self::new(Box::new(src), what, never)
     }
 
-    /// A V4L2 camera (`/dev/videoN`); needs the `v4l2` cargo feature.
+    /// A V4L2 camera (`/dev/videoN`) at its own frame rate; needs the `v4l2` cargo
+    /// feature.
     pub fn v4l2(device: &Path, stop: StopFn) -> Result<Self, SourceError> {
+        Self::v4l2_at(device, None, stop)
+    }
+
+    /// A V4L2 camera asked for frame rate `fps` (Hz, `None`: its own); needs the
+    /// `v4l2` cargo feature. The opening's line of what it negotiated (and its
+    /// exposure warning) is printed at the start, and again at a reopen after a stall
+    /// only when the camera negotiated something else.
+    pub fn v4l2_at(device: &Path, fps: Option<f64>, stop: StopFn) -> Result<Self, SourceError> {
         if !cfg!(feature = "v4l2") {
             return Err(SourceError(format!(
                 "--v4l2 {}: built without V4L2 support; rebuild with --features vlsync-driver/v4l2",
@@ -504,11 +513,15 @@ impl CamSource {
         }
         let cfg = cam::V4l2Config {
             device: device.to_path_buf(),
+            fps,
             ..cam::V4l2Config::default()
         };
         // where the frames' times come from, once an opening's first frames decided
         // it: a reopen keeps it (the stamps' clock does not change with a stall)
         let choice = Rc::new(Cell::new(None));
+        // what the last opening said it negotiated: a stalled camera reopened every
+        // 10 s says it again only when it changed
+        let said: Rc<RefCell<Option<cam::v4l2::negotiate::Negotiated>>> = Rc::default();
         // a stalled camera's wait wakes to check the stop (and ends in
         // `Error::Stalled` after `V4l2Config::stall`, on which the device is opened
         // again), instead of blocking the driver for good
@@ -518,6 +531,11 @@ impl CamSource {
                 ..cfg.clone()
             })?;
             src.set_stop(stop);
+            let mut said = said.borrow_mut();
+            match said.as_ref() {
+                Some(last) if last.same_setup(src.negotiated()) => src.skip_opening_notes(),
+                _ => *said = Some(src.negotiated().clone()),
+            }
             Ok(src)
         };
         let src = open(None).map_err(|e| SourceError(format!("--v4l2: {e}")))?;
