@@ -59,6 +59,7 @@ pub mod motion;
 pub mod output;
 pub mod scene;
 pub mod score;
+pub mod stream;
 pub mod texture;
 pub mod world;
 
@@ -430,6 +431,20 @@ impl Renderer {
     /// Camera frames dropped.
     pub fn frames_dropped(&self) -> usize {
         self.dropped
+    }
+
+    /// The pacing anchor of the run: the earlier of the first frame's and the first
+    /// scan's stamps. Real-time consumers of a run map true time `τ` to
+    /// `τ + start_at - anchor` on `CLOCK_MONOTONIC` (the drivers' `--stamp mono`,
+    /// `vlsync-render --raw-stdout`), so they all agree from one `--start-at`.
+    pub fn anchor_ns(&self) -> Nanos {
+        let c = self.frames.first().map(|f| f.stamp_ns);
+        let l = self.scans.first().map(|s| s.stamp_ns);
+        match (c, l) {
+            (Some(c), Some(l)) => c.min(l),
+            (Some(t), None) | (None, Some(t)) => t,
+            (None, None) => 0,
+        }
     }
 
     /// LiDAR time at which the robot first moves, ns.

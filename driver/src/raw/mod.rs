@@ -6,6 +6,7 @@
 //! | camera | [`CamSource::frames_dir`] | a directory of PNG/JPEG frames with `frames.csv` |
 //! | camera | [`CamSource::mcap`] | a ROS 2 recording (`sensor_msgs/Image` or `CompressedImage`) |
 //! | camera | [`CamSource::v4l2`] | a V4L2 device (cargo feature `v4l2`) |
+//! | camera | [`CamSource::pipe`] | raw frames from a camera program's pipe (`rpicam-vid`) |
 //! | camera | [`CamSource::render`] | frames of the rendering simulator |
 //! | LiDAR | [`LidarSource::serial`] | an LD06/LD19 or RPLIDAR on a serial port |
 //! | LiDAR | [`LidarSource::scans_csv`] | a scan CSV (one row per ray) |
@@ -266,13 +267,7 @@ pub fn renderer(seed: u64, duration_s: f64) -> Result<vlsync_render::Renderer, S
 /// The pacing anchor of a rendered pair: the earlier of the first frame's and
 /// the first scan's stamps (both drivers compute the same).
 pub fn render_anchor_ns(r: &vlsync_render::Renderer) -> Nanos {
-    let c = r.frame_schedule().first().map(|f| f.stamp_ns);
-    let l = r.scan_schedule().first().map(|s| s.stamp_ns);
-    match (c, l) {
-        (Some(c), Some(l)) => c.min(l),
-        (Some(t), None) | (None, Some(t)) => t,
-        (None, None) => 0,
-    }
+    r.anchor_ns()
 }
 
 /// How a rendered source stamps its samples (see the module documentation).
@@ -321,7 +316,9 @@ fn mid(a: Nanos, b: Nanos) -> Nanos {
 mod cam_source;
 mod lidar_source;
 
-pub use cam_source::{CamCounts, CamSource, LiveCounts, RENDER_AHEAD_FRAMES, RENDER_THREAD_NICE};
+pub use cam_source::{
+    CamCounts, CamSource, LiveCounts, PipeInput, RENDER_AHEAD_FRAMES, RENDER_THREAD_NICE,
+};
 pub use lidar_source::{rplidar_node_rate_hz, LidarSource, SerialKind};
 
 /// A source whose first sample was read ahead (to anchor the pacing on it).

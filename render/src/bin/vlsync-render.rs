@@ -14,7 +14,9 @@ use vlsync_render::{RenderConfig, Renderer};
 /// DirSource format), DIR/scans.csv (signature-lidar's scan CSV), DIR/truth.csv
 /// (`t,offset`, offset = t_L - t_C), DIR/motion.csv; with --mcap also a ROS 2
 /// MCAP recording of the same frames and scans (/camera/image_raw, /scan) for
-/// the drivers' --mcap.
+/// the drivers' --mcap. With --raw-stdout it is a camera program instead: the
+/// camera's frames written raw to standard output in real time, for `vlsync-cam
+/// --pipe-cmd` (what `rpicam-vid --codec yuv420 -o -` is on a Raspberry Pi).
 #[derive(Debug, Parser)]
 #[command(name = "vlsync-render", version)]
 struct Args {
@@ -25,8 +27,21 @@ struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 60.0)]
     duration: f64,
     /// Output directory (created if needed).
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(
+        long,
+        required_unless_present = "raw_stdout",
+        conflicts_with = "raw_stdout"
+    )]
+    out: Option<PathBuf>,
+    /// Write no files: write the camera's frames raw to standard output, each when its
+    /// exposure ends, in real time from --start-at (LAYOUT: i420 or gray); the run's
+    /// true time τ is τ + start_at - anchor on CLOCK_MONOTONIC, as for the drivers'
+    /// `--render --stamp mono`.
+    #[arg(long, value_name = "LAYOUT", value_parser = vlsync_render::stream::RawLayout::parse)]
+    raw_stdout: Option<vlsync_render::stream::RawLayout>,
+    /// With --raw-stdout: the start instant, CLOCK_MONOTONIC ns (default: now + 1 s).
+    #[arg(long, requires = "raw_stdout")]
+    start_at: Option<i64>,
     /// Image width, pixels.
     #[arg(long, allow_negative_numbers = true, default_value_t = 320)]
     width: usize,
@@ -108,11 +123,18 @@ fn main() -> ExitCode {
         }
     };
     let setup = t0.elapsed();
+    if let Some(layout) = a.raw_stdout {
+        return raw_stdout(&mut r, layout, a.start_at);
+    }
+    let Some(out_dir) = a.out.as_ref() else {
+        // clap requires --out without --raw-stdout
+        return ExitCode::from(2);
+    };
     let mcap = a.mcap.as_ref().map(|file| McapOutput {
-        path: file.clone().unwrap_or_else(|| a.out.join("run.mcap")),
+        path: file.clone().unwrap_or_else(|| out_dir.join("run.mcap")),
         png: a.mcap_png,
     });
-    let s = match write_run_with(&mut r, &a.out, !a.no_png, mcap.as_ref()) {
+    let s = match write_run_with(&mut r, out_dir, !a.no_png, mcap.as_ref()) {
         Ok(s) => s,
         Err(e) => {
             vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
@@ -129,7 +151,7 @@ fn main() -> ExitCode {
         "vlsync-render: seed {} duration {} s -> {}",
         c.seed,
         c.duration_s,
-        a.out.display()
+        out_dir.display()
     );
     let _ = writeln!(
         text,
@@ -178,6 +200,55 @@ fn main() -> ExitCode {
     );
     match vlsync_common::console::print_out(&text) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// `CLOCK_MONOTONIC` now, ns.
+fn monotonic_ns() -> i64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    // tv_nsec is a C long: i32 on 32-bit ARM
+    #[allow(clippy::useless_conversion)]
+    t.tv_sec
+        .saturating_mul(1_000_000_000)
+        .saturating_add(i64::from(t.tv_nsec))
+}
+
+/// `--raw-stdout`: the frames to standard output in real time; a summary on stderr.
+/// A reader that goes away (`EPIPE`) ends the stream quietly: that is how a camera
+/// program is stopped.
+fn raw_stdout(
+    r: &mut Renderer,
+    layout: vlsync_render::stream::RawLayout,
+    start_at: Option<i64>,
+) -> ExitCode {
+    let start_at = start_at.unwrap_or_else(|| monotonic_ns() + 1_000_000_000);
+    let mut out = std::io::stdout().lock();
+    let res =
+        vlsync_render::stream::stream_raw(r, &mut out, layout, start_at, &monotonic_ns, &|due| {
+            let wait = due - monotonic_ns();
+            if wait > 0 {
+                std::thread::sleep(std::time::Duration::from_nanos(wait as u64));
+            }
+        });
+    match res {
+        Ok(s) => {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-render: {} frames written to stdout, {} late (latest {:.1} ms)\n",
+                s.frames,
+                s.late,
+                s.max_late_ns as f64 * 1e-6
+            ));
+            ExitCode::SUCCESS
+        }
+        Err(vlsync_render::stream::StreamError::Write(e))
+            if e.kind() == std::io::ErrorKind::BrokenPipe =>
+        {
+            ExitCode::SUCCESS
+        }
         Err(e) => {
             vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
             ExitCode::FAILURE
