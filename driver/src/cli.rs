@@ -16,7 +16,8 @@ use vlsync_ipc::{create_node, termination_requested, ServiceNames, SignaturePubl
     version,
     about = "Publish one signature stream to the vlsync daemon",
     after_help = "Sources (give exactly one): --csv, --sim and --render for both drivers; \
-                  --mcap for both (image or LaserScan topic); camera: --frames, --v4l2; \
+                  --mcap for both (image or LaserScan topic); camera: --frames, --v4l2, \
+                  --pipe, --pipe-cmd; \
                   LiDAR: --ld06, --rplidar, --scans. Files and simulators are paced by their \
                   timestamps (or --fast); live devices publish as data arrives."
 )]
@@ -56,6 +57,27 @@ pub struct DriverArgs {
     /// 0: the camera's own rate. 0 or 1..=1000.
     #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
     pub fps: Option<f64>,
+    /// Camera: raw frames from a pipe, `-` for the standard input (`rpicam-vid ... -o - |
+    /// vlsync-cam --pipe - --size 320x240`) or a named FIFO; stamped as they arrive.
+    /// Needs --size.
+    #[arg(long, value_name = "PATH")]
+    pub pipe: Option<PathBuf>,
+    /// Camera: run COMMAND (`sh -c`) and read raw frames from its standard output, e.g.
+    /// "rpicam-vid -t 0 -n --codec yuv420 --width 320 --height 240 --framerate 30 -o -"
+    /// for a Raspberry Pi camera module; started again when it stalls. Needs --size.
+    #[arg(long, value_name = "COMMAND")]
+    pub pipe_cmd: Option<String>,
+    /// With --pipe or --pipe-cmd: the frames' size, WIDTHxHEIGHT (e.g. 320x240).
+    #[arg(long, value_name = "WxH")]
+    pub size: Option<String>,
+    /// With --pipe or --pipe-cmd: the frames' layout: i420 (rpicam-vid's yuv420, the
+    /// default), nv12, yuyv or gray.
+    #[arg(long, value_name = "FORMAT")]
+    pub raw_format: Option<String>,
+    /// With --pipe or --pipe-cmd: bytes per row of the luma plane, when rows are
+    /// padded (default: no padding).
+    #[arg(long, value_name = "BYTES")]
+    pub stride: Option<usize>,
     /// LiDAR: an LD06/LD19 on this serial port, e.g. /dev/ttyUSB0.
     #[arg(long, value_name = "DEVICE")]
     pub ld06: Option<String>,
@@ -174,6 +196,8 @@ pub fn select_source(
         ("--mcap", args.mcap.is_some()),
         ("--frames", args.frames.is_some()),
         ("--v4l2", args.v4l2.is_some()),
+        ("--pipe", args.pipe.is_some()),
+        ("--pipe-cmd", args.pipe_cmd.is_some()),
         ("--ld06", args.ld06.is_some()),
         ("--rplidar", args.rplidar.is_some()),
         ("--scans", args.scans.is_some()),
@@ -182,7 +206,7 @@ pub fn select_source(
     .filter_map(|(f, on)| on.then_some(f))
     .collect();
     let choices = match stream {
-        Stream::Cam => "--csv FILE, --sim FAMILY, --frames DIR, --mcap FILE, --v4l2 DEVICE or --render SEED",
+        Stream::Cam => "--csv FILE, --sim FAMILY, --frames DIR, --mcap FILE, --v4l2 DEVICE, --pipe PATH, --pipe-cmd COMMAND or --render SEED",
         Stream::Lidar => {
             "--csv FILE, --sim FAMILY, --ld06 DEVICE, --rplidar DEVICE, --scans FILE, --mcap FILE or --render SEED"
         }
@@ -267,6 +291,8 @@ pub fn select_source(
             )));
         }
     }
+    let piped = ["--pipe", "--pipe-cmd"].contains(&flag);
+    let raw_layout = pipe_layout(args, piped)?;
     if args.baud.is_some() && args.ld06.is_none() && args.rplidar.is_none() {
         return Err(DriverError::Options(
             "--baud applies to --ld06 and --rplidar only".into(),
@@ -303,7 +329,7 @@ pub fn select_source(
             args.v4l2.as_deref().unwrap_or(Path::new("")).display()
         )));
     }
-    let live = ["--v4l2", "--ld06", "--rplidar"];
+    let live = ["--v4l2", "--ld06", "--rplidar", "--pipe", "--pipe-cmd"];
     // `--speed 1` is what a live device does anyway: accepted, as `--stamp` accepts it
     if live.contains(&flag) && (args.fast || args.speed.is_some_and(|s| s != 1.0)) {
         return Err(DriverError::Options(format!(
@@ -430,6 +456,20 @@ pub fn select_source(
                 start_at: None,
             })
         }
+        ("--pipe" | "--pipe-cmd", Stream::Cam) => {
+            let input = match (&args.pipe, &args.pipe_cmd) {
+                (Some(p), _) if p.as_os_str() == "-" => raw::PipeInput::Stdin,
+                (Some(p), _) => raw::PipeInput::Path(p.clone()),
+                (None, c) => raw::PipeInput::Command(c.clone().unwrap_or_default()),
+            };
+            let cfg = raw_layout
+                .ok_or_else(|| DriverError::Options(format!("{flag} needs --size WIDTHxHEIGHT")))?;
+            Ok(Selected {
+                source: Box::new(raw::CamSource::pipe(input, cfg, stop).map_err(src)?),
+                anchor_ns: None,
+                start_at: None,
+            })
+        }
         ("--ld06" | "--rplidar", Stream::Lidar) => {
             let (kind, dev) = match (&args.ld06, &args.rplidar) {
                 (Some(d), _) => (raw::SerialKind::Ld06, d.as_str()),
@@ -525,6 +565,62 @@ fn lidar_front(args: &DriverArgs) -> Result<vlsync_config::LidarConfig, DriverEr
     let mut f = config(args)?.lidar;
     f.opposite_window |= args.opposite_window;
     Ok(f)
+}
+
+/// The raw frames' layout of --pipe / --pipe-cmd (`None` without --size); the layout
+/// options without either are an error.
+fn pipe_layout(
+    args: &DriverArgs,
+    piped: bool,
+) -> Result<Option<vlsync_signature_cam::pipe::PipeConfig>, DriverError> {
+    use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
+    let given = [
+        ("--size", args.size.is_some()),
+        ("--raw-format", args.raw_format.is_some()),
+        ("--stride", args.stride.is_some()),
+    ];
+    if !piped {
+        if let Some((f, _)) = given.iter().find(|g| g.1) {
+            return Err(DriverError::Options(format!(
+                "{f} applies to --pipe and --pipe-cmd only"
+            )));
+        }
+        return Ok(None);
+    }
+    let format = match args.raw_format.as_deref() {
+        Some(f) => {
+            PipeFormat::parse(f).map_err(|e| DriverError::Options(format!("--raw-format: {e}")))?
+        }
+        None => PipeFormat::I420,
+    };
+    let Some(size) = args.size.as_deref() else {
+        return Ok(None);
+    };
+    let bad = || {
+        DriverError::Options(format!(
+            "--size `{}`: expected WIDTHxHEIGHT in pixels, each 1 ..= 16384 (e.g. 320x240)",
+            vlsync_common::text::clip(size)
+        ))
+    };
+    let (w, h) = size.trim().split_once(['x', 'X']).ok_or_else(bad)?;
+    let dim = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|v| (1..=16384).contains(v))
+            .ok_or_else(bad)
+    };
+    let cfg = PipeConfig {
+        width: dim(w)?,
+        height: dim(h)?,
+        stride: args.stride,
+        format,
+        silence: Duration::from_secs(10),
+    };
+    // the geometry's own checks (an odd YUYV width, a stride short of a row)
+    cfg.layout()
+        .map_err(|e| DriverError::Options(format!("--size {size} --raw-format {format}: {e}")))?;
+    Ok(Some(cfg))
 }
 
 /// The frame rate asked of a V4L2 camera: `--fps`, else `camera.v4l2_fps` of
@@ -785,5 +881,98 @@ mod tests {
             other => panic!("{:?}", other.map_err(|e| e.to_string())),
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn pipe_options_are_checked_before_anything_starts() {
+        for (a, want) in [
+            (
+                &["--pipe", "-"][..],
+                "--pipe needs --size WIDTHxHEIGHT".to_string(),
+            ),
+            (
+                &["--pipe-cmd", "true", "--size", "320"][..],
+                "--size `320`: expected WIDTHxHEIGHT in pixels, each 1 ..= 16384 (e.g. 320x240)"
+                    .to_string(),
+            ),
+            (
+                &["--pipe", "-", "--size", "0x240"][..],
+                "--size `0x240`: expected WIDTHxHEIGHT in pixels, each 1 ..= 16384 (e.g. 320x240)"
+                    .to_string(),
+            ),
+            (
+                &["--pipe", "-", "--size", "321x240", "--raw-format", "yuyv"][..],
+                "--size 321x240 --raw-format yuyv: bad frame dimensions 321x240: YUYV needs an \
+                 even width"
+                    .to_string(),
+            ),
+            (
+                &["--pipe", "-", "--size", "320x240", "--stride", "100"][..],
+                "--size 320x240 --raw-format i420: invalid configuration `stride`: 100 bytes is \
+                 less than a i420 row of 320 pixels (320 bytes)"
+                    .to_string(),
+            ),
+            (
+                &["--pipe", "-", "--size", "320x240", "--raw-format", "mjpeg"][..],
+                "--raw-format: `mjpeg` is not a raw frame format this source reads (one of: \
+                 gray, i420, nv12, yuyv)"
+                    .to_string(),
+            ),
+            (
+                &["--csv", "/nonexistent.csv", "--size", "320x240"][..],
+                "--size applies to --pipe and --pipe-cmd only".to_string(),
+            ),
+            (
+                &["--pipe-cmd", "true", "--size", "320x240", "--fast"][..],
+                "--fast applies to recorded and simulated sources; --pipe-cmd is a live device, \
+                 published as its data arrives (in real time)"
+                    .to_string(),
+            ),
+        ] {
+            assert_eq!(options_error(a), want, "{a:?}");
+        }
+        // the LiDAR driver has no pipe
+        match select_source(
+            &args(&["--pipe", "-", "--size", "8x8"]),
+            Stream::Lidar,
+            never,
+        ) {
+            Err(DriverError::Options(e)) => assert!(
+                e.starts_with("--pipe is not a source of vlsync-lidar"),
+                "{e}"
+            ),
+            other => panic!("{:?}", other.map(|_| ()).map_err(|e| e.to_string())),
+        }
+    }
+
+    #[test]
+    fn a_camera_program_that_ends_is_an_error_naming_how() {
+        // a program that writes two 8x8 gray frames a little apart, then fails
+        let cmd = "head -c 64 /dev/zero; sleep 0.1; head -c 64 /dev/zero; exit 3";
+        let mut src = match select_source(
+            &args(&["--pipe-cmd", cmd, "--size", "8x8", "--raw-format", "gray"]),
+            Stream::Cam,
+            never,
+        ) {
+            Ok(s) => s.source,
+            Err(e) => panic!("{e}"),
+        };
+        assert!(
+            src.describe().starts_with("pipe raw gray frames 8x8"),
+            "{}",
+            src.describe()
+        );
+        // uniform frames carry no flow: no sample, then the program's end
+        let e = loop {
+            match src.next_sample() {
+                Ok(Some(_)) => {}
+                Ok(None) => panic!("the end of a camera program is not a clean end"),
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(
+            e.ends_with("camera program: the command ended (exit status: 3) after 2 frames"),
+            "{e}"
+        );
     }
 }

@@ -119,6 +119,55 @@ pub struct PipeConfig {
     pub silence: Duration,
 }
 
+impl PipeConfig {
+    /// The luma stride and the bytes of one frame; an error naming what is wrong
+    /// with the geometry (a zero size, an odd YUYV width, a stride short of a row,
+    /// a frame over 256 MiB).
+    ///
+    /// ```
+    /// use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
+    /// use std::time::Duration;
+    /// let cfg = PipeConfig {
+    ///     width: 320, height: 240, stride: Some(384), format: PipeFormat::I420,
+    ///     silence: Duration::from_secs(10),
+    /// };
+    /// assert_eq!(cfg.layout().unwrap(), (384, 384 * 240 + 2 * 192 * 120));
+    /// ```
+    pub fn layout(&self) -> Result<(usize, usize), Error> {
+        let bad = |reason: &'static str| Error::BadDimensions {
+            width: self.width,
+            height: self.height,
+            reason,
+        };
+        if self.width == 0 || self.height == 0 {
+            return Err(bad("zero width or height"));
+        }
+        if self.format == PipeFormat::Yuyv && self.width % 2 == 1 {
+            return Err(bad("YUYV needs an even width"));
+        }
+        let min = self
+            .format
+            .min_stride(self.width)
+            .ok_or_else(|| bad("row size overflows"))?;
+        let stride = self.stride.unwrap_or(min);
+        if stride < min {
+            return Err(Error::InvalidConfig {
+                field: "stride",
+                reason: format!(
+                    "{stride} bytes is less than a {} row of {} pixels ({min} bytes)",
+                    self.format, self.width
+                ),
+            });
+        }
+        let bytes = self
+            .format
+            .frame_bytes(self.width, self.height, stride)
+            .filter(|&b| b <= 1 << 28)
+            .ok_or_else(|| bad("a frame over 256 MiB"))?;
+        Ok((stride, bytes))
+    }
+}
+
 /// Frames read from a pipe (module docs). `R` is the pipe's read end (stdin, a
 /// named FIFO, [`std::io::PipeReader`]); the clock stamps frames.
 pub struct PipeSource<R: Read + AsFd> {
@@ -150,36 +199,7 @@ impl<R: Read + AsFd> PipeSource<R> {
         clock: fn() -> Nanos,
     ) -> Result<Self, Error> {
         let name = name.into();
-        let bad = |reason: &'static str| Error::BadDimensions {
-            width: cfg.width,
-            height: cfg.height,
-            reason,
-        };
-        if cfg.width == 0 || cfg.height == 0 {
-            return Err(bad("zero width or height"));
-        }
-        if cfg.format == PipeFormat::Yuyv && cfg.width % 2 == 1 {
-            return Err(bad("YUYV needs an even width"));
-        }
-        let min = cfg
-            .format
-            .min_stride(cfg.width)
-            .ok_or_else(|| bad("row size overflows"))?;
-        let stride = cfg.stride.unwrap_or(min);
-        if stride < min {
-            return Err(Error::InvalidConfig {
-                field: "stride",
-                reason: format!(
-                    "{stride} bytes is less than a {} row of {} pixels ({min} bytes)",
-                    cfg.format, cfg.width
-                ),
-            });
-        }
-        let bytes = cfg
-            .format
-            .frame_bytes(cfg.width, cfg.height, stride)
-            .filter(|&b| b <= 1 << 28)
-            .ok_or_else(|| bad("a frame over 256 MiB"))?;
+        let (stride, bytes) = cfg.layout()?;
         let gray_len = if cfg.format == PipeFormat::Yuyv || stride != cfg.width {
             cfg.width * cfg.height
         } else {

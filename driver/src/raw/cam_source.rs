@@ -68,6 +68,166 @@ impl FrameSource for V4l2Frames {
     }
 }
 
+/// Where a pipe's raw frames come from (`vlsync-cam --pipe`, `--pipe-cmd`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PipeInput {
+    /// The driver's standard input (`--pipe -`: `rpicam-vid ... -o - | vlsync-cam`).
+    Stdin,
+    /// A named FIFO (or a file), opened for reading: the open waits for a writer.
+    Path(PathBuf),
+    /// A command run with `sh -c`, its standard output read; killed when the driver
+    /// ends, and started again when it stalls.
+    Command(String),
+}
+
+impl std::fmt::Display for PipeInput {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PipeInput::Stdin => f.write_str("stdin"),
+            PipeInput::Path(p) => write!(f, "{}", p.display()),
+            PipeInput::Command(c) => write!(f, "`{c}`"),
+        }
+    }
+}
+
+/// The read end of a pipe, read unbuffered (the source's `poll` must see every byte
+/// not yet read: `std::io::Stdin` buffers, so standard input is read through a
+/// duplicate of its descriptor).
+enum PipeEnd {
+    File(std::fs::File),
+    Command(std::process::ChildStdout),
+}
+
+impl std::io::Read for PipeEnd {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Self::File(f) => f.read(buf),
+            Self::Command(out) => out.read(buf),
+        }
+    }
+}
+
+impl std::os::fd::AsFd for PipeEnd {
+    fn as_fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        match self {
+            Self::File(f) => f.as_fd(),
+            Self::Command(out) => out.as_fd(),
+        }
+    }
+}
+
+/// How long a pipe may stay without a frame before it is a stall (a command is
+/// then started again): `rpicam-vid` takes a second or two to give its first.
+const PIPE_SILENCE: Duration = Duration::from_secs(10);
+
+/// Raw frames from a pipe. A command is killed when this is dropped, and one that
+/// ends is an error naming how it ended (a live camera's stream does not end by
+/// itself).
+struct PipeFrames {
+    src: cam::pipe::PipeSource<PipeEnd>,
+    stop: StopFn,
+    child: Option<std::process::Child>,
+}
+
+impl PipeFrames {
+    fn open(
+        input: &PipeInput,
+        cfg: cam::pipe::PipeConfig,
+        stop: StopFn,
+    ) -> Result<Self, cam::Error> {
+        let err = |reason: String| cam::Error::Device {
+            path: input.to_string().into(),
+            reason,
+        };
+        let (end, child) = match input {
+            PipeInput::Stdin => {
+                use std::os::fd::AsFd;
+                let fd = std::io::stdin()
+                    .as_fd()
+                    .try_clone_to_owned()
+                    .map_err(|e| err(format!("duplicating the standard input: {e}")))?;
+                (PipeEnd::File(std::fs::File::from(fd)), None)
+            }
+            PipeInput::Path(p) => (
+                PipeEnd::File(
+                    std::fs::File::open(p).map_err(|e| err(format!("cannot open: {e}")))?,
+                ),
+                None,
+            ),
+            PipeInput::Command(c) => {
+                let mut child = std::process::Command::new("sh")
+                    .arg("-c")
+                    .arg(c)
+                    .stdin(std::process::Stdio::null())
+                    .stdout(std::process::Stdio::piped())
+                    .spawn()
+                    .map_err(|e| err(format!("cannot start it with sh -c: {e}")))?;
+                let Some(out) = child.stdout.take() else {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    return Err(err("its standard output is not a pipe".into()));
+                };
+                (PipeEnd::Command(out), Some(child))
+            }
+        };
+        let name = input.to_string();
+        let mut src = match cam::pipe::PipeSource::new(end, name, cfg, monotonic_ns) {
+            Ok(s) => s,
+            Err(e) => {
+                if let Some(mut c) = child {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                }
+                return Err(e);
+            }
+        };
+        src.set_stop(stop);
+        Ok(Self { src, stop, child })
+    }
+}
+
+impl Drop for PipeFrames {
+    fn drop(&mut self) {
+        if let Some(c) = self.child.as_mut() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+impl FrameSource for PipeFrames {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
+        let frames = self.src.counts().0;
+        match self.src.next_frame() {
+            Ok(None) if !(self.stop)() => match self.child.as_mut() {
+                Some(child) => {
+                    // it closed its output: give it a moment to exit
+                    let mut how = "closed its output".to_string();
+                    for _ in 0..50 {
+                        if let Ok(Some(st)) = child.try_wait() {
+                            how = format!("ended ({st})");
+                            break;
+                        }
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                    // the driver's error names the command already
+                    Err(cam::Error::Device {
+                        path: "camera program".into(),
+                        reason: format!("the command {how} after {frames} frames"),
+                    })
+                }
+                None => Ok(None),
+            },
+            other => other,
+        }
+    }
+    fn unusable(&self) -> Option<(u64, &str)> {
+        self.src.unusable()
+    }
+}
+
 /// Opens a live camera again after it stalled.
 type Reopen = Box<dyn FnMut() -> Result<Box<dyn FrameSource>, cam::Error>>;
 
@@ -492,6 +652,35 @@ impl CamSource {
             .map_err(|e| SourceError(format!("--mcap: {e}")))?;
         let what = format!("mcap {} topic {}", path.display(), src.topic().topic);
         Self::new(Box::new(src), what, never)
+    }
+
+    /// Raw frames of `cfg`'s layout from a pipe (see `vlsync_signature_cam::pipe`),
+    /// stamped on `CLOCK_MONOTONIC` as they arrive. A command is started again, and a
+    /// FIFO opened again, after 10 s without a frame; standard input that
+    /// goes silent is an error.
+    pub fn pipe(
+        input: PipeInput,
+        cfg: cam::pipe::PipeConfig,
+        stop: StopFn,
+    ) -> Result<Self, SourceError> {
+        let cfg = cam::pipe::PipeConfig {
+            silence: PIPE_SILENCE,
+            ..cfg
+        };
+        let flag = match input {
+            PipeInput::Command(_) => "--pipe-cmd",
+            _ => "--pipe",
+        };
+        let frames =
+            PipeFrames::open(&input, cfg, stop).map_err(|e| SourceError(format!("{flag}: {e}")))?;
+        let what = format!("pipe {}", frames.src.describe());
+        let mut me = Self::new(Box::new(frames), what, stop)?;
+        if input != PipeInput::Stdin {
+            me.reopen = Some(Box::new(move || {
+                PipeFrames::open(&input, cfg, stop).map(|f| Box::new(f) as Box<dyn FrameSource>)
+            }));
+        }
+        Ok(me)
     }
 
     /// A V4L2 camera (`/dev/videoN`) at its own frame rate; needs the `v4l2` cargo
