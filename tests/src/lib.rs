@@ -61,6 +61,8 @@ pub fn bin(name: &str) -> PathBuf {
             "vlsync-ipc",
             "-p",
             "vlsync-driver",
+            "-p",
+            "vlsync-render",
         ]);
         if dir.file_name().is_some_and(|n| n == "release") {
             cmd.arg("--release");
