@@ -615,7 +615,7 @@ fn pipe_layout(
         height: dim(h)?,
         stride: args.stride,
         format,
-        silence: Duration::from_secs(10),
+        silence: raw::PIPE_SILENCE,
     };
     // the geometry's own checks (an odd YUYV width, a stride short of a row)
     cfg.layout()
@@ -974,5 +974,41 @@ mod tests {
             e.ends_with("camera program: the command ended (exit status: 3) after 2 frames"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_camera_program_that_stalls_is_started_again() {
+        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
+        static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+        // one frame, then silence: each start of the program gives one frame
+        let cfg = PipeConfig {
+            width: 8,
+            height: 8,
+            stride: None,
+            format: PipeFormat::Gray,
+            silence: Duration::from_millis(300),
+        };
+        let mut src = raw::CamSource::pipe(
+            raw::PipeInput::Command("head -c 64 /dev/zero; exec sleep 30".into()),
+            cfg,
+            || STOP.load(std::sync::atomic::Ordering::Relaxed),
+        )
+        .unwrap();
+        let stopper = std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_millis(1500));
+            STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
+        // 8x8 frames are too small for the flow: no sample, until the stop
+        assert!(src.next_sample().unwrap().is_none());
+        stopper.join().unwrap();
+        let report = src.report().unwrap();
+        let reopens: u64 = report
+            .split("; the camera program reopened ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no reopening in: {report}"));
+        // 1.5 s of a program that stalls 0.3 s after each start
+        assert!(reopens >= 2, "{report}");
     }
 }

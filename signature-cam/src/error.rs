@@ -170,7 +170,8 @@ impl fmt::Display for Error {
             Error::Device { path, reason } => write!(f, "{}: {reason}", path.display()),
             Error::Stalled { path, after } => write!(
                 f,
-                "{}: no frame for {:.1} s (the camera stalled: unplugged, or its USB link hung)",
+                "{}: no frame for {:.1} s (the camera stalled: unplugged, a hung USB link, or a \
+                 camera program that stopped writing)",
                 path.display(),
                 after.as_secs_f64()
             ),

@@ -350,8 +350,9 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
                 }
                 let quiet = (self.clock)().saturating_sub(asked);
                 if quiet >= self.cfg.silence.as_nanos() as Nanos {
+                    // the driver's messages name the source already
                     return Err(Error::Stalled {
-                        path: self.name.clone(),
+                        path: "camera program".into(),
                         after: Duration::from_nanos(quiet.max(0) as u64),
                     });
                 }
@@ -525,7 +526,7 @@ mod tests {
         let mut src = PipeSource::new(r, "stdin", c, clock).unwrap();
         match src.next_frame() {
             Err(Error::Stalled { path, after }) => {
-                assert_eq!(path, PathBuf::from("stdin"));
+                assert_eq!(path, PathBuf::from("camera program"));
                 assert!(after >= Duration::from_millis(250), "{after:?}");
             }
             other => panic!("{:?}", other.map(|o| o.is_some())),

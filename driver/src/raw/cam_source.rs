@@ -118,7 +118,7 @@ impl std::os::fd::AsFd for PipeEnd {
 
 /// How long a pipe may stay without a frame before it is a stall (a command is
 /// then started again): `rpicam-vid` takes a second or two to give its first.
-const PIPE_SILENCE: Duration = Duration::from_secs(10);
+pub const PIPE_SILENCE: Duration = Duration::from_secs(10);
 
 /// Raw frames from a pipe. A command is killed when this is dropped, and one that
 /// ends is an error naming how it ended (a live camera's stream does not end by
@@ -556,6 +556,8 @@ pub struct CamSource {
     stall: Option<Silence>,
     /// Reopens after stalls over the run.
     reopens: u64,
+    /// What a reopen opens, for the report: "device", "camera program".
+    reopened: &'static str,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -595,6 +597,7 @@ impl CamSource {
             reopen: None,
             stall: None,
             reopens: 0,
+            reopened: "device",
         })
     }
 
@@ -656,17 +659,13 @@ impl CamSource {
 
     /// Raw frames of `cfg`'s layout from a pipe (see `vlsync_signature_cam::pipe`),
     /// stamped on `CLOCK_MONOTONIC` as they arrive. A command is started again, and a
-    /// FIFO opened again, after 10 s without a frame; standard input that
-    /// goes silent is an error.
+    /// FIFO opened again, after `cfg.silence` without a frame (the driver's
+    /// [`PIPE_SILENCE`]); standard input that goes silent is an error.
     pub fn pipe(
         input: PipeInput,
         cfg: cam::pipe::PipeConfig,
         stop: StopFn,
     ) -> Result<Self, SourceError> {
-        let cfg = cam::pipe::PipeConfig {
-            silence: PIPE_SILENCE,
-            ..cfg
-        };
         let flag = match input {
             PipeInput::Command(_) => "--pipe-cmd",
             _ => "--pipe",
@@ -675,6 +674,10 @@ impl CamSource {
             PipeFrames::open(&input, cfg, stop).map_err(|e| SourceError(format!("{flag}: {e}")))?;
         let what = format!("pipe {}", frames.src.describe());
         let mut me = Self::new(Box::new(frames), what, stop)?;
+        me.reopened = match input {
+            PipeInput::Command(_) => "camera program",
+            _ => "pipe",
+        };
         if input != PipeInput::Stdin {
             me.reopen = Some(Box::new(move || {
                 PipeFrames::open(&input, cfg, stop).map(|f| Box::new(f) as Box<dyn FrameSource>)
@@ -961,8 +964,8 @@ impl Source for CamSource {
         }
         if self.reopens > 0 {
             s.push_str(&format!(
-                "; the device reopened {} times after stalls",
-                self.reopens
+                "; the {} reopened {} times after stalls",
+                self.reopened, self.reopens
             ));
         }
         if let Some(lasted) = Silence::lasted(&self.stall) {

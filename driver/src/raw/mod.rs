@@ -317,7 +317,8 @@ mod cam_source;
 mod lidar_source;
 
 pub use cam_source::{
-    CamCounts, CamSource, LiveCounts, PipeInput, RENDER_AHEAD_FRAMES, RENDER_THREAD_NICE,
+    CamCounts, CamSource, LiveCounts, PipeInput, PIPE_SILENCE, RENDER_AHEAD_FRAMES,
+    RENDER_THREAD_NICE,
 };
 pub use lidar_source::{rplidar_node_rate_hz, LidarSource, SerialKind};
 
