@@ -58,10 +58,12 @@ fn spawn_daemon(s: &Setup, env: &[(&str, Option<&std::ffi::OsStr>)]) -> Managed 
             None => cmd.env_remove(key),
         };
     }
+    // one open file for both: two opens would each write from offset 0 over the other
+    let log = std::fs::File::create(&s.log).unwrap();
     let child = cmd
         .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&s.log).unwrap())
-        .stderr(std::fs::File::create(&s.log).unwrap())
+        .stderr(log.try_clone().unwrap())
+        .stdout(log)
         .spawn()
         .unwrap();
     Managed {
