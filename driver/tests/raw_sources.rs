@@ -580,6 +580,22 @@ fn stamping_options_are_checked() {
     assert!(plain.truth().is_some());
 }
 
+/// When each frame of `r`'s schedule becomes available (its exposure ends) on
+/// `CLOCK_MONOTONIC` when the run is shifted by `shift`: what the live render source
+/// waits for, and skips when it is past at the start.
+fn frame_ends(r: &vlsync_render::Renderer, shift: i64) -> Vec<i64> {
+    let exp_ns = vlsync_common::secs_to_nanos(r.config().camera.exposure_s);
+    r.frame_schedule()
+        .iter()
+        .map(|f| f.tau_mid_ns + exp_ns / 2 + shift)
+        .collect()
+}
+
+/// How many of `ends` lie before `t`.
+fn ended_before(ends: &[i64], t: i64) -> u64 {
+    ends.iter().filter(|&&e| e < t).count() as u64
+}
+
 #[test]
 fn software_stamping_runs_in_real_time_and_knows_its_truth() {
     let duration = 2.0;
@@ -588,45 +604,82 @@ fn software_stamping_runs_in_real_time_and_knows_its_truth() {
     let exposure_ns = (r.config().camera.exposure_s * 1e9) as i64;
     let start_at = vlsync_ipc::monotonic_ns() + 300_000_000;
     let shift = start_at - anchor;
+    let ends = frame_ends(&r, shift);
     let mut cam =
         CamSource::render_with(r, raw::RenderStamp::Software { shift_ns: shift }, never).unwrap();
+    // the source started before this instant
+    let started = vlsync_ipc::monotonic_ns();
     assert!(cam.describe().contains("after processing"));
-    let t0 = Instant::now();
     let mut n = 0;
     let mut last = i64::MIN;
     while let Some(s) = cam.next_sample().unwrap() {
         let t = cam.truth().expect("rendered samples carry their truth");
         let now = vlsync_ipc::monotonic_ns();
         // stamped on CLOCK_MONOTONIC after the frame: at least half an exposure
-        // after the true mid-exposure, never in the future
+        // after the true mid-exposure (delivered in real time, never ahead of the
+        // exposure's end), never in the future
         assert!(s.t_ns - t.event_ns >= exposure_ns / 2, "{s:?} {t:?}");
         assert!(s.t_ns <= now && s.t_ns > last, "{s:?}");
         assert!(t.process_ns > 0 && t.late_ns >= 0, "{t:?}");
         last = s.t_ns;
         n += 1;
     }
-    // delivered in real time: the run takes its duration (generous bounds)
-    let el = t0.elapsed();
-    assert!(el >= Duration::from_millis(1_900), "{el:?}");
-    assert!(el < Duration::from_secs(20), "{el:?}");
+    // delivered in real time: the run ends no earlier than the last frame's exposure
+    // (how much later is a loaded machine's business; the per-sample checks above
+    // bound each stamp from below the same way)
+    let ended = vlsync_ipc::monotonic_ns();
+    assert!(
+        ended >= ends[ends.len() - 1],
+        "the run ended at {ended}, before the last exposure's end {}",
+        ends[ends.len() - 1]
+    );
     assert!(n > 40, "{n}");
     let live = cam.live_counts().unwrap();
-    assert_eq!(live.skipped, 0);
+    // every frame of the run accounted for: delivered, or skipped because its
+    // exposure had ended when the source started (only when a loaded machine made
+    // the start outlast the 0.3 s lead: then at most the frames past by `started`)
+    assert_eq!(
+        live.delivered + live.skipped,
+        ends.len() as u64,
+        "{live:?} for {} frames",
+        ends.len()
+    );
+    if started < start_at {
+        assert_eq!(live.skipped, 0, "{live:?}: no frame was past at the start");
+    } else {
+        assert!(
+            live.skipped <= ended_before(&ends, started),
+            "{live:?}: more skipped than the {} frames past by the start",
+            ended_before(&ends, started)
+        );
+        eprintln!(
+            "note: the source started {:.3} s after its start instant (a loaded machine): {} frames skipped",
+            (started - start_at) as f64 * 1e-9,
+            live.skipped
+        );
+    }
     assert!(live.delivered as usize > n);
     let report = cam.report().unwrap();
     assert!(
         report.contains("real time:") && report.contains("render thread"),
         "{report}"
     );
-    // a driver (re)started after its start instant skips the frames already past
+    // a driver (re)started after its start instant skips the frames already past:
+    // those that ended before it started, and none still to come when it delivered
+    // its first sample
     let r = raw::renderer(SEED, duration).unwrap();
-    let shift = vlsync_ipc::monotonic_ns() - 1_000_000_000 - raw::render_anchor_ns(&r);
+    let before = vlsync_ipc::monotonic_ns();
+    let shift = before - 1_000_000_000 - raw::render_anchor_ns(&r);
+    let ends = frame_ends(&r, shift);
     let mut late =
         CamSource::render_with(r, raw::RenderStamp::Software { shift_ns: shift }, never).unwrap();
     assert!(late.next_sample().unwrap().is_some());
+    let after = vlsync_ipc::monotonic_ns();
+    let skipped = late.live_counts().unwrap().skipped;
+    let (past, by_first) = (ended_before(&ends, before), ended_before(&ends, after));
     assert!(
-        late.live_counts().unwrap().skipped >= 25,
-        "{:?}",
+        past >= 25 && (past..=by_first).contains(&skipped),
+        "{skipped} skipped; {past} frames were past at the start, {by_first} at the first sample: {:?}",
         late.live_counts()
     );
 }

@@ -334,6 +334,12 @@ impl Supervisor {
 
     /// `READY=1`: the services are open and the real-time thread runs. Starts the watchdog.
     pub fn ready(&mut self, what: &str) {
+        self.ready_at(what, Instant::now());
+    }
+
+    /// [`Supervisor::ready`] at `now` (the tests drive the watchdog on instants of
+    /// their own).
+    fn ready_at(&mut self, what: &str, now: Instant) {
         if !self.sd.enabled() {
             return;
         }
@@ -346,11 +352,11 @@ impl Supervisor {
             self.gate = Some(WatchdogGate::new(
                 period,
                 3 * super::WAKE_PERIOD,
-                Instant::now(),
+                now,
                 self.heartbeat.load(Ordering::Relaxed),
             ));
         }
-        self.tick(Instant::now());
+        self.tick(now);
     }
 
     /// Remembers the newest estimate for the status line.
@@ -542,6 +548,125 @@ mod tests {
         assert_eq!(g.poll(t0 + ms(2100), 10), WatchdogAction::Idle);
         assert_eq!(g.poll(t0 + ms(2501), 10), WatchdogAction::Resumed);
         assert_eq!(g.poll(t0 + ms(3001), 11), WatchdogAction::Pet);
+    }
+
+    /// Every datagram waiting on `rx` (non-blocking): a send to a Unix datagram
+    /// socket is queued at the receiver when `send_to` returns, so what a `tick` sent
+    /// is here when it returns.
+    fn received(rx: &UnixDatagram) -> Vec<String> {
+        let mut buf = [0u8; 256];
+        let mut got = vec![];
+        loop {
+            match rx.recv(&mut buf) {
+                Ok(k) => got.push(String::from_utf8_lossy(&buf[..k]).into_owned()),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return got,
+                Err(e) => panic!("receive on the test's notify socket: {e}"),
+            }
+        }
+    }
+
+    /// The `Supervisor`'s wiring of the gate: it sends `WATCHDOG=1` while the
+    /// real-time thread's heartbeat moves, none while it stands still beyond the
+    /// stall limit (systemd then restarts the daemon), again once it moves, and none
+    /// after `STOPPING=1`. Synthetic instants every 100 ms (the service thread's idle
+    /// poll); the datagrams go through a real socket.
+    #[test]
+    fn supervisor_pets_only_while_the_real_time_heartbeat_moves() {
+        let dir = std::env::temp_dir().join(format!("vlsync-notify-sv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("notify.sock");
+        let _ = std::fs::remove_file(&path);
+        let rx = UnixDatagram::bind(&path).unwrap();
+        rx.set_nonblocking(true).unwrap();
+        // WATCHDOG_USEC 1 s: a pet due every 0.5 s; the real-time thread counts as
+        // stuck after max(0.5 s, 3 wake periods) without a beat
+        let (sd, problems) =
+            SdNotify::from_values(Some(path.as_os_str()), Some(&os("1000000")), None, 1);
+        assert!(problems.is_empty(), "{problems:?}");
+        let period = Duration::from_millis(500);
+        assert_eq!(sd.watchdog_period(), Some(period));
+        let stall = period.max(3 * super::super::WAKE_PERIOD);
+        let beat = Arc::new(AtomicU64::new(0));
+        let mut sv = Supervisor::new(sd, beat.clone());
+        let t0 = Instant::now();
+        sv.ready_at("serving", t0);
+        let first = received(&rx);
+        assert_eq!(first.len(), 2, "{first:?}");
+        assert!(first[0].starts_with("READY=1\n"), "{first:?}");
+        assert_eq!(first[1], "WATCHDOG=1", "the first pet comes with READY=1");
+
+        let ms = |m: u64| t0 + Duration::from_millis(m);
+        // (instant, the heartbeat's last move then) of every pet
+        let mut pets: Vec<(Instant, Instant)> = vec![(t0, t0)];
+        let mut last_move = t0;
+        // the heartbeat moves until 3 s, stands still until 6 s, moves again to 9 s
+        let moving = |m: u64| m <= 3000 || m > 6000;
+        for m in (100..=9000).step_by(100) {
+            if moving(m) {
+                beat.fetch_add(1, Ordering::Relaxed);
+                last_move = ms(m);
+            }
+            sv.tick(ms(m));
+            for msg in received(&rx) {
+                assert_eq!(msg, "WATCHDOG=1", "at {m} ms");
+                pets.push((ms(m), last_move));
+            }
+        }
+        let at = |p: &(Instant, Instant)| (p.0 - t0).as_millis();
+        let times: Vec<u128> = pets.iter().map(at).collect();
+        // never a pet for a heartbeat that stood still beyond the stall limit
+        for p in &pets {
+            assert!(
+                p.0 - p.1 <= stall,
+                "pet at {} ms, the heartbeat still since {} ms: {times:?}",
+                at(p),
+                (p.1 - t0).as_millis()
+            );
+        }
+        // while it moves, a pet every period: none more than a period apart (so
+        // within systemd's WATCHDOG_USEC, twice that), the first stretch and the last
+        let gaps_within = |from: u128, to: u128| {
+            let t: Vec<u128> = times
+                .iter()
+                .copied()
+                .filter(|&t| t >= from && t <= to)
+                .collect();
+            t.len() >= 2
+                && t.first() == Some(&from)
+                && t.windows(2).all(|w| w[1] - w[0] <= period.as_millis())
+                && to - t[t.len() - 1] < period.as_millis()
+        };
+        assert!(gaps_within(0, 3000), "pets while it moved: {times:?}");
+        // a stall of 3 s: pets stop, at most one more while within the stall limit
+        let during: Vec<u128> = times
+            .iter()
+            .copied()
+            .filter(|&t| t > 3000 && t <= 6000)
+            .collect();
+        assert!(
+            during.len() <= 1 && during.iter().all(|&t| t <= 3000 + stall.as_millis()),
+            "pets while the heartbeat stood still (3 s to 6 s): {times:?}"
+        );
+        // resumed within a period of the heartbeat's first move, then every period
+        let resumed = times.iter().copied().find(|&t| t > 6000);
+        assert!(
+            resumed.is_some_and(|t| t <= 6100 + period.as_millis()),
+            "no pet within a period of the heartbeat moving again: {times:?}"
+        );
+        assert!(
+            gaps_within(resumed.unwrap(), 9000),
+            "pets after the stall: {times:?}"
+        );
+
+        // STOPPING=1, and no pet after it though the heartbeat moves
+        sv.stopping();
+        assert_eq!(received(&rx), ["STOPPING=1\nSTATUS=stopping"]);
+        for m in (9100..=11000).step_by(100) {
+            beat.fetch_add(1, Ordering::Relaxed);
+            sv.tick(ms(m));
+        }
+        assert_eq!(received(&rx), Vec::<String>::new(), "after STOPPING=1");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
