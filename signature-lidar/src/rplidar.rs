@@ -39,8 +39,9 @@
 //! revolution began at; [`RplidarStats::false_starts`] counts the others.
 //! A lost flagged node is made up for: a valid node (one with a return: the
 //! SDK does not trust the angles of the others) that falls more than half a
-//! turn behind the last valid one starts the next revolution
-//! ([`RplidarStats::implicit_starts`]), and a revolution that lasted over 1.5
+//! turn behind the last two valid ones starts the next revolution
+//! ([`RplidarStats::implicit_starts`]); behind the last one alone, that one was
+//! a stray angle, which is forgotten ([`RplidarStats::stray_nodes`]), and a revolution that lasted over 1.5
 //! times the last good period is dropped rather than timed as one turn
 //! ([`RplidarStats::implausible_periods`]). A response
 //! descriptor anywhere in the stream is recognised (it can never pass as a
@@ -251,6 +252,10 @@ pub struct RplidarStats {
     /// half a turn behind the last valid one, so the flagged node was lost
     /// (without this the two revolutions would be timed as one).
     pub implicit_starts: u64,
+    /// Valid nodes whose angle lay half a turn ahead of the valid nodes on either
+    /// side of them (a misread angle): forgotten by the revolution's bookkeeping,
+    /// which would otherwise have cut every later revolution at the next node.
+    pub stray_nodes: u64,
     /// Revolutions dropped because the time between their start and the next
     /// was over 1.5 times the last good period (not a revolution of this motor).
     pub implausible_periods: u64,
@@ -311,6 +316,10 @@ pub struct RplidarParser {
     swept_max_deg: f64,
     /// Angle swept by the revolution's last valid node (distance > 0).
     last_valid_swept: Option<f64>,
+    /// Angle swept by the valid node before it.
+    prev_valid_swept: Option<f64>,
+    /// `swept_max_deg` as it was before the last valid node.
+    swept_max_before_last_valid: f64,
     last_period: Option<Nanos>,
 }
 
@@ -348,6 +357,8 @@ impl RplidarParser {
             scan_start: None,
             swept_max_deg: 0.0,
             last_valid_swept: None,
+            prev_valid_swept: None,
+            swept_max_before_last_valid: 0.0,
             last_period: None,
         }
     }
@@ -511,17 +522,26 @@ impl RplidarParser {
                 self.stats.false_starts += 1;
                 start = false;
             }
-            if !start && !node.start && valid {
-                // the flagged node was lost when a valid node falls half a turn behind
-                // the last valid one: without a start here the next flag would make one
-                // scan of two revolutions, timed as one. (Only valid nodes: the SDK
-                // treats the angles of nodes without a return as unreliable.)
-                if self
-                    .last_valid_swept
-                    .is_some_and(|last| last - here > 180.0)
-                {
+            if !start
+                && !node.start
+                && valid
+                && self.last_valid_swept.is_some_and(|l| l - here > 180.0)
+            {
+                if self.prev_valid_swept.is_some_and(|p| p - here > 180.0) {
+                    // the flagged node was lost when a valid node falls half a turn
+                    // behind the last two valid ones: without a start here the next
+                    // flag would make one scan of two revolutions, timed as one. (Only
+                    // valid nodes: the SDK treats the angles of nodes without a return
+                    // as unreliable.)
                     self.stats.implicit_starts += 1;
                     start = true;
+                } else {
+                    // the last valid node alone lay half a turn ahead: its angle was
+                    // misread. Forgotten, or this node would start a revolution here,
+                    // and every later flag, no longer half a turn from it, be refused
+                    self.stats.stray_nodes += 1;
+                    self.swept_max_deg = self.swept_max_before_last_valid;
+                    self.last_valid_swept = self.prev_valid_swept.take();
                 }
             }
         }
@@ -536,16 +556,20 @@ impl RplidarParser {
             self.scan_start = Some((t, angle));
             self.swept_max_deg = 0.0;
             self.last_valid_swept = None;
+            self.prev_valid_swept = None;
+            self.swept_max_before_last_valid = 0.0;
         } else if self.scan_start.is_none() {
             self.stats.nodes_before_start += 1;
             return;
         }
         if let Some((_, angle0)) = self.scan_start {
             let here = swept_deg(angle0, angle, self.swept_max_deg);
-            self.swept_max_deg = self.swept_max_deg.max(here);
             if valid {
+                self.prev_valid_swept = self.last_valid_swept;
+                self.swept_max_before_last_valid = self.swept_max_deg;
                 self.last_valid_swept = Some(here);
             }
+            self.swept_max_deg = self.swept_max_deg.max(here);
         }
         let mm = node.distance_mm();
         self.rays.push(Ray::new(
@@ -778,6 +802,38 @@ mod tests {
             assert!((180_000_000..=220_000_000).contains(&s.timing().period_ns));
         }
         assert!((scans[2].rays()[0].bearing_deg() + 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_stray_node_half_a_turn_ahead_is_forgotten_not_a_revolution_start() {
+        // one valid node of the second revolution reads 200° where its neighbours
+        // read 10° and 11°
+        let mut revs: Vec<_> = (0..6).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[1][10].angle_q6 = 200 * 64;
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (stats.stray_nodes, stats.implicit_starts, stats.false_starts),
+            (1, 0, 0),
+            "{stats:?}"
+        );
+        // every revolution is whole, starting at its flagged node
+        assert_eq!(scans.len(), 5, "{stats:?}");
+        for s in &scans {
+            assert_eq!(s.len(), 360);
+            assert_eq!(s.rays()[0].bearing_deg(), 0.0);
+            assert_eq!(s.timing().period_ns, 200_000_000);
+        }
+        // and a lost flag after it is still made up for at the wrap
+        let mut revs: Vec<_> = (0..5).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[1][10].angle_q6 = 200 * 64;
+        revs[3].remove(0);
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (stats.stray_nodes, stats.implicit_starts),
+            (1, 1),
+            "{stats:?}"
+        );
+        assert_eq!(scans.len(), 4, "{stats:?}");
     }
 
     #[test]

@@ -555,8 +555,16 @@ impl Source for LidarSource {
                 Parser::Rplidar(p) => {
                     let st = p.stats();
                     s.push_str(&format!(
-                        "; RPLIDAR: {} bytes, {} nodes, {} skipped bytes, {} false starts",
-                        st.bytes, st.nodes, st.skipped_bytes, st.false_starts
+                        "; RPLIDAR: {} bytes, {} nodes, {} skipped bytes, {} false starts, {} \
+                         starts made up for lost flags, {} stray angles, {} revolutions dropped \
+                         as too long",
+                        st.bytes,
+                        st.nodes,
+                        st.skipped_bytes,
+                        st.false_starts,
+                        st.implicit_starts,
+                        st.stray_nodes,
+                        st.implausible_periods
                     ));
                 }
             }
