@@ -7,7 +7,7 @@
 //! buffer overflow).
 //!
 //! The parsers and the front-end alone are counted on 3000 scans of LD06 and
-//! RPLIDAR bytes in `vlsync-signature-lidar`'s `serial_no_alloc.rs`; this adds the
+//! RPLIDAR bytes in `vlsync-signature-lidar`'s `tests/no_alloc/serial.rs`; this adds the
 //! driver's glue and its publishing. The bytes come far faster than a device sends
 //! them (3000 revolutions take 9 minutes at 5.5 Hz), which an RPLIDAR's stamping
 //! follows (a revolution's rays are timed from the measured period between its

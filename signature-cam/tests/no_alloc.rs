@@ -14,6 +14,11 @@ static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 use vlsync_alloc_count::this_thread as allocs;
 
+#[path = "no_alloc/long_run.rs"]
+mod long_run;
+#[path = "no_alloc/pipe.rs"]
+mod pipe;
+
 /// A 640x480 YUYV frame of a smooth texture shifted by `(sx, sy)`.
 fn yuyv(sx: f32, sy: f32) -> Vec<u8> {
     let (w, h) = (640usize, 480usize);

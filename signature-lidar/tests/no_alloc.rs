@@ -16,6 +16,9 @@ static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 use vlsync_alloc_count::this_thread as allocs;
 
+#[path = "no_alloc/serial.rs"]
+mod serial;
+
 /// Scan `k` of a robot turning in place 7° per scan in a 4x6 m room, 450 rays
 /// clockwise from the front, every 13th return lost, scan 20 missing (a gap).
 fn scan(k: i64) -> Scan {

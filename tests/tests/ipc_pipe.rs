@@ -19,7 +19,7 @@ use vlsync_tests::{assert_nothing_left, bin, collect, ipc_resources, Managed, Ri
 fn a_camera_program_on_a_pipe_locks_to_the_offset_of_its_arrival_stamps() {
     let before = ipc_resources();
     let seed = 2;
-    let duration = 30.0;
+    let duration = 22.0;
     // the rig's simulator run is not used: its prefix, logs and start instant are
     let rig = Rig::new("pipe", "robot", seed, duration, 1.0);
     let mut daemon = rig.daemon(0);
@@ -94,7 +94,8 @@ fn a_camera_program_on_a_pipe_locks_to_the_offset_of_its_arrival_stamps() {
         )),
         "{cam_text}"
     );
-    assert!(written > 800, "{cam_text}");
+    // 30 Hz over the run, a few dropped by the renderer's camera
+    assert!(written as f64 > 25.0 * duration, "{cam_text}");
     // every frame arrived whole; those that waited in the pipe (none on an idle
     // machine) are dropped and said
     let read = cam_text
@@ -152,7 +153,7 @@ fn a_camera_program_on_a_pipe_locks_to_the_offset_of_its_arrival_stamps() {
         median * 1e3,
         truth * 1e3
     );
-    // the estimator's own 2σ on a 30 s run with these signals is 4-6 ms
+    // the estimator's own 2σ on a run this short with these signals is 4-6 ms
     assert!(
         (median - truth).abs() < 0.004,
         "median tracking offset {:+.2} ms against the truth {:+.2} ms",

@@ -6,16 +6,13 @@
 //! `no_alloc.rs` covers the front-end alone on sixty prepared scans; this is the
 //! byte stream of a long run.
 //!
-//! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
+//! A module of `no_alloc.rs`, whose crate installs `vlsync-alloc-count`'s allocator.
 
 use vlsync_common::Nanos;
 use vlsync_signature_lidar::encode::{ld06_stream, rplidar_revolution, SCAN_DESCRIPTOR};
 use vlsync_signature_lidar::ld06::{Ld06Clock, Ld06Config, Ld06Parser};
 use vlsync_signature_lidar::rplidar::{RplidarConfig, RplidarParser};
 use vlsync_signature_lidar::{Scan, SignatureConfig, WallFront};
-
-#[global_allocator]
-static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 use vlsync_alloc_count::this_thread as allocs;
 

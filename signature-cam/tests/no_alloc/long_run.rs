@@ -4,15 +4,13 @@
 //! stops, stretches without texture, dropped frames, gaps that restart the
 //! sequence, a stamp stepping back, exposure times and plain stamps).
 //!
-//! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
+//! A module of `no_alloc.rs`, whose crate installs `vlsync-alloc-count`'s allocator
+//! (one test binary for the three, one link less each).
 
 use vlsync_signature_cam::{
     FrameTime, GrayFrame, PixelFormat, RawFrame, Reduction, SignatureConfig, SignatureProcessor,
     StartReason, Step,
 };
-
-#[global_allocator]
-static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 use vlsync_alloc_count::this_thread as allocs;
 

@@ -2,16 +2,14 @@
 //! I420 frames with padded rows (the luma copied out) and 300 YUYV frames, each
 //! waited for and stamped, counted by a thread-local counting allocator.
 //!
-//! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
+//! A module of `no_alloc.rs`, whose crate installs `vlsync-alloc-count`'s allocator
+//! (one test binary for the three, one link less each).
 
 use std::io::Write;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat, PipeSource};
 use vlsync_signature_cam::FrameSource;
-
-#[global_allocator]
-static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
 fn clock() -> i64 {
     static START: OnceLock<Instant> = OnceLock::new();
