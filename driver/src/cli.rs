@@ -1011,4 +1011,86 @@ mod tests {
         // 1.5 s of a program that stalls 0.3 s after each start
         assert!(reopens >= 2, "{report}");
     }
+
+    #[test]
+    fn a_camera_program_s_whole_group_goes_with_the_driver() {
+        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
+        let dir = std::env::temp_dir().join(format!("vlsync-pipe-group-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let pid_file = dir.join("pid");
+        // a script whose own child (the sleep) would outlive a kill of `sh` alone
+        let cmd = format!(
+            "sleep 300 & echo $! > {}; head -c 64 /dev/zero; wait",
+            pid_file.display()
+        );
+        let cfg = PipeConfig {
+            width: 8,
+            height: 8,
+            stride: None,
+            format: PipeFormat::Gray,
+            silence: Duration::from_secs(5),
+        };
+        let src = raw::CamSource::pipe(raw::PipeInput::Command(cmd), cfg, never).unwrap();
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        let pid = loop {
+            if let Some(p) = std::fs::read_to_string(&pid_file)
+                .ok()
+                .and_then(|t| t.trim().parse::<u32>().ok())
+            {
+                break p;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "the script never started"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let alive = |pid: u32| {
+            // gone, or a zombie no one reaped yet: not running
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .ok()
+                .and_then(|st| st.rsplit(") ").next().map(|r| !r.starts_with('Z')))
+                .unwrap_or(false)
+        };
+        assert!(alive(pid));
+        drop(src);
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        while alive(pid) {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "the program's child {pid} outlived the driver's source"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_fifo_without_a_writer_is_a_stall_not_a_hang() {
+        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
+        let dir = std::env::temp_dir().join(format!("vlsync-pipe-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("frames");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let cfg = PipeConfig {
+            width: 8,
+            height: 8,
+            stride: None,
+            format: PipeFormat::Gray,
+            silence: Duration::from_millis(300),
+        };
+        // the open returns at once; no writer ever comes: the driver's error, no reopen
+        let mut src = raw::CamSource::pipe(raw::PipeInput::Path(fifo.clone()), cfg, never).unwrap();
+        let e = src.next_sample().unwrap_err().to_string();
+        assert!(
+            e.contains("camera program: no frame for 0.")
+                && e.contains(&fifo.display().to_string()),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

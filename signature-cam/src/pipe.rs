@@ -8,11 +8,16 @@
 //! writer's pipeline) is a delay vlsync measures like any other, as long as it
 //! stays constant.
 //!
-//! A frame already waiting in the pipe when the source asks for the next one
-//! (the reader was held up: its stamp would be late by an unknown amount) is read
-//! and dropped, counted as *queued*; reading it takes microseconds, so the frame
-//! after it is waited for and stamped on time again. The source waits with
-//! `poll`, so it notices a stop request and a writer that went silent.
+//! A frame's first bytes are seen arrive when the source was waiting for them:
+//! at the start of the frame, or at the end of the frame before, whose last
+//! bytes came in the same write (a writer that buffers its output, as
+//! `rpicam-vid -o -` does without `--flush`, sends each frame's tail with the
+//! next frame's head). A frame already waiting when the source asks for it
+//! otherwise (the reader was held up: its stamp would be late by an unknown
+//! amount) is read and dropped, counted as *queued*; reading it takes
+//! microseconds, so the frame after it is waited for and stamped on time again.
+//! The source waits with `poll`, inside a frame too, so it notices a stop request
+//! and a writer that went silent, or hung halfway through a frame.
 //!
 //! Formats: `gray` (8-bit luma), `i420` (planar YUV 4:2:0, what `rpicam-vid
 //! --codec yuv420` writes), `nv12` (luma plane, then interleaved chroma) and
@@ -182,7 +187,23 @@ pub struct PipeSource<R: Read + AsFd> {
     frames: u64,
     queued: u64,
     queued_in_row: u32,
+    /// When the next frame's first bytes came, if known already.
+    head_at: Option<Nanos>,
     ended: bool,
+}
+
+/// How a frame's reading ended.
+enum FrameRead {
+    /// Read whole: the wake-up before its first bytes and before its last
+    /// (`None`: they were already there).
+    Frame {
+        first: Option<Nanos>,
+        last: Option<Nanos>,
+    },
+    /// The writer closed the pipe between frames.
+    End,
+    /// A stop was asked for.
+    Stopped,
 }
 
 /// How often a wait for the next frame checks the stop request.
@@ -217,6 +238,7 @@ impl<R: Read + AsFd> PipeSource<R> {
             frames: 0,
             queued: 0,
             queued_in_row: 0,
+            head_at: None,
             ended: false,
         })
     }
@@ -252,30 +274,69 @@ impl<R: Read + AsFd> PipeSource<R> {
         }
     }
 
-    /// Waits up to `d` for the pipe to be readable (data or the writer's end).
+    /// Waits up to `d` for the pipe to be readable (data or the writer's end). A
+    /// signal that interrupts a wait ends it early (`false`); one that interrupts
+    /// the zero-time look is looked again, which must not read as "nothing there".
     fn readable_within(&self, d: Duration) -> Result<bool, Error> {
-        let mut fds = [rustix::event::PollFd::new(
-            &self.reader,
-            rustix::event::PollFlags::IN,
-        )];
         let ts = rustix::event::Timespec {
             tv_sec: d.as_secs() as _,
             tv_nsec: d.subsec_nanos() as _,
         };
-        match rustix::event::poll(&mut fds, Some(&ts)) {
-            Ok(n) => Ok(n > 0),
-            Err(rustix::io::Errno::INTR) => Ok(false),
-            Err(e) => Err(self.read_error(format!("waiting for a frame: {e}"))),
+        loop {
+            let mut fds = [rustix::event::PollFd::new(
+                &self.reader,
+                rustix::event::PollFlags::IN,
+            )];
+            match rustix::event::poll(&mut fds, Some(&ts)) {
+                Ok(n) => return Ok(n > 0),
+                Err(rustix::io::Errno::INTR) if d.is_zero() => continue,
+                Err(rustix::io::Errno::INTR) => return Ok(false),
+                Err(e) => return Err(self.read_error(format!("waiting for a frame: {e}"))),
+            }
         }
     }
 
-    /// Reads one whole frame into the buffer. `Ok(false)`: the writer closed the
-    /// pipe before the frame's first byte.
-    fn read_frame(&mut self) -> Result<bool, Error> {
+    /// Waits until the pipe is readable. `Some(None)`: it already was;
+    /// `Some(Some(t))`: a wait that ended at `t`, when bytes came; `None`: a stop
+    /// was asked for. No bytes for the configured silence is [`Error::Stalled`],
+    /// inside a frame too (a writer that hung halfway).
+    fn wait_readable(&mut self) -> Result<Option<Option<Nanos>>, Error> {
+        if self.readable_within(Duration::ZERO)? {
+            return Ok(Some(None));
+        }
+        let asked = (self.clock)();
+        loop {
+            if (self.stop)() {
+                return Ok(None);
+            }
+            if self.readable_within(STOP_CHECK)? {
+                return Ok(Some(Some((self.clock)())));
+            }
+            let quiet = (self.clock)().saturating_sub(asked);
+            if quiet >= self.cfg.silence.as_nanos() as Nanos {
+                // the driver's messages name the source already
+                return Err(Error::Stalled {
+                    path: "camera program".into(),
+                    after: Duration::from_nanos(quiet.max(0) as u64),
+                });
+            }
+        }
+    }
+
+    /// Reads one whole frame into the buffer, waiting for its bytes as they come.
+    fn read_frame(&mut self) -> Result<FrameRead, Error> {
         let mut got = 0;
+        let (mut first, mut last) = (None, None);
         while got < self.frame.len() {
+            let Some(woke) = self.wait_readable()? else {
+                return Ok(FrameRead::Stopped);
+            };
+            if got == 0 {
+                first = woke;
+            }
+            last = woke;
             match self.reader.read(&mut self.frame[got..]) {
-                Ok(0) if got == 0 => return Ok(false),
+                Ok(0) if got == 0 => return Ok(FrameRead::End),
                 Ok(0) => {
                     return Err(self.read_error(format!(
                         "the writer closed the pipe inside frame {} ({got} of its {} bytes): \
@@ -286,13 +347,15 @@ impl<R: Read + AsFd> PipeSource<R> {
                 }
                 Ok(n) => got += n,
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                // a non-blocking descriptor (a FIFO opened so) with nothing after all
+                Err(e) if e.kind() == ErrorKind::WouldBlock => {}
                 Err(e) => {
                     return Err(self.read_error(format!("reading frame {}: {e}", self.frames + 1)))
                 }
             }
         }
         self.frames += 1;
-        Ok(true)
+        Ok(FrameRead::Frame { first, last })
     }
 
     /// The luma of the frame in the buffer.
@@ -322,13 +385,25 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
             return Ok(None);
         }
         loop {
-            // a frame already there was held up by this reader (or, the first one,
-            // written before it started): its stamp is unknown
-            if self.readable_within(Duration::ZERO)? {
-                if !self.read_frame()? {
+            // this frame's first bytes came with the last one's end (module docs)
+            let head = self.head_at.take();
+            let (first, last) = match self.read_frame()? {
+                FrameRead::Frame { first, last } => (first, last),
+                FrameRead::End => {
                     self.ended = true;
                     return Ok(None);
                 }
+                FrameRead::Stopped => return Ok(None),
+            };
+            // the next frame's first bytes already here, when this one's last bytes
+            // were waited for: they came in that same write, at that wake-up
+            self.head_at = match last {
+                Some(t) if self.readable_within(Duration::ZERO)? => Some(t),
+                _ => None,
+            };
+            let Some(t) = head.or(first) else {
+                // it was already waiting when asked for: held up by this reader (or,
+                // the first one, written before it started), its stamp unknown
                 self.queued += 1;
                 self.queued_in_row += 1;
                 if self.queued_in_row >= MAX_UNUSABLE_IN_ROW {
@@ -339,29 +414,7 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
                     )));
                 }
                 continue;
-            }
-            let asked = (self.clock)();
-            loop {
-                if (self.stop)() {
-                    return Ok(None);
-                }
-                if self.readable_within(STOP_CHECK)? {
-                    break;
-                }
-                let quiet = (self.clock)().saturating_sub(asked);
-                if quiet >= self.cfg.silence.as_nanos() as Nanos {
-                    // the driver's messages name the source already
-                    return Err(Error::Stalled {
-                        path: "camera program".into(),
-                        after: Duration::from_nanos(quiet.max(0) as u64),
-                    });
-                }
-            }
-            let t = (self.clock)();
-            if !self.read_frame()? {
-                self.ended = true;
-                return Ok(None);
-            }
+            };
             self.queued_in_row = 0;
             let frame = self.luma()?;
             return Ok(Some((frame, FrameTime::Instant(t))));
@@ -487,6 +540,64 @@ mod tests {
         let (n, why) = src.unusable().unwrap();
         assert_eq!(n, 2);
         assert!(why.contains("already waiting"), "{why}");
+    }
+
+    #[test]
+    fn a_buffering_writer_s_frames_are_all_stamped_at_their_head() {
+        // as rpicam-vid without --flush: each write carries the last frame's tail
+        // (here 10 bytes) and the next frame's head
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 8, 8, None), clock).unwrap();
+        let writer = std::thread::spawn(move || {
+            let mut heads = vec![];
+            let mut tail: Vec<u8> = vec![];
+            for k in 0..6u8 {
+                std::thread::sleep(Duration::from_millis(30));
+                let f = frame(PipeFormat::Gray, 8, 8, 8, k);
+                let mut chunk = std::mem::take(&mut tail);
+                chunk.extend_from_slice(&f[..54]);
+                heads.push(clock());
+                wr.write_all(&chunk).unwrap();
+                tail = f[54..].to_vec();
+            }
+            std::thread::sleep(Duration::from_millis(30));
+            wr.write_all(&tail).unwrap();
+            heads
+        });
+        let mut stamps = vec![];
+        while let Some((f, t)) = src.next_frame().unwrap() {
+            assert!(luma_ok(&f, 8, 8, stamps.len() as u8));
+            stamps.push(t.instant_ns().unwrap());
+        }
+        let heads = writer.join().unwrap();
+        assert_eq!(src.counts(), (6, 0), "none dropped as queued");
+        for (h, t) in heads.iter().zip(&stamps) {
+            assert!(
+                *t >= *h && *t < *h + 25_000_000,
+                "head written {h}, stamped {t}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_writer_that_hangs_inside_a_frame_is_a_stall_and_a_stop_ends_a_wait_there() {
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut c = cfg(PipeFormat::Gray, 8, 8, None);
+        c.silence = Duration::from_millis(250);
+        let mut src = PipeSource::new(r, "p", c, clock).unwrap();
+        wr.write_all(&[7; 20]).unwrap();
+        assert!(matches!(src.next_frame(), Err(Error::Stalled { .. })));
+        static STOP: AtomicBool = AtomicBool::new(false);
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 8, 8, None), clock).unwrap();
+        src.set_stop(|| STOP.load(Ordering::Relaxed));
+        wr.write_all(&[7; 20]).unwrap();
+        let stopper = std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_millis(150));
+            STOP.store(true, Ordering::Relaxed);
+        });
+        assert!(src.next_frame().unwrap().is_none());
+        stopper.join().unwrap();
     }
 
     #[test]

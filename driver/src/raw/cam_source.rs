@@ -73,10 +73,13 @@ impl FrameSource for V4l2Frames {
 pub enum PipeInput {
     /// The driver's standard input (`--pipe -`: `rpicam-vid ... -o - | vlsync-cam`).
     Stdin,
-    /// A named FIFO (or a file), opened for reading: the open waits for a writer.
+    /// A named FIFO (or a file), opened for reading without waiting for a writer
+    /// (one that does not come is a stall, which ends the driver: reopening a FIFO
+    /// would close it under a writer that hung, and kill it).
     Path(PathBuf),
-    /// A command run with `sh -c`, its standard output read; killed when the driver
-    /// ends, and started again when it stalls.
+    /// A command run with `sh -c` in a process group of its own, its standard output
+    /// read; the whole group is killed when the driver ends, and started again when
+    /// it stalls.
     Command(String),
 }
 
@@ -148,23 +151,32 @@ impl PipeFrames {
                     .map_err(|e| err(format!("duplicating the standard input: {e}")))?;
                 (PipeEnd::File(std::fs::File::from(fd)), None)
             }
-            PipeInput::Path(p) => (
-                PipeEnd::File(
-                    std::fs::File::open(p).map_err(|e| err(format!("cannot open: {e}")))?,
-                ),
-                None,
-            ),
+            PipeInput::Path(p) => {
+                // O_NONBLOCK: a FIFO's open would otherwise wait for a writer, deaf to
+                // a stop; cleared at once, so reads wait as usual (and poll watches)
+                use std::os::unix::fs::OpenOptionsExt;
+                let f = std::fs::OpenOptions::new()
+                    .read(true)
+                    .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+                    .open(p)
+                    .map_err(|e| err(format!("cannot open: {e}")))?;
+                rustix::fs::fcntl_setfl(&f, rustix::fs::OFlags::empty())
+                    .map_err(|e| err(format!("cannot make it blocking: {e}")))?;
+                (PipeEnd::File(f), None)
+            }
             PipeInput::Command(c) => {
+                use std::os::unix::process::CommandExt;
                 let mut child = std::process::Command::new("sh")
                     .arg("-c")
                     .arg(c)
                     .stdin(std::process::Stdio::null())
                     .stdout(std::process::Stdio::piped())
+                    // its own group: a pipeline or a script's children go with it
+                    .process_group(0)
                     .spawn()
                     .map_err(|e| err(format!("cannot start it with sh -c: {e}")))?;
                 let Some(out) = child.stdout.take() else {
-                    let _ = child.kill();
-                    let _ = child.wait();
+                    kill_group(&mut child);
                     return Err(err("its standard output is not a pipe".into()));
                 };
                 (PipeEnd::Command(out), Some(child))
@@ -175,8 +187,7 @@ impl PipeFrames {
             Ok(s) => s,
             Err(e) => {
                 if let Some(mut c) = child {
-                    let _ = c.kill();
-                    let _ = c.wait();
+                    kill_group(&mut c);
                 }
                 return Err(e);
             }
@@ -186,11 +197,21 @@ impl PipeFrames {
     }
 }
 
+/// Kills a camera program's whole process group (`sh` and what it started: a
+/// pipeline's other programs, a script's children) and reaps `sh`.
+fn kill_group(child: &mut std::process::Child) {
+    let _ = rustix::process::kill_process_group(
+        rustix::process::Pid::from_child(child),
+        rustix::process::Signal::KILL,
+    );
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
 impl Drop for PipeFrames {
     fn drop(&mut self) {
         if let Some(c) = self.child.as_mut() {
-            let _ = c.kill();
-            let _ = c.wait();
+            kill_group(c);
         }
     }
 }
@@ -658,9 +679,9 @@ impl CamSource {
     }
 
     /// Raw frames of `cfg`'s layout from a pipe (see `vlsync_signature_cam::pipe`),
-    /// stamped on `CLOCK_MONOTONIC` as they arrive. A command is started again, and a
-    /// FIFO opened again, after `cfg.silence` without a frame (the driver's
-    /// [`PIPE_SILENCE`]); standard input that goes silent is an error.
+    /// stamped on `CLOCK_MONOTONIC` as they arrive. A command is started again after
+    /// `cfg.silence` without a frame (the driver's [`PIPE_SILENCE`]); standard input
+    /// or a FIFO that goes silent is an error.
     pub fn pipe(
         input: PipeInput,
         cfg: cam::pipe::PipeConfig,
@@ -674,11 +695,8 @@ impl CamSource {
             PipeFrames::open(&input, cfg, stop).map_err(|e| SourceError(format!("{flag}: {e}")))?;
         let what = format!("pipe {}", frames.src.describe());
         let mut me = Self::new(Box::new(frames), what, stop)?;
-        me.reopened = match input {
-            PipeInput::Command(_) => "camera program",
-            _ => "pipe",
-        };
-        if input != PipeInput::Stdin {
+        if matches!(input, PipeInput::Command(_)) {
+            me.reopened = "camera program";
             me.reopen = Some(Box::new(move || {
                 PipeFrames::open(&input, cfg, stop).map(|f| Box::new(f) as Box<dyn FrameSource>)
             }));
