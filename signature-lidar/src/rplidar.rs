@@ -39,9 +39,11 @@
 //! revolution began at; [`RplidarStats::false_starts`] counts the others.
 //! A lost flagged node is made up for: a valid node (one with a return: the
 //! SDK does not trust the angles of the others) that falls more than half a
-//! turn behind the last two valid ones starts the next revolution
-//! ([`RplidarStats::implicit_starts`]); behind the last one alone, that one was
-//! a stray angle, which is forgotten ([`RplidarStats::stray_nodes`]), and a revolution that lasted over 1.5
+//! turn behind the last valid one starts the next revolution
+//! ([`RplidarStats::implicit_starts`]), unless that one had jumped far beyond
+//! every node before it: a misread angle, forgotten
+//! ([`RplidarStats::stray_nodes`]); a revolution so started ends at the next
+//! flag after half a turn, wherever it began, and a revolution that lasted over 1.5
 //! times the last good period is dropped rather than timed as one turn
 //! ([`RplidarStats::implausible_periods`]). A response
 //! descriptor anywhere in the stream is recognised (it can never pass as a
@@ -252,12 +254,14 @@ pub struct RplidarStats {
     /// half a turn behind the last valid one, so the flagged node was lost
     /// (without this the two revolutions would be timed as one).
     pub implicit_starts: u64,
-    /// Valid nodes whose angle lay half a turn ahead of the valid nodes on either
-    /// side of them (a misread angle): forgotten by the revolution's bookkeeping,
-    /// which would otherwise have cut every later revolution at the next node.
+    /// Valid nodes whose angle jumped over [`STRAY_JUMP_DEG`] beyond every node
+    /// before them, the next valid node falling half a turn behind (a misread
+    /// angle): forgotten by the revolution's bookkeeping, which would otherwise
+    /// have started a revolution at the next node.
     pub stray_nodes: u64,
     /// Revolutions dropped because the time between their start and the next
-    /// was over 1.5 times the last good period (not a revolution of this motor).
+    /// (scaled to a whole turn) was over 1.5 times the last good period, or under
+    /// two thirds of it (not a revolution of this motor).
     pub implausible_periods: u64,
     /// Scans emitted.
     pub scans: u64,
@@ -320,6 +324,11 @@ pub struct RplidarParser {
     prev_valid_swept: Option<f64>,
     /// `swept_max_deg` as it was before the last valid node.
     swept_max_before_last_valid: f64,
+    /// Whether the last valid node lay over [`STRAY_JUMP_DEG`] beyond every node
+    /// before it.
+    last_valid_jumped: bool,
+    /// Whether the revolution under way began without a start flag.
+    implicit_revolution: bool,
     last_period: Option<Nanos>,
 }
 
@@ -327,6 +336,12 @@ pub struct RplidarParser {
 /// revolution has swept half a turn, counts as swept at the start rather than a
 /// whole turn later: the first nodes' angles jitter.
 pub const START_JITTER_DEG: f64 = 5.0;
+
+/// A valid node this far (degrees) beyond every node before it in its revolution
+/// has jumped: nodes come about a degree apart, so a jump is a misread angle or
+/// lost bytes (a 64-byte USB packet is about 13 nodes). A node after it that falls
+/// half a turn behind it shows it misread ([`RplidarStats::stray_nodes`]).
+pub const STRAY_JUMP_DEG: f64 = 30.0;
 
 /// Angle swept clockwise from `angle0` to `angle`, in `[0, 360)`, given the
 /// farthest the revolution has swept so far (`swept_max`): early in the
@@ -359,6 +374,8 @@ impl RplidarParser {
             last_valid_swept: None,
             prev_valid_swept: None,
             swept_max_before_last_valid: 0.0,
+            last_valid_jumped: false,
+            implicit_revolution: false,
             last_period: None,
         }
     }
@@ -405,7 +422,7 @@ impl RplidarParser {
     pub fn finish(&mut self, mut on_scan: impl FnMut(&Scan)) {
         if let Some((start, _)) = self.scan_start {
             let period = self.last_period.unwrap_or(self.cfg.nominal_period_ns);
-            self.emit(start.saturating_add(period), &mut on_scan);
+            self.emit(start.saturating_add(period), false, &mut on_scan);
         }
         self.scan_start = None;
     }
@@ -516,8 +533,13 @@ impl RplidarParser {
             // revolution began at (e.g. 359.5 -> 0.2 deg): its angle lies over 180 deg
             // behind the farthest swept, or just short of a whole turn
             let here = swept_deg(angle0, angle, self.swept_max_deg);
+            // a revolution started without a flag began where a node said, which may
+            // have been misread: any flag after half a turn ends it, so that one bad
+            // made-up start cannot shift every later revolution
             let back_near_start = self.swept_max_deg >= 180.0
-                && (self.swept_max_deg - here > 180.0 || here >= 360.0 - START_JITTER_DEG);
+                && (self.swept_max_deg - here > 180.0
+                    || here >= 360.0 - START_JITTER_DEG
+                    || self.implicit_revolution);
             if start && !back_near_start {
                 self.stats.false_starts += 1;
                 start = false;
@@ -527,21 +549,22 @@ impl RplidarParser {
                 && valid
                 && self.last_valid_swept.is_some_and(|l| l - here > 180.0)
             {
-                if self.prev_valid_swept.is_some_and(|p| p - here > 180.0) {
+                if !self.last_valid_jumped {
                     // the flagged node was lost when a valid node falls half a turn
-                    // behind the last two valid ones: without a start here the next
-                    // flag would make one scan of two revolutions, timed as one. (Only
+                    // behind the last valid one: without a start here the next flag
+                    // would make one scan of two revolutions, timed as one. (Only
                     // valid nodes: the SDK treats the angles of nodes without a return
                     // as unreliable.)
                     self.stats.implicit_starts += 1;
                     start = true;
                 } else {
-                    // the last valid node alone lay half a turn ahead: its angle was
-                    // misread. Forgotten, or this node would start a revolution here,
-                    // and every later flag, no longer half a turn from it, be refused
+                    // the last valid node had jumped far ahead of every node before
+                    // it, and this one is back: its angle was misread. Forgotten, or
+                    // this node would start a revolution here
                     self.stats.stray_nodes += 1;
                     self.swept_max_deg = self.swept_max_before_last_valid;
                     self.last_valid_swept = self.prev_valid_swept.take();
+                    self.last_valid_jumped = false;
                 }
             }
         }
@@ -551,13 +574,15 @@ impl RplidarParser {
             let shift = (bytes_after as f64 * serial_ns.max(paced_ns)).round() as i64;
             let t = rx_ns.saturating_sub(shift);
             if self.scan_start.is_some() {
-                self.emit(t, on_scan);
+                self.emit(t, true, on_scan);
             }
             self.scan_start = Some((t, angle));
+            self.implicit_revolution = !node.start;
             self.swept_max_deg = 0.0;
             self.last_valid_swept = None;
             self.prev_valid_swept = None;
             self.swept_max_before_last_valid = 0.0;
+            self.last_valid_jumped = false;
         } else if self.scan_start.is_none() {
             self.stats.nodes_before_start += 1;
             return;
@@ -568,6 +593,7 @@ impl RplidarParser {
                 self.prev_valid_swept = self.last_valid_swept;
                 self.swept_max_before_last_valid = self.swept_max_deg;
                 self.last_valid_swept = Some(here);
+                self.last_valid_jumped = here > self.swept_max_deg + STRAY_JUMP_DEG;
             }
             self.swept_max_deg = self.swept_max_deg.max(here);
         }
@@ -582,22 +608,38 @@ impl RplidarParser {
             // no revolution start for too long: emit and wait for the next start
             let (start, _) = self.scan_start.unwrap_or((rx_ns, 0.0));
             let period = self.last_period.unwrap_or(self.cfg.nominal_period_ns);
-            self.emit(start.saturating_add(period), on_scan);
+            self.emit(start.saturating_add(period), false, on_scan);
             self.scan_start = None;
         }
     }
 
     /// Emits the revolution started at `scan_start`, ending at `end_ns`.
-    fn emit(&mut self, end_ns: Nanos, on_scan: &mut impl FnMut(&Scan)) {
+    ///
+    /// `measured_end`: the end is the next revolution's start, so the time between
+    /// is measured, for the part of a turn the revolution's nodes covered (a
+    /// revolution cut short by a made-up start covers less than a turn; its period
+    /// is scaled to a whole one). Otherwise the end is the last period's.
+    fn emit(&mut self, end_ns: Nanos, measured_end: bool, on_scan: &mut impl FnMut(&Scan)) {
         let Some((start, angle0)) = self.scan_start else {
             return;
         };
-        let measured = end_ns.saturating_sub(start);
+        let mut measured = end_ns.saturating_sub(start);
+        if measured_end && self.rays.len() >= 2 {
+            // the nodes' extent plus one node's step: 360° for a whole turn
+            let n = self.rays.len() as f64;
+            let turn = self.swept_max_deg * n / (n - 1.0);
+            if turn > 0.0 && !(340.0..=380.0).contains(&turn) {
+                measured = (measured as f64 * 360.0 / turn).round() as Nanos;
+            }
+        }
         if let Some(last) = self.last_period {
-            if measured > last.saturating_add(last / 2) && measured <= self.cfg.max_period_ns {
-                // not one revolution of this motor (two merged, or a stall): its rays'
-                // times would be wrong by up to a turn. The next period is measured
-                // afresh, so a motor that really slowed loses one scan, not all.
+            if (measured > last.saturating_add(last / 2) || measured < last - last / 3)
+                && measured <= self.cfg.max_period_ns
+            {
+                // not one revolution of this motor (two merged, a stall, or a start
+                // made up at a misread angle): its rays' times would be wrong by up
+                // to a turn. The next period is measured afresh, so a motor that
+                // really changed speed loses one scan, not all.
                 self.stats.implausible_periods += 1;
                 self.last_period = None;
                 self.rays.clear();
@@ -834,6 +876,60 @@ mod tests {
             "{stats:?}"
         );
         assert_eq!(scans.len(), 4, "{stats:?}");
+    }
+
+    #[test]
+    fn a_lone_return_half_a_turn_on_still_makes_up_a_lost_flag() {
+        // returns at 0-150° and one at 250° (the gap swept by nodes without a
+        // return), and the third revolution's flag lost
+        let sparse = |a: f64| a <= 150.0 || (a - 250.0).abs() < 0.5;
+        let mut revs: Vec<_> = (0..5).map(|_| rev_nodes(360, sparse)).collect();
+        revs[2].remove(0);
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (
+                stats.implicit_starts,
+                stats.stray_nodes,
+                stats.implausible_periods
+            ),
+            (1, 0, 0),
+            "{stats:?}"
+        );
+        assert_eq!(scans.len(), 4, "{stats:?}");
+    }
+
+    #[test]
+    fn a_misread_angle_behind_costs_one_revolution_not_the_run() {
+        // the node at 300° of the second revolution reads 10°: a made-up start there
+        let mut revs: Vec<_> = (0..7).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[1][300].angle_q6 = 10 * 64;
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (stats.implicit_starts, stats.false_starts),
+            (1, 0),
+            "{stats:?}"
+        );
+        // the revolution cut at the misread node is timed as 300° of a whole turn;
+        // the one made up there (60 nodes read as 350°, too short a turn) is
+        // dropped; the next flag ends it and every later revolution is whole again
+        assert_eq!(stats.implausible_periods, 1, "{stats:?}");
+        let lens: Vec<usize> = scans.iter().map(|s| s.len()).collect();
+        assert_eq!(lens, [360, 300, 360, 360, 360, 360], "{stats:?}");
+        // (within one pushed chunk the nodes are dated 0.5 ms apart, the assumed
+        // 2000 nodes/s: the cut revolution's 300 nodes span 150 ms, a whole turn
+        // 180 ms, and its last ray lies 149.5 ms after its first, where an unscaled
+        // 150 ms "turn" would put it at 124.6 ms)
+        let cut = scans[1].rays();
+        assert_eq!(scans[1].timing().period_ns, 180_000_000);
+        assert!(
+            (cut[299].t_ns - cut[0].t_ns - 149_500_000).abs() < 100_000,
+            "{} ns",
+            cut[299].t_ns - cut[0].t_ns
+        );
+        for s in &scans[2..] {
+            assert_eq!(s.rays()[0].bearing_deg(), 0.0);
+            assert_eq!(s.timing().period_ns, 200_000_000);
+        }
     }
 
     #[test]
