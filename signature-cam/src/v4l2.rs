@@ -23,10 +23,13 @@
 //!   what the camera granted (`VIDIOC_G_PARM`), or the camera's own rate;
 //! * reads the exposure controls, and warns when the exposure is automatic (it
 //!   moves the stamps by up to half its range);
-//! * maps the buffers and starts the stream, so that the usual refusals come here,
-//!   each labelled with its step and the way out: `EBUSY` (another process holds the
-//!   camera), `ENOSPC` at `VIDIOC_STREAMON` (not enough USB bandwidth for the format,
-//!   size and rate);
+//! * maps the buffers, queues every one the driver granted ([`negotiate::queue_all`]:
+//!   a driver may start streaming only with all of them queued) and starts the
+//!   stream, so that the usual refusals come here, each labelled with its step and
+//!   the way out: `EBUSY` (another process holds the camera), `ENOSPC` at
+//!   `VIDIOC_STREAMON` (not enough USB bandwidth for the format, size and rate). The
+//!   stream's first frame is dropped unread (the `v4l` crate hands out a buffer's
+//!   contents only as it queues the one it handed out before);
 //! * says what it negotiated in one line (device, card, driver, format, size, stride,
 //!   frame rate, exposure, buffers, where the stamps come from) through
 //!   [`FrameSource::take_note`], with the exposure warning after it.
@@ -193,8 +196,9 @@ pub const MAX_STAMP_AHEAD_NS: Nanos = 1_000_000;
 /// Frames beyond the buffers requested that a stream's stamps get to show they are
 /// on `CLOCK_MONOTONIC`: a driver held up between the stream's start and its first
 /// read finds every queued buffer filled, each with an old stamp, and only the
-/// frames after them are fresh; a V4L2 driver may also grant a few more buffers than
-/// requested. Only a stream whose stamps are not on that clock waits out all of them
+/// frames after them are fresh (the first of them, dropped unread at every opening,
+/// counts as one of the frames, [`StampCheck::unread`]); a V4L2 driver may also grant
+/// a few more buffers than requested. Only a stream whose stamps are not on that clock waits out all of them
 /// (8 frames at the default 4 buffers: a quarter of a second at 30 Hz).
 pub const DECIDE_EXTRA_FRAMES: u32 = 4;
 
@@ -224,9 +228,12 @@ pub const DECIDE_EXTRA_FRAMES: u32 = 4;
 pub struct StampCheck {
     decide_frames: u32,
     chosen: Option<FrameStamps>,
-    /// Frames seen while undecided.
+    /// Frames seen while undecided, those dropped unread included: the number of the
+    /// stream's frame at hand.
     seen: u32,
-    /// The first of them: its stamp's age at its dequeue, ns.
+    /// Of them, those dropped unread ([`StampCheck::unread`]).
+    unread: u32,
+    /// The first of them read: its stamp's age at its dequeue, ns.
     first_age: Option<Nanos>,
     note: Option<String>,
 }
@@ -238,6 +245,7 @@ impl StampCheck {
             decide_frames: decide_frames.max(1),
             chosen: None,
             seen: 0,
+            unread: 0,
             first_age: None,
             note: None,
         }
@@ -248,6 +256,20 @@ impl StampCheck {
         Self {
             chosen: Some(choice),
             ..Self::new(1)
+        }
+    }
+
+    /// A frame dropped before its stamp was read: the first of every opening, which
+    /// queues all its buffers before the stream starts and so takes the first
+    /// filled one without its contents (the `v4l` crate hands a buffer's bytes and
+    /// stamp out only as it queues the one handed out before). Counted among the
+    /// first frames, so that the frames named are the stream's and the decision
+    /// falls within the first `decide_frames` as the opening's line says; it cannot
+    /// decide, and it alone is not worth a note. Nothing once decided.
+    pub fn unread(&mut self) {
+        if self.chosen.is_none() {
+            self.seen = self.seen.saturating_add(1);
+            self.unread = self.unread.saturating_add(1);
         }
     }
 
@@ -266,23 +288,33 @@ impl StampCheck {
 
     fn decide(&mut self, clock: StampClock, driver_ns: Nanos, now_ns: Nanos) {
         let age = now_ns.saturating_sub(driver_ns);
-        self.seen += 1;
+        self.seen = self.seen.saturating_add(1);
         let first_age = *self.first_age.get_or_insert(age);
         let dropped = self.seen - 1;
-        let dropped_text = match dropped {
-            0 => String::new(),
-            1 => format!(
-                "; the frame before it, {:.3} s old at its dequeue, was dropped",
-                first_age as f64 * 1e-9
+        let unread = self.unread;
+        // the frames dropped that were read (their stamps were not in the window)
+        let dropped_read = dropped.saturating_sub(unread);
+        let first_s = first_age as f64 * 1e-9;
+        let dropped_text = match (dropped, unread) {
+            (0, _) => String::new(),
+            (1, 0) => format!(
+                "; the frame before it, {first_s:.3} s old at its dequeue, was \
+                 dropped"
             ),
-            n => format!(
-                "; the {n} frames before it, the first {:.3} s old at its dequeue, were dropped",
-                first_age as f64 * 1e-9
+            (1, _) => "; the frame before it was dropped unread".to_string(),
+            (n, 0) => format!(
+                "; the {n} frames before it, the first {first_s:.3} s old at its dequeue, were dropped"
+            ),
+            (n, u) if u == n => format!("; the {n} frames before it were dropped unread"),
+            (n, u) => format!(
+                "; the {n} frames before it were dropped ({u} unread; the first read {first_s:.3} s \
+                 old at its dequeue)"
             ),
         };
         if (-MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS).contains(&age) {
             self.chosen = Some(FrameStamps::Driver);
-            self.note = (clock != StampClock::Monotonic || dropped > 0).then(|| {
+            // a frame dropped unread (every opening's first) is no news
+            self.note = (clock != StampClock::Monotonic || dropped_read > 0).then(|| {
                 let when = if age >= 0 {
                     format!("{:.1} ms before", age as f64 * 1e-6)
                 } else {
@@ -297,6 +329,13 @@ impl StampCheck {
             });
         } else if self.seen >= self.decide_frames {
             self.chosen = Some(FrameStamps::Dequeue);
+            let (read, first) = match unread {
+                0 => (String::new(), "first"),
+                _ => (
+                    format!(" ({} of them read)", self.seen.saturating_sub(unread)),
+                    "first read",
+                ),
+            };
             let when = if first_age > 0 {
                 format!("{:.3} s before", first_age as f64 * 1e-9)
             } else {
@@ -312,8 +351,8 @@ impl StampCheck {
             };
             self.note = Some(format!(
                 "the driver's buffer stamps ({}) are not on CLOCK_MONOTONIC: none of the \
-                 first {} frames' stamps is within {:.0} s before its dequeue (the first \
-                 was {when} it; the last stamp {:.6} s{looks}); from frame {} on, frames \
+                 first {} frames' stamps{read} is within {:.0} s before its dequeue (the \
+                 {first} was {when} it; the last stamp {:.6} s{looks}); from frame {} on, frames \
                  are stamped at dequeue instead, later by the driver's delivery latency \
                  (its constant part shows up in the offset) and with its jitter, and \
                  frames queued while the driver falls behind get bunched times{}",
@@ -322,10 +361,12 @@ impl StampCheck {
                 MAX_STAMP_AGE_NS as f64 * 1e-9,
                 driver_ns as f64 * 1e-9,
                 self.seen,
-                match dropped {
-                    0 => String::new(),
-                    1 => "; the frame before it was dropped".to_string(),
-                    n => format!("; the {n} frames before it were dropped"),
+                match (dropped, unread) {
+                    (0, _) => String::new(),
+                    (1, 0) => "; the frame before it was dropped".to_string(),
+                    (1, _) => "; the frame before it was dropped unread".to_string(),
+                    (n, 0) => format!("; the {n} frames before it were dropped"),
+                    (n, u) => format!("; the {n} frames before it were dropped ({u} unread)"),
                 }
             ));
         }
@@ -580,11 +621,16 @@ mod imp {
         pub(super) negotiated: Negotiated,
         /// The opening's notes not yet taken.
         pub(super) notes: VecDeque<String>,
-        /// A `next` whose wait for a buffer timed out (or was interrupted) left the
-        /// buffer it handed back queued, and holds none: the next filled buffer is
-        /// taken with a plain dequeue and handed back unread (a second `next` would
-        /// queue that buffer again, which the driver refuses). Only the first frame
-        /// can end so: later waits poll before `next`, which then does not wait.
+        /// Every buffer is queued and none is ours: the next filled buffer is taken
+        /// with a plain dequeue (the crate's `dequeue`, after which its `next` hands
+        /// that buffer back first) and dropped unread: its bytes are reachable only
+        /// through `next`, and a `next` now would queue again a buffer already
+        /// queued, which the driver refuses. So at every opening, which queues all
+        /// its buffers before the stream starts: its first frame is dropped (and
+        /// counted among the frames that decide the stamps' clock,
+        /// [`StampCheck::unread`]), every later one is read. So too after a `next`
+        /// whose wait timed out (or was interrupted) once it had handed its buffer
+        /// back, which the poll before each `next` makes unlikely.
         waiting: bool,
     }
 
@@ -765,25 +811,21 @@ mod imp {
                 || Stream::with_buffers(dev, Type::VideoCapture, asked_buffers),
             )?);
             stream.set_timeout(POLL_SLICE);
-            // every buffer but the first is queued here and the stream started, so that
-            // a refusal to start (EBUSY, ENOSPC: USB bandwidth) comes from this step,
-            // named; the first `next` queues buffer 0 (the crate's `next` queues the
-            // buffer it handed out last, 0 at first) and dequeues the first frame.
-            // Buffers the driver did not grant end the queueing (EINVAL: an index
-            // beyond them; the crate does not say how many it mapped).
-            let mut buffers = 1;
-            for i in 1..asked_buffers as usize {
-                match CaptureStream::queue(stream, i) {
-                    Ok(()) => buffers += 1,
-                    Err(e) if e.raw_os_error() == Some(negotiate::errno::EINVAL) => break,
-                    Err(e) => {
-                        return Err(device_error(
-                            p,
-                            io_reason(&format!("queue buffer {i} (VIDIOC_QBUF)"), &e),
-                        ))
-                    }
-                }
-            }
+            // every buffer granted is queued here, buffer 0 included, and then the
+            // stream started, so that a refusal to start (EBUSY, ENOSPC: USB bandwidth)
+            // comes from its own step, named. None is left for the crate's first `next`
+            // to queue: a vb2 driver starts streaming only once its
+            // `min_buffers_needed` are queued, which may be every buffer granted (4 of
+            // 4), and `Inner::next` polls for a filled buffer before it calls the
+            // crate's `next`, so a buffer held back would stall every opening before
+            // its first frame. With all of them queued the first frame is taken by a
+            // plain dequeue and dropped unread (see `waiting`). Buffers the driver
+            // did not grant end the queueing (EINVAL: an index beyond them; the crate
+            // does not say how many it mapped), and the count queued is the one said.
+            let buffers = negotiate::queue_all(asked_buffers, |i| {
+                CaptureStream::queue(&mut *stream, i as usize)
+            })
+            .map_err(|reason| device_error(p, reason))?;
             guarded(p, "start streaming (VIDIOC_STREAMON)", || stream.start())?;
             let decide_frames = asked_buffers.saturating_add(DECIDE_EXTRA_FRAMES);
             let plan = match cfg.stamps {
@@ -820,7 +862,8 @@ mod imp {
                 },
                 negotiated,
                 notes,
-                waiting: false,
+                // all queued above: the first frame is dequeued unread
+                waiting: true,
             })
         }
 
@@ -857,14 +900,23 @@ mod imp {
                     }
                 }
                 if self.waiting {
-                    // the first `next` gave up: take this buffer with a plain dequeue;
-                    // the next `next` hands it back (unread: its bytes are reachable
-                    // only through `next`) and reads the frame after it
+                    // every buffer queued (the opening's first frame, or a `next` gave
+                    // up): take this buffer with a plain dequeue; the next `next` hands
+                    // it back (unread: its bytes are reachable only through `next`) and
+                    // reads the frame after it. A timeout here (the crate's dequeue
+                    // polls for one slice) is a wake-up like the poll's.
                     let s = &mut *stream;
                     match caught(path, "dequeue buffer (VIDIOC_DQBUF)", move || {
                         CaptureStream::dequeue(s)
                     })? {
-                        Ok(_) => self.waiting = false,
+                        Ok(_) => {
+                            self.waiting = false;
+                            // dropped, and counted among the frames that decide the
+                            // stamps' clock; the camera delivers, so the stall limit
+                            // counts from here
+                            self.stamps.unread();
+                            since = std::time::Instant::now();
+                        }
                         Err(e) if transient(&e) => {}
                         Err(e) => {
                             return Err(device_error(
@@ -1166,6 +1218,81 @@ mod tests {
         let mut c = StampCheck::new(N);
         c.stamp(StampClock::Monotonic, S, S + MAX_STAMP_AGE_NS);
         assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+    }
+
+    #[test]
+    fn the_first_frame_dropped_unread_counts_among_the_first_frames() {
+        // an opening's first frame is taken unread: a camera on the monotonic clock
+        // is still said nothing of, its second frame decides
+        let mut c = StampCheck::new(N);
+        c.unread();
+        assert_eq!(c.chosen(), None);
+        let t = 100 * S;
+        assert_eq!(c.stamp(StampClock::Monotonic, t, t + 40 * MS), Some(t));
+        assert_eq!(c.chosen(), Some(FrameStamps::Driver));
+        assert_eq!(c.take_note(), None);
+        // flagged as another clock: the note names the stream's frame
+        let mut c = StampCheck::new(N);
+        c.unread();
+        c.stamp(StampClock::Unknown, t, t + 33 * MS);
+        assert_eq!(
+            c.take_note().unwrap(),
+            "the driver's buffer stamps (V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN) are on \
+             CLOCK_MONOTONIC: frame 2's is 33.0 ms before its dequeue; its stamps are used; \
+             the frame before it was dropped unread"
+        );
+        // held up 3 s before the first read: 4 queued buffers filled, the first
+        // dropped unread, the 3 others read and dropped, frame 5 fresh (as before the
+        // opening queued them all: the same frame decides)
+        let mut c = StampCheck::new(N);
+        c.unread();
+        for i in 1..4 {
+            assert_eq!(
+                c.stamp(StampClock::Monotonic, 10 * S + i * 33 * MS, 13 * S),
+                None
+            );
+        }
+        let t = 13 * S - 5 * MS;
+        assert_eq!(c.stamp(StampClock::Monotonic, t, 13 * S), Some(t));
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains("frame 5's is 5.0 ms before its dequeue"),
+            "{note}"
+        );
+        assert!(
+            note.ends_with(
+                "the 4 frames before it were dropped (1 unread; the first read 2.967 s old \
+                 at its dequeue)"
+            ),
+            "{note}"
+        );
+        // stamps off the clock: the unread frame counts, so the decision comes at the
+        // N-th frame of the stream, as the opening's line says
+        let mut c = StampCheck::new(N);
+        c.unread();
+        for i in 1..N as i64 {
+            let now = 7 * S + i * 33 * MS;
+            let last = i + 1 == N as i64;
+            assert_eq!(c.stamp(StampClock::Monotonic, 0, now), last.then_some(now));
+        }
+        let note = c.take_note().unwrap();
+        assert!(
+            note.contains(
+                "none of the first 8 frames' stamps (7 of them read) is within 1 s before its \
+                 dequeue (the first read was 7.033 s before it; the last stamp 0.000000 s (zero))"
+            ),
+            "{note}"
+        );
+        assert!(note.contains("from frame 8 on"), "{note}");
+        assert!(
+            note.ends_with("the 7 frames before it were dropped (1 unread)"),
+            "{note}"
+        );
+        // once decided (a reopen keeps the choice), an unread frame changes nothing
+        let mut c = StampCheck::decided(FrameStamps::Driver);
+        c.unread();
+        assert_eq!(c.stamp(StampClock::Monotonic, 5 * S, 6 * S), Some(5 * S));
+        assert_eq!(c.take_note(), None);
     }
 
     #[test]

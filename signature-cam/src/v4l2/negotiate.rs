@@ -4,7 +4,8 @@
 //! ([`check_caps`]), which of its formats to read ([`choose_format`]), whether the
 //! negotiated geometry can be read ([`check_geometry`]), the frame interval for a
 //! rate ([`interval_for_fps`]), the exposure's verdict ([`Exposure`]), the hint an
-//! error number gives ([`io_reason`]), the one line that says what was negotiated
+//! error number gives ([`io_reason`]), the buffers queued before the stream starts
+//! ([`queue_all`]), the one line that says what was negotiated
 //! ([`Negotiated`]), and the guard that turns a panic of the `v4l` crate on a
 //! driver's answer into an error naming the device ([`guarded`]).
 
@@ -727,9 +728,83 @@ pub fn caught<T>(
     })
 }
 
+/// `VIDEO_MAX_FRAME` (`linux/videodev2.h`): the most buffers a queue usually has.
+pub const VIDEO_MAX_FRAME: u32 = 32;
+
+/// Queues every buffer the driver granted before the stream starts, `queue(0)`,
+/// `queue(1)`, and so on, and returns how many were queued. The `v4l` crate does not
+/// say how many buffers it mapped, so the first index refused with `EINVAL` (beyond
+/// the buffers granted, which may be fewer or more than `asked`) ends the queueing;
+/// past `asked` and [`VIDEO_MAX_FRAME`] no more are tried. Every granted buffer goes
+/// in, none held back: a vb2 driver starts streaming only once its
+/// `min_buffers_needed` are queued, which may be all of them (a driver raises the
+/// count asked to that minimum), and without a started stream no frame comes, so no
+/// buffer could be handed back. Buffer 0 refused, or any other error, is the
+/// error's reason, labelled with the buffer.
+///
+/// ```
+/// use vlsync_signature_cam::v4l2::negotiate::queue_all;
+/// // a driver that granted 3 buffers
+/// let granted = |i: u32| if i < 3 { Ok(()) } else { Err(std::io::Error::from_raw_os_error(22)) };
+/// assert_eq!(queue_all(2, granted), Ok(3));
+/// ```
+pub fn queue_all(
+    asked: u32,
+    mut queue: impl FnMut(u32) -> std::io::Result<()>,
+) -> Result<u32, String> {
+    let limit = asked.max(VIDEO_MAX_FRAME);
+    for i in 0..limit {
+        match queue(i) {
+            Ok(()) => {}
+            Err(e) if i > 0 && e.raw_os_error() == Some(errno::EINVAL) => return Ok(i),
+            Err(e) => return Err(io_reason(&format!("queue buffer {i} (VIDIOC_QBUF)"), &e)),
+        }
+    }
+    Ok(limit)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_granted_buffer_is_queued() {
+        let einval = || std::io::Error::from_raw_os_error(errno::EINVAL);
+        // granted as asked, fewer, and more (a driver's minimum above the count asked):
+        // each index is tried once, in order, up to the first refused
+        for granted in [4, 2, 6, 1] {
+            let mut tried = Vec::new();
+            let n = queue_all(4, |i| {
+                tried.push(i);
+                if i < granted {
+                    Ok(())
+                } else {
+                    Err(einval())
+                }
+            });
+            assert_eq!(n, Ok(granted));
+            assert_eq!(tried, (0..=granted).collect::<Vec<_>>());
+        }
+        // buffer 0 refused: not a count, an error
+        assert_eq!(
+            queue_all(4, |_| Err(einval())),
+            Err(format!("queue buffer 0 (VIDIOC_QBUF): {}", einval()))
+        );
+        // another error, at any buffer, is the opening's, with its hint
+        let e = queue_all(4, |i| {
+            if i < 2 {
+                Ok(())
+            } else {
+                Err(std::io::Error::from_raw_os_error(errno::ENODEV))
+            }
+        })
+        .unwrap_err();
+        assert!(e.starts_with("queue buffer 2 (VIDIOC_QBUF): "), "{e}");
+        assert!(e.ends_with("unplugged?)"), "{e}");
+        // a driver that never refuses: the limit, or the count asked above it
+        assert_eq!(queue_all(4, |_| Ok(())), Ok(VIDEO_MAX_FRAME));
+        assert_eq!(queue_all(40, |_| Ok(())), Ok(40));
+    }
 
     fn id() -> DeviceId {
         DeviceId {
