@@ -63,7 +63,7 @@ pub struct DriverArgs {
     #[arg(long, value_name = "PATH")]
     pub pipe: Option<PathBuf>,
     /// Camera: run COMMAND (`sh -c`) and read raw frames from its standard output, e.g.
-    /// "rpicam-vid -t 0 -n --codec yuv420 --width 320 --height 240 --framerate 30 -o -"
+    /// "rpicam-vid -t 0 -n --flush --codec yuv420 --width 320 --height 240 --framerate 30 -o -"
     /// for a Raspberry Pi camera module; started again when it stalls. Needs --size.
     #[arg(long, value_name = "COMMAND")]
     pub pipe_cmd: Option<String>,
