@@ -108,6 +108,18 @@ pub fn this_thread() -> u64 {
     THIS.with(Cell::get)
 }
 
+/// Panics unless this allocator is the process's global allocator: a test that
+/// finds zero allocations proves nothing when nothing is counted.
+pub fn assert_counting() {
+    let probe = this_thread();
+    std::hint::black_box(vec![0u8; 16]);
+    assert_eq!(
+        this_thread(),
+        probe + 1,
+        "the counting allocator is not installed (#[global_allocator])"
+    );
+}
+
 /// Allocations made so far by every thread.
 pub fn total() -> u64 {
     TOTAL.load(Ordering::Relaxed)

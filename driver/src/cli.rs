@@ -976,18 +976,22 @@ mod tests {
         );
     }
 
-    #[test]
-    fn a_camera_program_that_stalls_is_started_again() {
-        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
-        static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-        // one frame, then silence: each start of the program gives one frame
-        let cfg = PipeConfig {
+    /// 8x8 gray frames from a pipe that may stay silent for `silence`.
+    fn gray8_frames(silence: Duration) -> vlsync_signature_cam::pipe::PipeConfig {
+        vlsync_signature_cam::pipe::PipeConfig {
             width: 8,
             height: 8,
             stride: None,
-            format: PipeFormat::Gray,
-            silence: Duration::from_millis(300),
-        };
+            format: vlsync_signature_cam::pipe::PipeFormat::Gray,
+            silence,
+        }
+    }
+
+    #[test]
+    fn a_camera_program_that_stalls_is_started_again() {
+        static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+        // one frame, then silence: each start of the program gives one frame
+        let cfg = gray8_frames(Duration::from_millis(300));
         let mut src = raw::CamSource::pipe(
             raw::PipeInput::Command("head -c 64 /dev/zero; exec sleep 30".into()),
             cfg,
@@ -1014,7 +1018,6 @@ mod tests {
 
     #[test]
     fn a_camera_program_s_whole_group_goes_with_the_driver() {
-        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
         let dir = std::env::temp_dir().join(format!("vlsync-pipe-group-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let pid_file = dir.join("pid");
@@ -1023,13 +1026,7 @@ mod tests {
             "sleep 300 & echo $! > {}; head -c 64 /dev/zero; wait",
             pid_file.display()
         );
-        let cfg = PipeConfig {
-            width: 8,
-            height: 8,
-            stride: None,
-            format: PipeFormat::Gray,
-            silence: Duration::from_secs(5),
-        };
+        let cfg = gray8_frames(Duration::from_secs(5));
         let src = raw::CamSource::pipe(raw::PipeInput::Command(cmd), cfg, never).unwrap();
         let deadline = std::time::Instant::now() + Duration::from_secs(5);
         let pid = loop {
@@ -1067,7 +1064,6 @@ mod tests {
 
     #[test]
     fn a_fifo_without_a_writer_is_a_stall_not_a_hang() {
-        use vlsync_signature_cam::pipe::{PipeConfig, PipeFormat};
         let dir = std::env::temp_dir().join(format!("vlsync-pipe-fifo-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let fifo = dir.join("frames");
@@ -1076,13 +1072,7 @@ mod tests {
             .status()
             .unwrap();
         assert!(made.success());
-        let cfg = PipeConfig {
-            width: 8,
-            height: 8,
-            stride: None,
-            format: PipeFormat::Gray,
-            silence: Duration::from_millis(300),
-        };
+        let cfg = gray8_frames(Duration::from_millis(300));
         // the open returns at once; no writer ever comes: the driver's error, no reopen
         let mut src = raw::CamSource::pipe(raw::PipeInput::Path(fifo.clone()), cfg, never).unwrap();
         let e = src.next_sample().unwrap_err().to_string();

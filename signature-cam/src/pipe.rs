@@ -587,11 +587,21 @@ mod tests {
         let mut src = PipeSource::new(r, "p", c, clock).unwrap();
         wr.write_all(&[7; 20]).unwrap();
         assert!(matches!(src.next_frame(), Err(Error::Stalled { .. })));
+        // half a frame there: the stop ends the wait for the rest
+        stop_ends_the_wait_with(&[7; 20]);
+    }
+
+    /// A source waiting with `written` in its pipe (a writer that went quiet)
+    /// returns `None` once a stop is asked for.
+    fn stop_ends_the_wait_with(written: &[u8]) {
         static STOP: AtomicBool = AtomicBool::new(false);
+        static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        STOP.store(false, Ordering::Relaxed);
         let (r, mut wr) = std::io::pipe().unwrap();
         let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 8, 8, None), clock).unwrap();
         src.set_stop(|| STOP.load(Ordering::Relaxed));
-        wr.write_all(&[7; 20]).unwrap();
+        wr.write_all(written).unwrap();
         let stopper = std::thread::spawn(|| {
             std::thread::sleep(Duration::from_millis(150));
             STOP.store(true, Ordering::Relaxed);
@@ -646,16 +656,7 @@ mod tests {
 
     #[test]
     fn a_stop_request_ends_a_wait() {
-        static STOP: AtomicBool = AtomicBool::new(false);
-        let (r, _wr) = std::io::pipe().unwrap();
-        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 4, 4, None), clock).unwrap();
-        src.set_stop(|| STOP.load(Ordering::Relaxed));
-        let stopper = std::thread::spawn(|| {
-            std::thread::sleep(Duration::from_millis(150));
-            STOP.store(true, Ordering::Relaxed);
-        });
-        assert!(src.next_frame().unwrap().is_none());
-        stopper.join().unwrap();
+        stop_ends_the_wait_with(&[]);
     }
 
     #[test]

@@ -222,8 +222,10 @@ impl FrameSource for PipeFrames {
     ) -> Result<Option<(cam::GrayFrame<'_, u8>, cam::FrameTime)>, cam::Error> {
         let frames = self.src.counts().0;
         match self.src.next_frame() {
-            Ok(None) if !(self.stop)() => match self.child.as_mut() {
-                Some(child) => {
+            // the program is taken here, so that its group is killed now, while its
+            // id is surely still its own, not on a drop perhaps long after it was reaped
+            Ok(None) if !(self.stop)() => match self.child.take() {
+                Some(mut child) => {
                     // it closed its output: give it a moment to exit
                     let mut how = "closed its output".to_string();
                     for _ in 0..50 {
@@ -233,6 +235,7 @@ impl FrameSource for PipeFrames {
                         }
                         std::thread::sleep(Duration::from_millis(10));
                     }
+                    kill_group(&mut child);
                     // the driver's error names the command already
                     Err(cam::Error::Device {
                         path: "camera program".into(),
