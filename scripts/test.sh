@@ -3,6 +3,7 @@
 # Used verbatim by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+trap 'rm -f "${pip_log:-}" "${test_log:-}"' EXIT
 
 # apt-get install, as root or through sudo; says so when neither is possible
 install_deb() {
@@ -38,7 +39,6 @@ elif [ -x "$venv/bin/python3" ] && has_pinned "$venv/bin/python3"; then
     use_venv
 else
     pip_log="$(mktemp)"
-    trap 'rm -f "$pip_log"' EXIT
     if python3 -m pip install --quiet --disable-pip-version-check -r "$req" 2>"$pip_log"; then
         export VLSYNC_REQUIRE_PYTHON=1
     elif grep -qE 'externally-managed|No module named pip' "$pip_log"; then
@@ -79,4 +79,28 @@ fi
 # instead of building the workspace a second time.
 export VLSYNC_CARGO_FEATURES="vlsync-driver/v4l2"
 export VLSYNC_PREBUILT_BINS=1
-cargo test --workspace --no-fail-fast --features "$VLSYNC_CARGO_FEATURES"
+# The run's output is kept to sum it up at the end: after ten minutes and some eighty
+# test binaries, one line says how many tests passed and failed, and how long the
+# compile and the tests took. The exit status is cargo's.
+test_log="$(mktemp)"
+# cargo's colours and progress bar while compiling, as without the pipe, on a terminal
+if [ -t 1 ]; then
+    export CARGO_TERM_COLOR="${CARGO_TERM_COLOR:-always}"
+    export CARGO_TERM_PROGRESS_WHEN="${CARGO_TERM_PROGRESS_WHEN:-always}"
+    export CARGO_TERM_PROGRESS_WIDTH="${CARGO_TERM_PROGRESS_WIDTH:-$(tput cols 2>/dev/null || echo 80)}"
+fi
+started=$SECONDS
+set +e
+cargo test --workspace --no-fail-fast --features "$VLSYNC_CARGO_FEATURES" 2>&1 | tee "$test_log"
+status=${PIPESTATUS[0]}
+set -e
+awk -v total=$((SECONDS - started)) -v status="$status" '
+    /^test result:/ { passed += $4; failed += $6; ignored += $8; binaries++ }
+    /`test` profile.* target\(s\) in / { line = $0; sub(/.* in /, "", line); compile = line }
+    END {
+        printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test binaries; %d min %d s in all",
+            passed, failed, ignored, binaries, total / 60, total % 60
+        if (compile != "") printf " (compile %s)", compile
+        printf "; cargo exited %d\n", status
+    }' "$test_log" >&2
+exit "$status"
