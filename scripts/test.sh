@@ -98,7 +98,7 @@ awk -v total=$((SECONDS - started)) -v status="$status" '
     /^test result:/ { passed += $4; failed += $6; ignored += $8; binaries++ }
     /`test` profile.* target\(s\) in / { line = $0; sub(/.* in /, "", line); compile = line }
     END {
-        printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test binaries; %d min %d s in all",
+        printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test targets (doc tests included); %d min %d s in all",
             passed, failed, ignored, binaries, total / 60, total % 60
         if (compile != "") printf " (compile %s)", compile
         printf "; cargo exited %d\n", status
