@@ -129,6 +129,26 @@ fn feed(
     fed
 }
 
+/// No allocation after the warm-up, and the stream did run, noise and all: nearly
+/// every scan after the warm-up made, and samples from them. `what` names the parser
+/// and front-end in the messages.
+fn assert_allocated_nothing_and_ran(what: &str, fed: &Fed, front: &WallFront) {
+    assert_eq!(
+        fed.allocations, 0,
+        "{what}: {} allocations over {} scans after the warm-up",
+        fed.allocations, fed.counted_scans
+    );
+    assert!(
+        fed.counted_scans as usize > SCANS * 9 / 10,
+        "{what}: {fed:?}"
+    );
+    assert!(
+        fed.samples as usize > SCANS / 4,
+        "{what}: {fed:?} {:?}",
+        front.ahead().counters()
+    );
+}
+
 /// The driver's front-ends: the default window alone, and with the opposite one.
 fn fronts() -> [(&'static str, WallFront); 2] {
     let cfg = SignatureConfig::default();
@@ -159,22 +179,8 @@ fn ld06_bytes_to_samples_allocate_nothing_after_start_up() {
             });
             let st = parser.stats();
             eprintln!("LD06 {clock:?}, {what}: {fed:?}; {st:?}");
-            assert_eq!(
-                fed.allocations, 0,
-                "LD06 {clock:?}, {what}: {} allocations over {} scans after the warm-up",
-                fed.allocations, fed.counted_scans
-            );
-            // it did run, noise and all: thousands of scans, samples from them, and
-            // the noise's errors found
-            assert!(
-                fed.counted_scans as usize > SCANS * 9 / 10,
-                "LD06 {clock:?}: {fed:?}"
-            );
-            assert!(
-                fed.samples as usize > SCANS / 4,
-                "LD06 {clock:?}, {what}: {fed:?} {:?}",
-                front.ahead().counters()
-            );
+            assert_allocated_nothing_and_ran(&format!("LD06 {clock:?}, {what}"), &fed, &front);
+            // and the noise's errors were found
             assert!(
                 st.crc_errors > 10 && st.skipped_bytes > 100,
                 "LD06 noise: {st:?}"
@@ -216,20 +222,7 @@ fn rplidar_bytes_to_samples_allocate_nothing_after_start_up() {
         });
         let st = *parser.stats();
         eprintln!("RPLIDAR, {what}: {fed:?}; {st:?}");
-        assert_eq!(
-            fed.allocations, 0,
-            "RPLIDAR, {what}: {} allocations over {} scans after the warm-up",
-            fed.allocations, fed.counted_scans
-        );
-        assert!(
-            fed.counted_scans as usize > SCANS * 9 / 10,
-            "RPLIDAR: {fed:?}"
-        );
-        assert!(
-            fed.samples as usize > SCANS / 4,
-            "RPLIDAR, {what}: {fed:?} {:?}",
-            front.ahead().counters()
-        );
+        assert_allocated_nothing_and_ran(&format!("RPLIDAR, {what}"), &fed, &front);
         assert!(
             st.descriptors == 2 && st.skipped_bytes > 100,
             "RPLIDAR noise: {st:?}"
