@@ -852,7 +852,7 @@ impl Saver {
         }
     }
 
-    /// The same saver writing on a thread of its own ([`SaveThread`]): its
+    /// The same saver writing on a thread of its own (`SaveThread`): its
     /// [`Saver::tick`] and [`Saver::flush`] hand the estimate over and return at
     /// once. Stays inline, saying why, when no thread can be started.
     pub fn in_background(mut self) -> Self {
