@@ -10,10 +10,11 @@
 #     estimator promises the same estimates on any CPU (ARCHITECTURE.md, invariants);
 #  4. with --ipc, the multi-process tests (crate vlsync-tests: daemon, drivers, echo, the
 #     Python subscriber, and the C and C++ examples compiled with the aarch64 cross
-#     compilers against the aarch64 library) with the aarch64 binaries, but for three that cannot
-#     hold under emulation: the rendered demo and the short load profile (the renderer
-#     runs 30 s behind real time emulated) and the daemon's signal-handler census (qemu
-#     itself catches every signal).
+#     compilers against the aarch64 library) with the aarch64 binaries, but for four that
+#     cannot hold under emulation: the rendered demo, the short load profile and the camera
+#     program on a pipe (each renders in real time, and emulated the renderer falls 30 s
+#     behind: the pipe's 22 s run had written 460 of its 660 frames when the test gave up)
+#     and the daemon's signal-handler census (qemu itself catches every signal).
 # Tests that run the binaries exec aarch64 files, so the kernel must hand them to qemu
 # (binfmt_misc): the script registers qemu-aarch64 there when missing (as root; until reboot).
 #
@@ -149,11 +150,12 @@ if [ $ipc -eq 1 ]; then
     if ! CC=aarch64-linux-gnu-gcc CXX=aarch64-linux-gnu-g++ VLSYNC_PREBUILT_BINS=1 cargo test --release --no-fail-fast --target "$TARGET" -p vlsync-tests -- \
         --skip demo_ctrl_c_stops_children_and_leaves_nothing \
         --skip short_load_profile_keeps_error_and_loss_in_bounds \
+        --skip a_camera_program_on_a_pipe_locks_to_the_offset_of_its_arrival_stamps \
         --skip without_notify_socket_the_daemon_runs_and_stops_as_before >"$out/ipc.log" 2>&1; then
         grep -E '^(failures:|---- )|panicked|^error' "$out/ipc.log" | head -40 >&2
         echo "error: a multi-process test failed with the aarch64 binaries (log above)" >&2
         exit 1
     fi
-    awk '/^test result: ok/ { p += $4 } END { print "    " p " tests passed (3 skipped, see the header)" }' "$out/ipc.log"
+    awk '/^test result: ok/ { p += $4 } END { print "    " p " tests passed (4 skipped, see the header)" }' "$out/ipc.log"
 fi
 echo "==> aarch64: built, tests passed, results identical to x86-64"
