@@ -152,10 +152,13 @@ if [ $ipc -eq 1 ]; then
         --skip short_load_profile_keeps_error_and_loss_in_bounds \
         --skip a_camera_program_on_a_pipe_locks_to_the_offset_of_its_arrival_stamps \
         --skip without_notify_socket_the_daemon_runs_and_stops_as_before >"$out/ipc.log" 2>&1; then
-        grep -E '^(failures:|---- )|panicked|^error' "$out/ipc.log" | head -40 >&2
+        # each failing test's own output (its assertion message with the logs it names),
+        # up to its backtrace, then cargo's summary of the failed targets
+        awk '/^---- .* stdout ----$/ { p = 1; n = 0 } /^stack backtrace:/ { p = 0 }
+             p && n++ < 25 { print } /^error/ { print }' "$out/ipc.log" >&2
         echo "error: a multi-process test failed with the aarch64 binaries (log above)" >&2
         exit 1
     fi
-    awk '/^test result: ok/ { p += $4 } END { print "    " p " tests passed (4 skipped, see the header)" }' "$out/ipc.log"
+    awk '/^test result: ok/ { p += $4; f += $12 } END { print "    " p " tests passed, " f " skipped (see the header)" }' "$out/ipc.log"
 fi
 echo "==> aarch64: built, tests passed, results identical to x86-64"
