@@ -97,10 +97,13 @@ set -e
 awk -v total=$((SECONDS - started)) -v status="$status" '
     /^test result:/ { passed += $4; failed += $6; ignored += $8; binaries++ }
     /`test` profile.* target\(s\) in / { line = $0; sub(/.* in /, "", line); compile = line }
+    # one per failing target, a test binary that crashed (and so printed no result) too
+    /^error: test failed, to rerun pass `/ { t = $0; sub(/.*rerun pass /, "", t); targets = targets sep t; sep = ", " }
     END {
         printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test targets (doc tests included); %d min %d s in all",
             passed, failed, ignored, binaries, total / 60, total % 60
         if (compile != "") printf " (compile %s)", compile
         printf "; cargo exited %d\n", status
+        if (targets != "") printf "scripts/test.sh: failed targets: %s\n", targets
     }' "$test_log" >&2
 exit "$status"
