@@ -111,10 +111,13 @@ pub const ESTIMATE_HEADER: &str =
 /// Formats one estimate as a CSV row (without newline).
 pub fn estimate_row(e: &Estimate, buf: &mut String) {
     buf.clear();
+    // the reference time exactly, as the sample files' stamps: through an f64 an
+    // epoch-sized stamp (1.7e18 ns) would be off by up to 240 ns, and `--compare`
+    // matches estimates by their exact reference times
+    vlsync_sim::io::write_secs(buf, e.t_ref_ns);
     let _ = write!(
         buf,
-        "{:.9},{:.9},{:.9},{:.9},{:.9},{},{},{:.4},{:.4},{:.9},{}",
-        nanos_to_secs(e.t_ref_ns),
+        ",{:.9},{:.9},{:.9},{:.9},{},{},{:.4},{:.4},{:.9},{}",
         e.offset_s,
         e.drift,
         e.offset_std_s,

@@ -77,11 +77,26 @@ pub struct CsvStats {
 /// assert_eq!(vlsync_sim::io::format_secs(-1_500_000_001), "-1.500000001");
 /// ```
 pub fn format_secs(ns: Nanos) -> String {
+    let mut s = String::new();
+    write_secs(&mut s, ns);
+    s
+}
+
+/// [`format_secs`] appended to `out` (no allocation of its own: for writers that
+/// reuse one line buffer).
+///
+/// ```
+/// let mut line = String::from("t=");
+/// vlsync_sim::io::write_secs(&mut line, i64::MIN);
+/// assert_eq!(line, "t=-9223372036.854775808");
+/// ```
+pub fn write_secs(out: &mut impl std::fmt::Write, ns: Nanos) {
     let v = ns as i128;
     let sign = if v < 0 { "-" } else { "" };
     let a = v.unsigned_abs();
     let per = NANOS_PER_SEC as u128;
-    format!("{}{}.{:09}", sign, a / per, a % per)
+    // writing into a String cannot fail
+    let _ = write!(out, "{}{}.{:09}", sign, a / per, a % per);
 }
 
 /// Parses a time in seconds (decimal text, optionally with an exponent) to nanoseconds.
