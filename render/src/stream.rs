@@ -75,7 +75,7 @@ pub fn stream_raw(
     now: &dyn Fn() -> Nanos,
     sleep_until: &dyn Fn(Nanos),
 ) -> Result<StreamSummary, StreamError> {
-    let shift = start_at - r.anchor_ns();
+    let shift = start_at.saturating_sub(r.anchor_ns());
     let (w, h) = (r.config().camera.width, r.config().camera.height);
     let chroma = vec![0x80u8; 2 * w.div_ceil(2) * h.div_ceil(2)];
     let mut s = StreamSummary::default();
@@ -84,9 +84,9 @@ pub fn stream_raw(
             None => break,
             Some(f) => f.map_err(StreamError::Render)?,
         };
-        let due = f.tau_available_ns + shift;
+        let due = f.tau_available_ns.saturating_add(shift);
         sleep_until(due);
-        let late = now() - due;
+        let late = now().saturating_sub(due);
         if late > 2_000_000 {
             s.late += 1;
         }
