@@ -2,6 +2,11 @@
 //! module above, "One daemon per prefix").
 
 use super::*;
+use std::io::Read;
+
+/// The most of a held lock file read for the error's pid (a pid is at most 7 digits;
+/// the rest of a longer file is not the pid anyway).
+const LOCK_READ_MAX: usize = 64;
 
 /// `/tmp/vlsync/<prefix with / as %>.lock`
 pub fn lock_path(prefix: &str) -> PathBuf {
@@ -87,10 +92,15 @@ pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, Str
                 return Ok(InstanceLock { path, _file: f });
             }
             Err(std::fs::TryLockError::WouldBlock) => {
-                let holder = std::fs::read_to_string(&path).unwrap_or_default();
-                let holder = match holder.trim() {
+                // the holder wrote its pid; anything else there (another program's file,
+                // however large) is read no further than a pid's length and quoted clipped
+                let mut head = Vec::with_capacity(LOCK_READ_MAX);
+                let _ = std::fs::File::open(&path)
+                    .and_then(|f| f.take(LOCK_READ_MAX as u64).read_to_end(&mut head));
+                let head = String::from_utf8_lossy(&head);
+                let holder = match head.trim() {
                     "" => "unknown".to_string(),
-                    h => h.to_string(),
+                    h => vlsync_common::text::clip(h),
                 };
                 return Err(format!(
                     "another vlsyncd already serves prefix `{prefix}` (lock {} held by pid {holder})",
@@ -127,6 +137,31 @@ mod tests {
             }
             Err(e) => println!("error {e}"),
         }
+    }
+
+    /// A held lock file that holds something else than a pid (another program's,
+    /// however large) is read no further than a pid's length, and quoted clipped.
+    #[test]
+    fn a_held_lock_file_is_quoted_clipped_and_not_read_whole() {
+        let dir = std::env::temp_dir().join(format!("vlsync-lock-big-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("q.lock");
+        std::fs::write(&path, "x".repeat(1 << 20)).unwrap();
+        // flock belongs to the open file: another open of it in this process conflicts
+        let holder = File::open(&path).unwrap();
+        holder.try_lock().unwrap();
+        let e = lock_file(path.clone(), "q").unwrap_err();
+        assert!(
+            e.starts_with("another vlsyncd already serves prefix `q`") && e.len() < 300,
+            "{e}"
+        );
+        assert!(
+            e.contains(&format!("held by pid {}…)", "x".repeat(40))),
+            "{e}"
+        );
+        drop(holder);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A daemon of the units' user meets the lock file a daemon run by hand as root
