@@ -39,8 +39,10 @@ use crate::signature::{ConfigError, SignatureConfig, SignatureProcessor};
 use std::f64::consts::PI;
 use vlsync_common::{Nanos, Sample};
 
-/// Most samples one scan can give per window (a window crossed twice in a scan
-/// whose rays wrap around its start); more are counted as out of order.
+/// Samples one scan gives per window, at most, in a scan of one revolution (a window
+/// crossed twice when its rays wrap around its start); the merge buffer starts with
+/// room for both windows' and grows for a scan of several revolutions (a scan CSV may
+/// give one scan every ray of a recording), so no sample is lost to its size.
 const PER_SCAN: usize = 8;
 
 /// The window of a configuration and the one opposite it, merged into one stream.
@@ -50,6 +52,9 @@ pub struct OppositeWindows {
     behind: SignatureProcessor,
     last_t: Option<Nanos>,
     out_of_order: u64,
+    /// One scan's samples of both windows, sorted before they are emitted (reused:
+    /// no allocation per scan once it holds a scan's worth).
+    buf: Vec<Sample>,
 }
 
 impl OppositeWindows {
@@ -64,6 +69,7 @@ impl OppositeWindows {
             behind: SignatureProcessor::new(behind)?,
             last_t: None,
             out_of_order: 0,
+            buf: Vec::with_capacity(2 * PER_SCAN),
         })
     }
 
@@ -73,25 +79,15 @@ impl OppositeWindows {
     /// `max_gap_ns`: the stream then restarts, as each window does). Returns the
     /// number emitted.
     pub fn push_scan(&mut self, scan: &Scan, mut emit: impl FnMut(Sample)) -> usize {
-        let mut buf = [Sample::new(0, 0.0); 2 * PER_SCAN];
-        let mut n = 0;
-        let mut over = 0u64;
-        let mut keep = |s: Sample| {
-            if n < buf.len() {
-                buf[n] = s;
-                n += 1;
-            } else {
-                over += 1;
-            }
-        };
-        self.ahead.push_scan(scan, &mut keep);
+        let buf = &mut self.buf;
+        buf.clear();
+        self.ahead.push_scan(scan, |s| buf.push(s));
         self.behind
-            .push_scan(scan, |s| keep(Sample::new(s.t_ns, -s.value)));
-        self.out_of_order += over;
-        buf[..n].sort_unstable_by_key(|s| s.t_ns);
+            .push_scan(scan, |s| buf.push(Sample::new(s.t_ns, -s.value)));
+        buf.sort_unstable_by_key(|s| s.t_ns);
         let mut emitted = 0;
         let max_gap = self.ahead.config().max_gap_ns;
-        for s in &buf[..n] {
+        for s in buf.iter() {
             if !admits(self.last_t, s.t_ns, max_gap) {
                 self.out_of_order += 1;
                 continue;
@@ -229,6 +225,38 @@ mod tests {
             .iter()
             .all(|s| s.t_ns < 20_000_000_000 && (s.value + 0.5).abs() < 0.01));
         assert!(after.windows(2).all(|p| p[0].t_ns < p[1].t_ns));
+    }
+
+    /// A scan CSV may give one scan all the rays of several revolutions (one
+    /// `scan_start_s` for every row, each ray its own time): every pass of both
+    /// windows is published, none is lost to a per-scan limit.
+    #[test]
+    fn a_scan_of_many_revolutions_gives_every_pass_of_both_windows() {
+        let turns = 30;
+        let mut rays = Vec::new();
+        for k in 0..turns {
+            let one = corridor(0.05 * k as f64, k * 100_000_000);
+            rays.extend(one.rays().iter().copied());
+        }
+        let timing = *corridor(0.0, 0).timing();
+        let scan = Scan::from_timed(timing, rays);
+        let mut w = OppositeWindows::new(SignatureConfig::default()).unwrap();
+        let mut out = Vec::new();
+        let n = w.push_scan(&scan, |s| out.push(s));
+        // the same revolutions as one scan each
+        let mut each = OppositeWindows::new(SignatureConfig::default()).unwrap();
+        let mut want = Vec::new();
+        for k in 0..turns {
+            each.push_scan(&corridor(0.05 * k as f64, k * 100_000_000), |s| {
+                want.push(s)
+            });
+        }
+        assert!(want.len() > 2 * 2 * PER_SCAN, "{} samples", want.len());
+        assert_eq!(n, out.len());
+        assert_eq!(w.out_of_order(), 0);
+        assert_eq!(out.len(), want.len());
+        assert!(out.iter().all(|s| (s.value + 0.5).abs() < 0.01));
+        assert!(out.windows(2).all(|p| p[0].t_ns < p[1].t_ns));
     }
 
     #[test]
