@@ -89,6 +89,9 @@ pub struct FamilyResult {
     pub step_run: StepRun,
 }
 
+/// Most seeds per family `--seeds` accepts.
+pub const MAX_SEEDS: u64 = 10_000;
+
 /// Runs one family over `seeds`; with `plot_dir`, writes the first seed's SVG there.
 pub fn run_family(
     cfg: &Config,
@@ -349,8 +352,13 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     {
         return Err(format!("--families: {} given twice", dup.name()));
     }
-    if args.seeds == 0 {
-        return Err("--seeds must be at least 1".into());
+    // 10,000 seeds of every family run about a quarter of an hour here; far more is a
+    // typo (a run of years, its results held in memory as it went)
+    if !(1..=MAX_SEEDS).contains(&args.seeds) {
+        return Err(format!(
+            "--seeds {} is out of range: allowed 1 ..= {MAX_SEEDS}",
+            args.seeds
+        ));
     }
     // a --json that cannot be written is found now, not after the whole run
     if let Some(p) = &args.json {
@@ -540,6 +548,12 @@ mod tests {
     fn bad_arguments_are_named() {
         let e = run_cli(&BenchArgs { seeds: 0, ..args() }).unwrap_err();
         assert!(e.contains("--seeds"), "{e}");
+        let e = run_cli(&BenchArgs {
+            seeds: MAX_SEEDS + 1,
+            ..args()
+        })
+        .unwrap_err();
+        assert_eq!(e, "--seeds 10001 is out of range: allowed 1 ..= 10000");
         for (seed_base, seeds) in [(u64::MAX, 5), (u64::MAX - 3, 5), (u64::MAX, 2)] {
             let e = run_cli(&BenchArgs {
                 seed_base,
