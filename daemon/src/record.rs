@@ -59,6 +59,12 @@ pub struct StreamCounts {
     /// Samples missing between received ones (sequence-number jumps): lost by the
     /// recorder's buffer or before it.
     pub lost: u64,
+    /// Samples a driver published before the first one recorded of its run: the
+    /// sequence number of a run's first row when that is not the driver's first
+    /// sample (published before the recorder listened, or dropped from its buffer
+    /// before it read any). The daemon's estimator may have had them; a replay
+    /// does not.
+    pub before_first: u64,
     /// Driver restarts seen (`FLAG_FIRST` after the first row, or a sequence
     /// number that went back).
     pub restarts: u64,
@@ -118,13 +124,28 @@ impl<W: Write> Recording<W> {
             return Ok(());
         }
         let c = &mut self.counts[i];
-        match self.last_seq[i] {
-            Some(_) if s.is_first() => c.restarts += 1,
+        let new_run = match self.last_seq[i] {
+            Some(_) if s.is_first() => {
+                c.restarts += 1;
+                true
+            }
             // a number that goes back, or jumps further than any buffer loses
             // samples: a publisher whose counter restarted (as the daemon judges it)
-            Some(last) if s.seq <= last || s.seq - last - 1 > MAX_COUNTED_GAP => c.restarts += 1,
-            Some(last) => c.lost = c.lost.saturating_add(s.seq - last - 1),
-            None => {}
+            Some(last) if s.seq <= last || s.seq - last - 1 > MAX_COUNTED_GAP => {
+                c.restarts += 1;
+                true
+            }
+            Some(last) => {
+                c.lost = c.lost.saturating_add(s.seq - last - 1);
+                false
+            }
+            None => true,
+        };
+        // a run's first row that is not its driver's first sample: the samples
+        // before it (numbered from 0) were never read; a number beyond any buffer is a
+        // corrupt counter, not a count
+        if new_run && !s.is_first() && s.seq <= MAX_COUNTED_GAP {
+            c.before_first = c.before_first.saturating_add(s.seq);
         }
         self.last_seq[i] = Some(s.seq);
         c.rows += 1;
@@ -205,8 +226,8 @@ impl<W: Write> Recording<W> {
         for (name, c) in ["cam", "lidar"].iter().zip(self.counts) {
             let _ = writeln!(
                 s,
-                "{name:>9}: {} samples, {} lost (sequence gaps), {} driver restarts, {} malformed payloads skipped, {} non-finite values kept",
-                c.rows, c.lost, c.restarts, c.malformed, c.non_finite
+                "{name:>9}: {} samples, {} lost (sequence gaps), {} published before the first recorded, {} driver restarts, {} malformed payloads skipped, {} non-finite values kept",
+                c.rows, c.lost, c.before_first, c.restarts, c.malformed, c.non_finite
             );
         }
         let st = |x: EstimatorState| self.states[x as usize];
@@ -454,6 +475,12 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
         ));
     }
     if result.is_ok() && rec.counts().iter().all(|c| c.rows > 0) {
+        let [c, l] = rec.counts().map(|c| c.before_first);
+        if c + l > 0 {
+            err(&format!(
+                "the drivers published {c} camera and {l} LiDAR samples before this recording read any: the daemon may have had them, a replay will not, so its estimates may differ from est.csv (start the drivers once the recorder says \"Ctrl-C stops\")\n"
+            ));
+        }
         err(&format!(
             "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv --compare {0}/est.csv{1}\n",
             a.out.display(),
@@ -525,6 +552,7 @@ mod tests {
             StreamCounts {
                 rows: 7,
                 lost: 2,
+                before_first: 40,
                 restarts: 2,
                 malformed: 2,
                 non_finite: 0
@@ -533,7 +561,7 @@ mod tests {
         assert_eq!(r.counts()[1], StreamCounts::default());
         let summary = r.summary();
         assert!(
-            summary.contains("cam: 7 samples, 2 lost (sequence gaps), 2 driver restarts, 2 malformed payloads skipped"),
+            summary.contains("cam: 7 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 2 malformed payloads skipped"),
             "{summary}"
         );
         assert!(summary.contains("estimates: 0 ("), "{summary}");

@@ -190,10 +190,11 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
     assert!(log.contains("s: cam "), "no progress line:\n{log}");
     for (name, n) in [("cam", rig.sim.cam.len()), ("lidar", rig.sim.lidar.len())] {
         let want =
-            format!("{name}: {n} samples, 0 lost (sequence gaps), 0 driver restarts, 0 malformed");
+            format!("{name}: {n} samples, 0 lost (sequence gaps), 0 published before the first recorded, 0 driver restarts, 0 malformed");
         assert!(log.contains(&want), "`{want}` missing:\n{log}");
     }
     assert!(log.contains("replay it: vlsyncd replay --cam "), "{log}");
+    assert!(!log.contains("before this recording read any"), "{log}");
 
     // the streams: every sample as published, stamps and values exact
     for (file, sent) in [("cam.csv", &rig.sim.cam), ("lidar.csv", &rig.sim.lidar)] {

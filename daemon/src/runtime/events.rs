@@ -44,6 +44,16 @@ pub(super) fn log_event(
                 tracing::info!("{stream} driver (re)started{}", more(n))
             }
         }
+        RtEvent::Joined { stream, before } => {
+            // a publisher appearing, as a driver's start is: the same throttle
+            let key = journal::driver_started_key(stream_index(*stream));
+            if let Some(n) = throttle.admit(key, 1, now) {
+                tracing::info!(
+                    "{stream}: the first sample read from a publisher is its number {before}: the {before} before it were published before this daemon listened, or dropped from the full subscriber buffer before it read any (a driver's --fast burst); not counted as lost{}",
+                    more(n)
+                )
+            }
+        }
         RtEvent::State { from, to } => {
             let from_name = from.map_or("none", |s| s.name());
             // every stop of the robot holds and every start tracks again: routine

@@ -187,6 +187,14 @@ pub enum RtEvent {
         /// Stream.
         stream: Stream,
     },
+    /// The first sample read from a publisher was not its first one
+    /// ([`rt::SeqGap::Joined`]).
+    Joined {
+        /// Stream.
+        stream: Stream,
+        /// Samples it had published before (the number of the first one read).
+        before: u64,
+    },
     /// The estimator state changed.
     State {
         /// Previous state (`None` before the first estimate).
@@ -605,7 +613,7 @@ fn rt_outcome(joined: std::thread::Result<()>) -> Result<(), String> {
 
 #[cfg(test)]
 mod tests {
-    use super::rt::{first_published, sequence_gap, snapshot, MAX_COUNTED_GAP};
+    use super::rt::{first_published, sequence_gap, snapshot, SeqGap, MAX_COUNTED_GAP};
     use super::*;
     use vlsync_common::wire::STATE_NONE;
     use vlsync_common::RejectReason;
@@ -698,27 +706,44 @@ mod tests {
 
     #[test]
     fn sequence_gaps_are_counted_per_publisher() {
-        let (a, b) = (pid(1), pid(2));
+        let (a, b, c) = (pid(1), pid(2), pid(3));
         let mut slots = [None; 4];
-        assert_eq!(sequence_gap(&mut slots, a, 0, true), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 1, false), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 5, false), 3);
+        let lost = |slots: &mut _, p, seq, first| match sequence_gap(slots, p, seq, first) {
+            SeqGap::Lost(n) => n,
+            SeqGap::None => 0,
+            SeqGap::Joined(n) => panic!("joined at {n}"),
+        };
+        assert_eq!(lost(&mut slots, a, 0, true), 0);
+        assert_eq!(lost(&mut slots, a, 1, false), 0);
+        assert_eq!(lost(&mut slots, a, 5, false), 3);
         // a second publisher does not disturb the first one's count
-        assert_eq!(sequence_gap(&mut slots, b, 0, true), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 6, false), 0);
+        assert_eq!(lost(&mut slots, b, 0, true), 0);
+        assert_eq!(lost(&mut slots, a, 6, false), 0);
         // restart of a: sequence back to 0 with FLAG_FIRST is not a gap
-        assert_eq!(sequence_gap(&mut slots, a, 0, true), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 2, false), 1);
+        assert_eq!(lost(&mut slots, a, 0, true), 0);
+        assert_eq!(lost(&mut slots, a, 2, false), 1);
         // a duplicate/backwards sequence is not counted as lost
-        assert_eq!(sequence_gap(&mut slots, a, 1, false), 0);
+        assert_eq!(lost(&mut slots, a, 1, false), 0);
         // a hostile jump to the end of the range and back: no count near u64::MAX
         // (which the next gap would overflow)
-        assert_eq!(sequence_gap(&mut slots, a, u64::MAX, false), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 0, false), 0);
-        assert_eq!(sequence_gap(&mut slots, a, 5, false), 4);
+        assert_eq!(lost(&mut slots, a, u64::MAX, false), 0);
+        assert_eq!(lost(&mut slots, a, 0, false), 0);
+        assert_eq!(lost(&mut slots, a, 5, false), 4);
         assert_eq!(
-            sequence_gap(&mut slots, a, 6 + MAX_COUNTED_GAP, false),
+            lost(&mut slots, a, 6 + MAX_COUNTED_GAP, false),
             MAX_COUNTED_GAP
+        );
+        // a publisher first read at 944 (a --fast burst, or a daemon that started
+        // under a running driver): said, not counted; a number beyond any buffer is a
+        // corrupt counter, and a first sample at 0 without the flag hid nothing
+        assert_eq!(sequence_gap(&mut slots, c, 944, false), SeqGap::Joined(944));
+        assert_eq!(sequence_gap(&mut slots, c, 945, false), SeqGap::None);
+        let d = pid(4);
+        assert_eq!(sequence_gap(&mut slots, d, 0, false), SeqGap::None);
+        let e = pid(5);
+        assert_eq!(
+            sequence_gap(&mut slots, e, MAX_COUNTED_GAP + 1, false),
+            SeqGap::None
         );
     }
 

@@ -110,25 +110,44 @@ pub(super) fn first_published(
 /// recorder (`vlsyncd record`) judges gaps by the same rule.
 pub(crate) const MAX_COUNTED_GAP: u64 = 1 << 32;
 
-/// Tracks the sequence of each publisher of a stream; returns samples lost
-/// before `seq` (0 for the first sample of a publisher or a restart, and for a
-/// jump beyond [`MAX_COUNTED_GAP`]).
+/// What a sample's sequence number says ([`sequence_gap`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum SeqGap {
+    /// The next one of its publisher, a restart, a jump back, or one beyond
+    /// [`MAX_COUNTED_GAP`]: nothing lost.
+    None,
+    /// This many samples lost since the publisher's previous one.
+    Lost(u64),
+    /// The first sample read from a publisher, numbered `n` without `FLAG_FIRST`:
+    /// its `n` earlier samples were published before this daemon listened (a
+    /// daemon restarted under running drivers), or dropped from a full buffer
+    /// before the daemon read any (a driver's `--fast` burst at its start); the
+    /// daemon cannot tell which, so they are not counted as lost.
+    Joined(u64),
+}
+
+/// Tracks the sequence of each publisher of a stream: what `seq` says of the
+/// samples before it.
 pub(super) fn sequence_gap(
     slots: &mut [Option<(UniquePublisherId, u64)>; 4],
     publisher: UniquePublisherId,
     seq: u64,
     first: bool,
-) -> u64 {
+) -> SeqGap {
     if let Some(slot) = slots.iter_mut().flatten().find(|(p, _)| *p == publisher) {
         let last = slot.1;
         slot.1 = seq;
         if first || seq <= last {
-            return 0;
+            return SeqGap::None;
         }
         let gap = seq - last - 1;
         // no subscriber buffer loses billions of samples: a jump that far is a
         // publisher whose counter restarted or is corrupt, not a loss
-        return if gap > MAX_COUNTED_GAP { 0 } else { gap };
+        return if gap == 0 || gap > MAX_COUNTED_GAP {
+            SeqGap::None
+        } else {
+            SeqGap::Lost(gap)
+        };
     }
     // a new publisher: take a free slot, or replace the one with the oldest sequence
     let free = slots.iter().position(|s| s.is_none());
@@ -140,9 +159,11 @@ pub(super) fn sequence_gap(
             .map_or(0, |(i, _)| i)
     });
     slots[idx] = Some((publisher, seq));
-    // samples before the first one seen from a publisher that did not just start
-    // were published while no daemon listened: not lost by the daemon
-    0
+    if first || seq == 0 || seq > MAX_COUNTED_GAP {
+        SeqGap::None
+    } else {
+        SeqGap::Joined(seq)
+    }
 }
 
 /// Everything the real-time thread needs, built before its loop starts.
@@ -362,17 +383,22 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
-            let lost = sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first());
-            if lost > 0 {
-                c.status.lost[si] = c.status.lost[si].saturating_add(lost);
-                emit(
-                    &s.tx,
-                    &mut c,
-                    RtEvent::Lost {
-                        stream,
-                        count: lost,
-                    },
-                );
+            match sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first()) {
+                SeqGap::None => {}
+                SeqGap::Lost(lost) => {
+                    c.status.lost[si] = c.status.lost[si].saturating_add(lost);
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Lost {
+                            stream,
+                            count: lost,
+                        },
+                    );
+                }
+                SeqGap::Joined(before) => {
+                    emit(&s.tx, &mut c, RtEvent::Joined { stream, before });
+                }
             }
             if let Err(r) = est.push_urgent(stream, w.sample()) {
                 c.status.rejected[si][r.index()] += 1;
