@@ -237,6 +237,12 @@ pub fn select_source(
                 args.stamp.name()
             )));
         }
+        if args.stamp == StampArg::Software && stream != Stream::Cam {
+            return Err(DriverError::Options(
+                "--stamp software is a camera mode; the LiDAR stamps like its sensor (--stamp sensor or mono)"
+                    .into(),
+            ));
+        }
         if args.fast || args.speed.is_some_and(|s| s != 1.0) {
             return Err(DriverError::Options(format!(
                 "--stamp {} stamps on CLOCK_MONOTONIC: it needs real time (no --fast, --speed 1)",
@@ -753,9 +759,63 @@ pub const LINGER: Duration = Duration::from_millis(500);
 /// How often a driver writes a progress line (journald under systemd).
 pub const PROGRESS_EVERY: Duration = Duration::from_secs(600);
 
+/// Options only the camera driver takes (clap's ids).
+const CAM_ONLY: [&str; 9] = [
+    "frames",
+    "v4l2",
+    "fps",
+    "pipe",
+    "pipe_cmd",
+    "size",
+    "raw_format",
+    "stride",
+    "frame_cpu_ms",
+];
+/// Options only the LiDAR driver takes.
+const LIDAR_ONLY: [&str; 5] = ["opposite_window", "ld06", "rplidar", "baud", "scans"];
+
+/// The command line of one driver binary: [`DriverArgs`] with the other driver's
+/// options left out of `--help` (still parsed, so giving one is refused naming the
+/// binary: "--frames is not a source of vlsync-lidar"), and its own sources listed.
+pub fn command(stream: Stream) -> clap::Command {
+    use clap::CommandFactory;
+    let (name, hidden, sources): (&str, &[&str], &str) = match stream {
+        Stream::Cam => (
+            "vlsync-cam",
+            &LIDAR_ONLY,
+            "Sources (give exactly one): --csv, --sim, --render, --mcap (an Image or \
+             CompressedImage topic), --frames, --v4l2, --pipe, --pipe-cmd. Files and \
+             simulators are paced by their timestamps (or --fast); live devices publish as \
+             data arrives.",
+        ),
+        Stream::Lidar => (
+            "vlsync-lidar",
+            &CAM_ONLY,
+            "Sources (give exactly one): --csv, --sim, --render, --mcap (a LaserScan topic), \
+             --ld06, --rplidar, --scans. Files and simulators are paced by their timestamps \
+             (or --fast); live devices publish as data arrives.",
+        ),
+    };
+    let mut cmd = DriverArgs::command()
+        .name(name)
+        .bin_name(name)
+        .about(format!(
+            "Publish the {stream} signature stream to the vlsync daemon"
+        ))
+        .after_help(sources);
+    for id in hidden {
+        cmd = cmd.mut_arg(*id, |a| a.hide(true));
+    }
+    cmd
+}
+
 /// `main` of a driver binary.
 pub fn main(stream: Stream) -> ExitCode {
-    let args = match DriverArgs::try_parse_from(std::env::args_os()) {
+    use clap::FromArgMatches;
+    let parsed = command(stream)
+        .try_get_matches_from(std::env::args_os())
+        .and_then(|m| DriverArgs::from_arg_matches(&m));
+    let args = match parsed {
         Ok(a) => a,
         Err(e) => {
             // --help and --version print and succeed; a command line that cannot be
@@ -823,6 +883,50 @@ mod tests {
 
     fn args(a: &[&str]) -> DriverArgs {
         DriverArgs::try_parse_from(std::iter::once("vlsync-cam").chain(a.iter().copied())).unwrap()
+    }
+
+    /// Each binary's `--help` lists its own sources and options, not the other's;
+    /// the other's still parse (and are then refused naming the binary).
+    #[test]
+    fn each_binary_helps_with_its_own_options() {
+        use clap::FromArgMatches;
+        for (stream, own, other) in [
+            (Stream::Cam, &CAM_ONLY[..], &LIDAR_ONLY[..]),
+            (Stream::Lidar, &LIDAR_ONLY[..], &CAM_ONLY[..]),
+        ] {
+            let mut cmd = command(stream);
+            cmd.build();
+            let help = cmd.render_long_help().to_string();
+            let flag = |id: &str| format!("--{}", id.replace('_', "-"));
+            let shown = |id: &str| {
+                [" ", "\n"]
+                    .iter()
+                    .any(|end| help.contains(&format!("{}{end}", flag(id))))
+            };
+            for id in own {
+                assert!(shown(id), "{stream}: {id} missing:\n{help}");
+            }
+            for id in other {
+                assert!(!shown(id), "{stream}: {id} shown:\n{help}");
+            }
+            assert!(help.contains(&format!("vlsync-{stream}")), "{help}");
+            for id in ["--csv ", "--sim ", "--render ", "--mcap ", "--prefix "] {
+                assert!(help.contains(id), "{stream}: {id} missing:\n{help}");
+            }
+            let hidden = flag(other[0]);
+            let m = command(stream)
+                .try_get_matches_from([
+                    "x",
+                    hidden.as_str(),
+                    if other[0] == "opposite_window" {
+                        "--fast"
+                    } else {
+                        "v"
+                    },
+                ])
+                .unwrap();
+            DriverArgs::from_arg_matches(&m).unwrap();
+        }
     }
 
     fn options_error(a: &[&str]) -> String {

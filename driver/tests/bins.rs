@@ -384,6 +384,14 @@ fn option_and_configuration_errors_exit_78_source_errors_2() {
             78,
             "window_half_width_deg",
         ),
+        // a camera mode asked of the LiDAR: wrong options (it exited 2 from the
+        // source's opening, and the unit would have restarted it forever)
+        (
+            lidar,
+            vec!["--render", "1", "--stamp", "software"],
+            78,
+            "--stamp software is a camera mode",
+        ),
         (
             lidar,
             vec!["--scans", "/nonexistent/vlsync/s.csv"],

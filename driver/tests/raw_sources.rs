@@ -478,7 +478,7 @@ fn stamping_options_are_checked() {
         Err(e) => e.to_string(),
     };
     let e = err(&["--render", "1", "--stamp", "software"], Stream::Lidar);
-    assert!(e.contains("software stamping is a camera mode"), "{e}");
+    assert!(e.contains("--stamp software is a camera mode"), "{e}");
     let e = err(
         &["--render", "1", "--stamp", "mono", "--fast"],
         Stream::Lidar,
