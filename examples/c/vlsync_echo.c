@@ -26,9 +26,10 @@
 static volatile sig_atomic_t stop = 0;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
+#define USAGE "usage: vlsync_echo [--prefix P] [--count N] [--timeout S] [--status]\n"
+
 static int usage(const char *why, const char *arg) {
-    fprintf(stderr, "vlsync_echo: %s%s\nusage: vlsync_echo [--prefix P] [--count N] [--timeout S] [--status]\n",
-            why, arg);
+    fprintf(stderr, "vlsync_echo: %s%s\n" USAGE, why, arg);
     return 2;
 }
 
@@ -119,6 +120,13 @@ int main(int argc, char **argv) {
     int want_status = 0;
     for (int i = 1; i < argc; i++) {
         const char *opt = argv[i];
+        if (!strcmp(opt, "--help") || !strcmp(opt, "-h")) {
+            printf(USAGE
+                   "Prints the vlsync daemon's estimates on prefix P (default vlsync/robot), one line\n"
+                   "each in order, or with --status its counters; stops after N lines (0: no limit)\n"
+                   "or when S seconds pass without one (exit 1; 0: no limit).\n");
+            return 0;
+        }
         if (!strcmp(opt, "--status")) {
             want_status = 1;
             continue;

@@ -27,6 +27,7 @@
 #include "vlsync_client.hpp"
 
 namespace {
+const char *const kUsage = "usage: vlsync_convert [--prefix P] [--timeout S] < camera_stamps_ns.txt\n";
 volatile std::sig_atomic_t stop = 0;
 extern "C" void on_signal(int) { stop = 1; }
 
@@ -45,12 +46,20 @@ int main(int argc, char **argv) {
     double timeout_s = 30.0;
     for (int i = 1; i < argc; i++) {
         std::string a = argv[i];
+        if (a == "--help" || a == "-h") {
+            std::cout << kUsage
+                      << "Reads camera stamps (integer ns, one per line) on stdin and prints each on the\n"
+                         "LiDAR clock: t_cam_ns t_lidar_ns std_us state, once the daemon on prefix P\n"
+                         "(default vlsync/robot) has locked; waits up to S seconds for that (default 30;\n"
+                         "0: no limit).\n";
+            return 0;
+        }
         if (a != "--prefix" && a != "--timeout") {
-            std::cerr << "vlsync_convert: unknown option " << a << "\n";
+            std::cerr << "vlsync_convert: unknown option " << a << "\n" << kUsage;
             return 2;
         }
         if (i + 1 >= argc) {
-            std::cerr << "vlsync_convert: a value is missing after " << a << "\n";
+            std::cerr << "vlsync_convert: a value is missing after " << a << "\n" << kUsage;
             return 2;
         }
         const char *v = argv[++i];

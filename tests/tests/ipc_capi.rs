@@ -434,6 +434,16 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
         assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
         assert!(err.contains(says), "{args:?}: {err}");
     }
+    // --help: the usage on stdout, exit 0, nothing opened
+    for (exe, usage) in [
+        (&echo, "usage: vlsync_echo [--prefix P]"),
+        (&convert, "usage: vlsync_convert [--prefix P]"),
+    ] {
+        let out = run(exe, &["--help"], "");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.code(), Some(0), "{text}");
+        assert!(text.starts_with(usage), "{text}");
+    }
     std::fs::remove_dir_all(&tmp).unwrap();
 }
 
