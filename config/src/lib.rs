@@ -404,15 +404,29 @@ const MAX_ERROR_LINE_CHARS: usize = 200;
 /// Most lines kept of a TOML parse error.
 const MAX_ERROR_LINES: usize = 12;
 
+/// Most characters of the key list an unknown key's error gives (`expected one of
+/// ...`): the longest section's list is about 600.
+const MAX_KEY_LIST_CHARS: usize = 2000;
+
 /// The TOML parser's message, each line cut at [`MAX_ERROR_LINE_CHARS`]; the first
-/// line (`TOML parse error at line L, column C`) is kept whole when it is short.
+/// line (`TOML parse error at line L, column C`) is kept whole when it is short, and
+/// an unknown key's list of the keys allowed is kept whole (the unknown key clipped):
+/// cut, it ended in the middle of a key name, the one the user may have meant.
 fn clip_toml_error(text: &str) -> String {
     let mut out: Vec<String> = text
         .trim_end()
         .lines()
         .take(MAX_ERROR_LINES)
         .map(|l| {
-            if l.chars().count() > MAX_ERROR_LINE_CHARS {
+            let known = l.strip_prefix("unknown field `").and_then(|rest| {
+                let i = rest.find("`, expected ")?;
+                let (name, list) = rest.split_at(i);
+                (list.chars().count() <= MAX_KEY_LIST_CHARS)
+                    .then(|| format!("unknown field `{}{list}", clip(name)))
+            });
+            if let Some(line) = known {
+                line
+            } else if l.chars().count() > MAX_ERROR_LINE_CHARS {
                 let mut c: String = l.chars().take(MAX_ERROR_LINE_CHARS).collect();
                 c.push('…');
                 c
@@ -795,6 +809,19 @@ mod tests {
         assert!(e.to_string().contains("x.toml"), "{e}");
         let e = Config::from_toml_str("[nope]\n", "x.toml").unwrap_err();
         assert!(e.to_string().contains("nope"), "{e}");
+        // the keys allowed, every one: cut at 200 characters, the list ended in the
+        // middle of a name
+        let e = Config::from_toml_str("[estimator]\nmax_lags = 0.5\n", "x.toml").unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains("unknown field `max_lags`, expected one of `grid_hz`, ")
+                && s.trim_end().ends_with('`')
+                && !s.contains('…'),
+            "{s}"
+        );
+        for key in ["reset_jump_s", "max_lag_s", "cadence"] {
+            assert!(s.contains(&format!("`{key}`")), "{key}: {s}");
+        }
     }
 
     #[test]
