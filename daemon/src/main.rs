@@ -71,7 +71,25 @@ enum Cmd {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            if !e.use_stderr() {
+                return ExitCode::SUCCESS; // --help, --version
+            }
+            // `run` given options it cannot take (an `ExecStart=` drop-in's typo, a
+            // --fifo-priority out of range) is a configuration error as its file's are:
+            // 78, which the unit does not restart every 2 s; the one-shot commands keep
+            // clap's 2
+            let run = std::env::args_os().nth(1).is_some_and(|a| a == "run");
+            return ExitCode::from(if run {
+                vlsyncd::runtime::EXIT_CONFIG
+            } else {
+                2
+            });
+        }
+    };
     let result = match cli.cmd {
         Cmd::Replay {
             cam,

@@ -120,6 +120,12 @@ fn a_configuration_it_cannot_load_exits_78() {
             vec!["missing.toml"],
         ),
         (vec!["run", "--prefix", "no spaces/allowed"], vec!["prefix"]),
+        // options `run` cannot take: a unit would restart them every 2 s on exit 2
+        (
+            vec!["run", "--fifo-priority", "100"],
+            vec!["--fifo-priority"],
+        ),
+        (vec!["run", "--bogus"], vec!["--bogus"]),
     ] {
         let (code, _, err) = run(vlsyncd, &args);
         assert_eq!(code, 78, "{args:?}: {err}");
@@ -127,9 +133,14 @@ fn a_configuration_it_cannot_load_exits_78() {
             assert!(err.contains(n), "{args:?}: {err}");
         }
     }
-    // `check` keeps its documented exit code 2 for the same file
+    // `check` keeps its documented exit code 2 for the same file, and the one-shot
+    // commands clap's 2 for an option they cannot take
     let (code, _, err) = run(vlsyncd, &["check", "--config", bad.to_str().unwrap()]);
     assert_eq!(code, 2, "{err}");
+    let (code, _, err) = run(vlsyncd, &["replay", "--bogus"]);
+    assert_eq!(code, 2, "{err}");
+    let (code, out, _) = run(vlsyncd, &["run", "--help"]);
+    assert_eq!(code, 0, "{out}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
