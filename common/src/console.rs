@@ -35,6 +35,75 @@ pub fn print_out(text: &str) -> Result<(), String> {
     write_out(&mut io::stdout().lock(), text)
 }
 
+/// Whether this process's stderr is the systemd journal's stream: `JOURNAL_STREAM`
+/// (`device:inode`, set by systemd for a unit's output) names the file stderr is.
+/// Inherited by a child whose stderr went elsewhere (a file, a pipe), it names
+/// another file, so such output gets no priority prefixes.
+pub fn stderr_is_journal() -> bool {
+    use std::os::fd::AsFd;
+    use std::os::unix::fs::MetadataExt;
+    let Some(var) = std::env::var_os("JOURNAL_STREAM") else {
+        return false;
+    };
+    let Some((dev, ino)) = var.to_str().and_then(|v| v.split_once(':')) else {
+        return false;
+    };
+    let (Ok(dev), Ok(ino)) = (dev.parse::<u64>(), ino.parse::<u64>()) else {
+        return false;
+    };
+    io::stderr()
+        .as_fd()
+        .try_clone_to_owned()
+        .map(std::fs::File::from)
+        .and_then(|f| f.metadata())
+        .is_ok_and(|m| m.dev() == dev && m.ino() == ino)
+}
+
+/// The `sd-daemon(3)` priority prefix of a line to the journal (`<3>` error, `<4>`
+/// warning, `<6>` information), or nothing when `journal` is false: journald stores
+/// a unit's lines at the priority their prefix names (every one at information
+/// without it, so `journalctl -p warning` saw none of the warnings).
+///
+/// ```
+/// use vlsync_common::console::{priority_prefix, Priority};
+/// assert_eq!(priority_prefix(true, Priority::Warning), "<4>");
+/// assert_eq!(priority_prefix(false, Priority::Error), "");
+/// ```
+pub fn priority_prefix(journal: bool, p: Priority) -> &'static str {
+    match (journal, p) {
+        (false, _) => "",
+        (true, Priority::Error) => "<3>",
+        (true, Priority::Warning) => "<4>",
+        (true, Priority::Info) => "<6>",
+        (true, Priority::Debug) => "<7>",
+    }
+}
+
+/// Syslog priorities a line may carry ([`priority_prefix`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Priority {
+    /// `<3>`.
+    Error,
+    /// `<4>`.
+    Warning,
+    /// `<6>`.
+    Info,
+    /// `<7>`.
+    Debug,
+}
+
+/// [`print_err`] of a line at priority `p`: prefixed when stderr is the journal
+/// ([`stderr_is_journal`], decided once per process), plain otherwise.
+pub fn print_err_at(p: Priority, text: &str) {
+    static JOURNAL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let journal = *JOURNAL.get_or_init(stderr_is_journal);
+    if journal {
+        print_err(&format!("{}{text}", priority_prefix(true, p)));
+    } else {
+        print_err(text);
+    }
+}
+
 /// Writes `text` to stderr, ignoring a failure.
 pub fn print_err(text: &str) {
     let mut e = io::stderr().lock();
@@ -53,6 +122,41 @@ mod tests {
         }
         fn flush(&mut self) -> io::Result<()> {
             Ok(())
+        }
+    }
+
+    /// The journal is recognised by the file stderr is, not by the variable alone.
+    #[test]
+    fn journal_stream_must_name_stderr() {
+        use std::os::fd::AsFd;
+        use std::os::unix::fs::MetadataExt;
+        let m = io::stderr()
+            .as_fd()
+            .try_clone_to_owned()
+            .map(std::fs::File::from)
+            .and_then(|f| f.metadata())
+            .unwrap();
+        // the test harness's own environment is left alone: a child process decides
+        if let Some(var) = std::env::var_os("VLSYNC_JOURNAL_PROBE") {
+            let want = var == "yes";
+            assert_eq!(stderr_is_journal(), want);
+            return;
+        }
+        let exe = std::env::current_exe().unwrap();
+        for (value, want) in [
+            (format!("{}:{}", m.dev(), m.ino()), "yes"),
+            (format!("{}:{}", m.dev(), m.ino().wrapping_add(1)), "no"),
+            ("garbage".to_string(), "no"),
+        ] {
+            let st = std::process::Command::new(&exe)
+                .args(["--exact", "console::tests::journal_stream_must_name_stderr"])
+                .env("JOURNAL_STREAM", &value)
+                .env("VLSYNC_JOURNAL_PROBE", want)
+                .stderr(std::process::Stdio::inherit())
+                .stdout(std::process::Stdio::null())
+                .status()
+                .unwrap();
+            assert!(st.success(), "JOURNAL_STREAM={value}: want {want}");
         }
     }
 

@@ -115,7 +115,10 @@ fn main() -> ExitCode {
         Cmd::Run(args) => match vlsyncd::runtime::load_config(&args) {
             Ok(cfg) => vlsyncd::runtime::run_cli(cfg),
             Err(e) => {
-                vlsync_common::console::print_err(&format!("vlsyncd: error: {e}\n"));
+                vlsync_common::console::print_err_at(
+                    vlsync_common::console::Priority::Error,
+                    &format!("vlsyncd: error: {e}\n"),
+                );
                 return ExitCode::from(vlsyncd::runtime::EXIT_CONFIG);
             }
         },
@@ -125,7 +128,10 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            vlsync_common::console::print_err(&format!("vlsyncd: error: {e}\n"));
+            vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Error,
+                &format!("vlsyncd: error: {e}\n"),
+            );
             ExitCode::from(2)
         }
     }

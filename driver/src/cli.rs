@@ -854,7 +854,10 @@ pub fn main(stream: Stream) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            vlsync_common::console::print_err(&format!("vlsync-{stream}: error: {e}\n"));
+            vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Error,
+                &format!("vlsync-{stream}: error: {e}\n"),
+            );
             ExitCode::from(match e {
                 DriverError::Options(_) => EXIT_CONFIG,
                 _ => 2,

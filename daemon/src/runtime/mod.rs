@@ -325,15 +325,52 @@ pub const EXIT_CONFIG: u8 = 78;
 /// `vlsyncd run` with the configuration [`load_config`] gave: runs until
 /// SIGINT/SIGTERM.
 pub fn run_cli(cfg: Config) -> Result<(), String> {
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .try_init();
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()));
+    let _ = if vlsync_common::console::stderr_is_journal() {
+        // under systemd: each line with its priority (journald stored every one at
+        // "info"), and without the time journald adds itself
+        builder
+            .event_format(JournalFormat(
+                tracing_subscriber::fmt::format().without_time(),
+            ))
+            .try_init()
+    } else {
+        builder.try_init()
+    };
     run(cfg, Arc::new(AtomicBool::new(false)))
+}
+
+/// A log line to the journal: the `sd-daemon(3)` priority prefix of its level, then
+/// the line as `F` formats it.
+pub struct JournalFormat<F>(pub F);
+
+impl<S, N, F> tracing_subscriber::fmt::FormatEvent<S, N> for JournalFormat<F>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+    N: for<'a> tracing_subscriber::fmt::FormatFields<'a> + 'static,
+    F: tracing_subscriber::fmt::FormatEvent<S, N>,
+{
+    fn format_event(
+        &self,
+        ctx: &tracing_subscriber::fmt::FmtContext<'_, S, N>,
+        mut writer: tracing_subscriber::fmt::format::Writer<'_>,
+        event: &tracing::Event<'_>,
+    ) -> std::fmt::Result {
+        use vlsync_common::console::{priority_prefix, Priority};
+        let p = match *event.metadata().level() {
+            tracing::Level::ERROR => Priority::Error,
+            tracing::Level::WARN => Priority::Warning,
+            tracing::Level::INFO => Priority::Info,
+            _ => Priority::Debug,
+        };
+        writer.write_str(priority_prefix(true, p))?;
+        self.0.format_event(ctx, writer, event)
+    }
 }
 
 /// Runs the daemon with `cfg` until SIGINT/SIGTERM or `stop` is set.
@@ -702,6 +739,51 @@ mod tests {
         // a tie: the camera's first; hostile times only reorder, never drop
         assert_eq!(first_published(&[at(5), at(5)]), Some(0));
         assert_eq!(first_published(&[at(i64::MAX), at(i64::MIN)]), Some(1));
+    }
+
+    /// Under systemd every log line starts with its level's priority, so journald
+    /// stores warnings as warnings (`journalctl -p warning`).
+    #[test]
+    fn journal_lines_carry_their_priority() {
+        let buf = Arc::new(std::sync::Mutex::new(Vec::<u8>::new()));
+        let sink = buf.clone();
+        let sub = tracing_subscriber::fmt()
+            .with_writer(move || Sink(sink.clone()))
+            .with_ansi(false)
+            .with_max_level(tracing::Level::DEBUG)
+            .event_format(JournalFormat(
+                tracing_subscriber::fmt::format()
+                    .without_time()
+                    .with_ansi(false),
+            ))
+            .finish();
+        tracing::subscriber::with_default(sub, || {
+            tracing::error!("e");
+            tracing::warn!("w");
+            tracing::info!("i");
+            tracing::debug!("d");
+        });
+        let text = String::from_utf8(buf.lock().unwrap().clone()).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 4, "{text}");
+        for (line, (prefix, msg)) in
+            lines
+                .iter()
+                .zip([("<3>", "e"), ("<4>", "w"), ("<6>", "i"), ("<7>", "d")])
+        {
+            assert!(line.starts_with(prefix) && line.ends_with(msg), "{line}");
+        }
+    }
+
+    struct Sink(Arc<std::sync::Mutex<Vec<u8>>>);
+    impl std::io::Write for Sink {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
     }
 
     #[test]

@@ -146,7 +146,8 @@ impl Silence {
         why: &dyn std::fmt::Display,
     ) {
         if let Some(line) = Silence::line(Silence::note(slot, now, so_far), w, what, why) {
-            vlsync_common::console::print_err(&line);
+            // a sensor gone silent: a warning in the journal
+            vlsync_common::console::print_err_at(vlsync_common::console::Priority::Warning, &line);
         }
     }
 
