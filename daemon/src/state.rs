@@ -15,25 +15,38 @@
 //! same directory, is fsynced, renamed over the file, and the directory is
 //! fsynced, so a crash at any point leaves either the old or the new file.
 //!
-//! At start ([`load`]) the file is hostile input: a missing file is a cold start;
+//! At start ([`load_at`]) the file is hostile input: a missing file is a cold start;
 //! a corrupt one (wrong magic or version, truncated, bad checksum, a malformed,
 //! missing, duplicate or unknown key, a non-finite or out-of-range number), one
-//! saved in the future or one older than `daemon.state_max_age_s` gives an error
-//! naming the file and the reason, and the daemon starts cold. A good one is
-//! handed to `Estimator::restore` with its age.
+//! saved in the future, one older than `daemon.state_max_age_s` or one whose age
+//! cannot be known gives an error naming the file and the reason, and the daemon
+//! starts cold. A good one is handed to `Estimator::restore` with its age.
+//!
+//! The age of a file saved during this boot is the monotonic clock's (the file
+//! carries the boot id and `CLOCK_MONOTONIC` of its save), whatever the wall clock
+//! did meanwhile. Another boot's file is dated by the wall clock only where that
+//! clock is synchronized or kept by a real-time clock ([`Clocks::wall_trusted`]);
+//! elsewhere (a Raspberry Pi before NTP has synced: it boots at `fake-hwclock`'s
+//! last saved time, so a file saved at the last shutdown looks seconds old after a
+//! night off) its age is unknown and it is not restored: restored as seconds old,
+//! its offset would have been extrapolated over seconds instead of hours, with a
+//! standard deviation grown as little.
 //!
 //! The file names the `services.prefix` of the daemon that saved it. A daemon on
 //! another prefix (a second robot's daemon started with `--prefix` and the same
 //! configuration file) neither restores it (another robot's offset) nor saves over
 //! it: it says so and runs without persistence ([`startup`]). A version-1 file,
-//! from before the prefix was written, is read as any prefix's.
+//! from before the prefix was written, is read as any prefix's; a version-2 file,
+//! from before the boot was written, as another boot's.
 //!
-//! # Format (version 2)
+//! # Format (version 3)
 //!
 //! ```text
-//! vlsync-state 2
+//! vlsync-state 3
 //! # saved 2026-11-23T13:53:12Z by vlsyncd; written atomically, do not edit
 //! prefix = vlsync/robot
+//! boot_id = 2269c875-ef3a-433a-afa6-076765882294
+//! saved_mono_ns = 1234567890123
 //! saved_unix_ns = 1795442000000000000
 //! t_ref_ns = 120000000000
 //! offset_s = 0.0123
@@ -59,7 +72,7 @@ use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity};
 /// First word of the file.
 pub const MAGIC: &str = "vlsync-state";
 /// Format version written (version 1, without `prefix`, is read too).
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 /// A state file is a few hundred bytes; anything larger than this is not one.
 pub const MAX_FILE_BYTES: u64 = 16 * 1024;
 /// Minimum time between two saves.
@@ -91,7 +104,7 @@ pub const MAX_OFFSET_STD_S: f64 = 10.0;
 /// Largest accepted drift standard deviation.
 pub const MAX_DRIFT_STD: f64 = 1.0;
 
-const KEYS: [&str; 9] = [
+const KEYS: [&str; 11] = [
     "saved_unix_ns",
     "t_ref_ns",
     "offset_s",
@@ -101,10 +114,69 @@ const KEYS: [&str; 9] = [
     "state",
     "polarity",
     "prefix",
+    "boot_id",
+    "saved_mono_ns",
 ];
 
 /// Slot of `prefix` in `KEYS`: required from version 2 on.
 const PREFIX_SLOT: usize = 8;
+/// Slots of `boot_id` and `saved_mono_ns`: version 3, both or neither.
+const BOOT_SLOTS: [usize; 2] = [9, 10];
+
+/// The boot a file was saved in and the `CLOCK_MONOTONIC` time of the save: within
+/// one boot the age of a file is the monotonic clock's difference, whatever the wall
+/// clock did meanwhile (NTP stepping it after a boot from `fake-hwclock`'s time).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BootStamp {
+    /// The kernel's boot id (`/proc/sys/kernel/random/boot_id`).
+    pub id: String,
+    /// `CLOCK_MONOTONIC` at the save, ns.
+    pub mono_ns: i64,
+}
+
+impl BootStamp {
+    /// This boot, now (`None` where the kernel gives no boot id).
+    pub fn current() -> Option<Self> {
+        let text = std::fs::read_to_string("/proc/sys/kernel/random/boot_id").ok()?;
+        let id = text.trim();
+        boot_id_is_valid(id).then(|| Self {
+            id: id.to_string(),
+            mono_ns: vlsync_ipc::monotonic_ns(),
+        })
+    }
+}
+
+/// A boot id as the kernel writes it: a UUID's hex digits and dashes.
+fn boot_id_is_valid(id: &str) -> bool {
+    (1..=64).contains(&id.len()) && id.bytes().all(|b| b.is_ascii_hexdigit() || b == b'-')
+}
+
+/// What the daemon knows of "now" when it loads a file ([`load_at`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Clocks {
+    /// The wall clock, ns since the Unix epoch.
+    pub unix_ns: i64,
+    /// This boot and the monotonic clock now.
+    pub boot: Option<BootStamp>,
+    /// Whether the wall clock can date a file saved during another boot: it is
+    /// synchronized (`/run/systemd/timesync/synchronized`) or kept by a real-time clock
+    /// (`/dev/rtc0`). A Raspberry Pi has neither until NTP syncs: it boots at
+    /// `fake-hwclock`'s last saved time, so a file saved at the last shutdown looks
+    /// seconds old after a night off.
+    pub wall_trusted: bool,
+}
+
+impl Clocks {
+    /// This machine's, now.
+    pub fn now() -> Self {
+        Self {
+            unix_ns: unix_now_ns(),
+            boot: BootStamp::current(),
+            wall_trusted: Path::new("/run/systemd/timesync/synchronized").exists()
+                || Path::new("/dev/rtc0").exists(),
+        }
+    }
+}
 
 /// A saved estimate and when it was saved.
 #[derive(Debug, Clone, PartialEq)]
@@ -113,6 +185,9 @@ pub struct SavedState {
     pub prefix: Option<String>,
     /// Wall-clock save time, ns since the Unix epoch.
     pub saved_unix_ns: i64,
+    /// The boot it was saved in (`None`: a file of version 1 or 2, or a kernel
+    /// without a boot id).
+    pub boot: Option<BootStamp>,
     /// The estimate (`seq`, peak fields and the measurement are not saved: 0, 0,
     /// 0 and NaN after a load).
     pub estimate: Estimate,
@@ -203,6 +278,9 @@ pub enum Problem {
         /// How far ahead, seconds.
         ahead_s: f64,
     },
+    /// Saved during another boot, and the wall clock cannot tell when
+    /// ([`Clocks::wall_trusted`]).
+    AgeUnknown,
     /// Saved by the daemon of another `services.prefix`.
     OtherPrefix {
         /// The file's prefix (clipped).
@@ -226,7 +304,7 @@ impl fmt::Display for Problem {
             ),
             Problem::WrongVersion(v) => write!(
                 f,
-                "line 1: format version {v:?}, this vlsyncd reads versions 1 and {VERSION}"
+                "line 1: format version {v:?}, this vlsyncd reads versions 1 to {VERSION}"
             ),
             Problem::Truncated => write!(
                 f,
@@ -262,6 +340,12 @@ impl fmt::Display for Problem {
             Problem::InTheFuture { ahead_s } => write!(
                 f,
                 "saved {ahead_s:.0} s in the future: the wall clock moved back, age unknown"
+            ),
+            Problem::AgeUnknown => write!(
+                f,
+                "saved during another boot, and this machine's wall clock may be wrong (neither \
+                 synchronized, /run/systemd/timesync/synchronized, nor kept by a real-time \
+                 clock, /dev/rtc0): its age is unknown"
             ),
             Problem::OtherPrefix { saved, ours } => write!(
                 f,
@@ -331,6 +415,12 @@ pub fn encode(s: &SavedState) -> String {
     );
     if let Some(p) = &s.prefix {
         body.push_str(&format!("prefix = {p}\n"));
+        if let Some(b) = &s.boot {
+            body.push_str(&format!(
+                "boot_id = {}\nsaved_mono_ns = {}\n",
+                b.id, b.mono_ns
+            ));
+        }
     }
     body.push_str(&format!(
         "saved_unix_ns = {}\nt_ref_ns = {}\noffset_s = {:?}\ndrift = {:?}\noffset_std_s = {:?}\ndrift_std = {:?}\nstate = {}\npolarity = {}\n",
@@ -359,6 +449,7 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
     }
     let version = match (words.next(), words.next()) {
         (Some("1"), None) => 1,
+        (Some("2"), None) => 2,
         (Some(v), None) if v == VERSION.to_string() => VERSION,
         (Some(v), None) => return Err(Problem::WrongVersion(clip(v))),
         _ => return Err(Problem::BadHeader(clip(first))),
@@ -400,7 +491,12 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             return Err(Problem::BadLine { line: lineno });
         };
         let k = k.trim();
-        let Some(slot) = KEYS.iter().position(|key| *key == k) else {
+        // the boot's keys came with version 3
+        let Some(slot) = KEYS
+            .iter()
+            .position(|key| *key == k)
+            .filter(|slot| version >= 3 || !BOOT_SLOTS.contains(slot))
+        else {
             return Err(Problem::UnknownKey {
                 line: lineno,
                 key: clip(k),
@@ -488,9 +584,28 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
             Some(v.to_string())
         }
     };
+    let boot = match BOOT_SLOTS.map(|slot| values[slot]) {
+        [None, None] => None,
+        [None, Some(_)] => return Err(Problem::MissingKey(KEYS[BOOT_SLOTS[0]])),
+        [Some(_), None] => return Err(Problem::MissingKey(KEYS[BOOT_SLOTS[1]])),
+        [Some((line, id)), Some(_)] => {
+            if !boot_id_is_valid(id) {
+                return Err(Problem::BadValue {
+                    line,
+                    key: KEYS[BOOT_SLOTS[0]],
+                    value: clip(id),
+                });
+            }
+            Some(BootStamp {
+                id: id.to_string(),
+                mono_ns: int(BOOT_SLOTS[1])?,
+            })
+        }
+    };
     Ok(SavedState {
         prefix,
         saved_unix_ns,
+        boot,
         estimate: Estimate {
             seq: 0,
             t_ref_ns,
@@ -507,14 +622,32 @@ pub fn decode(bytes: &[u8]) -> Result<SavedState, Problem> {
     })
 }
 
-/// Loads `path` for the daemon of `prefix` and checks its age against `max_age_s` at
-/// wall time `now_unix_ns`. `Ok(None)`: no file (a first start).
-/// `Ok(Some((state, age_s)))`: usable. A file of another prefix is
-/// [`Problem::OtherPrefix`], whatever its age.
+/// [`load_at`] with the wall clock at `now_unix_ns` trusted, and no boot to compare
+/// (the age of every file from the wall clock).
 pub fn load(
     path: &Path,
     prefix: &str,
     now_unix_ns: i64,
+    max_age_s: f64,
+) -> Result<Option<(SavedState, f64)>, StateError> {
+    let clocks = Clocks {
+        unix_ns: now_unix_ns,
+        boot: None,
+        wall_trusted: true,
+    };
+    load_at(path, prefix, &clocks, max_age_s)
+}
+
+/// Loads `path` for the daemon of `prefix` and checks its age against `max_age_s`.
+/// The age: from the monotonic clock for a file saved during this boot; from the
+/// wall clock for another boot's, where the wall clock can be trusted
+/// ([`Clocks::wall_trusted`]), else [`Problem::AgeUnknown`]. `Ok(None)`: no file (a
+/// first start). `Ok(Some((state, age_s)))`: usable. A file of another prefix is
+/// [`Problem::OtherPrefix`], whatever its age.
+pub fn load_at(
+    path: &Path,
+    prefix: &str,
+    clocks: &Clocks,
     max_age_s: f64,
 ) -> Result<Option<(SavedState, f64)>, StateError> {
     let err = |problem| StateError {
@@ -545,10 +678,27 @@ pub fn load(
             ours: clip(prefix),
         }));
     }
-    let age_s = (now_unix_ns as f64 - s.saved_unix_ns as f64) * 1e-9;
-    if age_s < -FUTURE_TOLERANCE_S {
-        return Err(err(Problem::InTheFuture { ahead_s: -age_s }));
-    }
+    let same_boot = match (&s.boot, &clocks.boot) {
+        (Some(saved), Some(now)) if saved.id == now.id => {
+            Some(now.mono_ns as f64 - saved.mono_ns as f64)
+        }
+        _ => None,
+    };
+    let age_s = if let Some(d) = same_boot {
+        // the monotonic clock does not go back within a boot
+        if d < 0.0 {
+            return Err(err(Problem::InTheFuture { ahead_s: -d * 1e-9 }));
+        }
+        d * 1e-9
+    } else if clocks.wall_trusted {
+        let age_s = (clocks.unix_ns as f64 - s.saved_unix_ns as f64) * 1e-9;
+        if age_s < -FUTURE_TOLERANCE_S {
+            return Err(err(Problem::InTheFuture { ahead_s: -age_s }));
+        }
+        age_s
+    } else {
+        return Err(err(Problem::AgeUnknown));
+    };
     if age_s > max_age_s {
         return Err(err(Problem::Stale { age_s, max_age_s }));
     }
@@ -666,7 +816,7 @@ pub fn startup(
         prefix,
         SAVE_PERIOD,
     ));
-    match load(path, prefix, unix_now_ns(), cfg.state_max_age_s) {
+    match load_at(path, prefix, &Clocks::now(), cfg.state_max_age_s) {
         Ok(Some((s, age_s))) => {
             tracing::info!(
                 "state file {}: restoring offset {:+.3} ms ± {:.3} ms (drift {:+.2} ppm, {}) saved {age_s:.0} s ago",
@@ -966,6 +1116,7 @@ impl Saver {
         SavedState {
             prefix: Some(self.prefix.clone()),
             saved_unix_ns: unix_now_ns(),
+            boot: BootStamp::current(),
             estimate: e,
         }
     }
@@ -996,6 +1147,7 @@ mod tests {
         SavedState {
             prefix: Some("vlsync/robot".to_string()),
             saved_unix_ns: 1_795_442_000_123_456_789,
+            boot: None,
             estimate: est(),
         }
     }
@@ -1020,15 +1172,25 @@ mod tests {
 
     #[test]
     fn round_trip_is_exact() {
-        let s = state();
+        let s = SavedState {
+            boot: Some(BootStamp {
+                id: "2269c875-ef3a-433a-afa6-076765882294".into(),
+                mono_ns: 1_234_567_890_123,
+            }),
+            ..state()
+        };
         let text = encode(&s);
         assert!(
-            text.starts_with("vlsync-state 2\n# saved 2026-11-23T"),
+            text.starts_with("vlsync-state 3\n# saved 2026-11-23T")
+                && text.contains(
+                    "\nboot_id = 2269c875-ef3a-433a-afa6-076765882294\nsaved_mono_ns = 1234567890123\n"
+                ),
             "{text}"
         );
         let back = decode(text.as_bytes()).unwrap();
         assert_eq!(back.saved_unix_ns, s.saved_unix_ns);
         assert_eq!(back.prefix, s.prefix);
+        assert_eq!(back.boot, s.boot);
         let (a, b) = (back.estimate, s.estimate);
         assert_eq!(a.t_ref_ns, b.t_ref_ns);
         assert_eq!(a.offset_s.to_bits(), b.offset_s.to_bits());
@@ -1047,9 +1209,88 @@ mod tests {
         assert_eq!(utc_text(-1_000_000_000), "1969-12-31T23:59:59Z");
     }
 
+    /// A file's age: by the monotonic clock within its boot, whatever the wall clock
+    /// says; by the wall clock for another boot's file only where that clock can be
+    /// trusted; else unknown, and the file is not restored.
+    #[test]
+    fn the_age_comes_from_the_boot_or_a_trusted_wall_clock() {
+        let d = dir("ages");
+        let p = d.join("vlsync.state");
+        let boot = |id: &str, mono_ns| {
+            Some(BootStamp {
+                id: id.into(),
+                mono_ns,
+            })
+        };
+        let day_ns = 86_400_000_000_000;
+        let saved = SavedState {
+            saved_unix_ns: 10 * day_ns,
+            boot: boot("aa-1", 50_000_000_000),
+            ..state()
+        };
+        save(&p, &saved).unwrap();
+        let at = |unix_ns, now_boot: Option<BootStamp>, wall_trusted| {
+            let clocks = Clocks {
+                unix_ns,
+                boot: now_boot,
+                wall_trusted,
+            };
+            load_at(&p, "vlsync/robot", &clocks, 3600.0).map(|r| r.map(|(_, age)| age))
+        };
+        // the same boot 5 s later: 5 s old, though the wall clock stepped two days
+        // ahead (NTP after a boot at fake-hwclock's time) or one back
+        for unix in [12 * day_ns, 9 * day_ns] {
+            for trusted in [true, false] {
+                let age = at(unix, boot("aa-1", 55_000_000_000), trusted)
+                    .unwrap()
+                    .unwrap();
+                assert!((age - 5.0).abs() < 1e-9, "{age}");
+            }
+        }
+        // the same boot, the monotonic clock behind the save: corrupt, not restored
+        let e = at(10 * day_ns, boot("aa-1", 1), true).unwrap_err();
+        assert!(matches!(e.problem, Problem::InTheFuture { .. }), "{e}");
+        // another boot: the wall clock's age where it is trusted
+        let age = at(10 * day_ns + 60_000_000_000, boot("bb-2", 1), true)
+            .unwrap()
+            .unwrap();
+        assert!((age - 60.0).abs() < 1e-9, "{age}");
+        let e = at(12 * day_ns, boot("bb-2", 1), true).unwrap_err();
+        assert!(matches!(e.problem, Problem::Stale { .. }), "{e}");
+        // ... and unknown where not: a Pi after a night off reads its last shutdown's
+        // time at boot, so the file would look seconds old
+        for now_boot in [boot("bb-2", 1), None] {
+            let e = at(10 * day_ns + 5_000_000_000, now_boot, false).unwrap_err();
+            assert_eq!(e.problem, Problem::AgeUnknown);
+            assert!(e.to_string().contains("its age is unknown"), "{e}");
+        }
+        // a file without its boot (version 2): as another boot's
+        save(
+            &p,
+            &SavedState {
+                boot: None,
+                ..saved.clone()
+            },
+        )
+        .unwrap();
+        let e = at(10 * day_ns, boot("aa-1", 55_000_000_000), false).unwrap_err();
+        assert_eq!(e.problem, Problem::AgeUnknown);
+        let age = at(10 * day_ns + 7_000_000_000, boot("aa-1", 1), true)
+            .unwrap()
+            .unwrap();
+        assert!((age - 7.0).abs() < 1e-9, "{age}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
     #[test]
     fn every_corruption_kind_is_named() {
-        let good = encode(&state());
+        let good = encode(&SavedState {
+            boot: Some(BootStamp {
+                id: "2269c875-ef3a-433a-afa6-076765882294".into(),
+                mono_ns: 5_000_000_000,
+            }),
+            ..state()
+        });
         let set = |key: &str, value: &str| -> String {
             let mut out = String::new();
             for l in good.lines() {
@@ -1067,19 +1308,33 @@ mod tests {
             .map(|l| format!("{l}\n"))
             .collect();
         let cases: Vec<(String, &str)> = vec![
-            ("".into(), "expected `vlsync-state 2`"),
+            ("".into(), "expected `vlsync-state 3`"),
             (
                 good.replacen("vlsync-state", "other-state", 1),
                 "not a vlsync state file",
             ),
             (
-                good.replacen("vlsync-state 2", "vlsync-state 3", 1),
-                "format version \"3\", this vlsyncd reads versions 1 and 2",
+                good.replacen("vlsync-state 3", "vlsync-state 4", 1),
+                "format version \"4\", this vlsyncd reads versions 1 to 3",
             ),
             (
-                good.replacen("vlsync-state 2", "vlsync-state 2 x", 1),
-                "expected `vlsync-state 2`",
+                good.replacen("vlsync-state 3", "vlsync-state 3 x", 1),
+                "expected `vlsync-state 3`",
             ),
+            // the boot's keys: version 3's, both or neither, a boot id as the kernel's
+            (
+                resign(&good.replacen("vlsync-state 3", "vlsync-state 2", 1)),
+                "unknown key \"boot_id\"",
+            ),
+            (
+                resign(&good.replacen("saved_mono_ns = 5000000000\n", "", 1)),
+                "key `saved_mono_ns` missing",
+            ),
+            (
+                set("boot_id", "not a uuid"),
+                "`boot_id` = \"not a uuid\" is not a valid value",
+            ),
+            (set("saved_mono_ns", "-"), "`saved_mono_ns` = \"-\""),
             (good[..good.len() / 2].to_string(), "truncated"),
             (good.trim_end_matches('\n').to_string(), "truncated"),
             (without_checksum, "truncated"),
@@ -1147,15 +1402,17 @@ mod tests {
     fn the_prefix_binds_a_file_to_its_daemon() {
         let d = dir("prefix");
         let p = d.join("vlsync.state");
-        // saved now: `startup` below judges its age by this machine's wall clock
+        // saved now, in this boot: `startup` below judges its age by the monotonic
+        // clock (this machine's wall clock may not date another boot's file)
         let s = SavedState {
             saved_unix_ns: unix_now_ns(),
+            boot: BootStamp::current(),
             ..state()
         };
         save(&p, &s).unwrap();
         let text = std::fs::read_to_string(&p).unwrap();
         assert!(
-            text.starts_with("vlsync-state 2\n") && text.contains("\nprefix = vlsync/robot\n"),
+            text.starts_with("vlsync-state 3\n") && text.contains("\nprefix = vlsync/robot\n"),
             "{text}"
         );
         let e = load(&p, "vlsync/robot2", s.saved_unix_ns, 1e9).unwrap_err();

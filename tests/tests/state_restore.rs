@@ -12,7 +12,7 @@ use vlsyncd::state::{load, unix_now_ns};
 
 fn config(dir: &Path, prefix: &str, state_file: &Path) -> PathBuf {
     let keys = format!(
-        "state_file = \"{}\"\nstate_max_age_s = 600.0\n",
+        "state_file = \"{}\"\nstate_max_age_s = 60.0\n",
         state_file.display()
     );
     write_daemon_config(dir, prefix, &keys)
@@ -29,11 +29,23 @@ fn daemon(cfg: &Path, log: &Path) -> Managed {
 }
 
 /// A saved tracking estimate of `offset_s`, saved at `saved_unix_ns` by the daemon
-/// of `prefix`.
-fn tracking_saved(prefix: &str, offset_s: f64, saved_unix_ns: i64) -> vlsyncd::state::SavedState {
+/// of `prefix`, in this boot `mono_ago_s` seconds ago (the daemon dates a file of its
+/// own boot by the monotonic clock; another boot's only by a wall clock it can trust,
+/// which a test machine without a real-time clock or NTP has not).
+fn tracking_saved(
+    prefix: &str,
+    offset_s: f64,
+    saved_unix_ns: i64,
+    mono_ago_s: i64,
+) -> vlsyncd::state::SavedState {
+    let boot = vlsyncd::state::BootStamp::current().map(|b| vlsyncd::state::BootStamp {
+        mono_ns: b.mono_ns - mono_ago_s * 1_000_000_000,
+        ..b
+    });
     vlsyncd::state::SavedState {
         prefix: Some(prefix.to_string()),
         saved_unix_ns,
+        boot,
         estimate: vlsync_common::Estimate {
             seq: 0,
             t_ref_ns: 0,
@@ -168,16 +180,18 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
     let state_file = dir.join("vlsync.state");
     let prefix = format!("vlsync-it/statebad-{}", std::process::id());
     let cfg = config(&dir, &prefix, &state_file);
+    // two minutes old (the configuration allows one): stale
     let good = vlsyncd::state::encode(&tracking_saved(
         &prefix,
         0.031,
-        unix_now_ns() - 7_200_000_000_000,
+        unix_now_ns() - 120_000_000_000,
+        120,
     ));
     // a fresh file of another robot's daemon (the same configuration file, another
     // --prefix): refused by name, not restored (that such a daemon does not save over
     // it is `state::tests::the_prefix_binds_a_file_to_its_daemon`; here nothing is
     // ever worth saving)
-    let other = vlsyncd::state::encode(&tracking_saved("other/robot", 0.031, unix_now_ns()));
+    let other = vlsyncd::state::encode(&tracking_saved("other/robot", 0.031, unix_now_ns(), 0));
     let cases = [
         (good.replace("0.031", "0.032"), "checksum mismatch"),
         (good[..good.len() - 30].to_string(), "truncated"),
@@ -215,7 +229,7 @@ fn a_far_off_state_file_is_searched_away_from_and_logged() {
     // 80 simulated seconds at 8x: 10 s of wall time
     let rig = Rig::new("statefar", "robot", 22, 80.0, 8.0);
     let state_file = rig.logs.join("vlsync.state");
-    let far = tracking_saved(&rig.prefix, 5.0, unix_now_ns());
+    let far = tracking_saved(&rig.prefix, 5.0, unix_now_ns(), 0);
     vlsyncd::state::save(&state_file, &far).unwrap();
     let cfg = config(&rig.logs, &rig.prefix, &state_file);
     let log = rig.logs.join("vlsyncd-far.log");
