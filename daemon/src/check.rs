@@ -15,11 +15,11 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
     if !cfg.daemon.state_file.is_empty() {
         if let Some(problem) = crate::state::directory_problem(Path::new(&cfg.daemon.state_file)) {
             // a note, not an error: the check often runs on another machine than the
-            // robot, and systemd creates the unit's StateDirectory when it starts it
+            // robot, and systemd creates the unit's RuntimeDirectory when it starts it
             out.push_str(&format!(
                 "{comment}note: daemon.state_file: {problem} on this machine; `vlsyncd run` \
-                 warns at start and saves once it exists (the systemd unit's \
-                 StateDirectory=vlsync creates /var/lib/vlsync)\n"
+                 warns at start and saves once it exists (the shipped systemd unit's \
+                 RuntimeDirectory=vlsync creates /run/vlsync)\n"
             ));
         }
     }

@@ -95,7 +95,8 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
         ("RestartPreventExitStatus", "78"),
         ("User", "vlsync"),
         ("Group", "vlsync"),
-        ("StateDirectory", "vlsync"),
+        ("RuntimeDirectory", "vlsync"),
+        ("RuntimeDirectoryPreserve", "yes"),
         ("ProtectSystem", "strict"),
         ("NoNewPrivileges", "yes"),
         ("ProtectHome", "yes"),
@@ -115,12 +116,7 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
         "/usr/local/bin/vlsyncd run --config /etc/vlsync/vlsync.toml"
     );
     let rw = words(&u, "Service", "ReadWritePaths");
-    for p in [
-        "/dev/shm",
-        "/tmp/iceoryx2",
-        "/tmp/vlsync",
-        "/var/lib/vlsync",
-    ] {
+    for p in ["/dev/shm", "/tmp/iceoryx2", "/tmp/vlsync"] {
         assert!(
             rw.iter().any(|w| w == p),
             "{n}: ReadWritePaths lacks {p}: {rw:?}"
@@ -148,8 +144,8 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
     );
     assert!(cfg.daemon.lock_memory);
     assert!(
-        cfg.daemon.state_file.starts_with("/var/lib/vlsync/"),
-        "state file {} outside StateDirectory=vlsync",
+        cfg.daemon.state_file.starts_with("/run/vlsync/"),
+        "state file {} outside RuntimeDirectory=vlsync",
         cfg.daemon.state_file
     );
 }
