@@ -128,6 +128,12 @@ done
 
 run install -d -m 0755 "$etc_dir"
 install_config "$here/vlsync.toml" "$etc_dir/vlsync.toml"
+# an earlier install kept the saved estimate in /var/lib/vlsync (StateDirectory=); the
+# unit no longer creates that directory, and a kept configuration may still name it
+if [ -e "$etc_dir/vlsync.toml" ] && grep -Eq '^[[:space:]]*state_file[[:space:]]*=[[:space:]]*"/var/lib/vlsync/' "$etc_dir/vlsync.toml"; then
+    echo "note: $etc_dir/vlsync.toml keeps daemon.state_file in /var/lib/vlsync: it works while that"
+    echo "      directory exists; the shipped configuration uses /run/vlsync (see deploy/README.md)"
+fi
 install_config "$here/cam.env" "$etc_dir/cam.env"
 install_config "$here/lidar.env" "$etc_dir/lidar.env"
 
