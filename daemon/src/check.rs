@@ -16,10 +16,14 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
         if let Some(problem) = crate::state::directory_problem(Path::new(&cfg.daemon.state_file)) {
             // a note, not an error: the check often runs on another machine than the
             // robot, and systemd creates the unit's RuntimeDirectory when it starts it
+            let unit = if cfg.daemon.state_file.starts_with("/run/vlsync/") {
+                " (the shipped systemd unit's RuntimeDirectory=vlsync creates /run/vlsync)"
+            } else {
+                ""
+            };
             out.push_str(&format!(
                 "{comment}note: daemon.state_file: {problem} on this machine; `vlsyncd run` \
-                 warns at start and saves once it exists (the shipped systemd unit's \
-                 RuntimeDirectory=vlsync creates /run/vlsync)\n"
+                 warns at start and saves once it exists{unit}\n"
             ));
         }
     }

@@ -71,7 +71,8 @@ use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity};
 
 /// First word of the file.
 pub const MAGIC: &str = "vlsync-state";
-/// Format version written (version 1, without `prefix`, is read too).
+/// Format version written (versions 1, without `prefix`, and 2, without the boot, are
+/// read too).
 pub const VERSION: u32 = 3;
 /// A state file is a few hundred bytes; anything larger than this is not one.
 pub const MAX_FILE_BYTES: u64 = 16 * 1024;
@@ -130,7 +131,8 @@ const BOOT_SLOTS: [usize; 2] = [9, 10];
 pub struct BootStamp {
     /// The kernel's boot id (`/proc/sys/kernel/random/boot_id`).
     pub id: String,
-    /// `CLOCK_MONOTONIC` at the save, ns.
+    /// `CLOCK_MONOTONIC` at the save, ns (it stops while a machine is suspended, so
+    /// one that suspends would date its file younger by that time; a robot does not).
     pub mono_ns: i64,
 }
 
@@ -159,8 +161,10 @@ pub struct Clocks {
     /// This boot and the monotonic clock now.
     pub boot: Option<BootStamp>,
     /// Whether the wall clock can date a file saved during another boot: it is
-    /// synchronized (`/run/systemd/timesync/synchronized`) or kept by a real-time clock
-    /// (`/dev/rtc0`). A Raspberry Pi has neither until NTP syncs: it boots at
+    /// synchronized (`/run/systemd/timesync/synchronized`, written by
+    /// `systemd-timesyncd`), or the kernel set it from a real-time clock at boot
+    /// (`/sys/class/rtc/rtc0/hctosys` is 1; a battery-less RTC that lost its time is
+    /// not used so). A Raspberry Pi has neither until NTP syncs: it boots at
     /// `fake-hwclock`'s last saved time, so a file saved at the last shutdown looks
     /// seconds old after a night off.
     pub wall_trusted: bool,
@@ -173,7 +177,8 @@ impl Clocks {
             unix_ns: unix_now_ns(),
             boot: BootStamp::current(),
             wall_trusted: Path::new("/run/systemd/timesync/synchronized").exists()
-                || Path::new("/dev/rtc0").exists(),
+                || std::fs::read_to_string("/sys/class/rtc/rtc0/hctosys")
+                    .is_ok_and(|t| t.trim() == "1"),
         }
     }
 }
@@ -281,6 +286,12 @@ pub enum Problem {
     /// Saved during another boot, and the wall clock cannot tell when
     /// ([`Clocks::wall_trusted`]).
     AgeUnknown,
+    /// Saved in this boot at a monotonic time still to come: a corrupt or forged
+    /// `saved_mono_ns`.
+    MonotonicAhead {
+        /// How far ahead, seconds.
+        ahead_s: f64,
+    },
     /// Saved by the daemon of another `services.prefix`.
     OtherPrefix {
         /// The file's prefix (clipped).
@@ -341,11 +352,15 @@ impl fmt::Display for Problem {
                 f,
                 "saved {ahead_s:.0} s in the future: the wall clock moved back, age unknown"
             ),
+            Problem::MonotonicAhead { ahead_s } => write!(
+                f,
+                "`saved_mono_ns` is {ahead_s:.0} s after this boot's monotonic clock: corrupt"
+            ),
             Problem::AgeUnknown => write!(
                 f,
                 "saved during another boot, and this machine's wall clock may be wrong (neither \
-                 synchronized, /run/systemd/timesync/synchronized, nor kept by a real-time \
-                 clock, /dev/rtc0): its age is unknown"
+                 synchronized, /run/systemd/timesync/synchronized, nor set from a real-time \
+                 clock at boot, /sys/class/rtc/rtc0/hctosys): its age is unknown"
             ),
             Problem::OtherPrefix { saved, ours } => write!(
                 f,
@@ -687,7 +702,7 @@ pub fn load_at(
     let age_s = if let Some(d) = same_boot {
         // the monotonic clock does not go back within a boot
         if d < 0.0 {
-            return Err(err(Problem::InTheFuture { ahead_s: -d * 1e-9 }));
+            return Err(err(Problem::MonotonicAhead { ahead_s: -d * 1e-9 }));
         }
         d * 1e-9
     } else if clocks.wall_trusted {
@@ -1249,7 +1264,11 @@ mod tests {
         }
         // the same boot, the monotonic clock behind the save: corrupt, not restored
         let e = at(10 * day_ns, boot("aa-1", 1), true).unwrap_err();
-        assert!(matches!(e.problem, Problem::InTheFuture { .. }), "{e}");
+        assert!(matches!(e.problem, Problem::MonotonicAhead { .. }), "{e}");
+        assert!(
+            e.to_string().contains("`saved_mono_ns` is 50 s after"),
+            "{e}"
+        );
         // another boot: the wall clock's age where it is trusted
         let age = at(10 * day_ns + 60_000_000_000, boot("bb-2", 1), true)
             .unwrap()
@@ -1264,15 +1283,19 @@ mod tests {
             assert_eq!(e.problem, Problem::AgeUnknown);
             assert!(e.to_string().contains("its age is unknown"), "{e}");
         }
-        // a file without its boot (version 2): as another boot's
-        save(
-            &p,
-            &SavedState {
-                boot: None,
-                ..saved.clone()
-            },
-        )
-        .unwrap();
+        // a version-2 file (no boot; written as the daemons before version 3 did): as
+        // another boot's
+        let v3 = encode(&SavedState {
+            boot: None,
+            ..saved.clone()
+        });
+        let v2 = resign(&v3.replacen("vlsync-state 3", "vlsync-state 2", 1));
+        assert!(
+            v2.starts_with("vlsync-state 2\n") && !v2.contains("boot"),
+            "{v2}"
+        );
+        assert_eq!(decode(v2.as_bytes()).unwrap().boot, None);
+        std::fs::write(&p, &v2).unwrap();
         let e = at(10 * day_ns, boot("aa-1", 55_000_000_000), false).unwrap_err();
         assert_eq!(e.problem, Problem::AgeUnknown);
         let age = at(10 * day_ns + 7_000_000_000, boot("aa-1", 1), true)
