@@ -74,10 +74,14 @@ fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
-            let _ = e.print();
             if !e.use_stderr() {
+                let _ = e.print();
                 return ExitCode::SUCCESS; // --help, --version
             }
+            vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Error,
+                &format!("{}\n", e.render().to_string().trim_end()),
+            );
             // `run` given options it cannot take (an `ExecStart=` drop-in's typo, a
             // --fifo-priority out of range) is a configuration error as its file's are:
             // 78, which the unit does not restart every 2 s; the one-shot commands keep

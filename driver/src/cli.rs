@@ -819,13 +819,17 @@ pub fn main(stream: Stream) -> ExitCode {
         Ok(a) => a,
         Err(e) => {
             // --help and --version print and succeed; a command line that cannot be
-            // parsed is an options error like the others (not restarted under systemd)
-            let _ = e.print();
-            return if e.use_stderr() {
-                ExitCode::from(EXIT_CONFIG)
-            } else {
-                ExitCode::SUCCESS
-            };
+            // parsed is an options error like the others (not restarted under systemd),
+            // an error in the journal
+            if !e.use_stderr() {
+                let _ = e.print();
+                return ExitCode::SUCCESS;
+            }
+            vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Error,
+                &format!("{}\n", e.render().to_string().trim_end()),
+            );
+            return ExitCode::from(EXIT_CONFIG);
         }
     };
     match run_driver(stream, &args) {
