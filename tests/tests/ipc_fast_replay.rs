@@ -66,12 +66,55 @@ fn a_fast_replay_reaches_the_daemon_and_an_unheard_one_says_so() {
         st.received[0] >= published
     })
     .expect("a status");
-    assert!(daemon.stop(Duration::from_secs(3)));
     assert_eq!(
         st.received[0],
         published,
         "{st:?}\n{}",
         rig.log("vlsyncd-0.log")
+    );
+
+    // 30 s at 30 Hz, more than the buffer holds: every sample is received, lost in a
+    // sequence gap, or, before the first one the daemon read of this driver, said in
+    // its log (`... is its number N`); how they split depends on when the daemon woke
+    let (code, err) = fast_cam(&rig.prefix, "30");
+    assert_eq!(code, Some(0), "{err}");
+    let burst: u64 = err
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("vlsync-cam: ")?
+                .split(" published,")
+                .next()?
+                .parse()
+                .ok()
+        })
+        .unwrap_or_else(|| panic!("no summary line:\n{err}"));
+    assert!(burst > 800, "{err}");
+    let t_burst = Instant::now();
+    let st2 = loop {
+        // the driver lingers 0.5 s for the daemon to drain its buffer; a status after that
+        let s = status_when(&mut status, Duration::from_secs(10), |_| true).expect("a status");
+        if t_burst.elapsed() > Duration::from_millis(1500) {
+            break s;
+        }
+    };
+    assert!(daemon.stop(Duration::from_secs(3)));
+    let log = rig.log("vlsyncd-0.log");
+    let before_first: u64 = log
+        .lines()
+        .find_map(|l| {
+            let n = l
+                .split("the first sample read from a publisher is its number ")
+                .nth(1)?;
+            n.split(':').next()?.parse().ok()
+        })
+        .unwrap_or(0);
+    let received = st2.received[0] - st.received[0];
+    let lost = st2.lost[0] - st.lost[0];
+    assert!(received >= 256, "{st2:?}\n{log}");
+    assert_eq!(
+        received + lost + before_first,
+        burst,
+        "received {received} + lost {lost} + before the first read {before_first}\n{log}"
     );
 
     // no daemon on this prefix: published, and said to have reached nobody

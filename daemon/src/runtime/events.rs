@@ -45,8 +45,7 @@ pub(super) fn log_event(
             }
         }
         RtEvent::Joined { stream, before } => {
-            // a publisher appearing, as a driver's start is: the same throttle
-            let key = journal::driver_started_key(stream_index(*stream));
+            let key = journal::joined_key(stream_index(*stream));
             if let Some(n) = throttle.admit(key, 1, now) {
                 tracing::info!(
                     "{stream}: the first sample read from a publisher is its number {before}: the {before} before it were published before this daemon listened, or dropped from the full subscriber buffer before it read any (a driver's --fast burst); not counted as lost{}",

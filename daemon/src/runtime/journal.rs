@@ -22,7 +22,7 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// estimator state per new state (information: a flapping estimator would log two
 /// lines a hop), and the estimates not published, invalid or refused by the offset
 /// service (a lasting fault would log one line per estimate, 170,000 a day).
-pub const KINDS: usize = 2 * REJECT_REASONS + 16;
+pub const KINDS: usize = 2 * REJECT_REASONS + 18;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -62,6 +62,12 @@ pub const INVALID_ESTIMATE_KEY: usize = DEGRADED_KEY + 12;
 
 /// Throttle key of an estimate the offset service did not take (no free sample).
 pub const PUBLISH_FAILED_KEY: usize = DEGRADED_KEY + 13;
+
+/// Throttle key of a publisher of stream `si` first read mid-run (its first sample
+/// read not its first one: `RtEvent::Joined`).
+pub fn joined_key(si: usize) -> usize {
+    DEGRADED_KEY + 14 + si.min(1)
+}
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
 /// records: the lines naming one (`cam stamps +12.1 ms later from t=…`) and the
@@ -232,6 +238,11 @@ pub fn kind_text(key: usize) -> String {
         "estimates with an invalid field (not published)".to_string()
     } else if key == PUBLISH_FAILED_KEY {
         "estimates the offset service did not take".to_string()
+    } else if key >= joined_key(0) {
+        format!(
+            "{} publishers first read mid-run",
+            stream((key - joined_key(0)).min(1))
+        )
     } else if key >= state_key(EstimatorState::Acquiring) {
         let to = [
             EstimatorState::Acquiring,
@@ -518,7 +529,17 @@ mod tests {
             "changes of the estimator state to acquiring"
         );
         assert_eq!(state_key(EstimatorState::Lost), INVALID_ESTIMATE_KEY - 1);
-        assert_eq!(PUBLISH_FAILED_KEY, KINDS - 1);
+        assert_eq!(PUBLISH_FAILED_KEY, joined_key(0) - 1);
+        assert_eq!(joined_key(1), KINDS - 1);
+        assert_eq!(
+            kind_text(joined_key(0)),
+            "cam publishers first read mid-run"
+        );
+        assert_eq!(
+            kind_text(joined_key(1)),
+            "lidar publishers first read mid-run"
+        );
+        assert!(is_info(joined_key(0)));
         assert!(!is_info(INVALID_ESTIMATE_KEY) && !is_info(PUBLISH_FAILED_KEY));
         assert_eq!(
             kind_text(PUBLISH_FAILED_KEY),

@@ -822,9 +822,13 @@ mod tests {
         assert_eq!(sequence_gap(&mut slots, c, 945, false), SeqGap::None);
         let d = pid(4);
         assert_eq!(sequence_gap(&mut slots, d, 0, false), SeqGap::None);
+        // the table is full now (a, b, c, d): a fifth publisher takes a slot and
+        // is not said to have joined, since an evicted one may come back
         let e = pid(5);
+        assert_eq!(sequence_gap(&mut slots, e, 77, false), SeqGap::None);
+        let mut fresh = [None; 4];
         assert_eq!(
-            sequence_gap(&mut slots, e, MAX_COUNTED_GAP + 1, false),
+            sequence_gap(&mut fresh, e, MAX_COUNTED_GAP + 1, false),
             SeqGap::None
         );
     }

@@ -159,7 +159,10 @@ pub(super) fn sequence_gap(
             .map_or(0, |(i, _)| i)
     });
     slots[idx] = Some((publisher, seq));
-    if first || seq == 0 || seq > MAX_COUNTED_GAP {
+    // a slot taken from another publisher (more than four on a stream) may be taken
+    // back by it later: its samples were then read before, and saying "joined" of it
+    // would be wrong
+    if first || seq == 0 || seq > MAX_COUNTED_GAP || free.is_none() {
         SeqGap::None
     } else {
         SeqGap::Joined(seq)
