@@ -63,6 +63,34 @@ pub fn nanos_to_secs(ns: Nanos) -> f64 {
     ns as f64 * 1e-9
 }
 
+/// How far ahead of now a start instant (`--start-at`, `CLOCK_MONOTONIC` ns, the
+/// drivers' and `vlsync-render --raw-stdout`'s) may be: a day.
+pub const MAX_START_AHEAD_NS: Nanos = 86_400_000_000_000;
+
+/// Checks a `--start-at` instant against `CLOCK_MONOTONIC` now: not before boot, at
+/// most [`MAX_START_AHEAD_NS`] ahead. Stamps are built on it: far out of range they
+/// would overflow, and an instant on another clock (`CLOCK_REALTIME`'s 1.7e18 ns)
+/// would be waited for for decades.
+///
+/// ```
+/// use vlsync_common::check_start_at;
+/// assert_eq!(check_start_at(5_000, 1_000), Ok(()));
+/// assert_eq!(
+///     check_start_at(-1, 1_000).unwrap_err(),
+///     "--start-at -1 is out of range: allowed 0 ..= 86400000001000 (CLOCK_MONOTONIC ns, at most a day from now)"
+/// );
+/// ```
+pub fn check_start_at(t: Nanos, now_mono_ns: Nanos) -> Result<(), String> {
+    let latest = now_mono_ns.saturating_add(MAX_START_AHEAD_NS);
+    if (0..=latest).contains(&t) {
+        Ok(())
+    } else {
+        Err(format!(
+            "--start-at {t} is out of range: allowed 0 ..= {latest} (CLOCK_MONOTONIC ns, at most a day from now)"
+        ))
+    }
+}
+
 /// Converts a camera timestamp to the LiDAR time base: `t_L = t_C + offset`.
 pub fn camera_to_lidar_ns(t_cam: Nanos, offset_s: f64) -> Nanos {
     t_cam.saturating_add(secs_to_nanos(offset_s))

@@ -36,7 +36,7 @@
 //! );
 //! ```
 
-use crate::runtime::rt::MAX_COUNTED_GAP;
+use crate::runtime::rt::{seq_step, SeqStep};
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -124,28 +124,18 @@ impl<W: Write> Recording<W> {
             return Ok(());
         }
         let c = &mut self.counts[i];
-        let new_run = match self.last_seq[i] {
-            Some(_) if s.is_first() => {
-                c.restarts += 1;
-                true
+        // the daemon's rule: a gap is lost; a new run after the first row is a driver
+        // restart; a run's first row that is not its driver's first sample leaves the
+        // samples numbered before it unread
+        match seq_step(self.last_seq[i], s.seq, s.is_first()) {
+            SeqStep::Next => {}
+            SeqStep::Lost(n) => c.lost = c.lost.saturating_add(n),
+            SeqStep::NewRun { before } => {
+                if self.last_seq[i].is_some() {
+                    c.restarts += 1;
+                }
+                c.before_first = c.before_first.saturating_add(before);
             }
-            // a number that goes back, or jumps further than any buffer loses
-            // samples: a publisher whose counter restarted (as the daemon judges it)
-            Some(last) if s.seq <= last || s.seq - last - 1 > MAX_COUNTED_GAP => {
-                c.restarts += 1;
-                true
-            }
-            Some(last) => {
-                c.lost = c.lost.saturating_add(s.seq - last - 1);
-                false
-            }
-            None => true,
-        };
-        // a run's first row that is not its driver's first sample: the samples
-        // before it (numbered from 0) were never read; a number beyond any buffer is a
-        // corrupt counter, not a count
-        if new_run && !s.is_first() && s.seq <= MAX_COUNTED_GAP {
-            c.before_first = c.before_first.saturating_add(s.seq);
         }
         self.last_seq[i] = Some(s.seq);
         c.rows += 1;

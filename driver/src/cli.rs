@@ -12,15 +12,8 @@ use vlsync_ipc::{create_node, termination_requested, ServiceNames, SignaturePubl
 
 /// Arguments of a signature driver.
 #[derive(Parser, Debug, Clone)]
-#[command(
-    version,
-    about = "Publish one signature stream to the vlsync daemon",
-    after_help = "Sources (give exactly one): --csv, --sim and --render for both drivers; \
-                  --mcap for both (image or LaserScan topic); camera: --frames, --v4l2, \
-                  --pipe, --pipe-cmd; \
-                  LiDAR: --ld06, --rplidar, --scans. Files and simulators are paced by their \
-                  timestamps (or --fast); live devices publish as data arrives."
-)]
+// each binary's name, about and list of sources: `command`
+#[command(version)]
 pub struct DriverArgs {
     /// Service prefix (`services.prefix`); overrides the one of --config.
     #[arg(long)]
@@ -160,9 +153,6 @@ pub enum StampArg {
 /// (the render thread fills its queue meanwhile).
 pub const DEFAULT_START_DELAY_NS: i64 = 1_000_000_000;
 
-/// How far ahead of now `--start-at` may be (a day).
-pub const MAX_START_AHEAD_NS: i64 = 86_400_000_000_000;
-
 /// A source with how to pace it.
 pub struct Selected {
     /// The source.
@@ -251,14 +241,8 @@ pub fn select_source(
         }
     }
     if let Some(t) = args.start_at {
-        // an instant on CLOCK_MONOTONIC: not before boot, and at most a day ahead
-        // (stamps are built on it; far out of range they would overflow)
-        let latest = vlsync_ipc::monotonic_ns().saturating_add(MAX_START_AHEAD_NS);
-        if !(0..=latest).contains(&t) {
-            return Err(DriverError::Options(format!(
-                "--start-at {t} is out of range: allowed 0 ..= {latest} (CLOCK_MONOTONIC ns, at most a day from now)"
-            )));
-        }
+        vlsync_common::check_start_at(t, vlsync_ipc::monotonic_ns())
+            .map_err(DriverError::Options)?;
     }
     if args.frame_cpu_ms != 0.0 {
         if args.stamp != StampArg::Software || stream != Stream::Cam {

@@ -126,8 +126,47 @@ pub(super) enum SeqGap {
     Joined(u64),
 }
 
+/// What a sample numbered `seq` says after its publisher's previous one read, `last`
+/// (`None`: none read yet): the rule the daemon ([`sequence_gap`]) and the recorder
+/// (`vlsyncd record`) both judge by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum SeqStep {
+    /// The next one.
+    Next,
+    /// This many samples lost since the previous one.
+    Lost(u64),
+    /// A run's first sample read: a publisher's first, its restart (`FLAG_FIRST`), a
+    /// number that went back, or one that jumped further than any buffer loses (a
+    /// counter restarted or corrupt). `before`: the samples the publisher numbered
+    /// before it and nobody read (0 after `FLAG_FIRST` or a corrupt counter).
+    NewRun {
+        /// Samples published before it, unread.
+        before: u64,
+    },
+}
+
+/// [`SeqStep`] of `seq` after `last`; `first`: the sample carries `FLAG_FIRST`.
+pub(crate) fn seq_step(last: Option<u64>, seq: u64, first: bool) -> SeqStep {
+    let new_run = SeqStep::NewRun {
+        before: if first || seq > MAX_COUNTED_GAP {
+            0
+        } else {
+            seq
+        },
+    };
+    match last {
+        None => new_run,
+        Some(_) if first => new_run,
+        // no subscriber buffer loses billions of samples: a jump that far is a
+        // publisher whose counter restarted or is corrupt, not a loss
+        Some(l) if seq <= l || seq - l - 1 > MAX_COUNTED_GAP => new_run,
+        Some(l) if seq - l == 1 => SeqStep::Next,
+        Some(l) => SeqStep::Lost(seq - l - 1),
+    }
+}
+
 /// Tracks the sequence of each publisher of a stream: what `seq` says of the
-/// samples before it.
+/// samples before it ([`seq_step`] per publisher).
 pub(super) fn sequence_gap(
     slots: &mut [Option<(UniquePublisherId, u64)>; 4],
     publisher: UniquePublisherId,
@@ -137,16 +176,10 @@ pub(super) fn sequence_gap(
     if let Some(slot) = slots.iter_mut().flatten().find(|(p, _)| *p == publisher) {
         let last = slot.1;
         slot.1 = seq;
-        if first || seq <= last {
-            return SeqGap::None;
-        }
-        let gap = seq - last - 1;
-        // no subscriber buffer loses billions of samples: a jump that far is a
-        // publisher whose counter restarted or is corrupt, not a loss
-        return if gap == 0 || gap > MAX_COUNTED_GAP {
-            SeqGap::None
-        } else {
-            SeqGap::Lost(gap)
+        // a run restarted within a publisher the daemon reads: nothing to count
+        return match seq_step(Some(last), seq, first) {
+            SeqStep::Lost(n) => SeqGap::Lost(n),
+            SeqStep::Next | SeqStep::NewRun { .. } => SeqGap::None,
         };
     }
     // a new publisher: take a free slot, or replace the one with the oldest sequence
@@ -162,10 +195,9 @@ pub(super) fn sequence_gap(
     // a slot taken from another publisher (more than four on a stream) may be taken
     // back by it later: its samples were then read before, and saying "joined" of it
     // would be wrong
-    if first || seq == 0 || seq > MAX_COUNTED_GAP || free.is_none() {
-        SeqGap::None
-    } else {
-        SeqGap::Joined(seq)
+    match seq_step(None, seq, first) {
+        SeqStep::NewRun { before } if before > 0 && free.is_some() => SeqGap::Joined(before),
+        _ => SeqGap::None,
     }
 }
 
