@@ -790,7 +790,19 @@ pub fn command(stream: Stream) -> clap::Command {
     for id in hidden {
         cmd = cmd.mut_arg(*id, |a| a.hide(true));
     }
-    cmd
+    // the shared doc comment names both drivers' devices; each binary names its own
+    let devices = match stream {
+        Stream::Cam => "--v4l2",
+        Stream::Lidar => "--ld06, --rplidar",
+    };
+    cmd.mut_arg("wait_device", |a| {
+        a.help(format!(
+            "Live devices ({devices}): wait for the device node to appear instead of \
+             failing at once, saying so then and every 10 minutes (what the systemd units \
+             do, so an unplugged sensor is picked up again when it returns). Other sources \
+             have no device node and start at once."
+        ))
+    })
 }
 
 /// `main` of a driver binary.
@@ -890,7 +902,7 @@ mod tests {
             let help = cmd.render_long_help().to_string();
             let flag = |id: &str| format!("--{}", id.replace('_', "-"));
             let shown = |id: &str| {
-                [" ", "\n"]
+                [" ", "\n", ",", ")"]
                     .iter()
                     .any(|end| help.contains(&format!("{}{end}", flag(id))))
             };
