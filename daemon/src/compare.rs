@@ -227,10 +227,28 @@ fn locked(e: &Estimate) -> bool {
     matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding)
 }
 
-/// Compares `ests` with `other` at the reference times both have (the latest row of
-/// `other` for a time it repeats).
+/// How far apart two reference times may be and still be the same estimate's, ns.
+/// Files written before `t` was exact (through an f64: an epoch-sized stamp came back
+/// up to ~240 ns off) still match; estimates are a hop apart (0.05 s at least).
+pub const SAME_TIME_NS: i64 = 1_000;
+
+/// The row of `sorted` (by time, one per time) nearest to `t`, if within
+/// [`SAME_TIME_NS`].
+fn nearest<'a>(sorted: &[(i64, &'a Estimate)], t: i64) -> Option<&'a Estimate> {
+    let i = sorted.partition_point(|&(u, _)| u < t.saturating_sub(SAME_TIME_NS));
+    sorted[i..]
+        .iter()
+        .take_while(|&&(u, _)| u <= t.saturating_add(SAME_TIME_NS))
+        .min_by_key(|&&(u, _)| u.abs_diff(t))
+        .map(|&(_, e)| e)
+}
+
+/// Compares `ests` with `other` at the reference times both have, to within
+/// [`SAME_TIME_NS`] (the latest row of `other` for a time it repeats).
 pub fn compare(ests: &[Estimate], other: &[Estimate]) -> Comparison {
     let by_time: HashMap<i64, &Estimate> = other.iter().map(|e| (e.t_ref_ns, e)).collect();
+    let mut sorted: Vec<(i64, &Estimate)> = by_time.into_iter().collect();
+    sorted.sort_unstable_by_key(|&(t, _)| t);
     let (mut a, mut b) = (String::new(), String::new());
     let mut c = Comparison {
         rows: ests.len(),
@@ -244,12 +262,19 @@ pub fn compare(ests: &[Estimate], other: &[Estimate]) -> Comparison {
     };
     let mut sum = 0.0;
     for e in ests {
-        let Some(o) = by_time.get(&e.t_ref_ns) else {
+        let Some(o) = nearest(&sorted, e.t_ref_ns) else {
             continue;
         };
         c.same_times += 1;
         crate::replay::estimate_row(e, &mut a);
-        crate::replay::estimate_row(o, &mut b);
+        // the same estimate, whatever rounding its time went through
+        crate::replay::estimate_row(
+            &Estimate {
+                t_ref_ns: e.t_ref_ns,
+                ..*o
+            },
+            &mut b,
+        );
         c.identical += usize::from(a == b);
         c.state_differs += usize::from(e.state != o.state);
         if locked(e) && locked(o) {
@@ -420,6 +445,32 @@ mod tests {
     }
 
     #[test]
+    fn times_written_through_an_f64_still_match() {
+        // what files written before `t` was exact hold: 1700000000.1234567 s
+        let t = 1_700_000_000_123_456_789;
+        let e = est(7, t, 0.01, EstimatorState::Tracking);
+        let text = file(&[e]).replace("1700000000.123456789,", "1700000000.1234567,");
+        let old = parse_estimates_csv(text.as_bytes(), "old.csv").unwrap();
+        assert_eq!(old[0].t_ref_ns, 1_700_000_000_123_456_700);
+        let c = compare(&[e], &old);
+        assert_eq!((c.same_times, c.identical, c.locked_both), (1, 1, 1));
+        // a neighbour a hop away is another estimate, never matched
+        let next = est(8, t + 500_000_000, 0.02, EstimatorState::Tracking);
+        let c = compare(&[next], &old);
+        assert_eq!((c.same_times, c.identical), (0, 0));
+        // of two rows near a time, the nearer
+        let near = est(9, t + 2, 0.05, EstimatorState::Tracking);
+        let far = est(10, t - 900, 0.01, EstimatorState::Tracking);
+        let c = compare(&[e], &[far, near]);
+        assert_eq!(c.same_times, 1);
+        assert!(
+            (c.max_abs_diff_s - 0.04).abs() < 1e-12,
+            "{}",
+            c.max_abs_diff_s
+        );
+    }
+
+    #[test]
     fn comparison_counts_identical_rows_states_and_offset_differences() {
         let s = 1_000_000_000;
         let a = [
@@ -441,15 +492,18 @@ mod tests {
             line,
             "against est.csv: 3 of 4 estimates at reference times it has (3 rows); 1 identical, 1 in another state; locked in both 3: |offset difference| mean 0.167 ms, max 0.500 ms"
         );
-        let shifted: Vec<Estimate> = a
-            .iter()
-            .map(|e| Estimate {
-                t_ref_ns: e.t_ref_ns + 1,
-                ..*e
-            })
-            .collect();
-        assert!(compare(&a, &shifted)
+        let shifted = |by: i64| -> Vec<Estimate> {
+            a.iter()
+                .map(|e| Estimate {
+                    t_ref_ns: e.t_ref_ns + by,
+                    ..*e
+                })
+                .collect()
+        };
+        assert!(compare(&a, &shifted(SAME_TIME_NS + 1))
             .describe("o.csv")
             .starts_with("against o.csv: no estimate at a reference time its 4 rows have"));
+        let c = compare(&a, &shifted(SAME_TIME_NS));
+        assert_eq!((c.same_times, c.identical), (4, 4));
     }
 }
