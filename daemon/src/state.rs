@@ -161,12 +161,14 @@ pub struct Clocks {
     /// This boot and the monotonic clock now.
     pub boot: Option<BootStamp>,
     /// Whether the wall clock can date a file saved during another boot: it is
-    /// synchronized (`/run/systemd/timesync/synchronized`, written by
-    /// `systemd-timesyncd`), or the kernel set it from a real-time clock at boot
-    /// (`/sys/class/rtc/rtc0/hctosys` is 1; a battery-less RTC that lost its time is
-    /// not used so). A Raspberry Pi has neither until NTP syncs: it boots at
-    /// `fake-hwclock`'s last saved time, so a file saved at the last shutdown looks
-    /// seconds old after a night off.
+    /// synchronized (the kernel's clock status,
+    /// [`vlsync_ipc::rt::wall_clock_synchronized`], which chrony, ntpd and
+    /// systemd-timesyncd set; or `/run/systemd/timesync/synchronized`, which
+    /// systemd-timesyncd writes at its first sync), or the kernel set it from a
+    /// real-time clock at boot (`/sys/class/rtc/rtc0/hctosys` is 1; a battery-less
+    /// RTC that lost its time is not used so). A Raspberry Pi has neither until NTP
+    /// syncs: it boots at `fake-hwclock`'s last saved time, so a file saved at the
+    /// last shutdown looks seconds old after a night off.
     pub wall_trusted: bool,
 }
 
@@ -176,7 +178,8 @@ impl Clocks {
         Self {
             unix_ns: unix_now_ns(),
             boot: BootStamp::current(),
-            wall_trusted: Path::new("/run/systemd/timesync/synchronized").exists()
+            wall_trusted: vlsync_ipc::rt::wall_clock_synchronized()
+                || Path::new("/run/systemd/timesync/synchronized").exists()
                 || std::fs::read_to_string("/sys/class/rtc/rtc0/hctosys")
                     .is_ok_and(|t| t.trim() == "1"),
         }
@@ -359,8 +362,9 @@ impl fmt::Display for Problem {
             Problem::AgeUnknown => write!(
                 f,
                 "saved during another boot, and this machine's wall clock may be wrong (neither \
-                 synchronized, /run/systemd/timesync/synchronized, nor set from a real-time \
-                 clock at boot, /sys/class/rtc/rtc0/hctosys): its age is unknown"
+                 synchronized by a time daemon, the kernel's clock status as timedatectl \
+                 shows it, nor set from a real-time clock at boot, \
+                 /sys/class/rtc/rtc0/hctosys): its age is unknown"
             ),
             Problem::OtherPrefix { saved, ours } => write!(
                 f,

@@ -3,8 +3,8 @@
 //! privileges starts anyway and says what it could not get.
 //!
 //! This is the one module of vlsync with `unsafe`: `sched_setscheduler` (and the
-//! thread CPU clock, [`thread_cpu_ns`]) have no safe wrapper in the crates the
-//! workspace uses.
+//! thread CPU clock, [`thread_cpu_ns`], and the kernel's clock status,
+//! [`wall_clock_synchronized`]) have no safe wrapper in the crates the workspace uses.
 #![allow(unsafe_code)]
 
 use std::fmt;
@@ -138,6 +138,36 @@ pub fn thread_cpu_ns() -> Option<i64> {
     (rc == 0).then(|| sec.saturating_mul(1_000_000_000).saturating_add(nsec))
 }
 
+/// Whether the kernel holds the wall clock (`CLOCK_REALTIME`) synchronized: a time
+/// daemon disciplining it (chrony, ntpd, systemd-timesyncd) clears `STA_UNSYNC`, and
+/// the kernel sets it again once the clock's maximum error grows past 16 s without
+/// an update (what `timedatectl` shows as "System clock synchronized"). `adjtimex`
+/// with no modes only reads, so no privilege is needed. `false` where the kernel
+/// does not say.
+pub fn wall_clock_synchronized() -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: `timex` is plain integers (and padding), for which all zeros is a
+        // valid value; zero `modes` asks for no change.
+        let mut tx: libc::timex = unsafe { std::mem::zeroed() };
+        // SAFETY: adjtimex reads `tx.modes` (0: read only) and writes the clock's
+        // state into `tx`, a valid, exclusively borrowed local that outlives the call.
+        let state = unsafe { libc::adjtimex(&mut tx) };
+        synchronized(state, tx.status)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        false
+    }
+}
+
+/// What `adjtimex`'s return value (the clock state, -1 on error) and `status`
+/// flags say of the wall clock's synchronization.
+#[cfg(target_os = "linux")]
+fn synchronized(state: libc::c_int, status: libc::c_int) -> bool {
+    state >= 0 && state != libc::TIME_ERROR && status & libc::STA_UNSYNC == 0
+}
+
 /// Locks all current and future pages of the process in RAM.
 pub fn lock_all_memory() -> Result<(), RtRefused> {
     // SAFETY: mlockall takes only flags and touches no memory of ours.
@@ -188,6 +218,18 @@ pub fn request_cpu_latency(us: u32, device: &std::path::Path) -> Result<std::fs:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_clock_is_synchronized_only_when_the_kernel_says_so() {
+        use libc::{STA_PLL, STA_UNSYNC, TIME_ERROR, TIME_INS, TIME_OK};
+        assert!(synchronized(TIME_OK, STA_PLL));
+        assert!(synchronized(TIME_INS, 0)); // a leap second announced
+        assert!(!synchronized(TIME_OK, STA_PLL | STA_UNSYNC));
+        assert!(!synchronized(TIME_ERROR, 0));
+        assert!(!synchronized(-1, 0));
+        // and the call itself works here, whatever this machine's clock
+        let _ = wall_clock_synchronized();
+    }
 
     #[test]
     fn thread_cpu_clock_advances_with_work() {
