@@ -644,8 +644,11 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         start_at,
     } = select_source(args, stream, termination_requested)?;
     let node = create_node(&format!("vlsync-{stream}"), true).map_err(DriverError::Ipc)?;
+    // a service this driver creates serves the daemon's configured buffer
+    // (validated 1..=65536)
+    let buffer = usize::try_from(config(args)?.services.subscriber_buffer).unwrap_or(1);
     let mut publisher =
-        SignaturePublisher::open(&node, &names, stream).map_err(DriverError::Ipc)?;
+        SignaturePublisher::open_sized(&node, &names, stream, buffer).map_err(DriverError::Ipc)?;
     let mut truth = match &args.truth_out {
         Some(p) => Some(crate::TruthLog::create(p)?),
         None => None,

@@ -387,13 +387,29 @@ pub struct SignaturePublisher {
 }
 
 impl SignaturePublisher {
-    /// Opens `<prefix>/<stream>/signature` and `<prefix>/signature/ready`.
+    /// Opens `<prefix>/<stream>/signature` and `<prefix>/signature/ready`, creating
+    /// the stream's service for subscriber buffers of up to [`DEFAULT_SIGNATURE_BUFFER`]
+    /// samples when it is missing ([`Self::open_sized`] for more).
     pub fn open(node: &IpcNode, names: &ServiceNames, stream: Stream) -> Result<Self, IpcError> {
+        Self::open_sized(node, names, stream, DEFAULT_SIGNATURE_BUFFER)
+    }
+
+    /// [`Self::open`], creating a missing service for subscriber buffers of up to
+    /// `subscriber_buffer` samples (`services.subscriber_buffer`; at least
+    /// [`DEFAULT_SIGNATURE_BUFFER`]): a service keeps what its creator set, so a daemon
+    /// started after its drivers gets the buffer the configuration asks for only if
+    /// the drivers created the services for it.
+    pub fn open_sized(
+        node: &IpcNode,
+        names: &ServiceNames,
+        stream: Stream,
+        subscriber_buffer: usize,
+    ) -> Result<Self, IpcError> {
         let name = names.signature(stream);
         let svc = open_or_create_pubsub::<SignatureSample>(
             node,
             &name,
-            Qos::signature(DEFAULT_SIGNATURE_BUFFER),
+            Qos::signature(subscriber_buffer),
         )?;
         let ev = open_or_create_event(node, &names.signature_ready())?;
         let publisher = publisher(&svc, &name)?;
@@ -894,6 +910,28 @@ mod tests {
         assert_eq!(n.signature_ready(), "a/b/signature/ready");
         let e = ServiceNames::new("/bad").unwrap_err();
         assert!(e.to_string().contains("services.prefix"), "{e}");
+    }
+
+    #[test]
+    fn a_driver_creates_the_service_for_the_configured_buffer() {
+        let names = ServiceNames::new(&unique_prefix("sized")).unwrap();
+        let node = create_node("test", false).unwrap();
+        let _p = SignaturePublisher::open_sized(&node, &names, Stream::Cam, 1024).unwrap();
+        let _q = SignaturePublisher::open(&node, &names, Stream::Lidar).unwrap();
+        for (stream, max) in [
+            (Stream::Cam, 1024),
+            (Stream::Lidar, DEFAULT_SIGNATURE_BUFFER),
+        ] {
+            let svc = open_or_create_pubsub::<SignatureSample>(
+                &node,
+                &names.signature(stream),
+                Qos::signature(4096),
+            )
+            .unwrap();
+            assert_eq!(svc.static_config().subscriber_max_buffer_size(), max);
+            let (_sub, buf) = subscriber(&svc, 4096, "sig").unwrap();
+            assert_eq!(buf.granted, max);
+        }
     }
 
     #[test]

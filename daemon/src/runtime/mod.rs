@@ -466,7 +466,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     }
     if report.buffer.1 < report.buffer.0 {
         tracing::warn!(
-            "services.subscriber_buffer = {} exceeds what the existing signature services allow; using {}",
+            "services.subscriber_buffer = {} exceeds what the existing signature services allow; using {} \
+             (a process with a smaller services.subscriber_buffer created them: give the drivers \
+             the daemon's --config, or start the daemon first)",
             report.buffer.0,
             report.buffer.1
         );
