@@ -70,7 +70,18 @@ fn push_and_poll_allocate_nothing() {
             est.set_degraded(true);
         }
         let allocs = vlsync_alloc_count::this_thread() - before;
+        // a zero below means none only if the allocator counts
+        vlsync_alloc_count::assert_counting();
         assert!(n_est > 100, "estimates: {n_est}");
+        // and the paths named above ran while counting
+        let st = est.stats();
+        assert!(st.locks >= 1 && st.steps >= 1 && st.outliers >= 1, "{st:?}");
+        assert!(st.cadence_steps[0] >= 1, "{st:?}");
+        assert!(
+            st.gaps[1] >= 1 && st.resets.iter().sum::<u64>() >= 1,
+            "{st:?}"
+        );
+        assert!(st.rejected[0].iter().sum::<u64>() >= 1, "{st:?}");
         assert_eq!(allocs, 0, "allocations on the hot path");
     }
 }

@@ -60,8 +60,14 @@ fn raw_frames_and_small_scans_allocate_nothing_per_message() {
         scans.next_scan().unwrap().unwrap();
     }
     let before = vlsync_alloc_count::this_thread();
-    while scans.next_scan().unwrap().is_some() {}
+    let mut m = 0;
+    while scans.next_scan().unwrap().is_some() {
+        m += 1;
+    }
     let scan_allocs = vlsync_alloc_count::this_thread() - before;
+    vlsync_alloc_count::assert_counting();
+    // every message after the warm-up was read while counting
+    assert_eq!((n, m), (180, 180));
     std::fs::remove_file(&path).unwrap();
     eprintln!("{n} frames: {frames} allocations; 180 scans: {scan_allocs} allocations");
     // chunks (768 KiB by default) are loaded and indexed as the reader reaches them;

@@ -314,6 +314,22 @@ impl Drop for Rig {
     }
 }
 
+/// Says that `test` skipped its check for `reason` (a tool or a privilege this
+/// machine lacks): on stderr, and as a line appended to the file `VLSYNC_SKIP_LOG`
+/// names, which `scripts/test.sh` lists after its summary, since cargo counts a
+/// skipped test as passed and hides a passing test's output.
+pub fn skipped(test: &str, reason: &str) {
+    eprintln!("SKIPPED {test}: {reason}");
+    if let Some(path) = std::env::var_os("VLSYNC_SKIP_LOG") {
+        use std::io::Write;
+        let line = format!("{test}: {reason}\n");
+        let _ = std::fs::OpenOptions::new()
+            .append(true)
+            .open(path)
+            .and_then(|mut f| f.write_all(line.as_bytes()));
+    }
+}
+
 /// Writes `dir/vlsync.toml`: a daemon on no fixed core serving `prefix`, with
 /// `daemon_keys` (TOML lines) added to its `[daemon]` section. Returns its path.
 pub fn write_daemon_config(dir: &Path, prefix: &str, daemon_keys: &str) -> PathBuf {
@@ -326,15 +342,24 @@ pub fn write_daemon_config(dir: &Path, prefix: &str, daemon_keys: &str) -> PathB
     cfg
 }
 
-/// Collects every estimate arriving within `wall`.
+/// Collects every estimate arriving within `wall`, in order (all of them: the
+/// client's buffer holds 16, so only a burst beyond that while this thread is held
+/// up, such as a stalled daemon catching up, loses any), and checks that the client
+/// refused none of the daemon's payloads.
 pub fn collect(client: &mut OffsetClient, wall: Duration) -> Vec<Estimate> {
     let t0 = Instant::now();
     let mut out = vec![];
     while t0.elapsed() < wall {
-        if let Ok(Some(e)) = client.wait_next(Duration::from_millis(100)) {
-            out.push(e);
-        }
+        let got = client
+            .wait_all(Duration::from_millis(100))
+            .expect("read the offset service");
+        out.extend(got.into_iter().map(|(e, _)| e));
     }
+    assert_eq!(
+        client.invalid_count(),
+        0,
+        "the daemon published estimates the client refused as invalid"
+    );
     out
 }
 

@@ -4,7 +4,7 @@
 use std::time::{Duration, Instant};
 use vlsync_common::Stream;
 use vlsync_ipc::{OffsetClient, StatusClient};
-use vlsync_tests::{collect, locked_errors, Rig};
+use vlsync_tests::{collect, locked_errors, status_when, Rig};
 
 #[test]
 fn sigkill_of_a_driver_and_of_the_daemon_recovers() {
@@ -22,6 +22,7 @@ fn sigkill_of_a_driver_and_of_the_daemon_recovers() {
     );
 
     // driver crash and restart on the same schedule
+    let before = status_when(&mut status, Duration::from_secs(5), |_| true).expect("a status");
     cam.signal("KILL").unwrap();
     let _ = cam.child.wait();
     std::thread::sleep(Duration::from_millis(500));
@@ -30,6 +31,24 @@ fn sigkill_of_a_driver_and_of_the_daemon_recovers() {
     assert!(
         after_driver.len() >= 4,
         "estimates stopped after the driver restart"
+    );
+    // the daemon reads the new camera driver (its estimates alone would go on from the
+    // LiDAR's hops, predicted), and stays locked near the truth
+    let t_window = vlsync_ipc::monotonic_ns();
+    let mid = status_when(&mut status, Duration::from_secs(5), |st| {
+        st.publish_ns > t_window
+    })
+    .expect("a status");
+    assert!(
+        mid.received[0] > before.received[0] + 200,
+        "the daemon received {} camera samples before the kill and {} after the restart's 4 s",
+        before.received[0],
+        mid.received[0]
+    );
+    let errs = locked_errors(&after_driver, &rig.sim);
+    assert!(
+        !errs.is_empty() && errs.iter().all(|e| *e < 0.02),
+        "locked errors after the driver restart: {errs:?}"
     );
 
     // daemon crash: SIGKILL leaves its iceoryx2 resources and lock behind the kernel's back

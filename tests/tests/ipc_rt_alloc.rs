@@ -14,6 +14,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_tests::{status_when, Rig};
+use vlsyncd::runtime::RT_THREAD_NAME;
 
 #[global_allocator]
 static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
@@ -38,8 +39,22 @@ fn daemon_allocates_nothing_in_steady_state() {
     std::thread::sleep(Duration::from_secs(5));
     let mut status = vlsync_ipc::StatusClient::open(&rig.prefix).unwrap();
     let s0 = status_when(&mut status, Duration::from_secs(10), |_| true).expect("status");
+    vlsync_alloc_count::assert_counting();
+    // the thread the watch counts is there, under that name (else nothing is counted)
+    let names: Vec<String> = std::fs::read_dir("/proc/self/task")
+        .unwrap()
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("comm")).ok())
+        .map(|n| n.trim().to_string())
+        .collect();
+    assert!(
+        names.iter().any(|n| n == RT_THREAD_NAME),
+        "no thread named {RT_THREAD_NAME}: {names:?}"
+    );
     let rt0 = vlsync_alloc_count::watched();
-    vlsync_alloc_count::watch_thread("vlsync-rt", std::env::var_os("VLSYNC_ALLOC_BT").is_some());
+    vlsync_alloc_count::watch_thread(
+        RT_THREAD_NAME,
+        std::env::var_os("VLSYNC_ALLOC_BT").is_some(),
+    );
     std::thread::sleep(Duration::from_secs(4));
     vlsync_alloc_count::unwatch_thread();
     let rt = vlsync_alloc_count::watched() - rt0;

@@ -669,6 +669,7 @@ mod tests {
             emit(&tx, &mut c, RtEvent::Latency(l));
         }
         let allocated = vlsync_alloc_count::this_thread() - before;
+        vlsync_alloc_count::assert_counting();
         // it ran: three stretches reached the channel, each its own
         let got: Vec<_> = rx.try_iter().collect();
         assert_eq!(got.len(), 3);

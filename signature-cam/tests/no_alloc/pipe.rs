@@ -50,6 +50,7 @@ fn reading_frames_from_a_pipe_allocates_nothing() {
             sum += u64::from(frame.pixels()[0]);
         }
         let allocated = vlsync_alloc_count::this_thread() - before;
+        vlsync_alloc_count::assert_counting();
         writer.join().unwrap();
         let (read, queued) = src.counts();
         assert_eq!(read, frames as u64, "{format}");
