@@ -351,14 +351,10 @@ mod tests {
         assert_eq!(left, ["dangling.csv", "est.csv", "link.csv", "made.csv"]);
         // a named pipe is not opened by the probe (that would wait for a reader)
         let fifo = dir.join("fifo");
-        if std::process::Command::new("mkfifo")
-            .arg(&fifo)
-            .status()
-            .is_ok_and(|s| s.success())
-        {
-            assert!(check_writable("--out", &fifo).is_ok());
-            std::fs::remove_file(&fifo).unwrap();
-        }
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        assert!(check_writable("--out", &fifo).is_ok());
+        std::fs::remove_file(&fifo).unwrap();
         // the probe: writable paths pass and leave nothing; others name the flag
         assert!(check_writable("--out", &dir.join("new.csv")).is_ok());
         assert!(!dir.join("new.csv").exists());

@@ -88,9 +88,7 @@ fn named_pipes_are_refused_not_waited_for() {
     std::fs::create_dir_all(&dir).unwrap();
     let fifo = dir.join("f");
     let made = Command::new("mkfifo").arg(&fifo).status();
-    if !made.is_ok_and(|s| s.success()) {
-        return; // no mkfifo here
-    }
+    assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
     std::fs::create_dir_all(dir.join("frames")).unwrap();
     assert!(Command::new("mkfifo")
         .arg(dir.join("frames/frames.csv"))

@@ -33,10 +33,12 @@ fn subscriber_or_skip(test: &str) -> Option<std::path::PathBuf> {
             "{} cannot import iceoryx2, although scripts/test.sh installed it",
             python()
         );
-        eprintln!(
-            "SKIPPED {test}: {} cannot import iceoryx2 \
-             (pip install -r examples/python/requirements.txt)",
-            python()
+        vlsync_tests::skipped(
+            test,
+            &format!(
+                "{} cannot import iceoryx2 (pip install -r examples/python/requirements.txt)",
+                python()
+            ),
         );
         return None;
     }

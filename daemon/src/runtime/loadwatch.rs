@@ -175,17 +175,16 @@ mod tests {
         // a named pipe without a writer would block the daemon's start forever
         let fifo = dir.join("fifo");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
-        if made.is_ok_and(|s| s.success()) {
-            // read on another thread: a regression would block, and must fail, not hang
-            let path = fifo.to_str().unwrap().to_string();
-            let (tx, rx) = std::sync::mpsc::channel();
-            std::thread::spawn(move || {
-                let _ = tx.send(read_pressure(&path));
-            });
-            let got = rx.recv_timeout(std::time::Duration::from_secs(5));
-            let e = got.expect("reading a named pipe blocked").unwrap_err();
-            assert!(e.ends_with("not a regular file (a named pipe)"), "{e}");
-        }
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        // read on another thread: a regression would block, and must fail, not hang
+        let path = fifo.to_str().unwrap().to_string();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(read_pressure(&path));
+        });
+        let got = rx.recv_timeout(std::time::Duration::from_secs(5));
+        let e = got.expect("reading a named pipe blocked").unwrap_err();
+        assert!(e.ends_with("not a regular file (a named pipe)"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
