@@ -295,9 +295,18 @@ mod tests {
 
     #[test]
     fn pinning_to_core_zero_works() {
-        // core 0 exists on every machine this runs on
-        std::thread::spawn(|| pin_current_thread(0).unwrap())
-            .join()
-            .unwrap();
+        // core 0 exists on every machine this runs on; the kernel then lets the
+        // thread run there only
+        let allowed = std::thread::spawn(|| {
+            pin_current_thread(0).unwrap();
+            let status = std::fs::read_to_string("/proc/thread-self/status").unwrap();
+            status
+                .lines()
+                .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+                .map(|v| v.trim().to_string())
+        })
+        .join()
+        .unwrap();
+        assert_eq!(allowed.as_deref(), Some("0"));
     }
 }

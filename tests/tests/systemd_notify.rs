@@ -67,8 +67,13 @@ fn spawn_daemon(s: &Setup, env: &[(&str, Option<&std::ffi::OsStr>)]) -> Managed 
             None => cmd.env_remove(key),
         };
     }
-    // one open file for both: two opens would each write from offset 0 over the other
-    let log = std::fs::File::create(&s.log).unwrap();
+    // one open file for both: two opens would each write from offset 0 over the other;
+    // appending, so that a line the test adds (a marker) keeps its place among theirs
+    std::fs::File::create(&s.log).unwrap();
+    let log = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&s.log)
+        .unwrap();
     let child = cmd
         .stdin(Stdio::null())
         .stderr(log.try_clone().unwrap())
@@ -297,30 +302,51 @@ fn without_notify_socket_the_daemon_runs_and_stops_as_before() {
 /// services, the real-time thread and the state file come after): a clean exit 0
 /// that removes the lock file. Before, the handler came with the first wait of the
 /// real-time loop, and such a signal killed the daemon (signal 2), the lock file
-/// left behind.
+/// left behind. The test writes a marker into the daemon's log as it signals; the
+/// daemon's "serving prefix" line after it shows the signal came during start-up
+/// (a start-up too quick to catch is tried again, up to ten times).
 #[test]
 fn a_stop_during_start_up_is_a_clean_stop() {
-    let s = setup("sdearly");
-    let log = &s.log;
-    let lock = vlsyncd::runtime::lock_path(&s.prefix);
-    let _ = std::fs::remove_file(&lock);
-    let mut daemon = spawn_daemon(&s, &[("NOTIFY_SOCKET", None)]);
-    wait_while_running(
-        &mut daemon,
-        log,
-        &format!("lock file {}", lock.display()),
-        Duration::from_micros(200),
-        || lock.exists(),
+    const MARK: &str = "-- test: SIGINT sent --";
+    let mut during = 0;
+    for attempt in 0..10 {
+        let s = setup(&format!("sdearly{attempt}"));
+        let log = &s.log;
+        let lock = vlsyncd::runtime::lock_path(&s.prefix);
+        let _ = std::fs::remove_file(&lock);
+        let mut daemon = spawn_daemon(&s, &[("NOTIFY_SOCKET", None)]);
+        wait_while_running(
+            &mut daemon,
+            log,
+            &format!("lock file {}", lock.display()),
+            Duration::from_micros(200),
+            || lock.exists(),
+        );
+        {
+            use std::io::Write;
+            let mut f = std::fs::OpenOptions::new().append(true).open(log).unwrap();
+            writeln!(f, "{MARK}").unwrap();
+        }
+        daemon.signal("INT").unwrap();
+        let text = || std::fs::read_to_string(log).unwrap();
+        let status = daemon.wait_up_to(STOP_WAIT).unwrap_or_else(|| {
+            panic!(
+                "vlsyncd still running {STOP_WAIT:?} after SIGINT at start-up\n{}",
+                text()
+            )
+        });
+        let text = text();
+        assert_eq!(status.code(), Some(0), "exit {status:?}\n{text}");
+        assert!(!lock.exists(), "lock file left: {}\n{text}", lock.display());
+        let (mark, serving) = (text.find(MARK), text.find("serving prefix"));
+        assert!(mark.is_some(), "{text}");
+        if serving.is_some_and(|at| Some(at) > mark) {
+            during += 1;
+            break;
+        }
+    }
+    assert_eq!(
+        during, 1,
+        "no SIGINT landed before start-up ended in ten tries"
     );
-    daemon.signal("INT").unwrap();
-    let text = || std::fs::read_to_string(log).unwrap();
-    let status = daemon.wait_up_to(STOP_WAIT).unwrap_or_else(|| {
-        panic!(
-            "vlsyncd still running {STOP_WAIT:?} after SIGINT at start-up\n{}",
-            text()
-        )
-    });
-    let text = text();
-    assert_eq!(status.code(), Some(0), "exit {status:?}\n{text}");
-    assert!(!lock.exists(), "lock file left: {}\n{text}", lock.display());
 }
