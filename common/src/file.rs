@@ -70,6 +70,23 @@ pub fn read_regular(path: &Path) -> io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// Reads `path` after [`check_regular`], refusing one of more than `max` bytes (a
+/// file that cannot be what the caller reads, such as a recording given as a
+/// configuration) without reading more than `max + 1` of them.
+pub fn read_regular_at_most(path: &Path, max: u64) -> io::Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    open_regular(path)?
+        .take(max.saturating_add(1))
+        .read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!("larger than {max} bytes"),
+        ));
+    }
+    Ok(bytes)
+}
+
 /// Reads all of `path` as UTF-8 after [`check_regular`].
 pub fn read_regular_to_string(path: &Path) -> io::Result<String> {
     io::read_to_string(open_regular(path)?)

@@ -400,6 +400,10 @@ struct Checker<'a> {
 
 /// Most characters kept of each line of a TOML parse error (it quotes the offending
 /// line of the file, which may be megabytes long).
+/// The largest configuration file read, bytes (the shipped, commented one is some
+/// 13 kB): a larger one is refused before it is read whole.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
 const MAX_ERROR_LINE_CHARS: usize = 200;
 /// Most lines kept of a TOML parse error.
 const MAX_ERROR_LINES: usize = 12;
@@ -739,14 +743,24 @@ impl Config {
     }
 
     /// Reads, parses and validates a TOML file (a regular file only: opening a named
-    /// pipe would block until a writer appears).
+    /// pipe would block until a writer appears; at most [`MAX_FILE_BYTES`]).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let name = path.display().to_string();
         let cannot_read = |e: &dyn fmt::Display| ConfigError {
             source_name: name.clone(),
             message: format!("cannot read: {e}"),
         };
-        let bytes = vlsync_common::file::read_regular(path).map_err(|e| cannot_read(&e))?;
+        let bytes =
+            vlsync_common::file::read_regular_at_most(path, MAX_FILE_BYTES).map_err(|e| {
+                cannot_read(&format!(
+                    "{e}{}",
+                    if e.kind() == std::io::ErrorKind::InvalidData {
+                        ": not a configuration file (the shipped one is some 13 kB)"
+                    } else {
+                        ""
+                    }
+                ))
+            })?;
         let text = String::from_utf8(bytes).map_err(|e| {
             // where: TOML is UTF-8, and an editor's Latin-1 character is one byte
             let at = e.utf8_error().valid_up_to();
@@ -1053,6 +1067,30 @@ mod tests {
                 fifo.display()
             )
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_too_large_to_be_a_configuration_is_refused_unread() {
+        let dir = std::env::temp_dir().join(format!("vlsync-config-big-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // a sparse 1 GiB file (a recording given as --config): refused at once
+        let big = dir.join("big.toml");
+        std::fs::File::create(&big)
+            .unwrap()
+            .set_len(1 << 30)
+            .unwrap();
+        let e = Config::load(&big).unwrap_err().to_string();
+        assert!(
+            e.ends_with("cannot read: larger than 1048576 bytes: not a configuration file (the shipped one is some 13 kB)"),
+            "{e}"
+        );
+        // the largest allowed still loads
+        let edge = dir.join("edge.toml");
+        let mut text = SHIPPED.to_string();
+        text.push_str(&" ".repeat(MAX_FILE_BYTES as usize - text.len()));
+        std::fs::write(&edge, &text).unwrap();
+        assert!(Config::load(&edge).is_ok());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

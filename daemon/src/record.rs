@@ -341,14 +341,20 @@ fn create_files(dir: &Path, force: bool) -> Result<[std::io::BufWriter<std::fs::
     Ok([open(FILES[0])?, open(FILES[1])?, open(FILES[2])?])
 }
 
-/// Reads every pending sample of both streams into the recording.
+/// Reads the pending samples of both streams into the recording, at most
+/// [`BUFFER`] of each: a publisher faster than the recorder (a driver's `--fast`
+/// replay) would otherwise keep it in one stream's loop, reading neither the other
+/// stream, nor the estimates, nor Ctrl-C, nor the clock.
 fn drain_signatures<W: Write>(
     subs: &mut [vlsync_ipc::SignatureSubscriber; 2],
     rec: &mut Recording<W>,
 ) -> Result<bool, String> {
     let mut any = false;
     for (sub, stream) in subs.iter_mut().zip([Stream::Cam, Stream::Lidar]) {
-        while let Some(s) = sub.receive().map_err(|e| e.to_string())? {
+        for _ in 0..BUFFER {
+            let Some(s) = sub.receive().map_err(|e| e.to_string())? else {
+                break;
+            };
             rec.signature(stream, &s)?;
             any = true;
         }
@@ -459,6 +465,12 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
         a.out.display(),
         rec.summary()
     ));
+    if offsets.invalid_count() > 0 {
+        err(&format!(
+            "{} estimate payloads on `{prefix}/offset` were invalid and are not in est.csv\n",
+            offsets.invalid_count()
+        ));
+    }
     if result.is_ok() && rec.estimates() == 0 {
         err(&format!(
             "no estimate was published while recording (is vlsyncd running with services.prefix = \"{prefix}\"?)\n"

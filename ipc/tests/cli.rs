@@ -127,3 +127,79 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// An estimate payload the client refuses is not printed but said on stderr, with
+/// the count (a hostile or mismatched second publisher on the offset service).
+#[test]
+fn echo_says_when_it_skips_invalid_estimates() {
+    use vlsync_common::wire::OffsetEstimate;
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
+    use vlsync_ipc::{
+        create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
+        ServiceNames,
+    };
+    let names =
+        ServiceNames::new(&format!("vlsync-it/echoinvalid-{}", std::process::id())).unwrap();
+    let node = create_node("test-publisher", false).unwrap();
+    let svc =
+        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+    let ev = open_or_create_event(&node, &names.offset()).unwrap();
+    let (publ, noti) = (
+        publisher(&svc, "offset").unwrap(),
+        notifier(&ev, "offset").unwrap(),
+    );
+    let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
+        .args([
+            "--prefix",
+            &names.prefix,
+            "--count",
+            "1",
+            "--duration",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // once it listens: a payload with an unknown state, then a good estimate
+    let t0 = std::time::Instant::now();
+    while svc.dynamic_config().number_of_subscribers() == 0 {
+        assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let e = Estimate {
+        seq: 3,
+        t_ref_ns: 10_000_000_000,
+        offset_s: 0.02,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 0.0,
+        state: EstimatorState::Tracking,
+        polarity: Polarity::Positive,
+        peak_score: 0.8,
+        peak_ratio: 2.0,
+        measured_offset_s: 0.02,
+    };
+    let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
+    bad.state = 77;
+    publ.send_copy(bad).unwrap();
+    publ.send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
+        .unwrap();
+    noti.notify().unwrap();
+    let out = echo.wait_with_output().unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    assert!(stdout.contains("tracking"), "{stdout}");
+    assert!(
+        stderr.contains(&format!(
+            "vlsync-echo: skipped 1 invalid estimate payload(s) on `{}/offset` (1 in all)",
+            names.prefix
+        )),
+        "{stderr}"
+    );
+}

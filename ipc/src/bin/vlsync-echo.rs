@@ -228,10 +228,20 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    let mut invalid = 0;
     print_until_done(&args, || {
-        client
-            .wait_next(Duration::from_millis(200))
-            .map(|e| e.iter().map(|e| line(e, json)).collect())
+        let got = client.wait_next(Duration::from_millis(200));
+        // a payload the client refused is not printed: said, as the status's are
+        if client.invalid_count() > invalid {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-echo: skipped {} invalid estimate payload(s) on `{}/offset` ({} in all)\n",
+                client.invalid_count() - invalid,
+                args.prefix,
+                client.invalid_count()
+            ));
+            invalid = client.invalid_count();
+        }
+        got.map(|e| e.iter().map(|e| line(e, json)).collect())
             .map_err(|e| e.to_string())
     })
 }
