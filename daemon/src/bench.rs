@@ -135,8 +135,8 @@ pub fn run_family(
             );
             let svg = crate::plot::offset_svg(&title, &ests, Some(&truth), &[]);
             let path = dir.join(format!("{}.svg", family.name()));
-            std::fs::write(&path, svg)
-                .map_err(|e| format!("--plots: cannot write {}: {e}", path.display()))?;
+            vlsync_common::file::write_atomically(&path, svg.as_bytes())
+                .map_err(|e| format!("--plots: {e}"))?;
         }
         base.push(score_pairs(
             &seed_chunked(&run.cam, &run.lidar, run.cam_hz),
@@ -362,16 +362,7 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     }
     // a --json that cannot be written is found now, not after the whole run
     if let Some(p) = &args.json {
-        let why = if p.is_dir() {
-            Some("is a directory")
-        } else if !vlsync_common::file::dir_of(p).is_dir() {
-            Some("its directory does not exist")
-        } else {
-            None
-        };
-        if let Some(why) = why {
-            return Err(format!("--json {}: {why}", p.display()));
-        }
+        vlsync_common::file::check_writable("--json", p)?;
     }
     // the last seed must exist: a wrapped range would run nothing
     let last_seed = args.seed_base.checked_add(args.seeds - 1).ok_or_else(|| {
@@ -388,8 +379,7 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
         }
     }
     if let Some(d) = &args.plots {
-        std::fs::create_dir_all(d)
-            .map_err(|e| format!("--plots {}: cannot create the directory: {e}", d.display()))?;
+        vlsync_common::file::create_out_dir("--plots", d)?;
     }
     let total = families.len();
     let failure = std::sync::Mutex::new(None::<String>);
@@ -446,9 +436,9 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     // the JSON first, the table in any case: a closed or full stdout must not cost
     // the file, nor an unwritable file the table
     let written = args.json.as_ref().map(|p| {
-        std::fs::write(p, json(&results))
+        vlsync_common::file::write_atomically(p, json(&results).as_bytes())
             .map(|()| p)
-            .map_err(|e| format!("--json {}: cannot write: {e}", p.display()))
+            .map_err(|e| format!("--json: {e}"))
     });
     let printed = vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base));
     if let Some(Ok(p)) = &written {

@@ -293,7 +293,9 @@ const POLL: Duration = Duration::from_millis(20);
 /// The subscriber buffer asked for (the services grant their maximum, 256 by default).
 const BUFFER: usize = 4096;
 
-fn check_args(a: &RecordArgs) -> Result<vlsync_ipc::ServiceNames, String> {
+/// The service names, and `services.subscriber_buffer` (for services the recorder
+/// creates, as a driver would).
+fn check_args(a: &RecordArgs) -> Result<(vlsync_ipc::ServiceNames, usize), String> {
     if !(a.duration.is_finite() && a.duration >= 0.0) {
         return Err(format!(
             "--duration {} must be a finite number of seconds >= 0",
@@ -317,7 +319,10 @@ fn check_args(a: &RecordArgs) -> Result<vlsync_ipc::ServiceNames, String> {
         None => vlsync_config::Config::default(),
     };
     let prefix = a.prefix.clone().unwrap_or(cfg.services.prefix);
-    vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())
+    let names = vlsync_ipc::ServiceNames::new(&prefix).map_err(|e| e.to_string())?;
+    // validated 1..=65536
+    let service_buffer = usize::try_from(cfg.services.subscriber_buffer).unwrap_or(1);
+    Ok((names, service_buffer))
 }
 
 /// Creates `dir` and the three files in it; refuses to overwrite an earlier
@@ -364,7 +369,7 @@ fn drain_signatures<W: Write>(
 
 /// The `record` command.
 pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
-    let names = check_args(a)?;
+    let (names, service_buffer) = check_args(a)?;
     let prefix = names.prefix.clone();
     let err = vlsync_common::console::print_err;
     if a.nice > 0 {
@@ -378,7 +383,7 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
     let mut rec = Recording::named(files, paths)?;
     // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the recording cleanly
     let node = vlsync_ipc::create_node("vlsyncd-record", true).map_err(|e| e.to_string())?;
-    let open = |s| vlsync_ipc::SignatureSubscriber::open(&node, &names, s, BUFFER);
+    let open = |s| vlsync_ipc::SignatureSubscriber::open(&node, &names, s, service_buffer, BUFFER);
     let mut subs = [
         open(Stream::Cam).map_err(|e| e.to_string())?,
         open(Stream::Lidar).map_err(|e| e.to_string())?,
@@ -691,7 +696,11 @@ mod tests {
         assert!(check_args(&args(1.0, f64::NAN))
             .unwrap_err()
             .starts_with("--progress-every NaN must be"));
-        assert_eq!(check_args(&args(0.0, 0.0)).unwrap().prefix, "vlsync/robot");
+        let (names, service_buffer) = check_args(&args(0.0, 0.0)).unwrap();
+        assert_eq!(
+            (names.prefix.as_str(), service_buffer),
+            ("vlsync/robot", 256)
+        );
         for nice in [-1, 20] {
             let mut a = args(0.0, 0.0);
             a.nice = nice;

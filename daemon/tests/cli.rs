@@ -381,7 +381,7 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
     );
     assert_ne!(code, 0, "{err}");
     let want = format!(
-        "--json {}: cannot write: No space left on device",
+        "--json: cannot write {}: No space left on device",
         json.display()
     );
     assert!(err.contains(&want), "{err}");

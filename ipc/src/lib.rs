@@ -511,20 +511,22 @@ pub struct SignatureSubscriber {
 }
 
 impl SignatureSubscriber {
-    /// Opens (or creates, with the QoS the drivers would) `<prefix>/<stream>/signature`
-    /// and subscribes with `buffer` samples, clamped to the service's maximum
-    /// ([`Self::buffer`] says what was granted).
+    /// Opens (or creates, with the QoS the drivers would for `services.subscriber_buffer`
+    /// = `service_buffer`) `<prefix>/<stream>/signature` and subscribes with `buffer`
+    /// samples, clamped to the service's maximum ([`Self::buffer`] says what was
+    /// granted).
     pub fn open(
         node: &IpcNode,
         names: &ServiceNames,
         stream: Stream,
+        service_buffer: usize,
         buffer: usize,
     ) -> Result<Self, IpcError> {
         let service = names.signature(stream);
         let svc = open_or_create_pubsub::<SignatureSample>(
             node,
             &service,
-            Qos::signature(DEFAULT_SIGNATURE_BUFFER),
+            Qos::signature(service_buffer),
         )?;
         let (subscriber, buffer) = subscriber(&svc, buffer, &service)?;
         Ok(Self {
