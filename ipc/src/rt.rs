@@ -2,9 +2,10 @@
 //! mlockall. Each returns what the system refused, so a daemon without
 //! privileges starts anyway and says what it could not get.
 //!
-//! This is the one module of vlsync with `unsafe`: `sched_setscheduler` (and the
-//! thread CPU clock, [`thread_cpu_ns`], and the kernel's clock status,
-//! [`wall_clock_synchronized`]) have no safe wrapper in the crates the workspace uses.
+//! One of the few modules with `unsafe` (ARCHITECTURE.md lists them):
+//! `sched_setscheduler` (and the thread CPU clock, [`thread_cpu_ns`], and the kernel's
+//! clock status, [`wall_clock_synchronized`]) have no safe wrapper in the crates the
+//! workspace uses.
 #![allow(unsafe_code)]
 
 use std::fmt;

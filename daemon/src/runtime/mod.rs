@@ -1,6 +1,7 @@
 //! `vlsyncd run`: the real-time estimator service.
 //!
-//! Two threads:
+//! Three threads (the third, `vlsync-state`, writes the state file: see
+//! [`crate::state::Saver`]):
 //!
 //! * the **real-time thread** (pinned to `daemon.core`, optionally SCHED_FIFO)
 //!   sleeps on one iceoryx2 listener (`<prefix>/signature/ready`) until a driver
@@ -30,7 +31,9 @@
 //!   met [`EVENTS_PER_POLL`]. Statuses have a channel of their own (capacity
 //!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
 //!   flood of events that fills the event channel (a publisher faster than the
-//!   daemon) drops events, never the statuses that report it.
+//!   daemon) drops events, never the statuses that report it;
+//! * the **state thread** (`vlsync-state`) writes the state file the service thread
+//!   hands it, so a slow SD card never holds up the watchdog's petting.
 //!
 //! The latency percentiles of a status cover the whole run, or only the last
 //! status period with `daemon.latency_per_period` (the load harness reads them
@@ -188,7 +191,7 @@ pub enum RtEvent {
         stream: Stream,
     },
     /// The first sample read from a publisher was not its first one
-    /// ([`rt::SeqGap::Joined`]).
+    /// (`rt::SeqGap::Joined`).
     Joined {
         /// Stream.
         stream: Stream,
