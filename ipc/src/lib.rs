@@ -330,11 +330,30 @@ pub fn subscriber<T: std::fmt::Debug + ZeroCopySend>(
     buffer: usize,
     what: &str,
 ) -> Result<(Subscriber<Svc, T, ()>, SubscriberBuffer), IpcError> {
+    subscriber_telling(factory, buffer, what, || {})
+}
+
+/// [`subscriber`], calling `on_unconnected` whenever a publisher that joined the
+/// service cannot be connected (its data segment cannot be mapped: memory, file
+/// descriptors, another user's files). iceoryx2 then reads the other publishers
+/// and tries that one again only when a publisher joins or leaves; by default it
+/// would only log a warning, from the reading thread. `on_unconnected` runs on the
+/// thread that receives: it must not block or allocate there (count, e.g.).
+pub fn subscriber_telling<T: std::fmt::Debug + ZeroCopySend>(
+    factory: &PubSubFactory<Svc, T, ()>,
+    buffer: usize,
+    what: &str,
+    on_unconnected: impl Fn() + Send + 'static,
+) -> Result<(Subscriber<Svc, T, ()>, SubscriberBuffer), IpcError> {
     let max = factory.static_config().subscriber_max_buffer_size();
     let granted = buffer.clamp(1, max.max(1));
     let sub = factory
         .subscriber_builder()
         .buffer_size(granted)
+        .set_degradation_handler(move |_, _: &iceoryx2::port::DegradationInfo| {
+            on_unconnected();
+            iceoryx2::port::DegradationAction::Ignore
+        })
         .create()
         .map_err(|e| IpcError::new(format!("create subscriber on {what}"), format!("{e:?}")))?;
     Ok((

@@ -115,9 +115,28 @@ use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
 use vlsync_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use vlsync_ipc::{
     cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
-    open_or_create_pubsub, publisher, stream_event_id, stream_index, subscriber,
+    open_or_create_pubsub, publisher, stream_event_id, stream_index, subscriber_telling,
     termination_requested, Qos, ServiceNames,
 };
+
+/// Says (a warning) when the real-time thread's subscribers counted a publisher
+/// they could not connect since the last call: its samples are not read, silently
+/// otherwise (iceoryx2 tries again only when a publisher joins or leaves).
+fn tell_unconnected(counts: &[AtomicU64; 2], told: &mut [u64; 2], names: &ServiceNames) {
+    for stream in [Stream::Cam, Stream::Lidar] {
+        let n = counts[stream_index(stream)].load(Ordering::Relaxed);
+        if n > told[stream_index(stream)] {
+            tracing::warn!(
+                "{stream}: a publisher of {} could not be connected ({n} time(s) so far; iceoryx2 \
+                 could not map its data: memory, file descriptors, or files of another user): \
+                 its samples are not read until a publisher of the stream starts or stops \
+                 (restart that driver)",
+                names.signature(stream)
+            );
+            told[stream_index(stream)] = n;
+        }
+    }
+}
 
 /// Time without budget overrun after which degraded mode is cleared.
 pub const DEGRADED_QUIET: Duration = Duration::from_secs(5);
@@ -435,6 +454,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (hint_tx, hint_rx) = bounded::<Nanos>(4);
     let mut load = load_watch(&cfg);
+    let unconnected = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let mut unconnected_told = [0u64; 2];
     let setup = RtSetup {
         cfg: cfg.clone(),
         names: names.clone(),
@@ -445,6 +466,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         heartbeat,
         restore,
         hints: hint_rx,
+        unconnected: unconnected.clone(),
     };
     let rt = std::thread::Builder::new()
         .name(RT_THREAD_NAME.into())
@@ -576,6 +598,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             std::thread::sleep(wait);
         }
         busy = got > 0;
+        tell_unconnected(&unconnected, &mut unconnected_told, &names);
         let mono = monotonic_ns();
         throttle.due(mono, report_suppressed);
         if let Some(line) = summary.due(mono) {

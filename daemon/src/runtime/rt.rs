@@ -217,6 +217,9 @@ pub(super) struct RtSetup {
     pub(super) restore: Option<(Estimate, f64)>,
     /// Load hints: `CLOCK_MONOTONIC` times at which the offset may have stepped.
     pub(super) hints: Receiver<Nanos>,
+    /// Per stream: publishers that joined and could not be connected (counted by the
+    /// subscriber's degradation handler; the service thread says so).
+    pub(super) unconnected: Arc<[AtomicU64; 2]>,
 }
 
 /// What the real-time thread reports once, before its loop.
@@ -267,7 +270,10 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
         for stream in [Stream::Cam, Stream::Lidar] {
             let name = s.names.signature(stream);
             let f = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(buf))?;
-            let (sub, b) = subscriber(&f, buf, &name)?;
+            let count = s.unconnected.clone();
+            let (sub, b) = subscriber_telling(&f, buf, &name, move || {
+                count[stream_index(stream)].fetch_add(1, Ordering::Relaxed);
+            })?;
             granted = granted.min(b.granted);
             subs.push(sub);
             factories.push(f);
