@@ -151,6 +151,15 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
         .filter(|l| stretch(l, "runtime: last ") && l.contains(" estimates"))
         .count();
     assert!(summaries >= 3, "{log}");
+    // and the stretch since the last of them, once, at the stop
+    let at_stop: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("runtime: at stop, last "))
+        .collect();
+    assert!(
+        at_stop.len() == 1 && at_stop[0].contains(" estimates") && at_stop[0].contains(" received"),
+        "{log}"
+    );
 
     drop((client, status));
     assert_nothing_left(&before);

@@ -645,7 +645,11 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // the real-time thread's last status, handed over before its event channel closed
     while let Ok(st) = status_rx.try_recv() {
         publish_status(&st);
+        summary.on_status(&st);
     }
+    // the stretch since the last summary line (up to a summary period: its counts
+    // would otherwise never reach the journal)
+    tracing::info!("at stop, {}", summary.close(monotonic_ns()));
     // a real-time thread that panicked must not look like a clean stop: the exit
     // code is what makes systemd restart the daemon (`Restart=on-failure`)
     let rt_end = rt_outcome(rt.join());
