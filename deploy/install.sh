@@ -180,7 +180,7 @@ fi
 
 cat <<EOF
 done. Next:
-  check the core in $etc_dir/vlsync.toml (daemon.core) against CPUAffinity= in $unit_dir/vlsyncd.service
+  check that CPUAffinity= in $unit_dir/vlsyncd.service includes the core in $etc_dir/vlsync.toml (daemon.core)
   sudo systemctl enable --now vlsync.target
   systemctl status vlsyncd            # READY, state, offset ± std in the status line
   journalctl -u vlsyncd -f

@@ -897,6 +897,15 @@ enum Writer {
     Thread(SaveThread),
 }
 
+/// What became of a save offered to the [`SaveThread`].
+enum Offer {
+    Taken,
+    /// The previous save is still being written.
+    Busy,
+    /// The thread has ended (a panic): the save comes back.
+    Gone(Box<SavedState>),
+}
+
 /// The thread that writes the state file: one save at a time, handed over through a
 /// one-slot channel; it logs what fails (once until a save succeeds again) and
 /// what is slow, and sends each save's outcome back (the estimate saved, or `None`).
@@ -938,9 +947,17 @@ impl SaveThread {
         })
     }
 
-    /// Hands `s` over; false while the previous save is still being written.
-    fn offer(&self, s: SavedState) -> bool {
-        self.jobs.as_ref().is_some_and(|j| j.try_send(s).is_ok())
+    /// Hands `s` over.
+    fn offer(&self, s: SavedState) -> Offer {
+        use crossbeam::channel::TrySendError;
+        let Some(jobs) = &self.jobs else {
+            return Offer::Busy;
+        };
+        match jobs.try_send(s) {
+            Ok(()) => Offer::Taken,
+            Err(TrySendError::Full(_)) => Offer::Busy,
+            Err(TrySendError::Disconnected(s)) => Offer::Gone(Box::new(s)),
+        }
     }
 
     /// The outcomes of the saves finished since the last call, oldest first.
@@ -1096,13 +1113,27 @@ impl Saver {
             }
             // `last_saved` follows the thread's outcomes (`tick`): a failed save is
             // retried a period later, as inline
-            Writer::Thread(t) => {
-                if !t.offer(s) {
+            Writer::Thread(t) => match t.offer(s) {
+                Offer::Taken => true,
+                Offer::Busy => {
                     self.pending = Some(e);
-                    return false;
+                    false
                 }
-                true
-            }
+                // the thread is gone: said once, and saved here from now on
+                Offer::Gone(s) => {
+                    tracing::error!(
+                        "state file {}: the saving thread has ended; saving on the service thread from now on",
+                        self.path.display()
+                    );
+                    let mut last_error = None;
+                    let done = report(&self.path, save(&self.path, &s), &mut last_error);
+                    if done {
+                        self.last_saved = Some(e);
+                    }
+                    self.writer = Writer::Inline { last_error };
+                    done
+                }
+            },
         }
     }
 
@@ -1869,6 +1900,30 @@ mod tests {
         };
         assert!(!unchanged(&far, &saved), "292 years of drift is news");
         assert!(!unchanged(&saved, &far));
+    }
+
+    #[test]
+    fn a_saving_thread_that_ended_hands_over_to_the_service_thread() {
+        let d = dir("thread-gone");
+        let path = d.join("state");
+        let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
+        // a thread that has ended (as after a panic): its job channel is closed
+        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        drop(rx);
+        let (_done_tx, done) = crossbeam::channel::bounded(4);
+        sv.writer = Writer::Thread(SaveThread {
+            jobs: Some(jobs),
+            done,
+            handle: None,
+        });
+        sv.offer(&est());
+        assert!(sv.flush(), "saved on the service thread");
+        assert!(matches!(sv.writer, Writer::Inline { .. }));
+        let back = load(&path, "vlsync/robot", unix_now_ns(), 10.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.0.estimate.offset_s, est().offset_s);
+        std::fs::remove_dir_all(&d).unwrap();
     }
 
     #[test]

@@ -3,9 +3,9 @@
 //! privileges starts anyway and says what it could not get.
 //!
 //! One of the few modules with `unsafe` (ARCHITECTURE.md lists them):
-//! `sched_setscheduler` (and the thread CPU clock, [`thread_cpu_ns`], and the kernel's
-//! clock status, [`wall_clock_synchronized`]) have no safe wrapper in the crates the
-//! workspace uses.
+//! `sched_setscheduler` (and a thread's set of cores, [`avoid_core`], the thread CPU
+//! clock, [`thread_cpu_ns`], and the kernel's clock status, [`wall_clock_synchronized`])
+//! have no safe wrapper in the crates the workspace uses.
 #![allow(unsafe_code)]
 
 use std::fmt;
@@ -162,6 +162,48 @@ pub fn wall_clock_synchronized() -> bool {
     }
 }
 
+/// Moves the calling thread off CPU `core` (the real-time thread's): it may then
+/// run on the other cores it was allowed, so the daemon's other threads do not
+/// compete with the real-time one on its core (an isolated core, `isolcpus`, would
+/// otherwise hold them there). `Ok(Some(cores))`: the cores it may use now; `Ok(None)`:
+/// no other core was allowed, nothing changed.
+pub fn avoid_core(core: usize) -> Result<Option<Vec<usize>>, RtRefused> {
+    let rest: Vec<usize> = available_cores()
+        .into_iter()
+        .filter(|&c| c != core)
+        .collect();
+    if rest.is_empty() {
+        return Ok(None);
+    }
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: `cpu_set_t` is a plain bit array, for which all zeros (the empty
+        // set) is a valid value.
+        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+        for &c in &rest {
+            // SAFETY: CPU_SET writes one bit of `set` (a valid, exclusively borrowed
+            // local); `c` comes from the kernel's own affinity mask, below
+            // CPU_SETSIZE.
+            unsafe { libc::CPU_SET(c, &mut set) };
+        }
+        // SAFETY: the size passed is `set`'s own, and the kernel only reads `set`,
+        // which outlives the call; pid 0 is the calling thread.
+        let rc =
+            unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) };
+        if rc != 0 {
+            return Err(RtRefused {
+                setting: format!("the service threads off core {core}"),
+                reason: format!("sched_setaffinity: {}", std::io::Error::last_os_error()),
+            });
+        }
+        Ok(Some(rest))
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        Ok(None)
+    }
+}
+
 /// What `adjtimex`'s return value (the clock state, -1 on error) and `status`
 /// flags say of the wall clock's synchronization.
 #[cfg(target_os = "linux")]
@@ -219,6 +261,27 @@ pub fn request_cpu_latency(us: u32, device: &std::path::Path) -> Result<std::fs:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_thread_moves_off_a_core_when_another_is_allowed() {
+        let all = available_cores();
+        let (moved, allowed) = std::thread::spawn(|| {
+            let moved = avoid_core(0).unwrap();
+            (moved, available_cores())
+        })
+        .join()
+        .unwrap();
+        // the calling thread alone moved
+        assert_eq!(available_cores(), all);
+        if all.len() > 1 {
+            let rest: Vec<usize> = all.iter().copied().filter(|&c| c != 0).collect();
+            assert_eq!(moved.as_ref(), Some(&rest));
+            assert_eq!(allowed, rest);
+        } else {
+            // one core only: it stays there
+            assert_eq!((moved, allowed), (None, all));
+        }
+    }
 
     #[test]
     fn the_clock_is_synchronized_only_when_the_kernel_says_so() {

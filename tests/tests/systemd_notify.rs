@@ -350,3 +350,79 @@ fn a_stop_during_start_up_is_a_clean_stop() {
         "no SIGINT landed before start-up ended in ten tries"
     );
 }
+
+/// The real-time thread alone runs on `daemon.core`: the service (main) thread and
+/// the state thread move to the other cores the process may use, so they never
+/// compete with it there (the shipped unit lists every core, the isolated one too).
+#[test]
+fn only_the_real_time_thread_runs_on_its_core() {
+    let all = vlsync_ipc::rt::available_cores();
+    if all.len() < 2 {
+        vlsync_tests::skipped(
+            "only_the_real_time_thread_runs_on_its_core",
+            "one core only: the threads must share it",
+        );
+        return;
+    }
+    let core = all[all.len() - 1];
+    let s = setup("sdcores");
+    std::fs::write(
+        &s.cfg,
+        format!(
+            "[daemon]\ncore = {core}\nstate_file = \"{}\"\n\n[services]\nprefix = \"{}\"\n",
+            s.dir.join("state").display(),
+            s.prefix
+        ),
+    )
+    .unwrap();
+    let mut daemon = spawn_daemon(&s, &[("NOTIFY_SOCKET", None)]);
+    let text = || std::fs::read_to_string(&s.log).unwrap_or_default();
+    wait_while_running(
+        &mut daemon,
+        &s.log,
+        "serving prefix",
+        Duration::from_millis(20),
+        || text().contains("serving prefix"),
+    );
+    // each thread's allowed cores, by name, from /proc
+    let pid = daemon.child.id();
+    let mut allowed = std::collections::BTreeMap::new();
+    for t in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .unwrap()
+        .flatten()
+    {
+        let comm = std::fs::read_to_string(t.path().join("comm")).unwrap_or_default();
+        let status = std::fs::read_to_string(t.path().join("status")).unwrap_or_default();
+        let list = status
+            .lines()
+            .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+            .map(|v| v.trim().to_string())
+            .unwrap_or_default();
+        allowed.insert(comm.trim().to_string(), list);
+    }
+    daemon.signal("INT").unwrap();
+    let status = daemon.wait_up_to(STOP_WAIT).expect("the daemon stops");
+    assert_eq!(status.code(), Some(0), "{}", text());
+    let core = core.to_string();
+    assert_eq!(
+        allowed.get("vlsync-rt"),
+        Some(&core),
+        "{allowed:?}\n{}",
+        text()
+    );
+    for name in ["vlsyncd", "vlsync-state"] {
+        let list = allowed
+            .get(name)
+            .unwrap_or_else(|| panic!("no thread {name}: {allowed:?}"));
+        let has_core = list.split(',').any(|part| {
+            let (a, b) = part.split_once('-').unwrap_or((part, part));
+            let c: usize = core.parse().unwrap();
+            (a.parse::<usize>().unwrap()..=b.parse::<usize>().unwrap()).contains(&c)
+        });
+        assert!(
+            !has_core,
+            "{name} may run on the real-time core {core}: {allowed:?}"
+        );
+    }
+    assert!(text().contains("service threads on cores"), "{}", text());
+}

@@ -130,10 +130,21 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
     // the shipped configuration agrees with the unit
     let cfg_path = deploy().join("vlsync.toml");
     let cfg = vlsync_config::Config::load(&cfg_path).unwrap();
-    assert_eq!(
-        get(&u, n, "Service", "CPUAffinity"),
-        cfg.daemon.core.to_string(),
-        "CPUAffinity= must be daemon.core of {}",
+    // CPUAffinity= lists cores and ranges ("0-3", "0 2 3", "0,3"): it must allow the
+    // real-time core and at least one other, for the service threads
+    let affinity = get(&u, n, "Service", "CPUAffinity");
+    let cores: Vec<i64> = affinity
+        .split([' ', ','])
+        .filter(|w| !w.is_empty())
+        .flat_map(|w| {
+            let (a, b) = w.split_once('-').unwrap_or((w, w));
+            a.parse::<i64>().unwrap()..=b.parse::<i64>().unwrap()
+        })
+        .collect();
+    assert!(
+        cores.contains(&cfg.daemon.core) && cores.len() > 1,
+        "CPUAffinity={affinity} must include daemon.core = {} of {} and another core",
+        cfg.daemon.core,
         cfg_path.display()
     );
     let rtprio: i64 = get(&u, n, "Service", "LimitRTPRIO").parse().unwrap();

@@ -444,9 +444,6 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
 
     let (restore, saver) = crate::state::startup(&cfg.daemon, &names.prefix);
-    // saved on a thread of its own: a stalled fsync must not stop the service
-    // thread's status, watchdog pings and reaction to SIGTERM
-    let mut saver = saver.map(crate::state::Saver::in_background);
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut systemd = notify::Supervisor::from_env(heartbeat.clone());
     let (tx, rx): (Sender<RtEvent>, Receiver<RtEvent>) = bounded(EVENT_CAPACITY);
@@ -489,6 +486,23 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     for r in &report.refused {
         tracing::warn!("{r}; starting anyway");
     }
+    // this thread, and the state thread it starts, keep off the real-time core where
+    // another is allowed (with the unit's CPUAffinity= naming an isolated core too,
+    // they would otherwise share it with the real-time thread)
+    if let Ok(core) = usize::try_from(cfg.daemon.core) {
+        match vlsync_ipc::rt::avoid_core(core) {
+            Ok(Some(cores)) => tracing::info!(
+                "service threads on cores {cores:?}, off the real-time core {core}"
+            ),
+            Ok(None) => tracing::info!(
+                "service threads share core {core} with the real-time thread (no other core allowed)"
+            ),
+            Err(e) => tracing::warn!("{e}; starting anyway"),
+        }
+    }
+    // saved on a thread of its own: a stalled fsync must not stop the service
+    // thread's status, watchdog pings and reaction to SIGTERM
+    let mut saver = saver.map(crate::state::Saver::in_background);
     if report.buffer.1 < report.buffer.0 {
         tracing::warn!(
             "services.subscriber_buffer = {} exceeds what the existing signature services allow; using {} \
