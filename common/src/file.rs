@@ -72,7 +72,9 @@ pub fn read_regular(path: &Path) -> io::Result<Vec<u8>> {
 
 /// Reads `path` after [`check_regular`], refusing one of more than `max` bytes (a
 /// file that cannot be what the caller reads, such as a recording given as a
-/// configuration) without reading more than `max + 1` of them.
+/// configuration) without reading more than `max + 1` of them. Errors by kind:
+/// `NotFound`, `InvalidInput` (not a regular file), `InvalidData` (too large), or the
+/// read's own.
 pub fn read_regular_at_most(path: &Path, max: u64) -> io::Result<Vec<u8>> {
     let mut bytes = Vec::new();
     open_regular(path)?

@@ -63,7 +63,7 @@
 //! exactly what was saved.
 
 use std::fmt;
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use vlsync_common::text::clip;
@@ -673,23 +673,16 @@ pub fn load_at(
         path: path.to_path_buf(),
         problem,
     };
-    // a FIFO would block the open: only regular files (following a symlink) are read
-    match vlsync_common::file::check_regular(path) {
-        Ok(()) => {}
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) if e.kind() == std::io::ErrorKind::InvalidInput => {
-            return Err(err(Problem::NotAFile))
-        }
+    // a FIFO would block the open: only regular files (following a symlink) are read,
+    // and no more of one than a state file can hold
+    use std::io::ErrorKind;
+    let bytes = match vlsync_common::file::read_regular_at_most(path, MAX_FILE_BYTES) {
+        Ok(b) => b,
+        Err(e) if e.kind() == ErrorKind::NotFound => return Ok(None),
+        Err(e) if e.kind() == ErrorKind::InvalidInput => return Err(err(Problem::NotAFile)),
+        Err(e) if e.kind() == ErrorKind::InvalidData => return Err(err(Problem::TooLarge)),
         Err(e) => return Err(err(Problem::Io(e.to_string()))),
-    }
-    let f = std::fs::File::open(path).map_err(|e| err(Problem::Io(e.to_string())))?;
-    let mut bytes = Vec::new();
-    f.take(MAX_FILE_BYTES + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| err(Problem::Io(e.to_string())))?;
-    if bytes.len() as u64 > MAX_FILE_BYTES {
-        return Err(err(Problem::TooLarge));
-    }
+    };
     let s = decode(&bytes).map_err(err)?;
     if let Some(saved) = s.prefix.as_deref().filter(|p| *p != prefix) {
         return Err(err(Problem::OtherPrefix {
@@ -1176,6 +1169,7 @@ impl Saver {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use std::io::Read;
 
     fn est() -> Estimate {
         Estimate {
