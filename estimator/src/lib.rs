@@ -1713,7 +1713,7 @@ mod tests {
             );
             assert_eq!(a.len(), b.len(), "{what:?}");
             assert!(a.len() > 150, "{what:?}: {} estimates", a.len());
-            // equal to rounding (an infinite σ, once lost, equals itself)
+            // equal to rounding
             let close = |p: f64, q: f64| p == q || (p - q).abs() <= 1e-10;
             for (x, y) in a.iter().zip(&b) {
                 assert_eq!((x.state, x.t_ref_ns), (y.state, y.t_ref_ns), "{what:?}");
@@ -1723,6 +1723,41 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A restore mid-run, wherever it falls (moving or at a stop), publishes finite
+    /// standard deviations only: before the first measurement with motion after it,
+    /// a segment measurement without motion once grew the variance by the time since
+    /// the last information, which a restore leaves at -inf (σ = inf, then `lost`;
+    /// the daemon refuses to publish such an estimate).
+    #[test]
+    fn a_restore_mid_run_never_gives_an_infinite_sigma() {
+        let all = generate(Family::Robot, 1, Some(150.0)).pushes();
+        let cfg = EstimatorConfig::default();
+        let mut restored = 0;
+        for at_s in (20..=140).step_by(10) {
+            let (mut a, mut b) = (Estimator::new(&cfg), Estimator::new(&cfg));
+            let at_ns = at_s * 1_000_000_000;
+            let (ea, _, injected) = replay_interrupted(
+                &all,
+                Interrupt::Restore,
+                0.0,
+                (&mut a, &mut b),
+                |_, e, t| {
+                    t > at_ns
+                        && e.last()
+                            .is_some_and(|l| l.state != EstimatorState::Acquiring)
+                },
+            );
+            restored += usize::from(injected.is_some());
+            for e in &ea {
+                assert!(
+                    e.offset_std_s.is_finite() && e.drift_std.is_finite(),
+                    "restored at {at_s} s: {e:?}"
+                );
+            }
+        }
+        assert!(restored >= 10, "{restored} restores");
     }
 
     #[test]

@@ -172,7 +172,9 @@ impl Estimator {
                 let st = self.current_state(motion);
                 self.emit(t_ref_ns, st, raw, m.score, m.ratio);
             }
-            Some(m) => {
+            // (not before the first measurement with motion since a restore: the
+            // restored value stands then, and `info_t` is -inf, an infinite growth)
+            Some(m) if self.info_t.is_finite() => {
                 // no motion for a while: the segment's value stands, its uncertainty grows
                 let grow = self.p.q_hold * self.p.q_hold * (t - self.info_t - self.p.window_s);
                 self.cur = Current {
@@ -186,7 +188,7 @@ impl Estimator {
                 let st = self.current_state(false);
                 self.emit(t_ref_ns, st, raw, m.score, m.ratio);
             }
-            None => {
+            _ => {
                 self.hold_to(t);
                 // moving, yet no peak near the prediction for two windows: the lock is wrong
                 self.blind_moving = if motion { self.blind_moving + 1 } else { 0 };
