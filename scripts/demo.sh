@@ -2,8 +2,9 @@
 # The main job from a fresh clone: builds every binary (the demo starts the daemon and
 # both drivers as separate processes, so they must all exist), then runs the live demo
 # on rendered frames and scans through the real front-ends (`--family F`: on the
-# signature-level simulator instead). Arguments go to vlsync-demo (see --help).
+# signature-level simulator instead). Arguments go to vlsync-demo (see --help); paths in
+# them (`--plot`, `--record`, `--config`, `--log-dir`) are relative to where it is run.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-cargo build --release --bins
-exec ./target/release/vlsync-demo "$@"
+root=$(cd "$(dirname "$0")/.." && pwd)
+cargo build --release --bins --manifest-path "$root/Cargo.toml"
+exec "$root/target/release/vlsync-demo" "$@"

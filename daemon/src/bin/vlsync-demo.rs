@@ -115,6 +115,38 @@ fn locked(r: &Received) -> bool {
     )
 }
 
+/// When the run converged, in wall seconds after the drivers' start.
+#[derive(Debug, PartialEq)]
+struct Convergence {
+    /// The first locked estimate.
+    first_lock: Option<f64>,
+    /// The first locked estimate within [`CONVERGED_S`] of the truth.
+    first_within: Option<f64>,
+    /// The first estimate from which every later one is locked and within
+    /// [`CONVERGED_S`]: an estimate that is not locked after the first lock (a lock
+    /// lost, acquiring again) breaks it as one off the truth does.
+    stays: Option<f64>,
+}
+
+impl Convergence {
+    /// From `(seconds, locked and within CONVERGED_S, locked)` of every estimate in
+    /// publish order.
+    fn of(estimates: impl Iterator<Item = (f64, bool, bool)>) -> Self {
+        let after_lock: Vec<(f64, bool, bool)> = estimates.skip_while(|e| !e.2).collect();
+        let first_lock = after_lock.first().map(|e| e.0);
+        let first_within = after_lock.iter().find(|e| e.1).map(|e| e.0);
+        let stays = after_lock
+            .iter()
+            .rposition(|e| !e.1)
+            .map_or(first_lock, |i| after_lock.get(i + 1).map(|e| e.0));
+        Self {
+            first_lock,
+            first_within,
+            stays,
+        }
+    }
+}
+
 /// Checks the numeric arguments before anything is started or created.
 fn check_args(a: &Args) -> Result<(), String> {
     // the signature simulator runs 2 s at least, the rendering simulator 1 s
@@ -322,27 +354,14 @@ fn run(a: Args) -> Result<(), String> {
         "accuracy: {}",
         ErrorStats::of(&errs).describe()
     ));
-    // convergence: the first locked estimate from which every later locked one
-    // is within CONVERGED_S of the truth (wall time from the drivers' start)
-    let within: Vec<(f64, bool)> = s
-        .estimates
-        .iter()
-        .filter(|r| locked(r))
-        .map(|r| {
-            (
-                (r.publish_ns - s.start_at) as f64 * 1e-9,
-                (r.est.offset_s - truth.offset_at(r.est.t_ref_ns)).abs() <= CONVERGED_S,
-            )
-        })
-        .collect();
-    let first_lock = within.first().map(|w| w.0);
-    let first_within = within.iter().find(|w| w.1).map(|w| w.0);
-    let stays = within
-        .iter()
-        .rposition(|w| !w.1)
-        .map_or(within.first().map(|w| w.0), |i| {
-            within.get(i + 1).map(|w| w.0)
-        });
+    let conv = Convergence::of(s.estimates.iter().map(|r| {
+        (
+            (r.publish_ns - s.start_at) as f64 * 1e-9,
+            locked(r) && (r.est.offset_s - truth.offset_at(r.est.t_ref_ns)).abs() <= CONVERGED_S,
+            locked(r),
+        )
+    }));
+    let (first_lock, first_within, stays) = (conv.first_lock, conv.first_within, conv.stays);
     let secs = |v: Option<f64>| v.map_or("never".to_string(), |v| format!("{v:.1} s"));
     out.line(format_args!(
         "convergence (wall time after the drivers' start): first lock {}, first estimate within {:.0} ms {}, within {:.0} ms from then on {}",
@@ -383,6 +402,9 @@ fn run(a: Args) -> Result<(), String> {
     ));
     for r in Role::ALL {
         out.line(format_args!("{:>12}: {}", r.name(), s.usage(r).describe()));
+    }
+    if let Some(l) = vlsyncd::harness::session::missed_line(&s) {
+        out.line(format_args!("{l}"));
     }
     if s.implausible > 0 {
         out.line(format_args!(
@@ -441,6 +463,41 @@ mod tests {
 
     fn args(extra: &[&str]) -> Args {
         Args::try_parse_from(["vlsync-demo"].iter().chain(extra)).unwrap()
+    }
+
+    #[test]
+    fn a_lock_lost_after_convergence_breaks_it_as_an_error_does() {
+        // (seconds, locked and within, locked)
+        let c = |v: &[(f64, bool, bool)]| Convergence::of(v.iter().copied());
+        let acq = |t| (t, false, false);
+        let good = |t| (t, true, true);
+        let off = |t| (t, false, true);
+        assert_eq!(
+            c(&[acq(1.0), off(2.0), good(3.0), good(4.0)]),
+            Convergence {
+                first_lock: Some(2.0),
+                first_within: Some(3.0),
+                stays: Some(3.0)
+            }
+        );
+        // acquiring again after the first lock: converged only after it
+        let v = c(&[acq(1.0), good(2.0), acq(3.0), good(4.0), good(5.0)]);
+        assert_eq!(v.stays, Some(4.0));
+        assert_eq!(v.first_within, Some(2.0));
+        // every estimate good from the first lock on
+        assert_eq!(c(&[acq(1.0), good(2.0), good(3.0)]).stays, Some(2.0));
+        // the last estimate off or unlocked: never converged
+        assert_eq!(c(&[good(1.0), off(2.0)]).stays, None);
+        assert_eq!(c(&[good(1.0), acq(2.0)]).stays, None);
+        // never locked
+        assert_eq!(
+            c(&[acq(1.0), acq(2.0)]),
+            Convergence {
+                first_lock: None,
+                first_within: None,
+                stays: None
+            }
+        );
     }
 
     #[test]

@@ -76,7 +76,8 @@ struct Args {
     /// The wall behind too: the default now (kept for older commands).
     #[arg(long, hide = true)]
     opposite_window: bool,
-    /// Exit with status 1 when a target is missed.
+    /// Exit with status 1 when a target is missed or cannot be judged (stress-ng
+    /// failed), a process failed or needed SIGKILL, or the run was interrupted.
     #[arg(long)]
     check: bool,
     /// Do not print each estimate.
@@ -292,13 +293,28 @@ fn run(a: &Args) -> Result<bool, String> {
         session.poll(Duration::from_millis(100))?;
     }
     let clean = session.stop()?;
-    let records = records?;
+    // an error after a process of the run failed names that failure too (a daemon
+    // that died leaves a stale pid and short truth files: the cause is its exit)
+    let failures = session.failures.clone();
+    let with_failures = |e: String| {
+        if failures.is_empty() || e.contains(&failures[0]) {
+            e
+        } else {
+            format!(
+                "{e}; {} process(es) of the run failed: {}",
+                failures.len(),
+                failures.join("; ")
+            )
+        }
+    };
+    let records = records.map_err(with_failures)?;
     let interrupted = termination_requested();
 
     let [cam_p, lidar_p] = session.truth_paths();
-    let cam_rows = read_truth_csv(&cam_p)?;
-    let lidar_rows = read_truth_csv(&lidar_p)?;
-    let truth = MeasuredTruth::new(&cam_rows, &lidar_rows, cfg.estimator.window_s)?;
+    let cam_rows = read_truth_csv(&cam_p).map_err(with_failures)?;
+    let lidar_rows = read_truth_csv(&lidar_p).map_err(with_failures)?;
+    let truth = MeasuredTruth::new(&cam_rows, &lidar_rows, cfg.estimator.window_s)
+        .map_err(with_failures)?;
     let data = RunData {
         phases: &records,
         estimates: &session.estimates,
@@ -402,6 +418,9 @@ fn run(a: &Args) -> Result<bool, String> {
     if !cam_report.is_empty() {
         md.push_str(&format!("- {}\n", cam_report.trim()));
     }
+    if let Some(l) = vlsyncd::harness::session::missed_line(&session) {
+        md.push_str(&format!("\n{l}.\n"));
+    }
     for f in &session.failures {
         md.push_str(&format!("\nEnded with a failure: {f}.\n"));
     }
@@ -439,6 +458,7 @@ fn run(a: &Args) -> Result<bool, String> {
             "processes": usage.iter().map(|(r, u)| json!({"name": r.name(), "usage": u})).collect::<Vec<_>>(),
             "camera_driver": cam_report.trim(),
             "stopped_cleanly": clean,
+            "estimates_missed": session.missed,
         }),
     );
     let title = format!(
@@ -455,7 +475,8 @@ fn run(a: &Args) -> Result<bool, String> {
         ("estimates.csv", estimates_csv(&data)),
     ] {
         let p = out.join(name);
-        std::fs::write(&p, body).map_err(|e| format!("{}: {e}", p.display()))?;
+        // whole or not at all: a failed write leaves no truncated report
+        vlsync_common::file::write_atomically(&p, body.as_bytes())?;
         con.line(format_args!("wrote {}", p.display()));
     }
     Ok(tg.iter().all(|t| t.pass != Some(false)) && clean && !interrupted && !stress_failed)

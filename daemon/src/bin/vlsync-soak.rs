@@ -373,6 +373,9 @@ fn run(a: Args) -> Result<bool, String> {
         vlsyncd::runtime::journal::offset_steps_logged(&log),
         count(" ERROR ")
     ));
+    if let Some(l) = vlsyncd::harness::session::missed_line(&s) {
+        out.line(format_args!("{l}"));
+    }
     for f in &s.failures {
         out.line(format_args!("ended with a failure: {f}"));
     }

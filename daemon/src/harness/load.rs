@@ -41,7 +41,9 @@ pub enum Load {
     Memory {
         /// Workers.
         workers: u32,
-        /// Bytes per worker as stress-ng takes them (e.g. `25%`, `2g`).
+        /// Bytes as stress-ng takes them (e.g. `25%`, `2g`): the workers share them
+        /// (stress-ng 0.15 divides `--vm-bytes` among its instances; measured: `--vm 2
+        /// --vm-bytes 10%` on 24 GB, 1.0 GB resident in each worker).
         bytes: String,
     },
 }
@@ -70,7 +72,7 @@ impl Load {
                 stop_ms,
                 every_s,
             } => format!("{} stalled {stop_ms} ms every {every_s} s", role.name()),
-            Load::Memory { workers, bytes } => format!("memory x{workers} {bytes} each"),
+            Load::Memory { workers, bytes } => format!("memory x{workers} {bytes} in all"),
         }
     }
 
@@ -204,7 +206,7 @@ pub fn profiles() -> Vec<Profile> {
         },
         Profile {
             name: "memory",
-            about: "a burst of memory pressure (2 workers, 25 % of memory each)",
+            about: "a burst of memory pressure (2 workers, 25 % of memory between them)",
             phases: vec![
                 warm(),
                 phase("memory", 15.0, memory.clone()),
@@ -260,7 +262,12 @@ pub fn find_stress_ng() -> Result<PathBuf, String> {
     let path = std::env::var_os("PATH").unwrap_or_default();
     for d in std::env::split_paths(&path) {
         let p = d.join("stress-ng");
-        if p.is_file() {
+        // as the shell looks: a file without an execute bit is passed over
+        let executable = |m: std::fs::Metadata| {
+            use std::os::unix::fs::PermissionsExt;
+            m.is_file() && m.permissions().mode() & 0o111 != 0
+        };
+        if std::fs::metadata(&p).is_ok_and(executable) {
             return Ok(p);
         }
     }
@@ -275,7 +282,7 @@ pub fn find_stress_ng() -> Result<PathBuf, String> {
 pub struct Stall {
     /// Which driver.
     pub role: Role,
-    /// SIGSTOP delivered (`kill` returned), `CLOCK_MONOTONIC` ns.
+    /// SIGSTOP delivered (`kill(2)` returned), `CLOCK_MONOTONIC` ns.
     pub stop_ns: Nanos,
     /// SIGCONT delivered, ns.
     pub cont_ns: Nanos,
@@ -288,7 +295,8 @@ pub struct PhaseRecord {
     pub phase: Phase,
     /// Start and end on `CLOCK_MONOTONIC`, ns.
     pub start_ns: Nanos,
-    /// End, ns.
+    /// End, ns: the planned end, or the instant of a Ctrl-C that cut the phase short
+    /// (the daemon's CPU share is over the part that ran).
     pub end_ns: Nanos,
     /// Daemon CPU seconds at start and end.
     pub daemon_cpu_s: (f64, f64),
@@ -323,6 +331,12 @@ const STRESS_MARGIN_S: f64 = 5.0;
 /// is [`STRESS_MARGIN_S`] past its phase, so any exit before the phase ends, even
 /// with status 0, means the load was not applied throughout.
 fn stop_stress(mut s: Stress) -> Option<String> {
+    // a Ctrl-C at the terminal reaches stress-ng (same process group) as it reaches
+    // this harness: its exit is then the user's stop, not a failure of the load
+    if termination_requested() {
+        s.m.stop(Duration::from_secs(3));
+        return None;
+    }
     let failed_early = match s.m.child.try_wait() {
         Ok(Some(st)) => Some(st.to_string()),
         _ => None,
@@ -374,6 +388,13 @@ fn poll_until(
         let wait = Duration::from_nanos((until - now) as u64).min(Duration::from_millis(100));
         for r in s.poll(wait)? {
             progress(Progress::Estimate(&r));
+        }
+        // a process of the run that died (the daemon killed by the OOM killer in
+        // the memory phase, a driver that crashed) ends the profile with its name
+        // and log, instead of failing later at a phase boundary on its stale pid
+        s.check_children();
+        if !s.failures.is_empty() {
+            return Err(format!("the run cannot go on: {}", s.failures.join("; ")));
         }
     }
 }
@@ -495,6 +516,9 @@ pub fn run_profile(
                 }
                 poll_until(session, end, progress)?;
             }
+        }
+        if termination_requested() {
+            rec.end_ns = rec.end_ns.min(monotonic_ns());
         }
         rec.daemon_cpu_s.1 = session.cpu_seconds(Role::Daemon)?;
         if let Some(f) = &rec.stress_failure {

@@ -315,6 +315,12 @@ pub struct Session {
     /// [`MAX_HARNESS_NS`] (no daemon of ours publishes them; the harness's
     /// arithmetic on them would overflow).
     pub implausible: u64,
+    /// Estimates the daemon published that this harness never read: gaps in their
+    /// sequence numbers (the offset subscriber holds 16; a harness polled too
+    /// rarely at a high `--speed` loses the oldest). The figures cover the rest.
+    pub missed: u64,
+    /// Sequence number of the last estimate received.
+    last_seq: Option<u64>,
     /// Every status received, in order.
     pub statuses: Vec<Status>,
     procs: [Managed; 3],
@@ -422,6 +428,8 @@ impl Session {
             source: o.source,
             estimates: vec![],
             implausible: 0,
+            missed: 0,
+            last_seq: None,
             statuses: vec![],
             procs: [daemon, cam, lidar],
             driver_bins,
@@ -491,7 +499,7 @@ impl Session {
     }
 
     /// Sends `signal` (e.g. "STOP", "CONT") to `role`.
-    pub fn signal(&self, role: Role, signal: &str) -> Result<(), String> {
+    pub fn signal(&mut self, role: Role, signal: &str) -> Result<(), String> {
         self.procs[role.index()].signal(signal)
     }
 
@@ -606,6 +614,13 @@ impl Session {
     fn receive_estimates(&mut self, timeout: Duration) -> Result<Vec<Received>, String> {
         let all = self.offsets.wait_all(timeout).map_err(|e| e.to_string())?;
         let n = all.len();
+        for (est, _) in &all {
+            if let Some(last) = self.last_seq {
+                // a sequence that goes back is another daemon's, not a loss
+                self.missed += est.seq.saturating_sub(last.saturating_add(1));
+            }
+            self.last_seq = Some(est.seq);
+        }
         let got: Vec<Received> = all
             .into_iter()
             .filter(|(est, publish_ns)| plausible(est.t_ref_ns, *publish_ns))
@@ -683,6 +698,30 @@ impl Session {
     pub fn log(&self, file: &str) -> String {
         std::fs::read_to_string(self.log_dir.join(file)).unwrap_or_default()
     }
+}
+
+/// On an error path (a `?` before [`Session::stop`]) the processes stop in the order
+/// `stop` uses: the drivers, then the recorder, then the daemon (`procs`' own drop).
+impl Drop for Session {
+    fn drop(&mut self) {
+        for m in &mut self.procs[1..] {
+            m.stop(Duration::from_secs(3));
+        }
+        if let Some(r) = self.recorder.as_mut() {
+            r.stop(Duration::from_secs(6));
+        }
+    }
+}
+
+/// The line a live tool prints when the harness missed estimates
+/// ([`Session::missed`]); `None` when it missed none.
+pub fn missed_line(s: &Session) -> Option<String> {
+    (s.missed > 0).then(|| {
+        format!(
+            "missed: {} estimate(s) published but not read in time (the harness's subscriber holds 16; a lower --speed avoids it): the figures cover the rest",
+            s.missed
+        )
+    })
 }
 
 /// The daemon's counters as the live tools' summaries print them: samples

@@ -97,19 +97,37 @@ impl Managed {
         }
     }
 
-    /// Sends `signal` (e.g. "INT", "KILL") with kill(1).
-    pub fn signal(&self, signal: &str) -> Result<(), String> {
-        let st = Command::new("kill")
-            .arg(format!("-{signal}"))
-            .arg(self.pid().to_string())
-            .stderr(Stdio::null())
-            .status()
-            .map_err(|e| format!("cannot run kill: {e}"))?;
-        if st.success() {
-            Ok(())
-        } else {
-            Err(format!("kill -{signal} {} failed", self.pid()))
+    /// Sends `signal` (by name: "INT", "TERM", "KILL", "STOP", "CONT", "HUP",
+    /// "USR1", "USR2") with kill(2), no process forked (a `kill` process on loaded
+    /// cores would shift a stall the load harness times). A process that has ended is
+    /// an error naming how, and is not signalled: its pid, once reaped, may be
+    /// another process's.
+    pub fn signal(&mut self, signal: &str) -> Result<(), String> {
+        use rustix::process::{kill_process, Pid, Signal};
+        let sig = match signal {
+            "INT" => Signal::INT,
+            "TERM" => Signal::TERM,
+            "KILL" => Signal::KILL,
+            "STOP" => Signal::STOP,
+            "CONT" => Signal::CONT,
+            "HUP" => Signal::HUP,
+            "USR1" => Signal::USR1,
+            "USR2" => Signal::USR2,
+            other => return Err(format!("no signal named {other:?}")),
+        };
+        if let Ok(Some(st)) = self.child.try_wait() {
+            return Err(format!(
+                "cannot send SIG{signal} to {}: it has ended ({})",
+                self.name,
+                describe_exit(st)
+            ));
         }
+        let pid = i32::try_from(self.pid())
+            .ok()
+            .and_then(Pid::from_raw)
+            .ok_or_else(|| format!("{}: pid {} out of range", self.name, self.pid()))?;
+        kill_process(pid, sig)
+            .map_err(|e| format!("cannot send SIG{signal} to {} ({}): {e}", self.name, pid))
     }
 
     /// SIGINT; SIGTERM after half of `grace`; SIGKILL after all of it. Returns true
