@@ -30,8 +30,16 @@
  * cut to fit (`err` may be NULL). A handle is single-threaded: use it on the thread that
  * opened it (calls from another thread are refused with -1: a check that catches the
  * mistake while the handle is open, not a licence to share it; a handle closed on its
- * thread must not be used anywhere). The library installs no signal handlers: a signal
- * interrupts a wait, which then returns 0 early.
+ * thread must not be used anywhere). The library installs no signal handlers. A signal
+ * ends a wait early (it returns 0) only when it is delivered to the waiting thread and
+ * its handler interrupts the wait's system call (EINTR). The kernel delivers a
+ * process-directed signal (Ctrl-C's SIGINT, SIGTERM) to any one thread that does not
+ * block it: delivered to another thread, it leaves the wait running to its timeout (with
+ * no limit, until the next estimate, which never comes while the daemon is down).
+ * Multi-threaded callers should therefore wait with a bounded timeout (e.g. 250 ms) in a
+ * loop that checks their own stop flag (an atomic or volatile sig_atomic_t their handler
+ * or another thread sets):
+ *   while (!stop) { int r = vlsync_client_wait_next(c, 250, &e, err, sizeof err); ... }
  *
  * Which call takes which estimate: vlsync_client_wait_one hands out every estimate, one
  * per call, oldest first (a recorder); vlsync_client_wait_next, vlsync_client_latest and
@@ -115,7 +123,9 @@ typedef struct vlsync_daemon_status {
     uint8_t reserved[14];                        /* 0 */
 } vlsync_daemon_status;
 
-#if defined(__cplusplus)
+/* Layout checks where the language has static assertions (C11, C++11); older C and C++
+ * (C89/C99, C++98/03) include the header without them. */
+#if defined(__cplusplus) && __cplusplus >= 201103L
 static_assert(sizeof(vlsync_daemon_status) == 224, "vlsync_daemon_status layout");
 static_assert(offsetof(vlsync_daemon_status, latency_count) == 200, "vlsync_daemon_status layout");
 static_assert(offsetof(vlsync_daemon_status, state) == 208, "vlsync_daemon_status layout");
@@ -123,7 +133,7 @@ static_assert(sizeof(vlsync_estimate) == 88, "vlsync_estimate layout");
 static_assert(offsetof(vlsync_estimate, publish_ns) == 72, "vlsync_estimate layout");
 static_assert(offsetof(vlsync_estimate, state) == 80, "vlsync_estimate layout");
 static_assert(sizeof(vlsync_conversion) == 104, "vlsync_conversion layout");
-#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
+#elif !defined(__cplusplus) && defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(sizeof(vlsync_daemon_status) == 224, "vlsync_daemon_status layout");
 _Static_assert(offsetof(vlsync_daemon_status, latency_count) == 200, "vlsync_daemon_status layout");
 _Static_assert(offsetof(vlsync_daemon_status, state) == 208, "vlsync_daemon_status layout");
@@ -151,14 +161,17 @@ int vlsync_client_close(vlsync_client *c);
 
 /* Waits up to timeout_ms (negative: no limit) for the next estimate: the newest when
  * several are pending (the older are passed over).
- * 1: written to *out; 0: timeout, or a signal interrupted the wait; -1: error (err). */
+ * 1: written to *out; 0: timeout, or a signal handled on this thread interrupted the wait
+ * (EINTR; a signal handled on another thread does not: see the top of this file, and
+ * use a bounded timeout in a loop that checks a stop flag); -1: error (err). */
 int vlsync_client_wait_next(vlsync_client *c, int64_t timeout_ms, vlsync_estimate *out,
                             char *err, size_t err_len);
 
 /* Waits up to timeout_ms (negative: no limit) for an estimate and writes the oldest one
  * pending: every estimate, one per call, in the order they were published. The
  * subscriber buffers 16 (8 s at the default hop): a caller further behind loses the
- * oldest. 1: written to *out; 0: timeout, or a signal interrupted the wait; -1: error. */
+ * oldest. 1: written to *out; 0: timeout, or a signal handled on this thread interrupted
+ * the wait (EINTR; as for vlsync_client_wait_next); -1: error (err). */
 int vlsync_client_wait_one(vlsync_client *c, int64_t timeout_ms, vlsync_estimate *out,
                            char *err, size_t err_len);
 

@@ -9,9 +9,18 @@
 //   vlsync::StatusClient s("vlsync/robot");    // the daemon's counters, for diagnostics
 //   if (auto st = s.latest()) report(st->lost[0] + st->lost[1], st->budget_overruns);
 //
-// Like the handle it wraps, a Client is used, and destroyed, on the thread that
-// constructed it: close() throws when called from another thread (the handle stays
-// open); a destructor there cannot throw, so it says on stderr that the handle leaks.
+// Like the handle it wraps, a Client (and a StatusClient) is used, and destroyed, on the
+// thread that constructed it: close() throws when called from another thread (the
+// handle stays open); a destructor there cannot throw, so it says on stderr that the
+// handle leaks. A move assignment closes the handle the target held first, the same way.
+//
+// Signals: a wait returns empty early only when a signal is delivered to the waiting
+// thread and interrupts its system call (EINTR); a process-directed signal (Ctrl-C's
+// SIGINT, SIGTERM) delivered to another thread leaves the wait running to its timeout.
+// In a multi-threaded program, wait with a bounded timeout in a loop that checks your
+// own stop flag (a std::atomic<bool> your handler or another thread sets):
+//
+//   while (!stop.load()) if (auto e = c.wait_next(std::chrono::milliseconds(250))) use(*e);
 #ifndef VLSYNC_CLIENT_HPP
 #define VLSYNC_CLIENT_HPP
 
@@ -72,7 +81,9 @@ class Client {
     }
 
     /// The next estimate within `timeout` (negative: no limit), the newest when several
-    /// are pending; empty on timeout or when a signal interrupted the wait.
+    /// are pending; empty on timeout or when a signal delivered to this thread
+    /// interrupted the wait (EINTR; one delivered to another thread does not: use a
+    /// bounded timeout, e.g. 250 ms, in a loop that checks your stop flag).
     std::optional<vlsync_estimate> wait_next(std::chrono::milliseconds timeout) {
         vlsync_estimate e;
         char err[512] = {0};
@@ -84,8 +95,9 @@ class Client {
     }
 
     /// The oldest estimate pending within `timeout` (negative: no limit): every
-    /// estimate, one per call, in order; empty on timeout or when a signal interrupted
-    /// the wait. wait_next, latest and camera_to_lidar take what is pending.
+    /// estimate, one per call, in order; empty on timeout or when a signal delivered to
+    /// this thread interrupted the wait (EINTR; as for wait_next). wait_next, latest and
+    /// camera_to_lidar take what is pending.
     std::optional<vlsync_estimate> wait_one(std::chrono::milliseconds timeout) {
         vlsync_estimate e;
         char err[512] = {0};
@@ -141,22 +153,32 @@ class Client {
 class StatusClient {
   public:
     explicit StatusClient(const std::string &prefix) {
+        if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION)
+            throw Error("libvlsync_client has ABI version " +
+                        std::to_string(vlsync_client_abi_version()) + ", this header " +
+                        std::to_string(VLSYNC_CLIENT_ABI_VERSION));
         char err[512] = {0};
         c_ = vlsync_status_open(prefix.c_str(), err, sizeof err);
         if (!c_) throw Error(err);
     }
-    ~StatusClient() {
-        if (vlsync_status_close(c_) != 0)
-            std::fputs("vlsync::StatusClient destroyed on another thread than the one that "
-                       "opened it: its handle is left open (leaked)\n",
-                       stderr);
-    }
+    ~StatusClient() { close_or_report(); }
     StatusClient(const StatusClient &) = delete;
     StatusClient &operator=(const StatusClient &) = delete;
     StatusClient(StatusClient &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
     StatusClient &operator=(StatusClient &&o) noexcept {
-        if (this != &o) std::swap(c_, o.c_);
+        if (this != &o) {
+            close_or_report();
+            c_ = std::exchange(o.c_, nullptr);
+        }
         return *this;
+    }
+
+    /// Closes the handle now (a moved-from or closed StatusClient: nothing to do);
+    /// throws, leaving it open, when called on another thread than the one that opened it.
+    void close() {
+        if (vlsync_status_close(c_) != 0)
+            throw Error("vlsync_status_close: the status client was opened on another thread");
+        c_ = nullptr;
     }
 
     /// The newest valid status; empty before the first.
@@ -171,6 +193,14 @@ class StatusClient {
     }
 
   private:
+    void close_or_report() noexcept {
+        if (vlsync_status_close(c_) != 0)
+            std::fputs("vlsync::StatusClient destroyed on another thread than the one that "
+                       "opened it: its handle is left open (leaked)\n",
+                       stderr);
+        c_ = nullptr;
+    }
+
     vlsync_status_client *c_ = nullptr;
 };
 

@@ -22,8 +22,8 @@ stderr what it waits for (a daemon on another prefix is the usual cause). Exit
 status: 0 after --count valid estimates, on Ctrl-C (SIGINT) or SIGTERM, or when
 the reader of its output goes away (`| head -1`); 1 on timeout; 2 on error (a bad
 argument, such as a prefix the daemon would refuse or a negative count, iceoryx2
-refusing the node or the service, or a write error on stdout, with its error on
-stderr).
+refusing the node or the service or failing while waiting or receiving, or a write
+error on stdout, with its error on stderr).
 """
 
 import argparse
@@ -102,6 +102,17 @@ PREFIX_RULE = re.compile(r"[A-Za-z0-9_.\-/]{1,200}")
 
 # With nothing received for this long, say once what is waited for.
 QUIET_NOTICE_S = 5.0
+
+
+class Iox2Failure(Exception):
+    """iceoryx2 failed while waiting or receiving: the script exits with status 2."""
+
+
+def interrupted(err: Exception) -> bool:
+    """Whether a ListenerWaitError is ListenerWaitError::InterruptSignal (a signal
+    interrupted the wait) rather than ContractViolation or InternalFailure. The binding
+    raises one exception class for every variant, with the variant's name as message."""
+    return "InterruptSignal" in str(err)
 
 
 def validate(e: OffsetEstimate) -> dict:
@@ -238,12 +249,22 @@ def main() -> int:
     try:
         while not stop and (args.count == 0 or got < args.count):
             # sleep until the daemon notifies (or 200 ms pass, or a signal arrives)
+            woken = True
             try:
                 listener.timed_wait(iox2.Duration.from_millis(200))
-            except iox2.ListenerWaitError:
-                continue  # interrupted by a signal: the loop's condition decides
-            while True:
-                sample = subscriber.receive()
+            except iox2.ListenerWaitError as err:
+                if not interrupted(err):  # ContractViolation, InternalFailure
+                    raise Iox2Failure(f"waiting on the event failed: ListenerWaitError {err}") from err
+                # interrupted by a signal: Ctrl-C or SIGTERM ends the loop as --count
+                # does; any other signal goes on to the checks below (--timeout)
+                if stop:
+                    break
+                woken = False
+            while woken:
+                try:
+                    sample = subscriber.receive()
+                except iox2.ReceiveError as err:  # ExceedsMaxBorrows, ConnectionFailure(...)
+                    raise Iox2Failure(f"receiving an estimate failed: ReceiveError {err}") from err
                 if sample is None:
                     break
                 # a copy first: validated and printed is then the same bytes, even
@@ -284,6 +305,9 @@ def main() -> int:
                 break
     except KeyboardInterrupt:  # a SIGINT before the handlers were installed
         pass
+    except Iox2Failure as err:
+        print(f"vlsync_subscriber: error: {name!r}: {err}", file=sys.stderr)
+        status = 2
     except BrokenPipeError:
         # the reader went away (`| head -1`): done, as vlsync-echo is; stdout points
         # at /dev/null so the interpreter's own flush at exit does not fail again
