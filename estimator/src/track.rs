@@ -194,6 +194,10 @@ impl Estimator {
                 self.blind_moving = if motion { self.blind_moving + 1 } else { 0 };
                 if self.blind_moving >= 2 * self.p.acq_blocks && self.mode == Mode::Locked {
                     self.lose();
+                    // the lock was wrong: the offset is anywhere in the range the
+                    // search covers now, not within the old lock's σ of it
+                    let half_range = self.p.half_lags as f64 * self.p.dt_s;
+                    self.cur.var = self.cur.var.max(half_range * half_range);
                 }
                 let st = self.current_state(false);
                 let (sc, ra) = meas.map_or((0.0, 0.0), |m| (m.score, m.ratio));

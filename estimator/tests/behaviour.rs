@@ -813,6 +813,16 @@ fn restore_from_a_wrong_offset_goes_lost_and_reacquires() {
     est.restore(&bogus, 1.0);
     let out = replay(&run, &mut est);
     assert!(out.iter().any(|e| e.state == EstimatorState::Lost));
+    // once the lock is found wrong (moving, no peak near it), the σ says so: the
+    // offset is anywhere in the search range, not within the restored σ of it
+    for e in out.iter().filter(|e| e.state == EstimatorState::Lost) {
+        let err = (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs();
+        assert!(
+            err <= 2.0 * e.offset_std_s,
+            "{err} s off with σ {} s: {e:?}",
+            e.offset_std_s
+        );
+    }
     let last = out.last().unwrap();
     assert_eq!(last.state, EstimatorState::Tracking);
     assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
