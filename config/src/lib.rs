@@ -113,7 +113,9 @@ pub struct EstimatorConfig {
     /// A step is declared once the evidence reaches `step_confirm · step_gate_sigma² / 2`.
     #[serde(deserialize_with = "count::<1, { CONFIRM_MAX }, _>")]
     pub step_confirm: u32,
-    /// Holding becomes lost when the offset standard deviation exceeds this, seconds.
+    /// Holding becomes lost when the held offset's standard deviation (the part that
+    /// grows while blind; the published σ adds the step test's and the cadence's terms)
+    /// exceeds this, seconds.
     pub lost_std_s: f64,
     /// Which streams' stamp cadence is followed: steps of a regular stream's
     /// stamping latency (CPU load on a software-stamped camera) are found in its

@@ -68,7 +68,10 @@ impl Estimator {
 
     /// A change (or, with `hint`, a possible one) at internal LiDAR time `t`.
     pub(super) fn change_at_internal(&mut self, t: Nanos, hint: Option<Hint>) {
-        let k = t.saturating_add(self.group_delay_ns) / self.p.dt_ns;
+        // floor division, as every other grid index (a negative time rounds down too)
+        let k = t
+            .saturating_add(self.group_delay_ns)
+            .div_euclid(self.p.dt_ns);
         self.known_change = Some(k);
         self.hint = hint;
     }

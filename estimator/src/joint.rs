@@ -10,7 +10,8 @@ use crate::track::NextHop;
 /// ([`Estimator::joint_stage`]).
 pub(super) const JOINT_SHIFT: f64 = 3.0;
 
-/// Re-centrings of the joint maximum's hypotheses per hop at most.
+/// Rounds of the joint maximum's hypotheses per hop at most: the first and up to two
+/// re-centrings (a vertex still beyond the hypotheses after them fails the hop).
 pub(super) const JOINT_ROUNDS: usize = 3;
 
 /// Raw window measurements kept for their trend ([`DriftFit::set_raw_trend`]).
@@ -21,7 +22,8 @@ pub(super) const RAW_TREND_MIN: usize = 4;
 
 /// The raw trend confirms a joint slope ([`DriftFit::set_raw_trend`]) while the
 /// reference time is at most this long (s) after the segment's start: its first
-/// hops (2 s after the start at a lock), while the prior's lag costs most and the
+/// hops (the reference time is 3 s after the start at a lock, `window_s` less
+/// `reference_lag_s`: the lock's hop and the two after it), while the prior's lag costs most and the
 /// segment alone cannot show a fast drift at 5σ. Later a true one shows on the
 /// segment alone (the seed run's 12 ms/s: 6-13σ by then), and the windows' own
 /// excursions would pass: without the limit, a rates-60x5 run (2002) took a
