@@ -502,11 +502,19 @@ impl Estimator {
             ring_len,
         );
         let max_gap_ns = p.max_gap_ns;
-        let reset_ns = (cfg.reset_jump_s.clamp(0.1, 1e6) * 1e9) as Nanos;
-        let max_abs = if cfg.max_abs_value.is_finite() && cfg.max_abs_value > 0.0 {
-            cfg.max_abs_value
+        // as validated (an unvalidated NaN would be 0 ns: every sample a clock jump),
+        // and beyond the longest gap, as the configuration's rule asks
+        let defaults = EstimatorConfig::default();
+        let reset_s = if cfg.reset_jump_s.is_finite() {
+            cfg.reset_jump_s.clamp(0.1, 1e6)
         } else {
-            1e6
+            defaults.reset_jump_s
+        };
+        let reset_ns = ((reset_s * 1e9) as Nanos).max(max_gap_ns.saturating_add(1));
+        let max_abs = if cfg.max_abs_value.is_finite() && cfg.max_abs_value > 0.0 {
+            cfg.max_abs_value.min(vlsync_config::MAX_ABS_VALUE)
+        } else {
+            defaults.max_abs_value
         };
         let rs = Resampler::new(p.dt_ns, max_gap_ns, reset_ns, max_abs);
         let bp = BandPass::new(p.highpass_hz, p.lowpass_hz, p.fs);
@@ -1722,6 +1730,37 @@ mod tests {
                     "{what:?}: {x:?} vs {y:?}"
                 );
             }
+        }
+    }
+
+    /// An unvalidated configuration (a library caller's) with a non-finite or
+    /// out-of-range reset jump or value limit runs as the validated one would.
+    #[test]
+    fn an_unvalidated_nan_reset_jump_runs_as_the_default() {
+        let run = generate(Family::Robot, 1, Some(40.0)).pushes();
+        let count = |cfg: &EstimatorConfig| {
+            let mut e = Estimator::new(cfg);
+            let mut n = 0;
+            for &(stream, s) in &run {
+                let _ = e.push(stream, s);
+                n += std::iter::from_fn(|| e.poll()).count();
+            }
+            (n, e.stats().locks)
+        };
+        let ok = count(&EstimatorConfig::default());
+        assert!(ok.0 > 50 && ok.1 > 0, "{ok:?}");
+        for bad in [
+            EstimatorConfig {
+                reset_jump_s: f64::NAN,
+                ..EstimatorConfig::default()
+            },
+            EstimatorConfig {
+                reset_jump_s: 0.1,
+                max_abs_value: f64::INFINITY,
+                ..EstimatorConfig::default()
+            },
+        ] {
+            assert_eq!(count(&bad), ok, "{bad:?}");
         }
     }
 
