@@ -87,6 +87,9 @@ pub struct EstimatorConfig {
     pub max_abs_value: f64,
     /// Minimum normalised correlation at the peak for a measurement.
     pub min_peak_score: f64,
+    /// Minimum normalised correlation at the acquisition window's peak for it to count
+    /// towards a lock (a short window: noise scores higher there than on a segment).
+    pub min_acquire_score: f64,
     /// Minimum main-to-second peak ratio during acquisition.
     pub min_peak_ratio: f64,
     /// Minimum window variance of each signal relative to its recent typical motion variance.
@@ -168,6 +171,7 @@ impl Default for EstimatorConfig {
             highpass_hz: 0.0,
             max_abs_value: 1e6,
             min_peak_score: 0.4,
+            min_acquire_score: 0.7,
             min_peak_ratio: 1.3,
             min_motion_ratio: 0.05,
             acquire_confirm: 4,
@@ -530,6 +534,7 @@ impl EstimatorConfig {
         c.range(&k("highpass_hz"), self.highpass_hz, 0.0, 100.0)?;
         c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, MAX_ABS_VALUE)?;
         c.range(&k("min_peak_score"), self.min_peak_score, 0.0, 1.0)?;
+        c.range(&k("min_acquire_score"), self.min_acquire_score, 0.0, 1.0)?;
         c.range(&k("min_peak_ratio"), self.min_peak_ratio, 1.0, 100.0)?;
         c.range(&k("min_motion_ratio"), self.min_motion_ratio, 0.0, 1.0)?;
         c.int_range(

@@ -110,7 +110,7 @@ impl Estimator {
         // a lock's first estimate must refer to a time its window covers
         let covered = self.rel_k(self.corr.acq().first_k as f64) <= t;
         let Some(m) = m.filter(|m| {
-            covered && motion && m.score >= self.p.min_score && m.ratio >= self.p.min_ratio
+            covered && motion && m.score >= self.p.acq_min_score && m.ratio >= self.p.min_ratio
         }) else {
             self.acq = Streak::default();
             self.raw_trend.clear();

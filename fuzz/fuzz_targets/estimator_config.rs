@@ -33,7 +33,7 @@ impl F {
 
 #[derive(Arbitrary, Debug)]
 struct Input {
-    f: [F; 30],
+    f: [F; 31],
     cadence: u8,
     cycles: u8,
     noise: u8,
@@ -71,6 +71,7 @@ fn config(f: &[F; 30], cadence: u8) -> EstimatorConfig {
         highpass_hz: f[12].lin(0.0, (0.9 * lowpass_hz).min(100.0)),
         max_abs_value: f[13].log(1e-9, 1e12),
         min_peak_score: f[14].unit(),
+        min_acquire_score: f[30].unit(),
         min_peak_ratio: f[15].lin(1.0, 100.0),
         min_motion_ratio: f[16].unit(),
         acquire_confirm: 1 + (f[17].unit() * 99.0) as u32,
