@@ -60,8 +60,9 @@
 use crate::{Event, RenderError, Renderer};
 use std::fs::File;
 use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 use std::time::{Duration, Instant};
+use vlsync_common::Nanos;
 use vlsync_mcap::McapWriter;
 use vlsync_signature_lidar::csv::{format_seconds, write_header, write_scan};
 
@@ -100,7 +101,8 @@ impl McapOutput {
 /// What [`write_run`] wrote, and how long it took.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Summary {
-    /// Frames written.
+    /// Frames rendered: written as PNGs and listed in `frames.csv` (and in the
+    /// MCAP recording, if any); with `png = false` neither (no `frames.csv`).
     pub frames: usize,
     /// Frames dropped by the camera model.
     pub frames_dropped: usize,
@@ -113,6 +115,25 @@ pub struct Summary {
     /// Time spent encoding and writing.
     pub write_time: Duration,
 }
+
+/// How far a [`write_run_observed`] has got, after each frame or scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Progress {
+    /// True time at which the last frame or scan done was complete, ns.
+    pub sim_ns: Nanos,
+    /// The run's length (true time), ns.
+    pub sim_total_ns: Nanos,
+    /// Frames done.
+    pub frames: usize,
+    /// Scans done.
+    pub scans: usize,
+}
+
+/// The files of a run in its directory besides `frames/*.png`: a new run
+/// removes them all before it writes any (`frames.csv` is not written with
+/// `png = false`), so a run that fails leaves none of an earlier run's beside
+/// its own.
+pub const RUN_FILES: [&str; 4] = ["frames.csv", "scans.csv", "truth.csv", "motion.csv"];
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RenderError + '_ {
     move |source| RenderError::Io {
@@ -133,8 +154,65 @@ fn mcap_err(e: vlsync_mcap::Error) -> RenderError {
     }
 }
 
+/// `p` absolute, through the symbolic links of its longest existing prefix, with
+/// `.` and `..` of the rest resolved by name (the rest need not exist yet).
+fn resolve(p: &Path) -> PathBuf {
+    let abs = if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        match std::env::current_dir() {
+            Ok(d) => d.join(p),
+            Err(_) => p.to_path_buf(),
+        }
+    };
+    let comps: Vec<Component<'_>> = abs.components().collect();
+    for k in (1..=comps.len()).rev() {
+        let prefix: PathBuf = comps[..k].iter().collect();
+        if let Ok(mut out) = prefix.canonicalize() {
+            for c in &comps[k..] {
+                match c {
+                    Component::ParentDir => {
+                        out.pop();
+                    }
+                    Component::CurDir => {}
+                    other => out.push(other.as_os_str()),
+                }
+            }
+            return out;
+        }
+    }
+    abs
+}
+
+/// Which of the run's own outputs in `dir` the file `path` is, if any: one of
+/// [`RUN_FILES`], the `frames` directory or a `frames/frame_*.png` (relative to
+/// `dir`). An MCAP recording there would be overwritten by the run itself.
+///
+/// ```
+/// use std::path::Path;
+/// use vlsync_render::output::own_output;
+/// let dir = Path::new("/tmp/some-run");
+/// assert_eq!(own_output(dir, Path::new("/tmp/some-run/./truth.csv")).as_deref(), Some("truth.csv"));
+/// assert_eq!(own_output(dir, Path::new("/tmp/some-run/run.mcap")), None);
+/// ```
+pub fn own_output(dir: &Path, path: &Path) -> Option<String> {
+    let d = resolve(dir);
+    let p = resolve(path);
+    if let Some(f) = RUN_FILES.iter().find(|f| p == d.join(f)) {
+        return Some((*f).to_string());
+    }
+    let frames = d.join("frames");
+    if p == frames {
+        return Some("frames".into());
+    }
+    let name = p.file_name()?.to_string_lossy().into_owned();
+    (p.parent() == Some(frames.as_path()) && name.starts_with("frame_") && name.ends_with(".png"))
+        .then(|| format!("frames/{name}"))
+}
+
 /// Renders the whole run into `dir` (created if needed). With `png = false`
-/// the frames are rendered and listed but not written (for timing).
+/// the frames are rendered but neither written nor listed: no `frames/` and no
+/// `frames.csv` (for timing, or with an MCAP recording only).
 pub fn write_run(r: &mut Renderer, dir: &Path, png: bool) -> Result<Summary, RenderError> {
     write_run_with(r, dir, png, None)
 }
@@ -148,19 +226,70 @@ pub fn write_run_with(
     png: bool,
     mcap: Option<&McapOutput>,
 ) -> Result<Summary, RenderError> {
+    write_run_observed(r, dir, png, mcap, &mut |_| {})
+}
+
+/// [`write_run_with`], calling `progress` after each frame and scan (for a
+/// progress report: a long run takes minutes).
+///
+/// The order makes a failed run unable to leave a mixed directory: the MCAP
+/// recording is created first (a path it cannot create fails before anything in
+/// `dir` is touched), then every file of [`RUN_FILES`] an earlier run left is
+/// removed, then `truth.csv` and `motion.csv` (known before rendering) are
+/// written, then the frames and scans as they are rendered. A run that fails
+/// part way leaves only its own files, the last ones partial. An `mcap` path
+/// that is one of the run's own outputs ([`own_output`]) is refused.
+pub fn write_run_observed(
+    r: &mut Renderer,
+    dir: &Path,
+    png: bool,
+    mcap: Option<&McapOutput>,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Summary, RenderError> {
     let frames_dir = dir.join("frames");
-    std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
-    // the recording first: a path it cannot create must fail before the CSVs of an
-    // earlier run in `dir` are truncated
+    let made = if png { &frames_dir } else { dir };
+    std::fs::create_dir_all(made).map_err(io_err(made))?;
+    if let Some(name) = mcap.and_then(|m| own_output(dir, &m.path)) {
+        let m = mcap.map(|m| m.path.clone()).unwrap_or_default();
+        return Err(RenderError::Io {
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "the MCAP recording would be {}, one of the run's own outputs",
+                    dir.join(name).display()
+                ),
+            ),
+            path: m,
+        });
+    }
+    // the recording first: a path it cannot create must fail before the files of an
+    // earlier run in `dir` are removed
     let mut rec = match mcap {
         Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
         None => None,
     };
+    for f in RUN_FILES {
+        let path = dir.join(f);
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(io_err(&path)(e));
+            }
+            _ => {}
+        }
+    }
+    let t = Instant::now();
+    write_truth_and_motion(r, dir)?;
+    let truth_time = t.elapsed();
     let frames_csv = dir.join("frames.csv");
     let scans_csv = dir.join("scans.csv");
-    let mut fcsv = create(&frames_csv)?;
+    let mut fcsv = if png {
+        let mut w = create(&frames_csv)?;
+        writeln!(w, "file,t_s,exposure_start_s,exposure_s").map_err(io_err(&frames_csv))?;
+        Some(w)
+    } else {
+        None
+    };
     let mut scsv = create(&scans_csv)?;
-    writeln!(fcsv, "file,t_s,exposure_start_s,exposure_s").map_err(io_err(&frames_csv))?;
     write_header(&mut scsv).map_err(io_err(&scans_csv))?;
     let mut s = Summary {
         frames: 0,
@@ -168,8 +297,9 @@ pub fn write_run_with(
         scans: 0,
         rays: 0,
         render_time: Duration::ZERO,
-        write_time: Duration::ZERO,
+        write_time: truth_time,
     };
+    let sim_total_ns = r.truth().end_ns;
     let mut events = r.events();
     loop {
         let t0 = Instant::now();
@@ -177,11 +307,12 @@ pub fn write_run_with(
         let ev = ev?;
         let t1 = Instant::now();
         s.render_time += t1 - t0;
+        let sim_ns = ev.available_ns();
         match ev {
             Event::Frame(f) => {
-                let name = format!("frame_{:06}.png", f.index);
-                let path: PathBuf = frames_dir.join(&name);
-                if png {
+                if let Some(fcsv) = &mut fcsv {
+                    let name = format!("frame_{:06}.png", f.index);
+                    let path: PathBuf = frames_dir.join(&name);
                     image::save_buffer(
                         &path,
                         f.image.pixels(),
@@ -193,22 +324,22 @@ pub fn write_run_with(
                         path: path.clone(),
                         reason: e.to_string(),
                     })?;
+                    let (start, dur) = match f.time {
+                        vlsync_signature_cam::FrameTime::Exposure {
+                            start_ns,
+                            duration_ns,
+                        } => (start_ns, duration_ns),
+                        vlsync_signature_cam::FrameTime::Instant(t) => (t, 0),
+                    };
+                    writeln!(
+                        fcsv,
+                        "frames/{name},{},{},{}",
+                        format_seconds(f.stamp_ns),
+                        format_seconds(start),
+                        format_seconds(dur)
+                    )
+                    .map_err(io_err(&frames_csv))?;
                 }
-                let (start, dur) = match f.time {
-                    vlsync_signature_cam::FrameTime::Exposure {
-                        start_ns,
-                        duration_ns,
-                    } => (start_ns, duration_ns),
-                    vlsync_signature_cam::FrameTime::Instant(t) => (t, 0),
-                };
-                writeln!(
-                    fcsv,
-                    "frames/{name},{},{},{}",
-                    format_seconds(f.stamp_ns),
-                    format_seconds(start),
-                    format_seconds(dur)
-                )
-                .map_err(io_err(&frames_csv))?;
                 if let Some((w, m)) = &mut rec {
                     // log time = stamp + delay = the true time the frame is complete
                     w.set_log_delay_ns(f.tau_available_ns - f.stamp_ns);
@@ -240,14 +371,27 @@ pub fn write_run_with(
             }
         }
         s.write_time += t1.elapsed();
+        progress(&Progress {
+            sim_ns,
+            sim_total_ns,
+            frames: s.frames,
+            scans: s.scans,
+        });
     }
-    fcsv.flush().map_err(io_err(&frames_csv))?;
+    if let Some(fcsv) = &mut fcsv {
+        fcsv.flush().map_err(io_err(&frames_csv))?;
+    }
     scsv.flush().map_err(io_err(&scans_csv))?;
     if let Some((w, _)) = rec {
         let t = Instant::now();
         w.finish().map_err(mcap_err)?;
         s.write_time += t.elapsed();
     }
+    Ok(s)
+}
+
+/// `truth.csv` and `motion.csv`: both known before anything is rendered.
+fn write_truth_and_motion(r: &Renderer, dir: &Path) -> Result<(), RenderError> {
     let truth_csv = dir.join("truth.csv");
     r.truth()
         .write_csv(&truth_csv)
@@ -274,8 +418,7 @@ pub fn write_run_with(
         )
         .map_err(io_err(&motion_csv))?;
     }
-    m.flush().map_err(io_err(&motion_csv))?;
-    Ok(s)
+    m.flush().map_err(io_err(&motion_csv))
 }
 
 #[cfg(test)]
@@ -325,10 +468,144 @@ mod tests {
         assert!(truth.starts_with("t,offset\n"));
         assert_eq!(truth.lines().count(), 202);
         let bad = write_run(&mut r, Path::new("/proc/no/such/dir"), false).unwrap_err();
+        assert!(bad.to_string().starts_with("/proc/no/such/dir: "), "{bad}");
+        let bad = write_run(&mut r, Path::new("/proc/no/such/dir"), true).unwrap_err();
         assert!(
-            bad.to_string().starts_with("/proc/no/such/dir/frames"),
+            bad.to_string().starts_with("/proc/no/such/dir/frames: "),
             "{bad}"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn temp(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("vlsync-render-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    fn small(seed: u64) -> Renderer {
+        let mut cfg = RenderConfig::from_seed(seed, 2.0);
+        cfg.camera.width = 32;
+        cfg.camera.height = 24;
+        Renderer::new(cfg).unwrap()
+    }
+
+    fn read(p: &Path) -> String {
+        std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+    }
+
+    /// A run that fails part way (a frame's PNG cannot be written) over an earlier
+    /// run's directory: every file left is the new run's, the CSVs it was writing
+    /// cut short, none of the earlier run's (truth.csv and motion.csv used to be).
+    #[test]
+    fn a_failed_run_leaves_only_its_own_files() {
+        let (reference, dir) = (temp("ref"), temp("failed"));
+        write_run(&mut small(8), &reference, true).unwrap();
+        write_run(&mut small(9), &dir, true).unwrap();
+        let mut r = small(8);
+        let third = r.frame_schedule()[2].index;
+        let png = dir.join(format!("frames/frame_{third:06}.png"));
+        std::fs::remove_file(&png).ok();
+        std::fs::create_dir(&png).unwrap();
+        let e = write_run(&mut r, &dir, true).unwrap_err();
+        assert!(e.to_string().starts_with(&png.display().to_string()), "{e}");
+        for f in ["truth.csv", "motion.csv"] {
+            assert_eq!(read(&dir.join(f)), read(&reference.join(f)), "{f}");
+        }
+        let frames = read(&dir.join("frames.csv"));
+        assert_eq!(frames.lines().count(), 3, "{frames}"); // header, 2 frames
+        for f in ["frames.csv", "scans.csv"] {
+            let (part, whole) = (read(&dir.join(f)), read(&reference.join(f)));
+            assert!(whole.starts_with(&part) && part.len() < whole.len(), "{f}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::remove_dir_all(&reference).unwrap();
+    }
+
+    /// Without PNGs no frames.csv is written (its rows would name files that do
+    /// not exist), and an earlier run's is removed.
+    #[test]
+    fn without_png_no_frame_list_is_left() {
+        let dir = temp("nopng");
+        let fresh = temp("nopng-fresh");
+        let s = write_run(&mut small(4), &fresh, false).unwrap();
+        assert!(!fresh.join("frames.csv").exists() && !fresh.join("frames").exists());
+        let r = small(4);
+        assert_eq!(s.frames, r.frame_schedule().len());
+        assert_eq!(s.scans, r.scan_schedule().len());
+        write_run(&mut small(5), &dir, true).unwrap();
+        write_run(&mut small(4), &dir, false).unwrap();
+        assert!(!dir.join("frames.csv").exists());
+        for f in ["scans.csv", "truth.csv", "motion.csv"] {
+            assert_eq!(read(&dir.join(f)), read(&fresh.join(f)), "{f}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::remove_dir_all(&fresh).unwrap();
+    }
+
+    #[test]
+    fn an_mcap_path_on_the_runs_own_outputs_is_refused() {
+        let dir = temp("clash");
+        write_run(&mut small(3), &dir, true).unwrap();
+        let before: Vec<String> = RUN_FILES.iter().map(|f| read(&dir.join(f))).collect();
+        let first = small(3).frame_schedule()[0].index;
+        let png = format!("frames/frame_{first:06}.png");
+        for own in [
+            "frames.csv",
+            "scans.csv",
+            "truth.csv",
+            "motion.csv",
+            "frames",
+            &png,
+        ] {
+            // spelled another way: through `.` and `..`
+            let path = dir.join("frames/..").join(".").join(own);
+            assert_eq!(own_output(&dir, &path).as_deref(), Some(own));
+            let m = McapOutput { path, png: false };
+            let e = write_run_with(&mut small(3), &dir, true, Some(&m)).unwrap_err();
+            assert!(
+                e.to_string().ends_with(&format!(
+                    "would be {}, one of the run's own outputs",
+                    dir.join(own).display()
+                )),
+                "{e}"
+            );
+        }
+        let after: Vec<String> = RUN_FILES.iter().map(|f| read(&dir.join(f))).collect();
+        assert!(before == after, "the run's files were touched");
+        // relative to the working directory, and not yet existing
+        let cwd = std::env::current_dir().unwrap();
+        assert_eq!(
+            own_output(Path::new("no-such-run"), &cwd.join("no-such-run/scans.csv")).as_deref(),
+            Some("scans.csv")
+        );
+        for other in [
+            "run.mcap",
+            "frames/run.mcap",
+            "frames.csv.mcap",
+            "../frames.csv",
+        ] {
+            assert_eq!(own_output(&dir, &dir.join(other)), None, "{other}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn progress_follows_the_run() {
+        let dir = temp("progress");
+        let mut seen: Vec<Progress> = Vec::new();
+        let mut r = small(7);
+        let total = r.truth().end_ns;
+        let s = write_run_observed(&mut r, &dir, false, None, &mut |p| seen.push(*p)).unwrap();
+        assert_eq!(seen.len(), s.frames + s.scans);
+        assert!(seen.windows(2).all(|w| w[0].sim_ns <= w[1].sim_ns
+            && w[0].frames + w[0].scans + 1 == w[1].frames + w[1].scans));
+        let last = seen.last().unwrap();
+        assert_eq!(
+            (last.frames, last.scans, last.sim_total_ns),
+            (s.frames, s.scans, total)
+        );
+        assert!(last.sim_ns <= total && last.sim_ns > total - 200_000_000);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,6 +1,7 @@
 //! `vlsync-render --raw-stdout`'s `--start-at` out of range: an error at once, not a
 //! stream that sleeps for decades (an instant on CLOCK_REALTIME instead of
-//! CLOCK_MONOTONIC) or wraps around `i64`.
+//! CLOCK_MONOTONIC) or wraps around `i64`; in the past (a restarted camera
+//! program): the frames already due are skipped, not written at once.
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -49,4 +50,66 @@ fn a_start_instant_off_the_monotonic_clock_is_refused_at_once() {
         );
         assert!(out.stdout.is_empty(), "--start-at {start}: frames written");
     }
+}
+
+fn monotonic_ns() -> i64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    #[allow(clippy::useless_conversion)]
+    (t.tv_sec * 1_000_000_000 + i64::from(t.tv_nsec))
+}
+
+/// Started 2 s after its --start-at, a 3 s stream skips the frames due by then
+/// (says how many) and writes the rest in real time: about 1 s, not a burst of
+/// 2 s of frames followed by the rest.
+#[test]
+fn a_start_instant_in_the_past_skips_the_frames_already_due() {
+    let mut cfg = vlsync_render::RenderConfig::from_seed(4, 3.0);
+    cfg.camera.width = 16;
+    cfg.camera.height = 16;
+    let n = vlsync_render::Renderer::new(cfg)
+        .unwrap()
+        .frame_schedule()
+        .len();
+    let start = (monotonic_ns() - 2_000_000_000).to_string();
+    let t0 = Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_vlsync-render"))
+        .args([
+            "--raw-stdout",
+            "gray",
+            "--seed",
+            "4",
+            "--duration",
+            "3",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--start-at",
+            &start,
+        ])
+        .output()
+        .unwrap();
+    let took = t0.elapsed();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let skipped: usize = err
+        .split_once("skipping the ")
+        .and_then(|(_, rest)| rest.split_once(' '))
+        .map(|(k, _)| k.parse().unwrap())
+        .unwrap_or_else(|| panic!("no skip said: {err}"));
+    let written = out.stdout.len() / (16 * 16);
+    assert_eq!(out.stdout.len() % (16 * 16), 0);
+    assert_eq!(skipped + written, n, "{err}");
+    assert!(
+        err.contains(&format!(
+            "{written} frames written to stdout, {skipped} skipped (due before the stream started)"
+        )),
+        "{err}"
+    );
+    // 2 s and more of the 3 s run were due: roughly the last second is written
+    assert!(
+        skipped > n / 2 && written > 10,
+        "{skipped} skipped, {written} written"
+    );
+    assert!(took < Duration::from_secs(3), "{took:?}");
 }

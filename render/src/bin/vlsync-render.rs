@@ -1,13 +1,14 @@
 //! `vlsync-render`: renders a simulated run (camera frames, LiDAR scans, truth) to a directory.
 #![forbid(unsafe_code)]
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
-use vlsync_render::output::{write_run_with, McapOutput};
-use vlsync_render::{RenderConfig, Renderer};
+use std::time::{Duration, Instant};
+use vlsync_common::text::number;
+use vlsync_render::output::{own_output, write_run_observed, McapOutput, Progress};
+use vlsync_render::{RenderConfig, RenderError, Renderer};
 
 /// Renders a robot driving in a textured room as seen by a camera and a 2-D LiDAR,
 /// with known clock truth: DIR/frames/*.png + DIR/frames.csv (signature-cam's
@@ -23,61 +24,83 @@ struct Args {
     /// Seed of every random choice.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
-    /// Run length, seconds.
+    /// Run length, seconds (1 to 3600).
     #[arg(long, allow_negative_numbers = true, default_value_t = 60.0)]
     duration: f64,
-    /// Output directory (created if needed).
+    /// Output directory (created if needed); give --out DIR or --raw-stdout LAYOUT.
+    /// An earlier run's frames.csv, scans.csv, truth.csv and motion.csv in DIR are
+    /// removed first, so a run that fails leaves only its own files.
+    #[arg(long, value_name = "DIR", conflicts_with = "raw_stdout")]
+    out: Option<PathBuf>,
+    /// Write no files: write the camera's frames raw to standard output (LAYOUT:
+    /// i420 or gray), each when its exposure ends, in real time: true time τ is
+    /// written at τ + start_at - anchor on CLOCK_MONOTONIC, as the drivers'
+    /// `--render --stamp mono` map it, where anchor is the earlier of the run's
+    /// first camera and first LiDAR stamps. Frames whose exposure ends before the
+    /// anchor are therefore written before --start-at (by up to about a LiDAR
+    /// period, 0.1 s). The frames are the seed's: --offset, --drift-ppm, --step,
+    /// --lidar-hz, --rays, --mcap, --mcap-png and --no-png are refused with it.
     #[arg(
         long,
-        required_unless_present = "raw_stdout",
-        conflicts_with = "raw_stdout"
+        value_name = "LAYOUT",
+        value_parser = vlsync_render::stream::RawLayout::parse,
+        conflicts_with_all = [
+            "mcap", "mcap_png", "no_png", "offset", "drift_ppm", "steps", "lidar_hz", "rays",
+        ]
     )]
-    out: Option<PathBuf>,
-    /// Write no files: write the camera's frames raw to standard output, each when its
-    /// exposure ends, in real time from --start-at (LAYOUT: i420 or gray); the run's
-    /// true time τ is τ + start_at - anchor on CLOCK_MONOTONIC, as for the drivers'
-    /// `--render --stamp mono`.
-    #[arg(long, value_name = "LAYOUT", value_parser = vlsync_render::stream::RawLayout::parse)]
     raw_stdout: Option<vlsync_render::stream::RawLayout>,
-    /// With --raw-stdout: the start instant, CLOCK_MONOTONIC ns (default: now + 1 s).
-    #[arg(long, requires = "raw_stdout", allow_negative_numbers = true)]
+    /// Only with --raw-stdout: the stream's start instant, CLOCK_MONOTONIC ns
+    /// (default: now + 1 s). A stream started after it (a camera program restarted
+    /// mid-run) skips the frames already due more than one frame period ago and
+    /// resumes at the current frame, as the drivers' --render do.
+    #[arg(long, allow_negative_numbers = true)]
     start_at: Option<i64>,
-    /// Image width, pixels.
+    /// Image width, pixels (16 to 4096).
     #[arg(long, allow_negative_numbers = true, default_value_t = 320)]
     width: usize,
-    /// Image height, pixels.
+    /// Image height, pixels (16 to 4096).
     #[arg(long, allow_negative_numbers = true, default_value_t = 240)]
     height: usize,
-    /// Camera frame rate, Hz.
+    /// Camera frame rate, Hz (1 to 1000, and below 125: the frame period must be
+    /// longer than the camera's 8 ms exposure).
     #[arg(long, allow_negative_numbers = true, default_value_t = 30.0)]
     fps: f64,
-    /// LiDAR revolutions per second.
+    /// LiDAR revolutions per second (0.5 to 100; --duration must hold at least one
+    /// whole revolution). Not with --raw-stdout (it writes no scans).
     #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
     lidar_hz: f64,
-    /// LiDAR rays per revolution.
+    /// LiDAR rays per revolution (8 to 100000). Not with --raw-stdout (it writes no
+    /// scans).
     #[arg(long, allow_negative_numbers = true, default_value_t = 450)]
     rays: usize,
-    /// Offset t_L - t_C at t = 0, seconds (default: drawn from the seed).
+    /// Offset t_L - t_C at t = 0, seconds (-10 to 10; default: drawn from the seed).
+    /// Not with --raw-stdout: its frames are written on true time, and the drivers'
+    /// --render, paced from the same --start-at, use the seed's clocks.
     #[arg(long, allow_hyphen_values = true)]
     offset: Option<f64>,
-    /// Drift, ppm (default: drawn from the seed).
+    /// Drift, ppm (-1000 to 1000; default: drawn from the seed). Not with
+    /// --raw-stdout (see --offset).
     #[arg(long, allow_hyphen_values = true)]
     drift_ppm: Option<f64>,
-    /// An offset step `TIME_S:DELTA_S` (repeatable), e.g. a camera latency change.
+    /// An offset step `TIME_S:DELTA_S` (repeatable), e.g. a camera latency change:
+    /// TIME_S from 0 to before the end of --duration, each after the previous;
+    /// DELTA_S -1 to 1. Not with --raw-stdout (see --offset).
     #[arg(long = "step", value_parser = parse_step, allow_hyphen_values = true)]
     steps: Vec<(f64, f64)>,
-    /// Camera frame drop probability.
+    /// Camera frame drop probability (0 <= p < 0.5).
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.02)]
     drop: f64,
-    /// Render but do not write PNG files (timing).
+    /// Render the frames but write no PNG files and no frames.csv (timing, or
+    /// with --mcap a recording only). Not with --raw-stdout.
     #[arg(long)]
     no_png: bool,
     /// Also write a ROS 2 MCAP recording of the run to FILE (default, when
-    /// given without a value: DIR/run.mcap; FILE's directory must exist):
+    /// given without a value: DIR/run.mcap; FILE's directory must exist, and FILE
+    /// must not be one of the run's own files):
     /// /camera/image_raw (sensor_msgs/Image, mono8) and /scan
     /// (sensor_msgs/LaserScan), header stamps on each sensor's clock as in
     /// frames.csv (mid-exposure) and scans.csv (first ray); log time = true
-    /// delivery time.
+    /// delivery time. Not with --raw-stdout.
     #[arg(long, value_name = "FILE")]
     mcap: Option<Option<PathBuf>>,
     /// With --mcap: frames as lossless PNG sensor_msgs/CompressedImage on
@@ -98,16 +121,34 @@ fn parse_step(s: &str) -> Result<(f64, f64), String> {
     Ok((num(t)?, num(d)?))
 }
 
-fn main() -> ExitCode {
-    let a = Args::parse();
-    // the drivers' check: an instant on another clock would be waited for for decades
-    if let Err(e) = a
-        .start_at
-        .map_or(Ok(()), |t| vlsync_common::check_start_at(t, monotonic_ns()))
-    {
-        vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
-        return ExitCode::from(2);
+/// A usage error in clap's form (exit status 2).
+fn usage_error(msg: &str) -> ! {
+    Args::command()
+        .error(clap::error::ErrorKind::ArgumentConflict, msg)
+        .exit()
+}
+
+/// The checks clap's attributes cannot word clearly.
+fn check_args(a: &Args) -> Result<(), String> {
+    if a.start_at.is_some() && a.raw_stdout.is_none() {
+        return Err(
+            "--start-at needs --raw-stdout LAYOUT: it is the instant the raw stream of \
+             frames starts; a run written with --out DIR is not paced in real time"
+                .into(),
+        );
     }
+    if a.out.is_none() && a.raw_stdout.is_none() {
+        return Err(
+            "give --out DIR (write the run to files) or --raw-stdout LAYOUT (write the \
+             camera's frames to standard output in real time)"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// The run the command line describes.
+fn config(a: &Args) -> RenderConfig {
     let mut cfg = RenderConfig::from_seed(a.seed, a.duration);
     cfg.camera.width = a.width;
     cfg.camera.height = a.height;
@@ -120,29 +161,174 @@ fn main() -> ExitCode {
     if let Some(d) = a.drift_ppm {
         cfg.clock.drift_ppm = d;
     }
-    cfg.clock.steps = a.steps;
+    cfg.clock.steps = a.steps.clone();
     cfg.frame_drop_probability = a.drop;
+    cfg
+}
+
+/// The flag that sets a [`RenderConfig`] field, if one does.
+fn flag_of(field: &str) -> Option<&'static str> {
+    Some(match field {
+        "duration_s" => "--duration",
+        "camera.width" => "--width",
+        "camera.height" => "--height",
+        // the exposure is fixed: only --fps can make the period too short for it
+        "camera.fps" | "camera.exposure_s" => "--fps",
+        "lidar.rate_hz" => "--lidar-hz",
+        "lidar.rays_per_turn" => "--rays",
+        "clock.offset0_s" => "--offset",
+        "clock.drift_ppm" => "--drift-ppm",
+        "clock.steps.time" => "--step (TIME_S)",
+        "clock.steps.delta" => "--step (DELTA_S)",
+        "frame_drop_probability" => "--drop",
+        _ => return None,
+    })
+}
+
+/// A configuration error in terms of the command line's flags.
+fn config_error(e: &RenderError, c: &RenderConfig) -> String {
+    let RenderError::InvalidConfig { field, reason } = e else {
+        return e.to_string();
+    };
+    match (*field, flag_of(field)) {
+        ("camera.exposure_s", _) => {
+            let exp = c.camera.exposure_s;
+            format!(
+                "--fps {}: the frame period ({} ms) must be longer than the camera's {} ms \
+                 exposure: allowed 1 <= --fps < {}",
+                number(c.camera.fps),
+                number(1e3 / c.camera.fps),
+                number(exp * 1e3),
+                number(1.0 / exp)
+            )
+        }
+        ("clock.steps.time", Some(flag)) if reason.contains("run's end") => {
+            format!("{flag}: {reason}, set by --duration")
+        }
+        (_, Some(flag)) => format!("{flag}: {reason}"),
+        (_, None) => e.to_string(),
+    }
+}
+
+/// A run with no frame or no scan: the flags that leave it empty.
+fn empty_schedule(r: &Renderer, scans_needed: bool) -> Option<String> {
+    let c = r.config();
+    if r.frame_schedule().is_empty() {
+        let drops = if r.frames_dropped() > 0 {
+            format!(
+                " (--drop {} dropped them all)",
+                number(c.frame_drop_probability)
+            )
+        } else {
+            String::new()
+        };
+        return Some(format!(
+            "--duration {} at --fps {} gives no camera frame{drops}: lengthen --duration \
+             or raise --fps",
+            number(c.duration_s),
+            number(c.camera.fps)
+        ));
+    }
+    if scans_needed && r.scan_schedule().is_empty() {
+        return Some(format!(
+            "--duration {} holds no whole LiDAR revolution at --lidar-hz {} (a {} s \
+             period): lengthen --duration or raise --lidar-hz",
+            number(c.duration_s),
+            number(c.lidar.rate_hz),
+            number(1.0 / c.lidar.rate_hz)
+        ));
+    }
+    None
+}
+
+/// How often a run written to files reports its progress, wall time.
+const PROGRESS_EVERY: Duration = Duration::from_secs(5);
+
+/// A progress line: simulated seconds done, counts, elapsed and remaining time.
+fn progress_line(p: &Progress, elapsed: Duration) -> String {
+    let done = p.sim_ns.max(0) as f64 * 1e-9;
+    let total = p.sim_total_ns as f64 * 1e-9;
+    let el = elapsed.as_secs_f64();
+    let left = if done > 0.0 {
+        format!("about {:.0} s left", el * (total - done).max(0.0) / done)
+    } else {
+        "time left unknown".into()
+    };
+    format!(
+        "vlsync-render: {done:.1} of {total:.1} s rendered ({:.0} %), {} frames, {} scans, \
+         {el:.0} s elapsed, {left}\n",
+        100.0 * done / total,
+        p.frames,
+        p.scans
+    )
+}
+
+fn main() -> ExitCode {
+    let a = Args::parse();
+    if let Err(msg) = check_args(&a) {
+        usage_error(&msg);
+    }
+    // the drivers' check: an instant on another clock would be waited for for decades
+    if let Err(e) = a
+        .start_at
+        .map_or(Ok(()), |t| vlsync_common::check_start_at(t, monotonic_ns()))
+    {
+        vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
+        return ExitCode::from(2);
+    }
+    let cfg = config(&a);
+    let mcap = a.out.as_ref().and_then(|out_dir| {
+        a.mcap.as_ref().map(|file| McapOutput {
+            path: file.clone().unwrap_or_else(|| out_dir.join("run.mcap")),
+            png: a.mcap_png,
+        })
+    });
+    if let (Some(m), Some(out_dir)) = (&mcap, &a.out) {
+        if let Some(own) = own_output(out_dir, &m.path) {
+            vlsync_common::console::print_err(&format!(
+                "vlsync-render: error: --mcap {} names {own} of --out {}, one of the run's \
+                 own files: it would be overwritten (give another FILE, or --mcap alone for \
+                 {})\n",
+                m.path.display(),
+                out_dir.display(),
+                out_dir.join("run.mcap").display()
+            ));
+            return ExitCode::from(2);
+        }
+    }
     let t0 = Instant::now();
-    let mut r = match Renderer::new(cfg) {
+    let mut r = match Renderer::new(cfg.clone()) {
         Ok(r) => r,
         Err(e) => {
-            vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
+            vlsync_common::console::print_err(&format!(
+                "vlsync-render: error: {}\n",
+                config_error(&e, &cfg)
+            ));
             return ExitCode::from(2);
         }
     };
+    if let Some(msg) = empty_schedule(&r, a.raw_stdout.is_none()) {
+        vlsync_common::console::print_err(&format!("vlsync-render: error: {msg}\n"));
+        return ExitCode::from(2);
+    }
     let setup = t0.elapsed();
     if let Some(layout) = a.raw_stdout {
         return raw_stdout(&mut r, layout, a.start_at);
     }
     let Some(out_dir) = a.out.as_ref() else {
-        // clap requires --out without --raw-stdout
+        // check_args: --out without --raw-stdout
         return ExitCode::from(2);
     };
-    let mcap = a.mcap.as_ref().map(|file| McapOutput {
-        path: file.clone().unwrap_or_else(|| out_dir.join("run.mcap")),
-        png: a.mcap_png,
-    });
-    let s = match write_run_with(&mut r, out_dir, !a.no_png, mcap.as_ref()) {
+    let t_render = Instant::now();
+    let mut next_report = PROGRESS_EVERY;
+    let mut progress = |p: &Progress| {
+        let elapsed = t_render.elapsed();
+        if elapsed >= next_report {
+            next_report = elapsed + PROGRESS_EVERY;
+            vlsync_common::console::print_err(&progress_line(p, elapsed));
+        }
+    };
+    let s = match write_run_observed(&mut r, out_dir, !a.no_png, mcap.as_ref(), &mut progress) {
         Ok(s) => s,
         Err(e) => {
             vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
@@ -161,13 +347,20 @@ fn main() -> ExitCode {
         c.duration_s,
         out_dir.display()
     );
+    let frames = if a.no_png {
+        format!(
+            "{} frames rendered, no PNGs or frames.csv (--no-png)",
+            s.frames
+        )
+    } else {
+        format!("{} frames written", s.frames)
+    };
     let _ = writeln!(
         text,
-        "  camera {}x{} @ {} Hz: {} frames written, {} dropped; LiDAR {} Hz x {} rays: {} scans",
+        "  camera {}x{} @ {} Hz: {frames}, {} dropped; LiDAR {} Hz x {} rays: {} scans",
         c.camera.width,
         c.camera.height,
         c.camera.fps,
-        s.frames,
         s.frames_dropped,
         c.lidar.rate_hz,
         c.lidar.rays_per_turn,
@@ -227,25 +420,53 @@ fn monotonic_ns() -> i64 {
 
 /// `--raw-stdout`: the frames to standard output in real time; a summary on stderr.
 /// A reader that goes away (`EPIPE`) ends the stream quietly: that is how a camera
-/// program is stopped.
+/// program is stopped. Started after `start_at`, it skips the frames already due
+/// (more than a frame period ago) and says so.
 fn raw_stdout(
     r: &mut Renderer,
     layout: vlsync_render::stream::RawLayout,
     start_at: Option<i64>,
 ) -> ExitCode {
     let start_at = start_at.unwrap_or_else(|| monotonic_ns() + 1_000_000_000);
+    let now = monotonic_ns();
+    let first = vlsync_render::stream::first_live_frame(r, start_at, now);
+    let n = r.frame_schedule().len();
+    if first > 0 {
+        vlsync_common::console::print_err(&format!(
+            "vlsync-render: --start-at was {:.3} s ago: skipping the {first} of {n} frames \
+             already due{}\n",
+            (now - start_at) as f64 * 1e-9,
+            if first < n {
+                ", resuming at the current frame"
+            } else {
+                ": the run is over"
+            }
+        ));
+    }
     let mut out = std::io::stdout().lock();
-    let res =
-        vlsync_render::stream::stream_raw(r, &mut out, layout, start_at, &monotonic_ns, &|due| {
+    let res = vlsync_render::stream::stream_raw(
+        r,
+        &mut out,
+        layout,
+        start_at,
+        first,
+        &monotonic_ns,
+        &|due| {
             let wait = due - monotonic_ns();
             if wait > 0 {
                 std::thread::sleep(std::time::Duration::from_nanos(wait as u64));
             }
-        });
+        },
+    );
     match res {
         Ok(s) => {
+            let skipped = if s.skipped > 0 {
+                format!(", {} skipped (due before the stream started)", s.skipped)
+            } else {
+                String::new()
+            };
             vlsync_common::console::print_err(&format!(
-                "vlsync-render: {} frames written to stdout, {} late (latest {:.1} ms)\n",
+                "vlsync-render: {} frames written to stdout{skipped}, {} late (latest {:.1} ms)\n",
                 s.frames,
                 s.late,
                 s.max_late_ns as f64 * 1e-6
@@ -261,5 +482,252 @@ fn raw_stdout(
             vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::error::ErrorKind;
+
+    fn args(extra: &[&str]) -> Result<Args, clap::Error> {
+        Args::try_parse_from(
+            ["vlsync-render", "--out", "/nowhere"]
+                .iter()
+                .chain(extra)
+                .copied(),
+        )
+    }
+
+    /// The ranges the --help text states are the ones the configuration enforces,
+    /// and a value outside one is refused naming its flag.
+    #[test]
+    fn help_ranges_match_the_validation_and_errors_name_the_flags() {
+        // the --fps help's "8 ms exposure" and "below 125"
+        assert_eq!(
+            vlsync_render::camera::CameraConfig::default().exposure_s,
+            0.008
+        );
+        let help = Args::command().render_long_help().to_string();
+        for words in [
+            "Run length, seconds (1 to 3600)",
+            "(16 to 4096)",
+            "(1 to 1000, and below 125: the frame period must be longer than the camera's 8 ms exposure)",
+            "(0.5 to 100;",
+            "(8 to 100000)",
+            "(-10 to 10;",
+            "(-1000 to 1000;",
+            "TIME_S from 0 to before the end of --duration, each after the previous; DELTA_S -1 to 1",
+            "(0 <= p < 0.5)",
+        ] {
+            assert!(help.contains(words), "{words}");
+        }
+        let cases: &[(&[&str], Option<&str>)] = &[
+            (&["--duration", "1"], None),
+            (&["--duration", "3600"], None),
+            (&["--duration", "0.99"], Some("--duration: ")),
+            (&["--duration", "3601"], Some("--duration: ")),
+            (&["--width", "16", "--height", "4096"], None),
+            (&["--width", "15"], Some("--width: ")),
+            (&["--height", "4097"], Some("--height: ")),
+            (&["--fps", "1"], None),
+            (&["--fps", "124.9"], None),
+            (&["--fps", "0.99"], Some("--fps: ")),
+            (&["--fps", "125"], Some("--fps 125: ")),
+            (&["--fps", "200"], Some("--fps 200: ")),
+            (&["--fps", "1001"], Some("--fps: ")),
+            (&["--lidar-hz", "0.5"], None),
+            (&["--lidar-hz", "100"], None),
+            (&["--lidar-hz", "0.49"], Some("--lidar-hz: ")),
+            (&["--lidar-hz", "101"], Some("--lidar-hz: ")),
+            (&["--rays", "8"], None),
+            (&["--rays", "100000"], None),
+            (&["--rays", "7"], Some("--rays: ")),
+            (&["--rays", "100001"], Some("--rays: ")),
+            (&["--offset", "-10", "--drift-ppm", "1000"], None),
+            (&["--offset", "10", "--drift-ppm", "-1000"], None),
+            (&["--offset", "10.01"], Some("--offset: ")),
+            (&["--drift-ppm", "-1000.1"], Some("--drift-ppm: ")),
+            (&["--drop", "0"], None),
+            (&["--drop", "0.499"], None),
+            (&["--drop", "0.5"], Some("--drop: ")),
+            (&["--drop", "-0.01"], Some("--drop: ")),
+            (
+                &["--duration", "10", "--step", "0:-1", "--step", "9.99:1"],
+                None,
+            ),
+            (
+                &["--duration", "10", "--step", "10:0.1"],
+                Some("--step (TIME_S): "),
+            ),
+            (
+                &["--step", "5:0.1", "--step", "5:0.1"],
+                Some("--step (TIME_S): "),
+            ),
+            (&["--step", "5:1.01"], Some("--step (DELTA_S): ")),
+        ];
+        for (extra, want) in cases {
+            let c = config(&args(extra).unwrap());
+            match (c.validate(), want) {
+                (Ok(()), None) => {}
+                (Err(e), Some(flag)) => {
+                    let msg = config_error(&e, &c);
+                    assert!(msg.starts_with(flag), "{extra:?}: {msg}");
+                    assert!(!msg.contains('`'), "{extra:?}: {msg}"); // no field name
+                }
+                (got, _) => panic!("{extra:?}: {got:?}"),
+            }
+        }
+        let c = config(&args(&["--fps", "200"]).unwrap());
+        assert_eq!(
+            config_error(&c.validate().unwrap_err(), &c),
+            "--fps 200: the frame period (5 ms) must be longer than the camera's 8 ms exposure: \
+             allowed 1 <= --fps < 125"
+        );
+        let c = config(&args(&["--duration", "5", "--step", "6:0.1"]).unwrap());
+        let msg = config_error(&c.validate().unwrap_err(), &c);
+        assert!(msg.contains("--duration"), "{msg}");
+    }
+
+    #[test]
+    fn raw_stdout_refuses_the_flags_it_would_ignore() {
+        let raw = |extra: &[&str]| {
+            Args::try_parse_from(
+                ["vlsync-render", "--raw-stdout", "gray"]
+                    .iter()
+                    .chain(extra)
+                    .copied(),
+            )
+        };
+        // its own flags, and the defaults of the others, are fine
+        assert!(raw(&[
+            "--seed",
+            "3",
+            "--duration",
+            "5",
+            "--fps",
+            "15",
+            "--drop",
+            "0"
+        ])
+        .is_ok());
+        for flag in [
+            &["--mcap"][..],
+            &["--mcap", "/tmp/x.mcap"],
+            &["--mcap", "--mcap-png"],
+            &["--no-png"],
+            &["--offset", "0.1"],
+            &["--drift-ppm", "5"],
+            &["--step", "1:0.01"],
+            &["--lidar-hz", "5"],
+            &["--rays", "100"],
+            &["--out", "/tmp/x"],
+        ] {
+            let e = raw(flag).unwrap_err();
+            assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{flag:?}: {e}");
+            let text = e.to_string();
+            assert!(
+                text.contains("--raw-stdout") && text.contains(flag[0]),
+                "{flag:?}: {text}"
+            );
+        }
+    }
+
+    #[test]
+    fn start_at_needs_raw_stdout_and_a_mode_is_required() {
+        let a = args(&["--start-at", "5"]).unwrap();
+        let e = check_args(&a).unwrap_err();
+        assert!(e.starts_with("--start-at needs --raw-stdout LAYOUT"), "{e}");
+        let a = Args::try_parse_from(["vlsync-render", "--start-at", "5"]).unwrap();
+        assert!(check_args(&a)
+            .unwrap_err()
+            .starts_with("--start-at needs --raw-stdout"));
+        let a = Args::try_parse_from(["vlsync-render"]).unwrap();
+        let e = check_args(&a).unwrap_err();
+        assert!(
+            e.contains("--out DIR") && e.contains("--raw-stdout LAYOUT"),
+            "{e}"
+        );
+        let a = Args::try_parse_from(["vlsync-render", "--raw-stdout", "i420", "--start-at", "5"]);
+        assert!(check_args(&a.unwrap()).is_ok());
+        assert!(check_args(&args(&[]).unwrap()).is_ok());
+    }
+
+    #[test]
+    fn an_empty_schedule_names_the_flags() {
+        let c = config(
+            &args(&[
+                "--duration",
+                "1",
+                "--fps",
+                "1",
+                "--lidar-hz",
+                "0.5",
+                "--width",
+                "16",
+                "--height",
+                "16",
+            ])
+            .unwrap(),
+        );
+        let r = Renderer::new(c).unwrap();
+        assert!(r.scan_schedule().is_empty());
+        assert_eq!(empty_schedule(&r, false), None); // a raw stream needs no scan
+        let msg = empty_schedule(&r, true).unwrap();
+        assert!(
+            msg.starts_with("--duration 1 holds no whole LiDAR revolution at --lidar-hz 0.5"),
+            "{msg}"
+        );
+        // one frame in the run, dropped half the time
+        let empty = (1..40)
+            .map(|seed| {
+                let seed = seed.to_string();
+                let a = args(&[
+                    "--seed",
+                    &seed,
+                    "--duration",
+                    "1",
+                    "--fps",
+                    "1",
+                    "--drop",
+                    "0.49",
+                    "--width",
+                    "16",
+                    "--height",
+                    "16",
+                ]);
+                Renderer::new(config(&a.unwrap())).unwrap()
+            })
+            .find(|r| r.frame_schedule().is_empty())
+            .expect("a seed that drops its only frame");
+        let msg = empty_schedule(&empty, false).unwrap();
+        assert!(
+            msg.starts_with(
+                "--duration 1 at --fps 1 gives no camera frame (--drop 0.49 dropped them all)"
+            ),
+            "{msg}"
+        );
+        let r = Renderer::new(config(
+            &args(&["--duration", "1", "--width", "16", "--height", "16"]).unwrap(),
+        ))
+        .unwrap();
+        assert_eq!(empty_schedule(&r, true), None);
+    }
+
+    #[test]
+    fn progress_lines_say_how_far_and_how_long() {
+        let p = Progress {
+            sim_ns: 15_000_000_000,
+            sim_total_ns: 60_000_000_000,
+            frames: 440,
+            scans: 149,
+        };
+        assert_eq!(
+            progress_line(&p, Duration::from_secs(5)),
+            "vlsync-render: 15.0 of 60.0 s rendered (25 %), 440 frames, 149 scans, 5 s elapsed, \
+             about 15 s left\n"
+        );
+        let p = Progress { sim_ns: 0, ..p };
+        assert!(progress_line(&p, Duration::from_secs(5)).ends_with("time left unknown\n"));
     }
 }
