@@ -468,7 +468,7 @@ impl Renderer {
             *p = self.trajectory.pose(tau + u * c.exposure_s);
         }
         let mut pixels = vec![0u8; c.width * c.height];
-        let noise_seed = self.cfg.seed ^ info.index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let noise_seed = camera::frame_noise_seed(self.cfg.seed, info.index);
         let (w, h) = (c.width, c.height);
         let exp_ns = secs_to_nanos(c.exposure_s);
         if let Err(e) = self
