@@ -42,7 +42,8 @@
  *   while (!stop) { int r = vlsync_client_wait_next(c, 250, &e, err, sizeof err); ... }
  *
  * Which call takes which estimate: vlsync_client_wait_one hands out every estimate, one
- * per call, oldest first (a recorder); vlsync_client_wait_next, vlsync_client_latest and
+ * per call, oldest first (a recorder), starting with the daemon's last estimate before
+ * vlsync_client_open when it had one (its publish time tells); vlsync_client_wait_next, vlsync_client_latest and
  * vlsync_client_camera_to_lidar take everything pending and keep the newest, so an
  * estimate they passed over is not handed out by a later wait_one.
  */
@@ -168,7 +169,8 @@ int vlsync_client_wait_next(vlsync_client *c, int64_t timeout_ms, vlsync_estimat
                             char *err, size_t err_len);
 
 /* Waits up to timeout_ms (negative: no limit) for an estimate and writes the oldest one
- * pending: every estimate, one per call, in the order they were published. The
+ * pending: every estimate, one per call, in the order they were published (the first
+ * is the daemon's last one before vlsync_client_open, when it had one). The
  * subscriber buffers 16 (8 s at the default hop): a caller further behind loses the
  * oldest. 1: written to *out; 0: timeout, or a signal handled on this thread interrupted
  * the wait (EINTR; as for vlsync_client_wait_next); -1: error (err). */

@@ -635,7 +635,7 @@ impl OffsetClient {
         let ev = open_or_create_event(&node, &names.offset())?;
         let (subscriber, _) = subscriber(&svc, 16, &names.offset())?;
         let listener = listener(&ev, &names.offset())?;
-        let mut c = Self {
+        let c = Self {
             subscriber,
             listener,
             latest: None,
@@ -649,7 +649,10 @@ impl OffsetClient {
             _services: (svc, ev),
             _node: node,
         };
-        c.drain()?;
+        // nothing is taken here: the daemon's last estimate before this open (the
+        // service's history, delivered when the daemon next updates its connections,
+        // during or after this call) is then always the first `wait_one`/`wait_all`
+        // hands out, where draining it here made that depend on the timing
         Ok(c)
     }
 
@@ -769,7 +772,8 @@ impl OffsetClient {
 
     /// Every valid estimate pending, in order, each with the `CLOCK_MONOTONIC` time
     /// the daemon published it (what a recorder needs: [`OffsetClient::wait_next`]
-    /// keeps only the newest). Waits up to `timeout` on the offset event when none
+    /// keeps only the newest). The first is the daemon's last estimate before
+    /// [`OffsetClient::open`], when it had one (its publish time says so). Waits up to `timeout` on the offset event when none
     /// is pending; an empty vector on timeout, and early when a signal interrupts the
     /// wait. The subscriber buffers 16 estimates (8 s at the default hop): a caller
     /// that sleeps longer loses the oldest.
@@ -789,7 +793,8 @@ impl OffsetClient {
     }
 
     /// The oldest valid estimate pending, with the `CLOCK_MONOTONIC` time the daemon
-    /// published it: every estimate, one per call, in order (the C API's
+    /// published it: every estimate, one per call, in order, from the daemon's last one
+    /// before [`OffsetClient::open`] when it had one (the C API's
     /// `vlsync_client_wait_one`; [`OffsetClient::wait_all`] without its vector). Waits
     /// up to `timeout` on the offset event when none is pending: `Ok(None)` on
     /// timeout, and early when a signal interrupts the wait. The subscriber buffers 16

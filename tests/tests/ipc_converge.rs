@@ -65,6 +65,15 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     assert_eq!(conv.estimate.seq, newest.seq);
     assert!(conv.std_s >= newest.offset_std_s);
     drop(late);
+    // and the first that every-estimate reading hands out: open takes nothing, so it is
+    // that last estimate whenever the history arrives (during the open or after it)
+    let mut late_one = OffsetClient::open(&rig.prefix).unwrap();
+    let (first, _) = late_one
+        .wait_one(Duration::from_secs(3))
+        .unwrap()
+        .expect("wait_one hands out the daemon's last estimate before the open");
+    assert_eq!(first.seq, newest.seq);
+    drop(late_one);
     assert!(
         daemon.stop(Duration::from_secs(3)),
         "daemon did not exit cleanly:\n{}",
