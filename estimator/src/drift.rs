@@ -128,6 +128,9 @@ pub struct DriftFit {
     n_joint: usize,
     /// The raw window measurements' trend `(slope, var)` at the next joint measurement.
     raw_trend: Option<(f64, f64)>,
+    /// A restored slope's information `[tt, tz, zz, n]` ([`DriftFit::restore`]), added
+    /// to the closed segments' when estimating; it fades as they do.
+    restored: [f64; 4],
 }
 
 impl DriftFit {
@@ -151,6 +154,7 @@ impl DriftFit {
             joint_raw: [false; JOINT_HISTORY],
             n_joint: 0,
             raw_trend: None,
+            restored: [0.0; 4],
         }
     }
 
@@ -198,6 +202,22 @@ impl DriftFit {
     /// [`DriftFit::set_joint`].
     pub fn set_raw_trend(&mut self, trend: Option<(f64, f64)>) {
         self.raw_trend = trend;
+    }
+
+    /// A slope known from before (a restored state: `drift` with variance `var`), kept
+    /// as a closed segment's slope information is: it fades with the fit's memory and
+    /// wins over the prior as the data do, until [`DriftFit::forget_restored`].
+    pub fn restore(&mut self, drift: f64, var: f64) {
+        if !(drift.is_finite() && var.is_finite() && var > 0.0) {
+            return;
+        }
+        self.restored = [1.0 / var, drift / var, drift * drift / var, 1.0];
+    }
+
+    /// Drops the restored slope (the restored lock was found wrong: the state came
+    /// from another setup, and its drift is no more to be trusted than its offset).
+    pub fn forget_restored(&mut self) {
+        self.restored = [0.0; 4];
     }
 
     /// Forgets everything.
@@ -250,6 +270,9 @@ impl DriftFit {
             self.closed_zz *= f;
             self.closed_n *= f;
             self.closed_segments *= f;
+            for r in &mut self.restored {
+                *r *= f;
+            }
         }
         self.last_t = Some(t);
         if self.cur.count == 0 {
@@ -328,6 +351,11 @@ impl DriftFit {
     /// `(drift, variance)` in s/s and (s/s)², pending measurements included.
     pub fn estimate(&self) -> (f64, f64) {
         let mut all = self.clone();
+        let [tt, tz, zz, n] = self.restored;
+        all.closed_tt += tt;
+        all.closed_tz += tz;
+        all.closed_zz += zz;
+        all.closed_n += n;
         for i in 0..self.n_pending {
             let (a, b, c) = self.pending[i];
             all.commit(a, b, c);

@@ -814,6 +814,9 @@ impl Estimator {
             var,
         };
         self.d = (drift, drift_std * drift_std);
+        // the drift fit keeps the saved slope too: the first tracking hop takes its
+        // estimate from the fit, which otherwise knew only the prior (0 ± 50 ppm)
+        self.drift.restore(drift, drift_std * drift_std);
         self.epoch_ns = None;
         self.ever_locked = true;
         self.polarity = est.polarity;
@@ -1075,6 +1078,9 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
+        // a restored lock that is lost was no better than its state file: its drift
+        // goes with it (a no-op once the restored slope has faded or was never there)
+        self.drift.forget_restored();
         self.step_job = None;
         self.corr.restart_acq();
         self.enter_acquisition();

@@ -787,6 +787,43 @@ fn restore_starts_holding_near_the_saved_offset_and_relocks() {
     assert!((last.offset_s - run.truth.offset_at(last.t_ref_ns)).abs() < 0.01);
 }
 
+/// A restored drift is kept: the first tracking estimates after a restart carry the
+/// saved slope, not the prior's 0 (until 2026-12-06 the drift fit never heard of it and
+/// the first tracking hop replaced it with 0 ± 50 ppm).
+#[test]
+fn a_restored_drift_is_kept_after_the_relock() {
+    for seed in [1000u64, 1001, 1002] {
+        let run = generate(Family::Clocks, seed, Some(120.0));
+        let out = replay(&run, &mut Estimator::new(&EstimatorConfig::default()));
+        // as a daemon saves it after hours of tracking: the drift learnt to 2 ppm
+        let saved = vlsync_common::Estimate {
+            drift: run.truth.drift,
+            drift_std: 2e-6,
+            ..*last_tracking(&out).unwrap()
+        };
+        assert!(saved.drift.abs() > 10e-6, "seed {seed}: {saved:?}");
+        // the same clocks, a restart a second later (the offset moved by the drift)
+        let mut est = Estimator::new(&EstimatorConfig::default());
+        est.restore(&saved, 1.0);
+        let again = replay(&run, &mut est);
+        let first = &again[first_lock(&again)..];
+        for e in first
+            .iter()
+            .filter(|e| e.state == EstimatorState::Tracking)
+            .take(10)
+        {
+            assert!(
+                (e.drift - saved.drift).abs() <= 8e-6 && e.drift_std <= 5e-6,
+                "seed {seed}: drift {} ± {} ppm after the restore, {} ± {} saved",
+                e.drift * 1e6,
+                e.drift_std * 1e6,
+                saved.drift * 1e6,
+                saved.drift_std * 1e6
+            );
+        }
+    }
+}
+
 /// A saved tracking estimate of `offset_s` (1 ms, 1 ppm), as a state file holds one.
 fn saved_tracking(offset_s: f64) -> vlsync_common::Estimate {
     vlsync_common::Estimate {
