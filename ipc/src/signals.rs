@@ -13,8 +13,8 @@
 //! handlers up once, then puts back the action every signal had before (all of
 //! them are compared, not only iceoryx2's list), so a process keeps its signal
 //! dispositions; a signal that arrived meanwhile is raised again for that action. [`handle_termination_signals`] installs
-//! vlsync's own SIGINT/SIGTERM handler, which sets a flag that stays set:
-//! [`termination_requested`] reads it.
+//! vlsync's own SIGINT/SIGTERM (and SIGHUP, unless ignored) handler, which sets a flag
+//! that stays set: [`termination_requested`] reads it.
 #![allow(unsafe_code)]
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -85,7 +85,8 @@ pub fn tame_iceoryx2_signals() {
     });
 }
 
-/// Installs vlsync's SIGINT/SIGTERM handler (once per process), then
+/// Installs vlsync's SIGINT/SIGTERM handler, and SIGHUP's unless it is ignored (once
+/// per process), then
 /// [`tame_iceoryx2_signals`]: from then on a stop request sets the flag
 /// [`termination_requested`] reads, and no later signal (the SIGCONT systemd sends
 /// after SIGTERM) clears it. `SA_RESTART`, so other system calls carry on; waits
@@ -106,12 +107,19 @@ pub fn handle_termination_signals() {
         for signal in [libc::SIGINT, libc::SIGTERM] {
             set_action(signal, &action);
         }
+        // a closed terminal or ssh session (SIGHUP) stops as Ctrl-C does, with every
+        // clean-up (a camera program's process group, buffered truth rows), where its
+        // default action killed the process outright; unless it is ignored (`nohup`:
+        // the caller asked to outlive the terminal)
+        if current_action(libc::SIGHUP).is_some_and(|a| a.sa_sigaction != libc::SIG_IGN) {
+            set_action(libc::SIGHUP, &action);
+        }
     });
     // after ours, so a stop iceoryx2's handler caught in between reaches the flag
     tame_iceoryx2_signals();
 }
 
-/// True once SIGINT or SIGTERM arrived after [`handle_termination_signals`] (which
+/// True once SIGINT, SIGTERM or (unless it was ignored) SIGHUP arrived after [`handle_termination_signals`] (which
 /// `create_node(_, true)` calls), and from then on, in every thread.
 pub fn termination_requested() -> bool {
     TERMINATION.load(Ordering::SeqCst)
@@ -123,8 +131,8 @@ mod tests {
 
     /// The process keeps the actions its signals had: after iceoryx2's set-up (here
     /// forced, as a node's first shared memory does; asked again, as shared-memory
-    /// creation does later) no signal but SIGINT and SIGTERM has a handler of
-    /// iceoryx2's (a test process has default or ignored actions, and std's own
+    /// creation does later) no signal but SIGINT, SIGTERM and SIGHUP (vlsync's, not
+    /// ignored in a test process) has a handler, none of them iceoryx2's (a test process has default or ignored actions, and std's own
     /// handlers for SIGSEGV and SIGBUS); and SIGTERM reaches vlsync's flag even when
     /// SIGCONT follows at once, as systemd sends them.
     #[test]
@@ -136,9 +144,12 @@ mod tests {
             let Some(a) = current_action(signal) else {
                 continue;
             };
-            let want_ours = signal == libc::SIGINT || signal == libc::SIGTERM;
+            let want_ours =
+                signal == libc::SIGINT || signal == libc::SIGTERM || signal == libc::SIGHUP;
             let std_own = signal == libc::SIGSEGV || signal == libc::SIGBUS;
-            if want_ours {
+            // (SIGHUP stays ignored where the test runs under nohup)
+            let nohup = signal == libc::SIGHUP && a.sa_sigaction == libc::SIG_IGN;
+            if want_ours && !nohup {
                 assert_eq!(a.sa_sigaction, ours, "signal {signal}");
             } else if !std_own {
                 assert!(
