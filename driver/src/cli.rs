@@ -33,9 +33,10 @@ pub struct DriverArgs {
     /// Run the live signature simulator of this family (e.g. `robot`).
     #[arg(long)]
     pub sim: Option<String>,
-    /// Simulator seed (both drivers of a pair must use the same).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
-    pub seed: u64,
+    /// With --sim: the simulator's seed (both drivers of a pair must use the same);
+    /// default 1. (--render takes its seed as its value.)
+    #[arg(long, allow_negative_numbers = true)]
+    pub seed: Option<u64>,
     /// Simulated or rendered duration in seconds (default: the family's; 60 s rendered).
     #[arg(long, allow_negative_numbers = true)]
     pub duration: Option<f64>,
@@ -58,7 +59,7 @@ pub struct DriverArgs {
     /// Camera: run COMMAND (`sh -c`) and read raw frames from its standard output, e.g.
     /// "rpicam-vid -t 0 -n --flush --codec yuv420 --width 320 --height 240 --framerate 30 -o -"
     /// for a Raspberry Pi camera module; started again when it stalls. Needs --size.
-    #[arg(long, value_name = "COMMAND")]
+    #[arg(long, value_name = "COMMAND", value_parser = not_blank)]
     pub pipe_cmd: Option<String>,
     /// With --pipe or --pipe-cmd: the frames' size, WIDTHxHEIGHT (e.g. 320x240).
     #[arg(long, value_name = "WxH")]
@@ -69,13 +70,13 @@ pub struct DriverArgs {
     pub raw_format: Option<String>,
     /// With --pipe or --pipe-cmd: bytes per row of the luma plane, when rows are
     /// padded (default: no padding).
-    #[arg(long, value_name = "BYTES")]
+    #[arg(long, allow_negative_numbers = true, value_name = "BYTES")]
     pub stride: Option<usize>,
     /// LiDAR: an LD06/LD19 on this serial port, e.g. /dev/ttyUSB0.
-    #[arg(long, value_name = "DEVICE")]
+    #[arg(long, value_name = "DEVICE", value_parser = not_blank)]
     pub ld06: Option<String>,
     /// LiDAR: an RPLIDAR (A1/A2/C1, standard scan) on this serial port; the scan request is sent.
-    #[arg(long, value_name = "DEVICE")]
+    #[arg(long, value_name = "DEVICE", value_parser = not_blank)]
     pub rplidar: Option<String>,
     /// Serial baud rate (default: LD06 230400, RPLIDAR 115200).
     #[arg(long, allow_negative_numbers = true)]
@@ -94,8 +95,9 @@ pub struct DriverArgs {
     pub render: Option<u64>,
     /// Publish as fast as possible instead of in real time (recorded and simulated
     /// sources; a live device publishes as its data arrives). Nothing slows the
-    /// driver down for the daemon: a running daemon keeps what its 256-sample buffer
-    /// holds when it cannot keep up; --speed 100 is lossless.
+    /// driver down for the daemon: a running daemon keeps what its subscriber buffer
+    /// (`services.subscriber_buffer`, default 256 samples) holds when it cannot keep
+    /// up; --speed 100 is lossless.
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
     /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
@@ -109,6 +111,8 @@ pub struct DriverArgs {
     pub wait_device: bool,
     /// Common start instant on CLOCK_MONOTONIC in ns (the demo gives both drivers
     /// the same one; a restarted driver given the same resumes at the current position).
+    /// Recorded and simulated sources paced in real time only (not with --fast, nor
+    /// a live device).
     #[arg(long, allow_negative_numbers = true)]
     pub start_at: Option<i64>,
     /// How a rendered run is stamped: `sensor` (the rendered sensor clocks),
@@ -116,7 +120,8 @@ pub struct DriverArgs {
     /// `software` (camera only: CLOCK_MONOTONIC read after the front-end
     /// processed each frame, frames delivered in real time). `mono` and
     /// `software` need real time (no --fast or --speed other than 1) and both
-    /// drivers of a pair must share --start-at.
+    /// drivers of a pair must share --start-at (without it a driver picks one, 1 s
+    /// ahead, and says it in its `publishing` line).
     #[arg(long, value_enum, default_value_t = StampArg::Sensor)]
     pub stamp: StampArg,
     /// With `--stamp software`: the camera front-end's CPU cost per frame, ms. The
@@ -153,6 +158,20 @@ pub enum StampArg {
 /// (the render thread fills its queue meanwhile).
 pub const DEFAULT_START_DELAY_NS: i64 = 1_000_000_000;
 
+/// `--seed` when not given.
+pub const DEFAULT_SEED: u64 = 1;
+
+/// Refuses an empty (or blank) device path or command, naming its flag (clap's
+/// error): `--ld06 ''` would otherwise open nothing, or wait forever with
+/// `--wait-device`.
+fn not_blank(s: &str) -> Result<String, String> {
+    if s.trim().is_empty() {
+        Err("an empty value names no device or command".into())
+    } else {
+        Ok(s.to_string())
+    }
+}
+
 /// A source with how to pace it.
 pub struct Selected {
     /// The source.
@@ -160,9 +179,12 @@ pub struct Selected {
     /// Pacing anchor (sensor time of the start instant); `None`: a live device,
     /// published as data arrives.
     pub anchor_ns: Option<i64>,
-    /// The start instant the stamps were built on (`--stamp mono|software`
-    /// without `--start-at` picks one); `None`: `--start-at` or the start of the run.
+    /// The start instant: `--start-at`, or the one `--stamp mono|software` without
+    /// it picked (its stamps are built on it); `None`: the start of the run.
     pub start_at: Option<i64>,
+    /// Stopped before there was a source (a stop while waiting for the device):
+    /// why, for the log; the driver then publishes nothing.
+    pub stopped: Option<String>,
 }
 
 /// How long a serial LiDAR may stay silent before the driver says so and reopens its
@@ -332,6 +354,30 @@ pub fn select_source(
             }
         )));
     }
+    // options that would do nothing here are refused, not ignored
+    if args.start_at.is_some() {
+        if live.contains(&flag) {
+            return Err(DriverError::Options(format!(
+                "--start-at applies to recorded and simulated sources paced in real time; \
+                 {flag} is a live device, published as its data arrives"
+            )));
+        }
+        if args.fast {
+            return Err(DriverError::Options(
+                "--start-at sets when real-time pacing starts; --fast publishes at once, \
+                 without pacing"
+                    .into(),
+            ));
+        }
+    }
+    if args.seed.is_some() && flag != "--sim" {
+        return Err(DriverError::Options(if flag == "--render" {
+            "--seed applies to --sim only; --render takes its seed as its value (--render SEED)"
+                .into()
+        } else {
+            format!("--seed applies to --sim only; {flag} has no seed")
+        }));
+    }
     let scan_flags = ["--render", "--mcap", "--scans", "--ld06", "--rplidar"];
     if args.opposite_window && !(stream == Stream::Lidar && scan_flags.contains(&flag)) {
         return Err(DriverError::Options(
@@ -340,14 +386,21 @@ pub fn select_source(
     }
     let front = lidar_front(args)?;
     let src = DriverError::Source;
-    let fronted = |s: raw::LidarSource| s.with_front(&front).map_err(DriverError::Source);
+    // every front-end source ends at a stop, the recorded ones too (read ahead
+    // here up to their first usable sample)
+    let fronted = |s: raw::LidarSource| {
+        s.with_front(&front)
+            .map(|s| s.with_stop(stop))
+            .map_err(DriverError::Source)
+    };
     let offline = |source: Box<dyn Source>| -> Result<Selected, DriverError> {
         let p = raw::Prefetched::new(source).map_err(DriverError::Source)?;
         let anchor = p.first_t_ns().unwrap_or(0);
         Ok(Selected {
             source: Box::new(p),
             anchor_ns: Some(anchor),
-            start_at: None,
+            start_at: args.start_at,
+            stopped: None,
         })
     };
     match (flag, stream) {
@@ -358,7 +411,8 @@ pub fn select_source(
             Ok(Selected {
                 source: Box::new(s),
                 anchor_ns: Some(anchor),
-                start_at: None,
+                start_at: args.start_at,
+                stopped: None,
             })
         }
         ("--sim", _) => {
@@ -366,12 +420,14 @@ pub fn select_source(
             let family: vlsync_sim::Family = fam
                 .parse()
                 .map_err(|e| DriverError::Options(format!("--sim: {e}")))?;
-            let run = vlsync_sim::try_generate(family, args.seed, args.duration)
+            let seed = args.seed.unwrap_or(DEFAULT_SEED);
+            let run = vlsync_sim::try_generate(family, seed, args.duration)
                 .map_err(|e| DriverError::Options(format!("--duration: {e}")))?;
             Ok(Selected {
                 source: Box::new(VecSource::from_sim(&run, stream)),
                 anchor_ns: Some(sim_anchor_ns(&run)),
-                start_at: None,
+                start_at: args.start_at,
+                stopped: None,
             })
         }
         ("--render", _) => {
@@ -413,13 +469,16 @@ pub fn select_source(
                     _ => Some(anchor + stamp.shift_ns()),
                 },
                 start_at,
+                stopped: None,
             })
         }
         ("--mcap", _) => {
             let p = args.mcap.as_deref().unwrap_or(Path::new(""));
             let topic = args.topic.as_deref();
             match stream {
-                Stream::Cam => offline(Box::new(raw::CamSource::mcap(p, topic).map_err(src)?)),
+                Stream::Cam => offline(Box::new(
+                    raw::CamSource::mcap(p, topic).map_err(src)?.with_stop(stop),
+                )),
                 Stream::Lidar => offline(Box::new(fronted(
                     raw::LidarSource::mcap(p, topic).map_err(src)?,
                 )?)),
@@ -427,7 +486,9 @@ pub fn select_source(
         }
         ("--frames", Stream::Cam) => {
             let d = args.frames.as_deref().unwrap_or(Path::new(""));
-            offline(Box::new(raw::CamSource::frames_dir(d).map_err(src)?))
+            offline(Box::new(
+                raw::CamSource::frames_dir(d).map_err(src)?.with_stop(stop),
+            ))
         }
         ("--scans", Stream::Lidar) => {
             let p = args.scans.as_deref().unwrap_or(Path::new(""));
@@ -444,6 +505,7 @@ pub fn select_source(
                 source: Box::new(raw::CamSource::v4l2_at(d, camera_fps(args)?, stop).map_err(src)?),
                 anchor_ns: None,
                 start_at: None,
+                stopped: None,
             })
         }
         ("--pipe" | "--pipe-cmd", Stream::Cam) => {
@@ -458,6 +520,7 @@ pub fn select_source(
                 source: Box::new(raw::CamSource::pipe(input, cfg, stop).map_err(src)?),
                 anchor_ns: None,
                 start_at: None,
+                stopped: None,
             })
         }
         ("--ld06" | "--rplidar", Stream::Lidar) => {
@@ -475,6 +538,7 @@ pub fn select_source(
                 )?),
                 anchor_ns: None,
                 start_at: None,
+                stopped: None,
             })
         }
         (f, _) => Err(wrong_stream(f)),
@@ -528,16 +592,71 @@ pub fn wait_for_device(dev: &Path, stream: Stream, stop: raw::StopFn, poll: Dura
     }
 }
 
-/// A source with nothing to publish: stopped while waiting for `dev`.
+/// A source with nothing to publish: stopped while waiting for `dev`
+/// ([`Selected::stopped`]).
 fn stopped_while_waiting(dev: &Path) -> Selected {
     Selected {
-        source: Box::new(VecSource::new(
-            Vec::new(),
-            format!("nothing: stopped while waiting for {}", dev.display()),
-        )),
+        source: Box::new(VecSource::new(Vec::new(), "nothing")),
         anchor_ns: None,
         start_at: None,
+        stopped: Some(format!("stopped while waiting for {}", dev.display())),
     }
+}
+
+/// Why the driver stops before it publishes anything: a stop while it waited for
+/// the device (`stopped`), or one that came while the source opened or read ahead
+/// (`stop()`); `None`: it goes on to publish. Either way no iceoryx2 node is made.
+fn stopped_before_publishing(stopped: Option<String>, stop: raw::StopFn) -> Option<String> {
+    stopped.or_else(|| stop().then(|| "stopped before publishing".to_string()))
+}
+
+/// The driver's first line once it publishes: what, where, and the start instant
+/// it picked, if it did (`--stamp mono|software` without `--start-at`), so that
+/// the other driver of the pair can be given the same.
+fn publishing_line(stream: Stream, what: &str, service: &str, picked: Option<i64>) -> String {
+    let mut line = format!("vlsync-{stream}: publishing {what} on {service}");
+    if let Some(t) = picked {
+        line.push_str(&format!(
+            "; start instant picked: --start-at {t} (CLOCK_MONOTONIC ns): give the other \
+             driver of the pair the same"
+        ));
+    }
+    line.push('\n');
+    line
+}
+
+/// A span of time as the progress line says it: seconds, minutes, hours or days.
+fn span_text(d: Duration) -> String {
+    let s = d.as_secs_f64();
+    match s {
+        s if s < 120.0 => format!("{s:.0} s"),
+        s if s < 7200.0 => format!("{:.0} min", s / 60.0),
+        s if s < 172_800.0 => format!("{:.1} h", s / 3600.0),
+        s => format!("{:.1} days", s / 86_400.0),
+    }
+}
+
+/// A progress line: what the run did in the `since` since the previous one
+/// (`last`'s totals), and the source's report.
+fn progress_line(
+    stream: Stream,
+    s: &RunSummary,
+    last: &RunSummary,
+    since: Duration,
+    r: Option<String>,
+) -> String {
+    let unreached = s.unreached - last.unreached;
+    format!(
+        "vlsync-{stream}: last {}: {} published, {} failed ({} published in all){}{}\n",
+        span_text(since),
+        s.published - last.published,
+        s.failed - last.failed,
+        s.published,
+        when_any(unreached, |n| format!(
+            ", {n} of them reached no subscriber (no daemon running)"
+        )),
+        r.map(|r| format!("; {r}")).unwrap_or_default()
+    )
 }
 
 /// The configuration of --config (defaults without one).
@@ -642,7 +761,15 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         mut source,
         anchor_ns,
         start_at,
+        stopped,
     } = select_source(args, stream, termination_requested)?;
+    if let Some(why) = stopped_before_publishing(stopped, termination_requested) {
+        vlsync_common::console::print_err(&format!("vlsync-{stream}: {why}\n"));
+        return Ok(RunSummary {
+            interrupted: true,
+            ..RunSummary::default()
+        });
+    }
     let node = create_node(&format!("vlsync-{stream}"), true).map_err(DriverError::Ipc)?;
     // a service this driver creates serves the daemon's configured buffer
     // (validated 1..=65536)
@@ -660,28 +787,18 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         Some(anchor) => Pacing::Scaled {
             speed: args.speed.unwrap_or(1.0),
             anchor_ns: anchor,
-            start_mono_ns: start_at.or(args.start_at),
+            start_mono_ns: start_at,
         },
     };
-    vlsync_common::console::print_err(&format!(
-        "vlsync-{stream}: publishing {} on {}\n",
-        source.describe(),
-        names.signature(stream)
+    vlsync_common::console::print_err(&publishing_line(
+        stream,
+        &source.describe(),
+        &names.signature(stream),
+        start_at.filter(|_| args.start_at.is_none()),
     ));
     let mut last = RunSummary::default();
-    let mut report = |s: &RunSummary, r: Option<String>| {
-        let unreached = s.unreached - last.unreached;
-        vlsync_common::console::print_err(&format!(
-            "vlsync-{stream}: last {} min: {} published, {} failed ({} published in all){}{}\n",
-            PROGRESS_EVERY.as_secs() / 60,
-            s.published - last.published,
-            s.failed - last.failed,
-            s.published,
-            when_any(unreached, |n| format!(
-                ", {n} of them reached no subscriber (no daemon running)"
-            )),
-            r.map(|r| format!("; {r}")).unwrap_or_default()
-        ));
+    let mut report = |s: &RunSummary, since: Duration, r: Option<String>| {
+        vlsync_common::console::print_err(&progress_line(stream, s, &last, since, r));
         last = *s;
     };
     let result = run(
@@ -743,7 +860,9 @@ pub const EXIT_CONFIG: u8 = 78;
 /// take the last samples (it needs well under a millisecond once woken).
 pub const LINGER: Duration = Duration::from_millis(500);
 
-/// How often a driver writes a progress line (journald under systemd).
+/// How often a driver writes a progress line (journald under systemd), whether it
+/// publishes or not (a sensor that gives no sample: a parked robot); each says the
+/// real time since the previous one.
 pub const PROGRESS_EVERY: Duration = Duration::from_secs(600);
 
 /// Options only the camera driver takes (clap's ids).
@@ -1117,11 +1236,11 @@ mod tests {
         stopper.join().unwrap();
         let report = src.report().unwrap();
         let reopens: u64 = report
-            .split("; the camera program reopened ")
+            .split("; the camera program restarted ")
             .nth(1)
             .and_then(|r| r.split(' ').next())
             .and_then(|n| n.parse().ok())
-            .unwrap_or_else(|| panic!("no reopening in: {report}"));
+            .unwrap_or_else(|| panic!("no restart in: {report}"));
         // 1.5 s of a program that stalls 0.3 s after each start
         assert!(reopens >= 2, "{report}");
     }
@@ -1186,11 +1305,227 @@ mod tests {
         // the open returns at once; no writer ever comes: the driver's error, no reopen
         let mut src = raw::CamSource::pipe(raw::PipeInput::Path(fifo.clone()), cfg, never).unwrap();
         let e = src.next_sample().unwrap_err().to_string();
+        // no program behind a FIFO that this driver knows of: its writer is named
         assert!(
-            e.contains("camera program: no frame for 0.")
-                && e.contains(&fifo.display().to_string()),
+            e.contains(&format!("writer of {}: no frame for 0.", fifo.display())),
             "{e}"
         );
+        assert!(!e.contains("camera program:"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn yes() -> bool {
+        true
+    }
+
+    #[test]
+    fn options_that_would_do_nothing_are_refused_naming_why() {
+        let t = vlsync_ipc::monotonic_ns().to_string();
+        let lidar_error = |a: &[&str]| match select_source(&args(a), Stream::Lidar, never) {
+            Err(DriverError::Options(e)) => e,
+            Err(e) => panic!("not an options error: {e}"),
+            Ok(_) => panic!("accepted: {a:?}"),
+        };
+        for (a, want) in [
+            (
+                vec!["--pipe-cmd", "true", "--size", "8x8", "--start-at", &t],
+                "--start-at applies to recorded and simulated sources paced in real time; \
+                 --pipe-cmd is a live device, published as its data arrives",
+            ),
+            (
+                vec!["--pipe", "-", "--size", "8x8", "--start-at", &t],
+                "--start-at applies to recorded and simulated sources paced in real time; \
+                 --pipe is a live device, published as its data arrives",
+            ),
+            (
+                vec!["--csv", "/nonexistent.csv", "--fast", "--start-at", &t],
+                "--start-at sets when real-time pacing starts; --fast publishes at once, \
+                 without pacing",
+            ),
+            (
+                vec!["--render", "2", "--seed", "2"],
+                "--seed applies to --sim only; --render takes its seed as its value \
+                 (--render SEED)",
+            ),
+            (
+                vec!["--csv", "/nonexistent.csv", "--seed", "1"],
+                "--seed applies to --sim only; --csv has no seed",
+            ),
+        ] {
+            assert_eq!(options_error(&a), want, "{a:?}");
+        }
+        assert_eq!(
+            lidar_error(&["--ld06", "/dev/ttyUSB0", "--start-at", &t]),
+            "--start-at applies to recorded and simulated sources paced in real time; \
+             --ld06 is a live device, published as its data arrives"
+        );
+        // where they matter they pass (here on to the missing file)
+        for a in [
+            vec!["--csv", "/nonexistent.csv", "--start-at", &t],
+            vec![
+                "--csv",
+                "/nonexistent.csv",
+                "--speed",
+                "2",
+                "--start-at",
+                &t,
+            ],
+        ] {
+            match select_source(&args(&a), Stream::Cam, never) {
+                Err(DriverError::Source(e)) => assert!(e.0.contains("/nonexistent.csv"), "{e}"),
+                other => panic!("{a:?}: {:?}", other.map(|_| ()).map_err(|e| e.to_string())),
+            }
+        }
+        let sim = select_source(
+            &args(&[
+                "--sim",
+                "robot",
+                "--seed",
+                "2",
+                "--duration",
+                "5",
+                "--start-at",
+                &t,
+            ]),
+            Stream::Cam,
+            never,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(sim.start_at, Some(t.parse().unwrap()));
+        assert!(sim.source.describe().contains("seed 2"));
+        // without --seed the simulator's seed is 1, as before
+        let sim = select_source(
+            &args(&["--sim", "robot", "--duration", "5"]),
+            Stream::Cam,
+            never,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(sim.source.describe().contains("seed 1"));
+    }
+
+    /// An empty device or command is refused by the parser, naming its flag (an
+    /// options error: exit 78); a negative --stride is its flag's invalid value.
+    #[test]
+    fn empty_devices_and_commands_and_negative_strides_are_refused_naming_the_flag() {
+        for (stream, a, flag) in [
+            (Stream::Lidar, &["--ld06", ""][..], "--ld06 <DEVICE>"),
+            (
+                Stream::Lidar,
+                &["--ld06", "", "--wait-device"][..],
+                "--ld06 <DEVICE>",
+            ),
+            (Stream::Lidar, &["--rplidar", " "][..], "--rplidar <DEVICE>"),
+            (Stream::Cam, &["--pipe-cmd", ""][..], "--pipe-cmd <COMMAND>"),
+            (
+                Stream::Cam,
+                &["--v4l2", "", "--wait-device"][..],
+                "--v4l2 <DEVICE>",
+            ),
+            (
+                Stream::Cam,
+                &["--pipe", "", "--size", "8x8"][..],
+                "--pipe <PATH>",
+            ),
+            (
+                Stream::Cam,
+                &["--pipe", "-", "--size", "8x8", "--stride", "-1"][..],
+                "'-1' for '--stride <BYTES>'",
+            ),
+        ] {
+            let e = command(stream)
+                .try_get_matches_from(std::iter::once("x").chain(a.iter().copied()))
+                .map(|_| ())
+                .expect_err("accepted");
+            // `main` exits 78 on every error that goes to stderr
+            assert!(e.use_stderr(), "{a:?}");
+            let text = e.render().to_string();
+            assert!(text.contains(flag), "{a:?}: {text}");
+            assert!(!text.contains("unexpected argument"), "{a:?}: {text}");
+        }
+    }
+
+    #[test]
+    fn a_stop_while_waiting_for_the_device_publishes_nothing() {
+        let sel = match select_source(
+            &args(&["--ld06", "/nonexistent/vlsync-tty", "--wait-device"]),
+            Stream::Lidar,
+            yes,
+        ) {
+            Ok(s) => s,
+            Err(e) => panic!("{e}"),
+        };
+        let why = stopped_before_publishing(sel.stopped, never);
+        assert_eq!(
+            why.as_deref(),
+            Some("stopped while waiting for /nonexistent/vlsync-tty")
+        );
+        // a stop while a source opened or read ahead: nothing published either
+        assert_eq!(
+            stopped_before_publishing(None, yes).as_deref(),
+            Some("stopped before publishing")
+        );
+        assert_eq!(stopped_before_publishing(None, never), None);
+    }
+
+    #[test]
+    fn recorded_and_rendered_sources_end_at_a_stop() {
+        for stream in [Stream::Cam, Stream::Lidar] {
+            let mut sel =
+                match select_source(&args(&["--render", "1", "--duration", "2"]), stream, yes) {
+                    Ok(s) => s,
+                    Err(e) => panic!("{e}"),
+                };
+            assert_eq!(sel.source.next_sample().unwrap(), None, "{stream}");
+            let report = sel.source.report().unwrap();
+            assert!(report.starts_with("0 "), "{stream}: {report}");
+        }
+    }
+
+    #[test]
+    fn a_start_instant_picked_for_mono_stamps_is_said() {
+        let before = vlsync_ipc::monotonic_ns();
+        let sel = match select_source(
+            &args(&["--render", "1", "--duration", "2", "--stamp", "mono"]),
+            Stream::Lidar,
+            never,
+        ) {
+            Ok(s) => s,
+            Err(e) => panic!("{e}"),
+        };
+        let t = sel.start_at.expect("a start instant");
+        assert!(t >= before + DEFAULT_START_DELAY_NS, "{t} {before}");
+        let line = publishing_line(Stream::Lidar, "render", "p/lidar/signature", Some(t));
+        assert_eq!(
+            line,
+            format!(
+                "vlsync-lidar: publishing render on p/lidar/signature; start instant picked: \
+                 --start-at {t} (CLOCK_MONOTONIC ns): give the other driver of the pair the same\n"
+            )
+        );
+        assert_eq!(
+            publishing_line(Stream::Cam, "x", "p/cam/signature", None),
+            "vlsync-cam: publishing x on p/cam/signature\n"
+        );
+    }
+
+    #[test]
+    fn a_progress_line_says_the_real_time_since_the_previous_one() {
+        let last = RunSummary {
+            published: 10,
+            ..RunSummary::default()
+        };
+        let now = RunSummary {
+            published: 12,
+            ..RunSummary::default()
+        };
+        assert_eq!(
+            progress_line(Stream::Cam, &now, &last, PROGRESS_EVERY, Some("r".into())),
+            "vlsync-cam: last 10 min: 2 published, 0 failed (12 published in all); r\n"
+        );
+        let hours = Duration::from_secs(3 * 3600 + 1800);
+        assert!(progress_line(Stream::Lidar, &now, &now, hours, None)
+            .starts_with("vlsync-lidar: last 3.5 h: 0 published,"));
+        assert_eq!(span_text(Duration::from_secs(90)), "90 s");
+        assert_eq!(span_text(Duration::from_secs(3 * 86_400)), "3.0 days");
     }
 }

@@ -42,10 +42,40 @@ impl fmt::Display for SourceError {
 
 impl std::error::Error for SourceError {}
 
+/// What a source has next ([`Source::next_event`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Next {
+    /// A sample.
+    Sample(Sample),
+    /// No sample yet after about [`IDLE_EVERY`] of work or waiting (frames or scans
+    /// that gave none, a silent sensor): the caller does its periodic work (a
+    /// progress line, a stop check) and asks again.
+    Idle,
+    /// The end of the source, or a stop request it saw.
+    End,
+}
+
+/// How long a source that overrides [`Source::next_event`] works toward a sample
+/// before it returns [`Next::Idle`]. Checked between frames or reads, so a single
+/// wait that blocks longer (a camera's wait for a frame, up to its stall time)
+/// delays it.
+pub const IDLE_EVERY: Duration = Duration::from_secs(1);
+
 /// A stream of signature samples on one sensor clock.
 pub trait Source {
     /// The next sample, `Ok(None)` at the end. May block (a live sensor).
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError>;
+    /// The next sample, or [`Next::Idle`] when the source has worked or waited
+    /// about [`IDLE_EVERY`] without one ([`run`] uses it, so that a driver whose
+    /// sensor gives no sample for hours still reports and sees a stop). The default
+    /// calls [`Source::next_sample`] and is never idle; the front-end sources
+    /// override it, and a source that wraps another should forward it.
+    fn next_event(&mut self) -> Result<Next, SourceError> {
+        Ok(match self.next_sample()? {
+            Some(s) => Next::Sample(s),
+            None => Next::End,
+        })
+    }
     /// A short description for logs.
     fn describe(&self) -> String;
     /// What the source dropped or counted, reported once at exit (front-end
@@ -261,14 +291,21 @@ pub struct RunSummary {
     pub steps_back: u64,
 }
 
-/// A progress report of a long run: every `every`, [`run`] calls `report` with the
-/// totals so far and the source's own counts ([`Source::report`]); a driver under
+/// A progress report of a long run: once `every` has passed since the start or the
+/// last report, [`run`] calls `report` with the totals so far, the time since that
+/// previous report and the source's own counts ([`Source::report`]); a driver under
 /// systemd runs for months, and its journal should say it is alive and how it fares.
+/// The report is due by time, not by samples: it is checked before each sample,
+/// while real-time pacing waits, and at each [`Next::Idle`] of the source, so a
+/// sensor that gives no sample (a parked robot) still gets its lines, about
+/// [`IDLE_EVERY`] late at most (more while a live camera's wait for a frame lasts,
+/// up to its stall time).
 pub struct Progress<'a> {
     /// The period.
     pub every: Duration,
-    /// Called with the totals so far and the source's report.
-    pub report: &'a mut dyn FnMut(&RunSummary, Option<String>),
+    /// Called with the totals so far, the real time since the previous report (or
+    /// the start) and the source's report.
+    pub report: &'a mut dyn FnMut(&RunSummary, Duration, Option<String>),
     /// Called once for each sample real-time pacing waits longer than
     /// [`LONG_WAIT`] for after the previous one (the stamps jump ahead), with a
     /// line that says so: a driver that falls silent for days should say why.
@@ -353,13 +390,65 @@ fn wait_text(ns: Nanos) -> String {
     }
 }
 
+/// Where [`run`] publishes: the [`SignaturePublisher`] (a test's stand-in).
+trait Sink {
+    fn publish(&mut self, t_ns: Nanos, value: f64) -> Result<u64, IpcError>;
+    fn unreached(&self) -> u64;
+    fn unwoken(&self) -> u64;
+}
+
+impl Sink for SignaturePublisher {
+    fn publish(&mut self, t_ns: Nanos, value: f64) -> Result<u64, IpcError> {
+        SignaturePublisher::publish(self, t_ns, value)
+    }
+    fn unreached(&self) -> u64 {
+        SignaturePublisher::unreached(self)
+    }
+    fn unwoken(&self) -> u64 {
+        SignaturePublisher::unwoken(self)
+    }
+}
+
 /// Publishes every sample of `source` with `pacing` until it ends or `stop()`
 /// returns true. Publish failures are counted, not fatal (the daemon may be
 /// restarting); more than `max_consecutive_failures` in a row is an error.
 /// With `truth`, every published sample whose truth the source knows gets a row.
+/// A source that ends while `stop()` is true (a live source returns its end when
+/// asked to stop) makes an interrupted run, not a normal end.
 pub fn run(
     source: &mut dyn Source,
     publisher: &mut SignaturePublisher,
+    pacing: Pacing,
+    stop: &dyn Fn() -> bool,
+    truth: Option<&mut TruthLog>,
+    progress: Option<Progress<'_>>,
+) -> Result<RunSummary, DriverError> {
+    run_into(source, publisher, pacing, stop, truth, progress)
+}
+
+/// [`Progress::report`] when one is due: `every` since `last`, the previous
+/// report's instant (the start's at first), which it moves to now.
+fn report_if_due(
+    progress: Option<&mut Progress<'_>>,
+    last: &mut Nanos,
+    sum: &RunSummary,
+    source: &dyn Source,
+) {
+    let Some(p) = progress else {
+        return;
+    };
+    let now = monotonic_ns();
+    let since = now.saturating_sub(*last).max(0);
+    if since as u128 >= p.every.as_nanos() {
+        *last = now;
+        (p.report)(sum, Duration::from_nanos(since as u64), source.report());
+    }
+}
+
+/// [`run`] into any [`Sink`].
+fn run_into(
+    source: &mut dyn Source,
+    publisher: &mut dyn Sink,
     pacing: Pacing,
     stop: &dyn Fn() -> bool,
     mut truth: Option<&mut TruthLog>,
@@ -391,17 +480,23 @@ pub fn run(
     };
     let mut sum = RunSummary::default();
     let mut consecutive = 0u64;
-    let mut next_progress = progress
-        .as_ref()
-        .map(|p| started.saturating_add(p.every.as_nanos().min(i64::MAX as u128) as i64));
-    while let Some(s) = source.next_sample().map_err(DriverError::Source)? {
-        if let (Some(p), Some(due)) = (progress.as_mut(), next_progress.as_mut()) {
-            let now = monotonic_ns();
-            if now >= *due {
-                *due = now.saturating_add(p.every.as_nanos().min(i64::MAX as u128) as i64);
-                (p.report)(&sum, source.report());
+    // the previous progress report's instant (the start's before the first)
+    let mut last_report = started;
+    loop {
+        let s = match source.next_event().map_err(DriverError::Source)? {
+            Next::Sample(s) => s,
+            // no sample for a while (a parked robot's sensor): a report may be due
+            Next::Idle => {
+                report_if_due(progress.as_mut(), &mut last_report, &sum, source);
+                if stop() {
+                    sum.interrupted = true;
+                    return Ok(sum);
+                }
+                continue;
             }
-        }
+            Next::End => break,
+        };
+        report_if_due(progress.as_mut(), &mut last_report, &sum, source);
         if stop() {
             sum.interrupted = true;
             return Ok(sum);
@@ -435,6 +530,8 @@ pub fn run(
                     sum.interrupted = true;
                     return Ok(sum);
                 }
+                // a wait of days for stamps far ahead still reports
+                report_if_due(progress.as_mut(), &mut last_report, &sum, source);
                 let wait = Duration::from_nanos((due - now) as u64).min(MAX_SLEEP);
                 std::thread::sleep(wait);
             }
@@ -460,6 +557,9 @@ pub fn run(
             }
         }
     }
+    // a live source (and, asked to stop, any front-end source) ends when stopped:
+    // that is an interruption, not the end of its data
+    sum.interrupted = stop();
     Ok(sum)
 }
 
@@ -596,7 +696,7 @@ mod tests {
             Sample::new(1_000_000 * S, 2.0),
         ];
         let lines = RefCell::new(vec![]);
-        let mut report = |_: &RunSummary, _: Option<String>| {};
+        let mut report = |_: &RunSummary, _: Duration, _: Option<String>| {};
         let mut notice = |l: String| lines.borrow_mut().push(l);
         let progress = Progress {
             every: Duration::from_secs(3600),
@@ -628,7 +728,8 @@ mod tests {
     fn progress_reports_the_totals_so_far() {
         let samples: Vec<Sample> = (0..5).map(|i| Sample::new(i + 1, i as f64)).collect();
         let mut seen = vec![];
-        let mut report = |s: &RunSummary, r: Option<String>| seen.push((s.published, r));
+        let mut report =
+            |s: &RunSummary, _: Duration, r: Option<String>| seen.push((s.published, r));
         let progress = Progress {
             every: Duration::ZERO,
             report: &mut report,
@@ -640,6 +741,183 @@ mod tests {
         assert_eq!(sum.published, 5);
         // before each sample after the first: the totals published so far
         assert_eq!(seen, (0..5).map(|n| (n, None)).collect::<Vec<_>>());
+    }
+
+    /// A [`Sink`] without iceoryx2: counts what it is given.
+    #[derive(Default)]
+    struct Counting {
+        published: Vec<Sample>,
+    }
+
+    impl Sink for Counting {
+        fn publish(&mut self, t_ns: Nanos, value: f64) -> Result<u64, IpcError> {
+            self.published.push(Sample::new(t_ns, value));
+            Ok(self.published.len() as u64 - 1)
+        }
+        fn unreached(&self) -> u64 {
+            0
+        }
+        fn unwoken(&self) -> u64 {
+            0
+        }
+    }
+
+    /// A source of scripted events, each after a pause; ends (as a live source
+    /// does) once `stopped` is set.
+    struct Scripted {
+        events: std::collections::VecDeque<(Duration, Next)>,
+        stopped: std::rc::Rc<std::cell::Cell<bool>>,
+    }
+
+    impl Source for Scripted {
+        fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+            unreachable!("run asks for events")
+        }
+        fn next_event(&mut self) -> Result<Next, SourceError> {
+            if self.stopped.get() {
+                return Ok(Next::End);
+            }
+            let Some((pause, e)) = self.events.pop_front() else {
+                return Ok(Next::End);
+            };
+            std::thread::sleep(pause);
+            Ok(e)
+        }
+        fn describe(&self) -> String {
+            "scripted".into()
+        }
+        fn report(&self) -> Option<String> {
+            Some(format!("{} to come", self.events.len()))
+        }
+    }
+
+    fn scripted(events: Vec<(Duration, Next)>) -> Scripted {
+        Scripted {
+            events: events.into(),
+            stopped: Default::default(),
+        }
+    }
+
+    /// Progress reports: `(published, since the previous, source report)`.
+    type Reports = Vec<(u64, Duration, Option<String>)>;
+
+    /// Runs `src` into a [`Counting`] sink with progress every `every`: the summary,
+    /// the reports `(published, since the previous, source report)`, the sink.
+    fn run_counting(
+        src: &mut dyn Source,
+        pacing: Pacing,
+        every: Duration,
+        stop: &dyn Fn() -> bool,
+    ) -> (RunSummary, Reports, Counting) {
+        let mut seen = vec![];
+        let mut report =
+            |s: &RunSummary, d: Duration, r: Option<String>| seen.push((s.published, d, r));
+        let mut sink = Counting::default();
+        let sum = run_into(
+            src,
+            &mut sink,
+            pacing,
+            stop,
+            None,
+            Some(Progress {
+                every,
+                report: &mut report,
+                notice: &mut |_| {},
+            }),
+        )
+        .unwrap();
+        (sum, seen, sink)
+    }
+
+    #[test]
+    fn progress_is_due_by_time_while_the_source_gives_no_sample() {
+        // 30 idle returns 10 ms apart (a sensor whose frames give no sample), then
+        // one sample: reports every 50 ms meanwhile, with nothing published
+        let ms = Duration::from_millis;
+        let mut events: Vec<_> = (0..30).map(|_| (ms(10), Next::Idle)).collect();
+        events.push((ms(0), Next::Sample(Sample::new(1, 1.0))));
+        let mut src = scripted(events);
+        let t0 = std::time::Instant::now();
+        let (sum, seen, sink) = run_counting(&mut src, Pacing::Fast, ms(50), &|| false);
+        let took = t0.elapsed();
+        assert_eq!((sum.published, sum.interrupted), (1, false));
+        assert_eq!(sink.published.len(), 1);
+        // 300 ms of idling: about 6 reports (fewer on a loaded machine), never more
+        // than the run's length allows
+        let most = (took.as_millis() / 50) as usize;
+        assert!(seen.len() >= 2 && seen.len() <= most, "{took:?}: {seen:?}");
+        assert!(seen.iter().all(|(n, _, _)| *n == 0), "{seen:?}");
+        // each says the real time since the previous one, and together they cover
+        // no more than the run
+        assert!(seen.iter().all(|(_, d, _)| *d >= ms(50)), "{seen:?}");
+        let covered: Duration = seen.iter().map(|s| s.1).sum();
+        assert!(covered <= took, "{covered:?} > {took:?}");
+        assert!(seen[0].2.as_deref().is_some_and(|r| r.ends_with("to come")));
+    }
+
+    #[test]
+    fn a_report_after_a_long_silence_says_how_long_it_was() {
+        // the source blocks 300 ms for its second sample; reports are due every
+        // 50 ms: the one after the silence says 300 ms, not 50
+        let ms = Duration::from_millis;
+        let mut src = scripted(vec![
+            (ms(0), Next::Sample(Sample::new(1, 1.0))),
+            (ms(300), Next::Sample(Sample::new(2, 2.0))),
+        ]);
+        let (_, seen, _) = run_counting(&mut src, Pacing::Fast, ms(50), &|| false);
+        assert_eq!(seen.len(), 1, "{seen:?}");
+        assert!(seen[0].1 >= ms(300), "{seen:?}");
+    }
+
+    #[test]
+    fn real_time_pacing_reports_while_it_waits() {
+        // the second sample is due 300 ms after the first: reports every 50 ms
+        // come in the wait
+        let ms = Duration::from_millis;
+        let mut src = scripted(vec![
+            (ms(0), Next::Sample(Sample::new(0, 1.0))),
+            (ms(0), Next::Sample(Sample::new(300_000_000, 2.0))),
+        ]);
+        let pacing = Pacing::Scaled {
+            speed: 1.0,
+            anchor_ns: 0,
+            start_mono_ns: None,
+        };
+        let (sum, seen, _) = run_counting(&mut src, pacing, ms(50), &|| false);
+        assert_eq!(sum.published, 2);
+        assert!(seen.len() >= 2, "{seen:?}");
+        assert!(seen.iter().all(|(n, _, _)| *n == 1), "{seen:?}");
+    }
+
+    #[test]
+    fn a_source_ended_by_a_stop_is_an_interrupted_run() {
+        // a live source returns its end when asked to stop: interrupted
+        let ms = Duration::from_millis;
+        let mut src = scripted(vec![
+            (ms(0), Next::Sample(Sample::new(1, 1.0))),
+            (ms(0), Next::Sample(Sample::new(2, 2.0))),
+        ]);
+        let flag = src.stopped.clone();
+        // the stop comes during the first sample's checks (the driver sees it at
+        // its next check), the source sees it at its next call and ends
+        let asked = std::cell::Cell::new(0);
+        let stop = || {
+            asked.set(asked.get() + 1);
+            flag.set(true);
+            asked.get() > 1
+        };
+        let (sum, _, sink) = run_counting(&mut src, Pacing::Fast, Duration::from_secs(600), &stop);
+        assert_eq!(sink.published.len(), 1);
+        assert!(sum.interrupted, "{sum:?}");
+        // a stop seen at an idle return: interrupted too
+        let mut src = scripted(vec![(ms(0), Next::Idle), (ms(0), Next::Idle)]);
+        let (sum, _, _) = run_counting(&mut src, Pacing::Fast, Duration::from_secs(600), &|| true);
+        assert!(sum.interrupted && sum.published == 0, "{sum:?}");
+        // a source that ends by itself, no stop: a normal end
+        let mut src = VecSource::new(vec![Sample::new(1, 1.0)], "t");
+        let (sum, seen, _) =
+            run_counting(&mut src, Pacing::Fast, Duration::from_secs(600), &|| false);
+        assert_eq!((sum.published, sum.interrupted, seen.len()), (1, false, 0));
     }
 
     #[test]

@@ -302,6 +302,12 @@ fn wait_device_waits_for_the_node_then_opens_it_and_stops_cleanly_meanwhile() {
     assert!(killed.success());
     let status = wait_exit(&mut child, "vlsync-lidar --wait-device");
     assert!(status.success(), "{status}: {}", err.lock().unwrap());
+    // it says so, and stops before it makes its iceoryx2 node and publisher (the
+    // reader thread may still be taking the last lines: waited for)
+    wait_for_text(&err, &format!("stopped while waiting for {d}"));
+    wait_for_text(&err, ", interrupted");
+    let text = err.lock().unwrap().clone();
+    assert!(!text.contains("publishing"), "{text}");
     // the node appears (a regular file here, not a tty): the driver goes on to open it
     let mut child = spawn();
     let err = collect_stderr(&mut child);

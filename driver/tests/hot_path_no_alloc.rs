@@ -238,7 +238,7 @@ fn the_lidar_drivers_scan_to_publish_path_allocates_nothing_after_start_up() {
         // as the binary: a progress line every 10 minutes
         Some(Progress {
             every: Duration::from_secs(600),
-            report: &mut |_, _| reports += 1,
+            report: &mut |_, _, _| reports += 1,
             notice: &mut |_| notices += 1,
         }),
     )

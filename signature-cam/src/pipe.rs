@@ -182,6 +182,8 @@ pub struct PipeSource<R: Read + AsFd> {
     stride: usize,
     clock: fn() -> Nanos,
     stop: fn() -> bool,
+    /// How a stall names the pipe's writer ([`PipeSource::set_writer_name`]).
+    writer: PathBuf,
     frame: Vec<u8>,
     gray: Vec<u8>,
     frames: u64,
@@ -228,6 +230,7 @@ impl<R: Read + AsFd> PipeSource<R> {
         };
         Ok(Self {
             reader,
+            writer: PathBuf::from(format!("writer of {}", name.display())),
             name,
             cfg,
             stride,
@@ -247,6 +250,13 @@ impl<R: Read + AsFd> PipeSource<R> {
     /// flag); checked every 100 ms while no frame comes.
     pub fn set_stop(&mut self, stop: fn() -> bool) {
         self.stop = stop;
+    }
+
+    /// How a stall ([`Error::Stalled`]) names the pipe's writer: by default
+    /// `writer of NAME` (standard input, a FIFO: whoever writes there); a caller
+    /// that started the writer itself names it (`camera program`).
+    pub fn set_writer_name(&mut self, writer: impl Into<PathBuf>) {
+        self.writer = writer.into();
     }
 
     /// Frames read, and of them dropped as queued (stamp unknown).
@@ -314,9 +324,10 @@ impl<R: Read + AsFd> PipeSource<R> {
             }
             let quiet = (self.clock)().saturating_sub(asked);
             if quiet >= self.cfg.silence.as_nanos() as Nanos {
-                // the driver's messages name the source already
+                // the caller's messages name the source already: this names who
+                // fell silent
                 return Err(Error::Stalled {
-                    path: "camera program".into(),
+                    path: self.writer.clone(),
                     after: Duration::from_nanos(quiet.max(0) as u64),
                 });
             }
@@ -647,9 +658,21 @@ mod tests {
         let mut src = PipeSource::new(r, "stdin", c, clock).unwrap();
         match src.next_frame() {
             Err(Error::Stalled { path, after }) => {
-                assert_eq!(path, PathBuf::from("camera program"));
+                // standard input has no program behind it that this source knows of
+                assert_eq!(path, PathBuf::from("writer of stdin"));
                 assert!(after >= Duration::from_millis(250), "{after:?}");
             }
+            other => panic!("{:?}", other.map(|o| o.is_some())),
+        }
+        // a caller that started the writer names it
+        let (r, _wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "`rpicam-vid -o -`", c, clock).unwrap();
+        src.set_writer_name("camera program");
+        match src.next_frame() {
+            Err(e @ Error::Stalled { .. }) => assert!(
+                e.to_string().starts_with("camera program: no frame for 0."),
+                "{e}"
+            ),
             other => panic!("{:?}", other.map(|o| o.is_some())),
         }
     }

@@ -176,7 +176,7 @@ impl PipeFrames {
                     .spawn()
                     .map_err(|e| err(format!("cannot start it with sh -c: {e}")))?;
                 let Some(out) = child.stdout.take() else {
-                    kill_group(&mut child);
+                    kill_group(child, stop);
                     return Err(err("its standard output is not a pipe".into()));
                 };
                 (PipeEnd::Command(out), Some(child))
@@ -186,32 +186,87 @@ impl PipeFrames {
         let mut src = match cam::pipe::PipeSource::new(end, name, cfg, monotonic_ns) {
             Ok(s) => s,
             Err(e) => {
-                if let Some(mut c) = child {
-                    kill_group(&mut c);
+                if let Some(c) = child {
+                    kill_group(c, stop);
                 }
                 return Err(e);
             }
         };
         src.set_stop(stop);
+        if child.is_some() {
+            // a stall names the program this driver started (stdin and a FIFO keep
+            // the source's own name for their writer)
+            src.set_writer_name("camera program");
+        }
         Ok(Self { src, stop, child })
     }
 }
 
+/// How long a killed camera program is waited for before a thread is left to reap
+/// it ([`reap_or_leave`]).
+const REAP_WAIT: Duration = Duration::from_secs(2);
+
+/// [`REAP_WAIT`] once a stop was asked for: the driver is on its way out.
+const REAP_WAIT_STOPPING: Duration = Duration::from_millis(200);
+
 /// Kills a camera program's whole process group (`sh` and what it started: a
-/// pipeline's other programs, a script's children) and reaps `sh`.
-fn kill_group(child: &mut std::process::Child) {
+/// pipeline's other programs, a script's children) and reaps `sh`, waiting for it
+/// [`REAP_WAIT`] at most ([`reap_or_leave`]).
+fn kill_group(mut child: std::process::Child, stop: StopFn) {
     let _ = rustix::process::kill_process_group(
-        rustix::process::Pid::from_child(child),
+        rustix::process::Pid::from_child(&child),
         rustix::process::Signal::KILL,
     );
     let _ = child.kill();
-    let _ = child.wait();
+    reap_or_leave(child, REAP_WAIT, stop);
+}
+
+/// Reaps `child` once it exited, polling for up to `limit` ([`REAP_WAIT_STOPPING`]
+/// at most once `stop` asks). One still there then (SIGKILL waits while a process
+/// sleeps uninterruptibly: a hung camera driver or USB link) is handed to a
+/// detached thread that reaps it whenever it exits, and the driver goes on: a
+/// blocking wait would hang it for as long. Said once per process. True when it
+/// was reaped here.
+fn reap_or_leave(mut child: std::process::Child, limit: Duration, stop: StopFn) -> bool {
+    static SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let t0 = Instant::now();
+    loop {
+        match child.try_wait() {
+            // an error (no such child) leaves nothing to reap
+            Ok(Some(_)) | Err(_) => return true,
+            Ok(None) => {}
+        }
+        let waited = t0.elapsed();
+        if waited >= limit || (waited >= REAP_WAIT_STOPPING && stop()) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let pid = child.id();
+    if !SAID.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        vlsync_common::console::print_err_at(
+            vlsync_common::console::Priority::Warning,
+            &format!(
+                "vlsync-cam: camera program (process {pid}) still there {:.1} s after SIGKILL \
+                 (in uninterruptible sleep: a hung camera driver or USB link?); a thread reaps \
+                 it when it exits, the driver goes on (said once)\n",
+                t0.elapsed().as_secs_f64()
+            ),
+        );
+    }
+    // a thread that cannot start leaves a zombie until the driver exits
+    let _ = std::thread::Builder::new()
+        .name("vlsync-reap".into())
+        .spawn(move || {
+            let _ = child.wait();
+        });
+    false
 }
 
 impl Drop for PipeFrames {
     fn drop(&mut self) {
-        if let Some(c) = self.child.as_mut() {
-            kill_group(c);
+        if let Some(c) = self.child.take() {
+            kill_group(c, self.stop);
         }
     }
 }
@@ -235,7 +290,7 @@ impl FrameSource for PipeFrames {
                         }
                         std::thread::sleep(Duration::from_millis(10));
                     }
-                    kill_group(&mut child);
+                    kill_group(child, self.stop);
                     // the driver's error names the command already
                     Err(cam::Error::Device {
                         path: "camera program".into(),
@@ -274,6 +329,22 @@ impl FrameSource for Closed {
 pub(super) const CAM_STALL: SilenceWords = SilenceWords {
     program: "vlsync-cam",
     unit: "device",
+    reopening: "reopening",
+    reopens: "reopens",
+    reopened: "reopened",
+    still: "still no frame",
+    again: "frames again",
+    kind: "stall",
+};
+
+/// How the camera driver names the silence of a camera program it runs
+/// (`--pipe-cmd`): the program is started again, no device reopened.
+pub(super) const PROGRAM_STALL: SilenceWords = SilenceWords {
+    program: "vlsync-cam",
+    unit: "camera program",
+    reopening: "restarting",
+    reopens: "restarts",
+    reopened: "restarted",
     still: "still no frame",
     again: "frames again",
     kind: "stall",
@@ -580,8 +651,12 @@ pub struct CamSource {
     stall: Option<Silence>,
     /// Reopens after stalls over the run.
     reopens: u64,
-    /// What a reopen opens, for the report: "device", "camera program".
-    reopened: &'static str,
+    /// How a stall and its reopens are said: a device reopened, a camera program
+    /// restarted.
+    words: &'static SilenceWords,
+    /// How long [`Source::next_event`] goes without a sample before it returns
+    /// [`Next::Idle`].
+    idle_every: Duration,
 }
 
 impl std::fmt::Debug for CamSource {
@@ -621,8 +696,18 @@ impl CamSource {
             reopen: None,
             stall: None,
             reopens: 0,
-            reopened: "device",
+            words: &CAM_STALL,
+            idle_every: crate::IDLE_EVERY,
         })
+    }
+
+    /// Makes the source end (`Ok(None)`) once `stop` returns true, checked before
+    /// each frame: a recording or a rendered run read ahead of real time (up to its
+    /// first usable sample when the driver anchors its pacing) stops at a SIGTERM
+    /// as a live camera does.
+    pub fn with_stop(mut self, stop: StopFn) -> Self {
+        self.stop = stop;
+        self
     }
 
     /// A live camera that stalled ([`cam::Error::Stalled`]): says so (once, then every
@@ -638,12 +723,16 @@ impl CamSource {
             cam::Error::Stalled { after, .. } => *after,
             _ => Duration::ZERO,
         };
-        Silence::say(&mut self.stall, Instant::now(), so_far, &CAM_STALL, what, e);
+        Silence::say(&mut self.stall, Instant::now(), so_far, self.words, what, e);
         // closed first: a device that streams to one handle refuses another's format
         self.frames = Box::new(Plain(Box::new(Closed)));
         if let Some(reopen) = self.reopen.as_mut() {
-            let src = reopen()
-                .map_err(|e| SourceError(format!("{}: reopening after a stall: {e}", self.what)))?;
+            let src = reopen().map_err(|e| {
+                SourceError(format!(
+                    "{}: {} after a stall: {e}",
+                    self.what, self.words.reopening
+                ))
+            })?;
             self.frames = Box::new(Plain(src));
         }
         self.reopens += 1;
@@ -699,7 +788,7 @@ impl CamSource {
         let what = format!("pipe {}", frames.src.describe());
         let mut me = Self::new(Box::new(frames), what, stop)?;
         if matches!(input, PipeInput::Command(_)) {
-            me.reopened = "camera program";
+            me.words = &PROGRAM_STALL;
             me.reopen = Some(Box::new(move || {
                 PipeFrames::open(&input, cfg, stop).map(|f| Box::new(f) as Box<dyn FrameSource>)
             }));
@@ -779,7 +868,8 @@ impl CamSource {
 
     /// The frames of a rendered run, stamped as `stamp` says. `Software`
     /// renders on a thread and delivers each frame at the end of its exposure
-    /// (`stop` is polled while waiting); the others render on demand.
+    /// (`stop` is polled while waiting); the others render on demand. The source
+    /// ends once `stop` returns true (checked before each frame).
     pub fn render_with(
         r: vlsync_render::Renderer,
         stamp: RenderStamp,
@@ -813,7 +903,7 @@ impl CamSource {
                     cur: None,
                 }),
                 what,
-                never,
+                stop,
                 false,
             ),
         }
@@ -833,13 +923,30 @@ impl CamSource {
 impl Source for CamSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
         loop {
+            match self.next_event()? {
+                Next::Sample(s) => return Ok(Some(s)),
+                Next::End => return Ok(None),
+                Next::Idle => {}
+            }
+        }
+    }
+
+    fn next_event(&mut self) -> Result<Next, SourceError> {
+        let called = Instant::now();
+        let mut first = true;
+        loop {
+            // frames without a sample (low texture, no flow), a stall: give the
+            // driver its periodic work after about a second (never before a frame)
+            if !std::mem::take(&mut first) && called.elapsed() >= self.idle_every {
+                return Ok(Next::Idle);
+            }
             // the source's remark on the previous frame (a live camera's first frames
             // decide whose clock stamps its frames)
             if let Some(note) = self.frames.take_note() {
                 vlsync_common::console::print_err(&format!("vlsync-cam: {}: {note}\n", self.what));
             }
             if (self.stop)() {
-                return Ok(None);
+                return Ok(Next::End);
             }
             let Self {
                 frames,
@@ -853,6 +960,7 @@ impl Source for CamSource {
                 frame_cpu_ns,
                 skipped,
                 stall,
+                words,
                 ..
             } = self;
             let next = match frames.next() {
@@ -872,10 +980,10 @@ impl Source for CamSource {
                 Err(e) => return Err(SourceError(format!("{what}: {e}"))),
             };
             let Some((frame, time, truth)) = next else {
-                return Ok(None);
+                return Ok(Next::End);
             };
             skipped.used();
-            Silence::say_end(stall, &CAM_STALL, what);
+            Silence::say_end(stall, words, what);
             counts.frames += 1;
             let t_in = monotonic_ns();
             let cpu_in = (*frame_cpu_ns > 0)
@@ -944,7 +1052,7 @@ impl Source for CamSource {
                             }),
                             _ => None,
                         };
-                        return Ok(Some(sample));
+                        return Ok(Next::Sample(sample));
                     }
                 }
             }
@@ -985,8 +1093,8 @@ impl Source for CamSource {
         }
         if self.reopens > 0 {
             s.push_str(&format!(
-                "; the {} reopened {} times after stalls",
-                self.reopened, self.reopens
+                "; the {} {} {} times after stalls",
+                self.words.unit, self.words.reopened, self.reopens
             ));
         }
         if let Some(lasted) = Silence::lasted(&self.stall) {
@@ -1086,6 +1194,81 @@ mod tests {
             t: 0,
             buf: vec![128; 64 * 48],
         })
+    }
+
+    #[test]
+    fn frames_without_a_sample_return_idle_between_frames() {
+        // flat frames give no sample: with a period of 0, each call reads one frame
+        // and returns idle, then the end
+        let mut src = CamSource::new(fake(0, 5), "fake".into(), never).unwrap();
+        src.idle_every = Duration::ZERO;
+        let events: Vec<Next> = std::iter::from_fn(|| match src.next_event().unwrap() {
+            Next::End => None,
+            e => Some(e),
+        })
+        .collect();
+        assert_eq!(events, vec![Next::Idle; 5]);
+        assert_eq!(src.counts().frames, 5);
+        // with the default period, next_sample (which skips them) as before
+        let mut src = CamSource::new(fake(0, 5), "fake".into(), never).unwrap();
+        assert_eq!(src.next_event().unwrap(), Next::End);
+        assert_eq!(src.counts().frames, 5);
+    }
+
+    fn yes() -> bool {
+        true
+    }
+
+    #[test]
+    fn a_camera_program_that_will_not_die_is_left_to_a_thread_not_waited_for() {
+        let alive = |pid: u32| {
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .ok()
+                .and_then(|st| st.rsplit(") ").next().map(|r| !r.starts_with('Z')))
+                .unwrap_or(false)
+        };
+        let gone = |pid: u32| !std::path::Path::new(&format!("/proc/{pid}")).exists();
+        // a child that exits is reaped here
+        let child = std::process::Command::new("true").spawn().unwrap();
+        let pid = child.id();
+        assert!(reap_or_leave(child, Duration::from_secs(5), never));
+        assert!(gone(pid) || !alive(pid));
+        // one that does not exit in time (standing in for a program in
+        // uninterruptible sleep, which SIGKILL does not end): the driver goes on
+        for (limit, stop, at_most) in [
+            (
+                Duration::from_millis(300),
+                never as StopFn,
+                Duration::from_secs(2),
+            ),
+            // a stop shortens a long wait
+            (
+                Duration::from_secs(30),
+                yes as StopFn,
+                Duration::from_secs(2),
+            ),
+        ] {
+            let child = std::process::Command::new("sleep")
+                .arg("30")
+                .spawn()
+                .unwrap();
+            let pid = child.id();
+            let t0 = Instant::now();
+            assert!(!reap_or_leave(child, limit, stop));
+            assert!(t0.elapsed() < at_most, "{:?}", t0.elapsed());
+            assert!(alive(pid));
+            // once it exits, the thread reaps it: no zombie left behind
+            let killed = std::process::Command::new("kill")
+                .args(["-KILL", &pid.to_string()])
+                .status()
+                .unwrap();
+            assert!(killed.success());
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while !gone(pid) {
+                assert!(Instant::now() < deadline, "{pid} not reaped");
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
     }
 
     #[test]

@@ -87,6 +87,9 @@ fn open_serial(
 pub(super) const LIDAR_SILENCE: SilenceWords = SilenceWords {
     program: "vlsync-lidar",
     unit: "port",
+    reopening: "reopening",
+    reopens: "reopens",
+    reopened: "reopened",
     still: "still silent",
     again: "scans again",
     kind: "silence",
@@ -181,6 +184,11 @@ pub struct LidarSource {
     /// Scans of a recording that could not be used (a malformed `LaserScan`):
     /// skipped as missed revolutions, until too many come in a row.
     skipped: cam::UnusableFrames,
+    /// Ends the source once true (checked before each read of input).
+    stop: StopFn,
+    /// How long [`Source::next_event`] goes without a sample before it returns
+    /// [`Next::Idle`].
+    idle_every: Duration,
 }
 
 impl std::fmt::Debug for LidarSource {
@@ -204,7 +212,17 @@ impl LidarSource {
             scans: 0,
             last_truth: None,
             skipped: cam::UnusableFrames::named("scans"),
+            stop: never,
+            idle_every: crate::IDLE_EVERY,
         })
+    }
+
+    /// Makes the source end (`Ok(None)`) once `stop` returns true, checked before
+    /// each read of its input: a recording or a rendered run read ahead of real time
+    /// stops at a SIGTERM as a serial LiDAR does.
+    pub fn with_stop(mut self, stop: StopFn) -> Self {
+        self.stop = stop;
+        self
     }
 
     /// Fits the wall in the bearing window(s) `f` gives (the `[lidar]` section of
@@ -290,8 +308,11 @@ impl LidarSource {
     }
 
     /// A serial LiDAR at `path`; `baud` defaults to the device's usual rate.
-    /// Rays are stamped on arrival with `CLOCK_MONOTONIC`. No bytes for
-    /// `silence` is an error naming the device.
+    /// Rays are stamped on arrival with `CLOCK_MONOTONIC`. No bytes (or no complete
+    /// scan) for `silence` is said (once, then every [`SILENCE_REPEAT`] while it
+    /// lasts) and the port is reopened, and so on until scans come again; a port
+    /// that cannot be reopened (the adapter unplugged) is an error naming the
+    /// device. The source ends (`Ok(None)`) once `stop` returns true.
     pub fn serial(
         kind: SerialKind,
         path: &str,
@@ -323,7 +344,7 @@ impl LidarSource {
             })),
         };
         let now = Instant::now();
-        Self::new(
+        let me = Self::new(
             ScanInput::Serial(Box::new(Serial {
                 port: Some(port),
                 parser,
@@ -339,7 +360,8 @@ impl LidarSource {
                 reopens: 0,
             })),
             what,
-        )
+        )?;
+        Ok(me.with_stop(stop))
     }
 
     /// Scans read so far.
@@ -503,12 +525,28 @@ fn lidar_event_ns(recent: &VecDeque<(Nanos, Nanos)>, t: Nanos, period: Nanos) ->
 impl Source for LidarSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
         loop {
+            match self.next_event()? {
+                Next::Sample(s) => return Ok(Some(s)),
+                Next::End => return Ok(None),
+                Next::Idle => {}
+            }
+        }
+    }
+
+    fn next_event(&mut self) -> Result<Next, SourceError> {
+        let called = Instant::now();
+        loop {
             if let Some((s, truth)) = self.queue.pop_front() {
                 self.last_truth = truth;
-                return Ok(Some(s));
+                return Ok(Next::Sample(s));
             }
-            if !self.fill()? {
-                return Ok(None);
+            if (self.stop)() || !self.fill()? {
+                return Ok(Next::End);
+            }
+            // scans without a sample, a silent port: give the driver its periodic
+            // work after about a second
+            if self.queue.is_empty() && called.elapsed() >= self.idle_every {
+                return Ok(Next::Idle);
             }
         }
     }
@@ -580,5 +618,49 @@ impl Source for LidarSource {
             }
         }
         Some(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rendered(seconds: f64) -> LidarSource {
+        LidarSource::render(renderer(3, seconds).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn scans_without_a_sample_return_idle_and_the_samples_are_those_of_next_sample() {
+        let mut all = rendered(3.0);
+        let want: Vec<Sample> = std::iter::from_fn(|| all.next_sample().unwrap()).collect();
+        assert!(!want.is_empty());
+        // every fill that gives no sample is an idle return when the period is 0
+        let mut src = rendered(3.0);
+        src.idle_every = Duration::ZERO;
+        let (mut got, mut idle) = (vec![], 0);
+        loop {
+            match src.next_event().unwrap() {
+                Next::Sample(s) => got.push(s),
+                Next::Idle => idle += 1,
+                Next::End => break,
+            }
+        }
+        assert_eq!(got, want);
+        // the first scans give none (a sample spans two passes over the window)
+        assert!(idle > 0);
+    }
+
+    fn yes() -> bool {
+        true
+    }
+
+    #[test]
+    fn a_stop_ends_a_recorded_or_rendered_source() {
+        let mut src = rendered(3.0).with_stop(yes);
+        assert_eq!(src.next_event().unwrap(), Next::End);
+        assert_eq!(src.scans(), 0);
+        // read ahead to anchor the pacing: nothing, at once
+        let p = Prefetched::new(Box::new(rendered(3.0).with_stop(yes))).unwrap();
+        assert_eq!(p.first_t_ns(), None);
     }
 }

@@ -48,7 +48,7 @@
 //! scans it spans removed), so `stamp - event` is the stamping error and the
 //! true offset of a pair is `(stamp - event)_LiDAR - (stamp - event)_camera`.
 
-use crate::{SampleTruth, Source, SourceError};
+use crate::{Next, SampleTruth, Source, SourceError};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
@@ -156,14 +156,15 @@ impl Silence {
     fn line(say: Say, w: &SilenceWords, what: &str, why: &dyn std::fmt::Display) -> Option<String> {
         match say {
             Say::Began => Some(format!(
-                "{}: {what}: {why}; reopening the {} and waiting for it (said again every {} min while it lasts)\n",
+                "{}: {what}: {why}; {} the {} and waiting for it (said again every {} min while it lasts)\n",
                 w.program,
+                w.reopening,
                 w.unit,
                 SILENCE_REPEAT.as_secs() / 60
             )),
             Say::Still { minutes, reopens } => Some(format!(
-                "{}: {what}: {} after {minutes:.0} min ({reopens} reopens of the {})\n",
-                w.program, w.still, w.unit
+                "{}: {what}: {} after {minutes:.0} min ({reopens} {} of the {})\n",
+                w.program, w.still, w.reopens, w.unit
             )),
             Say::Nothing => None,
         }
@@ -179,11 +180,12 @@ impl Silence {
     /// The line for `say_end`.
     fn end_line(w: &SilenceWords, what: &str, lasted: Duration, reopens: u64) -> String {
         format!(
-            "{}: {what}: {} after {:.1} s of {} ({reopens} reopens of the {})\n",
+            "{}: {what}: {} after {:.1} s of {} ({reopens} {} of the {})\n",
             w.program,
             w.again,
             lasted.as_secs_f64(),
             w.kind,
+            w.reopens,
             w.unit
         )
     }
@@ -193,8 +195,14 @@ impl Silence {
 struct SilenceWords {
     /// The driver, e.g. `vlsync-cam`.
     program: &'static str,
-    /// What is reopened: `device`, `port`.
+    /// What is reopened: `device`, `port`, `camera program`.
     unit: &'static str,
+    /// What is done to it: `reopening`, `restarting`.
+    reopening: &'static str,
+    /// Those done: `reopens`, `restarts`.
+    reopens: &'static str,
+    /// Done: `reopened`, `restarted`.
+    reopened: &'static str,
     /// The silence so far: `still no frame`, `still silent`.
     still: &'static str,
     /// Its end: `frames again`, `scans again`.
@@ -228,6 +236,25 @@ mod silence_tests {
         assert_eq!(
             Silence::end_line(&lidar, "ld06 /dev/ttyUSB0", Duration::from_secs(3), 0),
             "vlsync-lidar: ld06 /dev/ttyUSB0: scans again after 3.0 s of silence (0 reopens of the port)\n"
+        );
+    }
+
+    #[test]
+    fn a_camera_program_s_stall_says_it_is_restarted_not_a_device_reopened() {
+        let program = cam_source::PROGRAM_STALL;
+        let what = "pipe raw i420 frames 320x240 (...) from `rpicam-vid`";
+        assert_eq!(
+            Silence::line(Say::Began, &program, what, &"camera program: no frame for 10.0 s")
+                .unwrap(),
+            format!("vlsync-cam: {what}: camera program: no frame for 10.0 s; restarting the camera program and waiting for it (said again every 10 min while it lasts)\n")
+        );
+        assert_eq!(
+            Silence::line(Say::Still { minutes: 20.0, reopens: 60 }, &program, what, &"").unwrap(),
+            format!("vlsync-cam: {what}: still no frame after 20 min (60 restarts of the camera program)\n")
+        );
+        assert_eq!(
+            Silence::end_line(&program, what, Duration::from_secs(3), 1),
+            format!("vlsync-cam: {what}: frames again after 3.0 s of stall (1 restarts of the camera program)\n")
         );
     }
 
@@ -331,7 +358,8 @@ pub struct Prefetched {
 }
 
 impl Prefetched {
-    /// Reads the first sample of `inner`.
+    /// Reads the first sample of `inner` (which ends at once, without one, when a
+    /// stop it checks was asked for meanwhile: give it the driver's stop).
     pub fn new(mut inner: Box<dyn Source>) -> Result<Self, SourceError> {
         let first = inner.next_sample()?.map(|s| (s, inner.truth()));
         Ok(Self {
@@ -347,17 +375,34 @@ impl Prefetched {
     }
 }
 
-impl Source for Prefetched {
-    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+impl Prefetched {
+    /// The first sample, the first time; after it `None`.
+    fn take_first(&mut self) -> Option<Sample> {
         match self.first {
             Some((s, _)) if !self.first_out => {
                 self.first_out = true;
-                Ok(Some(s))
+                Some(s)
             }
             _ => {
                 self.first = None;
-                self.inner.next_sample()
+                None
             }
+        }
+    }
+}
+
+impl Source for Prefetched {
+    fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
+        match self.take_first() {
+            Some(s) => Ok(Some(s)),
+            None => self.inner.next_sample(),
+        }
+    }
+
+    fn next_event(&mut self) -> Result<Next, SourceError> {
+        match self.take_first() {
+            Some(s) => Ok(Next::Sample(s)),
+            None => self.inner.next_event(),
         }
     }
 
