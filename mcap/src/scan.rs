@@ -4,17 +4,30 @@
 //! # Conventions (from `LaserScan.msg`)
 //!
 //! * `header.stamp` is the acquisition time of the **first** ray; ray `i` was
-//!   measured at `stamp + i · time_increment` (rounded to the nanosecond). A
-//!   driver that publishes `time_increment = 0` gives every ray the stamp.
+//!   measured at `stamp + i · time_increment` (rounded to the nanosecond).
 //!   The `float32` increment is taken as the decimal it prints as (its shortest
 //!   round-trip representation, see [`f32_as_decimal`]): `0.025` means 25 ms,
 //!   not the binary `0.0250000004`, which would put ray 2 one nanosecond late.
+//! * A driver that publishes `time_increment = 0` with a positive `scan_time`
+//!   (the time between scans: one turn) leaves the rays' times to be derived:
+//!   the beam sweeps at a constant rate, so ray `i` is measured at
+//!   `stamp + i · |angle_increment| / 2π · scan_time` (the part of a turn it is
+//!   from the first ray), as [`ScanTiming::time_at_bearing`] times a turn; the
+//!   sweep's direction is then `angle_increment`'s sign. (A source whose rays are
+//!   truly simultaneous, e.g. a depth image turned into a scan, would say so with
+//!   `scan_time = 0` too; see below.)
+//! * `time_increment = 0` with `scan_time` not positive (or `angle_increment = 0`)
+//!   says nothing of when the rays were measured: such a scan of more than one
+//!   ray is an error naming the message (the drivers skip it as a missed
+//!   revolution, and say so), not a scan whose rays all get the stamp. Stamping
+//!   them alike would date the window's returns up to a turn off, depending on
+//!   where the window lies.
 //! * Ray `i` points at `angle_min + i · angle_increment` radians, about +Z,
 //!   counter-clockwise positive, 0 forward (+X): the same bearing convention as
 //!   `vlsync_signature_lidar::scan` (REP-103), wrapped into `(-π, π]`.
 //! * Sweep direction: bearings grow with time ([`Rotation::Ccw`]) when
-//!   `angle_increment` and `time_increment` have the same sign, else
-//!   [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive),
+//!   `angle_increment` and `time_increment` (or the one derived from
+//!   `scan_time`) have the same sign, else [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive),
 //!   read as its decimal like `time_increment`.
 //! * A ray is valid when its range is finite, positive and within
 //!   `[range_min, range_max]` (REP-117: ±Inf and NaN are not measurements;
@@ -180,7 +193,29 @@ pub fn laser_scan_to_rays(
         ));
     }
     let (a0, da) = (f64::from(m.angle_min), f64::from(m.angle_increment));
-    let dt_ns = f32_as_decimal(m.time_increment) * 1e9;
+    let period = f32_as_decimal(m.scan_time) * 1e9;
+    let period_ns = if period.is_finite() && period > 0.0 {
+        period.round() as i64
+    } else {
+        0
+    };
+    let mut dt_ns = f32_as_decimal(m.time_increment) * 1e9;
+    if dt_ns == 0.0 {
+        // the rays' times left to be derived: a constant sweep over the turn
+        // `scan_time` lasts
+        dt_ns = da.abs() / std::f64::consts::TAU * period_ns as f64;
+        if dt_ns == 0.0 && n > 1 {
+            return Err(format!(
+                "time_increment is 0 and {}: the rays' measurement times are unknown \
+                 (every ray would get the stamp)",
+                if period_ns == 0 {
+                    format!("scan_time is {} (no turn to spread them over)", m.scan_time)
+                } else {
+                    "angle_increment is 0 (no sweep to spread them over)".to_string()
+                }
+            ));
+        }
+    }
     let (rmin, rmax) = (f64::from(m.range_min), f64::from(m.range_max));
     rays.reserve(n);
     for (i, r) in m.ranges.iter().enumerate() {
@@ -195,12 +230,6 @@ pub fn laser_scan_to_rays(
         Rotation::Ccw
     } else {
         Rotation::Cw
-    };
-    let period = f32_as_decimal(m.scan_time) * 1e9;
-    let period_ns = if period.is_finite() && period > 0.0 {
-        period.round() as i64
-    } else {
-        0
     };
     Ok(ScanTiming {
         start_ns,
@@ -244,6 +273,8 @@ mod tests {
         let ranges = vec![1.0f32; MAX_RAYS_PER_SCAN + 1];
         let m = LaserScan {
             angle_increment: 0.001,
+            // (a time increment: rays of unknown times are refused too)
+            time_increment: 1e-7,
             range_max: 12.0,
             ranges: F32Seq::from_slice(&ranges),
             ..LaserScan::default()
@@ -297,6 +328,91 @@ mod tests {
         };
         laser_scan_to_rays(&m2, 0, &mut rays).unwrap();
         assert!((rays[1].bearing_rad - (3.5 - std::f64::consts::TAU)).abs() < 1e-12);
+    }
+
+    /// A scan of `n` rays a turn's `n`th apart, from `angle_min`, with the given
+    /// increments.
+    fn turn(n: usize, angle_increment: f32, time_increment: f32, scan_time: f32) -> Vec<Ray> {
+        let ranges = vec![2.0f32; n];
+        let m = LaserScan {
+            angle_min: -3.0,
+            angle_increment,
+            time_increment,
+            scan_time,
+            range_max: 12.0,
+            ranges: F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        };
+        let mut rays = Vec::new();
+        laser_scan_to_rays(&m, 1_000_000_000, &mut rays)
+            .map(|timing| {
+                let ccw = angle_increment > 0.0;
+                assert_eq!(
+                    timing.rotation,
+                    if ccw { Rotation::Ccw } else { Rotation::Cw }
+                );
+                assert_eq!(timing.period_ns, 100_000_000);
+                rays
+            })
+            .unwrap()
+    }
+
+    #[test]
+    fn without_a_time_increment_the_rays_are_spread_over_the_scan_time() {
+        let inc = (std::f64::consts::TAU / 720.0) as f32;
+        for da in [inc, -inc] {
+            let given = turn(720, da, 0.1 / 720.0, 0.1);
+            let derived = turn(720, da, 0.0, 0.1);
+            for (i, (g, d)) in given.iter().zip(&derived).enumerate() {
+                // ray i a 720th of a turn after ray i - 1: 0.1 / 720 s
+                assert!(
+                    (g.t_ns - d.t_ns).abs() <= 2,
+                    "ray {i}: {} vs {}",
+                    g.t_ns,
+                    d.t_ns
+                );
+                assert_eq!(g.bearing_rad, d.bearing_rad);
+            }
+            assert!((derived[719].t_ns - 1_099_861_111).abs() <= 2);
+        }
+        // a 270° scanner: its rays span three quarters of the turn
+        let quarter = (std::f64::consts::TAU / 1440.0) as f32;
+        let r = turn(1081, quarter, 0.0, 0.1);
+        assert!(
+            (r[1080].t_ns - 1_075_000_000).abs() <= 10,
+            "{}",
+            r[1080].t_ns
+        );
+    }
+
+    #[test]
+    fn rays_whose_times_are_unknown_are_an_error_not_all_stamped_alike() {
+        let ranges = [2.0f32; 8];
+        let m = LaserScan {
+            angle_increment: 0.1,
+            range_max: 12.0,
+            ranges: F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        };
+        let mut rays = Vec::new();
+        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
+        assert!(
+            e.starts_with("time_increment is 0 and scan_time is 0 (no turn"),
+            "{e}"
+        );
+        let m = LaserScan {
+            angle_increment: 0.0,
+            scan_time: 0.1,
+            ..m
+        };
+        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
+        assert!(e.contains("angle_increment is 0"), "{e}");
+        // one ray (or none) has no spread to lose
+        let m = LaserScan {
+            ranges: F32Seq::from_slice(&ranges[..1]),
+            ..LaserScan::default()
+        };
+        assert!(laser_scan_to_rays(&m, 0, &mut rays).is_ok());
     }
 
     #[test]

@@ -139,6 +139,16 @@ pub fn skippable(e: &Error) -> bool {
     matches!(e, Error::BufferSize { .. })
 }
 
+/// A conversion error of the stream's format (every frame would repeat it), as an
+/// error naming the device: the bare error (e.g. bad frame dimensions) does not.
+#[cfg_attr(not(feature = "v4l2"), allow(dead_code))]
+fn stream_format_error(path: &std::path::Path, e: Error) -> Error {
+    Error::Device {
+        path: path.to_path_buf(),
+        reason: format!("its frames cannot be converted: {e}"),
+    }
+}
+
 /// The clock a V4L2 driver says its buffer stamps are on
 /// (`V4L2_BUF_FLAG_TIMESTAMP_*`, bits 13-15 of a buffer's flags).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -975,10 +985,11 @@ mod imp {
                             .map_err(|reason| device_error(path, reason))?;
                     }
                     // the frame's geometry, not one buffer: every frame would fail
-                    Err(e) => return Err(e),
+                    Err(e) => return Err(stream_format_error(path, e)),
                 }
             };
-            let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)?;
+            let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)
+                .map_err(|e| stream_format_error(path, e))?;
             Ok(Some((frame, FrameTime::Instant(t_ns))))
         }
     }
@@ -1009,6 +1020,21 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "/dev/video-vlsync-test-missing: no such device"
+        );
+    }
+
+    #[test]
+    fn a_frame_format_error_names_the_device() {
+        use crate::image::{PixelFormat, RawFrame};
+        // an odd YUYV width: bad dimensions, which say nothing of the device
+        let odd = RawFrame::new(&[0u8; 15 * 2 * 8], 15, 8, PixelFormat::Yuyv)
+            .to_gray_into(&mut Vec::new())
+            .unwrap_err();
+        assert!(matches!(odd, Error::BadDimensions { .. }), "{odd}");
+        let e = stream_format_error(std::path::Path::new("/dev/video7"), odd).to_string();
+        assert!(
+            e.starts_with("/dev/video7: its frames cannot be converted: bad frame dimensions 15x8"),
+            "{e}"
         );
     }
 

@@ -155,7 +155,9 @@ struct ScanKey {
     start_bearing_rad: f64,
 }
 
-/// Streaming reader: an iterator of scans. After the first error it ends.
+/// Streaming reader: an iterator of scans. An error ends it; the scan collected
+/// before the error's line (rows already read, with their start) is given first,
+/// and the error on the next call.
 #[derive(Debug)]
 pub struct CsvScanReader<R> {
     reader: R,
@@ -167,6 +169,8 @@ pub struct CsvScanReader<R> {
     rays: Vec<(Ray, bool)>,
     last_start: Option<Nanos>,
     done: bool,
+    /// an error found after a scan had been collected: given after that scan
+    error: Option<CsvError>,
     buf: Vec<u8>,
 }
 
@@ -197,6 +201,7 @@ impl<R: BufRead> CsvScanReader<R> {
             rays: Vec::new(),
             last_start: None,
             done: false,
+            error: None,
             buf: Vec::new(),
         };
         let header = match me.next_line()? {
@@ -466,16 +471,27 @@ impl<R: BufRead> Iterator for CsvScanReader<R> {
         if self.done {
             return None;
         }
+        if let Some(e) = self.error.take() {
+            self.done = true;
+            return Some(Err(e));
+        }
         match self.next_scan() {
             Ok(Some(s)) => Some(Ok(s)),
             Ok(None) => {
                 self.done = true;
                 None
             }
-            Err(e) => {
-                self.done = true;
-                Some(Err(e))
-            }
+            Err(e) => match self.build() {
+                // the rows before the bad one are a scan: not lost with it
+                Some(s) => {
+                    self.error = Some(e);
+                    Some(Ok(s))
+                }
+                None => {
+                    self.done = true;
+                    Some(Err(e))
+                }
+            },
         }
     }
 }
@@ -611,6 +627,48 @@ mod tests {
             .unwrap_err();
         assert_eq!(e.line, 2);
         assert!(e.message.contains("UTF-8"));
+    }
+
+    #[test]
+    fn the_scan_collected_before_an_error_is_given_before_the_error() {
+        // a file cut inside its last row: the third scan's two rows come first
+        let text = "scan_start_s,period_s,bearing_deg,range_m\n0.0,0.1,0,2\n0.0,0.1,90,2\n\
+                    0.1,0.1,0,2\n0.1,0.1,90,2\n0.2,0.1,0,2\n0.2,0.1,90,2\n0.2,0.1,4";
+        let got: Vec<_> = CsvScanReader::new(text.as_bytes(), "cut.csv")
+            .unwrap()
+            .collect();
+        let starts: Vec<_> = got
+            .iter()
+            .filter_map(|r| r.as_ref().ok())
+            .map(|s| (s.timing().start_ns, s.len()))
+            .collect();
+        assert_eq!(
+            starts,
+            [(0, 2), (100_000_000, 2), (200_000_000, 2)],
+            "{got:?}"
+        );
+        assert_eq!(got.len(), 4);
+        let e = got[3].as_ref().unwrap_err();
+        assert_eq!(e.to_string(), "cut.csv:8: 3 cells, the header has 4");
+        // an error in the first row: no scan, the error
+        let mut r = CsvScanReader::new(
+            "scan_start_s,period_s,bearing_deg,range_m\nx\n".as_bytes(),
+            "e",
+        )
+        .unwrap();
+        assert!(r.next().unwrap().is_err());
+        assert!(r.next().is_none());
+        // a scan start going back: the scan before it, then the error
+        let text = "scan_start_s,period_s,bearing_deg,range_m\n1,0.1,0,1\n0,0.1,0,1\n";
+        let mut r = CsvScanReader::new(text.as_bytes(), "back").unwrap();
+        assert_eq!(r.next().unwrap().unwrap().timing().start_ns, 1_000_000_000);
+        assert!(r
+            .next()
+            .unwrap()
+            .unwrap_err()
+            .to_string()
+            .contains("not after"));
+        assert!(r.next().is_none());
     }
 
     #[test]

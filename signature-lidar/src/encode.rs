@@ -5,6 +5,13 @@
 //! (CCW positive, the crate's convention); a non-finite or non-positive range
 //! encodes "no return".
 //!
+//! A host reading the bytes sees them arrive as the devices send them: a packet
+//! (LD06) or node (RPLIDAR) leaves right after its last point is measured, 10
+//! bits a byte (start, 8 data, stop) at the line's baud rate.
+//! [`ld06_byte_arrival_s`] and [`rplidar_byte_arrival_s`] give that arrival time
+//! for each byte of [`ld06_stream`] and [`rplidar_revolution`], the model the
+//! parsers' host clocks undo.
+//!
 //! ```
 //! use vlsync_signature_lidar::encode::ld06_stream;
 //! use vlsync_signature_lidar::ld06::{Ld06Clock, Ld06Config, Ld06Parser};
@@ -21,9 +28,10 @@ pub use crate::rplidar::{
     STOP_REQUEST,
 };
 
-use crate::ld06::POINT_RATE_HZ;
-use crate::rplidar::MAX_ANGLE_Q6;
+use crate::ld06::{PACKET_LEN, POINTS_PER_PACKET, POINT_RATE_HZ};
+use crate::rplidar::{MAX_ANGLE_Q6, NODE_LEN};
 use crate::scan::cw_degrees_to_bearing;
+use crate::serial::BITS_PER_BYTE;
 
 fn to_units(range_m: f64, per_m: f64) -> u16 {
     if range_m.is_finite() && range_m > 0.0 {
@@ -57,6 +65,35 @@ pub fn ld06_stream(
         }));
     }
     out
+}
+
+/// When (s, on [`ld06_stream`]'s time axis: 0 at the stream's first point) byte
+/// `i` of an [`ld06_stream`] has arrived at a host reading a line at `baud`:
+/// packet `k` leaves right after its last point, measured at
+/// `(12 k + 11) / 4500` s, and its byte `j` has arrived `(j + 1) · 10 / baud`
+/// later (a host read returning bytes `..=i` is dated by this).
+///
+/// ```
+/// use vlsync_signature_lidar::encode::ld06_byte_arrival_s;
+/// // the last byte of the first packet: its last point, then 47 bytes at 230400 baud
+/// let t = ld06_byte_arrival_s(46, 230_400);
+/// assert!((t - (11.0 / 4500.0 + 47.0 * 10.0 / 230_400.0)).abs() < 1e-12);
+/// ```
+pub fn ld06_byte_arrival_s(i: usize, baud: u32) -> f64 {
+    let (k, j) = (i / PACKET_LEN, i % PACKET_LEN);
+    let last_point_s =
+        (k * POINTS_PER_PACKET + POINTS_PER_PACKET - 1) as f64 / POINT_RATE_HZ as f64;
+    last_point_s + (j + 1) as f64 * BITS_PER_BYTE as f64 / baud.max(1) as f64
+}
+
+/// When (s) byte `i` of the output of [`rplidar_revolution`]`(nodes, t0_s,
+/// period_s, ..)` has arrived at a host reading a line at `baud`: node `n`
+/// leaves when it is measured, at `t0_s + n · period_s / nodes`, and its byte `j`
+/// has arrived `(j + 1) · 10 / baud` later.
+pub fn rplidar_byte_arrival_s(i: usize, nodes: usize, t0_s: f64, period_s: f64, baud: u32) -> f64 {
+    let (n, j) = (i / NODE_LEN, i % NODE_LEN);
+    t0_s + n as f64 * period_s / nodes.max(1) as f64
+        + (j + 1) as f64 * BITS_PER_BYTE as f64 / baud.max(1) as f64
 }
 
 /// One RPLIDAR revolution of `nodes` evenly spaced nodes starting at 0°
@@ -101,10 +138,18 @@ mod tests {
                 }
             }));
         }
-        let mut p = RplidarParser::new(RplidarConfig::default());
+        // one chunk: the parser dates the nodes at its node rate, which must be
+        // the stream's (200 nodes in 0.2 s), else the turns are not of the
+        // nominal period and the first is dropped
+        let mut p = RplidarParser::new(RplidarConfig {
+            sample_rate_hz: 1000,
+            nominal_period_ns: 200_000_000,
+            ..RplidarConfig::default()
+        });
         let mut scans = Vec::new();
         p.push(&bytes, 0, |s| scans.push(s.clone()));
-        assert_eq!(scans.len(), 2);
+        assert_eq!(scans.len(), 2, "{:?}", p.stats());
+        assert_eq!(scans[0].timing().period_ns, 200_000_000);
         let valid = scans[0].rays().iter().filter(|r| r.valid).count();
         assert!((98..=101).contains(&valid), "{valid}");
     }

@@ -35,8 +35,10 @@
 //! skipped and counted; after a CRC failure the decoder rescans the 46 bytes
 //! after the false header for the next header, so a corrupted or truncated
 //! packet costs only itself. The scan assembler additionally rejects packets
-//! with a zero speed, an angle ≥ 360°, an angle span above
-//! [`Ld06Config::max_span_cdeg`], or a timestamp ≥ [`Ld06Config::timestamp_wrap_ms`].
+//! with a zero speed, an angle ≥ 360° or an angle span above
+//! [`Ld06Config::max_span_cdeg`]; with [`Ld06Clock::Device`] (the only clock
+//! that reads the stamp) also a timestamp ≥ [`Ld06Config::timestamp_wrap_ms`],
+//! and a timestamp that jumps (see below).
 //! Every rejection is counted in [`Ld06Stats`] and the latest one is kept as
 //! an [`Ld06Error`] naming the stream byte offset.
 //!
@@ -44,12 +46,37 @@
 //!
 //! Points are measured at a constant angular rate, so point `i` of a packet is
 //! `(11 - i) · step / speed` before the last point. The packet's reference time
-//! is either the device timestamp (unwrapped across its 30 s wrap,
-//! [`Ld06Clock::Device`]) or the host time of arrival of the packet's last
-//! byte ([`Ld06Clock::Host`]: the `rx_ns` passed with the chunk minus the
-//! transmission time of the bytes that followed the packet in that chunk at
-//! [`Ld06Config::baud`]). [`StampRef`] says which point the reference time
-//! belongs to. The ray times stored in the scan are therefore per point.
+//! is one of:
+//!
+//! * [`Ld06Clock::Device`]: the device timestamp, unwrapped across its 30 s
+//!   wrap. The CRC-8 misses one corrupted packet in 256 (and a misframed one
+//!   can pass it), so a stamp is trusted only where it follows the last one by
+//!   0 to [`MAX_STAMP_STEP_MS`] ms (or four packet intervals, if longer). Any
+//!   other step (a jump ahead, or a step back, which the wrap would read as
+//!   nearly 30 s ahead) rejects the packet ([`Ld06ErrorKind::TimestampJump`],
+//!   [`Ld06Stats::timestamp_jumps`]), unless the packet before was rejected for
+//!   a jump and this one follows *that* one within the bound: two packets
+//!   agreeing on a new count are a real jump (a gap in the stream, a device
+//!   restart), taken as the signed step between the two counts (a step ahead
+//!   over half the wrap is a step back). One corrupted stamp costs its packet.
+//! * [`Ld06Clock::Host`]: the host clock, from the `rx_ns` passed with each
+//!   chunk (the arrival of the chunk's last byte). The device sends a packet
+//!   right after measuring its last point, 10 bits a byte (start, 8 data, stop)
+//!   at [`Ld06Config::baud`], one packet per 12 points (every
+//!   `12 / point_rate_hz` s, [`Ld06Config::point_rate_hz`]; never faster than
+//!   the line carries them). So the packet's last point was measured at the
+//!   arrival of its own last byte less its own wire time
+//!   (`47 · 10 / baud`, 2.04 ms at 230400 baud), and the bytes after it in the
+//!   chunk date that arrival: `n` whole packets after it put it `n` packet
+//!   intervals before the chunk's end; a trailing part of a packet (`m` bytes)
+//!   arrived at 10 bits a byte after that packet began to leave, one packet
+//!   interval after the last whole one's last point. Only the host's reading
+//!   latency (scheduling, USB) is left, which no byte count can see.
+//!
+//! [`StampRef`] says which point the reference time belongs to
+//! ([`StampRef::LastPoint`] for the host clock: the reference is when the
+//! packet began to leave, right after its last point). The ray times stored in
+//! the scan are therefore per point.
 //!
 //! ```
 //! use vlsync_signature_lidar::ld06::{Ld06Config, Ld06Encoder, Ld06Parser};
@@ -64,6 +91,7 @@
 //! ```
 
 use crate::scan::{cw_degrees_to_bearing, Ray, Rotation, Scan, ScanTiming};
+use crate::serial::BITS_PER_BYTE;
 use std::fmt;
 use vlsync_common::Nanos;
 
@@ -79,6 +107,11 @@ pub const POINTS_PER_PACKET: usize = 12;
 pub const POINT_RATE_HZ: u32 = 4500;
 /// Serial speed of the LD06/LD19.
 pub const BAUD: u32 = 230_400;
+/// With [`Ld06Clock::Device`], the largest step (ms) from one packet's stamp to
+/// the next that is taken without a second packet confirming it (or four packet
+/// intervals, if longer): packets come every 2.7 ms, and a few lost to line
+/// noise make a step of a few of those.
+pub const MAX_STAMP_STEP_MS: u16 = 1000;
 
 const fn crc_table() -> [u8; 256] {
     let mut t = [0u8; 256];
@@ -172,6 +205,14 @@ pub enum Ld06ErrorKind {
         /// Timestamp, ms.
         timestamp_ms: u16,
     },
+    /// Timestamp that does not follow the last accepted one by 0 to
+    /// [`MAX_STAMP_STEP_MS`] ms (device clock only), unconfirmed by the next packet.
+    TimestampJump {
+        /// Timestamp, ms.
+        timestamp_ms: u16,
+        /// The last accepted timestamp, ms.
+        last_ms: u16,
+    },
 }
 
 impl fmt::Display for Ld06ErrorKind {
@@ -205,6 +246,14 @@ impl fmt::Display for Ld06ErrorKind {
             Ld06ErrorKind::TimestampOutOfRange { timestamp_ms } => {
                 write!(f, "timestamp {timestamp_ms} ms at or above the wrap value")
             }
+            Ld06ErrorKind::TimestampJump {
+                timestamp_ms,
+                last_ms,
+            } => write!(
+                f,
+                "timestamp {timestamp_ms} ms jumps from the last one, {last_ms} ms \
+                 (a corrupted stamp, or a jump the next packet must confirm)"
+            ),
         }
     }
 }
@@ -307,6 +356,9 @@ pub struct Ld06Stats {
     pub crc_errors: u64,
     /// CRC-valid packets rejected by the scan assembler (speed, angle, span, timestamp).
     pub invalid_packets: u64,
+    /// Of `invalid_packets`, those rejected for a timestamp jump
+    /// ([`Ld06ErrorKind::TimestampJump`], device clock only).
+    pub timestamp_jumps: u64,
     /// Scans emitted.
     pub scans: u64,
 }
@@ -462,9 +514,12 @@ impl Ld06Decoder {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Ld06Clock {
     /// The device's millisecond timestamp, unwrapped (starts at the first
-    /// packet's timestamp).
+    /// packet's timestamp); a stamp that jumps is refused unless the next
+    /// packet confirms it (see the module docs).
     Device,
-    /// Host arrival time of the packet's last byte, from the `rx_ns` given with each chunk.
+    /// Host clock: the arrival of the packet's last byte (from the `rx_ns` given
+    /// with each chunk, less the bytes after it) less the packet's own wire time,
+    /// which is when its last point was measured (see the module docs).
     #[default]
     Host,
 }
@@ -474,7 +529,8 @@ pub enum Ld06Clock {
 pub enum StampRef {
     /// Point 0.
     FirstPoint,
-    /// Point 11 (the packet is sent after its last point is measured).
+    /// Point 11 (the packet is sent after its last point is measured: the
+    /// setting for [`Ld06Clock::Host`]).
     #[default]
     LastPoint,
 }
@@ -486,11 +542,13 @@ pub struct Ld06Config {
     pub clock: Ld06Clock,
     /// Point the reference time belongs to.
     pub stamp_ref: StampRef,
-    /// Serial speed, for host-time correction of bytes that followed a packet.
+    /// Serial speed: with the host clock, a packet's own wire time and that of
+    /// a trailing part of a packet after it (10 bits a byte).
     pub baud: u32,
-    /// Points per second measured by the device (4500 for LD06/LD19): with
-    /// the speed it sets the packet rate, which bounds the host-time
-    /// correction from below when the line idles between packets.
+    /// Points per second measured by the device (4500 for LD06/LD19): sets
+    /// the packet interval (12 points), the time between packets on a line
+    /// that idles between them, for the whole packets after a packet in a
+    /// chunk (host clock), and the device clock's largest unconfirmed step.
     pub point_rate_hz: u32,
     /// The device timestamp wraps at this value, ms.
     pub timestamp_wrap_ms: u16,
@@ -522,8 +580,13 @@ pub struct Ld06Parser {
     scan: Scan,
     last_angle_deg: Option<f64>,
     speed_dps: u16,
+    /// last accepted device stamp and its unwrapped count, ms
     dev_clock: Option<(u16, i64)>,
+    /// a stamp rejected for a jump, right before: (stamp, signed step from the
+    /// last accepted one, ms)
+    dev_jump: Option<(u16, i64)>,
     invalid_packets: u64,
+    timestamp_jumps: u64,
     scans: u64,
     last_error: Option<Ld06Error>,
 }
@@ -538,7 +601,9 @@ impl Ld06Parser {
             last_angle_deg: None,
             speed_dps: 0,
             dev_clock: None,
+            dev_jump: None,
             invalid_packets: 0,
+            timestamp_jumps: 0,
             scans: 0,
             last_error: None,
         }
@@ -548,6 +613,7 @@ impl Ld06Parser {
     pub fn stats(&self) -> Ld06Stats {
         Ld06Stats {
             invalid_packets: self.invalid_packets,
+            timestamp_jumps: self.timestamp_jumps,
             scans: self.scans,
             ..*self.decoder.stats()
         }
@@ -619,28 +685,21 @@ impl Ld06Parser {
             );
         }
         let reference_ns = match self.cfg.clock {
-            Ld06Clock::Device => {
-                let acc = match self.dev_clock {
-                    None => p.timestamp_ms as i64,
-                    Some((last, acc)) => {
-                        let delta = (p.timestamp_ms as i64 - last as i64).rem_euclid(wrap as i64);
-                        acc + delta
-                    }
-                };
-                self.dev_clock = Some((p.timestamp_ms, acc));
-                acc.saturating_mul(1_000_000)
-            }
-            Ld06Clock::Host => {
-                // a byte takes 10 bit times on the line, but the device sends
-                // one packet per 12 points and idles in between: use the
-                // slower of the two per-byte rates for the bytes after the packet
-                let serial_ns = 10e9 / self.cfg.baud.max(1) as f64;
-                let paced_ns = POINTS_PER_PACKET as f64 * 1e9
-                    / self.cfg.point_rate_hz.max(1) as f64
-                    / PACKET_LEN as f64;
-                let shift = (bytes_after as f64 * serial_ns.max(paced_ns)).round() as i64;
-                rx_ns.saturating_sub(shift)
-            }
+            Ld06Clock::Device => match self.device_count(p.timestamp_ms) {
+                Some(ms) => ms.saturating_mul(1_000_000),
+                None => {
+                    self.timestamp_jumps += 1;
+                    let last_ms = self.dev_clock.map_or(0, |(last, _)| last);
+                    return self.reject(
+                        offset,
+                        Ld06ErrorKind::TimestampJump {
+                            timestamp_ms: p.timestamp_ms,
+                            last_ms,
+                        },
+                    );
+                }
+            },
+            Ld06Clock::Host => rx_ns.saturating_sub(self.host_shift_ns(bytes_after)),
         };
         self.speed_dps = p.speed_dps;
         // time between consecutive points: (span / 11) / speed
@@ -671,6 +730,72 @@ impl Ld06Parser {
                 self.emit(on_scan);
             }
         }
+    }
+
+    /// Packet interval (12 points) on a line that carries them, and one byte's
+    /// wire time, ns.
+    fn intervals_ns(&self) -> (f64, f64) {
+        let byte_ns = BITS_PER_BYTE as f64 * 1e9 / self.cfg.baud.max(1) as f64;
+        let paced_ns = POINTS_PER_PACKET as f64 * 1e9 / self.cfg.point_rate_hz.max(1) as f64;
+        (paced_ns.max(PACKET_LEN as f64 * byte_ns), byte_ns)
+    }
+
+    /// Host clock: the time from a packet's last point to the arrival of the last
+    /// byte of its chunk, `bytes_after` bytes later (see the module docs).
+    fn host_shift_ns(&self, bytes_after: usize) -> i64 {
+        let (interval_ns, byte_ns) = self.intervals_ns();
+        let (whole, part) = (bytes_after / PACKET_LEN, bytes_after % PACKET_LEN);
+        let shift = if part == 0 {
+            // the chunk ends with a whole packet, `whole` packets on: that one
+            // began to leave `whole` intervals after this one, 47 bytes before
+            whole as f64 * interval_ns + PACKET_LEN as f64 * byte_ns
+        } else {
+            // it ends `part` bytes into the packet after the whole ones, which
+            // began to leave one interval after the last whole one
+            (whole + 1) as f64 * interval_ns + part as f64 * byte_ns
+        };
+        shift.round() as i64
+    }
+
+    /// Device clock: the unwrapped count (ms) of a stamp, or `None` if the stamp
+    /// jumps and is refused (see the module docs).
+    fn device_count(&mut self, ts: u16) -> Option<i64> {
+        let wrap = i64::from(self.cfg.timestamp_wrap_ms.max(1));
+        let (interval_ns, _) = self.intervals_ns();
+        let bound = i64::from(MAX_STAMP_STEP_MS)
+            .max((4.0 * interval_ns / 1e6).ceil() as i64)
+            .min((wrap - 1) / 2);
+        // the step from `from` to `to`, signed: within (-wrap / 2, wrap / 2]
+        let step = |from: u16, to: u16| {
+            let d = (i64::from(to) - i64::from(from)).rem_euclid(wrap);
+            if d > wrap / 2 {
+                d - wrap
+            } else {
+                d
+            }
+        };
+        let Some((last, acc)) = self.dev_clock else {
+            self.dev_clock = Some((ts, i64::from(ts)));
+            return Some(i64::from(ts));
+        };
+        let d = step(last, ts);
+        let acc = if (0..=bound).contains(&d) {
+            acc + d
+        } else {
+            match self.dev_jump.take() {
+                // the packet before jumped the same way: a real jump
+                Some((jumped, d_jump)) if (0..=bound).contains(&step(jumped, ts)) => {
+                    acc + d_jump + step(jumped, ts)
+                }
+                _ => {
+                    self.dev_jump = Some((ts, d));
+                    return None;
+                }
+            }
+        };
+        self.dev_jump = None;
+        self.dev_clock = Some((ts, acc));
+        Some(acc)
     }
 
     fn emit(&mut self, on_scan: &mut impl FnMut(&Scan)) {
@@ -888,10 +1013,173 @@ mod tests {
         let mut rays = Vec::new();
         p.push(&s, 1_000_000_000, |_| {});
         p.finish(|sc| rays.extend_from_slice(sc.rays()));
-        // the device sends one packet per 12 points: packet 0 ended one
-        // packet interval (12 / 4500 s) before the chunk's end
-        assert_eq!(rays[11].t_ns, 1_000_000_000 - 2_666_667);
-        assert_eq!(rays[23].t_ns, 1_000_000_000);
+        // the chunk ends with packet 1's last byte: its last point was measured
+        // when the packet began to leave, its 47 bytes' wire time (2.04 ms at
+        // 230400 baud) before; the device sends one packet per 12 points, so
+        // packet 0 left one packet interval (12 / 4500 s) before packet 1.
+        // (This test used to expect 1 s and 1 s - 2.67 ms: the arrival of the
+        // packets' last bytes, 2.04 ms after their last points.)
+        // 47 * 10 / 230400 s = 2_039_930.6 ns, 12 / 4500 s = 2_666_666.7 ns
+        assert_eq!(rays[23].t_ns, 1_000_000_000 - 2_039_931);
+        assert_eq!(rays[11].t_ns, 1_000_000_000 - 4_706_597);
+    }
+
+    /// The stream of [`crate::encode::ld06_stream`] read in chunks of 1 to 150
+    /// bytes, each dated at its last byte's arrival (the device sends a packet
+    /// right after its last point, 10 bits a byte): every ray is dated at the
+    /// device time of its point, whatever the chunking.
+    #[test]
+    fn host_stamps_are_the_points_measurement_times() {
+        use crate::encode::{ld06_byte_arrival_s, ld06_stream};
+        let bytes = ld06_stream(3600, 0, 0.5, |_, _| 2.0);
+        for baud in [BAUD, 921_600] {
+            let mut p = Ld06Parser::new(Ld06Config {
+                baud,
+                ..Ld06Config::default()
+            });
+            let mut rays = Vec::new();
+            let (mut at, mut rng) = (0, 12345u64);
+            while at < bytes.len() {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let n = (1 + (rng >> 33) as usize % 150).min(bytes.len() - at);
+                let rx = (ld06_byte_arrival_s(at + n - 1, baud) * 1e9).round() as Nanos;
+                p.push(&bytes[at..at + n], rx, |sc| {
+                    rays.extend_from_slice(sc.rays())
+                });
+                at += n;
+            }
+            p.finish(|sc| rays.extend_from_slice(sc.rays()));
+            assert_eq!(rays.len(), bytes.len() / PACKET_LEN * POINTS_PER_PACKET);
+            for (i, r) in rays.iter().enumerate() {
+                // point i measured at i / 4500 s
+                let truth = (i as f64 / POINT_RATE_HZ as f64 * 1e9).round() as Nanos;
+                assert!(
+                    (r.t_ns - truth).abs() <= 2,
+                    "{baud} baud, point {i}: {} ns, measured at {truth} ns",
+                    r.t_ns
+                );
+            }
+        }
+    }
+
+    /// Device-clock packets from `enc`, `n` of them, with packet `k`'s stamp
+    /// changed by `bad(k)` (the CRC recomputed: a corruption the CRC-8 misses).
+    fn stamped(enc: &mut Ld06Encoder, n: usize, bad: impl Fn(usize) -> Option<u16>) -> Vec<u8> {
+        let mut v = Vec::new();
+        for k in 0..n {
+            let mut b = enc.next_packet(|_| 2000);
+            if let Some(ts) = bad(k) {
+                let mut p = Ld06Packet::decode(&b).unwrap();
+                p.timestamp_ms = ts;
+                b = p.encode();
+            }
+            v.extend_from_slice(&b);
+        }
+        v
+    }
+
+    /// Ray times (ns, sorted: a scan keeps its rays in time order, not the
+    /// stream) through a device-clock parser, its stats and last error.
+    fn device_times(bytes: &[u8]) -> (Vec<Nanos>, Ld06Stats, Option<Ld06Error>) {
+        let mut p = Ld06Parser::new(Ld06Config {
+            clock: Ld06Clock::Device,
+            ..Default::default()
+        });
+        let mut t = Vec::new();
+        p.push(bytes, 0, |sc| t.extend(sc.rays().iter().map(|r| r.t_ns)));
+        p.finish(|sc| t.extend(sc.rays().iter().map(|r| r.t_ns)));
+        t.sort_unstable();
+        (t, p.stats(), p.last_error())
+    }
+
+    /// The stamp of packet `k` of an encoder started at `start_ms` (its last point).
+    fn stamp_of(start_ms: u32, k: usize) -> u16 {
+        let t = start_ms as f64 + (k * POINTS_PER_PACKET + 11) as f64 * 1000.0 / 4500.0;
+        (t.round() as u32 % 30_000) as u16
+    }
+
+    /// The ray times of packet `k` of an encoder started at `start_ms`, on the
+    /// device clock (its stamp is its last point's time, whole ms): the packet
+    /// alone through a parser, whose count starts at the first stamp.
+    fn packet_times(start_ms: u32, k: usize) -> Vec<Nanos> {
+        let b = stamped(&mut Ld06Encoder::new(3600, start_ms), k + 1, |_| None);
+        device_times(&b[k * PACKET_LEN..]).0
+    }
+
+    /// Removes one occurrence of each of `xs` from `v` (neighbouring packets'
+    /// whole-ms stamps can give two rays the same time).
+    fn remove_each(v: &mut Vec<Nanos>, xs: &[Nanos]) {
+        for x in xs {
+            let i = v.iter().position(|t| t == x).expect("a ray at that time");
+            v.remove(i);
+        }
+    }
+
+    #[test]
+    fn one_corrupted_device_stamp_costs_its_packet_not_every_later_time() {
+        let truth = device_times(&stamped(&mut Ld06Encoder::new(3600, 1000), 60, |_| None)).0;
+        // packet 30's stamp reads 300 ms early (the wrap would take it as 29.7 s
+        // late), or 5 s late, or just short of the wrap (a step back over it)
+        let ts = stamp_of(1000, 30);
+        for bad in [ts - 300, ts + 5000, 29_990] {
+            let bytes = stamped(&mut Ld06Encoder::new(3600, 1000), 60, |k| {
+                (k == 30).then_some(bad)
+            });
+            let (got, st, e) = device_times(&bytes);
+            assert_eq!((st.invalid_packets, st.timestamp_jumps), (1, 1), "{st:?}");
+            assert_eq!(
+                e.unwrap().kind,
+                Ld06ErrorKind::TimestampJump {
+                    timestamp_ms: bad,
+                    last_ms: stamp_of(1000, 29)
+                }
+            );
+            // every packet but the bad one, at its own time
+            let mut want: Vec<Nanos> = truth.clone();
+            remove_each(&mut want, &packet_times(1000, 30));
+            assert!(
+                got == want,
+                "stamp {bad}: {} rays, want {}",
+                got.len(),
+                want.len()
+            );
+        }
+    }
+
+    #[test]
+    fn a_jump_two_packets_agree_on_is_taken_and_the_wrap_still_unwraps() {
+        // a gap in the stream: the device clock goes on 4 s later (2 s past its wrap)
+        let mut enc = Ld06Encoder::new(3600, 28_000);
+        let mut bytes = stamped(&mut enc, 40, |_| None);
+        for _ in 0..1500 {
+            enc.next_packet(|_| 0); // 4 s not sent
+        }
+        bytes.extend(stamped(&mut enc, 40, |_| None));
+        let (got, st, _) = device_times(&bytes);
+        // the first packet after the gap is refused, the second confirms it
+        assert_eq!((st.invalid_packets, st.timestamp_jumps), (1, 1), "{st:?}");
+        assert_eq!(got.len(), 79 * 12);
+        // the last packet (1579) at its stamp, unwrapped past 30 s
+        let last = 30_000 + i64::from(stamp_of(28_000, 1579));
+        assert_eq!(*got.last().unwrap(), last * 1_000_000);
+        // a stamp 0.57 s ahead is taken (within the bound); the next packet, back
+        // on time, is refused, and the one after it confirms the step back
+        let truth = device_times(&stamped(&mut Ld06Encoder::new(3600, 1000), 40, |_| None)).0;
+        let bytes = stamped(&mut Ld06Encoder::new(3600, 1000), 40, |k| {
+            (k == 10).then_some(1600)
+        });
+        let (got, st, _) = device_times(&bytes);
+        assert_eq!((st.invalid_packets, st.timestamp_jumps), (1, 1), "{st:?}");
+        let ahead = (1600 - i64::from(stamp_of(1000, 10))) * 1_000_000;
+        let mut want: Vec<Nanos> = truth.clone();
+        let (p10, p11) = (packet_times(1000, 10), packet_times(1000, 11));
+        remove_each(&mut want, &p10);
+        remove_each(&mut want, &p11);
+        want.extend(p10.iter().map(|t| t + ahead));
+        want.sort_unstable();
+        assert!(got == want, "{} rays, want {}", got.len(), want.len());
     }
 
     #[test]

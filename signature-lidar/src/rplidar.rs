@@ -43,9 +43,24 @@
 //! ([`RplidarStats::implicit_starts`]), unless that one had jumped far beyond
 //! every node before it: a misread angle, forgotten
 //! ([`RplidarStats::stray_nodes`]); a revolution so started ends at the next
-//! flag after half a turn, wherever it began, and a revolution that lasted over 1.5
-//! times the last good period is dropped rather than timed as one turn
-//! ([`RplidarStats::implausible_periods`]). A response
+//! flag after half a turn, wherever it began.
+//!
+//! A turn that cannot be split is dropped, never timed as one. Every node, with
+//! a return or not, counts towards the angle the revolution swept (the steps
+//! between consecutive nodes, each taken the short way round, up to the next
+//! revolution's first node: 360° for one turn, whatever angle it began at; a
+//! single misread angle in it adds nothing). A revolution that swept more than
+//! one and a half turns (two turns whose start could not be found), or less
+//! than half a turn (one begun at a misread angle, which its rays' times would
+//! be interpolated from), is dropped ([`RplidarStats::wrong_turns`]). A
+//! revolution whose period (scaled to a whole turn) is over 1.5 times, or under
+//! two thirds of, the last good period is dropped too
+//! ([`RplidarStats::implausible_periods`]); the first is checked against
+//! [`RplidarConfig::nominal_period_ns`], and the last good period is kept across
+//! a drop: it is replaced by one outside those bounds only when two consecutive
+//! revolutions agree on it (within a fifth), the second of which is then
+//! kept (a motor that changed speed, or a nominal period that is not the
+//! device's, costs one revolution). A response
 //! descriptor anywhere in the stream is recognised (it can never pass as a
 //! node: its byte 1 `0x5A` has C = 0) and restarts scan assembly. Every
 //! failure is counted in [`RplidarStats`]; the latest is kept as an
@@ -53,9 +68,18 @@
 //!
 //! # Timing
 //!
-//! Nodes carry no time. The host arrival time of each revolution's first node
-//! (`S = 1`) is estimated from the `rx_ns` given with the chunk (time of its
-//! last byte) minus the transmission time of the bytes that followed it. A
+//! Nodes carry no time: each revolution's first node (`S = 1`) is dated on the
+//! host clock, from the `rx_ns` given with the chunk (the arrival of its last
+//! byte). The device sends a node right after measuring it, 10 bits a byte
+//! (start, 8 data, stop) at [`RplidarConfig::baud`], one node every
+//! `1 / sample_rate_hz` s ([`RplidarConfig::sample_rate_hz`]; never faster than
+//! the line carries them). So the node was measured at the arrival of its own
+//! last byte less its own wire time (`5 · 10 / baud`, 0.43 ms at 115200 baud),
+//! and the bytes after it in the chunk date that arrival: `n` whole nodes after
+//! it put it `n` node intervals before the chunk's end; a trailing part of a
+//! node (`m` bytes) arrived at 10 bits a byte after that node began to leave,
+//! one node interval after the last whole one was measured. Only the host's
+//! reading latency (scheduling, USB) is left, which no byte count can see. A
 //! revolution is emitted when the next one starts: its period is the time
 //! between the two starts, and each ray's time is interpolated from its
 //! angle (`Δangle / 360 · period`, clockwise from the first node's angle).
@@ -73,6 +97,7 @@
 //! ```
 
 use crate::scan::{bearing_to_cw_degrees, cw_degrees_to_bearing, Ray, Rotation, Scan, ScanTiming};
+use crate::serial::BITS_PER_BYTE;
 use std::fmt;
 use vlsync_common::Nanos;
 
@@ -260,9 +285,15 @@ pub struct RplidarStats {
     /// have started a revolution at the next node.
     pub stray_nodes: u64,
     /// Revolutions dropped because the time between their start and the next
-    /// (scaled to a whole turn) was over 1.5 times the last good period, or under
-    /// two thirds of it (not a revolution of this motor).
+    /// (scaled to a whole turn) was over 1.5 times the last good period (the
+    /// nominal period before the first), or under two thirds of it (not a
+    /// revolution of this motor), and the revolution before did not agree on it.
     pub implausible_periods: u64,
+    /// Revolutions dropped because their nodes (with a return or not) did not
+    /// sweep one turn: more than one and a half (two turns whose start could not
+    /// be found, the flagged node lost where no node has a return), never timed
+    /// as one; or less than a half (a revolution begun at a misread angle).
+    pub wrong_turns: u64,
     /// Scans emitted.
     pub scans: u64,
 }
@@ -270,15 +301,20 @@ pub struct RplidarStats {
 /// Parser settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RplidarConfig {
-    /// Serial speed (A1/A2: 115200, A2M12/A3: 256000, C1: 460800).
+    /// Serial speed (A1/A2: 115200, A2M12/A3: 256000, C1: 460800): a node's
+    /// own wire time and that of a trailing part of a node (10 bits a byte).
     pub baud: u32,
-    /// Nodes per second sent in standard scan mode (A1 ≈ 2000, C1 5000):
-    /// bounds the host-time correction when the line idles between nodes.
+    /// Nodes per second sent in standard scan mode (A1 ≈ 2000, C1 5000): the
+    /// node interval, the time between nodes on a line that idles between them,
+    /// for the whole nodes after a revolution's first in a chunk.
     pub sample_rate_hz: u32,
     /// Longest plausible rotation period; a longer interval between
     /// revolution starts uses the last good period.
     pub max_period_ns: Nanos,
-    /// Period used before a good one has been measured.
+    /// Period used before a good one has been measured, and the one the first
+    /// revolution's is checked against (a first revolution whose period is not
+    /// within 2/3 to 1.5 times this is dropped, as is the second unless the two
+    /// agree).
     pub nominal_period_ns: Nanos,
     /// A scan is emitted early if it reaches this many rays.
     pub max_scan_rays: usize,
@@ -329,7 +365,24 @@ pub struct RplidarParser {
     last_valid_jumped: bool,
     /// Whether the revolution under way began without a start flag.
     implicit_revolution: bool,
+    /// Angle swept by the revolution's nodes so far (with a return or not): the
+    /// sum of the steps between consecutive nodes, each in (-180°, 180°].
+    turn_deg: f64,
+    /// The step from the revolution's last node to the next revolution's first,
+    /// when one has started (to be added to `turn_deg` for the whole turn).
+    end_step_deg: f64,
+    /// The farthest swept by the revolution's nodes, a node that jumped over
+    /// [`STRAY_JUMP_DEG`] beyond it counting only once the node after it confirms
+    /// it (the revolution's extent, for one cut short: a stray adds nothing).
+    extent_deg: f64,
+    /// A node's swept angle that jumped, awaiting the next node.
+    extent_jump: Option<f64>,
+    /// The angle of the revolution's last node.
+    last_angle_deg: f64,
+    /// The last good period.
     last_period: Option<Nanos>,
+    /// The period of the revolution before, if it was dropped as implausible.
+    dropped_period: Option<Nanos>,
 }
 
 /// A node this far (degrees) behind its revolution's first node, before the
@@ -342,6 +395,24 @@ pub const START_JITTER_DEG: f64 = 5.0;
 /// lost bytes (a 64-byte USB packet is about 13 nodes). A node after it that falls
 /// half a turn behind it shows it misread ([`RplidarStats::stray_nodes`]).
 pub const STRAY_JUMP_DEG: f64 = 30.0;
+
+/// A revolution whose nodes swept more than this (degrees) is two turns.
+pub const MAX_TURN_DEG: f64 = 540.0;
+/// A revolution whose nodes swept less than this (degrees) began at a misread
+/// angle: a real one, even cut short by a made-up start, sweeps about a turn
+/// up to the node that starts the next.
+pub const MIN_TURN_DEG: f64 = 180.0;
+
+/// The step from `from` to `to` (degrees clockwise) the short way round, in
+/// `(-180, 180]`.
+fn step_deg(from: f64, to: f64) -> f64 {
+    let d = (to - from).rem_euclid(360.0);
+    if d > 180.0 {
+        d - 360.0
+    } else {
+        d
+    }
+}
 
 /// Angle swept clockwise from `angle0` to `angle`, in `[0, 360)`, given the
 /// farthest the revolution has swept so far (`swept_max`): early in the
@@ -376,7 +447,13 @@ impl RplidarParser {
             swept_max_before_last_valid: 0.0,
             last_valid_jumped: false,
             implicit_revolution: false,
+            turn_deg: 0.0,
+            end_step_deg: 0.0,
+            extent_deg: 0.0,
+            extent_jump: None,
+            last_angle_deg: 0.0,
             last_period: None,
+            dropped_period: None,
         }
     }
 
@@ -568,15 +645,26 @@ impl RplidarParser {
                 }
             }
         }
+        if self.scan_start.is_some() {
+            // every node counts towards the turn, up to the next revolution's first
+            let step = step_deg(self.last_angle_deg, angle);
+            if start {
+                self.end_step_deg = step;
+            } else {
+                self.turn_deg += step;
+            }
+            self.last_angle_deg = angle;
+        }
         if start {
-            let serial_ns = 10e9 / self.cfg.baud.max(1) as f64;
-            let paced_ns = 1e9 / self.cfg.sample_rate_hz.max(1) as f64 / NODE_LEN as f64;
-            let shift = (bytes_after as f64 * serial_ns.max(paced_ns)).round() as i64;
-            let t = rx_ns.saturating_sub(shift);
+            let t = rx_ns.saturating_sub(self.host_shift_ns(bytes_after));
             if self.scan_start.is_some() {
                 self.emit(t, true, on_scan);
             }
             self.scan_start = Some((t, angle));
+            self.turn_deg = 0.0;
+            self.last_angle_deg = angle;
+            self.extent_deg = 0.0;
+            self.extent_jump = None;
             self.implicit_revolution = !node.start;
             self.swept_max_deg = 0.0;
             self.last_valid_swept = None;
@@ -596,6 +684,17 @@ impl RplidarParser {
                 self.last_valid_jumped = here > self.swept_max_deg + STRAY_JUMP_DEG;
             }
             self.swept_max_deg = self.swept_max_deg.max(here);
+            // a jump counts towards the extent once the next node follows it
+            if let Some(j) = self.extent_jump.take() {
+                if (here - j).abs() <= STRAY_JUMP_DEG {
+                    self.extent_deg = self.extent_deg.max(j);
+                }
+            }
+            if here > self.extent_deg + STRAY_JUMP_DEG {
+                self.extent_jump = Some(here);
+            } else {
+                self.extent_deg = self.extent_deg.max(here);
+            }
         }
         let mm = node.distance_mm();
         self.rays.push(Ray::new(
@@ -613,6 +712,25 @@ impl RplidarParser {
         }
     }
 
+    /// The time from a node's measurement to the arrival of the last byte of its
+    /// chunk, `bytes_after` bytes later (see the module docs).
+    fn host_shift_ns(&self, bytes_after: usize) -> i64 {
+        let byte_ns = BITS_PER_BYTE as f64 * 1e9 / self.cfg.baud.max(1) as f64;
+        let paced_ns = 1e9 / self.cfg.sample_rate_hz.max(1) as f64;
+        let interval_ns = paced_ns.max(NODE_LEN as f64 * byte_ns);
+        let (whole, part) = (bytes_after / NODE_LEN, bytes_after % NODE_LEN);
+        let shift = if part == 0 {
+            // the chunk ends with a whole node, `whole` nodes on: that one left
+            // `whole` intervals after this one, 5 bytes before the end
+            whole as f64 * interval_ns + NODE_LEN as f64 * byte_ns
+        } else {
+            // it ends `part` bytes into the node after the whole ones, which
+            // began to leave one interval after the last whole one
+            (whole + 1) as f64 * interval_ns + part as f64 * byte_ns
+        };
+        shift.round() as i64
+    }
+
     /// Emits the revolution started at `scan_start`, ending at `end_ns`.
     ///
     /// `measured_end`: the end is the next revolution's start, so the time between
@@ -623,34 +741,53 @@ impl RplidarParser {
         let Some((start, angle0)) = self.scan_start else {
             return;
         };
+        let whole_turn = self.turn_deg + self.end_step_deg;
+        if measured_end && !(MIN_TURN_DEG..=MAX_TURN_DEG).contains(&whole_turn) {
+            // two turns (or more) whose start could not be found, or nodes
+            // timed from a misread first angle: their rays' times would be wrong
+            // by up to a turn
+            self.stats.wrong_turns += 1;
+            self.dropped_period = None;
+            self.rays.clear();
+            return;
+        }
         let mut measured = end_ns.saturating_sub(start);
         if measured_end && self.rays.len() >= 2 {
             // the nodes' extent plus one node's step: 360° for a whole turn
             let n = self.rays.len() as f64;
-            let turn = self.swept_max_deg * n / (n - 1.0);
+            let turn = self.extent_deg * n / (n - 1.0);
             if turn > 0.0 && !(340.0..=380.0).contains(&turn) {
                 measured = (measured as f64 * 360.0 / turn).round() as Nanos;
             }
         }
-        if let Some(last) = self.last_period {
-            if (measured > last.saturating_add(last / 2) || measured < last - last / 3)
-                && measured <= self.cfg.max_period_ns
-            {
+        let good = self.last_period.unwrap_or(self.cfg.nominal_period_ns);
+        let within = |p: Nanos, of: Nanos| p <= of.saturating_add(of / 2) && p >= of - of / 3;
+        let measured_ok = measured > 0 && measured <= self.cfg.max_period_ns;
+        if measured_end && measured_ok && !within(measured, good) {
+            let dropped = self.dropped_period.take();
+            if dropped.is_none_or(|d| (measured - d).abs() > d / 5) {
                 // not one revolution of this motor (two merged, a stall, or a start
                 // made up at a misread angle): its rays' times would be wrong by up
-                // to a turn. The next period is measured afresh, so a motor that
-                // really changed speed loses one scan, not all.
+                // to a turn. The last good period stays the reference; a motor that
+                // really changed speed gives two revolutions that agree, and loses
+                // one scan, not all.
                 self.stats.implausible_periods += 1;
-                self.last_period = None;
+                self.dropped_period = Some(measured);
                 self.rays.clear();
                 return;
             }
         }
-        let period = if measured > 0 && measured <= self.cfg.max_period_ns {
-            self.last_period = Some(measured);
+        if measured_end {
+            // the revolution before this one is no longer the one before the next
+            self.dropped_period = None;
+        }
+        let period = if measured_ok {
+            if measured_end {
+                self.last_period = Some(measured);
+            }
             measured
         } else {
-            self.last_period.unwrap_or(self.cfg.nominal_period_ns)
+            good
         };
         let timing = ScanTiming {
             start_ns: start,
@@ -776,6 +913,60 @@ mod tests {
         assert_eq!(r[90].t_ns - r[0].t_ns, 50_000_000);
         assert!((r[90].bearing_rad + std::f64::consts::FRAC_PI_2).abs() < 1e-9);
         assert!((r[90].range_m - 1.09).abs() < 1e-9);
+    }
+
+    /// Revolutions of [`crate::encode::rplidar_revolution`] read in chunks of 1 to
+    /// 120 bytes, each dated at its last byte's arrival (a node leaves as it is
+    /// measured, 10 bits a byte): each revolution starts at its first node's
+    /// measurement, and every ray is dated at its node's.
+    #[test]
+    fn host_stamps_are_the_nodes_measurement_times() {
+        use crate::encode::{rplidar_byte_arrival_s, rplidar_revolution};
+        let (per, period_s) = (360, 0.2);
+        for baud in [115_200, 460_800] {
+            let mut p = RplidarParser::new(RplidarConfig {
+                baud,
+                sample_rate_hz: (per as f64 / period_s) as u32,
+                ..RplidarConfig::default()
+            });
+            p.push(&SCAN_DESCRIPTOR, 0, |_| {});
+            let mut scans = Vec::new();
+            let mut rng = 99u64;
+            for k in 0..5 {
+                let t0 = 1.0 + k as f64 * period_s;
+                let rev = rplidar_revolution(per, t0, period_s, |_, _| 2.0);
+                let mut at = 0;
+                while at < rev.len() {
+                    rng = rng
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    let n = (1 + (rng >> 33) as usize % 120).min(rev.len() - at);
+                    let rx = rplidar_byte_arrival_s(at + n - 1, per, t0, period_s, baud);
+                    p.push(&rev[at..at + n], (rx * 1e9).round() as Nanos, |s| {
+                        scans.push(s.clone())
+                    });
+                    at += n;
+                }
+            }
+            assert_eq!(scans.len(), 4, "{:?}", p.stats());
+            for (k, s) in scans.iter().enumerate() {
+                let t0 = ((1.0 + k as f64 * period_s) * 1e9).round() as Nanos;
+                assert!(
+                    (s.timing().start_ns - t0).abs() <= 2,
+                    "{baud} baud: {:?}",
+                    s.timing()
+                );
+                assert!((s.timing().period_ns - 200_000_000).abs() <= 2);
+                for (i, r) in s.rays().iter().enumerate() {
+                    let truth = t0 + (i as f64 * period_s / per as f64 * 1e9).round() as Nanos;
+                    assert!(
+                        (r.t_ns - truth).abs() <= 3,
+                        "{baud} baud, ray {i}: {}",
+                        r.t_ns
+                    );
+                }
+            }
+        }
     }
 
     /// One revolution of `per` nodes from 0° as nodes: a return (1 m) where
@@ -910,9 +1101,15 @@ mod tests {
             "{stats:?}"
         );
         // the revolution cut at the misread node is timed as 300° of a whole turn;
-        // the one made up there (60 nodes read as 350°, too short a turn) is
-        // dropped; the next flag ends it and every later revolution is whole again
-        assert_eq!(stats.implausible_periods, 1, "{stats:?}");
+        // the one made up there (60 nodes read as 350° from the misread 10°, but
+        // whose nodes swept -10°: 10° back to 301°, on to 360°) is dropped for its
+        // turn (it was dropped for its period, too short a turn, before the turn
+        // was counted); the next flag ends it and every later revolution is whole
+        assert_eq!(
+            (stats.wrong_turns, stats.implausible_periods),
+            (1, 0),
+            "{stats:?}"
+        );
         let lens: Vec<usize> = scans.iter().map(|s| s.len()).collect();
         assert_eq!(lens, [360, 300, 360, 360, 360, 360], "{stats:?}");
         // (within one pushed chunk the nodes are dated 0.5 ms apart, the assumed
@@ -941,11 +1138,100 @@ mod tests {
         revs[2].remove(0);
         let (scans, stats) = scans_of(&revs);
         assert_eq!(stats.implicit_starts, 0, "{stats:?}");
-        assert_eq!(stats.implausible_periods, 1, "{stats:?}");
+        // the nodes without a return still sweep two turns: dropped for that
+        // (this test expected one implausible period before the turn was
+        // counted: the period check no longer sees the revolution)
+        assert_eq!(
+            (stats.wrong_turns, stats.implausible_periods),
+            (1, 0),
+            "{stats:?}"
+        );
         assert_eq!(scans.len(), 2, "{stats:?}");
         assert!(scans
             .iter()
             .all(|s| s.timing().period_ns == 200_000_000 && s.len() == 360));
+    }
+
+    /// Pushes each revolution (360 nodes, all with a return) as one chunk at the
+    /// given times (s); returns the scans' periods (ms) and the stats.
+    fn periods_at(times_s: &[f64]) -> (Vec<i64>, RplidarStats) {
+        let mut p = RplidarParser::new(RplidarConfig::default());
+        let mut periods = Vec::new();
+        for &t in times_s {
+            let rev = bytes_of(&rev_nodes(360, |_| true));
+            p.push(&rev, (t * 1e9).round() as Nanos, |s| {
+                assert_eq!(s.len(), 360);
+                periods.push((s.timing().period_ns as f64 / 1e6).round() as i64)
+            });
+        }
+        (periods, *p.stats())
+    }
+
+    #[test]
+    fn a_revolution_is_checked_against_a_period_from_the_first_to_the_last() {
+        // the first revolution against the nominal period (181.8 ms): 400 ms is
+        // not one turn
+        let (periods, stats) = periods_at(&[1.0, 1.4, 1.6, 1.8, 2.0]);
+        assert_eq!(periods, [200, 200, 200], "{stats:?}");
+        assert_eq!(stats.implausible_periods, 1);
+        // after a drop (350 ms) the last good period stays the reference: the
+        // 100 ms revolution after it is dropped too, not taken blindly
+        let (periods, stats) = periods_at(&[1.0, 1.2, 1.4, 1.75, 1.85, 2.05, 2.25]);
+        assert_eq!(periods, [200, 200, 200, 200], "{stats:?}");
+        assert_eq!(stats.implausible_periods, 2);
+        // a motor that changed speed: two revolutions agree on the new period,
+        // and the second of them is kept
+        let (periods, stats) = periods_at(&[1.0, 1.2, 1.4, 1.52, 1.64, 1.76, 1.88]);
+        assert_eq!(periods, [200, 200, 120, 120, 120], "{stats:?}");
+        assert_eq!(stats.implausible_periods, 1);
+    }
+
+    #[test]
+    fn a_first_revolution_of_two_turns_is_dropped_for_its_nodes_sweep() {
+        // the second turn's flag is lost and none of its nodes has a return: no
+        // start can be made up, and there is no period yet to find it by
+        let mut revs: Vec<_> = (0..4).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[1] = rev_nodes(360, |_| false);
+        revs[1][0].start = false;
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (stats.wrong_turns, stats.implausible_periods),
+            (1, 0),
+            "{stats:?}"
+        );
+        assert_eq!(scans.len(), 1, "{stats:?}");
+        assert_eq!(scans[0].len(), 360);
+        assert_eq!(scans[0].timing().period_ns, 200_000_000);
+    }
+
+    #[test]
+    fn a_stray_angle_does_not_stretch_a_revolution_cut_short() {
+        // the second revolution's node at 264° reads 328° (a stray, 64° ahead),
+        // and its node at 272° reads 16°: a start is made up there, cutting the
+        // revolution at 272 nodes, 272° of a turn
+        let mut revs: Vec<_> = (0..5).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[1][264].angle_q6 = 328 * 64;
+        revs[1][272].angle_q6 = 16 * 64;
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (stats.implicit_starts, stats.wrong_turns),
+            (1, 1),
+            "{stats:?}"
+        );
+        let lens: Vec<usize> = scans.iter().map(|s| s.len()).collect();
+        assert_eq!(lens, [360, 272, 360, 360], "{stats:?}");
+        // (nodes dated 0.5 ms apart within a chunk: 272 of them span 136 ms of a
+        // 180 ms turn; the stray's 328° would have made it 149 ms)
+        assert_eq!(scans[1].timing().period_ns, 180_000_000);
+        let r = scans[1].rays();
+        let at_271 = r
+            .iter()
+            .find(|r| (bearing_to_cw_degrees(r.bearing_rad) - 271.0).abs() < 1e-9)
+            .unwrap();
+        assert!(
+            (at_271.t_ns - r[0].t_ns - 135_500_000).abs() < 100_000,
+            "{at_271:?}"
+        );
     }
 
     #[test]

@@ -25,6 +25,10 @@ use std::io::{self, Read, Write};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use vlsync_common::Nanos;
 
+/// Bits on the line per byte (8N1: start, 8 data, stop): a byte's wire time is
+/// `10 / baud` s.
+pub const BITS_PER_BYTE: u32 = 10;
+
 /// A byte-stream parser that yields scans.
 pub trait ScanParser {
     /// Pushes a chunk received at host time `rx_ns` (time of its last byte).

@@ -190,7 +190,9 @@ fn ld06_damaged_stream_resyncs_and_stays_accurate() {
 
 /// RPLIDAR at 5.5 Hz, 360 nodes per revolution; nodes leave the device as
 /// they are measured, chunks of `chunk_nodes` nodes reach the host stamped
-/// with the true time of their last node.
+/// with the arrival of their last byte: the true time of their last node plus
+/// its 5 bytes' wire time at 115200 baud (10 bits a byte), which the parser
+/// takes off.
 fn rplidar_stream(revs: usize, chunk_nodes: usize) -> (Vec<(Vec<u8>, i64)>, RplidarConfig) {
     let period_ns = 181_818_182i64;
     let n = 360usize;
@@ -215,7 +217,8 @@ fn rplidar_stream(revs: usize, chunk_nodes: usize) -> (Vec<(Vec<u8>, i64)>, Rpli
             };
             cur.extend_from_slice(&node.encode());
             if cur.len() == chunk_nodes * 5 {
-                chunks.push((std::mem::take(&mut cur), t_ns.round() as i64));
+                let wire_ns = 5.0 * 10.0 * 1e9 / 115_200.0;
+                chunks.push((std::mem::take(&mut cur), (t_ns + wire_ns).round() as i64));
             }
         }
     }

@@ -595,14 +595,15 @@ impl Source for LidarSource {
                     s.push_str(&format!(
                         "; RPLIDAR: {} bytes, {} nodes, {} skipped bytes, {} false starts, {} \
                          starts made up for lost flags, {} stray angles, {} revolutions dropped \
-                         as too long",
+                         for their period, {} for their sweep (not one turn)",
                         st.bytes,
                         st.nodes,
                         st.skipped_bytes,
                         st.false_starts,
                         st.implicit_starts,
                         st.stray_nodes,
-                        st.implausible_periods
+                        st.implausible_periods,
+                        st.wrong_turns
                     ));
                 }
             }
