@@ -55,6 +55,20 @@ pub enum Next {
     End,
 }
 
+/// [`Source::next_sample`] of a source that overrides [`Source::next_event`]: its
+/// events until a sample or the end, the idle ones passed over.
+pub fn sample_of_events(
+    mut next_event: impl FnMut() -> Result<Next, SourceError>,
+) -> Result<Option<Sample>, SourceError> {
+    loop {
+        match next_event()? {
+            Next::Sample(s) => return Ok(Some(s)),
+            Next::End => return Ok(None),
+            Next::Idle => {}
+        }
+    }
+}
+
 /// How long a source that overrides [`Source::next_event`] works toward a sample
 /// before it returns [`Next::Idle`]. Checked between frames or reads, so a single
 /// wait that blocks longer (a camera's wait for a frame, up to its stall time)

@@ -744,17 +744,7 @@ impl Ld06Parser {
     /// byte of its chunk, `bytes_after` bytes later (see the module docs).
     fn host_shift_ns(&self, bytes_after: usize) -> i64 {
         let (interval_ns, byte_ns) = self.intervals_ns();
-        let (whole, part) = (bytes_after / PACKET_LEN, bytes_after % PACKET_LEN);
-        let shift = if part == 0 {
-            // the chunk ends with a whole packet, `whole` packets on: that one
-            // began to leave `whole` intervals after this one, 47 bytes before
-            whole as f64 * interval_ns + PACKET_LEN as f64 * byte_ns
-        } else {
-            // it ends `part` bytes into the packet after the whole ones, which
-            // began to leave one interval after the last whole one
-            (whole + 1) as f64 * interval_ns + part as f64 * byte_ns
-        };
-        shift.round() as i64
+        crate::serial::wire_shift_ns(bytes_after, PACKET_LEN, interval_ns, byte_ns)
     }
 
     /// Device clock: the unwrapped count (ms) of a stamp, or `None` if the stamp

@@ -718,17 +718,7 @@ impl RplidarParser {
         let byte_ns = BITS_PER_BYTE as f64 * 1e9 / self.cfg.baud.max(1) as f64;
         let paced_ns = 1e9 / self.cfg.sample_rate_hz.max(1) as f64;
         let interval_ns = paced_ns.max(NODE_LEN as f64 * byte_ns);
-        let (whole, part) = (bytes_after / NODE_LEN, bytes_after % NODE_LEN);
-        let shift = if part == 0 {
-            // the chunk ends with a whole node, `whole` nodes on: that one left
-            // `whole` intervals after this one, 5 bytes before the end
-            whole as f64 * interval_ns + NODE_LEN as f64 * byte_ns
-        } else {
-            // it ends `part` bytes into the node after the whole ones, which
-            // began to leave one interval after the last whole one
-            (whole + 1) as f64 * interval_ns + part as f64 * byte_ns
-        };
-        shift.round() as i64
+        crate::serial::wire_shift_ns(bytes_after, NODE_LEN, interval_ns, byte_ns)
     }
 
     /// Emits the revolution started at `scan_start`, ending at `end_ns`.

@@ -280,6 +280,28 @@ impl SerialLidar {
     }
 }
 
+/// Host clock: the time (ns) from the measurement of a packet's (or node's) last point
+/// to the arrival of the last byte of its chunk, `bytes_after` bytes later. Units of
+/// `unit_len` bytes leave one every `interval_ns`, each `unit_len · byte_ns` long on the
+/// wire, after their last point is measured: a chunk ending with a whole unit ends
+/// `whole` intervals on plus that unit's wire time; one ending `part` bytes into the
+/// unit after the whole ones, one interval more plus those bytes.
+pub(crate) fn wire_shift_ns(
+    bytes_after: usize,
+    unit_len: usize,
+    interval_ns: f64,
+    byte_ns: f64,
+) -> i64 {
+    let unit_len = unit_len.max(1);
+    let (whole, part) = (bytes_after / unit_len, bytes_after % unit_len);
+    let shift = if part == 0 {
+        whole as f64 * interval_ns + unit_len as f64 * byte_ns
+    } else {
+        (whole + 1) as f64 * interval_ns + part as f64 * byte_ns
+    };
+    shift.round() as i64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

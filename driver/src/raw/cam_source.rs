@@ -922,13 +922,7 @@ impl CamSource {
 
 impl Source for CamSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
-        loop {
-            match self.next_event()? {
-                Next::Sample(s) => return Ok(Some(s)),
-                Next::End => return Ok(None),
-                Next::Idle => {}
-            }
-        }
+        crate::sample_of_events(|| self.next_event())
     }
 
     fn next_event(&mut self) -> Result<Next, SourceError> {

@@ -524,13 +524,7 @@ fn lidar_event_ns(recent: &VecDeque<(Nanos, Nanos)>, t: Nanos, period: Nanos) ->
 
 impl Source for LidarSource {
     fn next_sample(&mut self) -> Result<Option<Sample>, SourceError> {
-        loop {
-            match self.next_event()? {
-                Next::Sample(s) => return Ok(Some(s)),
-                Next::End => return Ok(None),
-                Next::Idle => {}
-            }
-        }
+        crate::sample_of_events(|| self.next_event())
     }
 
     fn next_event(&mut self) -> Result<Next, SourceError> {
