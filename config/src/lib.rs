@@ -88,7 +88,8 @@ pub struct EstimatorConfig {
     /// Minimum normalised correlation at the peak for a measurement.
     pub min_peak_score: f64,
     /// Minimum normalised correlation at the acquisition window's peak for it to count
-    /// towards a lock (a short window: noise scores higher there than on a segment).
+    /// towards a lock (a short window: noise scores higher there than on a segment);
+    /// the estimator never asks less than `min_peak_score`.
     pub min_acquire_score: f64,
     /// Minimum main-to-second peak ratio during acquisition.
     pub min_peak_ratio: f64,

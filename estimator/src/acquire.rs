@@ -44,6 +44,9 @@ impl Estimator {
             after_s: RECENTRE_HOPS as f64 * self.p.hop_len as f64 * self.p.dt_s,
         });
         self.acq_tries = 0;
+        // nothing found where the search was (a restored offset from another setup,
+        // clocks that stepped apart): a restored drift is no better than that offset
+        self.drift.forget_restored();
         self.alt_lag0 = Some(self.corr.lag0());
         self.corr.set_lag0(to);
         self.corr.clear_blocks();

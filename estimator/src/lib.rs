@@ -200,7 +200,9 @@ impl Params {
             lowpass_hz,
             highpass_hz: cl(c.highpass_hz, 0.0, 0.9 * lowpass_hz),
             min_score: cl(c.min_peak_score, 0.0, 1.0),
-            acq_min_score: cl(c.min_acquire_score, 0.0, 1.0),
+            // never below the measurements' own gate (a configuration that raised
+            // min_peak_score from before this key raised the acquisition's with it)
+            acq_min_score: cl(c.min_acquire_score.max(c.min_peak_score), 0.0, 1.0),
             min_ratio: cl(c.min_peak_ratio, 1.0, 100.0),
             min_motion: cl(c.min_motion_ratio, 0.0, 1.0),
             acquire_confirm: c.acquire_confirm.clamp(1, vlsync_config::CONFIRM_MAX),
@@ -1078,9 +1080,6 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
-        // a restored lock that is lost was no better than its state file: its drift
-        // goes with it (a no-op once the restored slope has faded or was never there)
-        self.drift.forget_restored();
         self.step_job = None;
         self.corr.restart_acq();
         self.enter_acquisition();
@@ -1770,6 +1769,24 @@ mod tests {
         ] {
             assert_eq!(count(&bad), ok, "{bad:?}");
         }
+    }
+
+    /// The acquisition's score gate is `min_acquire_score`, never below
+    /// `min_peak_score` (a configuration from before the key that raised
+    /// `min_peak_score` keeps its stricter acquisition).
+    #[test]
+    fn the_acquisition_asks_at_least_the_measurements_score() {
+        let p = |peak: f64, acq: f64| {
+            Params::new(&EstimatorConfig {
+                min_peak_score: peak,
+                min_acquire_score: acq,
+                ..EstimatorConfig::default()
+            })
+            .acq_min_score
+        };
+        assert_eq!(p(0.4, 0.7), 0.7);
+        assert_eq!(p(0.8, 0.7), 0.8);
+        assert_eq!(p(0.4, 0.2), 0.4);
     }
 
     /// A restore mid-run, wherever it falls (moving or at a stop), publishes finite

@@ -194,6 +194,9 @@ impl Estimator {
                 self.blind_moving = if motion { self.blind_moving + 1 } else { 0 };
                 if self.blind_moving >= 2 * self.p.acq_blocks && self.mode == Mode::Locked {
                     self.lose();
+                    // a restored lock found wrong was no better than its state file:
+                    // its drift goes too (a no-op once the restored slope has faded)
+                    self.drift.forget_restored();
                     // the lock was wrong: the offset is anywhere in the range the
                     // search covers now, not within the old lock's σ of it
                     let half_range = self.p.half_lags as f64 * self.p.dt_s;

@@ -41,7 +41,7 @@ struct Input {
     hostile: Vec<(bool, i64, u64)>,
 }
 
-fn config(f: &[F; 30], cadence: u8) -> EstimatorConfig {
+fn config(f: &[F; 31], cadence: u8) -> EstimatorConfig {
     let grid_hz = f[0].log(10.0, 2000.0);
     let step = 1.0 / grid_hz;
     let segment_s = f[1].log(1.0, 600.0);

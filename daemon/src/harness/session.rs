@@ -315,9 +315,11 @@ pub struct Session {
     /// [`MAX_HARNESS_NS`] (no daemon of ours publishes them; the harness's
     /// arithmetic on them would overflow).
     pub implausible: u64,
-    /// Estimates the daemon published that this harness never read: gaps in their
-    /// sequence numbers (the offset subscriber holds 16; a harness polled too
-    /// rarely at a high `--speed` loses the oldest). The figures cover the rest.
+    /// Gaps in the sequence numbers of the estimates this harness read: estimates it
+    /// read too late (the offset subscriber holds 16; a harness polled too rarely at
+    /// a high `--speed` loses the oldest), or that the daemon numbered and did not
+    /// publish (dropped, refused as invalid, a failed publish: its status counts
+    /// those). The figures cover the rest.
     pub missed: u64,
     /// Sequence number of the last estimate received.
     last_seq: Option<u64>,
@@ -718,7 +720,7 @@ impl Drop for Session {
 pub fn missed_line(s: &Session) -> Option<String> {
     (s.missed > 0).then(|| {
         format!(
-            "missed: {} estimate(s) published but not read in time (the harness's subscriber holds 16; a lower --speed avoids it): the figures cover the rest",
+            "missed: {} estimate(s), gaps in the daemon's estimate sequence (read too late by the harness, whose subscriber holds 16: a lower --speed avoids it; or never published: the daemon's status counts those): the figures cover the rest",
             s.missed
         )
     })
