@@ -1334,24 +1334,11 @@ fn a_new_session_arriving_skewed_is_found_at_once_or_after_one_search_move() {
     }
 }
 
-/// Deterministic standard normal draws (SplitMix64 and Box-Muller): the tests below
-/// need noise without a random-number crate.
-struct Normal(u64);
-
-impl Normal {
-    fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-
-    fn draw(&mut self) -> f64 {
-        let (u, v) = (self.uniform(), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    }
+/// Deterministic standard normal draws from `seed` (the simulator's generator).
+fn normal(seed: u64) -> impl FnMut() -> f64 {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    move || rng.sample(rand_distr::StandardNormal)
 }
 
 /// Both streams pure white noise at the robot families' levels (a parked robot: flow
@@ -1362,21 +1349,18 @@ impl Normal {
 fn noise_alone_never_tracks() {
     use vlsync_sim::families::{CAM_NOISE, LIDAR_NOISE};
     for seed in 1..=4u64 {
-        let mut n = Normal(seed);
+        let mut n = normal(seed);
         let mut est = Estimator::new(&EstimatorConfig::default());
         let (mut tc, mut tl) = (0.01, 0.02);
         let mut tracking = 0;
         while tl < 900.0 {
             if tc <= tl {
-                let _ = est.push(
-                    Stream::Cam,
-                    Sample::new((tc * 1e9) as i64, CAM_NOISE * n.draw()),
-                );
+                let _ = est.push(Stream::Cam, Sample::new((tc * 1e9) as i64, CAM_NOISE * n()));
                 tc += 1.0 / 30.0;
             } else {
                 let _ = est.push(
                     Stream::Lidar,
-                    Sample::new((tl * 1e9) as i64, LIDAR_NOISE * n.draw()),
+                    Sample::new((tl * 1e9) as i64, LIDAR_NOISE * n()),
                 );
                 tl += 0.1;
             }
@@ -1414,7 +1398,7 @@ fn a_long_park_does_not_track_noise() {
     for seed in 1..=2u64 {
         let run =
             try_generate_with(Family::Robot, seed, Some(park_at + park_s + 90.0), 0.0).unwrap();
-        let mut n = Normal(100 + seed);
+        let mut n = normal(100 + seed);
         let mut est = Estimator::new(&EstimatorConfig::default());
         let mut out = vec![];
         for (stream, s) in run.pushes() {
@@ -1424,7 +1408,7 @@ fn a_long_park_does_not_track_noise() {
                 Stream::Cam => (t + run.truth.offset_at(s.t_ns), CAM_NOISE),
                 Stream::Lidar => (t, LIDAR_NOISE),
             };
-            let v = envelope(tau) * s.value + sd * n.draw();
+            let v = envelope(tau) * s.value + sd * n();
             let _ = est.push(stream, Sample::new(s.t_ns, v));
             out.extend(std::iter::from_fn(|| est.poll()));
         }
