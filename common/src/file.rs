@@ -148,6 +148,14 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     let say = |why: String| format!("{flag} {}: {why}", path.display());
     // a symlink, dangling or not, is checked as the file it names
     let target = link_target(path);
+    if is_descriptor(&target) {
+        // open already (a pipe's opening would wait for its reader here)
+        return if target.exists() {
+            Ok(())
+        } else {
+            Err(say("is no open descriptor of this process".into()))
+        };
+    }
     if target.is_dir() {
         return Err(say("is a directory".into()));
     }
@@ -181,6 +189,11 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
 fn link_target(path: &Path) -> std::path::PathBuf {
     let mut p = path.to_path_buf();
     for _ in 0..16 {
+        // a descriptor's link (`/proc/self/fd/1` -> `pipe:[N]` or the file a shell
+        // opened) names no path to write through: kept, and written in place
+        if is_descriptor(&p) {
+            break;
+        }
         match std::fs::symlink_metadata(&p) {
             Ok(m) if m.file_type().is_symlink() => match std::fs::read_link(&p) {
                 Ok(t) if t.is_absolute() => p = t,
@@ -191,6 +204,39 @@ fn link_target(path: &Path) -> std::path::PathBuf {
         }
     }
     p
+}
+
+/// Whether `p` names an open descriptor rather than a file: `/dev/stdout`,
+/// `/dev/stderr`, `/dev/stdin`, `/dev/fd/N`, `/proc/self/fd/N`,
+/// `/proc/thread-self/fd/N`, `/proc/PID/fd/N`. What it leads to (a pipe, a
+/// terminal, a file a shell opened for appending) is written through the descriptor
+/// as it is: never replaced by a temporary file, never truncated.
+fn is_descriptor(p: &Path) -> bool {
+    let Some(s) = p.to_str() else {
+        return false;
+    };
+    if matches!(s, "/dev/stdout" | "/dev/stderr" | "/dev/stdin") || s.starts_with("/dev/fd/") {
+        return true;
+    }
+    let Some(rest) = s.strip_prefix("/proc/") else {
+        return false;
+    };
+    let Some((who, fd)) = rest.split_once("/fd/") else {
+        return false;
+    };
+    (who == "self" || who == "thread-self" || who.bytes().all(|b| b.is_ascii_digit()))
+        && !fd.is_empty()
+        && fd.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// Writes `contents` through the descriptor `p` names ([`is_descriptor`]), appending:
+/// a file a shell opened with `>>` keeps what it held, and one opened with `>` was
+/// emptied by the shell already (or holds only what this process wrote to it).
+fn write_descriptor(p: &Path, contents: &[u8]) -> io::Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new().append(true).open(p)?;
+    f.write_all(contents)?;
+    f.flush()
 }
 
 /// Creates the output directory `path` (and its parents) given by option `flag`; an
@@ -224,9 +270,10 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 /// temporary file beside it, renamed over it once complete (an error removes the
 /// temporary file and leaves an earlier `path` as it was). A file written over keeps
 /// its permissions, and its owner and group where the process may give them (root);
-/// a symlink's target is written, not the link. A path that exists
-/// and is not a regular file (a device such as `/dev/stdout`, a pipe) is written
-/// directly, and so is an existing file in a directory where no temporary file can
+/// a symlink's target is written, not the link. A descriptor (`/dev/stdout`,
+/// `/dev/fd/N`, `/proc/self/fd/N`) is written through, appending (a shell's `>>`
+/// keeps what the file held), a path that exists and is not a regular file (a
+/// device, a named pipe) is written directly, and so is an existing file in a directory where no temporary file can
 /// be created (it is writable, its directory is not). Errors name `path`.
 ///
 /// ```
@@ -240,6 +287,9 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
     use std::io::Write;
     let say = |e: io::Error| format!("cannot write {}: {e}", path.display());
     let target = link_target(path);
+    if is_descriptor(&target) {
+        return write_descriptor(&target, contents).map_err(say);
+    }
     let existing = std::fs::metadata(&target).ok();
     if existing.as_ref().is_some_and(|m| !m.is_file()) {
         return std::fs::write(&target, contents).map_err(say);
@@ -419,6 +469,52 @@ mod tests {
             let e = open_regular(Path::new("/dev/null")).unwrap_err();
             assert!(e.to_string().contains("character device"), "{e}");
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn descriptors_are_written_through_appending_never_replaced() {
+        use std::os::fd::AsRawFd;
+        for (p, yes) in [
+            ("/dev/stdout", true),
+            ("/dev/fd/3", true),
+            ("/proc/self/fd/1", true),
+            ("/proc/thread-self/fd/12", true),
+            ("/proc/4242/fd/0", true),
+            ("/proc/self/fd/", false),
+            ("/proc/self/fdinfo/1", false),
+            ("/proc/self/fd/x", false),
+            ("/tmp/dev/stdout", false),
+        ] {
+            assert_eq!(is_descriptor(Path::new(p)), yes, "{p}");
+        }
+        let dir = std::env::temp_dir().join(format!("vlsync-fd-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // a shell's `cmd --out /dev/stdout >> log`: the log keeps its lines
+        let log = dir.join("app.log");
+        std::fs::write(&log, "earlier line\n").unwrap();
+        let held = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+        let fd = PathBuf::from(format!("/proc/self/fd/{}", held.as_raw_fd()));
+        check_writable("--out", &fd).unwrap();
+        write_atomically(&fd, b"t,offset\n").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&log).unwrap(),
+            "earlier line\nt,offset\n"
+        );
+        // the same through a symlink to the descriptor, as /dev/stdout is one
+        let link = dir.join("out");
+        std::os::unix::fs::symlink(&fd, &link).unwrap();
+        write_atomically(&link, b"1,2\n").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&log).unwrap(),
+            "earlier line\nt,offset\n1,2\n"
+        );
+        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+        assert_eq!(left.len(), 2, "no temporary file beside the log");
+        drop(held);
+        // a descriptor this process does not hold
+        let e = check_writable("--out", Path::new("/proc/self/fd/987654")).unwrap_err();
+        assert!(e.contains("no open descriptor"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
