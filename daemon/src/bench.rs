@@ -210,7 +210,12 @@ pub fn table(results: &[FamilyResult], seeds: u64, seed_base: u64) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "vlsync estimator vs. the seed's chunked algorithm (sign and lag-range bugs fixed; baseline), {seeds} seeds per family from seed {seed_base}"
+        "vlsync estimator vs. the seed's chunked algorithm (sign and lag-range bugs fixed; baseline), {}",
+        if seeds == 1 {
+            format!("seed {seed_base} of every family")
+        } else {
+            format!("{seeds} seeds per family from seed {seed_base}")
+        }
     );
     let _ = writeln!(s);
     let _ = writeln!(
@@ -380,6 +385,10 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     }
     if let Some(d) = &args.plots {
         vlsync_common::file::create_out_dir("--plots", d)?;
+        // each family's plot too, before the work (a directory of that name)
+        for f in &families {
+            vlsync_common::file::check_writable("--plots", &d.join(format!("{}.svg", f.name())))?;
+        }
     }
     let total = families.len();
     let failure = std::sync::Mutex::new(None::<String>);
@@ -408,10 +417,16 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
                 ) {
                     Ok(r) => r,
                     Err(e) => {
+                        // the other families still run; the failure is the exit status
+                        vlsync_common::console::print_err(&format!(
+                            "[{}/{total}] {:<16} failed: {e}\n",
+                            done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
+                            fam.name()
+                        ));
                         if let Ok(mut f) = failure.lock() {
-                            f.get_or_insert(e);
+                            f.get_or_insert(format!("{}: {e}", fam.name()));
                         }
-                        break;
+                        continue;
                     }
                 };
                 let d = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
@@ -444,13 +459,20 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     if let Some(Ok(p)) = &written {
         vlsync_common::console::print_err(&format!("wrote {}\n", p.display()));
     }
-    if let Some(d) = &args.plots {
+    let failed = failure.into_inner().ok().flatten();
+    if let (Some(d), None) = (&args.plots, &failed) {
         vlsync_common::console::print_err(&format!(
             "wrote one SVG per family into {}\n",
             d.display()
         ));
     }
     written.transpose()?;
+    if let Some(e) = failed {
+        return Err(format!(
+            "{} of {total} families failed, the first: {e}",
+            total - results.len()
+        ));
+    }
     printed
 }
 

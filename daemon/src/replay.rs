@@ -351,10 +351,32 @@ pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
     format!(
         "error vs truth over {n} locked estimates: MAE {:.3} ms, p95 {:.3} ms, max {:.3} ms, >20 ms {:.1} %{left_out}",
         errs.iter().sum::<f64>() / n as f64 * 1e3,
-        errs[(n * 95 / 100).min(n - 1)] * 1e3,
+        // nearest rank, as `vlsyncd bench` scores
+        errs[((0.95 * n as f64).ceil() as usize).clamp(1, n) - 1] * 1e3,
         errs[n - 1] * 1e3,
         errs.iter().filter(|e| **e > 0.020).count() as f64 * 100.0 / n as f64
     )
+}
+
+/// Why a stream's publish times cannot be the order its samples were read in: the
+/// first that is not positive, or the first that goes back (1-based sample number).
+fn publish_problem(p: &[Nanos]) -> Option<String> {
+    let secs = |t: Nanos| t as f64 * 1e-9;
+    if let Some((i, &t)) = p.iter().enumerate().find(|(_, &t)| t <= 0) {
+        return Some(format!(
+            "publish time {} s of sample {} is not positive",
+            secs(t),
+            i + 1
+        ));
+    }
+    p.windows(2).position(|w| w[1] < w[0]).map(|i| {
+        format!(
+            "publish times go back at sample {} ({:.9} s after {:.9} s)",
+            i + 2,
+            secs(p[i + 1]),
+            secs(p[i])
+        )
+    })
 }
 
 /// The `replay` command.
@@ -369,15 +391,43 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
         Some(p) => Config::load(p).map_err(|e| e.to_string())?,
         None => Config::default(),
     };
-    let read = |p| vlsync_sim::io::read_recorded_csv(p).map_err(|e| e.to_string());
-    let (cam, lidar) = (read(a.cam)?, read(a.lidar)?);
-    let (cam_s, cam_pub, lidar_s, lidar_pub) =
-        (cam.samples, cam.publish, lidar.samples, lidar.publish);
+    let read = |p: &Path| {
+        if a.order == OrderArg::Stamp {
+            // the publish column is not needed: a recording cut mid-row in it, or one
+            // a third party wrote, replays all the same
+            vlsync_sim::io::read_signature_csv(p).map(|(samples, _)| (samples, None))
+        } else {
+            vlsync_sim::io::read_recorded_csv(p).map(|r| (r.samples, r.publish))
+        }
+        .map_err(|e| e.to_string())
+    };
+    let ((cam_s, cam_pub), (lidar_s, lidar_pub)) = (read(a.cam)?, read(a.lidar)?);
+    // publish times that cannot be the order the daemon read the samples in (not
+    // positive: a publisher that leaves them 0; going back): `auto` merges by stamp,
+    // an explicit `publish` is obeyed with a warning
+    let mut doubt = None;
+    for (path, p) in [(a.cam, &cam_pub), (a.lidar, &lidar_pub)] {
+        if let (None, Some(why)) = (&doubt, p.as_deref().and_then(publish_problem)) {
+            doubt = Some(format!("{}: {why}", path.display()));
+        }
+    }
     let order = match (a.order, cam_pub.as_deref(), lidar_pub.as_deref()) {
         (OrderArg::Stamp, _, _) | (OrderArg::Auto, None, _) | (OrderArg::Auto, _, None) => {
             Order::Stamp
         }
-        (_, Some(c), Some(l)) => Order::Publish(c, l),
+        (OrderArg::Auto, Some(_), Some(_)) if doubt.is_some() => {
+            vlsync_common::console::print_err(&format!(
+                "--order auto: {}: merging by stamp\n",
+                doubt.take().unwrap_or_default()
+            ));
+            Order::Stamp
+        }
+        (_, Some(c), Some(l)) => {
+            if let Some(d) = doubt.take() {
+                vlsync_common::console::print_err(&format!("warning: --order publish: {d}\n"));
+            }
+            Order::Publish(c, l)
+        }
         (OrderArg::Publish, c, _) => {
             let without = if c.is_none() { a.cam } else { a.lidar };
             return Err(format!(
@@ -516,6 +566,17 @@ mod tests {
             error_summary(&ests, &[]),
             "error vs truth: the truth table is empty"
         );
+    }
+
+    #[test]
+    fn the_p95_is_the_nearest_rank_as_bench_scores_it() {
+        let truth = [(0, 0.0), (100_000_000_000, 0.0)];
+        // errors 1..=20 ms: the nearest rank of 95 % of 20 is the 19th
+        let ests: Vec<Estimate> = (1..=20).map(|i| est(i as f64, i as f64 * 1e-3)).collect();
+        let s = error_summary(&ests, &truth);
+        assert!(s.contains("p95 19.000 ms, max 20.000 ms"), "{s}");
+        let s = error_summary(&ests[..1], &truth);
+        assert!(s.contains("p95 1.000 ms, max 1.000 ms"), "{s}");
     }
 
     #[test]

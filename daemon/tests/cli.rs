@@ -296,6 +296,42 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
         err.contains(&format!("{}:3: missing column 4 (publish)", p(&bad))),
         "{err}"
     );
+    // by stamp the publish column is not read: a recording cut in it replays
+    let (code, _, err) = replay(&bad, &recorded, &["--order", "stamp"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("merged by stamp"), "{err}");
+    // publish times that cannot be the order the daemon read in: auto merges by
+    // stamp and says why; an explicit --order publish is obeyed with a warning
+    let zero = dir.join("zero.csv");
+    std::fs::write(
+        &zero,
+        "t,value,seq,publish,flags\n0.0,1.0,0,0.0,1\n0.1,2.0,1,0.0,0\n",
+    )
+    .unwrap();
+    let back = dir.join("back.csv");
+    std::fs::write(
+        &back,
+        "t,value,seq,publish,flags\n0.0,1.0,0,5.0,1\n0.1,2.0,1,4.0,0\n",
+    )
+    .unwrap();
+    let (code, _, err) = replay(&recorded, &zero, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(&format!(
+            "--order auto: {}: publish time 0 s of sample 1 is not positive: merging by stamp",
+            p(&zero)
+        )) && err.contains("merged by stamp"),
+        "{err}"
+    );
+    let (code, _, err) = replay(&back, &recorded, &["--order", "publish"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(&format!(
+            "warning: --order publish: {}: publish times go back at sample 2",
+            p(&back)
+        )) && err.contains("merged by publish time"),
+        "{err}"
+    );
     // --compare: a file that is no estimates file is an error naming it
     std::fs::write(&cmp, "t,value\n0.0,1.0\n").unwrap();
     let (code, _, err) = replay(&plain, &recorded_l, &["--compare", &p(&cmp)]);
@@ -389,5 +425,53 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
         out.contains("seed"),
         "the table is printed all the same: {out}"
     );
+    // a family's plot that is a directory: refused before any run
+    let plots = dir.join("plots");
+    std::fs::create_dir_all(plots.join("robot.svg")).unwrap();
+    let (code, out, err) = run(
+        vlsyncd,
+        &[
+            "bench",
+            "--seeds",
+            "1",
+            "--families",
+            "seed,robot",
+            "--plots",
+            plots.to_str().unwrap(),
+        ],
+    );
+    assert_ne!(code, 0, "{err}");
+    let want = format!(
+        "--plots {}: is a directory",
+        plots.join("robot.svg").display()
+    );
+    assert!(err.contains(&want), "{err}");
+    assert!(out.is_empty(), "no run before the refusal: {out}");
+    // a family's plot that fails to be written: the others still run and are
+    // tabled, the failure names the family and is the exit status
+    std::fs::remove_dir_all(plots.join("robot.svg")).unwrap();
+    std::os::unix::fs::symlink("/dev/full", plots.join("seed.svg")).unwrap();
+    let (code, out, err) = run(
+        vlsyncd,
+        &[
+            "bench",
+            "--seeds",
+            "1",
+            "--duration",
+            "20",
+            "--families",
+            "seed,robot",
+            "--plots",
+            plots.to_str().unwrap(),
+        ],
+    );
+    assert_ne!(code, 0, "{err}");
+    assert!(
+        err.contains("1 of 2 families failed, the first: seed: --plots: cannot write"),
+        "{err}"
+    );
+    assert!(!err.contains("wrote one SVG per family"), "{err}");
+    assert!(out.contains("robot") && !out.contains("\nseed"), "{out}");
+    assert!(plots.join("robot.svg").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }
