@@ -6,7 +6,8 @@
 //! The recorder reads every 20 ms at nice 10 rather than on the daemon's events, so
 //! that it never runs while the daemon finishes a sample (see `run_cli`). Files in the
 //! output directory, written row by row as samples arrive and flushed every second (a
-//! recorder killed outright leaves complete files up to its last flush):
+//! recorder killed outright, or stopped by a full disk, leaves the complete rows of its
+//! last flush, [`RowFile`]); created once the services are open:
 //! * `cam.csv`, `lidar.csv`: header `t,value,seq,publish,flags`. `t` is the stamp on
 //!   the sensor's clock and `publish` the driver's `CLOCK_MONOTONIC` publish time,
 //!   both seconds with nine decimals (exact nanoseconds); the value in shortest
@@ -51,10 +52,77 @@ pub const SIGNATURE_HEADER: &str = "t,value,seq,publish,flags";
 /// The files a recording writes into its directory: camera, LiDAR, estimates.
 pub const FILES: [&str; 3] = ["cam.csv", "lidar.csv", "est.csv"];
 
+/// A recording file that always ends on a whole row: rows gather in memory and go to
+/// the file at each [`Write::flush`] (every [`FLUSH_EVERY`]); a flush that fails part
+/// way (a full disk) cuts the file back to the end of the last flush that succeeded,
+/// so `vlsyncd replay` reads it whole, never a row cut in its value.
+pub struct RowFile<F: Cut = std::fs::File> {
+    file: F,
+    buf: Vec<u8>,
+    /// Bytes in the file: every flush that succeeded.
+    committed: u64,
+}
+
+/// A file [`RowFile`] can cut back to a length after a failed write.
+pub trait Cut: Write {
+    /// Sets the length to `len` and the position to its end.
+    fn cut(&mut self, len: u64) -> std::io::Result<()>;
+}
+
+impl Cut for std::fs::File {
+    fn cut(&mut self, len: u64) -> std::io::Result<()> {
+        use std::io::Seek;
+        self.set_len(len)?;
+        self.seek(std::io::SeekFrom::Start(len)).map(drop)
+    }
+}
+
+impl<F: Cut> RowFile<F> {
+    /// Rows go to `file`, which is empty.
+    pub fn new(file: F) -> Self {
+        Self {
+            file,
+            buf: Vec::with_capacity(64 * 1024),
+            committed: 0,
+        }
+    }
+
+    /// The file.
+    pub fn into_inner(self) -> F {
+        self.file
+    }
+}
+
+impl<F: Cut> Write for RowFile<F> {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.buf.extend_from_slice(b);
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        if self.buf.is_empty() {
+            return Ok(());
+        }
+        match self.file.write_all(&self.buf) {
+            Ok(()) => {
+                self.committed += self.buf.len() as u64;
+                self.buf.clear();
+                self.file.flush()
+            }
+            Err(e) => {
+                // the part that went in is cut off again (a device such as /dev/full
+                // has no length to set: nothing went in); the rows stay for a retry
+                let _ = self.file.cut(self.committed);
+                Err(e)
+            }
+        }
+    }
+}
+
 /// What one stream's recording saw.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct StreamCounts {
-    /// Rows written.
+    /// Rows written (to the file at its next flush).
     pub rows: u64,
     /// Samples missing between received ones (sequence-number jumps): lost by the
     /// recorder's buffer or before it.
@@ -84,6 +152,10 @@ pub struct Recording<W: Write> {
     states: [u64; 4],
     last_estimate: Option<Estimate>,
     line: String,
+    /// Rows given to each writer since the recording began, and as of the last flush
+    /// that succeeded (what a file holds when a flush fails).
+    rows: [u64; 3],
+    flushed: [u64; 3],
 }
 
 impl<W: Write> Recording<W> {
@@ -103,6 +175,8 @@ impl<W: Write> Recording<W> {
             states: [0; 4],
             last_estimate: None,
             line: String::with_capacity(128),
+            rows: [0; 3],
+            flushed: [0; 3],
         };
         r.write(0, SIGNATURE_HEADER)?;
         r.write(1, SIGNATURE_HEADER)?;
@@ -112,7 +186,9 @@ impl<W: Write> Recording<W> {
 
     fn write(&mut self, file: usize, row: &str) -> Result<(), String> {
         let name = &self.names[file];
-        writeln!(self.out[file], "{row}").map_err(|e| format!("cannot write {name}: {e}"))
+        writeln!(self.out[file], "{row}").map_err(|e| format!("cannot write {name}: {e}"))?;
+        self.rows[file] += 1;
+        Ok(())
     }
 
     /// Writes one received signature sample (or skips and counts it when its
@@ -170,10 +246,18 @@ impl<W: Write> Recording<W> {
         Ok(())
     }
 
-    /// Flushes the three writers.
+    /// Flushes the three writers. An error names the file and how many rows it holds
+    /// (header included): those of its last flush that succeeded, when its writer is
+    /// a [`RowFile`].
     pub fn flush(&mut self) -> Result<(), String> {
-        for (w, name) in self.out.iter_mut().zip(&self.names) {
-            w.flush().map_err(|e| format!("cannot write {name}: {e}"))?;
+        for (i, (w, name)) in self.out.iter_mut().zip(&self.names).enumerate() {
+            if let Err(e) = w.flush() {
+                return Err(format!(
+                    "cannot write {name}: {e} (it keeps the {} rows of the last complete flush)",
+                    self.flushed[i]
+                ));
+            }
+            self.flushed[i] = self.rows[i];
         }
         Ok(())
     }
@@ -327,7 +411,7 @@ fn check_args(a: &RecordArgs) -> Result<(vlsync_ipc::ServiceNames, usize), Strin
 
 /// Creates `dir` and the three files in it; refuses to overwrite an earlier
 /// recording unless `force`.
-fn create_files(dir: &Path, force: bool) -> Result<[std::io::BufWriter<std::fs::File>; 3], String> {
+fn create_files(dir: &Path, force: bool) -> Result<[RowFile; 3], String> {
     vlsync_common::file::create_out_dir("--out", dir)?;
     if !force {
         if let Some(p) = FILES.iter().map(|f| dir.join(f)).find(|p| p.exists()) {
@@ -340,7 +424,7 @@ fn create_files(dir: &Path, force: bool) -> Result<[std::io::BufWriter<std::fs::
     let open = |f: &str| {
         let p = dir.join(f);
         std::fs::File::create(&p)
-            .map(std::io::BufWriter::new)
+            .map(RowFile::new)
             .map_err(|e| format!("cannot create {}: {e}", p.display()))
     };
     Ok([open(FILES[0])?, open(FILES[1])?, open(FILES[2])?])
@@ -367,6 +451,19 @@ fn drain_signatures<W: Write>(
     Ok(any)
 }
 
+/// `s` as one word of a POSIX shell: as it is when it holds only characters no shell
+/// treats specially, else in single quotes (a `'` in it as `'\''`).
+fn sh_quote(s: &str) -> String {
+    let plain = !s.is_empty()
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"_./:@%+=,-".contains(&b));
+    if plain {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
 /// The `record` command.
 pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
     let (names, service_buffer) = check_args(a)?;
@@ -378,9 +475,6 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
             err(&format!("vlsyncd record: {e}; recording anyway\n"));
         }
     }
-    let files = create_files(&a.out, a.force)?;
-    let paths = FILES.map(|f| a.out.join(f).display().to_string());
-    let mut rec = Recording::named(files, paths)?;
     // a node that handles SIGINT/SIGTERM, so Ctrl-C ends the recording cleanly
     let node = vlsync_ipc::create_node("vlsyncd-record", true).map_err(|e| e.to_string())?;
     let open = |s| vlsync_ipc::SignatureSubscriber::open(&node, &names, s, service_buffer, BUFFER);
@@ -389,6 +483,12 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
         open(Stream::Lidar).map_err(|e| e.to_string())?,
     ];
     let mut offsets = vlsync_ipc::OffsetClient::open(&prefix).map_err(|e| e.to_string())?;
+    // the files once the services are open: a recorder that cannot listen (the
+    // daemon's shared memory is another user's) leaves no empty recording behind to
+    // refuse the retry, and with --force destroys no earlier one
+    let files = create_files(&a.out, a.force)?;
+    let paths = FILES.map(|f| a.out.join(f).display().to_string());
+    let mut rec = Recording::named(files, paths)?;
     let start_ns: Nanos = vlsync_ipc::monotonic_ns();
     err(&format!(
         "vlsyncd record: recording prefix `{prefix}` into {} (subscriber buffer {} samples){}; Ctrl-C stops\n",
@@ -488,12 +588,17 @@ pub fn run_cli(a: &RecordArgs) -> Result<(), String> {
                 "the drivers published {c} camera and {l} LiDAR samples before this recording read any: the daemon may have had them, a replay will not, so its estimates may differ from est.csv (start the drivers once the recorder says \"Ctrl-C stops\")\n"
             ));
         }
+        // the replay's output where it is run, not in the recording (the daemon
+        // user's, and a later record --force would leave it beside another run)
+        let q = |p: &Path| sh_quote(&p.display().to_string());
         err(&format!(
-            "replay it: vlsyncd replay --cam {0}/cam.csv --lidar {0}/lidar.csv --out {0}/replayed.csv --compare {0}/est.csv{1}\n",
-            a.out.display(),
+            "replay it: vlsyncd replay --cam {} --lidar {} --out replayed.csv --compare {}{}\n",
+            q(&a.out.join(FILES[0])),
+            q(&a.out.join(FILES[1])),
+            q(&a.out.join(FILES[2])),
             a.config
                 .as_ref()
-                .map(|c| format!(" --config {}", c.display()))
+                .map(|c| format!(" --config {}", q(c)))
                 .unwrap_or_default()
         ));
     }
@@ -505,6 +610,67 @@ mod tests {
     use super::*;
     use vlsync_common::wire::FLAG_FIRST;
     use vlsync_common::Polarity;
+
+    /// A disk that takes `room` bytes, then is full; a cut sets its length.
+    struct SmallDisk {
+        data: Vec<u8>,
+        room: usize,
+    }
+
+    impl Write for SmallDisk {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            let n = b.len().min(self.room - self.data.len().min(self.room));
+            if n == 0 {
+                return Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "full"));
+            }
+            self.data.extend_from_slice(&b[..n]);
+            Ok(n)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Cut for SmallDisk {
+        fn cut(&mut self, len: u64) -> std::io::Result<()> {
+            self.data.truncate(len as usize);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_disk_that_fills_mid_row_leaves_the_rows_of_the_last_complete_flush() {
+        let disk = |room| {
+            RowFile::new(SmallDisk {
+                data: Vec::new(),
+                room,
+            })
+        };
+        let mut r = Recording::new(disk(200), disk(10_000), disk(10_000)).unwrap();
+        let mut seq = 0;
+        let mut push = |r: &mut Recording<_>, n| {
+            for _ in 0..n {
+                r.signature(Stream::Cam, &sample(seq as i64 * 33, 0.125, seq))
+                    .unwrap();
+                seq += 1;
+            }
+        };
+        push(&mut r, 3);
+        r.flush().unwrap();
+        // the next flush no longer fits: the file keeps the header and three rows
+        push(&mut r, 3);
+        let e = r.flush().unwrap_err();
+        assert_eq!(
+            e,
+            "cannot write cam.csv: full (it keeps the 4 rows of the last complete flush)"
+        );
+        let (cam, _, _) = r.into_writers();
+        let text = String::from_utf8(cam.into_inner().data).unwrap();
+        assert!(text.ends_with('\n'), "{text:?}");
+        assert_eq!(text.lines().count(), 4, "{text:?}");
+        let (samples, _) = vlsync_sim::io::parse_signature_csv(text.as_bytes(), "cam").unwrap();
+        assert_eq!(samples.len(), 3);
+    }
 
     fn sample(t_ms: i64, v: f64, seq: u64) -> SignatureSample {
         SignatureSample::new(t_ms * 1_000_000, v, seq, 5_000_000_000 + t_ms * 1_000_000)
