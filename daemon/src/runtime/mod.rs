@@ -696,7 +696,7 @@ fn rt_outcome(joined: std::thread::Result<()>) -> Result<(), String> {
 
 #[cfg(test)]
 mod tests {
-    use super::rt::{first_published, sequence_gap, snapshot, SeqGap, MAX_COUNTED_GAP};
+    use super::rt::{first_published, snapshot, SeqGap, SeqTable, MAX_COUNTED_GAP};
     use super::*;
     use vlsync_common::wire::STATE_NONE;
     use vlsync_common::RejectReason;
@@ -835,8 +835,8 @@ mod tests {
     #[test]
     fn sequence_gaps_are_counted_per_publisher() {
         let (a, b, c) = (pid(1), pid(2), pid(3));
-        let mut slots = [None; 4];
-        let lost = |slots: &mut _, p, seq, first| match sequence_gap(slots, p, seq, first) {
+        let mut slots = SeqTable::default();
+        let lost = |slots: &mut SeqTable, p, seq, first| match slots.gap(p, seq, first) {
             SeqGap::Lost(n) => n,
             SeqGap::None => 0,
             SeqGap::Joined(n) => panic!("joined at {n}"),
@@ -864,19 +864,65 @@ mod tests {
         // a publisher first read at 944 (a --fast burst, or a daemon that started
         // under a running driver): said, not counted; a number beyond any buffer is a
         // corrupt counter, and a first sample at 0 without the flag hid nothing
-        assert_eq!(sequence_gap(&mut slots, c, 944, false), SeqGap::Joined(944));
-        assert_eq!(sequence_gap(&mut slots, c, 945, false), SeqGap::None);
+        assert_eq!(slots.gap(c, 944, false), SeqGap::Joined(944));
+        assert_eq!(slots.gap(c, 945, false), SeqGap::None);
         let d = pid(4);
-        assert_eq!(sequence_gap(&mut slots, d, 0, false), SeqGap::None);
-        // the table is full now (a, b, c, d): a fifth publisher takes a slot and
-        // is not said to have joined, since an evicted one may come back
+        assert_eq!(slots.gap(d, 0, false), SeqGap::None);
         let e = pid(5);
-        assert_eq!(sequence_gap(&mut slots, e, 77, false), SeqGap::None);
-        let mut fresh = [None; 4];
-        assert_eq!(
-            sequence_gap(&mut fresh, e, MAX_COUNTED_GAP + 1, false),
-            SeqGap::None
-        );
+        let mut fresh = SeqTable::default();
+        assert_eq!(fresh.gap(e, MAX_COUNTED_GAP + 1, false), SeqGap::None);
+    }
+
+    /// A driver that restarts is a new publisher each time: every one is judged from
+    /// its first sample, the fifth and later too (the dead ones' slots are the least
+    /// recently read, and go first).
+    #[test]
+    fn every_new_publisher_is_judged_after_any_number_of_restarts() {
+        let mut slots = SeqTable::default();
+        for n in 0..7u8 {
+            let p = pid(10 + n);
+            // a driver that was already running when it was first read (its earlier
+            // samples dropped from a full buffer, or published before the daemon
+            // listened): said, whichever restart it is
+            assert_eq!(
+                slots.gap(p, 100, false),
+                SeqGap::Joined(100),
+                "publisher {n}"
+            );
+            assert_eq!(slots.gap(p, 101, false), SeqGap::None);
+            assert_eq!(slots.gap(p, 104, false), SeqGap::Lost(2), "publisher {n}");
+        }
+    }
+
+    /// Two live publishers on one stream beside three stale ones keep their slots:
+    /// the stale ones, read least recently, make room, and no gap goes uncounted
+    /// (eviction by the lowest sequence number made the two evict each other, here
+    /// on every sample).
+    #[test]
+    fn two_live_publishers_keep_their_slots_beside_stale_ones() {
+        let mut slots = SeqTable::default();
+        // three dead publishers, far along in their numbering
+        for n in 0..3u8 {
+            let stale = pid(20 + n);
+            assert_eq!(slots.gap(stale, 0, true), SeqGap::None);
+            assert_eq!(slots.gap(stale, 50_000, false), SeqGap::Lost(49_999));
+        }
+        let (a, b) = (pid(30), pid(31));
+        assert_eq!(slots.gap(a, 0, true), SeqGap::None);
+        assert_eq!(slots.gap(b, 0, true), SeqGap::None);
+        let mut lost = 0;
+        for k in 1..=40u64 {
+            // each skips one number every fifth sample
+            let seq = k + k / 5;
+            for p in [a, b] {
+                match slots.gap(p, seq, false) {
+                    SeqGap::Lost(n) => lost += n,
+                    SeqGap::None => {}
+                    SeqGap::Joined(n) => panic!("rejoined at {n}: its slot was taken"),
+                }
+            }
+        }
+        assert_eq!(lost, 2 * 8);
     }
 
     #[test]

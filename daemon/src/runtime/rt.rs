@@ -10,7 +10,7 @@ pub struct RtCounters {
     pub(super) status: Status,
     pub(super) processing: Histogram,
     pub(super) end_to_end: Histogram,
-    pub(super) last_seq: [[Option<(UniquePublisherId, u64)>; 4]; 2],
+    pub(super) last_seq: [SeqTable; 2],
     pub(super) events_dropped: u64,
     /// The current stretch's latency (the log's summary period), beside the run's.
     stretch: Stretch,
@@ -31,7 +31,7 @@ impl RtCounters {
             status: Status::default(),
             processing: Histogram::new(),
             end_to_end: Histogram::new(),
-            last_seq: [[None; 4]; 2],
+            last_seq: [SeqTable::default(); 2],
             events_dropped: 0,
             stretch: Stretch {
                 start_ns: 0,
@@ -106,11 +106,11 @@ pub(super) fn first_published(
     }
 }
 
-/// The largest sequence jump counted as lost samples (see [`sequence_gap`]); the
+/// The largest sequence jump counted as lost samples (see [`SeqTable::gap`]); the
 /// recorder (`vlsyncd record`) judges gaps by the same rule.
 pub(crate) const MAX_COUNTED_GAP: u64 = 1 << 32;
 
-/// What a sample's sequence number says ([`sequence_gap`]).
+/// What a sample's sequence number says ([`SeqTable::gap`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum SeqGap {
     /// The next one of its publisher, a restart, a jump back, or one beyond
@@ -127,7 +127,7 @@ pub(super) enum SeqGap {
 }
 
 /// What a sample numbered `seq` says after its publisher's previous one read, `last`
-/// (`None`: none read yet): the rule the daemon ([`sequence_gap`]) and the recorder
+/// (`None`: none read yet): the rule the daemon ([`SeqTable::gap`]) and the recorder
 /// (`vlsyncd record`) both judge by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum SeqStep {
@@ -165,39 +165,83 @@ pub(crate) fn seq_step(last: Option<u64>, seq: u64, first: bool) -> SeqStep {
     }
 }
 
-/// Tracks the sequence of each publisher of a stream: what `seq` says of the
-/// samples before it ([`seq_step`] per publisher).
-pub(super) fn sequence_gap(
-    slots: &mut [Option<(UniquePublisherId, u64)>; 4],
+/// Publishers of one stream whose sequence the daemon follows at once: a driver and
+/// its restarts, a recorder's replay, a second publisher beside them.
+pub(super) const SEQ_SLOTS: usize = 4;
+
+/// One publisher's entry in a [`SeqTable`].
+#[derive(Debug, Clone, Copy)]
+struct SeqSlot {
     publisher: UniquePublisherId,
+    /// The sequence number of its last sample read.
     seq: u64,
-    first: bool,
-) -> SeqGap {
-    if let Some(slot) = slots.iter_mut().flatten().find(|(p, _)| *p == publisher) {
-        let last = slot.1;
-        slot.1 = seq;
-        // a run restarted within a publisher the daemon reads: nothing to count
-        return match seq_step(Some(last), seq, first) {
-            SeqStep::Lost(n) => SeqGap::Lost(n),
-            SeqStep::Next | SeqStep::NewRun { .. } => SeqGap::None,
-        };
-    }
-    // a new publisher: take a free slot, or replace the one with the oldest sequence
-    let free = slots.iter().position(|s| s.is_none());
-    let idx = free.unwrap_or_else(|| {
-        slots
+    /// When it was last read (the table's read counter): the least recently read
+    /// slot is the one a new publisher takes.
+    read: u64,
+}
+
+/// The sequence of each publisher of a stream ([`SeqTable::gap`]): what a sample's
+/// sequence number says of the samples before it. Fixed size, no allocation.
+///
+/// A publisher whose slot is needed goes when it is the least recently read of
+/// [`SEQ_SLOTS`]: a driver that died (or restarted, which is a new publisher) stops
+/// being read, so after any number of restarts the live publishers keep their slots
+/// and each new one is still judged from its first sample ([`SeqGap::Joined`]). Only
+/// more than [`SEQ_SLOTS`] publishers alive on one stream at once take slots from one
+/// another: a publisher that comes back to a stream it was evicted from is then said
+/// to have joined again (a log line, never a count), and the gap across its absence
+/// goes uncounted.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct SeqTable {
+    slots: [Option<SeqSlot>; SEQ_SLOTS],
+    /// Samples read so far: the stamp of the newest read.
+    reads: u64,
+}
+
+impl SeqTable {
+    /// What a sample numbered `seq` of `publisher` says ([`seq_step`] per
+    /// publisher); `first`: it carries `FLAG_FIRST`. Every sample read goes through
+    /// here, a malformed one too: its number is its publisher's, and the next sample
+    /// is judged after it.
+    pub(super) fn gap(&mut self, publisher: UniquePublisherId, seq: u64, first: bool) -> SeqGap {
+        self.reads += 1;
+        let read = self.reads;
+        if let Some(slot) = self
+            .slots
+            .iter_mut()
+            .flatten()
+            .find(|s| s.publisher == publisher)
+        {
+            let last = slot.seq;
+            slot.seq = seq;
+            slot.read = read;
+            // a run restarted within a publisher the daemon reads: nothing to count
+            return match seq_step(Some(last), seq, first) {
+                SeqStep::Lost(n) => SeqGap::Lost(n),
+                SeqStep::Next | SeqStep::NewRun { .. } => SeqGap::None,
+            };
+        }
+        // a new publisher: a free slot, or the least recently read one's
+        let idx = self
+            .slots
             .iter()
-            .enumerate()
-            .min_by_key(|(_, s)| s.map_or(0, |(_, q)| q))
-            .map_or(0, |(i, _)| i)
-    });
-    slots[idx] = Some((publisher, seq));
-    // a slot taken from another publisher (more than four on a stream) may be taken
-    // back by it later: its samples were then read before, and saying "joined" of it
-    // would be wrong
-    match seq_step(None, seq, first) {
-        SeqStep::NewRun { before } if before > 0 && free.is_some() => SeqGap::Joined(before),
-        _ => SeqGap::None,
+            .position(Option::is_none)
+            .unwrap_or_else(|| {
+                self.slots
+                    .iter()
+                    .enumerate()
+                    .min_by_key(|(_, s)| s.map_or(0, |s| s.read))
+                    .map_or(0, |(i, _)| i)
+            });
+        self.slots[idx] = Some(SeqSlot {
+            publisher,
+            seq,
+            read,
+        });
+        match seq_step(None, seq, first) {
+            SeqStep::NewRun { before } if before > 0 => SeqGap::Joined(before),
+            _ => SeqGap::None,
+        }
     }
 }
 
@@ -424,7 +468,7 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
-            match sequence_gap(&mut c.last_seq[si], pid, w.seq, w.is_first()) {
+            match c.last_seq[si].gap(pid, w.seq, w.is_first()) {
                 SeqGap::None => {}
                 SeqGap::Lost(lost) => {
                     c.status.lost[si] = c.status.lost[si].saturating_add(lost);
