@@ -119,9 +119,18 @@ fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
 
 /// Pearson correlation of one lag's sums over `n` pairs, given the LiDAR values' Σx
 /// and `vx = n·Σx² - (Σx)²` (n ≥ 3): `(n·Σxy - Σx·Σy) / √(vx·(n·Σy² - (Σy)²))`,
-/// one division and one root; clamped to ±1, 0 when the variance product is not
-/// positive and finite. Written as selects, without branches, so that
-/// [`pearson_range`]'s loop vectorises.
+/// one division and one root.
+///
+/// Always a finite number in `[-1, 1]`:
+/// * 0 unless the variance product `vx·(n·Σy² - (Σy)²)` is positive and finite and the
+///   ratio is finite: no variance, sums that overflowed to ±∞, and any NaN or infinite
+///   input all give 0 (no correlation), never NaN nor a perfect ±1 from an ∞/finite
+///   ratio;
+/// * a finite ratio beyond ±1 (rounding in the sums of a near-perfect correlation) is
+///   clamped to ±1.
+///
+/// Written as selects, without branches, so that [`pearson_range`]'s loop vectorises
+/// (and its AVX and portable builds give the same bits).
 ///
 /// ```
 /// // y = 2x + 1 over x = 1, 2, 3: n = 3, Σx = 6, Σx² = 14, Σy = 15, Σy² = 83, Σxy = 34
@@ -129,14 +138,19 @@ fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 34.0, 15.0, 83.0), 1.0);
 /// // no variance: 0, not NaN
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 30.0, 15.0, 75.0), 0.0);
+/// // an overflowed or undefined Σxy: 0, not ±1 or NaN
+/// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, f64::INFINITY, 15.0, 83.0), 0.0);
+/// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, f64::NAN, 15.0, 83.0), 0.0);
 /// ```
 #[inline(always)]
 pub fn pearson(n: f64, sx: f64, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
     let d = vx * (n * syy - sy * sy);
     let r = (n * sxy - sx * sy) / d.sqrt();
+    // every comparison is false for NaN: a NaN denominator or ratio is not `ok`
+    let ok = (d > 0.0) & (d < f64::INFINITY) & (r.abs() < f64::INFINITY);
     let r = if r < -1.0 { -1.0 } else { r };
     let r = if r > 1.0 { 1.0 } else { r };
-    if (d > 0.0) & (d < f64::INFINITY) {
+    if ok {
         r
     } else {
         0.0
@@ -241,14 +255,18 @@ mod tests {
 
     proptest::proptest! {
         /// The dispatched range and the portable one give [`pearson`]'s values bit for
-        /// bit, on any sums (NaN for NaN).
+        /// bit, on any sums, non-finite ones included.
         #[test]
         fn every_version_gives_pearsons_values_bit_for_bit(
             n in proptest::prop_oneof![3.0..1e6f64, proptest::num::f64::ANY],
             sx in proptest::prop_oneof![-1e3..1e3f64, proptest::num::f64::ANY],
             vx in proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY],
             slots in proptest::collection::vec(
-                (-1e3..1e3f64, -1e3..1e3f64, proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY]),
+                (
+                    proptest::prop_oneof![-1e3..1e3f64, proptest::num::f64::ANY],
+                    proptest::prop_oneof![-1e3..1e3f64, proptest::num::f64::ANY],
+                    proptest::prop_oneof![0.0..1e6f64, proptest::num::f64::ANY],
+                ),
                 0..40,
             ),
         ) {
@@ -262,13 +280,55 @@ mod tests {
             for i in 0..slots.len() {
                 let want = pearson(n, sx, vx, xy[i], y[i], yy[i]);
                 for v in [got[i], any[i]] {
-                    proptest::prop_assert!(
-                        v.to_bits() == want.to_bits() || (v.is_nan() && want.is_nan()),
-                        "slot {}: {} against {}", i, v, want
+                    proptest::prop_assert_eq!(
+                        v.to_bits(), want.to_bits(), "slot {}: {} against {}", i, v, want
                     );
                 }
             }
         }
+
+        /// [`pearson`] is always a correlation: finite, within ±1, and 0 as soon as
+        /// any input is NaN or infinite (or the sums overflow on the way).
+        #[test]
+        fn pearson_is_finite_within_one_and_zero_for_non_finite_inputs(
+            finite in proptest::array::uniform6(
+                proptest::prop_oneof![3 => -1e3..1e3f64, 1 => -1e300..1e300f64],
+            ),
+            bad in proptest::prop_oneof![
+                proptest::strategy::Just(f64::NAN),
+                proptest::strategy::Just(f64::INFINITY),
+                proptest::strategy::Just(f64::NEG_INFINITY),
+            ],
+            which in 0..7usize,
+        ) {
+            let mut a = finite;
+            if which < 6 {
+                a[which] = bad;
+            }
+            let r = pearson(a[0], a[1], a[2], a[3], a[4], a[5]);
+            proptest::prop_assert!(r.is_finite() && r.abs() <= 1.0, "{:?} gave {}", a, r);
+            if which < 6 {
+                proptest::prop_assert_eq!(r.to_bits(), 0.0f64.to_bits(), "{:?}", a);
+            }
+        }
+    }
+
+    #[test]
+    fn overflowed_or_undefined_sums_are_no_correlation() {
+        // y = 2x + 1 over x = 1, 2, 3 (the doc's example) but with Σxy replaced
+        let vx = 3.0 * 14.0 - 6.0 * 6.0;
+        for sxy in [f64::INFINITY, f64::NEG_INFINITY, f64::NAN, f64::MAX] {
+            let mut out = [7.0; 5];
+            let xy = [34.0, sxy, 34.0, sxy, sxy];
+            pearson_range(3.0, 6.0, vx, &xy, &[15.0; 5], &[83.0; 5], &mut out);
+            let mut portable = [7.0; 5];
+            pearson_range_portable(3.0, 6.0, vx, &xy, &[15.0; 5], &[83.0; 5], &mut portable);
+            // 3·f64::MAX overflows to ∞ in n·Σxy: no correlation either
+            assert_eq!(out, [1.0, 0.0, 1.0, 0.0, 0.0], "Σxy = {sxy}");
+            assert_eq!(portable, out, "Σxy = {sxy}");
+        }
+        // a finite ratio past 1 (rounding, or sums that disagree) is still clamped
+        assert_eq!(pearson(3.0, 6.0, vx, 1e300, 15.0, 83.0), 1.0);
     }
 
     #[test]
