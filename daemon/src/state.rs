@@ -717,11 +717,50 @@ pub fn load_at(
     Ok(Some((s, age_s.max(0.0))))
 }
 
-/// The temporary file a save writes before renaming it over `path`.
+/// The temporary file a save of this process writes before renaming it over `path`:
+/// `<name>.tmp-<pid>`, its own, so that two daemons misconfigured to share a file
+/// never rename each other's half-written one.
 pub fn temp_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(".tmp");
+    name.push(format!(".tmp-{}", std::process::id()));
     path.with_file_name(name)
+}
+
+/// Removes what saves of processes no longer running left beside `path` (a crash
+/// between writing the temporary file and renaming it): `<name>.tmp` of earlier
+/// versions, `<name>.tmp-<pid>` of a pid without a process. Returns how many.
+pub fn remove_stale_temps(path: &Path) -> usize {
+    let (Some(name), Some(dir)) = (
+        path.file_name().and_then(|n| n.to_str()),
+        Some(vlsync_common::file::dir_of(path)),
+    ) else {
+        return 0;
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        let f = e.file_name();
+        let Some(rest) = f.to_str().and_then(|f| f.strip_prefix(name)) else {
+            continue;
+        };
+        let stale = match rest.strip_prefix(".tmp") {
+            Some("") => true,
+            Some(pid) => pid
+                .strip_prefix('-')
+                .filter(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()))
+                .is_some_and(|p| !Path::new("/proc").join(p).exists()),
+            None => false,
+        };
+        if stale
+            && e.file_type().is_ok_and(|t| t.is_file())
+            && std::fs::remove_file(e.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// Why a save to `path` cannot work on this machine as it is now, checked without
@@ -731,6 +770,9 @@ pub fn temp_path(path: &Path) -> PathBuf {
 pub fn directory_problem(path: &Path) -> Option<String> {
     if path.file_name().is_none() {
         return Some(format!("state file {}: not a file name", path.display()));
+    }
+    if path.is_dir() {
+        return Some(format!("state file {}: is a directory", path.display()));
     }
     let dir = vlsync_common::file::dir_of(path);
     match std::fs::metadata(dir) {
@@ -754,6 +796,23 @@ pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
     if path.file_name().is_none() {
         return Err(format!("state file {}: not a file name", path.display()));
     }
+    // the file of another prefix's daemon (two sharing `state_file`, both started
+    // before either saved) is not saved over: checked at every save, not only at
+    // the start
+    if let Ok(bytes) = vlsync_common::file::read_regular_at_most(path, MAX_FILE_BYTES) {
+        if let Ok(SavedState {
+            prefix: Some(theirs),
+            ..
+        }) = decode(&bytes)
+        {
+            if s.prefix.as_deref().is_some_and(|ours| ours != theirs) {
+                return Err(format!(
+                    "state file {}: now holds the state of prefix `{theirs}`, not saved over (is `daemon.state_file` shared by two daemons?)",
+                    path.display()
+                ));
+            }
+        }
+    }
     let tmp = temp_path(path);
     let text = encode(s);
     let write = || -> std::io::Result<()> {
@@ -765,7 +824,11 @@ pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
         f.write_all(text.as_bytes())?;
         f.sync_all()
     };
-    write().map_err(|e| format!("cannot write state file {}: {e}", tmp.display()))?;
+    write().map_err(|e| {
+        // a part written (a full /run) is not left behind
+        let _ = std::fs::remove_file(&tmp);
+        format!("cannot write state file {}: {e}", tmp.display())
+    })?;
     if let Err(e) = std::fs::rename(&tmp, path) {
         let _ = std::fs::remove_file(&tmp);
         return Err(format!(
@@ -819,6 +882,13 @@ pub fn startup(
         return (None, None);
     }
     let path = Path::new(&cfg.state_file);
+    let stale = remove_stale_temps(path);
+    if stale > 0 {
+        tracing::info!(
+            "state file {}: removed {stale} temporary file(s) a save left when its process ended",
+            path.display()
+        );
+    }
     if let Some(problem) = directory_problem(path) {
         // said now rather than at the first save, minutes after the lock
         tracing::warn!("{problem}; estimates are not saved until it is fixed (each save retries)");
@@ -1577,6 +1647,55 @@ mod tests {
             load(&fifo, "vlsync/robot", now, 10.0).unwrap_err().problem,
             Problem::NotAFile
         );
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_save_never_replaces_the_file_of_another_prefix() {
+        let d = dir("shared");
+        let p = d.join("vlsync.state");
+        let theirs = SavedState {
+            prefix: Some("vlsync/other".into()),
+            ..state()
+        };
+        save(&p, &theirs).unwrap();
+        // the other daemon saved first: ours is refused, the file stays theirs
+        let e = save(&p, &state()).unwrap_err();
+        assert!(
+            e.contains("now holds the state of prefix `vlsync/other`, not saved over"),
+            "{e}"
+        );
+        let (back, _) = load(&p, "vlsync/other", theirs.saved_unix_ns, 60.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.prefix.as_deref(), Some("vlsync/other"));
+        // a file of no prefix (version 1) or a corrupt one is saved over
+        std::fs::write(&p, "garbage\n").unwrap();
+        save(&p, &state()).unwrap();
+        let left: Vec<_> = std::fs::read_dir(&d).unwrap().flatten().collect();
+        assert_eq!(left.len(), 1, "no temporary file left");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn temporary_files_of_ended_saves_are_removed_and_no_others() {
+        let d = dir("stale");
+        let p = d.join("vlsync.state");
+        // a pid no process has (above the kernel's pid_max limit of 2^22)
+        let dead = d.join("vlsync.state.tmp-4194305");
+        let legacy = d.join("vlsync.state.tmp");
+        let ours = temp_path(&p);
+        let other = d.join("vlsync.state.tmp-x");
+        let unrelated = d.join("other.state.tmp");
+        for f in [&dead, &legacy, &ours, &other, &unrelated, &p] {
+            std::fs::write(f, "x").unwrap();
+        }
+        assert_eq!(remove_stale_temps(&p), 2);
+        assert!(!dead.exists() && !legacy.exists());
+        assert!(ours.exists() && other.exists() && unrelated.exists() && p.exists());
+        // a state file naming a directory is said to be one
+        let e = directory_problem(&d).unwrap();
+        assert!(e.ends_with(": is a directory"), "{e}");
         std::fs::remove_dir_all(&d).unwrap();
     }
 
