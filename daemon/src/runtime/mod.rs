@@ -90,6 +90,8 @@ pub mod procs;
 
 mod events;
 mod instance;
+#[cfg(test)]
+mod live_tests;
 pub(crate) mod rt;
 
 use events::{log_event, report_suppressed};

@@ -245,6 +245,58 @@ impl SeqTable {
     }
 }
 
+/// The bookkeeping of one sample read from `stream`, before the estimator: counts it
+/// received, follows its publisher's sequence and says a driver's (re)start; then
+/// rejects (and counts) a malformed sample. Whether the sample goes on to the
+/// estimator.
+///
+/// A malformed sample's sequence number is followed too: it was published, so the
+/// next sample of its publisher is its successor, not one after a lost sample (it
+/// used to be counted both rejected and lost). The samples lost before it are
+/// counted as before any other's. No allocation.
+pub(super) fn admit(
+    c: &mut RtCounters,
+    tx: &Sender<RtEvent>,
+    stream: Stream,
+    w: &SignatureSample,
+    publisher: UniquePublisherId,
+) -> bool {
+    let si = stream_index(stream);
+    c.status.received[si] += 1;
+    let valid = w.validate().is_ok();
+    if valid && w.is_first() {
+        emit(tx, c, RtEvent::DriverStarted { stream });
+    }
+    match c.last_seq[si].gap(publisher, w.seq, w.is_first()) {
+        SeqGap::None => {}
+        SeqGap::Lost(lost) => {
+            c.status.lost[si] = c.status.lost[si].saturating_add(lost);
+            emit(
+                tx,
+                c,
+                RtEvent::Lost {
+                    stream,
+                    count: lost,
+                },
+            );
+        }
+        SeqGap::Joined(before) => emit(tx, c, RtEvent::Joined { stream, before }),
+    }
+    if !valid {
+        c.status.rejected[si][REJECT_MALFORMED] += 1;
+        emit(
+            tx,
+            c,
+            RtEvent::Rejected {
+                stream,
+                reason: REJECT_MALFORMED,
+                t_ns: w.t_ns,
+            },
+        );
+    }
+    valid
+}
+
 /// Everything the real-time thread needs, built before its loop starts.
 pub(super) struct RtSetup {
     pub(super) cfg: Config,
@@ -449,42 +501,11 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             served += 1;
             let stream = if si == 0 { Stream::Cam } else { Stream::Lidar };
             let t0 = monotonic_ns();
-            c.status.received[si] += 1;
-            if w.validate().is_err() {
-                c.status.rejected[si][REJECT_MALFORMED] += 1;
-                emit(
-                    &s.tx,
-                    &mut c,
-                    RtEvent::Rejected {
-                        stream,
-                        reason: REJECT_MALFORMED,
-                        t_ns: w.t_ns,
-                    },
-                );
+            if !admit(&mut c, &s.tx, stream, &w, pid) {
                 continue;
-            }
-            if w.is_first() {
-                emit(&s.tx, &mut c, RtEvent::DriverStarted { stream });
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
-            match c.last_seq[si].gap(pid, w.seq, w.is_first()) {
-                SeqGap::None => {}
-                SeqGap::Lost(lost) => {
-                    c.status.lost[si] = c.status.lost[si].saturating_add(lost);
-                    emit(
-                        &s.tx,
-                        &mut c,
-                        RtEvent::Lost {
-                            stream,
-                            count: lost,
-                        },
-                    );
-                }
-                SeqGap::Joined(before) => {
-                    emit(&s.tx, &mut c, RtEvent::Joined { stream, before });
-                }
-            }
             if let Err(r) = est.push_urgent(stream, w.sample()) {
                 c.status.rejected[si][r.index()] += 1;
                 emit(

@@ -1,0 +1,138 @@
+//! The daemon run in this process ([`run`]), fed by publishers of the test: what its
+//! real-time thread counts, publishes and hands to the log, seen from outside.
+
+use super::*;
+use std::sync::Mutex;
+use std::time::Instant;
+use vlsync_ipc::{SignaturePublisher, StatusClient};
+
+/// A daemon running on a thread of this test, its log in memory.
+struct Daemon {
+    names: ServiceNames,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Result<(), String>>>,
+    log: Arc<Mutex<Vec<u8>>>,
+}
+
+struct Sink(Arc<Mutex<Vec<u8>>>);
+impl std::io::Write for Sink {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Daemon {
+    /// Starts a daemon on a prefix of its own (`tag`), unpinned, with statuses every
+    /// 0.1 s and `edit` applied to its configuration; returns once it publishes its
+    /// status (its real-time thread runs, its subscribers exist).
+    fn start(tag: &str, edit: impl FnOnce(&mut Config)) -> Self {
+        let mut cfg = Config::default();
+        cfg.services.prefix = format!("vlsync-test/live-{tag}-{}", std::process::id());
+        cfg.daemon.core = -1;
+        cfg.daemon.status_period_s = 0.1;
+        edit(&mut cfg);
+        cfg.validate("test").unwrap();
+        let names = ServiceNames::new(&cfg.services.prefix).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let (stop2, sink) = (stop.clone(), log.clone());
+        let thread = std::thread::spawn(move || {
+            let sub = tracing_subscriber::fmt()
+                .with_writer(move || Sink(sink.clone()))
+                .with_ansi(false)
+                .with_max_level(tracing::Level::INFO)
+                .finish();
+            tracing::subscriber::with_default(sub, || run(cfg, stop2))
+        });
+        let d = Self {
+            names,
+            stop,
+            thread: Some(thread),
+            log,
+        };
+        let mut status = StatusClient::open(&d.names.prefix).unwrap();
+        d.status_when(&mut status, |_| true);
+        d
+    }
+
+    /// The first status that `done` accepts (panics after 10 s without one).
+    fn status_when(&self, status: &mut StatusClient, done: impl Fn(&Status) -> bool) -> Status {
+        let t0 = Instant::now();
+        loop {
+            if let Some(st) = status.latest().ok().flatten().filter(|st| done(st)) {
+                return st;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "no such status in 10 s; the last: {:?}\n{}",
+                status.latest().ok().flatten(),
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn log(&self) -> String {
+        String::from_utf8_lossy(&self.log.lock().unwrap()).into_owned()
+    }
+
+    /// Stops the daemon and returns its log (panics when it ended with an error).
+    fn stop(mut self) -> String {
+        self.stop.store(true, Ordering::Relaxed);
+        let end = self.thread.take().unwrap().join().unwrap();
+        let log = self.log();
+        assert!(end.is_ok(), "{end:?}\n{log}");
+        log
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A malformed sample (unknown flags, non-zero padding) between good ones of its
+/// publisher is rejected and counted once: the next sample is its successor, no
+/// lost sample (its sequence number used to be skipped, so each was counted lost
+/// as well).
+#[test]
+fn a_malformed_sample_is_rejected_not_also_lost() {
+    let d = Daemon::start("malformed", |_| {});
+    let node = create_node("live-test", false).unwrap();
+    let cam = SignaturePublisher::open(&node, &d.names, Stream::Cam).unwrap();
+    let mut status = StatusClient::open(&d.names.prefix).unwrap();
+    for seq in 0..7u64 {
+        let mut w = SignatureSample::new(
+            1_000_000_000 + seq as i64 * 33_000_000,
+            0.5,
+            seq,
+            monotonic_ns(),
+        );
+        match seq {
+            0 => w.flags |= vlsync_common::wire::FLAG_FIRST,
+            2 => w.reserved = 7,
+            4 => w.flags = 0x8000_0000,
+            _ => {}
+        }
+        assert_eq!(cam.publish_raw(w).unwrap(), 1, "the daemon is subscribed");
+    }
+    let st = d.status_when(&mut status, |st| st.received[0] == 7);
+    assert_eq!(st.rejected[0][REJECT_MALFORMED], 2, "{st:?}");
+    assert_eq!(st.lost, [0, 0], "{st:?}");
+    // a gap before a malformed sample is a loss all the same
+    let mut w = SignatureSample::new(2_000_000_000, 0.5, 9, monotonic_ns());
+    w.reserved = 1;
+    cam.publish_raw(w).unwrap();
+    let st = d.status_when(&mut status, |st| st.received[0] == 8);
+    assert_eq!(st.rejected[0][REJECT_MALFORMED], 3, "{st:?}");
+    assert_eq!(st.lost, [2, 0], "{st:?}");
+    d.stop();
+}
