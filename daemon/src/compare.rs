@@ -297,7 +297,7 @@ impl Comparison {
     pub fn describe(&self, name: &str) -> String {
         if self.same_times == 0 {
             return format!(
-                "against {name}: no estimate at a reference time its {} rows have (another hop_s or grid, or another recording?); the plot shows both",
+                "against {name}: no estimate at a reference time its {} rows have (another hop_s or grid, or another recording?); a --plot shows both",
                 self.other_rows
             );
         }

@@ -64,8 +64,23 @@ pub fn offset_svg_compared(
     let plottable = |ms: f64| ms.abs() <= MAX_PLOT_MS;
     let locked: Vec<&Estimate> = ests
         .iter()
-        .filter(|e| e.state != EstimatorState::Acquiring && plottable(e.offset_s * 1e3))
+        .filter(|e| {
+            // as the compared run's: a lost estimate's offset is no estimate (σ of
+            // hundreds of ms), drawn only as its state mark
+            matches!(e.state, EstimatorState::Tracking | EstimatorState::Holding)
+                && plottable(e.offset_s * 1e3)
+        })
         .collect();
+    // a run whose LiDAR clock restarted (a recording over a driver restart) goes
+    // back in time: each stretch that does not is a line and a band of its own
+    let mut stretches: Vec<&[&Estimate]> = Vec::new();
+    let mut begin = 0;
+    for i in 1..=locked.len() {
+        if i == locked.len() || locked[i].t_ref_ns < locked[i - 1].t_ref_ns {
+            stretches.push(&locked[begin..i]);
+            begin = i;
+        }
+    }
     let truth: Vec<(Nanos, f64)> = truth
         .unwrap_or_default()
         .iter()
@@ -99,8 +114,9 @@ pub fn offset_svg_compared(
         );
         return s;
     }
-    let t0 = nanos_to_secs(ests.first().map_or(0, |e| e.t_ref_ns));
-    let t1 = nanos_to_secs(ests.last().map_or(0, |e| e.t_ref_ns)).max(t0 + 1.0);
+    // the span of every estimate, whatever their order
+    let t0 = nanos_to_secs(ests.iter().map(|e| e.t_ref_ns).min().unwrap_or(0));
+    let t1 = nanos_to_secs(ests.iter().map(|e| e.t_ref_ns).max().unwrap_or(0)).max(t0 + 1.0);
     let mut ys: Vec<f64> = locked.iter().map(|e| e.offset_s * 1e3).collect();
     ys.extend(truth.iter().chain(&compared).map(|p| p.1 * 1e3));
     ys.sort_by(f64::total_cmp);
@@ -135,6 +151,8 @@ pub fn offset_svg_compared(
     }
     // grid and axes
     let ts = tick_step(t1 - t0);
+    // as many decimals as the step has (a 0.5 s step: 998.5, not 998)
+    let decimals = (-ts.log10().floor()).clamp(0.0, 9.0) as usize;
     let first_t = (t0 / ts).ceil() * ts;
     for t in (0..=MAX_TICKS)
         .map(|i| first_t + f64::from(i) * ts)
@@ -143,7 +161,7 @@ pub fn offset_svg_compared(
         let x = px(t);
         let _ = writeln!(
             s,
-            r##"<line x1="{x:.1}" y1="{T}" x2="{x:.1}" y2="{}" stroke="#eee"/><text x="{x:.1}" y="{}" text-anchor="middle">{t:.0}</text>"##,
+            r##"<line x1="{x:.1}" y1="{T}" x2="{x:.1}" y2="{}" stroke="#eee"/><text x="{x:.1}" y="{}" text-anchor="middle">{t:.decimals$}</text>"##,
             H - B,
             H - B + 16.0
         );
@@ -171,32 +189,34 @@ pub fn offset_svg_compared(
         H / 2.0,
         H / 2.0
     );
-    // ±2σ band (of the estimates whose σ is known)
-    let banded: Vec<&&Estimate> = locked
-        .iter()
-        .filter(|e| plottable(e.offset_std_s * 2e3))
-        .collect();
-    let mut band = String::new();
-    for e in &banded {
-        let _ = write!(
-            band,
-            "{:.1},{:.1} ",
-            px(nanos_to_secs(e.t_ref_ns)),
-            py((e.offset_s + 2.0 * e.offset_std_s) * 1e3)
+    // ±2σ band (of the estimates whose σ is known), one per stretch
+    for stretch in &stretches {
+        let banded: Vec<&&Estimate> = stretch
+            .iter()
+            .filter(|e| plottable(e.offset_std_s * 2e3))
+            .collect();
+        let mut band = String::new();
+        for e in &banded {
+            let _ = write!(
+                band,
+                "{:.1},{:.1} ",
+                px(nanos_to_secs(e.t_ref_ns)),
+                py((e.offset_s + 2.0 * e.offset_std_s) * 1e3)
+            );
+        }
+        for e in banded.iter().rev() {
+            let _ = write!(
+                band,
+                "{:.1},{:.1} ",
+                px(nanos_to_secs(e.t_ref_ns)),
+                py((e.offset_s - 2.0 * e.offset_std_s) * 1e3)
+            );
+        }
+        let _ = writeln!(
+            s,
+            r##"<polygon points="{band}" fill="#54aeff" fill-opacity="0.25"/>"##
         );
     }
-    for e in banded.iter().rev() {
-        let _ = write!(
-            band,
-            "{:.1},{:.1} ",
-            px(nanos_to_secs(e.t_ref_ns)),
-            py((e.offset_s - 2.0 * e.offset_std_s) * 1e3)
-        );
-    }
-    let _ = writeln!(
-        s,
-        r##"<polygon points="{band}" fill="#54aeff" fill-opacity="0.25"/>"##
-    );
     // raw measurements
     // raw measurements outside the plotted range are left out, not piled on the edge
     for e in ests
@@ -232,20 +252,22 @@ pub fn offset_svg_compared(
             .collect();
         let _ = writeln!(s, r#"<polyline points="{pts}" fill="none" {style}/>"#);
     }
-    let pts: String = locked
-        .iter()
-        .map(|e| {
-            format!(
-                "{:.1},{:.1} ",
-                px(nanos_to_secs(e.t_ref_ns)),
-                py(e.offset_s * 1e3)
-            )
-        })
-        .collect();
-    let _ = writeln!(
-        s,
-        r##"<polyline points="{pts}" fill="none" stroke="#0969da" stroke-width="1.5"/>"##
-    );
+    for stretch in &stretches {
+        let pts: String = stretch
+            .iter()
+            .map(|e| {
+                format!(
+                    "{:.1},{:.1} ",
+                    px(nanos_to_secs(e.t_ref_ns)),
+                    py(e.offset_s * 1e3)
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            r##"<polyline points="{pts}" fill="none" stroke="#0969da" stroke-width="1.5"/>"##
+        );
+    }
     for e in ests {
         let _ = writeln!(
             s,
@@ -350,6 +372,46 @@ mod tests {
         assert!(x("late") <= W - R + 0.05);
         // 50 measurements plus the legend's marker
         assert_eq!(svg.matches("<circle").count(), 50 + 1);
+    }
+
+    #[test]
+    fn a_clock_that_restarts_gives_two_lines_on_the_canvas_and_lost_is_no_line() {
+        // a recording over a driver restart: the second session's stamps start again
+        // near 0, after a first at 998-1000 s
+        let mut ests: Vec<Estimate> = (0..20)
+            .map(|i| est(998.0 + 0.1 * i as f64, 0.1, EstimatorState::Tracking))
+            .collect();
+        ests.extend((0..20).map(|i| est(0.1 * i as f64, 0.2, EstimatorState::Tracking)));
+        ests.push(est(2.5, -0.4, EstimatorState::Lost));
+        let svg = offset_svg("t", &ests, None, &[]);
+        let lines: Vec<&str> = svg
+            .lines()
+            .filter(|l| l.starts_with("<polyline") && l.contains("#0969da"))
+            .collect();
+        assert_eq!(lines.len(), 2, "{svg}");
+        assert_eq!(svg.matches("<polygon").count(), 2);
+        for l in &lines {
+            let pts = &l[l.find("points=\"").unwrap() + 8..];
+            let pts = &pts[..pts.find('"').unwrap()];
+            assert_eq!(
+                pts.split_whitespace().count(),
+                20,
+                "the lost one is no point"
+            );
+            for p in pts.split_whitespace() {
+                let x: f64 = p.split(',').next().unwrap().parse().unwrap();
+                assert!((L - 0.05..=W - R + 0.05).contains(&x), "{x} off the canvas");
+            }
+        }
+        // a span of 2 s: ticks of 0.2 s, labelled with their decimal
+        let short: Vec<Estimate> = (0..21)
+            .map(|i| est(998.0 + 0.1 * i as f64, 0.1, EstimatorState::Tracking))
+            .collect();
+        let svg = offset_svg("t", &short, None, &[]);
+        assert!(
+            svg.contains(">998.2</text>") && svg.contains(">999.0</text>"),
+            "{svg}"
+        );
     }
 
     #[test]
