@@ -124,6 +124,30 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
     }
     // no capability is needed: the rlimits allow SCHED_FIFO and mlockall
     assert_eq!(get(&u, n, "Service", "AmbientCapabilities"), "");
+    assert_eq!(get(&u, n, "Service", "CapabilityBoundingSet"), "");
+    // the daemon asks the kernel whether the wall clock is synchronized with a
+    // read-only adjtimex(2) (`vlsync_ipc::rt::wall_clock_synchronized`), to date a
+    // state file saved before a reboot; ProtectClock='s seccomp filter (@clock)
+    // refuses even that call, so the file would never be restored on a robot synced
+    // by chrony or ntpd. Without CAP_SYS_TIME (the empty bounding set above) the
+    // clock cannot be set anyway.
+    assert!(
+        !u["Service"].contains_key("ProtectClock"),
+        "{n}: ProtectClock= forbids the read-only adjtimex(2) of the state file's dating"
+    );
+    for filter in u["Service"].get("SystemCallFilter").into_iter().flatten() {
+        let (deny, list) = match filter.strip_prefix('~') {
+            Some(l) => (true, l),
+            None => (false, filter.as_str()),
+        };
+        let names_adjtimex = list
+            .split_whitespace()
+            .any(|w| ["@clock", "adjtimex", "clock_adjtime"].contains(&w));
+        assert!(
+            deny != names_adjtimex,
+            "{n}: SystemCallFilter={filter} must leave adjtimex(2) allowed"
+        );
+    }
     assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
     assert_eq!(get(&u, n, "Install", "WantedBy"), "vlsync.target");
 
