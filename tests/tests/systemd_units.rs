@@ -522,3 +522,97 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
         Err(e) => eprintln!("setpriv unavailable ({e}): refusal without root not checked"),
     }
 }
+
+/// `a{b,c}d` as a shell expands it (nested and repeated groups too).
+fn brace_expand(word: &str) -> Vec<String> {
+    let Some(open) = word.find('{') else {
+        return vec![word.to_string()];
+    };
+    // the group's matching `}` and its top-level commas
+    let (mut depth, mut close, mut commas) = (0, None, vec![]);
+    for (i, c) in word[open..].char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' => {
+                depth -= 1;
+                if depth == 0 {
+                    close = Some(open + i);
+                    break;
+                }
+            }
+            ',' if depth == 1 => commas.push(open + i),
+            _ => {}
+        }
+    }
+    let Some(close) = close else {
+        return vec![word.to_string()];
+    };
+    let mut cuts = vec![open];
+    cuts.extend(commas);
+    cuts.push(close);
+    let (head, tail) = (&word[..open], &word[close + 1..]);
+    cuts.windows(2)
+        .flat_map(|w| brace_expand(&format!("{head}{}{tail}", &word[w[0] + 1..w[1]])))
+        .collect()
+}
+
+/// deploy/README.md's "Uninstall" removes what the guide has the user create: the
+/// udev rules it names, the units' `systemctl edit` drop-ins, the directories of the
+/// tmpfiles entry; and reloads udev and systemd after.
+#[test]
+fn the_guides_uninstall_removes_what_the_guide_creates() {
+    let text = std::fs::read_to_string(deploy().join("README.md")).unwrap();
+    let (guide, uninstall) = text
+        .split_once("\n## Uninstall\n")
+        .expect("deploy/README.md has an `## Uninstall` section");
+    let block = uninstall
+        .split_once("```sh\n")
+        .and_then(|(_, b)| b.split_once("\n```"))
+        .expect("the Uninstall section has a sh block")
+        .0;
+    let removed: Vec<String> = block
+        .lines()
+        .map(|l| l.split_once('#').map_or(l, |(code, _)| code))
+        .flat_map(str::split_whitespace)
+        .flat_map(brace_expand)
+        .collect();
+
+    let mut created: Vec<String> = guide
+        .split(|c: char| c.is_whitespace() || "`'\"(),;".contains(c))
+        .filter(|w| w.starts_with("/etc/udev/rules.d/") && w.ends_with(".rules"))
+        .map(String::from)
+        .collect();
+    assert!(created.len() >= 2, "the guide's udev rules: {created:?}");
+    let edited: Vec<&str> = guide
+        .match_indices("systemctl edit ")
+        .filter_map(|(i, m)| guide[i + m.len()..].split([' ', '`', '\n']).next())
+        .collect();
+    assert!(!edited.is_empty(), "the guide edits no unit?");
+    for unit in edited.into_iter().chain(SERVICES) {
+        assert!(
+            SERVICES.contains(&unit),
+            "the guide edits {unit}, not a vlsync service"
+        );
+        created.push(format!("/etc/systemd/system/{unit}.d"));
+    }
+    let tmpfiles = std::fs::read_to_string(deploy().join("tmpfiles.d/vlsync.conf")).unwrap();
+    for l in tmpfiles.lines() {
+        if let ["d", dir, ..] = l.split_whitespace().collect::<Vec<_>>()[..] {
+            created.push(dir.to_string());
+        }
+    }
+    for path in &created {
+        assert!(
+            removed.contains(path),
+            "deploy/README.md: Uninstall leaves {path} behind (removes {removed:?})"
+        );
+    }
+    // the removals take effect
+    let pos = |s: &str| {
+        block
+            .find(s)
+            .unwrap_or_else(|| panic!("Uninstall lacks `{s}`"))
+    };
+    assert!(pos("udevadm control --reload") > pos("/etc/udev/rules.d/"));
+    assert!(pos("systemctl daemon-reload") > pos(".service.d"));
+}
