@@ -152,8 +152,9 @@ uint32_t vlsync_client_abi_version(void);
  * memory, ...). Each handle takes one of the service's 16 subscriber slots, shared by
  * every client of the prefix on the machine (vlsync-echo, vlsyncd record, the Python
  * subscriber included): a 17th open fails with ExceedsMaxSupportedSubscribers. Right
- * after the open, vlsync_client_latest() may still say "none yet" for up to about 0.3 s
- * while the daemon's newest estimate reaches the new subscriber: wait for one
+ * after the open, vlsync_client_latest() may still say "none yet" for up to about 0.1 s
+ * while the daemon's newest estimate reaches the new subscriber (the daemon connects new
+ * subscribers every 0.1 s): wait for one
  * (vlsync_client_wait_next) before relying on latest() or camera_to_lidar(). */
 vlsync_client *vlsync_client_open(const char *prefix, char *err, size_t err_len);
 

@@ -578,8 +578,8 @@ impl SignatureSubscriber {
 /// The longest single sleep of [`OffsetClient::wait_next`],
 /// [`OffsetClient::wait_all`] and [`OffsetClient::wait_one`]; a longer timeout sleeps again. The last estimate
 /// handed to a new subscriber (history 1) comes without an event, so a client that
-/// opened while the daemon publishes nothing sees it within this time (the daemon
-/// hands it over within 0.1 s).
+/// opened while the daemon publishes nothing sees it when its slice ends: within
+/// 0.35 s of the open (the daemon hands it over within about 0.1 s, busy or idle).
 const MAX_WAIT_SLICE: Duration = Duration::from_millis(250);
 
 /// Whether `deadline` (`None`: none) has passed.

@@ -4,7 +4,7 @@
 use super::*;
 use std::sync::Mutex;
 use std::time::Instant;
-use vlsync_ipc::{SignaturePublisher, StatusClient};
+use vlsync_ipc::{OffsetClient, SignaturePublisher, StatusClient};
 
 /// A daemon running on a thread of this test, its log in memory.
 struct Daemon {
@@ -134,5 +134,80 @@ fn a_malformed_sample_is_rejected_not_also_lost() {
     let st = d.status_when(&mut status, |st| st.received[0] == 8);
     assert_eq!(st.rejected[0][REJECT_MALFORMED], 3, "{st:?}");
     assert_eq!(st.lost, [2, 0], "{st:?}");
+    d.stop();
+}
+
+/// Publishes a simulated run's two streams in real time (each sample notified, as
+/// the drivers do) on a thread, until the run ends or the returned flag is set.
+fn drive(names: &ServiceNames, seed: u64) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {
+    let run = vlsync_sim::generate("robot".parse().unwrap(), seed, Some(60.0));
+    let names = names.clone();
+    let done = Arc::new(AtomicBool::new(false));
+    let done2 = done.clone();
+    let t = std::thread::spawn(move || {
+        let node = create_node("live-driver", false).unwrap();
+        let mut pubs = [
+            SignaturePublisher::open(&node, &names, Stream::Cam).unwrap(),
+            SignaturePublisher::open(&node, &names, Stream::Lidar).unwrap(),
+        ];
+        let t0 = run.cam[0].t_ns.min(run.lidar[0].t_ns);
+        let start = Instant::now();
+        let (mut i, mut j) = (0, 0);
+        while !done2.load(Ordering::Relaxed) && (i < run.cam.len() || j < run.lidar.len()) {
+            let cam_next =
+                j >= run.lidar.len() || (i < run.cam.len() && run.cam[i].t_ns <= run.lidar[j].t_ns);
+            let (k, s) = if cam_next {
+                i += 1;
+                (0, run.cam[i - 1])
+            } else {
+                j += 1;
+                (1, run.lidar[j - 1])
+            };
+            let due = Duration::from_nanos((s.t_ns - t0).max(0) as u64);
+            if let Some(wait) = due.checked_sub(start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+            pubs[k].publish(s.t_ns, s.value).unwrap();
+        }
+    });
+    (done, t)
+}
+
+/// A client that opens while drivers publish at their usual rates (every wake-up of
+/// the daemon notified: it never times out) gets the last estimate (history 1) at
+/// the daemon's next update of its connections, within about 0.1 s, not at the next
+/// estimate a hop later (5 s here).
+#[test]
+fn a_new_client_gets_the_last_estimate_long_before_the_next_hop() {
+    let d = Daemon::start("history", |cfg| cfg.estimator.hop_s = 5.0);
+    let mut first = OffsetClient::open(&d.names.prefix).unwrap();
+    let (done, driver) = drive(&d.names, 3);
+    let (e, published) = first
+        .wait_one(Duration::from_secs(30))
+        .unwrap()
+        .unwrap_or_else(|| panic!("no estimate in 30 s:\n{}", d.log()));
+    let mut late = OffsetClient::open(&d.names.prefix).unwrap();
+    let opened = monotonic_ns();
+    let t0 = Instant::now();
+    let got = loop {
+        if let Some(x) = late.latest() {
+            break x;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(8),
+            "no estimate for the late client in 8 s"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let waited = t0.elapsed();
+    done.store(true, Ordering::Relaxed);
+    driver.join().unwrap();
+    // the history, not the next estimate, and well before the next hop
+    assert_eq!(got.seq, e.seq, "the next estimate came first");
+    assert!(
+        waited < Duration::from_millis(2500),
+        "the last estimate took {waited:?} to reach a new client ({:.2} s after it was published)",
+        (opened - published) as f64 * 1e-9
+    );
     d.stop();
 }

@@ -405,6 +405,9 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
     let mut last_overrun: Nanos = 0;
     let mut last_state: Option<EstimatorState> = None;
     let mut next_status = monotonic_ns() + status_period_ns;
+    // the offset publisher's connections are updated every WAKE_PERIOD
+    let wake_ns = WAKE_PERIOD.as_nanos() as i64;
+    let mut next_connect = monotonic_ns();
     // the log's latency line, every summary period (`daemon.summary_period_s`)
     let stretch_ns = (s.cfg.daemon.summary_period_s * 1e9) as i64;
     let mut next_stretch = monotonic_ns() + stretch_ns;
@@ -442,12 +445,8 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
         } else {
             let _ = lis.timed_wait(on_event, WAKE_PERIOD);
             if ready == [false; 2] {
+                // no driver notified (idle, or a driver that does not notify)
                 ready = [true; 2];
-                // no driver notified (idle, or a driver that does not notify):
-                // connect subscribers that came since the last estimate, which hands
-                // them the last one (history 1) now instead of at the next estimate,
-                // which an idle daemon may never publish
-                let _ = off_pub.update_connections();
             }
         }
         // both streams' waiting samples in the order their drivers published them
@@ -595,6 +594,15 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             }
         }
         let now = monotonic_ns();
+        if now >= next_connect {
+            // connect the offset subscribers that came since the last estimate,
+            // which hands them the last one (history 1) now, not at the next
+            // estimate: a hop away, or never from an idle daemon. By time, not at a
+            // wake-up without notification, which drivers at 10-30 Hz never leave;
+            // cheap when no subscriber came or went
+            next_connect = now + wake_ns;
+            let _ = off_pub.update_connections();
+        }
         if degraded && now - last_overrun > quiet_ns {
             degraded = false;
             est.set_degraded(false);
