@@ -21,10 +21,11 @@
 //! (slow down to 0.05-0.15 m/s, yaw-rate bump of 0.4-1.0 rad/s for 1-3 s). It never
 //! reverses, so the polarity is negative throughout:
 //!
-//! * LiDAR signature: wall-distance derivative `-v(t)` in m/s, noise 0.012 m/s (1σ);
+//! * LiDAR signature: wall-distance derivative `-v(t)` in m/s, noise 0.0045 m/s (1σ,
+//!   [`LIDAR_NOISE`]);
 //! * camera signature: forward optical-flow magnitude `150·(|v| + 0.1·|ω|)` in px/s
-//!   (a turn leaks a little rotational flow into the camera only), noise 1.0 px/s,
-//!   i.e. 0.0067 m/s-equivalent: the LiDAR's is the larger one.
+//!   (a turn leaks a little rotational flow into the camera only), noise 0.4 px/s
+//!   ([`CAM_NOISE`]), i.e. 0.0027 m/s-equivalent: the LiDAR's is the larger one.
 //!
 //! Noise levels do not depend on the sample rates. The robot first moves 1-3 s after
 //! the start ([`SimRun::motion_start_ns`]).
@@ -42,7 +43,7 @@
 //! | `rates-15x20` | 15/20 | U[0, 0.3] s | exact | |
 //! | `big-offset` | 30/10 | 0.45 s | exact | |
 //! | `negative-offset` | 30/10 | U[-0.25, -0.15] s | exact | |
-//! | `heavy-noise` | 30/10 | U[-0.2, 0.2] s | exact | noise std = each signature's std |
+//! | `heavy-noise` | 30/10 | U[-0.2, 0.2] s | exact | noise [`HEAVY_NOISE_FACTOR`] (3) times the robot families' on each stream |
 //! | `load-jitter` | 30/10 | U[0, 0.2] s, ±20-60 ppm | as `clocks` | `load-steps`' steps, each spread over 0.3 s (a frame takes the new latency with a probability rising from 0 to 1) |
 //!
 //! For `seed` the camera samples on its own grid `k/30` and sees the event at
@@ -1474,6 +1475,34 @@ mod tests {
         assert!(r.noise_lidar / LIDAR_NOISE > 0.99 && h.crb_std_s > 2.0 * r.crb_std_s);
         // LiDAR noise is the larger one, in m/s-equivalent
         assert!(r.noise_lidar > r.noise_cam / FLOW_GAIN);
+    }
+
+    /// The module's doc quotes the noise constants (it once gave 0.012 m/s and 1.0 px/s
+    /// for 0.0045 and 0.4, and "each signature's std" for three times the noise).
+    #[test]
+    fn the_module_doc_states_the_noise_constants() {
+        let doc: Vec<&str> = include_str!("families.rs")
+            .lines()
+            .filter_map(|l| l.strip_prefix("//!"))
+            .collect();
+        let doc = doc.join("\n");
+        for want in [
+            format!("noise {LIDAR_NOISE} m/s"),
+            format!("noise {CAM_NOISE} px/s"),
+            format!("{:.4} m/s-equivalent", CAM_NOISE / FLOW_GAIN),
+        ] {
+            assert!(doc.contains(&want), "the module doc lacks `{want}`");
+        }
+        let heavy = doc
+            .lines()
+            .find(|l| l.starts_with(" | `heavy-noise`"))
+            .expect("the heavy-noise row");
+        assert!(
+            heavy.contains(&format!("[`HEAVY_NOISE_FACTOR`] ({HEAVY_NOISE_FACTOR})")),
+            "{heavy}"
+        );
+        assert_eq!(HEAVY_NOISE_FACTOR, 3.0, "description() says three times");
+        assert!(Family::HeavyNoise.description().contains("three times"));
     }
 
     #[test]
