@@ -81,6 +81,10 @@ use vlsync_common::{nanos_to_secs, secs_to_nanos, Nanos, Polarity, Sample, Strea
 pub const MIN_DURATION_S: f64 = 2.0;
 /// Longest run accepted, seconds.
 pub const MAX_DURATION_S: f64 = 3600.0;
+/// Largest noise scale accepted ([`try_generate_with`]): 1000 times a family's noise
+/// buries any signature (the `heavy-noise` family has 3), while far larger scales
+/// overflow the bounds to infinity and the values towards it.
+pub const MAX_NOISE_SCALE: f64 = 1000.0;
 /// A rest at least this long (seconds) is reported in [`SimRun::standstills`].
 pub const MIN_STANDSTILL_S: f64 = 5.0;
 /// Camera flow gain, px/s per m/s.
@@ -250,7 +254,7 @@ pub enum SimError {
         /// What was asked for.
         duration_s: f64,
     },
-    /// The noise scale is not a finite non-negative number.
+    /// The noise scale is not a finite number in `[0, MAX_NOISE_SCALE]`.
     InvalidNoiseScale {
         /// What was asked for.
         noise_scale: f64,
@@ -274,7 +278,7 @@ impl fmt::Display for SimError {
             ),
             SimError::InvalidNoiseScale { noise_scale } => write!(
                 f,
-                "noise scale {} is invalid: expected a finite number >= 0",
+                "noise scale {} is invalid: expected a finite number in [0, {MAX_NOISE_SCALE}]",
                 vlsync_common::text::number(*noise_scale)
             ),
             SimError::InvalidWindow { window_s, duration_s } => write!(
@@ -868,14 +872,16 @@ pub fn try_generate(
 }
 
 /// Like [`try_generate`], with the signature noise of the family multiplied by
-/// `noise_scale` (0: noiseless values; jitter, drops and gaps are unchanged). The same
-/// `(family, seed, duration)` gives the same motion, clocks and drops at any scale.
+/// `noise_scale`, in `[0, MAX_NOISE_SCALE]` (0: noiseless values; jitter, drops and
+/// gaps are unchanged). The same `(family, seed, duration)` gives the same motion,
+/// clocks and drops at any scale.
 ///
 /// ```
 /// use vlsync_sim::families::{try_generate_with, Family};
 /// let run = try_generate_with(Family::Robot, 4, Some(20.0), 0.0).unwrap();
 /// assert!(run.cam.iter().zip(&run.cam_clean).all(|(s, c)| s.value == c.value));
 /// assert!(try_generate_with(Family::Robot, 4, None, -1.0).is_err());
+/// assert!(try_generate_with(Family::Robot, 4, None, 1e308).is_err());
 /// ```
 pub fn try_generate_with(
     family: Family,
@@ -883,7 +889,7 @@ pub fn try_generate_with(
     duration_s: Option<f64>,
     noise_scale: f64,
 ) -> Result<SimRun, SimError> {
-    if !(noise_scale.is_finite() && noise_scale >= 0.0) {
+    if !(0.0..=MAX_NOISE_SCALE).contains(&noise_scale) {
         return Err(SimError::InvalidNoiseScale { noise_scale });
     }
     let d = match duration_s {
@@ -1503,6 +1509,37 @@ mod tests {
         );
         assert_eq!(HEAVY_NOISE_FACTOR, 3.0, "description() says three times");
         assert!(Family::HeavyNoise.description().contains("three times"));
+    }
+
+    #[test]
+    fn noise_scales_outside_0_to_1000_are_refused_naming_value_and_range() {
+        for (bad, shown) in [
+            (-1.0, "-1"),
+            (f64::NAN, "NaN"),
+            (f64::INFINITY, "inf"),
+            (1000.5, "1000.5"),
+            (1e308, "1e308"),
+        ] {
+            let e = try_generate_with(Family::Robot, 1, Some(10.0), bad).unwrap_err();
+            assert!(
+                matches!(e, SimError::InvalidNoiseScale { noise_scale } if noise_scale.to_bits() == bad.to_bits()),
+                "{e:?}"
+            );
+            let msg = e.to_string();
+            assert!(
+                msg.contains(&format!("noise scale {shown} is invalid"))
+                    && msg.contains("[0, 1000]"),
+                "{msg}"
+            );
+        }
+        // the bound itself: finite values and a finite bound
+        let run = try_generate_with(Family::HeavyNoise, 1, Some(10.0), MAX_NOISE_SCALE).unwrap();
+        assert!(run.crb_std_s.is_finite() && run.crb_std_s > 0.0);
+        assert!(run
+            .cam
+            .iter()
+            .chain(&run.lidar)
+            .all(|s| s.value.is_finite()));
     }
 
     #[test]

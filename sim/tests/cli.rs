@@ -145,5 +145,26 @@ fn errors_are_clear() {
     assert!(String::from_utf8(out.stderr)
         .unwrap()
         .contains("duration -4"));
+
+    // a noise scale past the bound: no run of infinite values, the value and the
+    // range named (before anything is written)
+    for bad in ["1e308", "-0.5", "NaN"] {
+        let out = bin()
+            .args(["--family", "robot", "--noise-scale", bad, "--out"])
+            .arg(dir.join("noise"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(out.status.code(), Some(1), "{bad}: {err}");
+        assert!(
+            err.contains(&format!("noise scale {bad} is invalid"))
+                && err.contains("[0, 1000]")
+                && !err.contains("panicked"),
+            "{err}"
+        );
+        assert!(!dir.join("noise").exists(), "{bad}: files written");
+    }
+    let help = String::from_utf8(bin().arg("--help").output().unwrap().stdout).unwrap();
+    assert!(help.contains("0 to 1000"), "{help}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -23,8 +23,8 @@ struct Args {
     /// Duration in seconds (default: 12 for seed, 120 otherwise).
     #[arg(long, allow_negative_numbers = true)]
     duration: Option<f64>,
-    /// Multiplier of the family's signature noise (0: noiseless values; jitter, drops
-    /// and gaps unchanged). Useful to tell estimator bias from noise.
+    /// Multiplier of the family's signature noise, 0 to 1000 (0: noiseless values;
+    /// jitter, drops and gaps unchanged). Useful to tell estimator bias from noise.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     noise_scale: f64,
     /// Output directory (created if missing).
