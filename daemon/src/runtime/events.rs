@@ -100,6 +100,11 @@ pub(super) fn log_event(
                 tracing::info!("{}", journal::latency_line(l, budget_us))
             }
         }
+        RtEvent::LastLatency(l) => {
+            if l.samples > 0 {
+                tracing::info!("at stop, {}", journal::latency_line(l, budget_us))
+            }
+        }
         RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
             "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s",
             *t_lidar_ns as f64 * 1e-9

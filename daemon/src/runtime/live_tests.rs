@@ -211,3 +211,30 @@ fn a_new_client_gets_the_last_estimate_long_before_the_next_hop() {
     );
     d.stop();
 }
+
+/// The stretch since the last summary period's end is logged at the stop: the "at
+/// stop" summary once, and its latency line (it used to be dropped: a daemon stopped
+/// within its first summary period, 10 minutes by default, never logged a latency).
+#[test]
+fn the_last_stretch_is_logged_at_the_stop() {
+    let d = Daemon::start("stretch", |_| {});
+    let node = create_node("live-test", false).unwrap();
+    let cam = SignaturePublisher::open(&node, &d.names, Stream::Cam).unwrap();
+    let mut status = StatusClient::open(&d.names.prefix).unwrap();
+    for seq in 0..3u64 {
+        let w = SignatureSample::new(1_000_000_000 + seq as i64 * 33_000_000, 0.5, seq, 0);
+        cam.publish_raw(w).unwrap();
+    }
+    d.status_when(&mut status, |st| st.received[0] == 3);
+    let log = d.stop();
+    let lines = |what: &str| log.lines().filter(|l| l.contains(what)).count();
+    assert_eq!(lines("at stop, last "), 1, "{log}");
+    assert_eq!(lines("at stop, latency, last "), 1, "{log}");
+    assert!(log.contains(": 3 samples, processing p50 "), "{log}");
+    // the summary comes first, as at the end of every period
+    let at = |what: &str| log.find(what).unwrap();
+    assert!(
+        at("at stop, last ") < at("at stop, latency, last "),
+        "{log}"
+    );
+}

@@ -262,6 +262,10 @@ pub enum RtEvent {
     /// period, sent even when idle): ends the period's summary, and its latency is
     /// logged as one line when it processed samples.
     Latency(journal::LatencyStretch),
+    /// The latency of the stretch since the last [`RtEvent::Latency`], sent once as
+    /// the real-time thread stops, after its final status: the service thread writes
+    /// the "at stop" summary and this latency line over the same stretch.
+    LastLatency(journal::LatencyStretch),
     /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
     /// goes on (a failed receive marks that stream empty until the next wake-up).
     /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
@@ -563,6 +567,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // priority inheritance) and make a futex wake-up call. Polled, a send is a
     // lock-free slot write and nothing more (`service_wait`).
     let mut busy = false;
+    // the "at stop" summary was written, with the real-time thread's last stretch
+    let mut summary_at_stop = false;
     loop {
         // statuses before each event: a flood of events cannot hold one back
         let mut got = 0usize;
@@ -589,6 +595,13 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                         RtEvent::Latency(_) => {
                             got += drain_statuses(&mut systemd, &mut summary);
                             tracing::info!("{}", summary.close(monotonic_ns()))
+                        }
+                        // the real-time thread stopped: the stretch since the last
+                        // summary, then its latency line, after its final status
+                        RtEvent::LastLatency(_) => {
+                            got += drain_statuses(&mut systemd, &mut summary);
+                            tracing::info!("at stop, {}", summary.close(monotonic_ns()));
+                            summary_at_stop = true;
                         }
                         _ => {}
                     }
@@ -664,8 +677,11 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         summary.on_status(&st);
     }
     // the stretch since the last summary line (up to a summary period: its counts
-    // would otherwise never reach the journal)
-    tracing::info!("at stop, {}", summary.close(monotonic_ns()));
+    // would otherwise never reach the journal), when the real-time thread's last
+    // stretch did not bring it (it ended without one: a panic)
+    if !summary_at_stop {
+        tracing::info!("at stop, {}", summary.close(monotonic_ns()));
+    }
     // a real-time thread that panicked must not look like a clean stop: the exit
     // code is what makes systemd restart the daemon (`Restart=on-failure`)
     let rt_end = rt_outcome(rt.join());

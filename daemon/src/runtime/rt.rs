@@ -634,12 +634,17 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             emit(&s.tx, &mut c, RtEvent::Latency(l));
         }
     }
-    // final status so the last counters are not lost
+    // final status so the last counters are not lost, then the last stretch's
+    // latency (since the last summary period's end), which the service thread logs
+    // with its "at stop" summary. The thread is ending: it may wait for a slot (a
+    // service thread that fell STATUS_CAPACITY statuses or a full channel of events
+    // behind) rather than lose either
     let now = monotonic_ns();
     let st = snapshot(&mut c, degraded, s.start_ns, now);
-    // the thread is ending: it may wait for a slot (a service thread that fell
-    // STATUS_CAPACITY statuses behind) rather than lose the last counters
     let _ = s.status_tx.send_timeout(st, Duration::from_secs(1));
+    let last = c.end_stretch(now);
+    let _ =
+        s.tx.send_timeout(RtEvent::LastLatency(last), Duration::from_secs(1));
 }
 
 /// Hands a status snapshot to the service thread; a full status channel (a service
