@@ -119,7 +119,9 @@ pub const CAUSAL_BIN_NS: Nanos = 500_000_000;
 /// (seconds) of the best estimate of the offset at that time that an estimator could
 /// make from the data up to `lookahead_s` later, knowing the signatures' shapes and
 /// noise and the sizes of the offset steps, with the drift drawn from a zero-mean prior
-/// of standard deviation `drift_prior_std` (s/s; 0: the drift is known).
+/// of standard deviation `drift_prior_std` (s/s; 0 or less: the drift is known;
+/// infinite: nothing is known of it). A NaN `drift_prior_std` or `lookahead_s` gives
+/// NaN for every time.
 ///
 /// Where [`crb_run_std_s`] is the bound of one constant offset measured with the whole
 /// run, this is the bound of what vlsync publishes: an offset that may drift, estimated
@@ -128,8 +130,15 @@ pub const CAUSAL_BIN_NS: Nanos = 500_000_000;
 ///   reference notes' variance `σ_c²/Σ_cam s'² + σ_l²/Σ_lidar s'²` over that bin's
 ///   samples (drops, gaps and standstills give a bin no information);
 /// * the offset is a line `o + d·(t - t_ref)` plus the known steps; the bins up to the
-///   horizon inform `o` and `d`, the prior adds `1/drift_prior_std²` to `d`'s information;
-/// * the variance of `o` is the `(0, 0)` element of the inverse information matrix.
+///   horizon `t_ref + lookahead_s` inform `o` and `d`, the prior adds
+///   `1/drift_prior_std²` to `d`'s information. A bin is selected by its centre: one
+///   whose centre lies at or before the horizon counts whole, though its data reach
+///   up to half a bin (0.25 s) beyond;
+/// * the variance of `o` is the `(0, 0)` element of the inverse information matrix,
+///   computed from the bins' information-weighted mean time and spread around it (no
+///   cancellation). Where that matrix is singular (the drift not known, no prior on
+///   it, and a single informative bin: a line through one point) or the variance is
+///   not a finite number, the bound is infinite.
 ///
 /// Known step sizes make it a floor for the families with steps too (vlsync measures
 /// them from the stamps' cadence, not exactly). It is a floor, not a prediction:
@@ -157,6 +166,9 @@ pub fn causal_std_s(
     lookahead_s: f64,
     drift_prior_std: f64,
 ) -> Vec<f64> {
+    if drift_prior_std.is_nan() || lookahead_s.is_nan() {
+        return vec![f64::NAN; times_ns.len()];
+    }
     if run.noise_cam == 0.0 && run.noise_lidar == 0.0 {
         return vec![0.0; times_ns.len()];
     }
@@ -195,27 +207,47 @@ pub fn causal_std_s(
         .filter(|b| b.1 > 0.0)
         .collect();
     let known_drift = drift_prior_std <= 0.0;
+    // the drift's information from its prior (0 for an infinite prior)
+    let prior_info = 1.0 / (drift_prior_std * drift_prior_std);
     times_ns
         .iter()
         .map(|&t| {
             let t_s = nanos_to_secs(t);
-            let (mut j_oo, mut j_od, mut j_dd) = (0.0, 0.0, 0.0);
-            for &(c, i) in bins.iter().take_while(|b| b.0 <= t_s + lookahead_s) {
-                let x = c - t_s;
-                j_oo += i;
-                j_od += i * x;
-                j_dd += i * x * x;
-            }
-            if j_oo <= 0.0 {
+            // bins are sorted by centre: those up to the horizon are a prefix
+            let within = &bins[..bins.partition_point(|b| b.0 <= t_s + lookahead_s)];
+            let j_oo: f64 = within.iter().map(|b| b.1).sum();
+            if within.is_empty() || j_oo <= 0.0 {
                 return f64::INFINITY;
             }
             let var = if known_drift {
                 1.0 / j_oo
             } else {
-                j_dd += 1.0 / (drift_prior_std * drift_prior_std);
-                j_dd / (j_oo * j_dd - j_od * j_od)
+                // The information matrix [[J, Σ i·x], [Σ i·x, Σ i·x² + prior]] (x: a
+                // bin's centre from t) has the determinant J·(S + prior), S = Σ i·(x - x̄)²
+                // the spread around the information-weighted mean x̄; the inverse's
+                // (0, 0) element is 1/J + x̄²/(S + prior). One bin has no spread (set
+                // exactly: x - x̄ would leave rounding).
+                let x_mean = within.iter().map(|&(c, i)| i * (c - t_s)).sum::<f64>() / j_oo;
+                let spread: f64 = if within.len() < 2 {
+                    0.0
+                } else {
+                    within
+                        .iter()
+                        .map(|&(c, i)| i * (c - t_s - x_mean) * (c - t_s - x_mean))
+                        .sum()
+                };
+                let det_per_j = spread + prior_info;
+                // singular; a NaN (from NaN sums) makes `var` NaN, caught below
+                if det_per_j <= 0.0 {
+                    return f64::INFINITY;
+                }
+                1.0 / j_oo + x_mean * x_mean / det_per_j
             };
-            var.max(0.0).sqrt()
+            if var.is_finite() && var >= 0.0 {
+                var.sqrt()
+            } else {
+                f64::INFINITY
+            }
         })
         .collect()
 }
@@ -323,6 +355,49 @@ mod tests {
         assert_eq!(
             causal_std_s(&run, &[secs_to_nanos(10.0)], 1.0, 50e-6),
             [0.0]
+        );
+    }
+
+    /// Without a drift prior a line needs two bins: one informative bin leaves the
+    /// offset unbounded (it came out 0 or garbage), and NaN inputs give NaN, not 0.
+    #[test]
+    fn causal_bound_is_infinite_where_the_information_is_singular() {
+        let run = crate::families::generate(crate::families::Family::Robot, 7, Some(30.0));
+        let bin_s = nanos_to_secs(CAUSAL_BIN_NS);
+        let centre = |k: i64| secs_to_nanos((k as f64 + 0.5) * bin_s);
+        // the first bin with information (both streams moving): a bin counts once its
+        // centre is within the horizon
+        let k = (0..60)
+            .find(|&k| causal_std_s(&run, &[centre(k)], 0.0, 0.0)[0].is_finite())
+            .expect("the robot moves within 30 s");
+        let known = causal_std_s(&run, &[centre(k)], 0.0, 0.0)[0];
+        assert!(known > 0.0);
+        let before = centre(k) - secs_to_nanos(0.1);
+        for (t, look) in [(centre(k), 0.0), (before, 0.1), (before, 0.2)] {
+            assert_eq!(
+                causal_std_s(&run, &[t], look, f64::INFINITY),
+                [f64::INFINITY],
+                "t {t} ns, lookahead {look} s: one bin and no drift prior"
+            );
+            // a prior makes it finite, and no better than with the drift known
+            let p = causal_std_s(&run, &[t], look, 50e-6)[0];
+            assert!(p.is_finite() && p >= known, "{p} against {known}");
+        }
+        // at the bin's own centre the drift does not matter
+        assert_eq!(causal_std_s(&run, &[centre(k)], 0.0, 50e-6)[0], known);
+        // a second bin pins the line: finite, and more than a 1 s/s prior gives
+        let two = causal_std_s(&run, &[centre(k + 1)], 0.0, f64::INFINITY)[0];
+        let wide = causal_std_s(&run, &[centre(k + 1)], 0.0, 1.0)[0];
+        assert!(two.is_finite() && two >= wide && wide > 0.0, "{two} {wide}");
+        // NaN in, NaN out (it gave 0 for a NaN prior), for every time
+        for (look, prior) in [(0.0, f64::NAN), (f64::NAN, 50e-6), (f64::NAN, 0.0)] {
+            let v = causal_std_s(&run, &[centre(k), centre(k + 10)], look, prior);
+            assert!(v.iter().all(|x| x.is_nan()), "{look} {prior}: {v:?}");
+        }
+        // a negative prior is a known drift, as documented
+        assert_eq!(
+            causal_std_s(&run, &[centre(k + 4)], 1.0, -1.0),
+            causal_std_s(&run, &[centre(k + 4)], 1.0, 0.0)
         );
     }
 
