@@ -71,7 +71,10 @@
 //! Under systemd ([`notify`]) the service thread sends `READY=1` once the real-time
 //! thread runs, a `STATUS=` line per status period, and pets the watchdog only
 //! while the real-time thread's heartbeat (incremented every loop) moves;
-//! `STOPPING=1` on shutdown. With `daemon.state_file` set ([`crate::state`]) the
+//! `STOPPING=1` on shutdown. A wait on the signature event that fails does not
+//! spin the loop: it is said (`RtEvent::Fatal`) and followed by a [`WAKE_PERIOD`]
+//! sleep, and after `rt::MAX_WAIT_FAILURES` in a row (about 5 s) the real-time
+//! thread gives up and the daemon exits with an error, which systemd restarts. With `daemon.state_file` set ([`crate::state`]) the
 //! service thread keeps the last good estimate (handed over as
 //! [`RtEvent::Estimate`]) and has it saved atomically by the state thread
 //! (`vlsync-state`: an fsync that stalls holds neither the watchdog pings nor the
@@ -267,7 +270,9 @@ pub enum RtEvent {
     /// the "at stop" summary and this latency line over the same stretch.
     LastLatency(journal::LatencyStretch),
     /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
-    /// goes on (a failed receive marks that stream empty until the next wake-up).
+    /// goes on (a failed receive marks that stream empty until the next wake-up; a
+    /// failed wait is followed by a [`WAKE_PERIOD`] sleep, and
+    /// [`rt::MAX_WAIT_FAILURES`] in a row stop the daemon with an error).
     /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
     Fatal(&'static str),
 }
@@ -701,15 +706,15 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     rt_end
 }
 
-/// How the real-time thread ended: `Err` naming its panic (the daemon then exits
-/// non-zero, so systemd restarts it).
-fn rt_outcome(joined: std::thread::Result<()>) -> Result<(), String> {
+/// How the real-time thread ended: `Err` naming its panic, or why it gave up (the
+/// daemon then exits non-zero, so systemd restarts it).
+fn rt_outcome(joined: std::thread::Result<Result<(), String>>) -> Result<(), String> {
     joined.map_err(|p| {
         format!(
             "the real-time thread panicked: {}",
             panic_message(p.as_ref())
         )
-    })
+    })?
 }
 
 #[cfg(test)]
@@ -776,12 +781,15 @@ mod tests {
 
     #[test]
     fn a_panicking_thread_is_an_error_with_its_message() {
-        let h = std::thread::spawn(|| -> () { panic!("boom {}", 7) });
+        let h = std::thread::spawn(|| -> Result<(), String> { panic!("boom {}", 7) });
         assert_eq!(
             rt_outcome(h.join()),
             Err("the real-time thread panicked: boom 7".to_string())
         );
-        assert_eq!(rt_outcome(std::thread::spawn(|| {}).join()), Ok(()));
+        assert_eq!(rt_outcome(std::thread::spawn(|| Ok(())).join()), Ok(()));
+        // a thread that gave up is an error too
+        let h = std::thread::spawn(|| Err("gave up".to_string()));
+        assert_eq!(rt_outcome(h.join()), Err("gave up".to_string()));
         let h = std::thread::spawn(|| -> () { panic!("plain") });
         let e = h.join().unwrap_err();
         assert_eq!(panic_message(e.as_ref()), "plain");

@@ -4,6 +4,7 @@
 //! and statuses go to the service thread over bounded channels (`try_send`).
 
 use super::*;
+use vlsync_ipc::iceoryx2::port::listener::ListenerWaitError;
 
 /// Counters and histograms of the real-time thread, preallocated.
 pub struct RtCounters {
@@ -297,6 +298,50 @@ pub(super) fn admit(
     valid
 }
 
+/// Failed waits on the signature event in a row after which the real-time thread
+/// gives up (about 5 s of them, each followed by a [`WAKE_PERIOD`] sleep): the daemon
+/// then stops with an error, which makes systemd restart it (`Restart=on-failure`),
+/// rather than read its streams by polling for good.
+pub const MAX_WAIT_FAILURES: u32 = 50;
+
+/// What the real-time loop does after a wait on the signature event ([`WaitFailures`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum AfterWait {
+    /// It waited (woken, timed out, or interrupted by a signal): go on.
+    Go,
+    /// It failed: say so, sleep [`WAKE_PERIOD`], then read the streams.
+    Pause,
+    /// It failed [`MAX_WAIT_FAILURES`] times in a row: stop with an error.
+    GiveUp,
+}
+
+/// Counts the real-time loop's failed waits in a row (a wait that fails at once,
+/// retried at once, would spin the loop at SCHED_FIFO).
+#[derive(Debug, Default)]
+pub(super) struct WaitFailures {
+    in_a_row: u32,
+}
+
+impl WaitFailures {
+    /// What to do after a wait that returned `waited`.
+    pub(super) fn after<T>(&mut self, waited: &Result<T, ListenerWaitError>) -> AfterWait {
+        match waited {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {
+                self.in_a_row = 0;
+                AfterWait::Go
+            }
+            Err(_) => {
+                self.in_a_row = self.in_a_row.saturating_add(1);
+                if self.in_a_row >= MAX_WAIT_FAILURES {
+                    AfterWait::GiveUp
+                } else {
+                    AfterWait::Pause
+                }
+            }
+        }
+    }
+}
+
 /// Everything the real-time thread needs, built before its loop starts.
 pub(super) struct RtSetup {
     pub(super) cfg: Config,
@@ -354,8 +399,13 @@ pub(super) fn apply_rt_settings(cfg: &Config) -> RtReport {
     r
 }
 
-/// The real-time thread: set-up, then the loop. Returns a set-up error as text.
-pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtReport, String>>) {
+/// The real-time thread: set-up, then the loop. A set-up error goes to `ready` as
+/// text; `Err` when the loop gave up ([`MAX_WAIT_FAILURES`]), so the daemon exits
+/// with an error and its service manager restarts it.
+pub(super) fn rt_thread(
+    s: RtSetup,
+    ready: std::sync::mpsc::Sender<Result<RtReport, String>>,
+) -> Result<(), String> {
     let mut report = apply_rt_settings(&s.cfg);
     let setup = (|| -> Result<_, vlsync_ipc::IpcError> {
         let node = create_node("vlsyncd-rt", false)?;
@@ -389,7 +439,7 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
             Ok(v) => v,
             Err(e) => {
                 let _ = ready.send(Err(e.to_string()));
-                return;
+                return Ok(());
             }
         };
     report.buffer = (s.cfg.services.subscriber_buffer.max(1) as usize, granted);
@@ -424,6 +474,9 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
     // wake-ups, so a wake-up that ends at MAX_SAMPLES_PER_WAKE resumes the merge
     // where it stopped (the order does not break at the boundary)
     let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
+    let mut wait_failures = WaitFailures::default();
+    // how the loop ended: a stop, or (Err) a wait that kept failing
+    let mut ended = Ok(());
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
@@ -439,14 +492,40 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
                 [_, true] => ready[1] = true,
                 _ => ready = [true; 2],
             };
-        if backlog {
-            let _ = lis.try_wait(on_event);
-            ready = [true; 2];
+        let waited = if backlog {
+            lis.try_wait(on_event)
         } else {
-            let _ = lis.timed_wait(on_event, WAKE_PERIOD);
-            if ready == [false; 2] {
-                // no driver notified (idle, or a driver that does not notify)
-                ready = [true; 2];
+            lis.timed_wait(on_event, WAKE_PERIOD)
+        };
+        if backlog || ready == [false; 2] {
+            // a backlog, or no driver notified (idle, a driver that does not
+            // notify, or a failed wait): both streams are read
+            ready = [true; 2];
+        }
+        match wait_failures.after(&waited) {
+            AfterWait::Go => {}
+            AfterWait::Pause => {
+                // a wait that fails at once would make this loop a busy spin (at
+                // SCHED_FIFO, the heartbeat still feeding the watchdog): said, and
+                // the period slept instead, the streams read after it as after a
+                // timeout
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Fatal(
+                        "wait on the signature event failed; reading every 0.1 s instead",
+                    ),
+                );
+                std::thread::sleep(WAKE_PERIOD);
+            }
+            AfterWait::GiveUp => {
+                ended = Err(format!(
+                    "the real-time thread gave up: its wait on `{}` failed {MAX_WAIT_FAILURES} \
+                     times in a row ({:?})",
+                    s.names.signature_ready(),
+                    waited.err()
+                ));
+                break;
             }
         }
         // both streams' waiting samples in the order their drivers published them
@@ -645,6 +724,7 @@ pub(super) fn rt_thread(s: RtSetup, ready: std::sync::mpsc::Sender<Result<RtRepo
     let last = c.end_stretch(now);
     let _ =
         s.tx.send_timeout(RtEvent::LastLatency(last), Duration::from_secs(1));
+    ended
 }
 
 /// Hands a status snapshot to the service thread; a full status channel (a service
@@ -697,6 +777,36 @@ mod tests {
     use super::*;
 
     const S: Nanos = 1_000_000_000;
+
+    /// A wait that keeps failing pauses the loop each time and stops it after
+    /// MAX_WAIT_FAILURES in a row; a wait that works (or a signal) starts the count
+    /// again.
+    #[test]
+    fn failed_waits_pause_the_loop_and_end_it_when_they_go_on() {
+        let mut w = WaitFailures::default();
+        let fail: Result<u64, _> = Err(ListenerWaitError::InternalFailure);
+        assert_eq!(w.after(&Ok(0u64)), AfterWait::Go);
+        for _ in 1..MAX_WAIT_FAILURES {
+            assert_eq!(w.after(&fail), AfterWait::Pause);
+        }
+        assert_eq!(w.after(&Ok(3u64)), AfterWait::Go);
+        for _ in 1..MAX_WAIT_FAILURES {
+            assert_eq!(w.after(&fail), AfterWait::Pause);
+        }
+        assert_eq!(
+            w.after(&Err::<u64, _>(ListenerWaitError::InterruptSignal)),
+            AfterWait::Go
+        );
+        for _ in 1..MAX_WAIT_FAILURES {
+            assert_eq!(w.after(&fail), AfterWait::Pause);
+        }
+        assert_eq!(
+            w.after(&Err::<u64, _>(ListenerWaitError::ContractViolation)),
+            AfterWait::GiveUp
+        );
+        // about 5 s of pauses: the watchdog's period
+        assert_eq!(WAKE_PERIOD * MAX_WAIT_FAILURES, Duration::from_secs(5));
+    }
 
     #[test]
     fn each_stretch_reports_only_its_own_latency() {
