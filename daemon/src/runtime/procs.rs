@@ -374,14 +374,21 @@ pub fn describe_rt_thread(
 /// segment (`*.global_mgmt`) is left out: iceoryx2 creates it with the first
 /// node on the machine and keeps it by design (it holds no service).
 pub fn ipc_resources() -> Vec<String> {
+    files_under(&[Path::new("/dev/shm"), Path::new("/tmp/iceoryx2")])
+}
+
+/// Every entry under `dirs` that is not a directory (a symbolic link is listed, never
+/// followed: two links to `.` in `/dev/shm` made the walk explore 2^40 paths), but
+/// iceoryx2's `*.global_mgmt`, sorted.
+fn files_under(dirs: &[&Path]) -> Vec<String> {
     let mut out = vec![];
-    for dir in ["/dev/shm", "/tmp/iceoryx2"] {
-        let mut stack = vec![PathBuf::from(dir)];
+    for dir in dirs {
+        let mut stack = vec![dir.to_path_buf()];
         while let Some(d) = stack.pop() {
             if let Ok(rd) = std::fs::read_dir(&d) {
                 for e in rd.flatten() {
                     let p = e.path();
-                    if p.is_dir() {
+                    if e.file_type().is_ok_and(|t| t.is_dir()) {
                         stack.push(p);
                     } else if !p.to_string_lossy().ends_with(".global_mgmt") {
                         out.push(p.display().to_string());
@@ -397,6 +404,25 @@ pub fn ipc_resources() -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Links are listed, not followed: a directory holding links to itself is walked
+    /// once.
+    #[test]
+    fn the_resource_walk_follows_no_link() {
+        let dir = std::env::temp_dir().join(format!("vlsync-walk-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        std::fs::write(dir.join("sub/seg"), "").unwrap();
+        std::fs::write(dir.join("x.global_mgmt"), "").unwrap();
+        std::os::unix::fs::symlink(".", dir.join("self")).unwrap();
+        std::os::unix::fs::symlink("..", dir.join("sub/up")).unwrap();
+        let name = |n: &str| dir.join(n).display().to_string();
+        assert_eq!(
+            files_under(&[&dir]),
+            [name("self"), name("sub/seg"), name("sub/up")]
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn own_cpu_and_rss_are_readable() {
