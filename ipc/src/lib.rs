@@ -49,6 +49,11 @@ pub use iceoryx2;
 pub use signals::{handle_termination_signals, termination_requested};
 pub use vlsync_common::wire;
 
+/// `open(2)`'s `O_NOFOLLOW` on this target (its value differs between
+/// architectures), for `OpenOptionsExt::custom_flags`: the daemon opens its lock
+/// file, in a directory of `/tmp`, without following a link planted there.
+pub const O_NOFOLLOW: i32 = libc::O_NOFOLLOW;
+
 /// The iceoryx2 service variant used everywhere (inter-process).
 pub type Svc = ipc::Service;
 /// A node of [`Svc`].

@@ -40,7 +40,37 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
     lock_file(path, prefix)
 }
 
+/// Refuses a lock directory another user could plant the lock file in: one owned by
+/// neither this user nor root that others may write (group or world) without the
+/// sticky bit. (`/tmp/vlsync` as the units' tmpfiles.d entry makes it, the units'
+/// user's and `rwxr-xr-x`, serves root too; a link planted in any directory is
+/// refused by the open itself, [`lock_file`].)
+fn check_lock_dir(dir: &Path) -> Result<(), String> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(dir)
+        .map_err(|e| format!("cannot read lock directory {}: {e}", dir.display()))?;
+    let me = rustix::process::geteuid().as_raw();
+    let others_write = m.mode() & 0o022 != 0 && m.mode() & 0o1000 == 0;
+    if m.uid() != me && m.uid() != 0 && others_write {
+        return Err(format!(
+            "refusing lock directory {}: it belongs to uid {} (neither this user, uid {me}, \
+             nor root) and others may write it (mode {:o}, no sticky bit), so another user \
+             could plant the lock file; with no vlsyncd running, remove it (or give it to \
+             this user)",
+            dir.display(),
+            m.uid(),
+            m.mode() & 0o7777
+        ));
+    }
+    Ok(())
+}
+
 /// Takes the lock on `path` (its directory exists).
+///
+/// The file is opened without following a symbolic link (`O_NOFOLLOW`), and must be a
+/// regular file with a single name: in `/tmp`, another user could otherwise point the
+/// lock at a file of root's (`/etc/...`), which a root daemon would truncate for its
+/// pid. Its directory is checked first ([`check_lock_dir`]).
 ///
 /// A lock file this user may not write (a daemon run by hand as root left it, and the
 /// unit's user meets it) is opened read-only instead: `flock` needs no write access.
@@ -48,7 +78,23 @@ pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
 /// directory lets us (the units' tmpfiles.d entry gives `/tmp/vlsync` to their user);
 /// where not, the read-only lock serves as it is, without our pid in it.
 pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, String> {
-    use std::os::unix::fs::MetadataExt;
+    use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        check_lock_dir(dir)?;
+    }
+    // a link at the path is refused, by the open itself (ELOOP) and named here
+    let refused = |e: std::io::Error| {
+        let link = std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_symlink());
+        if link {
+            format!(
+                "cannot open lock file {}: it is a symbolic link, refused (another user may \
+                 have planted it; with no vlsyncd running, remove it)",
+                path.display()
+            )
+        } else {
+            format!("cannot open lock file {}: {e}", path.display())
+        }
+    };
     // a few rounds at most: each retry means another daemon released the file
     // between our open and our lock, or we replaced a file we could not write
     for _ in 0..8 {
@@ -57,22 +103,46 @@ pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, Str
             .write(true)
             .create(true)
             .truncate(false)
+            .custom_flags(vlsync_ipc::O_NOFOLLOW)
             .open(&path)
         {
             Ok(f) => (f, true),
-            Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => match File::open(&path) {
-                Ok(f) => (f, false),
-                Err(_) => {
-                    return Err(format!(
-                        "cannot open lock file {}: {e} (it or its directory belongs to \
+            Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => {
+                match std::fs::OpenOptions::new()
+                    .read(true)
+                    .custom_flags(vlsync_ipc::O_NOFOLLOW)
+                    .open(&path)
+                {
+                    Ok(f) => (f, false),
+                    Err(_) => {
+                        return Err(format!(
+                            "cannot open lock file {}: {e} (it or its directory belongs to \
                              another user: with no vlsyncd running, remove the file, or give \
                              the directory to this user)",
-                        path.display()
-                    ))
+                            path.display()
+                        ))
+                    }
                 }
-            },
-            Err(e) => return Err(format!("cannot open lock file {}: {e}", path.display())),
+            }
+            Err(e) => return Err(refused(e)),
         };
+        // a hard link to another file (or a device, a pipe) planted under the name
+        match f.metadata() {
+            Ok(m) if m.is_file() && m.nlink() == 1 => {}
+            Ok(m) => {
+                return Err(format!(
+                    "refusing lock file {}: {} (another user may have planted it; with no \
+                     vlsyncd running, remove it)",
+                    path.display(),
+                    if m.is_file() {
+                        format!("it has {} names (hard links)", m.nlink())
+                    } else {
+                        "it is not a regular file".to_string()
+                    }
+                ))
+            }
+            Err(e) => return Err(format!("cannot read lock file {}: {e}", path.display())),
+        }
         match f.try_lock() {
             Ok(()) => {
                 let ours = f.metadata().map(|m| (m.dev(), m.ino())).ok();
@@ -94,9 +164,9 @@ pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, Str
             Err(std::fs::TryLockError::WouldBlock) => {
                 // the holder wrote its pid; anything else there (another program's file,
                 // however large) is read no further than a pid's length and quoted clipped
+                // read from the file opened (without following links), not the path
                 let mut head = Vec::with_capacity(LOCK_READ_MAX);
-                let _ = std::fs::File::open(&path)
-                    .and_then(|f| f.take(LOCK_READ_MAX as u64).read_to_end(&mut head));
+                let _ = (&f).take(LOCK_READ_MAX as u64).read_to_end(&mut head);
                 let head = String::from_utf8_lossy(&head);
                 let holder = match head.trim() {
                     "" => "unknown".to_string(),
@@ -137,6 +207,81 @@ mod tests {
             }
             Err(e) => println!("error {e}"),
         }
+    }
+
+    /// A symbolic link or a hard link planted under the lock file's name (another
+    /// user's, in `/tmp/vlsync`) is refused, naming the path, and what it points at is
+    /// left as it was (a root daemon used to truncate it for its pid).
+    #[test]
+    fn a_link_planted_as_the_lock_file_is_refused() {
+        let dir = std::env::temp_dir().join(format!("vlsync-lock-link-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let victim = dir.join("precious");
+        std::fs::write(&victim, "keep me\n").unwrap();
+        let path = dir.join("p.lock");
+        std::os::unix::fs::symlink(&victim, &path).unwrap();
+        let e = lock_file(path.clone(), "p").unwrap_err();
+        assert!(
+            e.contains(&path.display().to_string()) && e.contains("symbolic link"),
+            "{e}"
+        );
+        // a dangling link is not followed to create its target either
+        let ghost = dir.join("ghost");
+        std::fs::remove_file(&path).unwrap();
+        std::os::unix::fs::symlink(&ghost, &path).unwrap();
+        assert!(lock_file(path.clone(), "p")
+            .unwrap_err()
+            .contains("symbolic link"));
+        assert!(!ghost.exists());
+        // a second name of the victim
+        std::fs::remove_file(&path).unwrap();
+        std::fs::hard_link(&victim, &path).unwrap();
+        let e = lock_file(path.clone(), "p").unwrap_err();
+        assert!(e.contains("2 names (hard links)"), "{e}");
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me\n");
+        // removed, the lock is taken as ever
+        std::fs::remove_file(&path).unwrap();
+        drop(lock_file(path.clone(), "p").unwrap());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A lock directory of another user that others may write without the sticky bit
+    /// is refused, naming it and its owner; with the sticky bit (as `/tmp`), or not
+    /// writable by others (as the units' `/tmp/vlsync`), it serves. Needs root (a
+    /// directory of another user).
+    #[test]
+    fn a_lock_directory_others_can_write_into_is_refused() {
+        if rustix::process::geteuid().as_raw() != 0 {
+            eprintln!(
+                "SKIPPED a_lock_directory_others_can_write_into_is_refused: not root, \
+                 no directory of another user can be made"
+            );
+            return;
+        }
+        const NOBODY: u32 = 65534;
+        let dir = std::env::temp_dir().join(format!("vlsync-lock-dir-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::os::unix::fs::chown(&dir, Some(NOBODY), Some(NOBODY)).unwrap();
+        let path = dir.join("p.lock");
+        let mode = |m: u32| std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(m));
+        mode(0o777).unwrap();
+        let e = lock_file(path.clone(), "p").unwrap_err();
+        assert!(
+            e.starts_with(&format!("refusing lock directory {}", dir.display()))
+                && e.contains(&format!("uid {NOBODY}"))
+                && e.contains("mode 777"),
+            "{e}"
+        );
+        assert!(!path.exists());
+        mode(0o775).unwrap();
+        assert!(lock_file(path.clone(), "p").is_err());
+        for ok in [0o1777, 0o755] {
+            mode(ok).unwrap();
+            drop(lock_file(path.clone(), "p").unwrap());
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A held lock file that holds something else than a pid (another program's,

@@ -57,7 +57,10 @@
 //! file (per-run prefixes such as the demo's would pile up otherwise); a starting
 //! daemon checks that the file it locked is still the one at the path. A file it may
 //! not write (another user's, e.g. a daemon run by hand as root) is locked read-only
-//! and replaced where the directory allows.
+//! and replaced where the directory allows. The file is opened without following a
+//! link (`O_NOFOLLOW`) and must be a regular file with one name, and a lock directory
+//! of another user (not root) that others may write without the sticky bit is
+//! refused: nobody can make a root daemon truncate a file of theirs choosing.
 //!
 //! # Crash clean-up
 //!
