@@ -106,7 +106,9 @@ typedef struct vlsync_status_client vlsync_status_client; /* opaque handle */
 
 /* The daemon's counters (<prefix>/status, every daemon.status_period_s), validated: the
  * layout of vlsync_status in examples/c/vlsync_wire.h. Per-stream arrays: 0 camera,
- * 1 LiDAR; latency arrays {p50, p99, max} in ns over latency_count measurements. */
+ * 1 LiDAR; latency arrays {p50, p99, max} in ns; latency_count is how many end-to-end
+ * measurements end_to_end_ns covers (processing_ns covers every valid sample, which may
+ * be more: samples without a usable driver publish time). */
 typedef struct vlsync_daemon_status {
     int64_t uptime_ns;                           /* since the daemon started */
     int64_t publish_ns;                          /* CLOCK_MONOTONIC of this status */

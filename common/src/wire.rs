@@ -336,10 +336,13 @@ pub const STATE_NONE: u8 = 0xFF;
 
 /// Daemon counters on the wire (`<prefix>/status`), published every
 /// `daemon.status_period_s`. Per-stream arrays are indexed 0 = cam, 1 = lidar.
-/// Latency arrays hold `[p50, p99, max]` in ns, and `latency_count` how many
-/// measurements they cover: since the daemon started, or with
+/// Latency arrays hold `[p50, p99, max]` in ns, since the daemon started, or with
 /// `daemon.latency_per_period = true` over the last status period only (the
-/// histograms restart after each status). Percentiles are bucket upper bounds of a
+/// histograms restart after each status). `latency_count` is how many end-to-end
+/// measurements `end_to_end_ns` covers: the samples whose driver publish time gave
+/// a latency (within 10 s before the daemon was done with them). `processing_ns`
+/// covers every sample that passed validation, which may be more (a publisher that
+/// leaves `publish_ns` 0, another host's clock). Percentiles are bucket upper bounds of a
 /// fixed log-linear histogram, within 1/16 of the true value.
 ///
 /// Layout (size 224, alignment 8):
@@ -384,7 +387,8 @@ pub struct Status {
     pub processing_ns: [u64; 3],
     /// Sample publish (driver) to estimate published (daemon), `[p50, p99, max]` ns.
     pub end_to_end_ns: [u64; 3],
-    /// Number of end-to-end latency measurements.
+    /// Number of end-to-end latency measurements (`end_to_end_ns`'s; `processing_ns`
+    /// may cover more samples).
     pub latency_count: u64,
     /// State of the last published estimate, or [`STATE_NONE`].
     pub state: u8,

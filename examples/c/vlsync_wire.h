@@ -99,9 +99,11 @@ typedef struct vlsync_offset_estimate {
 } vlsync_offset_estimate;
 
 /* vlsync.Status.v1: 224 bytes, alignment 8; per-stream arrays: 0 cam, 1 lidar;
- * latency arrays: {p50, p99, max} in ns over latency_count measurements: since the
- * daemon started, or with daemon.latency_per_period = true over the last status
- * period only (the histograms restart after each status) */
+ * latency arrays: {p50, p99, max} in ns since the daemon started, or with
+ * daemon.latency_per_period = true over the last status period only (the histograms
+ * restart after each status); latency_count is how many end-to-end measurements
+ * end_to_end_ns covers (processing_ns covers every valid sample, which may be more:
+ * samples without a usable driver publish time) */
 typedef struct vlsync_status {
     int64_t uptime_ns;                             /*   0 */
     int64_t publish_ns;                            /*   8 */
