@@ -203,3 +203,84 @@ fn echo_says_when_it_skips_invalid_estimates() {
         "{stderr}"
     );
 }
+
+/// Estimates that arrive together (a reader stopped by Ctrl-Z, a slow pipe) are all
+/// printed, in order, one line each, and `--count` counts them; estimates lost before
+/// the echo read them are said on stderr (it used to print only the newest of those
+/// pending, silently).
+#[test]
+fn echo_prints_every_pending_estimate_in_order() {
+    use vlsync_common::wire::OffsetEstimate;
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
+    use vlsync_ipc::{
+        create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
+        ServiceNames,
+    };
+    let names = ServiceNames::new(&format!("vlsync-it/echoall-{}", std::process::id())).unwrap();
+    let node = create_node("test-publisher", false).unwrap();
+    let svc =
+        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+    let ev = open_or_create_event(&node, &names.offset()).unwrap();
+    let (publ, noti) = (
+        publisher(&svc, "offset").unwrap(),
+        notifier(&ev, "offset").unwrap(),
+    );
+    let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
+        .args([
+            "--prefix",
+            &names.prefix,
+            "--json",
+            "--count",
+            "5",
+            "--duration",
+            "10",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while svc.dynamic_config().number_of_subscribers() == 0 {
+        assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    // five estimates at once, one missing between them (#4), then one wake-up
+    for seq in [1u64, 2, 3, 5, 6] {
+        let e = Estimate {
+            seq,
+            t_ref_ns: seq as i64 * 500_000_000,
+            offset_s: 0.02,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 0.0,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Positive,
+            peak_score: 0.8,
+            peak_ratio: 2.0,
+            measured_offset_s: 0.02,
+        };
+        publ.send_copy(OffsetEstimate::from_estimate(&e, seq as i64).unwrap())
+            .unwrap();
+    }
+    noti.notify().unwrap();
+    let out = echo.wait_with_output().unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let seqs: Vec<u64> = stdout
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["seq"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(seqs, [1, 2, 3, 5, 6], "{stdout}\n{stderr}");
+    assert!(
+        stderr.contains("vlsync-echo: 1 estimate(s) missed before #5"),
+        "{stderr}"
+    );
+}

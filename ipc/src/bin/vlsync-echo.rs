@@ -1,5 +1,7 @@
 //! `vlsync-echo`: prints the daemon's offset estimates as they arrive, one
-//! readable line each, or one JSON object per line with `--json`; with
+//! readable line each (every estimate, in order; those a stopped or slow reader
+//! lost from the client's buffer of 16 are counted on stderr), or one JSON object
+//! per line with `--json`; with
 //! `--status`, the daemon's counters instead (one line per status period).
 #![forbid(unsafe_code)]
 
@@ -229,8 +231,12 @@ fn main() -> ExitCode {
         }
     };
     let mut invalid = 0;
+    let mut last_seq: Option<u64> = None;
     print_until_done(&args, || {
-        let got = client.wait_next(Duration::from_millis(200));
+        // every estimate pending, in order (one line each, `--count` counts them); the
+        // client buffers 16, and estimates a stopped or slow reader lost before it read
+        // them are said on stderr from their sequence numbers
+        let got = client.wait_all(Duration::from_millis(200));
         // a payload the client refused is not printed: said, as the status's are
         if client.invalid_count() > invalid {
             vlsync_common::console::print_err(&format!(
@@ -241,9 +247,27 @@ fn main() -> ExitCode {
             ));
             invalid = client.invalid_count();
         }
-        got.map(|e| e.iter().map(|e| line(e, json)).collect())
-            .map_err(|e| e.to_string())
+        let got = got.map_err(|e| e.to_string())?;
+        for (e, _) in &got {
+            if let Some(n) = last_seq.and_then(|l| missed(l, e.seq)) {
+                vlsync_common::console::print_err(&format!(
+                    "vlsync-echo: {n} estimate(s) missed before #{} (the client buffers 16: \
+                     a stopped or slow reader loses the oldest)\n",
+                    e.seq
+                ));
+            }
+            last_seq = Some(e.seq);
+        }
+        Ok(got.iter().map(|(e, _)| line(e, json)).collect())
     })
+}
+
+/// Estimates missed between sequence numbers `last` and `seq` (`None` when none
+/// were, or the numbering restarted: a new daemon).
+fn missed(last: u64, seq: u64) -> Option<u64> {
+    seq.checked_sub(last)
+        .and_then(|d| d.checked_sub(1))
+        .filter(|&n| n > 0)
 }
 
 #[cfg(test)]
@@ -273,6 +297,16 @@ mod tests {
         assert!(v["peak_ratio"].is_null());
         assert_eq!(v["offset_s"].as_f64(), Some(0.025));
         assert_eq!(v["state"], "holding");
+    }
+
+    #[test]
+    fn missed_estimates_are_counted_from_their_numbers() {
+        assert_eq!(missed(4, 5), None);
+        assert_eq!(missed(4, 9), Some(4));
+        // a daemon that restarted numbers from the start again
+        assert_eq!(missed(40, 0), None);
+        assert_eq!(missed(40, 40), None);
+        assert_eq!(missed(0, u64::MAX), Some(u64::MAX - 1));
     }
 
     #[test]
