@@ -403,18 +403,13 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
     std::fs::create_dir_all(&dir).unwrap();
     let json = dir.join("b.json");
     std::os::unix::fs::symlink("/dev/full", &json).unwrap();
-    let (code, out, err) = run(
-        vlsyncd,
-        &[
-            "bench",
-            "--seeds",
-            "1",
-            "--families",
-            "seed",
-            "--json",
-            json.to_str().unwrap(),
-        ],
-    );
+    // one seed of `families`, and `extra`
+    let bench = |families: &str, extra: &[&str]| {
+        let mut args = vec!["bench", "--seeds", "1", "--families", families];
+        args.extend_from_slice(extra);
+        run(vlsyncd, &args)
+    };
+    let (code, out, err) = bench("seed", &["--json", json.to_str().unwrap()]);
     assert_ne!(code, 0, "{err}");
     let want = format!(
         "--json: cannot write {}: No space left on device",
@@ -427,19 +422,9 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
     );
     // a family's plot that is a directory: refused before any run
     let plots = dir.join("plots");
+    let plots_arg = plots.to_str().unwrap();
     std::fs::create_dir_all(plots.join("robot.svg")).unwrap();
-    let (code, out, err) = run(
-        vlsyncd,
-        &[
-            "bench",
-            "--seeds",
-            "1",
-            "--families",
-            "seed,robot",
-            "--plots",
-            plots.to_str().unwrap(),
-        ],
-    );
+    let (code, out, err) = bench("seed,robot", &["--plots", plots_arg]);
     assert_ne!(code, 0, "{err}");
     let want = format!(
         "--plots {}: is a directory",
@@ -451,27 +436,14 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
     // tabled, the failure names the family and is the exit status
     std::fs::remove_dir_all(plots.join("robot.svg")).unwrap();
     std::os::unix::fs::symlink("/dev/full", plots.join("seed.svg")).unwrap();
-    let (code, out, err) = run(
-        vlsyncd,
-        &[
-            "bench",
-            "--seeds",
-            "1",
-            "--duration",
-            "20",
-            "--families",
-            "seed,robot",
-            "--plots",
-            plots.to_str().unwrap(),
-        ],
-    );
+    let (code, out, err) = bench("seed,robot", &["--duration", "20", "--plots", plots_arg]);
     assert_ne!(code, 0, "{err}");
     assert!(
         err.contains("1 of 2 families failed, the first: seed: --plots: cannot write"),
         "{err}"
     );
     assert!(!err.contains("wrote one SVG per family"), "{err}");
-    assert!(out.contains("robot") && !out.contains("\nseed"), "{out}");
+    assert!(out.contains("| robot |") && !out.contains("| seed |"), "{out}");
     assert!(plots.join("robot.svg").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }

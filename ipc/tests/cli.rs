@@ -128,49 +128,68 @@ fn echo_survives_job_control_and_stops_on_sigint() {
     );
 }
 
-/// An estimate payload the client refuses is not printed but said on stderr, with
-/// the count (a hostile or mismatched second publisher on the offset service).
-#[test]
-fn echo_says_when_it_skips_invalid_estimates() {
-    use vlsync_common::wire::OffsetEstimate;
-    use vlsync_common::{Estimate, EstimatorState, Polarity};
-    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
-    use vlsync_ipc::{
-        create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
-        ServiceNames,
-    };
-    let names =
-        ServiceNames::new(&format!("vlsync-it/echoinvalid-{}", std::process::id())).unwrap();
-    let node = create_node("test-publisher", false).unwrap();
-    let svc =
-        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
-    let ev = open_or_create_event(&node, &names.offset()).unwrap();
-    let (publ, noti) = (
-        publisher(&svc, "offset").unwrap(),
-        notifier(&ev, "offset").unwrap(),
-    );
-    let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
-        .args([
-            "--prefix",
-            &names.prefix,
-            "--count",
-            "1",
-            "--duration",
-            "20",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // once it listens: a payload with an unknown state, then a good estimate
-    let t0 = std::time::Instant::now();
-    while svc.dynamic_config().number_of_subscribers() == 0 {
-        assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
-        std::thread::sleep(std::time::Duration::from_millis(10));
+/// A publisher of estimates on a prefix of its own (`tag`), standing in for the
+/// daemon, and a `vlsync-echo` with `args` subscribed to it.
+struct FakeDaemon {
+    prefix: String,
+    publ: vlsync_ipc::iceoryx2::port::publisher::Publisher<
+        vlsync_ipc::Svc,
+        vlsync_common::wire::OffsetEstimate,
+        (),
+    >,
+    noti: vlsync_ipc::iceoryx2::port::notifier::Notifier<vlsync_ipc::Svc>,
+    _node: vlsync_ipc::iceoryx2::node::Node<vlsync_ipc::Svc>,
+}
+
+impl FakeDaemon {
+    /// The publisher, and an echo run with `args` once it has subscribed.
+    fn with_echo(tag: &str, args: &[&str]) -> (Self, std::process::Child) {
+        use vlsync_common::wire::OffsetEstimate;
+        use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
+        use vlsync_ipc::{
+            create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
+            ServiceNames,
+        };
+        let names = ServiceNames::new(&format!("vlsync-it/{tag}-{}", std::process::id())).unwrap();
+        let node = create_node("test-publisher", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let ev = open_or_create_event(&node, &names.offset()).unwrap();
+        let (publ, noti) = (
+            publisher(&svc, "offset").unwrap(),
+            notifier(&ev, "offset").unwrap(),
+        );
+        let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
+            .args(["--prefix", &names.prefix])
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t0 = std::time::Instant::now();
+        while svc.dynamic_config().number_of_subscribers() == 0 {
+            assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        let prefix = names.prefix.clone();
+        (
+            Self {
+                prefix,
+                publ,
+                noti,
+                _node: node,
+            },
+            echo,
+        )
     }
-    let e = Estimate {
-        seq: 3,
-        t_ref_ns: 10_000_000_000,
+}
+
+/// A tracking estimate numbered `seq`, at `seq` half-seconds.
+fn estimate(seq: u64) -> vlsync_common::Estimate {
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    Estimate {
+        seq,
+        t_ref_ns: seq as i64 * 500_000_000,
         offset_s: 0.02,
         drift: 0.0,
         offset_std_s: 0.001,
@@ -180,25 +199,42 @@ fn echo_says_when_it_skips_invalid_estimates() {
         peak_score: 0.8,
         peak_ratio: 2.0,
         measured_offset_s: 0.02,
-    };
-    let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
-    bad.state = 77;
-    publ.send_copy(bad).unwrap();
-    publ.send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
-        .unwrap();
-    noti.notify().unwrap();
+    }
+}
+
+/// The echo's exit, its stdout and stderr; it must have succeeded.
+fn finished(echo: std::process::Child) -> (String, String) {
     let out = echo.wait_with_output().unwrap();
     let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
     );
     assert!(out.status.success(), "{stdout}\n{stderr}");
+    (stdout, stderr)
+}
+
+/// An estimate payload the client refuses is not printed but said on stderr, with
+/// the count (a hostile or mismatched second publisher on the offset service).
+#[test]
+fn echo_says_when_it_skips_invalid_estimates() {
+    use vlsync_common::wire::OffsetEstimate;
+    let (d, echo) = FakeDaemon::with_echo("echoinvalid", &["--count", "1", "--duration", "20"]);
+    // a payload with an unknown state, then a good estimate
+    let e = estimate(3);
+    let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
+    bad.state = 77;
+    d.publ.send_copy(bad).unwrap();
+    d.publ
+        .send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
+        .unwrap();
+    d.noti.notify().unwrap();
+    let (stdout, stderr) = finished(echo);
     assert_eq!(stdout.lines().count(), 1, "{stdout}");
     assert!(stdout.contains("tracking"), "{stdout}");
     assert!(
         stderr.contains(&format!(
             "vlsync-echo: skipped 1 invalid estimate payload(s) on `{}/offset` (1 in all)",
-            names.prefix
+            d.prefix
         )),
         "{stderr}"
     );
@@ -211,65 +247,16 @@ fn echo_says_when_it_skips_invalid_estimates() {
 #[test]
 fn echo_prints_every_pending_estimate_in_order() {
     use vlsync_common::wire::OffsetEstimate;
-    use vlsync_common::{Estimate, EstimatorState, Polarity};
-    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
-    use vlsync_ipc::{
-        create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
-        ServiceNames,
-    };
-    let names = ServiceNames::new(&format!("vlsync-it/echoall-{}", std::process::id())).unwrap();
-    let node = create_node("test-publisher", false).unwrap();
-    let svc =
-        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
-    let ev = open_or_create_event(&node, &names.offset()).unwrap();
-    let (publ, noti) = (
-        publisher(&svc, "offset").unwrap(),
-        notifier(&ev, "offset").unwrap(),
-    );
-    let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
-        .args([
-            "--prefix",
-            &names.prefix,
-            "--json",
-            "--count",
-            "5",
-            "--duration",
-            "10",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = std::time::Instant::now();
-    while svc.dynamic_config().number_of_subscribers() == 0 {
-        assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
+    let (d, echo) =
+        FakeDaemon::with_echo("echoall", &["--json", "--count", "5", "--duration", "10"]);
     // five estimates at once, one missing between them (#4), then one wake-up
     for seq in [1u64, 2, 3, 5, 6] {
-        let e = Estimate {
-            seq,
-            t_ref_ns: seq as i64 * 500_000_000,
-            offset_s: 0.02,
-            drift: 0.0,
-            offset_std_s: 0.001,
-            drift_std: 0.0,
-            state: EstimatorState::Tracking,
-            polarity: Polarity::Positive,
-            peak_score: 0.8,
-            peak_ratio: 2.0,
-            measured_offset_s: 0.02,
-        };
-        publ.send_copy(OffsetEstimate::from_estimate(&e, seq as i64).unwrap())
+        d.publ
+            .send_copy(OffsetEstimate::from_estimate(&estimate(seq), seq as i64).unwrap())
             .unwrap();
     }
-    noti.notify().unwrap();
-    let out = echo.wait_with_output().unwrap();
-    let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert!(out.status.success(), "{stdout}\n{stderr}");
+    d.noti.notify().unwrap();
+    let (stdout, stderr) = finished(echo);
     let seqs: Vec<u64> = stdout
         .lines()
         .map(|l| {
