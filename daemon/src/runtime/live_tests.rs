@@ -1,6 +1,7 @@
 //! The daemon run in this process ([`run`]), fed by publishers of the test: what its
 //! real-time thread counts, publishes and hands to the log, seen from outside.
 
+use super::tests::Sink;
 use super::*;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -12,17 +13,6 @@ struct Daemon {
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<Result<(), String>>>,
     log: Arc<Mutex<Vec<u8>>>,
-}
-
-struct Sink(Arc<Mutex<Vec<u8>>>);
-impl std::io::Write for Sink {
-    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-        self.0.lock().unwrap().extend_from_slice(b);
-        Ok(b.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
 }
 
 impl Daemon {

@@ -850,7 +850,8 @@ mod tests {
         }
     }
 
-    struct Sink(Arc<std::sync::Mutex<Vec<u8>>>);
+    /// A log writer into memory (the live tests' daemons log through it too).
+    pub(super) struct Sink(pub(super) Arc<std::sync::Mutex<Vec<u8>>>);
     impl std::io::Write for Sink {
         fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
             self.0.lock().unwrap().extend_from_slice(b);
