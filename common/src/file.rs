@@ -149,8 +149,10 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     // a symlink, dangling or not, is checked as the file it names
     let target = link_target(path);
     if is_descriptor(&target) {
-        // open already (a pipe's opening would wait for its reader here)
-        return if target.exists() {
+        // open already (a pipe's opening would wait for its reader here; a socket,
+        // journald's standard output, cannot be opened by path at all, but is written
+        // through the process's own handle)
+        return if std_stream(&target).is_some() || target.exists() {
             Ok(())
         } else {
             Err(say("is no open descriptor of this process".into()))
@@ -229,14 +231,56 @@ fn is_descriptor(p: &Path) -> bool {
         && fd.bytes().all(|b| b.is_ascii_digit())
 }
 
-/// Writes `contents` through the descriptor `p` names ([`is_descriptor`]), appending:
-/// a file a shell opened with `>>` keeps what it held, and one opened with `>` was
-/// emptied by the shell already (or holds only what this process wrote to it).
+/// Which of this process's standard output (1) and error (2) `p` names, if either:
+/// `/dev/stdout`, `/dev/fd/1`, `/proc/self/fd/1` (or its pid's, or `thread-self`'s).
+fn std_stream(p: &Path) -> Option<u8> {
+    let s = p.to_str()?;
+    let fd = match s {
+        "/dev/stdout" => return Some(1),
+        "/dev/stderr" => return Some(2),
+        _ => match s.strip_prefix("/dev/fd/") {
+            Some(fd) => fd,
+            None => {
+                let (who, fd) = s.strip_prefix("/proc/")?.split_once("/fd/")?;
+                let me = std::process::id().to_string();
+                if !(who == "self" || who == "thread-self" || who == me) {
+                    return None;
+                }
+                fd
+            }
+        },
+    };
+    match fd {
+        "1" => Some(1),
+        "2" => Some(2),
+        _ => None,
+    }
+}
+
+/// Writes `contents` through the descriptor `p` names ([`is_descriptor`]). Standard
+/// output and error are written through the process's own handles, which share the
+/// descriptor's offset and flags: a file a shell opened with `>` or `>>` gets the
+/// contents where the process's other output goes (never over it), and a pipe, a
+/// terminal or a socket (journald) as well. A pipe whose reader stopped reading
+/// (`| head`) ends the write quietly: the reader took what it wanted. Any other
+/// descriptor is opened again, appending.
 fn write_descriptor(p: &Path, contents: &[u8]) -> io::Result<()> {
     use std::io::Write;
-    let mut f = std::fs::OpenOptions::new().append(true).open(p)?;
-    f.write_all(contents)?;
-    f.flush()
+    let written = match std_stream(p) {
+        Some(1) => {
+            let mut out = std::io::stdout().lock();
+            out.write_all(contents).and_then(|()| out.flush())
+        }
+        Some(_) => std::io::stderr().lock().write_all(contents),
+        None => {
+            let mut f = std::fs::OpenOptions::new().append(true).open(p)?;
+            f.write_all(contents).and_then(|()| f.flush())
+        }
+    };
+    match written {
+        Err(e) if e.kind() == io::ErrorKind::BrokenPipe => Ok(()),
+        r => r,
+    }
 }
 
 /// Creates the output directory `path` (and its parents) given by option `flag`; an
@@ -487,6 +531,19 @@ mod tests {
             ("/tmp/dev/stdout", false),
         ] {
             assert_eq!(is_descriptor(Path::new(p)), yes, "{p}");
+        }
+        let me = std::process::id();
+        for (p, want) in [
+            ("/dev/stdout".to_string(), Some(1)),
+            ("/dev/stderr".to_string(), Some(2)),
+            ("/dev/fd/1".to_string(), Some(1)),
+            ("/proc/self/fd/2".to_string(), Some(2)),
+            (format!("/proc/{me}/fd/1"), Some(1)),
+            (format!("/proc/{}/fd/1", me + 1), None),
+            ("/proc/self/fd/3".to_string(), None),
+            ("/dev/fd/10".to_string(), None),
+        ] {
+            assert_eq!(std_stream(Path::new(&p)), want, "{p}");
         }
         let dir = std::env::temp_dir().join(format!("vlsync-fd-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

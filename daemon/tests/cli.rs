@@ -443,7 +443,70 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
         "{err}"
     );
     assert!(!err.contains("wrote one SVG per family"), "{err}");
-    assert!(out.contains("| robot |") && !out.contains("| seed |"), "{out}");
+    assert!(
+        out.contains("| robot |") && !out.contains("| seed |"),
+        "{out}"
+    );
     assert!(plots.join("robot.svg").is_file());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An output named `/dev/stdout` goes where the process's standard output goes: into
+/// a file a shell opened with `>` beside the rest of the output (not over it), and
+/// into a pipe whose reader stops early (`| head`) without an error.
+#[test]
+fn an_output_on_standard_output_shares_it() {
+    let vlsyncd = env!("CARGO_BIN_EXE_vlsyncd");
+    let dir = std::env::temp_dir().join(format!("vlsyncd-cli-stdout-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // `> out.txt`: the JSON, then the table after it
+    let out = dir.join("out.txt");
+    let status = std::process::Command::new(vlsyncd)
+        .args(["bench", "--families", "seed", "--seeds", "1"])
+        .args(["--json", "/dev/stdout"])
+        .stdout(std::fs::File::create(&out).unwrap())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let text = std::fs::read_to_string(&out).unwrap();
+    let table = text.find("| family |").expect("the table");
+    let json_end = text.rfind(']').expect("the JSON");
+    assert!(text.starts_with('[') && json_end < table, "{text}");
+    // `| head -1` on a replay's estimates (some 200 kB: more than a pipe holds)
+    let sim = dir.join("run");
+    let samples: String = (0..100_000)
+        .map(|i| format!("{},{}\n", i as f64 * 0.01, (i as f64 * 0.1).sin()))
+        .collect();
+    std::fs::create_dir_all(&sim).unwrap();
+    for f in ["cam.csv", "lidar.csv"] {
+        std::fs::write(sim.join(f), format!("t,value\n{samples}")).unwrap();
+    }
+    let mut child = std::process::Command::new(vlsyncd)
+        .args(["replay", "--cam"])
+        .arg(sim.join("cam.csv"))
+        .arg("--lidar")
+        .arg(sim.join("lidar.csv"))
+        .args(["--out", "/dev/stdout"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        use std::io::BufRead;
+        let mut first = String::new();
+        std::io::BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut first)
+            .unwrap();
+        assert!(first.starts_with("t,offset"), "{first}");
+        // the reader goes away with the rest unread
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
