@@ -195,25 +195,29 @@ impl<W: Write> Recording<W> {
     /// structure is invalid).
     pub fn signature(&mut self, stream: Stream, s: &SignatureSample) -> Result<(), String> {
         let i = vlsync_ipc::stream_index(stream);
-        if s.validate().is_err() {
-            self.counts[i].malformed += 1;
-            return Ok(());
-        }
+        let valid = s.validate().is_ok();
         let c = &mut self.counts[i];
         // the daemon's rule: a gap is lost; a new run after the first row is a driver
         // restart; a run's first row that is not its driver's first sample leaves the
-        // samples numbered before it unread
+        // samples numbered before it unread. A malformed sample's number is followed
+        // too (it was published: the next one is its successor, not one after a lost
+        // sample), as the daemon follows it
         match seq_step(self.last_seq[i], s.seq, s.is_first()) {
             SeqStep::Next => {}
             SeqStep::Lost(n) => c.lost = c.lost.saturating_add(n),
-            SeqStep::NewRun { before } => {
+            SeqStep::NewRun { before } if valid => {
                 if self.last_seq[i].is_some() {
                     c.restarts += 1;
                 }
                 c.before_first = c.before_first.saturating_add(before);
             }
+            SeqStep::NewRun { .. } => {}
         }
         self.last_seq[i] = Some(s.seq);
+        if !valid {
+            c.malformed += 1;
+            return Ok(());
+        }
         c.rows += 1;
         if !s.value.is_finite() {
             c.non_finite += 1;
@@ -250,16 +254,21 @@ impl<W: Write> Recording<W> {
     /// (header included): those of its last flush that succeeded, when its writer is
     /// a [`RowFile`].
     pub fn flush(&mut self) -> Result<(), String> {
+        // every file, whichever fails: the others' rows are not held back by it
+        let mut first = Ok(());
         for (i, (w, name)) in self.out.iter_mut().zip(&self.names).enumerate() {
-            if let Err(e) = w.flush() {
-                return Err(format!(
-                    "cannot write {name}: {e} (it keeps the {} rows of the last complete flush)",
-                    self.flushed[i]
-                ));
+            match w.flush() {
+                Ok(()) => self.flushed[i] = self.rows[i],
+                Err(e) if first.is_ok() => {
+                    first = Err(format!(
+                        "cannot write {name}: {e} (it keeps the {} rows of the last complete flush)",
+                        self.flushed[i]
+                    ));
+                }
+                Err(_) => {}
             }
-            self.flushed[i] = self.rows[i];
         }
-        Ok(())
+        first
     }
 
     /// What each stream's recording saw (0 camera, 1 LiDAR).
@@ -664,7 +673,19 @@ mod tests {
             e,
             "cannot write cam.csv: full (it keeps the 4 rows of the last complete flush)"
         );
-        let (cam, _, _) = r.into_writers();
+        r.signature(Stream::Lidar, &sample(0, 0.5, 0)).unwrap();
+        assert!(r.flush().is_err());
+        let (cam, lidar, _) = r.into_writers();
+        // the LiDAR's file is flushed all the same
+        assert_eq!(
+            lidar
+                .into_inner()
+                .data
+                .iter()
+                .filter(|&&b| b == b'\n')
+                .count(),
+            2
+        );
         let text = String::from_utf8(cam.into_inner().data).unwrap();
         assert!(text.ends_with('\n'), "{text:?}");
         assert_eq!(text.lines().count(), 4, "{text:?}");
@@ -719,11 +740,13 @@ mod tests {
         bad.flags = 0;
         bad.reserved = 1;
         r.signature(Stream::Cam, &bad).unwrap();
+        // the next after them is their successor: not a gap (the daemon's rule)
+        r.signature(Stream::Cam, &sample(40, 1.0, 2)).unwrap();
         let c = r.counts()[0];
         assert_eq!(
             c,
             StreamCounts {
-                rows: 7,
+                rows: 8,
                 lost: 2,
                 before_first: 40,
                 restarts: 2,
@@ -734,12 +757,12 @@ mod tests {
         assert_eq!(r.counts()[1], StreamCounts::default());
         let summary = r.summary();
         assert!(
-            summary.contains("cam: 7 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 2 malformed payloads skipped"),
+            summary.contains("cam: 8 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 2 malformed payloads skipped"),
             "{summary}"
         );
         assert!(summary.contains("estimates: 0 ("), "{summary}");
         let (cam, _, _) = r.into_writers();
-        assert_eq!(String::from_utf8(cam).unwrap().lines().count(), 8);
+        assert_eq!(String::from_utf8(cam).unwrap().lines().count(), 9);
     }
 
     proptest::proptest! {
