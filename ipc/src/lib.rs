@@ -54,6 +54,10 @@ pub use vlsync_common::wire;
 /// file, in a directory of `/tmp`, without following a link planted there.
 pub const O_NOFOLLOW: i32 = libc::O_NOFOLLOW;
 
+/// `open(2)`'s `O_NONBLOCK` on this target: the lock file's open returns at once where
+/// a FIFO was planted under its name (which is then refused as no regular file).
+pub const O_NONBLOCK: i32 = libc::O_NONBLOCK;
+
 /// The iceoryx2 service variant used everywhere (inter-process).
 pub type Svc = ipc::Service;
 /// A node of [`Svc`].

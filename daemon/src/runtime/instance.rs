@@ -34,32 +34,41 @@ impl Drop for InstanceLock {
 pub fn single_instance_lock(prefix: &str) -> Result<InstanceLock, String> {
     let path = lock_path(prefix);
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir)
+        // writable by its owner only, whatever the umask ([`check_lock_dir`])
+        use std::os::unix::fs::DirBuilderExt;
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(0o755)
+            .create(dir)
             .map_err(|e| format!("cannot create lock directory {}: {e}", dir.display()))?;
     }
     lock_file(path, prefix)
 }
 
-/// Refuses a lock directory another user could plant the lock file in: one owned by
-/// neither this user nor root that others may write (group or world) without the
-/// sticky bit. (`/tmp/vlsync` as the units' tmpfiles.d entry makes it, the units'
-/// user's and `rwxr-xr-x`, serves root too; a link planted in any directory is
-/// refused by the open itself, [`lock_file`].)
+/// Refuses a lock directory another user could plant the lock file in, or unlink a
+/// held lock from (a second daemon would then start on the prefix): one anybody may
+/// write without the sticky bit, whoever owns it, or one owned by neither this user
+/// nor root that its group may write without it. (`/tmp/vlsync` as the units'
+/// tmpfiles.d entry makes it, the units' user's and `rwxr-xr-x`, serves root too, and
+/// so does `/tmp` itself, sticky; a link planted in any directory is refused by the
+/// open itself, [`lock_file`].)
 fn check_lock_dir(dir: &Path) -> Result<(), String> {
     use std::os::unix::fs::MetadataExt;
     let m = std::fs::metadata(dir)
         .map_err(|e| format!("cannot read lock directory {}: {e}", dir.display()))?;
     let me = rustix::process::geteuid().as_raw();
-    let others_write = m.mode() & 0o022 != 0 && m.mode() & 0o1000 == 0;
-    if m.uid() != me && m.uid() != 0 && others_write {
+    let sticky = m.mode() & 0o1000 != 0;
+    let (group_w, world_w) = (m.mode() & 0o020 != 0, m.mode() & 0o002 != 0);
+    let foreign = m.uid() != me && m.uid() != 0;
+    if !sticky && (world_w || (group_w && foreign)) {
         return Err(format!(
-            "refusing lock directory {}: it belongs to uid {} (neither this user, uid {me}, \
-             nor root) and others may write it (mode {:o}, no sticky bit), so another user \
-             could plant the lock file; with no vlsyncd running, remove it (or give it to \
-             this user)",
+            "refusing lock directory {}: {} may write it (mode {:o}, no sticky bit; owner uid \
+             {}), so another user could plant the lock file or remove a held one; with no \
+             vlsyncd running, remove it, or make it writable by its owner only (chmod 755)",
             dir.display(),
-            m.uid(),
-            m.mode() & 0o7777
+            if world_w { "anybody" } else { "its group" },
+            m.mode() & 0o7777,
+            m.uid()
         ));
     }
     Ok(())
@@ -103,14 +112,15 @@ pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, Str
             .write(true)
             .create(true)
             .truncate(false)
-            .custom_flags(vlsync_ipc::O_NOFOLLOW)
+            .custom_flags(vlsync_ipc::O_NOFOLLOW | vlsync_ipc::O_NONBLOCK)
             .open(&path)
         {
             Ok(f) => (f, true),
             Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => {
                 match std::fs::OpenOptions::new()
                     .read(true)
-                    .custom_flags(vlsync_ipc::O_NOFOLLOW)
+                    // a FIFO planted there would block this open until a writer came
+                    .custom_flags(vlsync_ipc::O_NOFOLLOW | vlsync_ipc::O_NONBLOCK)
                     .open(&path)
                 {
                     Ok(f) => (f, false),
@@ -129,6 +139,8 @@ pub(super) fn lock_file(path: PathBuf, prefix: &str) -> Result<InstanceLock, Str
         // a hard link to another file (or a device, a pipe) planted under the name
         match f.metadata() {
             Ok(m) if m.is_file() && m.nlink() == 1 => {}
+            // removed by a daemon that released it between our open and now: try again
+            Ok(m) if m.is_file() && m.nlink() == 0 => continue,
             Ok(m) => {
                 return Err(format!(
                     "refusing lock file {}: {} (another user may have planted it; with no \
@@ -270,8 +282,8 @@ mod tests {
         let e = lock_file(path.clone(), "p").unwrap_err();
         assert!(
             e.starts_with(&format!("refusing lock directory {}", dir.display()))
-                && e.contains(&format!("uid {NOBODY}"))
-                && e.contains("mode 777"),
+                && e.contains(&format!("owner uid {NOBODY}"))
+                && e.contains("anybody may write it (mode 777"),
             "{e}"
         );
         assert!(!path.exists());
@@ -280,6 +292,34 @@ mod tests {
         for ok in [0o1777, 0o755] {
             mode(ok).unwrap();
             drop(lock_file(path.clone(), "p").unwrap());
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A directory anybody may write without the sticky bit is refused even when it
+    /// is this user's (anybody could remove a held lock and start a second daemon);
+    /// its group may write it when it is this user's. A lock directory the daemon
+    /// creates is writable by its owner only, whatever the umask.
+    #[test]
+    fn a_lock_directory_anybody_can_write_into_is_refused_whoever_owns_it() {
+        let dir = std::env::temp_dir().join(format!("vlsync-lock-own-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("p.lock");
+        let mode = |m: u32| std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(m));
+        mode(0o777).unwrap();
+        let e = lock_file(path.clone(), "p").unwrap_err();
+        assert!(e.contains("anybody may write it (mode 777"), "{e}");
+        for ok in [0o775, 0o1777, 0o755] {
+            mode(ok).unwrap();
+            drop(lock_file(path.clone(), "p").unwrap());
+        }
+        // a FIFO planted under the name is refused at once, not waited on
+        let _ = std::fs::remove_file(&path);
+        let made = std::process::Command::new("mkfifo").arg(&path).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = lock_file(path.clone(), "p").unwrap_err();
+            assert!(e.contains("it is not a regular file"), "{e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }
