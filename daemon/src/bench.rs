@@ -456,10 +456,18 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
             .map_err(|e| format!("--json: {e}"))
     });
     let printed = vlsync_common::console::print_out(&table(&results, args.seeds, args.seed_base));
-    if let Some(Ok(p)) = &written {
-        vlsync_common::console::print_err(&format!("wrote {}\n", p.display()));
-    }
     let failed = failure.into_inner().ok().flatten();
+    if let Some(Ok(p)) = &written {
+        vlsync_common::console::print_err(&format!(
+            "wrote {}{}\n",
+            p.display(),
+            if failed.is_some() {
+                " (without the families that failed)"
+            } else {
+                ""
+            }
+        ));
+    }
     if let (Some(d), None) = (&args.plots, &failed) {
         vlsync_common::console::print_err(&format!(
             "wrote one SVG per family into {}\n",

@@ -47,7 +47,7 @@ enum Cmd {
         /// How the two files are merged: `publish` in the order the daemon read them
         /// (the `publish` column `vlsyncd record` writes), `stamp` by their stamps (the
         /// camera's moved by `estimator.lag_center_s`), `auto` by publish time when both
-        /// files carry it.
+        /// files carry it and none is 0 or negative (else by stamp, saying why).
         #[arg(long, value_enum, default_value_t)]
         order: vlsyncd::replay::OrderArg,
     },

@@ -225,7 +225,8 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
 /// `replay --order`: how the two files are merged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum OrderArg {
-    /// By publish time when both files carry it (`vlsyncd record`'s), else by stamp.
+    /// By publish time when both files carry it (`vlsyncd record`'s) and every
+    /// publish time is positive, else by stamp (saying why).
     #[default]
     Auto,
     /// By stamp.
@@ -358,25 +359,28 @@ pub fn error_summary(ests: &[Estimate], truth: &[(Nanos, f64)]) -> String {
     )
 }
 
-/// Why a stream's publish times cannot be the order its samples were read in: the
-/// first that is not positive, or the first that goes back (1-based sample number).
-fn publish_problem(p: &[Nanos]) -> Option<String> {
+/// What is wrong with a stream's publish times as the order its samples were read
+/// in: `Err` when one is not positive (a publisher that leaves them 0: merging by
+/// them would feed one stream whole before the other), `Ok(Some)` when they go back
+/// (two publishers on one stream; the merge still follows them), 1-based sample
+/// numbers.
+fn publish_problem(p: &[Nanos]) -> Result<Option<String>, String> {
     let secs = |t: Nanos| t as f64 * 1e-9;
     if let Some((i, &t)) = p.iter().enumerate().find(|(_, &t)| t <= 0) {
-        return Some(format!(
+        return Err(format!(
             "publish time {} s of sample {} is not positive",
             secs(t),
             i + 1
         ));
     }
-    p.windows(2).position(|w| w[1] < w[0]).map(|i| {
+    Ok(p.windows(2).position(|w| w[1] < w[0]).map(|i| {
         format!(
             "publish times go back at sample {} ({:.9} s after {:.9} s)",
             i + 2,
             secs(p[i + 1]),
             secs(p[i])
         )
-    })
+    }))
 }
 
 /// The `replay` command.
@@ -403,28 +407,38 @@ pub fn run_cli(a: &ReplayArgs<'_>) -> Result<(), String> {
     };
     let ((cam_s, cam_pub), (lidar_s, lidar_pub)) = (read(a.cam)?, read(a.lidar)?);
     // publish times that cannot be the order the daemon read the samples in (not
-    // positive: a publisher that leaves them 0; going back): `auto` merges by stamp,
-    // an explicit `publish` is obeyed with a warning
-    let mut doubt = None;
+    // positive: a publisher that leaves them 0): `auto` merges by stamp, an explicit
+    // `publish` is obeyed with a warning; times that go back (two publishers on a
+    // stream) are followed with a note
+    let (mut wrong, mut back) = (None, None);
     for (path, p) in [(a.cam, &cam_pub), (a.lidar, &lidar_pub)] {
-        if let (None, Some(why)) = (&doubt, p.as_deref().and_then(publish_problem)) {
-            doubt = Some(format!("{}: {why}", path.display()));
+        match p.as_deref().map(publish_problem) {
+            Some(Err(why)) if wrong.is_none() => wrong = Some(format!("{}: {why}", path.display())),
+            Some(Ok(Some(why))) if back.is_none() => {
+                back = Some(format!("{}: {why}", path.display()))
+            }
+            _ => {}
         }
     }
     let order = match (a.order, cam_pub.as_deref(), lidar_pub.as_deref()) {
         (OrderArg::Stamp, _, _) | (OrderArg::Auto, None, _) | (OrderArg::Auto, _, None) => {
             Order::Stamp
         }
-        (OrderArg::Auto, Some(_), Some(_)) if doubt.is_some() => {
+        (OrderArg::Auto, Some(_), Some(_)) if wrong.is_some() => {
             vlsync_common::console::print_err(&format!(
                 "--order auto: {}: merging by stamp\n",
-                doubt.take().unwrap_or_default()
+                wrong.take().unwrap_or_default()
             ));
             Order::Stamp
         }
         (_, Some(c), Some(l)) => {
-            if let Some(d) = doubt.take() {
+            if let Some(d) = wrong.take() {
                 vlsync_common::console::print_err(&format!("warning: --order publish: {d}\n"));
+            }
+            if let Some(d) = back.take() {
+                vlsync_common::console::print_err(&format!(
+                    "note: {d}; merged in that order all the same (two publishers on one stream?)\n"
+                ));
             }
             Order::Publish(c, l)
         }

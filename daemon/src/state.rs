@@ -11,8 +11,8 @@
 //! another polarity), at least every [`REFRESH_PERIOD`] while it does not (fewer
 //! fsyncs wear an SD card less: 99-114 saves in a simulated hour of steady tracking,
 //! against 704-712 at one every 5 s), and once more on shutdown
-//! ([`Saver`]). A save is atomic: the text goes to `<file>.tmp` in the
-//! same directory, is fsynced, renamed over the file, and the directory is
+//! ([`Saver`]). A save is atomic: the text goes to `<file>.tmp-<pid>` in the
+//! same directory (leftovers of ended processes are removed at start), is fsynced, renamed over the file, and the directory is
 //! fsynced, so a crash at any point leaves either the old or the new file.
 //!
 //! At start ([`load_at`]) the file is hostile input: a missing file is a cold start;
@@ -753,10 +753,15 @@ pub fn remove_stale_temps(path: &Path) -> usize {
                 .is_some_and(|p| !Path::new("/proc").join(p).exists()),
             None => false,
         };
-        if stale
-            && e.file_type().is_ok_and(|t| t.is_file())
-            && std::fs::remove_file(e.path()).is_ok()
-        {
+        // only this user's regular files: another user's daemon, alive but hidden
+        // from this one's /proc (hidepid, another pid namespace), keeps its own
+        let mine = || {
+            use std::os::unix::fs::MetadataExt;
+            e.metadata().is_ok_and(|m| {
+                m.file_type().is_file() && m.uid() == rustix::process::geteuid().as_raw()
+            })
+        };
+        if stale && mine() && std::fs::remove_file(e.path()).is_ok() {
             removed += 1;
         }
     }

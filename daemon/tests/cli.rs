@@ -323,11 +323,21 @@ fn replay_merges_by_publish_time_only_when_both_files_carry_it() {
         )) && err.contains("merged by stamp"),
         "{err}"
     );
-    let (code, _, err) = replay(&back, &recorded, &["--order", "publish"]);
+    let (code, _, err) = replay(&recorded, &zero, &["--order", "publish"]);
     assert_eq!(code, 0, "{err}");
     assert!(
         err.contains(&format!(
-            "warning: --order publish: {}: publish times go back at sample 2",
+            "warning: --order publish: {}: publish time 0 s of sample 1 is not positive",
+            p(&zero)
+        )) && err.contains("merged by publish time"),
+        "{err}"
+    );
+    // times that go back (two publishers on one stream) are followed, with a note
+    let (code, _, err) = replay(&back, &recorded, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(&format!(
+            "note: {}: publish times go back at sample 2 (4.000000000 s after 5.000000000 s); merged in that order all the same",
             p(&back)
         )) && err.contains("merged by publish time"),
         "{err}"

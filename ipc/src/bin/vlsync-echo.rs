@@ -251,8 +251,9 @@ fn main() -> ExitCode {
         for (e, _) in &got {
             if let Some(n) = last_seq.and_then(|l| missed(l, e.seq)) {
                 vlsync_common::console::print_err(&format!(
-                    "vlsync-echo: {n} estimate(s) missed before #{} (the client buffers 16: \
-                     a stopped or slow reader loses the oldest)\n",
+                    "vlsync-echo: {n} estimate(s) missed before #{} (lost by a stopped or \
+                     slow reader, the client buffering 16, or never published: the daemon's \
+                     log says so)\n",
                     e.seq
                 ));
             }
