@@ -4,8 +4,8 @@
 //! * [`cdr`]: hand-written, bounds-checked CDR (XCDR1 little-endian) for
 //!   `builtin_interfaces/Time`, `std_msgs/Header`, `sensor_msgs/Image`,
 //!   `sensor_msgs/CompressedImage` and `sensor_msgs/LaserScan`, both ways.
-//! * [`read`]: the messages of one topic, in log-time order when the file is
-//!   indexed, by topic name or by schema.
+//! * [`read`]: the messages of one topic, in file order (through the index when
+//!   the file has one), by topic name or by schema.
 //! * [`image`]: [`McapImageSource`], a `vlsync_signature_cam::FrameSource`
 //!   (mono8, rgb8, bgr8, rgba8, yuv422/yuyv, PNG, JPEG).
 //! * [`scan`]: [`McapScanSource`], `vlsync_signature_lidar::Scan`s with per-ray

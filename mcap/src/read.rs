@@ -1,14 +1,18 @@
-//! Reading the messages of one topic from an MCAP file, in log-time order.
+//! Reading the messages of one topic from an MCAP file, in file order.
 //!
 //! [`McapReader::open`] reads the file's summary. When the file is indexed
 //! (chunk indexes in the summary, as `ros2 bag record` writes), messages come
-//! through the `mcap` crate's indexed reader in **log-time order** (ties in file
-//! order), only the chunks holding the topic are read, and each chunk's CRC is
-//! checked before its messages are used. When the summary is missing (a
-//! recording that was cut off) or has no chunk indexes, the file is read
-//! linearly in **file order** (chunk CRCs checked too); [`McapReader::is_indexed`]
-//! tells which, and [`McapReader::out_of_order`] counts messages whose log time
-//! went backwards. A truncated file then yields its messages up to the cut and
+//! through the `mcap` crate's indexed reader, only the chunks holding the topic are
+//! read, and each chunk's CRC is checked before its messages are used. When the
+//! summary is missing (a recording that was cut off) or has no chunk indexes, the
+//! file is read linearly (chunk CRCs checked too); [`McapReader::is_indexed`] tells
+//! which. Either way messages come in **file order**, the order a recorder wrote
+//! them in (`ros2 bag record` writes them as they arrive), and
+//! [`McapReader::out_of_order`] counts those whose log time went backwards. Not in
+//! log-time order: to sort, the indexed reader holds every chunk whose declared
+//! time range has begun, and a few hundred bytes of indexes declaring overlapping
+//! ranges (or messages outside them) made it hold forty 250 MiB chunks at once; in
+//! file order it holds one. A truncated file then yields its messages up to the cut and
 //! then an error saying so.
 //!
 //! Topic selection: by name ([`Select::Topic`]; its schema must be one the
@@ -30,7 +34,9 @@ use crate::decompress;
 use crate::error::Error;
 use crate::linear::{Fault, LinearWalk, Place};
 use mcap::records::op;
-use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
+use mcap::sans_io::indexed_reader::{
+    IndexedReadEvent, IndexedReader, IndexedReaderOptions, ReadOrder,
+};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 use mcap::{McapError, Summary};
 use std::collections::BTreeMap;
@@ -436,6 +442,8 @@ impl McapReader {
             Some(s) if !s.chunk_indexes.is_empty() => {
                 let options = IndexedReaderOptions::new()
                     .include_topics([topic.topic.clone()])
+                    // one chunk held at a time (the module's doc)
+                    .with_order(ReadOrder::File)
                     .with_record_length_limit(opts.max_record_bytes);
                 let mut reader = IndexedReader::new_with_options(&s, options)
                     .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
@@ -512,14 +520,14 @@ impl McapReader {
         &self.topic
     }
 
-    /// True when messages come in log-time order through the file's index;
-    /// false when the file is read linearly (file order).
+    /// True when messages come through the file's index; false when the file is read
+    /// linearly. File order both ways.
     pub fn is_indexed(&self) -> bool {
         matches!(self.mode, Mode::Indexed { .. })
     }
 
-    /// Messages (so far) whose log time is earlier than the previous one's
-    /// (only possible when reading linearly).
+    /// Messages (so far) whose log time is earlier than the previous one's (they are
+    /// yielded in file order all the same).
     pub fn out_of_order(&self) -> u64 {
         self.out_of_order
     }
