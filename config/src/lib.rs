@@ -232,7 +232,7 @@ impl CadenceStreams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DaemonConfig {
-    /// CPU core the real-time thread is pinned to; negative: no pinning.
+    /// CPU core the real-time thread is pinned to; -1: no pinning.
     pub core: i64,
     /// SCHED_FIFO priority of the real-time thread (1-99); 0 keeps the normal scheduler.
     pub fifo_priority: i64,
@@ -405,12 +405,12 @@ struct Checker<'a> {
     source: &'a str,
 }
 
-/// Most characters kept of each line of a TOML parse error (it quotes the offending
-/// line of the file, which may be megabytes long).
 /// The largest configuration file read, bytes (the shipped, commented one is some
 /// 13 kB): a larger one is refused before it is read whole.
 pub const MAX_FILE_BYTES: u64 = 1 << 20;
 
+/// Most characters kept of each line of a TOML parse error (it quotes the offending
+/// line of the file, which may be megabytes long).
 const MAX_ERROR_LINE_CHARS: usize = 200;
 /// Most lines kept of a TOML parse error.
 const MAX_ERROR_LINES: usize = 12;
@@ -742,10 +742,31 @@ impl ServicesConfig {
 impl Config {
     /// Parses and validates TOML text; `source_name` names it in errors.
     pub fn from_toml_str(text: &str, source_name: &str) -> Result<Self, ConfigError> {
-        let cfg: Config = toml::from_str(text).map_err(|e| ConfigError {
+        let err = |message: String| ConfigError {
             source_name: source_name.to_string(),
-            message: clip_toml_error(&e.to_string()),
-        })?;
+            message,
+        };
+        // a section given as an array (`lidar = [10.0, 30.0]`, `[[estimator]]`) would
+        // fill its keys by position, unnamed and unchecked for extras: only a table is
+        // a section
+        let table: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| err(clip_toml_error(&e.to_string())))?;
+        for (key, value) in &table {
+            // unknown names are serde's to refuse, by name
+            let section = ["estimator", "daemon", "services", "lidar", "camera"];
+            if section.contains(&key.as_str()) && !value.is_table() {
+                return Err(err(format!(
+                    "`{}` must be a section (`[{0}]` and its keys), not {}",
+                    clip(key),
+                    match value {
+                        toml::Value::Array(_) => "an array",
+                        _ => "a value",
+                    }
+                )));
+            }
+        }
+        let cfg: Config = toml::from_str(text).map_err(|e| err(clip_toml_error(&e.to_string())))?;
         cfg.validate(source_name)?;
         Ok(cfg)
     }
@@ -822,6 +843,36 @@ mod tests {
                 assert!(found, "key `{key}` is not in config/vlsync.toml");
             }
         }
+    }
+
+    #[test]
+    fn a_section_is_a_table_never_an_array_of_its_values() {
+        for (text, want) in [
+            (
+                "lidar = [10.0, 30.0, true, 5]\n",
+                "`lidar` must be a section (`[lidar]` and its keys), not an array",
+            ),
+            (
+                "camera = [30.0]\n",
+                "`camera` must be a section (`[camera]` and its keys), not an array",
+            ),
+            (
+                "[[estimator]]\ngrid_hz = 100.0\n",
+                "`estimator` must be a section (`[estimator]` and its keys), not an array",
+            ),
+            (
+                "daemon = 3\n",
+                "`daemon` must be a section (`[daemon]` and its keys), not a value",
+            ),
+        ] {
+            let e = Config::from_toml_str(text, "x.toml").unwrap_err();
+            assert_eq!(e.to_string(), format!("config x.toml: {want}"), "{text}");
+        }
+        // an unknown top-level value is still refused by its name
+        let e = Config::from_toml_str("nope = 1\n", "x.toml").unwrap_err();
+        assert!(e.to_string().contains("unknown field `nope`"), "{e}");
+        // inline tables are tables
+        Config::from_toml_str("lidar = { window_centre_deg = 10.0 }\n", "x.toml").unwrap();
     }
 
     #[test]
