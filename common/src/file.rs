@@ -346,7 +346,22 @@ pub fn write_atomically(path: &Path, contents: &[u8]) -> Result<(), String> {
         name.to_string_lossy(),
         std::process::id()
     ));
-    let mut f = match File::create(&tmp) {
+    // a new file of our own: never one planted under the name (a link to another
+    // file, which would be truncated and then renamed over the output); a leftover
+    // of ours (a crash) or a planted entry is removed first, itself, not what it names
+    let create = || {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+    };
+    let created = match create() {
+        Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+            std::fs::remove_file(&tmp).and_then(|()| create())
+        }
+        r => r,
+    };
+    let mut f = match created {
         Ok(f) => f,
         // the directory refuses new files, the file itself may still be writable
         Err(e) if existing.is_some() && e.kind() == io::ErrorKind::PermissionDenied => {
@@ -513,6 +528,24 @@ mod tests {
             let e = open_regular(Path::new("/dev/null")).unwrap_err();
             assert!(e.to_string().contains("character device"), "{e}");
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_link_planted_as_the_temporary_file_is_not_followed() {
+        let dir = std::env::temp_dir().join(format!("vlsync-planted-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let victim = dir.join("victim");
+        std::fs::write(&victim, "keep me\n").unwrap();
+        let out = dir.join("est.csv");
+        let tmp = dir.join(format!(".est.csv.tmp-{}", std::process::id()));
+        std::os::unix::fs::symlink(&victim, &tmp).unwrap();
+        write_atomically(&out, b"t,offset\n").unwrap();
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me\n");
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "t,offset\n");
+        assert!(!std::fs::symlink_metadata(&out).unwrap().file_type().is_symlink());
+        assert!(std::fs::symlink_metadata(&tmp).is_err(), "nothing left");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
