@@ -445,6 +445,18 @@ impl Time {
         i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)
     }
 
+    /// [`Time::to_nanos`] of a well-formed stamp; `nanosec` of a second or more (a
+    /// stamp of `sec` 10 and `nanosec` 4e9 reads as 14 s) is an error saying so.
+    pub fn checked_nanos(self) -> Result<Nanos, String> {
+        if self.nanosec >= 1_000_000_000 {
+            return Err(format!(
+                "header stamp sec {}, nanosec {}: nanosec is not below 1e9",
+                self.sec, self.nanosec
+            ));
+        }
+        Ok(self.to_nanos())
+    }
+
     /// The stamp of `ns` nanoseconds (`nanosec` in `0..1e9`), `None` when the
     /// seconds do not fit ROS 2's `int32`.
     pub fn from_nanos(ns: Nanos) -> Option<Self> {

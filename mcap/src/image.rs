@@ -174,14 +174,14 @@ impl McapImageSource {
                 .map_err(|e| e.to_string())
                 .and_then(|m| {
                     decode_compressed(&m, *max_pixels, gray, scratch)
-                        .map(|wh| (wh, m.header.stamp.to_nanos()))
+                        .map(|wh| (wh, m.header.stamp))
                 })
         } else {
             Image::decode(msg.data)
                 .map_err(|e| e.to_string())
                 .and_then(|m| {
                     within_pixels(m.width, m.height, *max_pixels)?;
-                    raw_to_gray(&m, gray).map(|wh| (wh, m.header.stamp.to_nanos()))
+                    raw_to_gray(&m, gray).map(|wh| (wh, m.header.stamp))
                 })
         };
         let fail = |reason: String| Error::Message {
@@ -193,9 +193,10 @@ impl McapImageSource {
             },
             reason,
         };
-        let ((w, h), stamp_ns) = result.map_err(fail)?;
+        let ((w, h), header_stamp) = result.map_err(fail)?;
+        let stamp_ns = header_stamp.to_nanos();
         let time = match stamp {
-            StampSource::Header => stamp_ns,
+            StampSource::Header => header_stamp.checked_nanos().map_err(fail)?,
             StampSource::LogTime => i64::try_from(log_time)
                 .map_err(|_| fail(format!("log time {log_time} ns does not fit i64")))?,
         };
