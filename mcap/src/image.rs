@@ -247,8 +247,9 @@ pub fn raw_to_gray(m: &Image<'_>, out: &mut Vec<u8>) -> Result<(usize, usize), S
         "yuv422" | "uyvy" => return uyvy_to_gray(m.data, w, h, stride, out).map(|()| (w, h)),
         other => {
             return Err(format!(
-                "unsupported image encoding `{other}` (supported: mono8, 8UC1, rgb8, bgr8, rgba8, \
-                 yuv422_yuy2/yuyv, yuv422/uyvy)"
+                "unsupported image encoding `{}` (supported: mono8, 8UC1, rgb8, bgr8, rgba8, \
+                 yuv422_yuy2/yuyv, yuv422/uyvy)",
+                vlsync_common::text::clip(other)
             ))
         }
     };
@@ -301,7 +302,12 @@ pub fn decode_compressed(
     scratch: &mut Vec<u8>,
 ) -> Result<(usize, usize), String> {
     let cursor = std::io::Cursor::new(m.data);
-    let what = |e: image::ImageError| format!("cannot decode `{}` image: {e}", m.format);
+    let what = |e: image::ImageError| {
+        format!(
+            "cannot decode `{}` image: {e}",
+            vlsync_common::text::clip(m.format)
+        )
+    };
     if m.data.starts_with(b"\x89PNG\r\n\x1a\n") {
         let d = image::codecs::png::PngDecoder::new(cursor).map_err(what)?;
         decode_with(d, max_pixels, gray, scratch).map_err(what)
@@ -312,7 +318,7 @@ pub fn decode_compressed(
         Err(format!(
             "unsupported compressed image format `{}` (supported: png, jpeg; the data starts with \
              neither signature)",
-            m.format
+            vlsync_common::text::clip(m.format)
         ))
     }
 }

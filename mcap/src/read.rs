@@ -303,15 +303,24 @@ fn summary_channels(s: &Summary) -> Vec<(u16, TopicInfo)> {
     out
 }
 
+/// Most topics an error lists (a hostile file may declare thousands).
+const MAX_LISTED: usize = 20;
+
 fn list(channels: &[(u16, TopicInfo)]) -> String {
+    use vlsync_common::text::clip;
     if channels.is_empty() {
         return "the file has no channels".into();
     }
     let items: Vec<String> = channels
         .iter()
-        .map(|(_, t)| format!("`{}` ({})", t.topic, t.schema_name))
+        .take(MAX_LISTED)
+        .map(|(_, t)| format!("`{}` ({})", clip(&t.topic), clip(&t.schema_name)))
         .collect();
-    format!("the file has {}", items.join(", "))
+    let more = match channels.len().saturating_sub(MAX_LISTED) {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    format!("the file has {}{more}", items.join(", "))
 }
 
 /// Picks the channels of the selected topic.
@@ -345,31 +354,48 @@ fn resolve(
                     )))
                 }
                 many => {
+                    let shown: Vec<String> = many
+                        .iter()
+                        .take(MAX_LISTED)
+                        .map(|n| vlsync_common::text::clip(n))
+                        .collect();
+                    let more = many.len().saturating_sub(MAX_LISTED);
                     return Err(topic_err(format!(
-                        "several topics with schema {}: {}; name one",
+                        "several topics with schema {}: {}{}; name one",
                         schemas.join(" or "),
-                        many.join(", ")
-                    )))
+                        shown.join(", "),
+                        if more > 0 {
+                            format!(" and {more} more")
+                        } else {
+                            String::new()
+                        }
+                    )));
                 }
             }
         }
     };
     let mine: Vec<&(u16, TopicInfo)> = channels.iter().filter(|(_, t)| t.topic == name).collect();
     let Some((_, first)) = mine.first() else {
-        return Err(topic_err(format!("no topic `{name}`; {}", list(channels))));
+        return Err(topic_err(format!(
+            "no topic `{}`; {}",
+            vlsync_common::text::clip(&name),
+            list(channels)
+        )));
     };
     for (_, t) in &mine {
         if !schemas.contains(&t.schema_name.as_str()) {
             return Err(topic_err(format!(
-                "topic `{name}` has schema `{}`, expected {}",
-                t.schema_name,
+                "topic `{}` has schema `{}`, expected {}",
+                vlsync_common::text::clip(&name),
+                vlsync_common::text::clip(&t.schema_name),
                 schemas.join(" or ")
             )));
         }
         if t.message_encoding != "cdr" {
             return Err(topic_err(format!(
-                "topic `{name}` has message encoding `{}`, expected `cdr`",
-                t.message_encoding
+                "topic `{}` has message encoding `{}`, expected `cdr`",
+                vlsync_common::text::clip(&name),
+                vlsync_common::text::clip(&t.message_encoding)
             )));
         }
     }

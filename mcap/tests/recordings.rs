@@ -242,6 +242,35 @@ fn err_text(r: Result<impl std::fmt::Debug, vlsync_mcap::Error>) -> String {
     r.unwrap_err().to_string()
 }
 
+/// A file of many topics (or long names) gives an error of bounded length: the list
+/// stops at twenty, each name clipped.
+#[test]
+fn errors_list_at_most_twenty_topics_each_clipped() {
+    let tmp = Tmp::new("manytopics");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    let long = "x".repeat(100_000);
+    for k in 0..25 {
+        w.write_image(&format!("/cam{k:02}{long}"), 1, &frame(0, 4, 4))
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let e = err_text(McapImageSource::open(&tmp.0, ImageSourceOptions::default()));
+    assert!(
+        e.contains("several topics") && e.ends_with(" and 5 more; name one"),
+        "{e}"
+    );
+    assert!(e.len() < 20 * 300, "{} bytes", e.len());
+    let e = err_text(McapImageSource::open(
+        &tmp.0,
+        ImageSourceOptions::topic("/nope"),
+    ));
+    assert!(
+        e.contains("no topic `/nope`") && e.ends_with(" and 5 more"),
+        "{e}"
+    );
+    assert!(e.len() < 20 * 300, "{} bytes", e.len());
+}
+
 #[test]
 fn wrong_topic_or_schema_is_a_clear_error() {
     let tmp = Tmp::new("schema");
