@@ -419,7 +419,25 @@ impl McapReader {
         let opts = ReaderOptions::default();
         let ch = match read_summary(&mut file, len, opts) {
             Ok(Some(s)) => summary_channels(&s),
-            _ => scan_channels(&mut file, len, opts),
+            _ => {
+                let ch = scan_channels(&mut file, len, opts);
+                if ch.is_empty() {
+                    // no channel at all: a fault of the file (a bad CRC, a cut) is
+                    // said, as `open` says it, rather than an empty list
+                    let mut walk = LinearWalk::new(opts.max_record_bytes);
+                    loop {
+                        match walk.next(&mut file, len) {
+                            Ok(Some(_)) => {}
+                            Ok(None) => break,
+                            Err(f) => {
+                                let at = "reading the file from the start".to_string();
+                                return Err(fault_err(path, at, &walk, f));
+                            }
+                        }
+                    }
+                }
+                ch
+            }
         };
         Ok(ch.into_iter().map(|(_, t)| t).collect())
     }

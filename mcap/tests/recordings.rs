@@ -570,6 +570,14 @@ fn corrupted_chunk_is_detected() {
         "{err}"
     );
     eprintln!("corrupted: {err}");
+    // without a summary the file is read from the start: a topic list that finds no
+    // channel (they are in the chunk whose CRC is wrong) says why, as the reader does,
+    // instead of listing none (tests/data/bad-crc-no-summary.mcap: one LaserScan
+    // chunk, its CRC 1234, no summary; 328 bytes)
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bad-crc-no-summary.mcap");
+    let e = McapReader::topics(&path).unwrap_err();
+    assert!(e.to_string().contains("CRC"), "{e}");
 }
 
 proptest! {
