@@ -489,15 +489,27 @@ impl McapReader {
                     // one chunk held at a time (the module's doc)
                     .with_order(ReadOrder::File)
                     .with_record_length_limit(opts.max_record_bytes);
-                let mut reader = IndexedReader::new_with_options(&s, options)
-                    .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
-                decompress::register_indexed(&mut reader, opts.max_record_bytes)
-                    .map_err(|e| mcap_err(&path, "opening", e))?;
                 // the checks before a chunk is handed to the reader use these entries: two
                 // indexes of one chunk that disagree would let one pass the check and the
                 // other size the reader's buffer
                 let mut chunks: BTreeMap<u64, (u64, String, u64)> = BTreeMap::new();
                 for c in &s.chunk_indexes {
+                    // before the reader is built: its own refusal names neither the
+                    // chunk nor the size declared
+                    let limit = opts.max_record_bytes as u64;
+                    if c.uncompressed_size > limit || c.compressed_size > limit {
+                        return Err(Error::Corrupt {
+                            path,
+                            at: "in the summary's chunk indexes".into(),
+                            reason: format!(
+                                "the chunk at byte {} declares {} bytes compressed, {} \
+                                 uncompressed, over the limit of {limit} a record may have \
+                                 here (a bound of this reader, not of the format: a \
+                                 recording written with smaller chunks reads)",
+                                c.chunk_start_offset, c.compressed_size, c.uncompressed_size
+                            ),
+                        });
+                    }
                     let Ok(off) = c.compressed_data_offset() else {
                         continue;
                     };
@@ -528,6 +540,10 @@ impl McapReader {
                         }
                     }
                 }
+                let mut reader = IndexedReader::new_with_options(&s, options)
+                    .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
+                decompress::register_indexed(&mut reader, opts.max_record_bytes)
+                    .map_err(|e| mcap_err(&path, "opening", e))?;
                 Mode::Indexed {
                     reader: Box::new(reader),
                     chunks,

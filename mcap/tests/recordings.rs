@@ -578,6 +578,21 @@ fn corrupted_chunk_is_detected() {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bad-crc-no-summary.mcap");
     let e = McapReader::topics(&path).unwrap_err();
     assert!(e.to_string().contains("CRC"), "{e}");
+    // a chunk index declaring 2^63 uncompressed bytes is named with its size and
+    // chunk (tests/data/huge-chunk-index.mcap, 489 bytes; the `mcap` crate's own
+    // refusal quoted the compressed size and no chunk)
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/huge-chunk-index.mcap");
+    let e = McapScanSource::open(&path, ScanSourceOptions::default())
+        .map(drop)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("in the summary's chunk indexes")
+            && e.contains("the chunk at byte ")
+            && e.contains("9223372036854775808 uncompressed"),
+        "{e}"
+    );
 }
 
 proptest! {
