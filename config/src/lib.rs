@@ -691,6 +691,17 @@ impl DaemonConfig {
             0.01,
             1.0,
         )?;
+        for (key, path) in [
+            ("daemon.state_file", &self.state_file),
+            ("daemon.load_hint_source", &self.load_hint_source),
+        ] {
+            c.rule(!path.contains('\0'), || {
+                format!(
+                    "`{key}` = {:?} contains a NUL byte, which no file name can",
+                    clip(path)
+                )
+            })?;
+        }
         c.rule(
             !(self.load_hints && self.load_hint_source.trim().is_empty()),
             || "`daemon.load_hint_source` is empty while `daemon.load_hints` is on: give a pressure file such as /proc/pressure/cpu".to_string(),
@@ -843,6 +854,16 @@ mod tests {
                 assert!(found, "key `{key}` is not in config/vlsync.toml");
             }
         }
+    }
+
+    #[test]
+    fn a_file_name_with_a_nul_byte_is_refused() {
+        let e = Config::from_toml_str("[daemon]\nstate_file = \"/tmp/a\\u0000b\"\n", "x.toml")
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config x.toml: `daemon.state_file` = \"/tmp/a\\0b\" contains a NUL byte, which no file name can"
+        );
     }
 
     #[test]

@@ -21,9 +21,17 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
             } else {
                 ""
             };
+            // a missing directory may appear; a path that names a directory, or one
+            // no file can have, stays wrong
+            let then = if problem.ends_with("is a directory") || problem.contains("NUL") {
+                "; `vlsyncd run` warns at start and cannot save until it is changed".to_string()
+            } else {
+                format!(
+                    " on this machine; `vlsyncd run` warns at start and saves once it exists{unit}"
+                )
+            };
             out.push_str(&format!(
-                "{comment}note: daemon.state_file: {problem} on this machine; `vlsyncd run` \
-                 warns at start and saves once it exists{unit}\n"
+                "{comment}note: daemon.state_file: {problem}{then}\n"
             ));
         }
     }

@@ -776,6 +776,12 @@ pub fn directory_problem(path: &Path) -> Option<String> {
     if path.file_name().is_none() {
         return Some(format!("state file {}: not a file name", path.display()));
     }
+    if path.as_os_str().as_encoded_bytes().contains(&0) {
+        return Some(format!(
+            "state file {:?}: contains a NUL byte, which no file name can",
+            path
+        ));
+    }
     if path.is_dir() {
         return Some(format!("state file {}: is a directory", path.display()));
     }
@@ -1698,9 +1704,11 @@ mod tests {
         assert_eq!(remove_stale_temps(&p), 2);
         assert!(!dead.exists() && !legacy.exists());
         assert!(ours.exists() && other.exists() && unrelated.exists() && p.exists());
-        // a state file naming a directory is said to be one
+        // a state file naming a directory is said to be one, and one no file can have
         let e = directory_problem(&d).unwrap();
         assert!(e.ends_with(": is a directory"), "{e}");
+        let e = directory_problem(Path::new("/tmp/a\0b")).unwrap();
+        assert!(e.ends_with("contains a NUL byte, which no file name can"), "{e}");
         std::fs::remove_dir_all(&d).unwrap();
     }
 
