@@ -544,7 +544,10 @@ mod tests {
         write_atomically(&out, b"t,offset\n").unwrap();
         assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me\n");
         assert_eq!(std::fs::read_to_string(&out).unwrap(), "t,offset\n");
-        assert!(!std::fs::symlink_metadata(&out).unwrap().file_type().is_symlink());
+        assert!(!std::fs::symlink_metadata(&out)
+            .unwrap()
+            .file_type()
+            .is_symlink());
         assert!(std::fs::symlink_metadata(&tmp).is_err(), "nothing left");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -1708,7 +1708,10 @@ mod tests {
         let e = directory_problem(&d).unwrap();
         assert!(e.ends_with(": is a directory"), "{e}");
         let e = directory_problem(Path::new("/tmp/a\0b")).unwrap();
-        assert!(e.ends_with("contains a NUL byte, which no file name can"), "{e}");
+        assert!(
+            e.ends_with("contains a NUL byte, which no file name can"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&d).unwrap();
     }
 

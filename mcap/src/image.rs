@@ -173,8 +173,7 @@ impl McapImageSource {
             CompressedImage::decode(msg.data)
                 .map_err(|e| e.to_string())
                 .and_then(|m| {
-                    decode_compressed(&m, *max_pixels, gray, scratch)
-                        .map(|wh| (wh, m.header.stamp))
+                    decode_compressed(&m, *max_pixels, gray, scratch).map(|wh| (wh, m.header.stamp))
                 })
         } else {
             Image::decode(msg.data)
