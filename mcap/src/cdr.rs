@@ -435,7 +435,9 @@ pub trait CdrMessage<'a>: Sized {
 pub struct Time {
     /// Seconds.
     pub sec: i32,
-    /// Nanoseconds, `< 1_000_000_000` for a well-formed stamp (not enforced when reading).
+    /// Nanoseconds, `< 1_000_000_000` for a well-formed stamp (not enforced when
+    /// reading: `rclcpp` adds it to the seconds whatever it is, and so does
+    /// [`Time::to_nanos`]).
     pub nanosec: u32,
 }
 
@@ -443,18 +445,6 @@ impl Time {
     /// `sec * 1e9 + nanosec` (cannot overflow: |sec| < 2^31).
     pub fn to_nanos(self) -> Nanos {
         i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)
-    }
-
-    /// [`Time::to_nanos`] of a well-formed stamp; `nanosec` of a second or more (a
-    /// stamp of `sec` 10 and `nanosec` 4e9 reads as 14 s) is an error saying so.
-    pub fn checked_nanos(self) -> Result<Nanos, String> {
-        if self.nanosec >= 1_000_000_000 {
-            return Err(format!(
-                "header stamp sec {}, nanosec {}: nanosec is not below 1e9",
-                self.sec, self.nanosec
-            ));
-        }
-        Ok(self.to_nanos())
     }
 
     /// The stamp of `ns` nanoseconds (`nanosec` in `0..1e9`), `None` when the

@@ -195,7 +195,7 @@ impl McapImageSource {
         let ((w, h), header_stamp) = result.map_err(fail)?;
         let stamp_ns = header_stamp.to_nanos();
         let time = match stamp {
-            StampSource::Header => header_stamp.checked_nanos().map_err(fail)?,
+            StampSource::Header => stamp_ns,
             StampSource::LogTime => i64::try_from(log_time)
                 .map_err(|_| fail(format!("log time {log_time} ns does not fit i64")))?,
         };

@@ -495,9 +495,15 @@ impl McapReader {
                 let mut chunks: BTreeMap<u64, (u64, String, u64)> = BTreeMap::new();
                 for c in &s.chunk_indexes {
                     // before the reader is built: its own refusal names neither the
-                    // chunk nor the size declared
+                    // chunk nor the size declared. Only the chunks it would read: those
+                    // holding the topic (or not saying which they hold), as it filters
+                    // them; a large chunk of another topic (a point cloud) is no matter
+                    let ours = c.message_index_offsets.is_empty()
+                        || channel_ids
+                            .iter()
+                            .any(|id| c.message_index_offsets.contains_key(id));
                     let limit = opts.max_record_bytes as u64;
-                    if c.uncompressed_size > limit || c.compressed_size > limit {
+                    if ours && (c.uncompressed_size > limit || c.compressed_size > limit) {
                         return Err(Error::Corrupt {
                             path,
                             at: "in the summary's chunk indexes".into(),

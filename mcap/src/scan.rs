@@ -36,8 +36,9 @@
 //! * At most [`MAX_RAYS_PER_SCAN`] ranges per scan (a scanner gives a few
 //!   thousand); a longer scan is an error naming the message.
 //! * The rays may span at most two turns of `scan_time` (10 s when it is not
-//!   given): an increment that dates them further apart is an error naming the
-//!   message, as is a `header.stamp` whose `nanosec` is a second or more.
+//!   given): an increment (given or derived) that dates them further apart is an
+//!   error naming the message. A `header.stamp` is `sec · 1e9 + nanosec` as
+//!   `rclcpp` reads it, a `nanosec` of a second or more included.
 //! * `rplidar_ros` / `sllidar_ros2` recordings (default `inverted = false`) store
 //!   the nodes reversed, `ranges[n-1-i] = node i`, with a positive
 //!   `time_increment`: their rays' times read back to front, off by up to a turn
@@ -148,7 +149,7 @@ impl McapScanSource {
             .map_err(|e| e.to_string())
             .and_then(|m| {
                 let start = match self.stamp {
-                    StampSource::Header => m.header.stamp.checked_nanos()?,
+                    StampSource::Header => m.header.stamp.to_nanos(),
                     StampSource::LogTime => i64::try_from(log_time)
                         .map_err(|_| format!("log time {log_time} ns does not fit i64"))?,
                 };
@@ -210,26 +211,6 @@ pub fn laser_scan_to_rays(
         0
     };
     let mut dt_ns = f32_as_decimal(m.time_increment) * 1e9;
-    // rays over more than two turns (or 10 s where no turn is given) are no scan: a
-    // hostile or broken increment would date them hours or centuries apart
-    let span_ns = dt_ns.abs() * n.saturating_sub(1) as f64;
-    let max_span_ns = if period_ns > 0 {
-        2.0 * period_ns as f64
-    } else {
-        10e9
-    };
-    if span_ns > max_span_ns {
-        return Err(format!(
-            "time_increment {} s over {n} ranges spans {:.3} s, more than {}",
-            m.time_increment,
-            span_ns * 1e-9,
-            if period_ns > 0 {
-                format!("two turns of scan_time {} s", m.scan_time)
-            } else {
-                "10 s (scan_time not given)".to_string()
-            }
-        ));
-    }
     if dt_ns == 0.0 {
         // the rays' times left to be derived: a constant sweep over the turn
         // `scan_time` lasts
@@ -245,6 +226,32 @@ pub fn laser_scan_to_rays(
                 }
             ));
         }
+    }
+    // rays over more than two turns (or 10 s where no turn is given), whether their
+    // increment is given or derived, are no scan: a hostile or broken increment
+    // would date them hours or centuries apart
+    let span_ns = dt_ns.abs() * n.saturating_sub(1) as f64;
+    let max_span_ns = if period_ns > 0 {
+        2.0 * period_ns as f64
+    } else {
+        10e9
+    };
+    if span_ns > max_span_ns {
+        return Err(format!(
+            "{n} ranges {} s apart ({}) span {:.3} s, more than {}",
+            dt_ns.abs() * 1e-9,
+            if m.time_increment == 0.0 {
+                "derived from angle_increment and scan_time"
+            } else {
+                "time_increment"
+            },
+            span_ns * 1e-9,
+            if period_ns > 0 {
+                format!("two turns of scan_time {} s", m.scan_time)
+            } else {
+                "10 s (scan_time not given)".to_string()
+            }
+        ));
     }
     let (rmin, rmax) = (f64::from(m.range_min), f64::from(m.range_max));
     rays.reserve(n);
@@ -477,7 +484,7 @@ mod tests {
         let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
         assert_eq!(
             e,
-            "time_increment 0.001 s over 361 ranges spans 0.360 s, more than two turns of scan_time 0.1 s"
+            "361 ranges 0.001 s apart (time_increment) span 0.360 s, more than two turns of scan_time 0.1 s"
         );
         let m = LaserScan {
             time_increment: 1e30,
@@ -486,35 +493,27 @@ mod tests {
         };
         let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
         assert!(e.ends_with("more than 10 s (scan_time not given)"), "{e}");
+        // a derived increment is held to the same bound
+        let m = LaserScan {
+            time_increment: 0.0,
+            angle_increment: 1e30,
+            scan_time: 0.1,
+            ..m
+        };
+        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
+        assert!(
+            e.contains("(derived from angle_increment and scan_time)")
+                && e.ends_with("more than two turns of scan_time 0.1 s"),
+            "{e}"
+        );
         // one turn is a scan
         let m = LaserScan {
+            angle_increment: 0.0174,
             time_increment: 0.1 / 360.0,
             scan_time: 0.1,
             ..m
         };
         laser_scan_to_rays(&m, 0, &mut rays).unwrap();
-    }
-
-    #[test]
-    fn a_stamp_of_a_second_or_more_of_nanoseconds_is_refused() {
-        use crate::cdr::Time;
-        assert_eq!(
-            Time {
-                sec: 10,
-                nanosec: 999_999_999
-            }
-            .checked_nanos(),
-            Ok(10_999_999_999)
-        );
-        assert_eq!(
-            Time {
-                sec: 10,
-                nanosec: 4_000_000_000
-            }
-            .checked_nanos()
-            .unwrap_err(),
-            "header stamp sec 10, nanosec 4000000000: nanosec is not below 1e9"
-        );
     }
 
     proptest! {

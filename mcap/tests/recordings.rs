@@ -892,3 +892,79 @@ fn unchunked_recordings_are_read_linearly() {
     assert!(src.next_frame().unwrap().is_none());
     assert_eq!(src.reader().out_of_order(), 2);
 }
+
+/// A chunk over the size limit matters only to the topics it holds: another topic's
+/// (a point cloud beside the scans) does not refuse the file.
+#[test]
+fn an_oversized_chunk_of_another_topic_does_not_refuse_the_file() {
+    let tmp = Tmp::new("bigother");
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
+        let mut w = mcap::WriteOptions::new()
+            .compression(None)
+            .create(file)
+            .unwrap();
+        let schema = w
+            .add_schema(Image::SCHEMA_NAME, "ros2msg", Image::SCHEMA_TEXT.as_bytes())
+            .unwrap();
+        let cam = w
+            .add_channel(schema, "/cam", "cdr", &Default::default())
+            .unwrap();
+        let blob = w
+            .add_channel(schema, "/blob", "cdr", &Default::default())
+            .unwrap();
+        let header = |channel_id, t| mcap::records::MessageHeader {
+            channel_id,
+            sequence: 0,
+            log_time: t,
+            publish_time: t,
+        };
+        let mut buf = Vec::new();
+        for k in 0..3u8 {
+            let f = frame(k, 8, 2);
+            Image {
+                height: 2,
+                width: 8,
+                encoding: "mono8",
+                step: 8,
+                data: f.pixels(),
+                ..Image::default()
+            }
+            .encode(&mut buf)
+            .unwrap();
+            w.write_to_known_channel(&header(cam, u64::from(k)), &buf)
+                .unwrap();
+        }
+        // the camera's chunk ends here; the next holds only the 2 MiB blob
+        w.flush().unwrap();
+        w.write_to_known_channel(&header(blob, 10), &vec![0u8; 2 << 20])
+            .unwrap();
+        w.finish().unwrap();
+    }
+    let opts = vlsync_mcap::ReaderOptions {
+        max_record_bytes: 1 << 20,
+    };
+    let mut r = McapReader::open(
+        &tmp.0,
+        &Select::Topic("/cam".into()),
+        &vlsync_mcap::IMAGE_SCHEMAS,
+        opts,
+    )
+    .unwrap();
+    assert!(r.is_indexed());
+    let mut n = 0;
+    while r.next_message().unwrap().is_some() {
+        n += 1;
+    }
+    assert_eq!(n, 3);
+    let e = McapReader::open(
+        &tmp.0,
+        &Select::Topic("/blob".into()),
+        &vlsync_mcap::IMAGE_SCHEMAS,
+        opts,
+    )
+    .map(drop)
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("over the limit of 1048576"), "{e}");
+}
