@@ -150,9 +150,10 @@ pub fn check_writable(flag: &str, path: &Path) -> Result<(), String> {
     let target = link_target(path);
     if is_descriptor(&target) {
         // open already (a pipe's opening would wait for its reader here; a socket,
-        // journald's standard output, cannot be opened by path at all, but is written
-        // through the process's own handle)
-        return if std_stream(&target).is_some() || target.exists() {
+        // journald's standard output, cannot be opened by path but can be looked at,
+        // and is written through the process's own handle); a closed one (`>&-`)
+        // does not exist
+        return if target.exists() {
             Ok(())
         } else {
             Err(say("is no open descriptor of this process".into()))
@@ -314,11 +315,13 @@ pub fn create_out_dir(flag: &str, path: &Path) -> Result<(), String> {
 /// temporary file beside it, renamed over it once complete (an error removes the
 /// temporary file and leaves an earlier `path` as it was). A file written over keeps
 /// its permissions, and its owner and group where the process may give them (root);
-/// a symlink's target is written, not the link. A descriptor (`/dev/stdout`,
-/// `/dev/fd/N`, `/proc/self/fd/N`) is written through, appending (a shell's `>>`
-/// keeps what the file held), a path that exists and is not a regular file (a
-/// device, a named pipe) is written directly, and so is an existing file in a directory where no temporary file can
-/// be created (it is writable, its directory is not). Errors name `path`.
+/// a symlink's target is written, not the link. Standard output and error
+/// (`/dev/stdout`, `/dev/fd/1`, `/proc/self/fd/2`, ...) are written through the
+/// process's own handles, where its other output goes (a shell's `>` or `>>` file, a
+/// pipe, a terminal, journald's socket); another descriptor is opened again,
+/// appending; a path that exists and is not a regular file (a device, a named pipe)
+/// is written directly, and so is an existing file in a directory where no temporary
+/// file can be created (it is writable, its directory is not). Errors name `path`.
 ///
 /// ```
 /// use vlsync_common::file::write_atomically;

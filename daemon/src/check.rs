@@ -23,7 +23,9 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
             };
             // a missing directory may appear; a path that names a directory, or one
             // no file can have, stays wrong
-            let then = if problem.ends_with("is a directory") || problem.contains("NUL") {
+            let then = if problem.ends_with(": is a directory")
+                || problem.ends_with("contains a NUL byte, which no file name can")
+            {
                 "; `vlsyncd run` warns at start and cannot save until it is changed".to_string()
             } else {
                 format!(

@@ -213,7 +213,17 @@ impl<W: Write> Recording<W> {
             }
             SeqStep::NewRun { .. } => {}
         }
-        self.last_seq[i] = Some(s.seq);
+        // a malformed sample whose number starts a new run (garbage, or going back)
+        // is not followed: the daemon counts nothing for it, and the next good sample
+        // is judged against the last good one
+        let garbage = !valid
+            && matches!(
+                seq_step(self.last_seq[i], s.seq, s.is_first()),
+                SeqStep::NewRun { .. }
+            );
+        if !garbage {
+            self.last_seq[i] = Some(s.seq);
+        }
         if !valid {
             c.malformed += 1;
             return Ok(());
@@ -742,27 +752,31 @@ mod tests {
         r.signature(Stream::Cam, &bad).unwrap();
         // the next after them is their successor: not a gap (the daemon's rule)
         r.signature(Stream::Cam, &sample(40, 1.0, 2)).unwrap();
+        // a malformed one numbered far off is no restart, and is not followed
+        bad.seq = u64::MAX;
+        r.signature(Stream::Cam, &bad).unwrap();
+        r.signature(Stream::Cam, &sample(41, 1.0, 3)).unwrap();
         let c = r.counts()[0];
         assert_eq!(
             c,
             StreamCounts {
-                rows: 8,
+                rows: 9,
                 lost: 2,
                 before_first: 40,
                 restarts: 2,
-                malformed: 2,
+                malformed: 3,
                 non_finite: 0
             }
         );
         assert_eq!(r.counts()[1], StreamCounts::default());
         let summary = r.summary();
         assert!(
-            summary.contains("cam: 8 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 2 malformed payloads skipped"),
+            summary.contains("cam: 9 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 3 malformed payloads skipped"),
             "{summary}"
         );
         assert!(summary.contains("estimates: 0 ("), "{summary}");
         let (cam, _, _) = r.into_writers();
-        assert_eq!(String::from_utf8(cam).unwrap().lines().count(), 9);
+        assert_eq!(String::from_utf8(cam).unwrap().lines().count(), 10);
     }
 
     proptest::proptest! {

@@ -298,8 +298,10 @@ mod tests {
 
     /// A directory anybody may write without the sticky bit is refused even when it
     /// is this user's (anybody could remove a held lock and start a second daemon);
-    /// its group may write it when it is this user's. A lock directory the daemon
-    /// creates is writable by its owner only, whatever the umask.
+    /// its group may write it when it is this user's. A FIFO planted under the lock's
+    /// name is refused as no regular file (the read-write open of one's own FIFO does
+    /// not block; the read-only fallback, which would, opens with `O_NONBLOCK` too,
+    /// which this test cannot reach: it needs a FIFO this user may not write).
     #[test]
     fn a_lock_directory_anybody_can_write_into_is_refused_whoever_owns_it() {
         let dir = std::env::temp_dir().join(format!("vlsync-lock-own-{}", std::process::id()));
