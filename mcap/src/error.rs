@@ -21,7 +21,9 @@ impl fmt::Display for MessageAt {
         write!(
             f,
             "topic `{}` message #{} (log time {} ns)",
-            self.topic, self.index, self.log_time
+            vlsync_common::text::clip(&self.topic),
+            self.index,
+            self.log_time
         )
     }
 }

@@ -128,6 +128,8 @@ pub struct McapImageSource {
     max_pixels: u64,
     gray: Vec<u8>,
     scratch: Vec<u8>,
+    /// Whether [`FrameSource::take_note`] said that log times went back.
+    told_back: bool,
 }
 
 impl McapImageSource {
@@ -142,6 +144,7 @@ impl McapImageSource {
             max_pixels: options.max_pixels,
             gray: Vec::new(),
             scratch: Vec::new(),
+            told_back: false,
         })
     }
 
@@ -164,6 +167,7 @@ impl McapImageSource {
             max_pixels,
             gray,
             scratch,
+            ..
         } = self;
         let Some(msg) = reader.next_message()? else {
             return Ok(None);
@@ -230,6 +234,23 @@ impl FrameSource for McapImageSource {
                 reason: e.detail(),
             }),
         }
+    }
+
+    /// Once, when the recording's log times first go back: its messages come in file
+    /// order, not sorted ([`crate::read`]).
+    fn take_note(&mut self) -> Option<String> {
+        let back = self.reader.out_of_order();
+        if back == 0 || self.told_back {
+            return None;
+        }
+        self.told_back = true;
+        Some(format!(
+            "the log times of topic `{}` go back (message #{}): its frames come in the \
+             order the recording holds them, not sorted; a frame stamped before the one \
+             before it is refused as going backwards",
+            vlsync_common::text::clip(&self.reader.topic().topic),
+            self.reader.messages_read().saturating_sub(1)
+        ))
     }
 }
 

@@ -592,6 +592,11 @@ impl McapReader {
         matches!(self.mode, Mode::Indexed { .. })
     }
 
+    /// Messages yielded so far.
+    pub fn messages_read(&self) -> u64 {
+        self.next_index
+    }
+
     /// Messages (so far) whose log time is earlier than the previous one's (they are
     /// yielded in file order all the same).
     pub fn out_of_order(&self) -> u64 {
@@ -750,12 +755,12 @@ fn linear_record(
 }
 
 fn self_position(topic: &TopicInfo, next_index: u64, last: Option<u64>) -> String {
+    let name = vlsync_common::text::clip(&topic.topic);
     match (next_index, last) {
-        (0, _) | (_, None) => format!("before the first message of topic `{}`", topic.topic),
+        (0, _) | (_, None) => format!("before the first message of topic `{name}`"),
         (n, Some(t)) => format!(
-            "after message #{} of topic `{}` (log time {t} ns)",
-            n - 1,
-            topic.topic
+            "after message #{} of topic `{name}` (log time {t} ns)",
+            n - 1
         ),
     }
 }

@@ -10,7 +10,8 @@
 //!
 //! The log time of each message is its stamp plus [`McapWriter::set_log_delay_ns`]
 //! (0 by default), a stand-in for the recorder's receive latency. Messages should
-//! be written in log-time order per topic; readers of indexed files sort anyway.
+//! be written in log-time order per topic: this crate's reader yields them in file
+//! order (some readers of indexed files sort, [`crate::read`] does not).
 
 use crate::cdr::{CdrMessage, CompressedImage, F32Seq, Header, Image, LaserScan, Time};
 use crate::error::Error;

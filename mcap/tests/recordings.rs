@@ -236,6 +236,18 @@ fn messages_come_in_file_order_and_log_times_going_back_are_counted() {
     }
     assert_eq!(times, [30, 10, 20]);
     assert_eq!(r.out_of_order(), 1);
+    // the image source says so once, for the driver's log
+    let mut src = McapImageSource::open(&tmp.0, ImageSourceOptions::default()).unwrap();
+    src.next_frame().unwrap().unwrap();
+    assert_eq!(src.take_note(), None);
+    src.next_frame().unwrap().unwrap();
+    let note = src.take_note().unwrap();
+    assert!(
+        note.starts_with("the log times of topic `/cam` go back (message #1)"),
+        "{note}"
+    );
+    while src.next_frame().unwrap().is_some() {}
+    assert_eq!(src.take_note(), None);
 }
 
 fn err_text(r: Result<impl std::fmt::Debug, vlsync_mcap::Error>) -> String {

@@ -766,7 +766,11 @@ impl CamSource {
         };
         let src = vlsync_mcap::McapImageSource::open(path, opts)
             .map_err(|e| SourceError(format!("--mcap: {e}")))?;
-        let what = format!("mcap {} topic {}", path.display(), src.topic().topic);
+        let what = format!(
+            "mcap {} topic {}",
+            path.display(),
+            vlsync_common::text::clip(&src.topic().topic)
+        );
         Self::new(Box::new(src), what, never)
     }
 

@@ -264,7 +264,11 @@ impl LidarSource {
         };
         let src = vlsync_mcap::McapScanSource::open(path, opts)
             .map_err(|e| SourceError(format!("--mcap: {e}")))?;
-        let what = format!("mcap {} topic {}", path.display(), src.topic().topic);
+        let what = format!(
+            "mcap {} topic {}",
+            path.display(),
+            vlsync_common::text::clip(&src.topic().topic)
+        );
         Self::new(ScanInput::Mcap(src), what)
     }
 
@@ -574,6 +578,15 @@ impl Source for LidarSource {
                 c.samples,
                 w.out_of_order()
             ));
+        }
+        if let ScanInput::Mcap(m) = &self.input {
+            let back = m.reader().out_of_order();
+            if back > 0 {
+                s.push_str(&format!(
+                    "; {back} scans whose log time went back (read in the recording's order, \
+                     not sorted)"
+                ));
+            }
         }
         if let ScanInput::Serial(ser) = &self.input {
             match &ser.parser {
