@@ -857,34 +857,50 @@ fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
     }
 }
 
-#[test]
-fn unchunked_recordings_are_read_linearly() {
-    let tmp = Tmp::new("unchunked");
-    let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
-    let mut w = mcap::WriteOptions::new()
-        .use_chunks(false)
-        .compression(None)
-        .create(file)
-        .unwrap();
+/// A writer of raw `sensor_msgs/Image` messages into `path` with `options`, and the
+/// image schema's id.
+fn image_writer(
+    path: &std::path::Path,
+    options: mcap::WriteOptions,
+) -> (mcap::Writer<std::io::BufWriter<std::fs::File>>, u16) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = options.create(file).unwrap();
     let schema = w
         .add_schema(Image::SCHEMA_NAME, "ros2msg", Image::SCHEMA_TEXT.as_bytes())
         .unwrap();
+    (w, schema)
+}
+
+/// [`frame`] `k` of 8x2 pixels as a raw mono8 `Image` message, into `buf`.
+fn small_image(k: u8, buf: &mut Vec<u8>) {
+    let f = frame(k, 8, 2);
+    Image {
+        height: 2,
+        width: 8,
+        encoding: "mono8",
+        step: 8,
+        data: f.pixels(),
+        ..Image::default()
+    }
+    .encode(buf)
+    .unwrap();
+}
+
+#[test]
+fn unchunked_recordings_are_read_linearly() {
+    let tmp = Tmp::new("unchunked");
+    let (mut w, schema) = image_writer(
+        &tmp.0,
+        mcap::WriteOptions::new()
+            .use_chunks(false)
+            .compression(None),
+    );
     let ch = w
         .add_channel(schema, "/cam", "cdr", &Default::default())
         .unwrap();
     let mut buf = Vec::new();
     for k in 0..3u32 {
-        let f = frame(k as u8, 8, 2);
-        Image {
-            height: 2,
-            width: 8,
-            encoding: "mono8",
-            step: 8,
-            data: f.pixels(),
-            ..Image::default()
-        }
-        .encode(&mut buf)
-        .unwrap();
+        small_image(k as u8, &mut buf);
         let header = mcap::records::MessageHeader {
             channel_id: ch,
             sequence: k,
@@ -911,14 +927,7 @@ fn unchunked_recordings_are_read_linearly() {
 fn an_oversized_chunk_of_another_topic_does_not_refuse_the_file() {
     let tmp = Tmp::new("bigother");
     {
-        let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
-        let mut w = mcap::WriteOptions::new()
-            .compression(None)
-            .create(file)
-            .unwrap();
-        let schema = w
-            .add_schema(Image::SCHEMA_NAME, "ros2msg", Image::SCHEMA_TEXT.as_bytes())
-            .unwrap();
+        let (mut w, schema) = image_writer(&tmp.0, mcap::WriteOptions::new().compression(None));
         let cam = w
             .add_channel(schema, "/cam", "cdr", &Default::default())
             .unwrap();
@@ -933,17 +942,7 @@ fn an_oversized_chunk_of_another_topic_does_not_refuse_the_file() {
         };
         let mut buf = Vec::new();
         for k in 0..3u8 {
-            let f = frame(k, 8, 2);
-            Image {
-                height: 2,
-                width: 8,
-                encoding: "mono8",
-                step: 8,
-                data: f.pixels(),
-                ..Image::default()
-            }
-            .encode(&mut buf)
-            .unwrap();
+            small_image(k, &mut buf);
             w.write_to_known_channel(&header(cam, u64::from(k)), &buf)
                 .unwrap();
         }
