@@ -201,27 +201,25 @@ impl<W: Write> Recording<W> {
         // restart; a run's first row that is not its driver's first sample leaves the
         // samples numbered before it unread. A malformed sample's number is followed
         // too (it was published: the next one is its successor, not one after a lost
-        // sample), as the daemon follows it
-        match seq_step(self.last_seq[i], s.seq, s.is_first()) {
-            SeqStep::Next => {}
-            SeqStep::Lost(n) => c.lost = c.lost.saturating_add(n),
+        // sample), as the daemon follows it; unless it starts a new run (garbage, or
+        // going back): the daemon counts nothing for it, and the next good sample is
+        // judged against the last good one
+        let follow = match seq_step(self.last_seq[i], s.seq, s.is_first()) {
+            SeqStep::Next => true,
+            SeqStep::Lost(n) => {
+                c.lost = c.lost.saturating_add(n);
+                true
+            }
             SeqStep::NewRun { before } if valid => {
                 if self.last_seq[i].is_some() {
                     c.restarts += 1;
                 }
                 c.before_first = c.before_first.saturating_add(before);
+                true
             }
-            SeqStep::NewRun { .. } => {}
-        }
-        // a malformed sample whose number starts a new run (garbage, or going back)
-        // is not followed: the daemon counts nothing for it, and the next good sample
-        // is judged against the last good one
-        let garbage = !valid
-            && matches!(
-                seq_step(self.last_seq[i], s.seq, s.is_first()),
-                SeqStep::NewRun { .. }
-            );
-        if !garbage {
+            SeqStep::NewRun { .. } => false,
+        };
+        if follow {
             self.last_seq[i] = Some(s.seq);
         }
         if !valid {
