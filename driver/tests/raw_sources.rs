@@ -310,6 +310,51 @@ fn the_rplidar_node_rate_follows_the_model_the_baud_rate_names() {
     assert_eq!(vlsync_driver::raw::rplidar_node_rate_hz(115_200), 2000);
 }
 
+/// Scans the parser gives for `turns` revolutions at `hz` (360 nodes each, one
+/// chunk per revolution, received as it ends) with the settings the driver runs
+/// at `baud`.
+fn rplidar_scans(baud: u32, hz: f64, turns: usize) -> usize {
+    use vlsync_signature_lidar::rplidar::RplidarParser;
+    let mut p = RplidarParser::new(vlsync_driver::raw::rplidar_config(baud, None));
+    let period = 1.0 / hz;
+    let mut scans = 0;
+    p.push(&vlsync_signature_lidar::rplidar::SCAN_DESCRIPTOR, 0, |_| {
+        scans += 1
+    });
+    for k in 0..turns {
+        let rev = vlsync_signature_lidar::encode::rplidar_revolution(
+            360,
+            k as f64 * period,
+            period,
+            |_, _| 3.0,
+        );
+        let rx = ((k + 1) as f64 * period * 1e9).round() as i64;
+        p.push(&rev, rx, |_| scans += 1);
+    }
+    scans
+}
+
+#[test]
+fn an_rplidar_c1_keeps_its_first_revolution() {
+    // the C1 (460800 baud) turns at 10 Hz: checked against the A1's 5.5 Hz its first
+    // revolution (100 ms, under 2/3 of 181.8 ms) was dropped
+    assert_eq!(
+        vlsync_driver::raw::rplidar_nominal_period_ns(460_800),
+        100_000_000
+    );
+    let c1 = rplidar_scans(460_800, 10.0, 6);
+    // an A1 at its 5.5 Hz keeps its first revolution too; an A2M8 at 10 Hz on the
+    // same 115200 baud loses it (the rate is unknown before two turns)
+    let a1 = rplidar_scans(115_200, 5.5, 6);
+    let a2 = rplidar_scans(115_200, 10.0, 6);
+    assert_eq!(
+        (c1, a1),
+        (a2 + 1, a2 + 1),
+        "C1 {c1}, A1 {a1}, A2M8 {a2} scans"
+    );
+    assert!(a2 >= 3, "{a2} scans of 6 revolutions");
+}
+
 static QUIET_STOP: AtomicBool = AtomicBool::new(false);
 
 /// A LiDAR that falls silent while its port stays (powered down on a parked robot):

@@ -160,6 +160,35 @@ pub fn rplidar_node_rate_hz(baud: u32) -> u32 {
     }
 }
 
+/// The rotation period an RPLIDAR's first revolution is checked against at `baud`
+/// (the parser drops a first revolution outside 2/3 to 1.5 times it, and keeps the
+/// second only if the two agree): 100 ms (10 Hz, the C1's, S1's and A2M12's typical
+/// rate) at 256000 baud and over, the A1's 5.5 Hz at 115200. An A2M8 at 115200
+/// spins at about 10 Hz and so loses its first revolution, as every model did
+/// before: the rate is not known until the device has turned twice.
+pub fn rplidar_nominal_period_ns(baud: u32) -> Nanos {
+    if baud >= 256_000 {
+        100_000_000
+    } else {
+        RplidarConfig::default().nominal_period_ns
+    }
+}
+
+/// The parser settings `vlsync-lidar --rplidar` runs with at `baud`: the node rate
+/// from the device's own answer (`GET_SAMPLERATE`) where it gave one, else
+/// [`rplidar_node_rate_hz`]; the first revolution's period from
+/// [`rplidar_nominal_period_ns`].
+pub fn rplidar_config(baud: u32, report: Option<&StartReport>) -> RplidarConfig {
+    RplidarConfig {
+        baud,
+        sample_rate_hz: report
+            .and_then(StartReport::standard_rate_hz)
+            .unwrap_or_else(|| rplidar_node_rate_hz(baud)),
+        nominal_period_ns: rplidar_nominal_period_ns(baud),
+        ..RplidarConfig::default()
+    }
+}
+
 enum ScanInput {
     Csv(lidar::csv::CsvScanReader<std::io::BufReader<std::fs::File>>),
     Mcap(vlsync_mcap::McapScanSource),
@@ -337,15 +366,9 @@ impl LidarSource {
                 baud,
                 ..Ld06Config::default()
             })),
-            SerialKind::Rplidar => Parser::Rplidar(RplidarParser::new(RplidarConfig {
-                baud,
-                // the device's own answer (GET_SAMPLERATE) where it gives one
-                sample_rate_hz: report
-                    .as_ref()
-                    .and_then(StartReport::standard_rate_hz)
-                    .unwrap_or_else(|| rplidar_node_rate_hz(baud)),
-                ..RplidarConfig::default()
-            })),
+            SerialKind::Rplidar => {
+                Parser::Rplidar(RplidarParser::new(rplidar_config(baud, report.as_ref())))
+            }
         };
         let now = Instant::now();
         let me = Self::new(

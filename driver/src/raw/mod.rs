@@ -348,7 +348,9 @@ pub use cam_source::{
     CamCounts, CamSource, LiveCounts, PipeInput, PIPE_SILENCE, RENDER_AHEAD_FRAMES,
     RENDER_THREAD_NICE,
 };
-pub use lidar_source::{rplidar_node_rate_hz, LidarSource, SerialKind};
+pub use lidar_source::{
+    rplidar_config, rplidar_node_rate_hz, rplidar_nominal_period_ns, LidarSource, SerialKind,
+};
 
 /// A source whose first sample was read ahead (to anchor the pacing on it).
 pub struct Prefetched {
