@@ -295,11 +295,9 @@ fn wait_device_waits_for_the_node_then_opens_it_and_stops_cleanly_meanwhile() {
         "{}",
         err.lock().unwrap()
     );
-    let killed = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
+    // kill(2) itself: procps's `kill` is not on every minimal system
+    let pid = rustix::process::Pid::from_raw(child.id() as i32).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
     let status = wait_exit(&mut child, "vlsync-lidar --wait-device");
     assert!(status.success(), "{status}: {}", err.lock().unwrap());
     // it says so, and stops before it makes its iceoryx2 node and publisher (the

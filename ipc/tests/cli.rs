@@ -72,13 +72,17 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         .spawn()
         .unwrap();
     let pid = child.id().to_string();
+    // kill(2) itself: procps's `kill` is not on every minimal system
     let kill = |sig: &str| {
-        let ok = Command::new("kill")
-            .args([sig, &pid])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok, "kill {sig} {pid}");
+        use rustix::process::{kill_process, Pid, Signal};
+        let signal = match sig {
+            "-TSTP" => Signal::TSTP,
+            "-CONT" => Signal::CONT,
+            "-INT" => Signal::INT,
+            other => panic!("no signal {other}"),
+        };
+        let raw = Pid::from_raw(pid.parse().unwrap()).unwrap();
+        kill_process(raw, signal).unwrap_or_else(|e| panic!("kill {sig} {pid}: {e}"));
     };
     let wait_state = |want: char| {
         let t0 = Instant::now();

@@ -97,22 +97,26 @@ fn close_the_reader() {
     let dir = std::env::temp_dir().join(format!("vlsync-demo-test-pipe-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let err = dir.join("stderr.log");
-    let mut child = Command::new(bin("vlsync-demo"))
-        .args([
-            "--family",
-            "robot",
-            "--duration",
-            "60",
-            "--speed",
-            "2",
-            "--log-dir",
-        ])
-        .arg(dir.join("children"))
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(&err).unwrap())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    // stopped when dropped: a failing assertion leaves no 30 s run behind
+    let mut demo = Managed {
+        name: "vlsync-demo".into(),
+        child: Command::new(bin("vlsync-demo"))
+            .args([
+                "--family",
+                "robot",
+                "--duration",
+                "60",
+                "--speed",
+                "2",
+                "--log-dir",
+            ])
+            .arg(dir.join("children"))
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap(),
+    };
+    let mut lines = BufReader::new(demo.child.stdout.take().unwrap()).lines();
     for _ in 0..3 {
         assert!(
             lines.next().is_some_and(|l| l.is_ok()),
@@ -122,18 +126,14 @@ fn close_the_reader() {
     drop(lines);
     let t0 = Instant::now();
     let status = loop {
-        if let Ok(Some(s)) = child.try_wait() {
+        if let Ok(Some(s)) = demo.child.try_wait() {
             break s;
         }
-        if t0.elapsed() > Duration::from_secs(15) {
-            // Ctrl-C first, so that a failing demo still stops its children
-            let _ = Command::new("kill")
-                .args(["-INT", &child.id().to_string()])
-                .status();
-            std::thread::sleep(Duration::from_secs(5));
-            let _ = child.kill();
-            panic!("demo still running 15 s after its reader went away");
-        }
+        // dropping `demo` interrupts it (Ctrl-C first, so that its children stop too)
+        assert!(
+            t0.elapsed() < Duration::from_secs(15),
+            "demo still running 15 s after its reader went away"
+        );
         std::thread::sleep(Duration::from_millis(50));
     };
     let stderr = std::fs::read_to_string(&err).unwrap_or_default();
@@ -252,24 +252,29 @@ fn a_child_killed_mid_run_is_a_failure() {
     let prefix = format!("vlsync-test/demo-crash-{}", std::process::id());
     let dir = std::env::temp_dir().join(format!("vlsync-demo-crash-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let demo = std::process::Command::new(bin("vlsync-demo"))
-        .args([
-            "--family",
-            "robot",
-            "--duration",
-            "20",
-            "--speed",
-            "2",
-            "--quiet",
-        ])
-        .args(["--prefix", &prefix, "--log-dir"])
-        .arg(dir.join("logs"))
-        .arg("--record")
-        .arg(dir.join("rec"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let (out_file, err_file) = (dir.with_extension("stdout"), dir.with_extension("stderr"));
+    // stopped when dropped, so a failing assertion does not leave a 30 s run behind
+    let mut demo = Managed {
+        name: "vlsync-demo".into(),
+        child: std::process::Command::new(bin("vlsync-demo"))
+            .args([
+                "--family",
+                "robot",
+                "--duration",
+                "60",
+                "--speed",
+                "2",
+                "--quiet",
+            ])
+            .args(["--prefix", &prefix, "--log-dir"])
+            .arg(dir.join("logs"))
+            .arg("--record")
+            .arg(dir.join("rec"))
+            .stdout(std::fs::File::create(&out_file).unwrap())
+            .stderr(std::fs::File::create(&err_file).unwrap())
+            .spawn()
+            .unwrap(),
+    };
     let t0 = Instant::now();
     let pid = loop {
         if let Some(pid) = daemon_pid(&prefix) {
@@ -282,20 +287,20 @@ fn a_child_killed_mid_run_is_a_failure() {
         std::thread::sleep(Duration::from_millis(50));
     };
     std::thread::sleep(Duration::from_secs(2));
-    let killed = std::process::Command::new("kill")
-        .args(["-KILL", &pid.to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let out = demo.wait_with_output().unwrap();
+    vlsyncd::runtime::procs::send_signal(pid, "KILL").unwrap();
+    let killed_at = Instant::now();
+    let status = demo.child.wait().unwrap();
+    let waited = killed_at.elapsed();
     let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
+        std::fs::read_to_string(&out_file).unwrap_or_default(),
+        std::fs::read_to_string(&err_file).unwrap_or_default(),
     );
-    assert_eq!(out.status.code(), Some(2), "{stdout}\n{stderr}");
+    assert_eq!(status.code(), Some(2), "{stdout}\n{stderr}");
+    // the run would last 60 s (30 s at --speed 2): within 10 s of the kill is at once
     assert!(
-        t0.elapsed() < Duration::from_secs(15),
-        "the demo ran on after its daemon died:\n{stdout}"
+        waited < Duration::from_secs(10),
+        "the demo ran on for {:.1} s after its daemon died:\n{stdout}",
+        waited.as_secs_f64()
     );
     let log = dir.join("logs").join("vlsyncd.log");
     let said = format!(
@@ -309,4 +314,8 @@ fn a_child_killed_mid_run_is_a_failure() {
     assert!(stderr.contains(&said), "{stderr}");
     assert!(!stdout.contains("children stopped cleanly"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_file(&out_file);
+    let _ = std::fs::remove_file(&err_file);
+    // the killed daemon's lock file, on a prefix no other run uses
+    let _ = std::fs::remove_file(vlsyncd::runtime::lock_path(&prefix));
 }

@@ -103,18 +103,6 @@ impl Managed {
     /// an error naming how, and is not signalled: its pid, once reaped, may be
     /// another process's.
     pub fn signal(&mut self, signal: &str) -> Result<(), String> {
-        use rustix::process::{kill_process, Pid, Signal};
-        let sig = match signal {
-            "INT" => Signal::INT,
-            "TERM" => Signal::TERM,
-            "KILL" => Signal::KILL,
-            "STOP" => Signal::STOP,
-            "CONT" => Signal::CONT,
-            "HUP" => Signal::HUP,
-            "USR1" => Signal::USR1,
-            "USR2" => Signal::USR2,
-            other => return Err(format!("no signal named {other:?}")),
-        };
         if let Ok(Some(st)) = self.child.try_wait() {
             return Err(format!(
                 "cannot send SIG{signal} to {}: it has ended ({})",
@@ -122,12 +110,7 @@ impl Managed {
                 describe_exit(st)
             ));
         }
-        let pid = i32::try_from(self.pid())
-            .ok()
-            .and_then(Pid::from_raw)
-            .ok_or_else(|| format!("{}: pid {} out of range", self.name, self.pid()))?;
-        kill_process(pid, sig)
-            .map_err(|e| format!("cannot send SIG{signal} to {} ({}): {e}", self.name, pid))
+        send_signal(self.pid(), signal).map_err(|e| format!("{}: {e}", self.name))
     }
 
     /// SIGINT; SIGTERM after half of `grace`; SIGKILL after all of it. Returns true
@@ -399,6 +382,29 @@ fn files_under(dirs: &[&Path]) -> Vec<String> {
     }
     out.sort();
     out
+}
+
+/// Sends `signal` (by name: "INT", "TERM", "KILL", "STOP", "CONT", "HUP", "USR1",
+/// "USR2") to process `pid` with kill(2): no `kill` program is needed (procps is
+/// not on every minimal system) and no process is forked.
+pub fn send_signal(pid: u32, signal: &str) -> Result<(), String> {
+    use rustix::process::{kill_process, Pid, Signal};
+    let sig = match signal {
+        "INT" => Signal::INT,
+        "TERM" => Signal::TERM,
+        "KILL" => Signal::KILL,
+        "STOP" => Signal::STOP,
+        "CONT" => Signal::CONT,
+        "HUP" => Signal::HUP,
+        "USR1" => Signal::USR1,
+        "USR2" => Signal::USR2,
+        other => return Err(format!("no signal named {other:?}")),
+    };
+    let raw = i32::try_from(pid)
+        .ok()
+        .and_then(Pid::from_raw)
+        .ok_or_else(|| format!("pid {pid} out of range"))?;
+    kill_process(raw, sig).map_err(|e| format!("cannot send SIG{signal} to pid {pid}: {e}"))
 }
 
 #[cfg(test)]

@@ -1256,11 +1256,9 @@ mod tests {
             assert!(t0.elapsed() < at_most, "{:?}", t0.elapsed());
             assert!(alive(pid));
             // once it exits, the thread reaps it: no zombie left behind
-            let killed = std::process::Command::new("kill")
-                .args(["-KILL", &pid.to_string()])
-                .status()
-                .unwrap();
-            assert!(killed.success());
+            // kill(2) itself: procps's `kill` is not on every minimal system
+            let raw = rustix::process::Pid::from_raw(pid as i32).unwrap();
+            rustix::process::kill_process(raw, rustix::process::Signal::KILL).unwrap();
             let deadline = Instant::now() + Duration::from_secs(5);
             while !gone(pid) {
                 assert!(Instant::now() < deadline, "{pid} not reaped");
