@@ -6,8 +6,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 use vlsync_common::wire::OffsetEstimate;
 use vlsync_common::Stream;
+use vlsync_ipc::iceoryx2::prelude::ServiceName;
 use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
-use vlsync_ipc::{create_node, open_or_create_event, open_or_create_pubsub, Qos};
+use vlsync_ipc::{create_node, Qos};
 use vlsync_tests::{Managed, Rig};
 
 /// The interpreter: `VLSYNC_PYTHON` (`scripts/test.sh` sets it when it installed the
@@ -224,10 +225,17 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
     let notice = wait_for_quiet_notice(&mut py, &log);
     assert!(notice.contains(&format!("`{prefix}/offset`")), "{notice}");
     {
-        // the services exist by now (the notice comes after they were opened): this opens them
+        // the services exist by now (the notice comes after they were opened): this only
+        // opens them, so a subscriber that did not create them fails here rather than
+        // having this check create them with the very settings it compares
         let node = create_node("python-first-check", false).unwrap();
         let name = format!("{prefix}/offset");
-        let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &name, Qos::latest()).unwrap();
+        let sn = ServiceName::new(&name).unwrap();
+        let svc = node
+            .service_builder(&sn)
+            .publish_subscribe::<OffsetEstimate>()
+            .open()
+            .unwrap_or_else(|e| panic!("{name} not created by the Python subscriber: {e:?}"));
         let c = svc.static_config();
         let want = Qos::latest();
         assert_eq!(
@@ -247,7 +255,13 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
             ),
             "the Python subscriber created {name} with other settings than the daemon's"
         );
-        let ev = open_or_create_event(&node, &name).unwrap();
+        let ev = node
+            .service_builder(&sn)
+            .event()
+            .open()
+            .unwrap_or_else(|e| {
+                panic!("{name}'s event not created by the Python subscriber: {e:?}")
+            });
         let e = ev.static_config();
         assert_eq!(
             (e.max_nodes(), e.max_notifiers(), e.max_listeners()),

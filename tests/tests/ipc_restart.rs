@@ -67,12 +67,14 @@ fn sigkill_of_a_driver_and_of_the_daemon_recovers() {
         rig.log("vlsyncd-1.log")
     );
     let after_daemon = collect(&mut client, rig.remaining() + Duration::from_millis(1000));
-    // one status period, so the status read is the restarted daemon's
-    std::thread::sleep(Duration::from_millis(1200));
-    let st = status
-        .latest()
-        .unwrap()
-        .expect("status of the restarted daemon");
+    // a status published after the run, so the restarted daemon's (the client keeps
+    // the killed daemon's last one, whose counts would pass the check below too)
+    let t_after = vlsync_ipc::monotonic_ns();
+    let st = status_when(&mut status, Duration::from_secs(5), |st| {
+        st.publish_ns > t_after
+    })
+    .filter(|st| st.publish_ns > t_after)
+    .expect("a status of the restarted daemon");
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(
         daemon.stop(Duration::from_secs(3)),
