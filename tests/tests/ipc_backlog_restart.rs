@@ -49,7 +49,7 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
         (stopped - start_at) as f64 / 1e6
     );
     let resume = start_at + 1_000_000_000 - monotonic_ns();
-    std::thread::sleep(Duration::from_nanos(resume as u64));
+    std::thread::sleep(Duration::from_nanos(resume.max(0) as u64));
     daemon.signal("CONT").unwrap();
 
     // 10 s of wall time: 40 s of the new session

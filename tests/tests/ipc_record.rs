@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 use vlsync_common::Stream;
 use vlsync_ipc::{monotonic_ns, StatusClient};
 use vlsync_tests::{
-    assert_nothing_left, assert_serving, bin, ipc_resources, write_daemon_config, Managed, Rig,
+    assert_nothing_left, assert_serving, bin, ipc_resources, output_within, write_daemon_config,
+    Managed, Rig,
 };
 
 /// A daemon that never degrades, and a recorder into `<logs>/rec`, both running.
@@ -220,7 +221,11 @@ fn a_recording_replays_to_the_live_estimates_byte_for_byte() {
     assert!(said.contains("merged by publish time"), "{said}");
 
     // a second recording into the same directory is refused, and names the file
-    let again = Command::new(bin("vlsyncd")).args(&r.args).output().unwrap();
+    // (a regression would record until stopped: bounded)
+    let again = output_within(
+        Command::new(bin("vlsyncd")).args(&r.args),
+        Duration::from_secs(20),
+    );
     assert_eq!(again.status.code(), Some(2));
     let err = String::from_utf8_lossy(&again.stderr);
     assert!(

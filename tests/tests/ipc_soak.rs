@@ -2,28 +2,31 @@
 //! offset, both clocks back to 0 each time) relocks in every session, loses no
 //! sample, keeps its memory, stops every child and leaves nothing in shared memory.
 
-use vlsync_tests::{assert_nothing_left, bin, ipc_resources};
+use std::time::Duration;
+use vlsync_tests::{assert_nothing_left, bin, ipc_resources, output_within};
 
 #[test]
 fn three_sessions_against_one_daemon_pass_the_check() {
     let before = ipc_resources();
     let dir = std::env::temp_dir().join(format!("vlsync-soak-test-{}", std::process::id()));
-    let out = std::process::Command::new(bin("vlsync-soak"))
-        .args([
-            "--family",
-            "robot",
-            "--sessions",
-            "3",
-            "--session-s",
-            "60",
-            "--speed",
-            "15",
-            "--check",
-            "--log-dir",
-        ])
-        .arg(&dir)
-        .output()
-        .unwrap();
+    // 3 sessions of 60 s at 15x: 12 s of runs; a hung harness fails after 5 min
+    let out = output_within(
+        std::process::Command::new(bin("vlsync-soak"))
+            .args([
+                "--family",
+                "robot",
+                "--sessions",
+                "3",
+                "--session-s",
+                "60",
+                "--speed",
+                "15",
+                "--check",
+                "--log-dir",
+            ])
+            .arg(&dir),
+        Duration::from_secs(300),
+    );
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "exit {}:\n{text}\n{err}", out.status);
