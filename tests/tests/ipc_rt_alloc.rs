@@ -35,10 +35,19 @@ fn daemon_allocates_nothing_in_steady_state() {
     let daemon = std::thread::spawn(move || vlsyncd::runtime::run(cfg, stop2));
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
-    // warm-up: services connected, estimator locked, degraded mode settled
+    // warm-up: services connected, estimator locked, degraded mode settled (at least
+    // 5 s, and until a status says tracking, however long a loaded machine takes)
     std::thread::sleep(Duration::from_secs(5));
     let mut status = vlsync_ipc::StatusClient::open(&rig.prefix).unwrap();
-    let s0 = status_when(&mut status, Duration::from_secs(10), |_| true).expect("status");
+    let s0 = status_when(&mut status, Duration::from_secs(20), |st| {
+        st.state == vlsync_common::EstimatorState::Tracking as u8
+    })
+    .expect("status");
+    assert_eq!(
+        s0.state,
+        vlsync_common::EstimatorState::Tracking as u8,
+        "not tracking after the warm-up: {s0:?}"
+    );
     vlsync_alloc_count::assert_counting();
     // the thread the watch counts is there, under that name (else nothing is counted)
     let names: Vec<String> = std::fs::read_dir("/proc/self/task")

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vlsync_common::Stream;
 use vlsync_ipc::monotonic_ns;
-use vlsync_tests::{bin, write_daemon_config, Managed, Rig};
+use vlsync_tests::{assert_serving, bin, write_daemon_config, Managed, Rig};
 
 fn config(dir: &Path, prefix: &str, source: &Path) -> PathBuf {
     let keys = format!(
@@ -62,6 +62,7 @@ fn a_pressure_jump_becomes_a_dated_change_of_the_estimator() {
         Some(&log),
     )
     .expect("spawn vlsyncd");
+    assert_serving(&mut d, &log);
     let _cam = rig.driver(Stream::Cam, 0);
     let _lidar = rig.driver(Stream::Lidar, 0);
     // around the jump, a hostile LiDAR publisher every 5 ms: stamps far in the

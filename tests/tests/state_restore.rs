@@ -18,14 +18,18 @@ fn config(dir: &Path, prefix: &str, state_file: &Path) -> PathBuf {
     write_daemon_config(dir, prefix, &keys)
 }
 
+/// `vlsyncd run --config cfg`, waited for until it serves (its subscribers exist
+/// before the drivers' first samples, however slow its start on a loaded machine).
 fn daemon(cfg: &Path, log: &Path) -> Managed {
-    Managed::spawn(
+    let mut m = Managed::spawn(
         "vlsyncd",
         &bin("vlsyncd"),
         &["run".into(), "--config".into(), cfg.display().to_string()],
         Some(log),
     )
-    .expect("spawn vlsyncd")
+    .expect("spawn vlsyncd");
+    assert_serving(&mut m, log);
+    m
 }
 
 /// A saved tracking estimate of `offset_s`, saved at `saved_unix_ns` by the daemon
@@ -202,7 +206,6 @@ fn corrupt_or_stale_state_files_are_named_and_ignored() {
         std::fs::write(&state_file, content).unwrap();
         let log = dir.join(format!("vlsyncd-{i}.log"));
         let mut d = daemon(&cfg, &log);
-        assert_serving(&mut d, &log);
         assert!(d.stop(Duration::from_secs(5)));
         let text = read(&log);
         let want = format!("state file {}:", state_file.display());
