@@ -5,14 +5,25 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 trap 'rm -f "${pip_log:-}" "${test_log:-}" "${VLSYNC_SKIP_LOG:-}"' EXIT
 
-# apt-get install, as root or through sudo; says so when neither is possible
+started=$SECONDS
+# apt-get install, as root or through sudo, without questions, waiting up to 5 min for
+# another apt (a fresh VM's unattended upgrades) to let go of its lock. Never fatal: when
+# it cannot install (not root and no sudo, offline, no such package), it says what will
+# not work and the suite runs anyway; the tests that need the package say so.
 install_deb() {
     local sudo
-    if [ "$(id -u)" -eq 0 ]; then sudo=""; elif command -v sudo >/dev/null 2>&1; then sudo="sudo"; else
+    if [ "$(id -u)" -eq 0 ]; then sudo=""; elif command -v sudo >/dev/null 2>&1; then
+        # asks for a password on a terminal; elsewhere (CI) fails at once instead of hanging
+        if [ -t 0 ]; then sudo="sudo"; else sudo="sudo -n"; fi
+    else
         echo "$1 is missing and cannot be installed (not root, no sudo): $2" >&2
         return 0
     fi
-    $sudo apt-get install -y "$1" || { $sudo apt-get update && $sudo apt-get install -y "$1"; }
+    local apt=($sudo env DEBIAN_FRONTEND=noninteractive apt-get -o DPkg::Lock::Timeout=300)
+    "${apt[@]}" install -y "$1" || { "${apt[@]}" update && "${apt[@]}" install -y "$1"; } || {
+        echo "$1 could not be installed (apt-get failed above): $2" >&2
+        return 0
+    }
 }
 
 # The Python subscriber test needs the official iceoryx2 package, pinned to the
@@ -33,7 +44,16 @@ use_venv() {
     export VLSYNC_PYTHON="$PWD/$venv/bin/python3"
     export VLSYNC_REQUIRE_PYTHON=1
 }
-if has_pinned python3; then
+command -v python3 >/dev/null 2>&1 || install_deb python3 "the Python subscriber tests will be skipped"
+# a pip that fails for another reason (offline, no wheel for this platform) fails the
+# Python tests, not the whole suite: they must find the package (VLSYNC_REQUIRE_PYTHON)
+pip_failed() {
+    echo "pip could not install $req (above): the Python subscriber tests will fail" >&2
+    export VLSYNC_REQUIRE_PYTHON=1
+}
+if ! command -v python3 >/dev/null 2>&1; then
+    echo "no python3: the Python subscriber tests will be skipped" >&2
+elif has_pinned python3; then
     export VLSYNC_REQUIRE_PYTHON=1
 elif [ -x "$venv/bin/python3" ] && has_pinned "$venv/bin/python3"; then
     use_venv
@@ -47,15 +67,18 @@ else
         if python3 -m venv "$venv" 2>/dev/null \
             || { rm -rf "$venv"; install_deb python3-venv "no virtual environment can be made" \
                  && python3 -m venv "$venv" 2>/dev/null; }; then
-            "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check -r "$req"
-            use_venv
+            if "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check -r "$req"; then
+                use_venv
+            else
+                pip_failed
+            fi
         else
             rm -rf "$venv"
             echo "cannot make a Python virtual environment: the Python subscriber test will be skipped" >&2
         fi
     else
         cat "$pip_log" >&2
-        exit 1
+        pip_failed
     fi
 fi
 # The C and C++ client tests (tests/tests/ipc_capi.rs, ipc_c_header.rs) compile the
@@ -93,19 +116,25 @@ if [ -t 1 ]; then
     export CARGO_TERM_PROGRESS_WHEN="${CARGO_TERM_PROGRESS_WHEN:-always}"
     export CARGO_TERM_PROGRESS_WIDTH="${CARGO_TERM_PROGRESS_WIDTH:-$(tput cols 2>/dev/null || echo 80)}"
 fi
-started=$SECONDS
+installs=$((SECONDS - started))
 set +e
 cargo test --workspace --no-fail-fast --features "$VLSYNC_CARGO_FEATURES" 2>&1 | tee "$test_log"
 status=${PIPESTATUS[0]}
 set -e
-awk -v total=$((SECONDS - started)) -v status="$status" '
+awk -v total=$((SECONDS - started)) -v installs="$installs" -v status="$status" '
+    # on a terminal cargo colours its lines and redraws its progress bar: plain text first
+    { gsub(/\r/, ""); gsub(/\033\[[0-9;]*[A-Za-z]/, "") }
     /^test result:/ { passed += $4; failed += $6; ignored += $8; binaries++ }
     /`test` profile.* target\(s\) in / { line = $0; sub(/.* in /, "", line); compile = line }
     # one per failing target, a test binary that crashed (and so printed no result) too
-    /^error: test failed, to rerun pass `/ { t = $0; sub(/.*rerun pass /, "", t); targets = targets sep t; sep = ", " }
+    /^error: test failed, to rerun pass `/ { t = $0; sub(/.*rerun pass /, "", t); targets = targets sep t; sep = ", "; bad++ }
     END {
-        printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test targets (doc tests included); %d min %d s in all",
-            passed, failed, ignored, binaries, total / 60, total % 60
+        printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test targets (doc tests included)",
+            passed, failed, ignored, binaries
+        # a target that crashed or was killed printed no result line: its tests are in no count
+        if (bad > 0) printf "; %d target%s failed", bad, (bad > 1 ? "s" : "")
+        printf "; %d min %d s in all", total / 60, total % 60
+        if (installs > 0) printf " (installs %d s)", installs
         if (compile != "") printf " (compile %s)", compile
         printf "; cargo exited %d\n", status
         if (targets != "") printf "scripts/test.sh: failed targets: %s\n", targets
