@@ -4,15 +4,28 @@
 //   vlsync::Client c("vlsync/robot");          // throws vlsync::Error
 //   if (auto e = c.wait_next(std::chrono::seconds(1)))
 //       std::cout << vlsync::state_name(*e) << " " << e->offset_s << "\n";
-//   if (auto v = c.camera_to_lidar(t_cam_ns); v && vlsync::is_locked(v->estimate))
+//   if (auto v = c.camera_to_lidar(t_cam_ns);
+//       v && vlsync::is_locked(v->estimate) && vlsync::age(v->estimate) < std::chrono::seconds(3))
 //       use(v->t_lidar_ns);
 //   vlsync::StatusClient s("vlsync/robot");    // the daemon's counters, for diagnostics
 //   if (auto st = s.latest()) report(st->lost[0] + st->lost[1], st->budget_overruns);
 //
+// Staleness: an estimate's state alone does not say the daemon is alive. After it stops,
+// latest() and camera_to_lidar() keep handing out its last estimate, still "tracking",
+// its std_s growing only by the random walk. Check the age as well (vlsync::age: now on
+// CLOCK_MONOTONIC minus publish_ns); the daemon publishes one per hop (0.5 s by default),
+// so an estimate several hops old (over 2-3 s, say) is stale.
+//
+// Errors: every failure throws vlsync::Error with the library's message, which names the
+// C function and the cause (a handle used on another thread, a failed receive on the
+// offset service, an internal error). latest() and camera_to_lidar() call the _err
+// variants of ABI minor 1, so the constructor requires a library of that minor.
+//
 // Like the handle it wraps, a Client (and a StatusClient) is used, and destroyed, on the
 // thread that constructed it: close() throws when called from another thread (the
 // handle stays open); a destructor there cannot throw, so it says on stderr that the
-// handle leaks. A move assignment closes the handle the target held first, the same way.
+// handle leaks. A move assignment closes the handle the target held first, the same way
+// (on another thread: a message on stderr that the target's old handle leaks).
 //
 // Signals: a wait returns empty early only when a signal is delivered to the waiting
 // thread and interrupts its system call (EINTR); a process-directed signal (Ctrl-C's
@@ -44,29 +57,60 @@ class Error : public std::runtime_error {
 
 inline const char *state_name(const vlsync_estimate &e) { return vlsync_state_name(e.state); }
 
-/// Tracking or holding: the estimator has a lock.
+/// Tracking or holding: the estimator had a lock when it published `e` (check its age,
+/// too: see the top of this file).
 inline bool is_locked(const vlsync_estimate &e) {
     return e.state == VLSYNC_STATE_TRACKING || e.state == VLSYNC_STATE_HOLDING;
 }
 
+/// How old `e` is: CLOCK_MONOTONIC now minus its publish_ns (the clock the daemon stamps
+/// with, whatever std::chrono::steady_clock is).
+inline std::chrono::nanoseconds age(const vlsync_estimate &e) {
+    return std::chrono::nanoseconds(vlsync_estimate_age_ns(&e));
+}
+
+namespace detail {
+/// Throws unless the loaded library has this header's ABI version and at least its minor.
+inline void check_abi() {
+    if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION)
+        throw Error("libvlsync_client has ABI version " +
+                    std::to_string(vlsync_client_abi_version()) + ", this header " +
+                    std::to_string(VLSYNC_CLIENT_ABI_VERSION));
+    if (vlsync_client_abi_minor() < VLSYNC_CLIENT_ABI_MINOR)
+        throw Error("libvlsync_client has ABI minor " +
+                    std::to_string(vlsync_client_abi_minor()) + ", this header needs " +
+                    std::to_string(VLSYNC_CLIENT_ABI_MINOR));
+}
+
+/// `prefix` as a C string for `what`; throws when it holds a NUL byte, which would cut
+/// it short (a "vlsync/robot\0x" would open vlsync/robot).
+inline const char *c_prefix(const std::string &prefix, const char *what) {
+    auto nul = prefix.find('\0');
+    if (nul != std::string::npos)
+        throw Error(std::string(what) + ": the prefix holds a NUL byte at position " +
+                    std::to_string(nul));
+    return prefix.c_str();
+}
+}  // namespace detail
+
 class Client {
   public:
+    /// Opens the handle; throws Error on a library of another ABI, a prefix with a NUL
+    /// byte, or what vlsync_client_open refuses.
     explicit Client(const std::string &prefix) {
-        if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION)
-            throw Error("libvlsync_client has ABI version " +
-                        std::to_string(vlsync_client_abi_version()) + ", this header " +
-                        std::to_string(VLSYNC_CLIENT_ABI_VERSION));
+        detail::check_abi();
+        const char *p = detail::c_prefix(prefix, "vlsync::Client");
         char err[512] = {0};
-        c_ = vlsync_client_open(prefix.c_str(), err, sizeof err);
+        c_ = vlsync_client_open(p, err, sizeof err);
         if (!c_) throw Error(err);
     }
-    ~Client() { close_or_report(); }
+    ~Client() { close_or_report("destroyed"); }
     Client(const Client &) = delete;
     Client &operator=(const Client &) = delete;
     Client(Client &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
     Client &operator=(Client &&o) noexcept {
         if (this != &o) {
-            close_or_report();
+            close_or_report("move-assigned");
             c_ = std::exchange(o.c_, nullptr);
         }
         return *this;
@@ -108,23 +152,30 @@ class Client {
         }
     }
 
-    /// The most recent estimate; empty before the first.
+    /// The most recent estimate; empty before the first. Throws on a closed or
+    /// moved-from Client, on another thread, on a failed receive (the client keeps its
+    /// last estimate) or an internal error. The estimate stays after the daemon stops,
+    /// state and all: check vlsync::age.
     std::optional<vlsync_estimate> latest() {
         vlsync_estimate e;
-        switch (vlsync_client_latest(c_, &e)) {
+        char err[512] = {0};
+        switch (vlsync_client_latest_err(c_, &e, err, sizeof err)) {
         case 1: return e;
         case 0: return std::nullopt;
-        default: throw Error("vlsync_client_latest: invalid handle or wrong thread");
+        default: throw Error(err);
         }
     }
 
-    /// A camera stamp on the LiDAR clock; empty before the first estimate.
+    /// A camera stamp on the LiDAR clock; empty before the first estimate. Throws as
+    /// latest() does. Trust it when vlsync::is_locked(v->estimate) and
+    /// vlsync::age(v->estimate) is a few hops at most.
     std::optional<vlsync_conversion> camera_to_lidar(int64_t t_cam_ns) {
         vlsync_conversion v;
-        switch (vlsync_client_camera_to_lidar(c_, t_cam_ns, &v)) {
+        char err[512] = {0};
+        switch (vlsync_client_camera_to_lidar_err(c_, t_cam_ns, &v, err, sizeof err)) {
         case 1: return v;
         case 0: return std::nullopt;
-        default: throw Error("vlsync_client_camera_to_lidar: invalid handle or wrong thread");
+        default: throw Error(err);
         }
     }
 
@@ -134,14 +185,18 @@ class Client {
             throw Error(err);
     }
 
+    /// Payloads refused by validation so far (0 too on another thread: no error here).
     uint64_t invalid_count() { return vlsync_client_invalid_count(c_); }
 
   private:
-    void close_or_report() noexcept {
+    /// Closes the handle for the destructor or a move assignment (`how`, "destroyed"
+    /// or "move-assigned"), which cannot throw: on another thread, a message on stderr.
+    void close_or_report(const char *how) noexcept {
         if (vlsync_client_close(c_) != 0)
-            std::fputs("vlsync::Client destroyed on another thread than the one that opened "
-                       "it: its handle is left open (leaked)\n",
-                       stderr);
+            std::fprintf(stderr,
+                         "vlsync::Client %s on another thread than the one that opened its "
+                         "handle: the handle is left open (leaked)\n",
+                         how);
         c_ = nullptr;
     }
 
@@ -152,22 +207,22 @@ class Client {
 /// thread that constructed it, like a Client.
 class StatusClient {
   public:
+    /// Opens the handle; throws Error on a library of another ABI, a prefix with a NUL
+    /// byte, or what vlsync_status_open refuses.
     explicit StatusClient(const std::string &prefix) {
-        if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION)
-            throw Error("libvlsync_client has ABI version " +
-                        std::to_string(vlsync_client_abi_version()) + ", this header " +
-                        std::to_string(VLSYNC_CLIENT_ABI_VERSION));
+        detail::check_abi();
+        const char *p = detail::c_prefix(prefix, "vlsync::StatusClient");
         char err[512] = {0};
-        c_ = vlsync_status_open(prefix.c_str(), err, sizeof err);
+        c_ = vlsync_status_open(p, err, sizeof err);
         if (!c_) throw Error(err);
     }
-    ~StatusClient() { close_or_report(); }
+    ~StatusClient() { close_or_report("destroyed"); }
     StatusClient(const StatusClient &) = delete;
     StatusClient &operator=(const StatusClient &) = delete;
     StatusClient(StatusClient &&o) noexcept : c_(std::exchange(o.c_, nullptr)) {}
     StatusClient &operator=(StatusClient &&o) noexcept {
         if (this != &o) {
-            close_or_report();
+            close_or_report("move-assigned");
             c_ = std::exchange(o.c_, nullptr);
         }
         return *this;
@@ -193,11 +248,13 @@ class StatusClient {
     }
 
   private:
-    void close_or_report() noexcept {
+    /// As Client's.
+    void close_or_report(const char *how) noexcept {
         if (vlsync_status_close(c_) != 0)
-            std::fputs("vlsync::StatusClient destroyed on another thread than the one that "
-                       "opened it: its handle is left open (leaked)\n",
-                       stderr);
+            std::fprintf(stderr,
+                         "vlsync::StatusClient %s on another thread than the one that "
+                         "opened its handle: the handle is left open (leaked)\n",
+                         how);
         c_ = nullptr;
     }
 

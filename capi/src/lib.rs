@@ -8,10 +8,15 @@
 //! the same validation of every payload, the same conversion of camera stamps.
 //!
 //! Every function checks its pointers (NULL is an error, not a crash), catches any
-//! panic at the boundary, and reports errors as a return code plus a message written
-//! into a caller's buffer. A handle is used on the thread that opened it: a call
-//! from another thread is refused with a message (the iceoryx2 ports inside are
-//! single-threaded).
+//! panic at the boundary, and reports errors as a return code; the functions that take
+//! an `err, err_len` buffer also write the reason there. Four take none
+//! (`vlsync_client_latest`, `vlsync_client_camera_to_lidar`, `vlsync_client_close`,
+//! `vlsync_client_invalid_count`; `vlsync_status_close` likewise): their failures are a
+//! bare -1 (or 0 for the count). `vlsync_client_latest_err` and
+//! `vlsync_client_camera_to_lidar_err` (ABI minor 1) are the first two with a buffer,
+//! and also report a failed receive, which the buffer-less ones cannot. A handle is used
+//! on the thread that opened it: a call from another thread is refused (with a message
+//! where the function has a buffer; the iceoryx2 ports inside are single-threaded).
 //!
 //! ```
 //! // what a C program does, here from Rust: a prefix the daemon would refuse is an
@@ -26,7 +31,8 @@
 //! assert!(msg.contains("robot/"), "{msg}");
 //! ```
 // `#[no_mangle]` and the pointer reads of the exported functions need unsafe code:
-// each such item allows it, with its `SAFETY` comment
+// each such item allows it, with a `SAFETY` comment (for an item that allows it only
+// for `#[no_mangle]`, on the attribute: why its exported name clashes with nothing)
 #![deny(unsafe_code)]
 
 use std::ffi::{c_char, c_int, CStr};
@@ -39,7 +45,17 @@ use vlsync_ipc::{IpcError, OffsetClient, StatusClient};
 
 /// Version of this ABI ([`vlsync_client_abi_version`], `VLSYNC_CLIENT_ABI_VERSION` in
 /// the header): a program compiled against another version must not use the library.
+/// It changes only when an existing function or struct changes; an addition raises
+/// [`ABI_MINOR`] instead.
 pub const ABI_VERSION: u32 = 1;
+
+/// Additions to ABI [`ABI_VERSION`] ([`vlsync_client_abi_minor`],
+/// `VLSYNC_CLIENT_ABI_MINOR` in the header): a program compiled against minor `n` needs a
+/// library of the same [`ABI_VERSION`] and a minor `>= n`. Minor 0 is the first set of
+/// functions (the library then had no `vlsync_client_abi_minor`); minor 1 added
+/// `vlsync_client_abi_minor`, `vlsync_client_latest_err`,
+/// `vlsync_client_camera_to_lidar_err` and `vlsync_estimate_age_ns`.
+pub const ABI_MINOR: u32 = 1;
 
 /// An estimate as the C API hands it out (`vlsync_estimate` in the header): the
 /// offset service's own payload, validated, with the time the daemon published it.
@@ -47,10 +63,11 @@ pub const ABI_VERSION: u32 = 1;
 pub use vlsync_common::wire::OffsetEstimate;
 
 /// The C view of `e`, published at `publish_ns`: every field as it arrived (the client
-/// validated it on receipt, so this check cannot fail on what it hands out).
-fn c_estimate(e: &Estimate, publish_ns: Nanos) -> CallResult<OffsetEstimate> {
+/// validated it on receipt, so this check cannot fail on what it hands out); an error
+/// is prefixed with `what`, the calling function.
+fn c_estimate(e: &Estimate, publish_ns: Nanos, what: &str) -> CallResult<OffsetEstimate> {
     OffsetEstimate::from_estimate(e, publish_ns)
-        .map_err(|w| format!("vlsync_client: an estimate it received fails validation now: {w}"))
+        .map_err(|w| format!("{what}: an estimate it received fails validation now: {w}"))
 }
 
 /// A camera stamp on the LiDAR time base (`vlsync_conversion`).
@@ -193,9 +210,21 @@ unsafe fn bounded_prefix<'a>(prefix: *const c_char, what: &str) -> Result<&'a CS
 
 /// The ABI version the library was built with (`VLSYNC_CLIENT_ABI_VERSION`).
 #[allow(unsafe_code)]
+// SAFETY: `#[no_mangle]` is the only unsafe part (the function itself is safe): the
+// exported name is vlsync_-prefixed, so no other symbol of the library or of a program
+// loading it (iceoryx2 and std export none such) has it.
 #[no_mangle]
 pub extern "C" fn vlsync_client_abi_version() -> u32 {
     ABI_VERSION
+}
+
+/// The ABI minor version the library was built with (`VLSYNC_CLIENT_ABI_MINOR`): the
+/// additions it has to [`ABI_VERSION`] (see [`ABI_MINOR`]).
+#[allow(unsafe_code)]
+// SAFETY: as for `vlsync_client_abi_version`: `#[no_mangle]` only, a vlsync_ name
+#[no_mangle]
+pub extern "C" fn vlsync_client_abi_minor() -> u32 {
+    ABI_MINOR
 }
 
 /// Opens the offset service of robot `prefix` (e.g. `vlsync/robot`). Returns the
@@ -359,7 +388,7 @@ unsafe fn wait_into(
         fetch_into(c, out, err, err_len, what, |h| {
             let timeout = u64::try_from(timeout_ms).map_or(Duration::MAX, Duration::from_millis);
             match wait(h, timeout).map_err(|e| format!("{what}: {e}"))? {
-                Some((e, publish_ns)) => Ok(Some(c_estimate(&e, publish_ns)?)),
+                Some((e, publish_ns)) => Ok(Some(c_estimate(&e, publish_ns, what)?)),
                 None => Ok(None),
             }
         })
@@ -444,7 +473,12 @@ pub unsafe extern "C" fn vlsync_client_wait_one(
 /// Writes the most recent estimate to `out`, after taking what is pending (which a
 /// later [`vlsync_client_wait_one`] then does not hand out).
 /// Returns 1 when written, 0 before the first estimate, -1 when `c` or `out` is
-/// NULL or `c` belongs to another thread.
+/// NULL, `c` belongs to another thread, or on an internal error (a caught panic, or
+/// an estimate that fails validation when handed out); there is no buffer for the
+/// reason. A failed receive is not reported: the last estimate is written as before
+/// ([`vlsync_client_latest_err`] reports it). Check the estimate's state and age
+/// ([`vlsync_estimate_age_ns`]): the last one stays, "tracking" or not, after the
+/// daemon stops.
 ///
 /// # Safety
 /// `c` is NULL or an open handle; `out` is NULL or points to a writable
@@ -455,12 +489,70 @@ pub unsafe extern "C" fn vlsync_client_latest(
     c: *mut VlsyncClient,
     out: *mut OffsetEstimate,
 ) -> c_int {
-    let what = "vlsync_client_latest";
     // SAFETY: the caller's promises, passed on unchanged (no error buffer)
     unsafe {
-        fetch_into(c, out, std::ptr::null_mut(), 0, what, |h| {
+        latest_into(
+            c,
+            out,
+            std::ptr::null_mut(),
+            0,
+            "vlsync_client_latest",
+            false,
+        )
+    }
+}
+
+/// [`vlsync_client_latest`] with the reason for -1 in `err`, which also covers a
+/// failed receive on the offset service: -1 then, with iceoryx2's error, and the
+/// client keeps its last estimate (which a later call hands out if the receive
+/// recovers, and [`vlsync_client_latest`] hands out regardless). ABI minor 1.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_estimate`; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_latest_err(
+    c: *mut VlsyncClient,
+    out: *mut OffsetEstimate,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe { latest_into(c, out, err, err_len, "vlsync_client_latest_err", true) }
+}
+
+/// Takes what is pending, with a failed receive as an error (prefixed with `what`)
+/// where [`OffsetClient::latest`] and [`OffsetClient::camera_to_lidar`] drop it; the
+/// estimates taken before the failure stay the client's latest either way.
+fn take_pending(h: &mut OffsetClient, what: &str) -> CallResult<()> {
+    h.try_latest()
+        .map(|_| ())
+        .map_err(|e| format!("{what}: {e}"))
+}
+
+/// The two latest calls: the newest estimate into `out`; 1, 0, or -1 with the reason
+/// (prefixed with `what`) in `err`; with `report`, a failed receive is -1 too.
+///
+/// # Safety
+/// As [`vlsync_client_latest_err`]'s.
+#[allow(unsafe_code)]
+unsafe fn latest_into(
+    c: *mut VlsyncClient,
+    out: *mut OffsetEstimate,
+    err: *mut c_char,
+    err_len: usize,
+    what: &str,
+    report: bool,
+) -> c_int {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        fetch_into(c, out, err, err_len, what, |h| {
+            if report {
+                take_pending(h, what)?;
+            }
             h.latest()
-                .map(|e| c_estimate(&e, h.latest_publish_ns()))
+                .map(|e| c_estimate(&e, h.latest_publish_ns(), what))
                 .transpose()
         })
     }
@@ -469,9 +561,13 @@ pub unsafe extern "C" fn vlsync_client_latest(
 /// Converts camera stamp `t_cam_ns` to the LiDAR time base with the latest estimate
 /// (extrapolated with its drift; the standard deviation includes the offset's random
 /// walk since the estimate's reference time). Returns 1 when written to `out`, 0
-/// before the first estimate, -1 when `c` or `out` is NULL or `c` belongs to another
-/// thread. Check `out->estimate.state` (tracking or holding: a lock) and its age.
-/// Like [`vlsync_client_latest`] it takes what is pending first.
+/// before the first estimate, -1 when `c` or `out` is NULL, `c` belongs to another
+/// thread, or on an internal error (as [`vlsync_client_latest`]; no buffer for the
+/// reason, a failed receive not reported: [`vlsync_client_camera_to_lidar_err`]).
+/// Check `out->estimate.state` (tracking or holding: a lock) and its age
+/// ([`vlsync_estimate_age_ns`]): after the daemon stops, the last estimate keeps
+/// converting, in the state it had. Like [`vlsync_client_latest`] it takes what is
+/// pending first.
 ///
 /// # Safety
 /// `c` is NULL or an open handle; `out` is NULL or points to a writable
@@ -483,16 +579,76 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
     t_cam_ns: i64,
     out: *mut VlsyncConversion,
 ) -> c_int {
-    let what = "vlsync_client_camera_to_lidar";
     // SAFETY: the caller's promises, passed on unchanged (no error buffer)
     unsafe {
-        fetch_into(c, out, std::ptr::null_mut(), 0, what, |h| {
+        convert_into(
+            c,
+            t_cam_ns,
+            out,
+            std::ptr::null_mut(),
+            0,
+            "vlsync_client_camera_to_lidar",
+            false,
+        )
+    }
+}
+
+/// [`vlsync_client_camera_to_lidar`] with the reason for -1 in `err`, which also
+/// covers a failed receive (as [`vlsync_client_latest_err`]). ABI minor 1.
+///
+/// # Safety
+/// `c` is NULL or an open handle; `out` is NULL or points to a writable
+/// `vlsync_conversion`; `err` is NULL or points to `err_len` writable bytes.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_client_camera_to_lidar_err(
+    c: *mut VlsyncClient,
+    t_cam_ns: i64,
+    out: *mut VlsyncConversion,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        convert_into(
+            c,
+            t_cam_ns,
+            out,
+            err,
+            err_len,
+            "vlsync_client_camera_to_lidar_err",
+            true,
+        )
+    }
+}
+
+/// The two conversions: `t_cam_ns` on the LiDAR clock into `out`; 1, 0, or -1 with
+/// the reason (prefixed with `what`) in `err`; with `report`, a failed receive is -1 too.
+///
+/// # Safety
+/// As [`vlsync_client_camera_to_lidar_err`]'s.
+#[allow(unsafe_code)]
+unsafe fn convert_into(
+    c: *mut VlsyncClient,
+    t_cam_ns: i64,
+    out: *mut VlsyncConversion,
+    err: *mut c_char,
+    err_len: usize,
+    what: &str,
+    report: bool,
+) -> c_int {
+    // SAFETY: the caller's promises, passed on unchanged
+    unsafe {
+        fetch_into(c, out, err, err_len, what, |h| {
+            if report {
+                take_pending(h, what)?;
+            }
             h.camera_to_lidar(t_cam_ns)
                 .map(|v| {
                     Ok(VlsyncConversion {
                         t_lidar_ns: v.t_lidar_ns,
                         std_s: v.std_s,
-                        estimate: c_estimate(&v.estimate, h.latest_publish_ns())?,
+                        estimate: c_estimate(&v.estimate, h.latest_publish_ns(), what)?,
                     })
                 })
                 .transpose()
@@ -500,11 +656,33 @@ pub unsafe extern "C" fn vlsync_client_camera_to_lidar(
     }
 }
 
+/// How old estimate `e` is: `CLOCK_MONOTONIC` now minus its `publish_ns`, in ns (0 for
+/// a publish time in the future, which the same machine's daemon never gives), or -1
+/// when `e` is NULL. The state alone does not tell a live lock: after the daemon
+/// stops, the last estimate stays "tracking" (or "holding") in every later
+/// [`vlsync_client_latest`] and conversion. ABI minor 1.
+///
+/// # Safety
+/// `e` is NULL or points to a readable `vlsync_estimate` (aligned or not).
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_estimate_age_ns(e: *const OffsetEstimate) -> i64 {
+    if e.is_null() {
+        return -1;
+    }
+    // SAFETY: `e` is not NULL (checked) and points to a readable `vlsync_estimate`
+    // (the caller's promise); only its `publish_ns` field is read, through the raw
+    // pointer and without assuming alignment (as `put` writes)
+    let publish_ns = unsafe { std::ptr::addr_of!((*e).publish_ns).read_unaligned() };
+    vlsync_ipc::monotonic_ns().saturating_sub(publish_ns).max(0)
+}
+
 /// Sets the offset's random walk (s/√s) that conversions assume while tracking and
 /// otherwise: the daemon's `estimator.offset_process_noise` and
 /// `estimator.hold_process_noise` when it does not run the shipped values (2e-4,
-/// 3e-3). Returns 0, or -1 with the reason in `err` (a value not finite and >= 0
-/// leaves the setting as it was).
+/// 3e-3). Returns 0, or -1 with the reason in `err`: a NULL handle, another thread's
+/// handle, or a value that is NaN, infinite or negative (the setting then stays as it
+/// was).
 ///
 /// # Safety
 /// `c` is NULL or an open handle; `err` is NULL or points to `err_len` writable bytes.
@@ -617,6 +795,7 @@ pub unsafe extern "C" fn vlsync_status_latest(
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
 /// `"lost"`), `"unknown"` for any other: a static string, never freed.
 #[allow(unsafe_code)]
+// SAFETY: as for `vlsync_client_abi_version`: `#[no_mangle]` only, a vlsync_ name
 #[no_mangle]
 pub extern "C" fn vlsync_state_name(state: u8) -> *const c_char {
     let s: &'static CStr = match vlsync_common::EstimatorState::from_code(state) {
@@ -644,26 +823,68 @@ mod tests {
             .to_string()
     }
 
-    /// The layout `include/vlsync_client.h` states (its static asserts say the same
-    /// on the C side; `tests/tests/ipc_capi.rs` compares the two).
+    /// The layout `include/vlsync_client.h` states: every size, alignment and offset
+    /// its static asserts pin (read from the header's text here) is Rust's, and it
+    /// pins every field (`tests/tests/ipc_capi.rs` also compiles it against these).
     #[test]
     fn layouts_are_the_headers() {
+        macro_rules! offsets {
+            ($c:literal, $t:ty: $($f:ident),*) => {
+                vec![$((format!("offsetof({}, {})", $c, stringify!($f)), offset_of!($t, $f))),*]
+            };
+        }
+        let mut rust: Vec<(String, usize)> = vec![];
+        for (c, size, align) in [
+            (
+                "vlsync_estimate",
+                size_of::<OffsetEstimate>(),
+                align_of::<OffsetEstimate>(),
+            ),
+            (
+                "vlsync_conversion",
+                size_of::<VlsyncConversion>(),
+                align_of::<VlsyncConversion>(),
+            ),
+            (
+                "vlsync_daemon_status",
+                size_of::<Status>(),
+                align_of::<Status>(),
+            ),
+        ] {
+            rust.push((format!("sizeof({c})"), size));
+            rust.push((format!("VLSYNC_CLIENT_ALIGNOF({c})"), align));
+        }
+        rust.extend(
+            offsets!("vlsync_estimate", OffsetEstimate: seq, t_ref_ns, offset_s, drift,
+            offset_std_s, drift_std, peak_score, peak_ratio, measured_offset_s, publish_ns,
+            state, polarity, reserved),
+        );
+        rust.extend(offsets!("vlsync_conversion", VlsyncConversion: t_lidar_ns, std_s, estimate));
+        rust.extend(
+            offsets!("vlsync_daemon_status", Status: uptime_ns, publish_ns, received,
+            rejected, lost, budget_overruns, estimates_published, events_dropped,
+            processing_ns, end_to_end_ns, latency_count, state, degraded, reserved),
+        );
+        let header: Vec<(String, usize)> = include_str!("../include/vlsync_client.h")
+            .lines()
+            .filter_map(|l| l.strip_prefix("VLSYNC_CLIENT_STATIC_ASSERT("))
+            .map(|l| {
+                let (what, n) = l.split_once(" == ").expect("`x == n`");
+                let n = n.split(',').next().unwrap().parse().expect("a number");
+                (what.to_string(), n)
+            })
+            .collect();
+        let sorted = |mut v: Vec<(String, usize)>| {
+            v.sort();
+            v
+        };
+        assert_eq!(sorted(header), sorted(rust));
         assert_eq!(
             (size_of::<OffsetEstimate>(), align_of::<OffsetEstimate>()),
             (88, 8)
         );
-        assert_eq!(offset_of!(OffsetEstimate, t_ref_ns), 8);
-        assert_eq!(offset_of!(OffsetEstimate, measured_offset_s), 64);
-        assert_eq!(offset_of!(OffsetEstimate, publish_ns), 72);
-        assert_eq!(offset_of!(OffsetEstimate, state), 80);
-        assert_eq!(offset_of!(OffsetEstimate, polarity), 81);
-        assert_eq!(size_of::<VlsyncConversion>(), 104);
-        assert_eq!(offset_of!(VlsyncConversion, estimate), 16);
         assert_eq!((size_of::<Status>(), align_of::<Status>()), (224, 8));
-        assert_eq!(offset_of!(Status, rejected), 32);
-        assert_eq!(offset_of!(Status, latency_count), 200);
-        assert_eq!(offset_of!(Status, state), 208);
-        assert_eq!(offset_of!(Status, degraded), 209);
+        assert_eq!(size_of::<VlsyncConversion>(), 104);
     }
 
     #[test]
@@ -740,7 +961,7 @@ mod tests {
             peak_ratio: f64::INFINITY,
             measured_offset_s: f64::NAN,
         };
-        let c = c_estimate(&e, 42).unwrap();
+        let c = c_estimate(&e, 42, "f").unwrap();
         assert_eq!((c.seq, c.t_ref_ns, c.publish_ns), (7, -5, 42));
         assert_eq!(
             (c.offset_s, c.drift, c.offset_std_s, c.drift_std),
@@ -750,14 +971,19 @@ mod tests {
         assert!(c.peak_ratio.is_infinite() && c.measured_offset_s.is_nan());
         // a good estimate passes (above); one that fails validation, here a NaN offset,
         // is refused rather than handed to C
-        assert!(c_estimate(
+        let refused = c_estimate(
             &Estimate {
                 offset_s: f64::NAN,
                 ..e
             },
-            0
+            0,
+            "vlsync_f",
         )
-        .is_err());
+        .unwrap_err();
+        assert!(
+            refused.starts_with("vlsync_f: an estimate it received fails validation now"),
+            "{refused}"
+        );
     }
 
     #[test]
@@ -788,6 +1014,26 @@ mod tests {
             assert_eq!(text(&err), "vlsync_client_wait_one: the client is NULL");
             assert_eq!(vlsync_client_latest(null, &mut est), -1);
             assert_eq!(vlsync_client_camera_to_lidar(null, 0, &mut conv), -1);
+            assert_eq!(
+                vlsync_client_latest_err(null, &mut est, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_latest_err: the client is NULL");
+            assert_eq!(
+                vlsync_client_camera_to_lidar_err(
+                    null,
+                    0,
+                    &mut conv,
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert_eq!(
+                text(&err),
+                "vlsync_client_camera_to_lidar_err: the client is NULL"
+            );
+            assert_eq!(vlsync_estimate_age_ns(std::ptr::null()), -1);
             assert_eq!(
                 vlsync_client_set_process_noise(null, 0.0, 0.0, std::ptr::null_mut(), 0),
                 -1
@@ -853,6 +1099,17 @@ mod tests {
             unsafe { vlsync_client_open(too_long.as_ptr(), long.as_mut_ptr().cast(), long.len()) };
         assert!(c.is_null());
         assert!(text(&long).contains("is invalid"), "{}", text(&long));
+        // the boundary: 200 bytes is within the bounded read, so the prefix rule judges
+        // it (here its trailing `/`), with nothing opened
+        let at_limit = std::ffi::CString::new(format!("{}/", "a".repeat(199))).unwrap();
+        assert_eq!(at_limit.as_bytes().len(), vlsync_config::MAX_PREFIX_BYTES);
+        // SAFETY: a C string.
+        let c =
+            unsafe { vlsync_client_open(at_limit.as_ptr(), long.as_mut_ptr().cast(), long.len()) };
+        assert!(c.is_null());
+        let m = text(&long);
+        assert!(m.starts_with("vlsync_client_open: prefix \"aaa"), "{m}");
+        assert!(m.contains("\"... is invalid"), "{m}");
     }
 
     #[test]
@@ -867,6 +1124,53 @@ mod tests {
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         unsafe {
             assert_eq!(vlsync_client_latest(c, &mut est), 0);
+            assert_eq!(
+                vlsync_client_latest_err(c, &mut est, err.as_mut_ptr().cast(), err.len()),
+                0
+            );
+            let mut conv = VlsyncConversion {
+                t_lidar_ns: 0,
+                std_s: 0.0,
+                estimate: est,
+            };
+            assert_eq!(vlsync_client_camera_to_lidar(c, 0, &mut conv), 0);
+            assert_eq!(
+                vlsync_client_camera_to_lidar_err(
+                    c,
+                    0,
+                    &mut conv,
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                0
+            );
+            // a valid handle with a NULL out: -1, with the reason where there is a buffer
+            assert_eq!(vlsync_client_latest(c, std::ptr::null_mut()), -1);
+            assert_eq!(
+                vlsync_client_camera_to_lidar(c, 0, std::ptr::null_mut()),
+                -1
+            );
+            assert_eq!(
+                vlsync_client_latest_err(
+                    c,
+                    std::ptr::null_mut(),
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_latest_err: out is NULL");
+            assert_eq!(
+                vlsync_client_camera_to_lidar_err(
+                    c,
+                    0,
+                    std::ptr::null_mut(),
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                -1
+            );
+            assert_eq!(text(&err), "vlsync_client_camera_to_lidar_err: out is NULL");
             assert_eq!(
                 vlsync_client_wait_next(c, 20, &mut est, err.as_mut_ptr().cast(), err.len()),
                 0
@@ -925,6 +1229,27 @@ mod tests {
             };
             // SAFETY: as above
             let one = unsafe { vlsync_client_wait_one(c, 0, &mut est, std::ptr::null_mut(), 0) };
+            let mut latest_err = [0u8; 300];
+            // SAFETY: as above
+            let latest = unsafe {
+                (
+                    vlsync_client_latest(c, &mut est),
+                    vlsync_client_latest_err(
+                        c,
+                        &mut est,
+                        latest_err.as_mut_ptr().cast(),
+                        latest_err.len(),
+                    ),
+                )
+            };
+            assert_eq!(latest, (-1, -1));
+            assert!(
+                text(&latest_err).starts_with(
+                    "vlsync_client_latest_err: the client was opened on another thread"
+                ),
+                "{}",
+                text(&latest_err)
+            );
             // SAFETY: as above
             let count = unsafe { vlsync_client_invalid_count(c) };
             // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
@@ -937,6 +1262,241 @@ mod tests {
         assert!(msg.contains("another thread"), "{msg}");
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         assert_eq!(unsafe { vlsync_client_close(c) }, 0);
+    }
+
+    /// A panic inside a call is an error naming the function and the panic's message
+    /// (a `&str` or a `String` payload), not an unwind across the C boundary.
+    #[test]
+    fn a_panic_is_caught_and_named() {
+        let r: CallResult<()> = guarded("vlsync_f", || panic!("boom"));
+        assert_eq!(r, Err("vlsync_f: internal error: boom".to_string()));
+        let n = 7;
+        let r: CallResult<()> = guarded("vlsync_g", || panic!("boom {n}"));
+        assert_eq!(r, Err("vlsync_g: internal error: boom 7".to_string()));
+        let r: CallResult<()> = guarded("vlsync_h", || std::panic::panic_any(42u8));
+        assert_eq!(
+            r,
+            Err("vlsync_h: internal error: unknown panic".to_string())
+        );
+        assert_eq!(guarded("vlsync_i", || Ok(3)), Ok(3));
+    }
+
+    /// The header's macros are the Rust values: ABI version and minor, states, reject
+    /// reasons, polarity (and `vlsync_wire.h`, which defines the same names, agrees).
+    #[test]
+    fn the_headers_macros_are_the_rust_values() {
+        let header = include_str!("../include/vlsync_client.h");
+        let wire = include_str!("../../examples/c/vlsync_wire.h");
+        let defines = |text: &str| -> std::collections::HashMap<String, String> {
+            text.lines()
+                .filter_map(|l| l.strip_prefix("#define VLSYNC_"))
+                .filter_map(|l| {
+                    let l = l.split("/*").next().unwrap();
+                    let mut w = l.split_whitespace();
+                    Some((
+                        format!("VLSYNC_{}", w.next()?),
+                        w.collect::<Vec<_>>().join(" "),
+                    ))
+                })
+                .collect()
+        };
+        let (h, w) = (defines(header), defines(wire));
+        let int = |name: &str| -> i64 {
+            let v = h
+                .get(name)
+                .unwrap_or_else(|| panic!("{name} not in vlsync_client.h"));
+            let v = v
+                .trim_end_matches('u')
+                .trim_start_matches('(')
+                .trim_end_matches(')');
+            match v.strip_prefix("0x").or_else(|| v.strip_prefix("0X")) {
+                Some(hex) => i64::from_str_radix(hex, 16).unwrap(),
+                None => v.parse().unwrap_or_else(|_| panic!("{name} = {v}")),
+            }
+        };
+        assert_eq!(int("VLSYNC_CLIENT_ABI_VERSION"), i64::from(ABI_VERSION));
+        assert_eq!(int("VLSYNC_CLIENT_ABI_MINOR"), i64::from(ABI_MINOR));
+        for s in [
+            EstimatorState::Acquiring,
+            EstimatorState::Tracking,
+            EstimatorState::Holding,
+            EstimatorState::Lost,
+        ] {
+            let name = format!("VLSYNC_STATE_{}", s.name().to_uppercase());
+            assert_eq!(int(&name), i64::from(s as u8), "{name}");
+        }
+        assert_eq!(
+            int("VLSYNC_STATE_NONE"),
+            i64::from(vlsync_common::wire::STATE_NONE)
+        );
+        for p in [Polarity::Unknown, Polarity::Positive, Polarity::Negative] {
+            let name = format!("VLSYNC_POLARITY_{}", p.name().to_uppercase());
+            assert_eq!(int(&name), i64::from(p as i8), "{name}");
+        }
+        for (i, r) in vlsync_common::wire::REJECT_NAMES.iter().enumerate() {
+            let name = format!("VLSYNC_REJECT_{}", r.to_uppercase());
+            assert_eq!(int(&name), i as i64, "{name}");
+        }
+        assert_eq!(
+            int("VLSYNC_REJECT_REASONS"),
+            vlsync_common::wire::REJECT_REASONS as i64
+        );
+        // every name both headers define has one definition (including both is fine)
+        let mut shared = 0;
+        for (name, v) in &h {
+            if let Some(wv) = w.get(name) {
+                assert_eq!(
+                    v, wv,
+                    "{name} differs between vlsync_client.h and vlsync_wire.h"
+                );
+                shared += 1;
+            }
+        }
+        assert_eq!(
+            shared,
+            4 + 1 + 3 + 6,
+            "states, NONE, polarity, reject reasons"
+        );
+    }
+
+    /// A raw publisher on the offset service: the `_err` calls hand out what it sends,
+    /// with the publish time, and the age is measured against `CLOCK_MONOTONIC`.
+    #[test]
+    fn the_err_variants_and_the_age_of_an_estimate() {
+        use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
+        let names = ServiceNames::new(&format!("vlsync/capi-age-{}", std::process::id())).unwrap();
+        let node = create_node("capi-test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "offset").unwrap();
+        let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+        let mut err = [0u8; 300];
+        // SAFETY: a C string and a buffer with its true length
+        let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(!c.is_null(), "{}", text(&err));
+        let e = Estimate {
+            seq: 9,
+            t_ref_ns: 10_000_000_000,
+            offset_s: 0.02,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Positive,
+            ..zero()
+        };
+        // published 5 s ago, as by a daemon that stopped since
+        let published = vlsync_ipc::monotonic_ns() - 5_000_000_000;
+        publ.send_copy(OffsetEstimate::from_estimate(&e, published).unwrap())
+            .unwrap();
+        let mut est = OffsetEstimate::from_estimate(&zero(), 0).unwrap();
+        let mut conv = VlsyncConversion {
+            t_lidar_ns: 0,
+            std_s: 0.0,
+            estimate: est,
+        };
+        // SAFETY: an open handle of this thread, writable outputs, buffers with their
+        // lengths; the unaligned copy is written and read within `bytes`, which holds an
+        // estimate's size after its first byte, with `write_unaligned` and a function
+        // that reads it unaligned
+        unsafe {
+            assert_eq!(
+                vlsync_client_latest_err(c, &mut est, err.as_mut_ptr().cast(), err.len()),
+                1,
+                "{}",
+                text(&err)
+            );
+            assert_eq!((est.seq, est.publish_ns, est.state), (9, published, 1));
+            let age = vlsync_estimate_age_ns(&est);
+            assert!((5_000_000_000..6_000_000_000).contains(&age), "{age}");
+            assert_eq!(
+                vlsync_client_camera_to_lidar_err(
+                    c,
+                    5_000_000_000,
+                    &mut conv,
+                    err.as_mut_ptr().cast(),
+                    err.len()
+                ),
+                1,
+                "{}",
+                text(&err)
+            );
+            assert_eq!(conv.t_lidar_ns, 5_020_000_000);
+            assert_eq!(
+                (conv.estimate.seq, conv.estimate.publish_ns),
+                (9, published)
+            );
+            // still "tracking", still handed out: only its age tells it is stale
+            assert_eq!(vlsync_client_latest(c, &mut est), 1);
+            assert_eq!(est.state, 1);
+            assert!(vlsync_estimate_age_ns(&conv.estimate) >= 5_000_000_000);
+            // an unaligned copy reads the same
+            let mut bytes = [0u8; size_of::<OffsetEstimate>() + 1];
+            std::ptr::write_unaligned(bytes.as_mut_ptr().add(1).cast::<OffsetEstimate>(), est);
+            let unaligned = bytes.as_ptr().add(1).cast::<OffsetEstimate>();
+            assert!(vlsync_estimate_age_ns(unaligned) >= 5_000_000_000);
+            // a publish time in the future (another clock) is age 0, not negative
+            est.publish_ns = i64::MAX;
+            assert_eq!(vlsync_estimate_age_ns(&est), 0);
+            assert_eq!(vlsync_client_close(c), 0);
+        }
+    }
+
+    /// A status service that has carried only invalid payloads: -1 with the
+    /// validation error, where a silent one is 0.
+    #[test]
+    fn status_latest_after_only_invalid_payloads_is_an_error() {
+        use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
+        let names =
+            ServiceNames::new(&format!("vlsync/capi-badstatus-{}", std::process::id())).unwrap();
+        let node = create_node("capi-test-daemon", false).unwrap();
+        let svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "status").unwrap();
+        let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+        let mut err = [0u8; 300];
+        // SAFETY: a C string and a buffer with its true length
+        let c = unsafe { vlsync_status_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(!c.is_null(), "{}", text(&err));
+        let mut st = Status::default();
+        // SAFETY: an open status handle of this thread, a writable output, a buffer
+        unsafe {
+            assert_eq!(
+                vlsync_status_latest(c, &mut st, err.as_mut_ptr().cast(), err.len()),
+                0
+            );
+            publ.send_copy(Status {
+                degraded: 9,
+                ..Status::default()
+            })
+            .unwrap();
+            assert_eq!(
+                vlsync_status_latest(c, &mut st, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            let m = text(&err);
+            assert!(
+                m.starts_with("vlsync_status_latest: invalid status payload"),
+                "{m}"
+            );
+            // a valid one after it: written; an invalid one then is skipped
+            publ.send_copy(Status {
+                estimates_published: 4,
+                ..Status::default()
+            })
+            .unwrap();
+            assert_eq!(
+                vlsync_status_latest(c, &mut st, err.as_mut_ptr().cast(), err.len()),
+                1
+            );
+            publ.send_copy(Status {
+                degraded: 9,
+                ..Status::default()
+            })
+            .unwrap();
+            assert_eq!(
+                vlsync_status_latest(c, &mut st, err.as_mut_ptr().cast(), err.len()),
+                1
+            );
+            assert_eq!(st.estimates_published, 4);
+            assert_eq!(vlsync_status_close(c), 0);
+        }
     }
 
     #[test]
@@ -959,6 +1519,7 @@ mod tests {
             ]
         );
         assert_eq!(vlsync_client_abi_version(), ABI_VERSION);
+        assert_eq!(vlsync_client_abi_minor(), ABI_MINOR);
     }
 
     fn zero() -> Estimate {

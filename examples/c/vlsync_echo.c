@@ -6,12 +6,19 @@
  *      -L target/release -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_echo_c
  *   ./vlsync_echo_c --prefix vlsync/robot [--count N] [--timeout S] [--status]
  *
- * One line per estimate, every one in order (vlsync_client_wait_one): sequence number, state, reference time on the LiDAR clock,
- * offset +- one standard deviation, drift. With --status, one line per status the daemon
- * publishes instead (its counters: state, samples received, rejected and lost per stream,
- * estimates, budget overruns, end-to-end p99). Exit status: 0 after --count lines, on
- * Ctrl-C / SIGTERM or when the reader of its output goes away; 1 when --timeout seconds pass without an estimate; 2 on a bad
- * argument or a library error (its message on stderr).
+ * One line per estimate, every one in order (vlsync_client_wait_one): sequence number,
+ * state, reference time on the LiDAR clock, offset +- one standard deviation, drift. It
+ * converts nothing, and each estimate is printed as it arrives (the first may be the
+ * daemon's last before the open: its publish time is not checked here; a program that
+ * uses an estimate later checks its age, vlsync_estimate_age_ns). With --status, the
+ * daemon's newest counters instead (state, samples received, rejected and lost per
+ * stream, estimates, budget overruns, end-to-end p99), polled every 250 ms and printed
+ * when they changed: one line per status only while daemon.status_period_s is longer
+ * than that (the default 1 s); with a shorter period the statuses between two polls are
+ * skipped, and --count counts printed lines. Exit status: 0 after --count lines, on
+ * Ctrl-C / SIGTERM or when the reader of its output goes away; 1 when --timeout seconds
+ * (at most 1e9) pass without an estimate (a status); 2 on a bad argument, a library error
+ * or a failed write to stdout (the message on stderr).
  */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
@@ -28,10 +35,13 @@ static void on_signal(int sig) { (void)sig; stop = 1; }
 
 #define USAGE "usage: vlsync_echo [--prefix P] [--count N] [--timeout S] [--status]\n"
 
-static int usage(const char *why, const char *arg) {
-    fprintf(stderr, "vlsync_echo: %s%s\n" USAGE, why, arg);
+/* the message `why arg after`, then the usage; exit status 2 */
+static int usage3(const char *why, const char *arg, const char *after) {
+    fprintf(stderr, "vlsync_echo: %s%s%s\n" USAGE, why, arg, after);
     return 2;
 }
+
+static int usage(const char *why, const char *arg) { return usage3(why, arg, ""); }
 
 /* the number >= 0 (at most 1e9) in text s, or -1 */
 static double number(const char *s) {
@@ -67,7 +77,8 @@ static unsigned long long rejected(const vlsync_daemon_status *st, int s) {
     return n;
 }
 
-/* --status: one line per new status, polled every 250 ms */
+/* --status: the newest status, polled every 250 ms, printed when it is new (statuses
+ * published between two polls are not seen) */
 static int echo_status(const char *prefix, long count, double timeout) {
     char err[512];
     vlsync_status_client *c = vlsync_status_open(prefix, err, sizeof err);
@@ -123,7 +134,8 @@ int main(int argc, char **argv) {
         if (!strcmp(opt, "--help") || !strcmp(opt, "-h")) {
             printf(USAGE
                    "Prints the vlsync daemon's estimates on prefix P (default vlsync/robot), one line\n"
-                   "each in order, or with --status its counters; stops after N lines (0: no limit)\n"
+                   "each in order, or with --status its newest counters (polled every 250 ms, printed\n"
+                   "when new); stops after N lines (0: no limit)\n"
                    "or when S seconds pass without one (exit 1; 0: no limit).\n");
             return 0;
         }
@@ -138,9 +150,9 @@ int main(int argc, char **argv) {
         if (!strcmp(opt, "--prefix")) prefix = val;
         else if (!strcmp(opt, "--count")) {
             if ((count = number(val)) < 0 || count != (long)count)
-                return usage("--count takes a whole number >= 0, not ", val);
+                return usage3("--count takes a whole number >= 0, not ", val, " (at most 1e9)");
         } else if ((timeout = number(val)) < 0)
-            return usage("--timeout takes seconds >= 0, not ", val);
+            return usage3("--timeout takes seconds >= 0, not ", val, " (at most 1e9)");
     }
     if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION) {
         fprintf(stderr, "vlsync_echo: libvlsync_client has ABI %u, this program %u\n",

@@ -4,6 +4,8 @@
  * Mirrors vlsync_common::wire (Rust, #[repr(C)]) field by field. Open the
  * services with the iceoryx2 C/C++ bindings using the type names below; the
  * static asserts pin every size and offset, exactly like the Rust layout tests.
+ * They need C11 or C++11 (static assertions, alignof): an older C or C++ (C89/C99,
+ * C++98/03) includes the header without them, as vlsync_client.h does.
  * iceoryx2 itself compares only the type name, size and alignment: the ".v1" in
  * each name is what guards the fields (a change of layout gets a new name).
  *
@@ -121,13 +123,15 @@ typedef struct vlsync_status {
     uint8_t reserved[14];                          /* 210 must be 0 */
 } vlsync_status;
 
-#if defined(__cplusplus)
+#if defined(__cplusplus) && __cplusplus >= 201103L
 #define VLSYNC_STATIC_ASSERT(c, m) static_assert(c, m)
 #define VLSYNC_ALIGNOF(t) alignof(t)
-#else
+#elif !defined(__cplusplus) && defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 #define VLSYNC_STATIC_ASSERT(c, m) _Static_assert(c, m)
 #define VLSYNC_ALIGNOF(t) _Alignof(t)
 #endif
+
+#ifdef VLSYNC_STATIC_ASSERT
 
 VLSYNC_STATIC_ASSERT(sizeof(vlsync_signature_sample) == 40, "SignatureSample size");
 VLSYNC_STATIC_ASSERT(VLSYNC_ALIGNOF(vlsync_signature_sample) == 8, "SignatureSample alignment");
@@ -170,4 +174,5 @@ VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, latency_count) == 200, "Status.late
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, state) == 208, "Status.state");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, degraded) == 209, "Status.degraded");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, reserved) == 210, "Status.reserved");
+#endif /* VLSYNC_STATIC_ASSERT */
 #endif /* VLSYNC_WIRE_H */

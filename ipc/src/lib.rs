@@ -715,11 +715,22 @@ impl OffsetClient {
         }
     }
 
-    /// The most recent estimate received (after draining what is pending).
+    /// The most recent estimate received (after draining what is pending). A failed
+    /// receive is not reported: the last good estimate is returned
+    /// ([`OffsetClient::try_latest`] reports it). After the daemon stops, its last
+    /// estimate stays, in the state it had: judge its age by
+    /// [`OffsetClient::latest_publish_ns`] against [`monotonic_ns`].
     pub fn latest(&mut self) -> Option<Estimate> {
         // a receive error keeps the last good estimate
         let _ = self.drain();
         self.latest
+    }
+
+    /// [`OffsetClient::latest`] with a failed receive as the error; the estimates
+    /// taken before it stay the latest (which [`OffsetClient::latest`] still returns).
+    pub fn try_latest(&mut self) -> Result<Option<Estimate>, IpcError> {
+        self.drain()?;
+        Ok(self.latest)
     }
 
     /// `CLOCK_MONOTONIC` time at which the daemon published [`OffsetClient::latest`].
@@ -744,8 +755,10 @@ impl OffsetClient {
     /// window passed without a measurement); a daemon configured otherwise is
     /// matched with [`OffsetClient::set_process_noise`]. The
     /// estimate used comes with the result: check its `state` (a `lost` or
-    /// `acquiring` estimate is no lock) and `t_ref_ns` (how old it is) before
-    /// trusting the stamp. Draining here means a recorder that also calls
+    /// `acquiring` estimate is no lock) and its age, [`monotonic_ns`] minus
+    /// [`OffsetClient::latest_publish_ns`] (after the daemon stops its last estimate
+    /// stays, still `tracking`; `t_ref_ns` is on the LiDAR clock and says nothing
+    /// about it), before trusting the stamp. Draining here means a recorder that also calls
     /// [`OffsetClient::wait_all`] misses the estimates this call took.
     pub fn camera_to_lidar(&mut self, t_cam_ns: Nanos) -> Option<Conversion> {
         let e = self.latest()?;

@@ -5,6 +5,7 @@
 //! arguments and a silent prefix are clear errors with their exit codes.
 
 use core::mem::{offset_of, size_of};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use vlsync_client::{OffsetEstimate, Status, VlsyncConversion};
@@ -71,7 +72,6 @@ fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
         .stderr(Stdio::piped())
         .spawn()
         .expect("run the example");
-    use std::io::Write;
     // a program that exits before reading all its input closes the pipe: what it said
     // and its exit code are the result, not the broken pipe
     let _ = child.stdin.take().unwrap().write_all(stdin.as_bytes());
@@ -233,10 +233,43 @@ fn c_and_cpp_programs_read_a_live_daemon() {
         &["--prefix", &rig.prefix, "--timeout", "20"],
         &format!("{}\n99999999999999999999\n", stamps[0]),
     );
+    // a converter that locked, then outlives the daemon: its next stamp is marked
+    // stale, not converted as "tracking" by an estimate seconds old
+    let stale_err = tmp.join("stale.err");
+    let mut stale_conv = vlsync_tests::Managed {
+        name: "vlsync_convert".into(),
+        child: linked(&convert)
+            .args(["--prefix", &rig.prefix, "--timeout", "20", "--max-age", "1"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stale_err).unwrap())
+            .spawn()
+            .unwrap(),
+    };
+    let mut stale_in = stale_conv.child.stdin.take().unwrap();
+    let mut stale_rows = BufReader::new(stale_conv.child.stdout.take().unwrap()).lines();
+    writeln!(stale_in, "{}", stamps[0]).unwrap();
+    let fresh_row = stale_rows.next().and_then(Result::ok).unwrap_or_default();
     assert!(
         cam.stop(std::time::Duration::from_secs(3)) & lidar.stop(std::time::Duration::from_secs(3))
     );
     assert!(daemon.stop(std::time::Duration::from_secs(3)));
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    writeln!(stale_in, "{}", stamps[1]).unwrap();
+    let stale_row = stale_rows.next().and_then(Result::ok).unwrap_or_default();
+    drop(stale_in);
+    let stale_status = stale_conv.child.wait().unwrap();
+    let stale_said = std::fs::read_to_string(&stale_err).unwrap_or_default();
+    assert!(
+        fresh_row.ends_with(" tracking") || fresh_row.ends_with(" holding"),
+        "{fresh_row}\n{stale_said}"
+    );
+    assert!(stale_row.ends_with(" stale"), "{stale_row}\n{stale_said}");
+    assert!(
+        stale_said.contains("s old (") && stale_said.contains("stamps are marked stale"),
+        "{stale_said}"
+    );
+    assert_eq!(stale_status.code(), Some(0), "{stale_said}");
 
     for (what, out, code, says) in [
         ("vlsync_echo --status | head -1", &c_head, 0, "status "),
@@ -415,6 +448,24 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
             vec!["--timeout", "x"],
             2,
             "--timeout takes seconds >= 0, not x",
+        ),
+        (
+            &convert,
+            vec!["--timeout", "2e6"],
+            2,
+            "--timeout takes seconds >= 0, not 2e6 (at most 1000000)",
+        ),
+        (
+            &convert,
+            vec!["--max-age", "0"],
+            2,
+            "--max-age takes seconds > 0, not 0",
+        ),
+        (
+            &echo,
+            vec!["--timeout", "2e9"],
+            2,
+            "--timeout takes seconds >= 0, not 2e9 (at most 1e9)",
         ),
         (
             &convert,
