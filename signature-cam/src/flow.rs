@@ -386,6 +386,8 @@ impl PyrLk {
         self.has_prev = false;
         self.has_prior = false;
         self.vectors.clear();
+        // no pair, no flows: grid() must not serve the last pair's
+        self.grid_flow.fill(NO_FLOW);
     }
 
     /// Scales the prediction of the next [`PyrLk::push`]: the ratio of the coming
@@ -408,7 +410,8 @@ impl PyrLk {
 
     /// Every grid point of the last successful [`PyrLk::push`] in grid order
     /// (row by row), tracked or not: `dx`, `dy` are NaN for a point without a
-    /// vector. Empty before the first frame.
+    /// vector. Empty before the first frame; all NaN after [`PyrLk::reset`] and
+    /// after a push that returned `None` (no pair).
     pub fn grid(&self) -> impl ExactSizeIterator<Item = FlowVector> + '_ {
         let (cx, cy, pts) = match &self.geom {
             Some(g) => (g.crop_x as f32, g.crop_y as f32, &g.points[..]),
@@ -465,6 +468,7 @@ impl PyrLk {
             Some(self.track())
         } else {
             self.vectors.clear();
+            self.grid_flow.fill(NO_FLOW);
             self.has_prior = false;
             None
         };
@@ -1336,6 +1340,38 @@ pub(crate) mod tests {
         assert_eq!(lk.frame_size(), Some((210, 150)));
         lk.reset();
         assert!(lk.push(&b).unwrap().is_none());
+    }
+
+    #[test]
+    fn grid_is_empty_of_flows_after_a_reset_or_a_restart() {
+        // a pair with flow, then a reset (or a restart by the caller): the next
+        // push starts a new pair, and grid() must not serve the old pair's flows
+        let a = frame(200, 150, |x, y| (x, y));
+        let b = frame(200, 150, |x, y| (x, y - 2.0));
+        let c = frame(200, 150, |x, y| (x, y - 50.0));
+        let finite = |lk: &PyrLk| {
+            lk.grid()
+                .filter(|v| v.dx.is_finite() || v.dy.is_finite())
+                .count()
+        };
+        let mut lk = PyrLk::new(FlowConfig::default()).unwrap();
+        assert!(lk.push(&a).unwrap().is_none());
+        assert!(lk.push(&b).unwrap().unwrap().tracked > 0);
+        assert!(finite(&lk) > 0);
+        lk.reset();
+        assert_eq!(finite(&lk), 0, "grid() after reset()");
+        assert!(lk.push(&c).unwrap().is_none());
+        assert!(lk.vectors().is_empty());
+        assert_eq!(finite(&lk), 0, "grid() after reset() and a first frame");
+        // the same through a restart without reset(): a size change
+        assert!(lk.push(&a).unwrap().is_some());
+        assert!(lk.push(&b).unwrap().unwrap().tracked > 0);
+        assert!(finite(&lk) > 0);
+        let d = frame(210, 150, |x, y| (x, y));
+        assert!(lk.push(&d).unwrap().is_none());
+        assert_eq!(finite(&lk), 0, "grid() after a size change");
+        // every grid point is still listed, with NaN flows
+        assert!(lk.grid().len() > 0);
     }
 
     #[test]

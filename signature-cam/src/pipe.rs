@@ -120,7 +120,8 @@ pub struct PipeConfig {
     pub stride: Option<usize>,
     /// The frames' layout.
     pub format: PipeFormat,
-    /// No frame for this long is an error ([`Error::Stalled`]).
+    /// No frame for this long is an error ([`Error::Stalled`]); `Duration::MAX`
+    /// (or anything over about 292 years) is never.
     pub silence: Duration,
 }
 
@@ -315,6 +316,9 @@ impl<R: Read + AsFd> PipeSource<R> {
             return Ok(Some(None));
         }
         let asked = (self.clock)();
+        // saturating: a silence beyond i64 ns (about 292 years, e.g.
+        // `Duration::MAX` for "never") must not wrap to a negative limit
+        let silence = Nanos::try_from(self.cfg.silence.as_nanos()).unwrap_or(Nanos::MAX);
         loop {
             if (self.stop)() {
                 return Ok(None);
@@ -323,7 +327,7 @@ impl<R: Read + AsFd> PipeSource<R> {
                 return Ok(Some(Some((self.clock)())));
             }
             let quiet = (self.clock)().saturating_sub(asked);
-            if quiet >= self.cfg.silence.as_nanos() as Nanos {
+            if quiet >= silence {
                 // the caller's messages name the source already: this names who
                 // fell silent
                 return Err(Error::Stalled {
@@ -675,6 +679,31 @@ mod tests {
             ),
             other => panic!("{:?}", other.map(|o| o.is_some())),
         }
+    }
+
+    #[test]
+    fn an_endless_silence_never_stalls() {
+        // Duration::MAX (about 5.8e11 years) does not fit i64 nanoseconds: it
+        // must saturate, not wrap to a negative limit that every wait exceeds
+        static STOP: AtomicBool = AtomicBool::new(false);
+        let (r, _wr) = std::io::pipe().unwrap();
+        let mut c = cfg(PipeFormat::Gray, 4, 4, None);
+        c.silence = Duration::MAX;
+        let mut src = PipeSource::new(r, "p", c, clock).unwrap();
+        src.set_stop(|| STOP.load(Ordering::Relaxed));
+        let stopper = std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_millis(350));
+            STOP.store(true, Ordering::Relaxed);
+        });
+        let t0 = Instant::now();
+        let r = src.next_frame().map(|o| o.is_some());
+        stopper.join().unwrap();
+        assert_eq!(r.map_err(|e| e.to_string()), Ok(false));
+        assert!(
+            t0.elapsed() >= Duration::from_millis(300),
+            "{:?}",
+            t0.elapsed()
+        );
     }
 
     #[test]
