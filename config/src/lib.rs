@@ -346,7 +346,8 @@ pub const CAMERA_FPS_RANGE: std::ops::RangeInclusive<f64> = 1.0..=1000.0;
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
     /// Frame rate asked of a V4L2 camera (`VIDIOC_S_PARM`), Hz; the rate it grants is
-    /// said when the driver starts. 0: the camera's own rate is kept.
+    /// said when the driver starts. 0: the camera's own rate is kept. At least
+    /// 1 / `estimator.max_gap_s` ([`Config::camera_rate_problem`]).
     pub v4l2_fps: f64,
 }
 
@@ -813,14 +814,43 @@ impl Config {
         Self::from_toml_str(&text, &name)
     }
 
-    /// Validates every section.
+    /// Validates every section, then what one section asks of another.
     pub fn validate(&self, source_name: &str) -> Result<(), ConfigError> {
         self.estimator.validate(source_name)?;
         self.daemon.validate(source_name)?;
         self.services.validate(source_name)?;
         self.lidar.validate(source_name)?;
         self.camera.validate(source_name)?;
-        Ok(())
+        let c = Checker {
+            source: source_name,
+        };
+        c.rule(
+            self.camera_rate_problem(self.camera.v4l2_fps).is_none(),
+            || {
+                format!(
+                    "`camera.v4l2_fps` = {}: {}",
+                    num(self.camera.v4l2_fps),
+                    self.camera_rate_problem(self.camera.v4l2_fps)
+                        .unwrap_or_default()
+                )
+            },
+        )
+    }
+
+    /// Why a camera asked for `fps` frames a second (0: its own rate, not known
+    /// here) would give the estimator nothing to use: its samples would be further
+    /// apart than `estimator.max_gap_s`, and the estimator never interpolates across
+    /// such a gap. `None` when it is fine.
+    pub fn camera_rate_problem(&self, fps: f64) -> Option<String> {
+        let gap = self.estimator.max_gap_s;
+        (fps > 0.0 && 1.0 / fps > gap).then(|| {
+            format!(
+                "camera samples {} s apart, more than `estimator.max_gap_s` = {} (the longest gap the estimator interpolates across): no camera signature would be usable; ask for at least {} frames a second or raise `estimator.max_gap_s`",
+                num(1.0 / fps),
+                num(gap),
+                num(1.0 / gap)
+            )
+        })
     }
 }
 
@@ -830,6 +860,27 @@ mod tests {
     use proptest::prelude::*;
 
     const SHIPPED: &str = include_str!("../vlsync.toml");
+
+    #[test]
+    fn a_camera_slower_than_the_estimators_gap_is_refused() {
+        // 1 Hz: samples 1 s apart, beyond the default max_gap_s of 0.75 s
+        let e = Config::from_toml_str("[camera]\nv4l2_fps = 1.0\n", "my.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("config my.toml: `camera.v4l2_fps` = 1: camera samples 1 s apart, more than `estimator.max_gap_s` = 0.75"),
+            "{e}"
+        );
+        assert!(e.contains("at least 1.333"), "{e}");
+        // the same rate with a longer gap allowed, and 1.5 Hz with the default
+        Config::from_toml_str(
+            "[camera]\nv4l2_fps = 1.0\n[estimator]\nmax_gap_s = 1.5\nreset_jump_s = 2.0\n",
+            "x",
+        )
+        .unwrap();
+        Config::from_toml_str("[camera]\nv4l2_fps = 1.5\n", "x").unwrap();
+        assert_eq!(Config::default().camera_rate_problem(0.0), None);
+    }
 
     #[test]
     fn defaults_are_valid() {

@@ -617,7 +617,11 @@ pub struct CamCounts {
     pub low_texture: u64,
     /// Samples dropped because no point was tracked or the value was not finite.
     pub no_flow: u64,
-    /// Sequences restarted by a gap longer than `max_gap_ns` (dropped frames).
+    /// Sequences restarted by a gap: an interval longer than the processor's gap
+    /// limit (`max_gap_ns`, 250 ms, or 4.5 frame periods of a camera slower than
+    /// 18 Hz; `SignatureProcessor::gap_limit_ns`). A camera slower than 4 Hz also
+    /// counts its first two intervals here, and one that slows down to that its first
+    /// slow intervals, until its new period is confirmed.
     pub gaps: u64,
     /// Frames whose time was not after the previous one (sequence restarted).
     pub not_increasing: u64,
