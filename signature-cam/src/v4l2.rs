@@ -58,7 +58,8 @@
 //! when a transfer is cut) or one too short for its frame is skipped and counted
 //! ([`FrameSource::unusable`]); the signature then treats it as a dropped frame: the
 //! next frame pairs with the last good one over their true interval, or, past the
-//! signature's `max_gap_ns`, restarts the pair (a counted gap). Only
+//! signature's gap limit (`SignatureProcessor::gap_limit_ns`: `max_gap_ns`, or
+//! more periods of a slow camera), restarts the pair (a counted gap). Only
 //! [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) such buffers in a
 //! row (a second at 30 Hz: a device that delivers nothing usable) end the stream
 //! with an error saying why; a geometry the converter cannot read at all (a stride

@@ -621,7 +621,8 @@ pub struct CamCounts {
     /// limit (`max_gap_ns`, 250 ms, or 4.5 frame periods of a camera slower than
     /// 18 Hz; `SignatureProcessor::gap_limit_ns`). A camera slower than 4 Hz also
     /// counts its first two intervals here, and one that slows down to that its first
-    /// slow intervals, until its new period is confirmed.
+    /// slow intervals, until its new period is confirmed (a slow-down to a whole
+    /// fraction of the rate, 30 to 15 or 7.5 Hz, keeps the old period and 250 ms).
     pub gaps: u64,
     /// Frames whose time was not after the previous one (sequence restarted).
     pub not_increasing: u64,
