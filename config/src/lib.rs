@@ -848,7 +848,8 @@ impl Config {
                 "camera samples {} s apart, more than `estimator.max_gap_s` = {} (the longest gap the estimator interpolates across): no camera signature would be usable; ask for at least {} frames a second or raise `estimator.max_gap_s`",
                 num(1.0 / fps),
                 num(gap),
-                num(1.0 / gap)
+                // rounded up to what passes: 1 / 0.75 s is 1.333..., and 1.33 is refused
+                num((100.0 / gap).ceil() / 100.0)
             )
         })
     }
@@ -871,7 +872,9 @@ mod tests {
             e.starts_with("config my.toml: `camera.v4l2_fps` = 1: camera samples 1 s apart, more than `estimator.max_gap_s` = 0.75"),
             "{e}"
         );
-        assert!(e.contains("at least 1.333"), "{e}");
+        assert!(e.contains("ask for at least 1.34 frames a second"), "{e}");
+        Config::from_toml_str("[camera]\nv4l2_fps = 1.34\n", "x").unwrap();
+        assert!(Config::from_toml_str("[camera]\nv4l2_fps = 1.33\n", "x").is_err());
         // the same rate with a longer gap allowed, and 1.5 Hz with the default
         Config::from_toml_str(
             "[camera]\nv4l2_fps = 1.0\n[estimator]\nmax_gap_s = 1.5\nreset_jump_s = 2.0\n",

@@ -302,6 +302,18 @@ pub fn select_source(
                 vlsync_config::CAMERA_FPS_RANGE.end()
             )));
         }
+        // at start, not once --wait-device has seen the camera (maybe hours later);
+        // a rate in the file was checked as the file was read
+        if let Some(why) = config(args)?.camera_rate_problem(fps) {
+            let whose = if args.config.is_some() {
+                "as --config sets it"
+            } else {
+                "its default: no --config"
+            };
+            return Err(DriverError::Options(format!(
+                "--fps {fps}: {why} ({whose})"
+            )));
+        }
     }
     let piped = ["--pipe", "--pipe-cmd"].contains(&flag);
     let raw_layout = pipe_layout(args, piped)?;
@@ -735,14 +747,9 @@ fn pipe_layout(
 /// The frame rate asked of a V4L2 camera: `--fps`, else `camera.v4l2_fps` of
 /// --config; `None` (0 in either): the camera's own.
 fn camera_fps(args: &DriverArgs) -> Result<Option<f64>, DriverError> {
-    let cfg = config(args)?;
     match args.fps {
-        Some(fps) => match cfg.camera_rate_problem(fps) {
-            // (a rate in the file was checked as the file was read)
-            Some(why) => Err(DriverError::Options(format!("--fps {fps}: {why}"))),
-            None => Ok((fps != 0.0).then_some(fps)),
-        },
-        None => Ok(cfg.camera.v4l2_fps()),
+        Some(fps) => Ok((fps != 0.0).then_some(fps)),
+        None => Ok(config(args)?.camera.v4l2_fps()),
     }
 }
 
@@ -1082,6 +1089,14 @@ mod tests {
                 )
             );
         }
+        // a rate whose frames are further apart than the estimator interpolates
+        // across: refused at start, named with the rate it needs
+        let e = options_error(&["--v4l2", "/dev/video-vlsync-none", "--fps", "1"]);
+        assert!(
+            e.starts_with("--fps 1: camera samples 1 s apart, more than `estimator.max_gap_s` = 0.75")
+                && e.ends_with("ask for at least 1.34 frames a second or raise `estimator.max_gap_s` (its default: no --config)"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -1108,17 +1123,6 @@ mod tests {
             camera_fps(&args(&[&v4l2[..], &["--config", c, "--fps", "0"]].concat())).unwrap(),
             None
         );
-        // a rate whose frames are further apart than the estimator interpolates
-        // across: named, with the rate it needs
-        match camera_fps(&args(&[&v4l2[..], &["--fps", "1"]].concat())) {
-            Err(DriverError::Options(e)) => assert!(
-                e.starts_with(
-                    "--fps 1: camera samples 1 s apart, more than `estimator.max_gap_s` = 0.75"
-                ),
-                "{e}"
-            ),
-            other => panic!("{:?}", other.map_err(|e| e.to_string())),
-        }
         // a rate out of range in the file is an options error naming the key
         std::fs::write(&cfg, "[camera]\nv4l2_fps = 0.5\n").unwrap();
         match camera_fps(&args(&[&v4l2[..], &["--config", c]].concat())) {
