@@ -383,6 +383,22 @@ pub fn status_when(
     }
 }
 
+/// A harness process (`vlsync-demo`, `vlsync-soak`) stopped when dropped with the
+/// grace its own clean stop needs (it stops its daemon, drivers and recorder, one
+/// after the other, each with seconds of grace): a failing test that killed it
+/// sooner would orphan its daemon, whose iceoryx2 files then fail every later
+/// check that a run leaves none.
+pub struct Harness(pub Managed);
+
+/// The grace a harness gets to stop its children before it is killed.
+pub const HARNESS_GRACE: Duration = Duration::from_secs(20);
+
+impl Drop for Harness {
+    fn drop(&mut self) {
+        self.0.stop(HARNESS_GRACE);
+    }
+}
+
 /// Runs `cmd` to its end as `Command::output` does, but for at most `limit`: a run
 /// past it (a refusal that regressed into a recording, a hung harness) is killed
 /// and fails the test with what it printed, instead of hanging the suite until CI
@@ -425,8 +441,12 @@ pub fn output_within(cmd: &mut Command, limit: Duration) -> std::process::Output
             break st;
         }
         if t0.elapsed() > limit {
+            // Ctrl-C, and the grace a harness needs to stop its own children
             let _ = vlsyncd::runtime::procs::send_signal(child.id(), "INT");
-            std::thread::sleep(Duration::from_secs(2));
+            let t_int = Instant::now();
+            while t_int.elapsed() < HARNESS_GRACE && matches!(child.try_wait(), Ok(None)) {
+                std::thread::sleep(Duration::from_millis(50));
+            }
             let _ = child.kill();
             let _ = child.wait();
             let (out, err) = (
