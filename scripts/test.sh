@@ -19,8 +19,13 @@ install_deb() {
         echo "$1 is missing and cannot be installed (not root, no sudo): $2" >&2
         return 0
     fi
-    local apt=($sudo env DEBIAN_FRONTEND=noninteractive apt-get -o DPkg::Lock::Timeout=300)
-    "${apt[@]}" install -y "$1" || { "${apt[@]}" update && "${apt[@]}" install -y "$1"; } || {
+    # as root no questions (DEBIAN_FRONTEND); through sudo, apt-get itself (a sudoers rule
+    # may allow only that), its questions answered by their defaults off a terminal
+    local apt=(apt-get -o DPkg::Lock::Timeout=300)
+    if [ -z "$sudo" ]; then apt=(env DEBIAN_FRONTEND=noninteractive "${apt[@]}"); else apt=($sudo "${apt[@]}"); fi
+    local in=/dev/stdin
+    [ -t 0 ] || in=/dev/null
+    "${apt[@]}" install -y "$1" <"$in" || { "${apt[@]}" update <"$in" && "${apt[@]}" install -y "$1" <"$in"; } || {
         echo "$1 could not be installed (apt-get failed above): $2" >&2
         return 0
     }
@@ -127,7 +132,7 @@ awk -v total=$((SECONDS - started)) -v installs="$installs" -v status="$status" 
     /^test result:/ { passed += $4; failed += $6; ignored += $8; binaries++ }
     /`test` profile.* target\(s\) in / { line = $0; sub(/.* in /, "", line); compile = line }
     # one per failing target, a test binary that crashed (and so printed no result) too
-    /^error: test failed, to rerun pass `/ { t = $0; sub(/.*rerun pass /, "", t); targets = targets sep t; sep = ", "; bad++ }
+    /^error: (test|doctest) failed, to rerun pass `/ { t = $0; sub(/.*rerun pass /, "", t); targets = targets sep t; sep = ", "; bad++ }
     END {
         printf "scripts/test.sh: %d passed, %d failed, %d ignored in %d test targets (doc tests included)",
             passed, failed, ignored, binaries
