@@ -651,9 +651,11 @@ impl Session {
         ];
         // the daemon publishes a final status when it stops; also wait for a
         // periodic one so the counters of a still-running daemon are current
+        // (not from a daemon that has ended: a crash's report would wait 3 s for nothing)
         let last = self.statuses.last().map_or(0, |s| s.publish_ns);
         let t0 = Instant::now();
-        while t0.elapsed() < Duration::from_secs(3) {
+        self.drain_status()?;
+        while t0.elapsed() < Duration::from_secs(3) && self.procs[0].running() {
             self.drain_status()?;
             if self.statuses.last().is_some_and(|s| s.publish_ns > last) {
                 break;
