@@ -130,8 +130,9 @@ pub struct SignatureConfig {
     /// faster rate gives samples again from its sixth slow interval (three
     /// gaps in a row make the fourth the period, see [`FramePeriod::gap`], and
     /// the fifth confirms it). One that slows from 30 to 15 or 7.5 Hz keeps
-    /// 33 ms as its period (each interval agrees as 2 or 4 of them), and so
-    /// the 250 ms.
+    /// 33 ms as its period (each interval agrees as 2 or 4 of them), and the
+    /// periods are counted in the fewest the last 8 intervals spanned: after 8
+    /// intervals at 7.5 Hz the limit is 600 ms.
     pub max_gap_ns: Nanos,
     /// Scale values by a whole number of tracked frame periods instead of the raw
     /// stamp difference (default true; see the module docs).
@@ -246,9 +247,19 @@ pub struct SignatureProcessor {
     period: FramePeriod,
     /// Periods spanned by the previous sample's interval (for the flow prediction).
     prev_periods: f64,
+    /// Whole periods spanned by the last [`RECENT_SPANS`] intervals (a ring; 0:
+    /// not yet filled): a camera that slowed to a whole fraction of its rate (30
+    /// to 15 or 7.5 Hz) keeps its old period, each interval agreeing as 2 or 4 of
+    /// them, and the gap limit counts in the fewest of them.
+    recent_spans: [u8; RECENT_SPANS],
+    recent_pos: usize,
     /// Frame size the reducer's learnt grid pattern belongs to.
     pattern_size: Option<(usize, usize)>,
 }
+
+/// Intervals whose fewest periods spanned scale the gap limit
+/// ([`SignatureProcessor::gap_limit_ns`]).
+const RECENT_SPANS: usize = 8;
 
 /// Running estimate of a camera's frame period from its (jittered) stamps.
 ///
@@ -389,6 +400,8 @@ impl SignatureProcessor {
             prev_t: None,
             period: FramePeriod::default(),
             prev_periods: 0.0,
+            recent_spans: [0; RECENT_SPANS],
+            recent_pos: 0,
             pattern_size: None,
         })
     }
@@ -412,13 +425,19 @@ impl SignatureProcessor {
 
     /// The longest interval a sample may span, ns: [`SignatureConfig::max_gap_ns`]
     /// or [`SignatureConfig::GAP_PERIODS`] confirmed frame periods, whichever is
-    /// longer.
+    /// longer; the periods counted in the fewest whole periods the last 8
+    /// intervals spanned, so that a camera slowed from 30 to 7.5 Hz (its intervals
+    /// agreeing as 4 periods of 33 ms) gets the limit of 7.5 Hz.
     pub fn gap_limit_ns(&self) -> Nanos {
+        let fewest = if self.recent_spans.contains(&0) {
+            1
+        } else {
+            self.recent_spans.iter().copied().min().unwrap_or(1).max(1)
+        };
         // `as` saturates: the limit stays within Nanos
-        let periods = self
-            .period
-            .confirmed_period_ns()
-            .map_or(0, |p| (SignatureConfig::GAP_PERIODS * p) as Nanos);
+        let periods = self.period.confirmed_period_ns().map_or(0, |p| {
+            (SignatureConfig::GAP_PERIODS * f64::from(fewest) * p) as Nanos
+        });
         self.cfg.max_gap_ns.max(periods)
     }
 
@@ -468,6 +487,9 @@ impl SignatureProcessor {
         let mut scaled = None;
         if let (None, Some(p)) = (reason, self.prev_t) {
             let (scale_dt, periods) = self.period.interval(t - p);
+            // (a raw interval's share of a period rounds to a whole number too)
+            self.recent_spans[self.recent_pos] = periods.round().clamp(1.0, 255.0) as u8;
+            self.recent_pos = (self.recent_pos + 1) % RECENT_SPANS;
             if self.prev_periods > 0.0 {
                 self.lk
                     .set_prediction_scale((periods / self.prev_periods) as f32);
@@ -1033,6 +1055,39 @@ mod tests {
         let period = p.frame_period().period_ns();
         assert!((period - 333_333_333.0).abs() < 1.0, "{period}");
         assert_eq!(p.gap_limit_ns(), (4.5 * period) as Nanos);
+    }
+
+    #[test]
+    fn a_camera_slowed_to_a_whole_fraction_of_its_rate_gets_that_rates_gap_limit() {
+        // 30 Hz, then 7.5 Hz (each interval agrees as 4 periods of 33 ms, which
+        // stays the period), then a dropped frame (266 ms, over the 250 ms): after
+        // 8 slow intervals the limit is 4.5 x 4 periods, so no restart, and every
+        // value is the true 60 px/s
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let mut t = 0;
+        let mut steps = Vec::new();
+        for k in 0..60 {
+            t += match k {
+                0..30 => 33_333_333,
+                50 => 266_666_667,
+                _ => 133_333_333,
+            };
+            let dy = t as f32 * 60e-9;
+            steps.push((k, p.process(&shifted(dy), FrameTime::Instant(t)).unwrap()));
+        }
+        let period = p.frame_period().period_ns();
+        assert!((period - 33_333_333.0).abs() < 1e3, "{period}");
+        assert_eq!(p.gap_limit_ns(), (4.5 * 4.0 * period) as Nanos);
+        for (k, s) in &steps[1..] {
+            let v = sample(*s).sample.value;
+            assert!((v / 60.0 - 1.0).abs() < 0.02, "frame {k}: {v}");
+        }
+        // back at 30 Hz, the limit is 250 ms again once 8 intervals span one period
+        for _ in 0..8 {
+            t += 33_333_333;
+            let _ = p.process(&shifted(t as f32 * 60e-9), FrameTime::Instant(t));
+        }
+        assert_eq!(p.gap_limit_ns(), 250_000_000);
     }
 
     #[test]

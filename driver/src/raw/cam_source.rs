@@ -622,7 +622,8 @@ pub struct CamCounts {
     /// 18 Hz; `SignatureProcessor::gap_limit_ns`). A camera slower than 4 Hz also
     /// counts its first two intervals here, and one that slows down to that its first
     /// slow intervals, until its new period is confirmed (a slow-down to a whole
-    /// fraction of the rate, 30 to 15 or 7.5 Hz, keeps the old period and 250 ms).
+    /// fraction of the rate, 30 to 15 or 7.5 Hz, keeps the old period, and its
+    /// limit follows once 8 intervals have spanned several periods each).
     pub gaps: u64,
     /// Frames whose time was not after the previous one (sequence restarted).
     pub not_increasing: u64,
