@@ -435,31 +435,23 @@ pub fn output_within(cmd: &mut Command, limit: Duration) -> std::process::Output
             .take()
             .map(|p| Box::new(p) as Box<dyn Read + Send>),
     );
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(st) = child.try_wait().expect("wait for a child") {
-            break st;
-        }
-        if t0.elapsed() > limit {
-            // Ctrl-C, and the grace a harness needs to stop its own children
-            let _ = vlsyncd::runtime::procs::send_signal(child.id(), "INT");
-            let t_int = Instant::now();
-            while t_int.elapsed() < HARNESS_GRACE && matches!(child.try_wait(), Ok(None)) {
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            let _ = child.kill();
-            let _ = child.wait();
-            let (out, err) = (
-                out.join().unwrap_or_default(),
-                err.join().unwrap_or_default(),
-            );
-            panic!(
-                "{what} still running after {limit:?}: stopped\n{}\n{}",
-                String::from_utf8_lossy(&out),
-                String::from_utf8_lossy(&err)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
+    // stopped as a harness is (Ctrl-C, SIGTERM, SIGKILL, with its grace) when it
+    // runs past the limit
+    let mut m = Managed {
+        name: what.clone(),
+        child,
+    };
+    let Some(status) = m.wait_up_to(limit) else {
+        m.stop(HARNESS_GRACE);
+        let (out, err) = (
+            out.join().unwrap_or_default(),
+            err.join().unwrap_or_default(),
+        );
+        panic!(
+            "{what} still running after {limit:?}: stopped\n{}\n{}",
+            String::from_utf8_lossy(&out),
+            String::from_utf8_lossy(&err)
+        );
     };
     std::process::Output {
         status,
@@ -479,4 +471,31 @@ pub fn locked_errors(est: &[Estimate], sim: &vlsync_sim::SimRun) -> Vec<f64> {
         })
         .map(|e| (e.offset_s - sim.truth.offset_at(e.t_ref_ns)).abs())
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_within_gives_what_a_run_printed_and_its_exit() {
+        let out = output_within(
+            Command::new("sh").args(["-c", "echo out; echo err >&2; exit 3"]),
+            Duration::from_secs(20),
+        );
+        assert_eq!(out.status.code(), Some(3));
+        assert_eq!(
+            (&out.stdout[..], &out.stderr[..]),
+            (&b"out\n"[..], &b"err\n"[..])
+        );
+    }
+
+    #[test]
+    #[should_panic(expected = "still running after 200ms: stopped\nbefore")]
+    fn output_within_stops_a_run_past_its_limit_and_fails() {
+        output_within(
+            Command::new("sh").args(["-c", "echo before; exec sleep 30"]),
+            Duration::from_millis(200),
+        );
+    }
 }

@@ -124,18 +124,12 @@ fn close_the_reader() {
         );
     }
     drop(lines);
-    let t0 = Instant::now();
-    let status = loop {
-        if let Ok(Some(s)) = demo.0.child.try_wait() {
-            break s;
-        }
-        // dropping `demo` interrupts it (Ctrl-C first, so that its children stop too)
-        assert!(
-            t0.elapsed() < Duration::from_secs(15),
-            "demo still running 15 s after its reader went away"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    // (a failure drops `demo`, which interrupts it: Ctrl-C first, so that its
+    // children stop too)
+    let status = demo
+        .0
+        .wait_up_to(Duration::from_secs(15))
+        .expect("demo still running 15 s after its reader went away");
     let stderr = std::fs::read_to_string(&err).unwrap_or_default();
     assert!(status.success(), "demo exit {status}:\n{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
