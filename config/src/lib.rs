@@ -824,17 +824,14 @@ impl Config {
         let c = Checker {
             source: source_name,
         };
-        c.rule(
-            self.camera_rate_problem(self.camera.v4l2_fps).is_none(),
-            || {
-                format!(
-                    "`camera.v4l2_fps` = {}: {}",
-                    num(self.camera.v4l2_fps),
-                    self.camera_rate_problem(self.camera.v4l2_fps)
-                        .unwrap_or_default()
-                )
-            },
-        )
+        let problem = self.camera_rate_problem(self.camera.v4l2_fps);
+        c.rule(problem.is_none(), || {
+            format!(
+                "`camera.v4l2_fps` = {}: {}",
+                num(self.camera.v4l2_fps),
+                problem.unwrap_or_default()
+            )
+        })
     }
 
     /// Why a camera asked for `fps` frames a second (0: its own rate, not known
