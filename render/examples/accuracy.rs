@@ -8,7 +8,20 @@
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-6
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 100-109 --threads 2
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 100-103 --width 640 --height 480
+//! # a slower camera or another LiDAR rate (the renderer's checks apply)
+//! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10
+//! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --lidar-hz 5.5
+//! # each front-end against the true speed (delay, gain by speed), noise-free sensors
+//! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10 --audit --ideal-sensors
 //! ```
+//!
+//! `--audit` adds a table of each front-end's timing against the true speed of
+//! the drive (turns excluded): its delay, fitted as in `tests/end_to_end.rs`
+//! (positive: the samples describe motion earlier than their stamps), and its
+//! gain by speed band relative to its median gain (a front-end losing points at
+//! speed reads low there). `--ideal-sensors` takes out the stamp jitter, the
+//! LiDAR's range noise and the dropped frames, leaving the front-ends' own
+//! timing.
 //!
 //! A 60 s seed at 320x240 takes ~20-30 s of CPU (4x that at 640x480).
 
@@ -25,6 +38,10 @@ struct Args {
     threads: usize,
     size: Option<(usize, usize)>,
     steps: Vec<(f64, f64)>,
+    fps: Option<f64>,
+    lidar_hz: Option<f64>,
+    audit: bool,
+    ideal: bool,
 }
 
 fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
@@ -69,7 +86,7 @@ fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
         .collect()
 }
 
-const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--opposite-window] [--steps T_S:DELTA_MS,...]";
+const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--fps F] [--lidar-hz H] [--opposite-window] [--audit] [--ideal-sensors] [--steps T_S:DELTA_MS,...]";
 
 fn parse() -> Result<Args, String> {
     let mut a = Args {
@@ -78,6 +95,10 @@ fn parse() -> Result<Args, String> {
         threads: 2,
         size: None,
         steps: Vec::new(),
+        fps: None,
+        lidar_hz: None,
+        audit: false,
+        ideal: false,
     };
     let mut it = std::env::args().skip(1);
     let mut width = None;
@@ -93,6 +114,12 @@ fn parse() -> Result<Args, String> {
             "--width" => width = Some(value()?.parse().map_err(|e| format!("--width: {e}"))?),
             "--height" => height = Some(value()?.parse().map_err(|e| format!("--height: {e}"))?),
             "--steps" => a.steps = parse_steps(&value()?)?,
+            "--fps" => a.fps = Some(value()?.parse().map_err(|e| format!("--fps: {e}"))?),
+            "--lidar-hz" => {
+                a.lidar_hz = Some(value()?.parse().map_err(|e| format!("--lidar-hz: {e}"))?)
+            }
+            "--audit" => a.audit = true,
+            "--ideal-sensors" => a.ideal = true,
             "--opposite-window" => {
                 pipeline::OPPOSITE_WINDOW.store(true, std::sync::atomic::Ordering::Relaxed)
             }
@@ -126,13 +153,25 @@ fn main() -> ExitCode {
             c.camera.width = w;
             c.camera.height = h;
         }
+        if let Some(fps) = a.fps {
+            c.camera.fps = fps;
+        }
+        if let Some(hz) = a.lidar_hz {
+            c.lidar.rate_hz = hz;
+        }
+        if a.ideal {
+            c.clock.cam_jitter_s = 0.0;
+            c.clock.lidar_jitter_s = 0.0;
+            c.lidar.range_noise_m = 0.0;
+            c.frame_drop_probability = 0.0;
+        }
         c
     };
     if let Err(e) = vlsync_render::Renderer::new(make(a.seeds[0])) {
         eprintln!("accuracy: {e}");
         return ExitCode::from(2);
     }
-    let results = run_seeds(&a.seeds, a.threads, make);
+    let results = run_seeds(&a.seeds, a.threads, a.audit, make);
     println!("{TABLE_HEADER}");
     for r in &results {
         println!("{}", table_row(r));
@@ -151,6 +190,9 @@ fn main() -> ExitCode {
             println!("  seed {}: {}", r.seed, cells.join(", "));
         }
     }
+    if a.audit {
+        print_audit(&results);
+    }
     let n = results.len() as f64;
     let mean = |f: &dyn Fn(&pipeline::RunResult) -> f64| results.iter().map(f).sum::<f64>() / n;
     let met = results
@@ -165,4 +207,59 @@ fn main() -> ExitCode {
         mean(&|r| r.scores[1].mae_s) * 1e3,
     );
     ExitCode::SUCCESS
+}
+
+/// Each front-end against the true speed (turns excluded), midpoint stamping: its
+/// delay (positive: the sample describes motion earlier than its stamp says) and
+/// its gain (value per m/s) by speed, which shows a front-end that saturates or
+/// loses its track at speed.
+fn print_audit(results: &[pipeline::RunResult]) {
+    const BINS: [(f64, f64); 4] = [(0.05, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, f64::INFINITY)];
+    let gains = |rows: &[(f64, f64, f64)]| -> Vec<String> {
+        let all: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.1.abs() >= BINS[0].0)
+            .map(|r| r.0 / r.1)
+            .collect();
+        let reference = median(all).unwrap_or(f64::NAN);
+        BINS.iter()
+            .map(|&(lo, hi)| {
+                let g: Vec<f64> = rows
+                    .iter()
+                    .filter(|r| r.1.abs() >= lo && r.1.abs() < hi)
+                    .map(|r| r.0 / r.1)
+                    .collect();
+                let n = g.len();
+                match median(g) {
+                    Some(m) => format!("{:.2} ({n})", m / reference),
+                    None => "-".into(),
+                }
+            })
+            .collect()
+    };
+    println!(
+        "\ntiming audit (midpoint; gain: median value / speed in each speed band, over all bands'):"
+    );
+    println!("| seed | camera delay ms | LiDAR delay ms | camera gain 0.05-0.2 / 0.2-0.4 / 0.4-0.6 / 0.6+ m/s (samples) | LiDAR gain, same bands |");
+    println!("|---:|---:|---:|---|---|");
+    for r in results {
+        let Some(rows) = &r.audit else { continue };
+        println!(
+            "| {} | {:+.2} | {:+.2} | {} | {} |",
+            r.seed,
+            pipeline::delay(&rows.cam[0]) * 1e3,
+            pipeline::delay(&rows.lidar[0]) * 1e3,
+            gains(&rows.cam[0]).join(" / "),
+            gains(&rows.lidar[0]).join(" / "),
+        );
+    }
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.retain(|x| x.is_finite());
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
 }

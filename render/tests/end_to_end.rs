@@ -30,8 +30,8 @@ fn report(results: &[RunResult]) {
 /// Issue 4's target on the first four seeds (those the front-end defaults were
 /// tuned on, with 5 and 6): the mean error of the tracking estimates against the
 /// truth is at most 3 ms on every run. Measured with the segment estimator:
-/// 2.35, 1.23, 2.23, 0.70 ms (mean 1.63). Held-out seeds 100-109: 0.70-2.69 ms,
-/// mean 1.37 (README, `--example accuracy`).
+/// 2.34, 1.24, 2.22, 0.76 ms (mean 1.64). Held-out seeds 100-109: 0.64-3.07 ms,
+/// mean 1.42 (README, `--example accuracy`).
 ///
 /// And the stamping matters: end-of-interval stamping (the camera sample at its
 /// later frame, the LiDAR sample at its later measurement) delays the camera by
@@ -40,7 +40,7 @@ fn report(results: &[RunResult]) {
 /// every run.
 #[test]
 fn midpoint_stamping_meets_the_target_and_end_stamping_does_not() {
-    let results = run_seeds(&[1, 2, 3, 4], 2, cfg);
+    let results = run_seeds(&[1, 2, 3, 4], 2, false, cfg);
     report(&results);
     let mut sum = 0.0;
     for r in &results {
@@ -81,6 +81,40 @@ fn midpoint_stamping_meets_the_target_and_end_stamping_does_not() {
             r.seed,
             shift * 1e3
         );
+    }
+    let mean = sum / results.len() as f64;
+    assert!(mean <= 0.0025, "mean MAE {:.2} ms", mean * 1e3);
+}
+
+/// A slow camera: 10 Hz instead of 30, the same drives (seeds 1-4). At 0.6 m/s
+/// the floor near the bottom of the ROI moves 30-45 px between frames there, and
+/// those points are lost while the robot is fast. They used to stay lost (each
+/// searched from zero, beyond the pyramid's reach) and the grid's flow pattern,
+/// learning 2 % per frame, had not yet learnt that they are the fast ones, so
+/// the signature read the first drives 13-17 % low: MAE 3.18, 5.64, 10.07,
+/// 15.15 ms. A lost point now starts from its neighbours' flow and the pattern
+/// learns each point's share as a running mean first: 2.13, 0.71, 2.06, 1.36 ms
+/// (seeds 1-8: mean 1.62 ms, against 1.60 at 30 Hz).
+#[test]
+fn a_10_hz_camera_meets_the_target_too() {
+    let slow = |seed| {
+        let mut c = cfg(seed);
+        c.camera.fps = 10.0;
+        c
+    };
+    let results = run_seeds(&[1, 2, 3, 4], 2, false, slow);
+    report(&results);
+    let mut sum = 0.0;
+    for r in &results {
+        let mid = &r.scores[0];
+        assert!(mid.n >= 60, "seed {}: {} tracking estimates", r.seed, mid.n);
+        assert!(
+            mid.mae_s <= 0.003,
+            "seed {}: midpoint MAE {:.2} ms",
+            r.seed,
+            mid.mae_s * 1e3
+        );
+        sum += mid.mae_s;
     }
     let mean = sum / results.len() as f64;
     assert!(mean <= 0.0025, "mean MAE {:.2} ms", mean * 1e3);

@@ -243,9 +243,11 @@ pub fn follow_times(
 }
 
 /// Runs `seeds` (each with `make(seed)`) on `threads` threads; results in seed order.
+/// With `audit`, each result holds its timing audit's rows ([`run`]).
 pub fn run_seeds(
     seeds: &[u64],
     threads: usize,
+    audit: bool,
     make: impl Fn(u64) -> RenderConfig + Sync,
 ) -> Vec<RunResult> {
     let queue = std::sync::Mutex::new(seeds.iter().rev().copied().collect::<Vec<_>>());
@@ -255,7 +257,7 @@ pub fn run_seeds(
             s.spawn(|| loop {
                 let next = queue.lock().unwrap().pop();
                 let Some(seed) = next else { break };
-                let r = run(make(seed), false);
+                let r = run(make(seed), audit);
                 results.lock().unwrap().push(r);
             });
         }
