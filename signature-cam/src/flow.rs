@@ -775,7 +775,8 @@ fn predicted_flow(prior: &[[f32; 2]], cols: usize, i: usize) -> Option<[f32; 2]>
     if own[0].is_finite() && own[1].is_finite() {
         return Some(*own);
     }
-    if cols == 0 {
+    // no grid, or a point past its last whole row: no neighbours to ask
+    if cols == 0 || i / cols >= prior.len() / cols {
         return None;
     }
     let rows = prior.len() / cols;
@@ -1586,6 +1587,48 @@ pub(crate) mod tests {
         let mut tmp = vec![0.0; 4 * 5];
         pyr_down(&src, &mut dst, &mut tmp);
         assert!(dst.data.iter().all(|&v| (v - 3.0).abs() < 1e-6));
+    }
+
+    proptest! {
+        /// Any field of last flows (NaN where untracked), any grid width and index:
+        /// no panic; a prediction exactly when the point, a neighbour or a point of
+        /// its row was tracked; within the range of the tracked vectors.
+        #[test]
+        fn predictions_come_from_tracked_vectors(
+            field in proptest::collection::vec(
+                proptest::option::weighted(0.4, (-50.0f32..50.0, -50.0f32..50.0)), 0..40),
+            cols in 0usize..9, i in 0usize..45,
+        ) {
+            let prior: Vec<[f32; 2]> = field
+                .iter()
+                .map(|v| v.map_or(NO_FLOW, |(x, y)| [x, y]))
+                .collect();
+            let got = predicted_flow(&prior, cols, i);
+            let tracked = |k: usize| prior.get(k).is_some_and(|v| v[0].is_finite());
+            let expected = if i >= prior.len() {
+                false
+            } else if tracked(i) {
+                true
+            } else if cols == 0 || i / cols >= prior.len() / cols {
+                // no grid, or past its last whole row
+                false
+            } else {
+                let rows = prior.len() / cols;
+                let (j, c) = (i / cols, i % cols);
+                let rows_around = j.saturating_sub(1)..(j + 2).min(rows);
+                rows_around
+                    .flat_map(|jj| (c.saturating_sub(1)..(c + 2).min(cols)).map(move |ii| jj * cols + ii))
+                    .any(|k| k != i && tracked(k))
+                    || (0..cols).any(|ii| tracked(j * cols + ii))
+            };
+            prop_assert_eq!(got.is_some(), expected, "{:?} cols {} i {}", got, cols, i);
+            if let Some([x, y]) = got {
+                let fin: Vec<[f32; 2]> = prior.iter().copied().filter(|v| v[0].is_finite()).collect();
+                let (lo_x, hi_x) = fin.iter().fold((f32::MAX, f32::MIN), |a, v| (a.0.min(v[0]), a.1.max(v[0])));
+                let (lo_y, hi_y) = fin.iter().fold((f32::MAX, f32::MIN), |a, v| (a.0.min(v[1]), a.1.max(v[1])));
+                prop_assert!(x >= lo_x && x <= hi_x && y >= lo_y && y <= hi_y);
+            }
+        }
     }
 
     proptest! {
