@@ -11,7 +11,8 @@
 //! # a slower camera or another LiDAR rate (the renderer's checks apply)
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --lidar-hz 5.5
-//! # each front-end against the true speed (delay, gain by speed), noise-free sensors
+//! # each front-end against the true speed (delay, gain by speed), without stamp jitter,
+//! # range noise or dropped frames
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10 --audit --ideal-sensors
 //! ```
 //!
@@ -21,7 +22,8 @@
 //! gain by speed band relative to its median gain (a front-end losing points at
 //! speed reads low there). `--ideal-sensors` takes out the stamp jitter, the
 //! LiDAR's range noise and the dropped frames, leaving the front-ends' own
-//! timing.
+//! timing (the camera's pixel noise, 2 gray levels, stays). `--fps` must stay
+//! below 125: the renderer's 8 ms exposure must fit in a frame period.
 //!
 //! A 60 s seed at 320x240 takes ~20-30 s of CPU (4x that at 640x480).
 

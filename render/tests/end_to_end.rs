@@ -134,7 +134,7 @@ fn a_10_hz_camera_meets_the_target_too() {
 /// not 16.7.) With the default 1 ms
 /// camera jitter the camera fit scatters by ±0.7 ms from seed to seed (seed 1:
 /// +0.66 ms, seed 2: -0.03, seed 3: -0.30), which would hide a real
-/// half-millisecond error. Measured: camera +0.13 / +16.79 ms, LiDAR -0.06 /
+/// half-millisecond error. Measured: camera +0.12 / +16.79 ms, LiDAR -0.06 /
 /// +49.75 ms.
 #[test]
 fn each_front_end_is_stamped_where_its_sample_belongs() {

@@ -16,7 +16,8 @@
 //! crop are dropped, so the margin must exceed the largest flow expected
 //! (default 64 px: a 640x480 camera at 30 Hz sees the floor at the bottom of the
 //! default ROI move 30 px per frame at 0.6 m/s; each point starts from its last
-//! flow, so the pyramid only has to find the change).
+//! flow, or, lost in the last pair, from its tracked grid neighbours', so the
+//! pyramid only has to find the change).
 //!
 //! All buffers are allocated for the first frame of a given size and reused
 //! (the previous and current pyramids are swapped), so steady-state processing
@@ -114,9 +115,12 @@ pub struct FlowConfig {
     pub max_residual: f32,
     /// Start each point's search at its flow of the previous frame pair (scaled by
     /// the ratio of the frame intervals, see [`PyrLk::set_prediction_scale`]) instead
-    /// of zero (default true). The pyramid then only has to find the change of the
+    /// of zero (default true); a point not tracked in that pair starts from the
+    /// median of its tracked grid neighbours' flows, or else from the nearest
+    /// tracked point of its row. The pyramid then only has to find the change of the
     /// flow, so fast motion (15+ px per frame) is tracked as reliably as slow motion;
-    /// a point that fails from its prediction is retried from zero.
+    /// a point that fails from its prediction is retried from zero (a second
+    /// forward solve).
     pub predict: bool,
     /// Track each grid point both ways, previous → current frame and current →
     /// previous, and average the two displacements (default true). Moving
@@ -769,7 +773,15 @@ impl PyrLk {
 /// signature read low exactly while the robot was fast. The floor's flow is
 /// smooth across the grid, so a neighbour's vector is a start within the
 /// pyramid's reach; the forward/backward and neighbourhood checks still judge
-/// the result.
+/// the result. The row's fallback may reach far: the sideways flow of driving
+/// forward changes across a row, but any tracked point of the row is a closer
+/// start than zero, and zero is what a point without a start searches from. In
+/// `a_point_lost_at_speed_is_found_again_from_its_neighbours` (half the grid lost
+/// at 32 px a frame) with the row's reach capped at two columns, the points
+/// beyond it searched from zero and a third of them converged on wrong matches
+/// that passed every check (their neighbours lost too), then predicted the next
+/// pair from those: 101 of 128 points right four frames later. With the whole
+/// row every point was found again at once.
 fn predicted_flow(prior: &[[f32; 2]], cols: usize, i: usize) -> Option<[f32; 2]> {
     let own = prior.get(i)?;
     if own[0].is_finite() && own[1].is_finite() {
@@ -1178,10 +1190,11 @@ pub(crate) mod tests {
     #[test]
     fn a_point_lost_at_speed_is_found_again_from_its_neighbours() {
         // as above, but the frame at 24 px has no texture on its left half, so
-        // the points there are lost for a pair (no template). At 28 and 32 px
-        // per frame they are beyond the pyramid's reach from zero: without a
-        // vector of their own they must start from their neighbours' flow, or
-        // they stay lost for as long as the robot is fast
+        // the points there are lost for two pairs (tracked into a flat frame,
+        // then without a template). At 28 and 32 px per frame they are beyond
+        // the pyramid's reach from zero: without a vector of their own they must
+        // start from their neighbours' (or their row's) flow, or they stay lost,
+        // or worse, for as long as the robot is fast
         let (w, h) = (320, 240);
         let steps = [4.0f32, 8.0, 12.0, 16.0, 20.0, 24.0, 28.0, 32.0];
         let cfg = FlowConfig {

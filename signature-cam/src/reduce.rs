@@ -90,6 +90,8 @@ pub struct Reducer {
 const PATTERN_RATE: f32 = 0.02;
 /// Frames after which a point's share learns at [`PATTERN_RATE`] (`1 / (1 + 49)`).
 const PATTERN_WARMUP: u32 = 49;
+// the warm-up's last rate, 1/49, hands over to the steady 1/50 without a jump
+const _: () = assert!(1.0 / (1 + PATTERN_WARMUP) as f32 == PATTERN_RATE);
 /// Frames whose reduced flow is below this (pixels) do not teach the pattern.
 const PATTERN_MIN_PX: f64 = 1.0;
 
@@ -200,9 +202,11 @@ impl Reducer {
     /// of them would then cut mostly one side (on rendered runs a fixed 10 % trim
     /// read like a 0.5 ms delay; `trim` applies to [`Reducer::reduce`] only).
     /// The pattern starts flat; every contributing point teaches it in frames
-    /// that move at least 1 px, each step bounded (so a mis-track barely moves
-    /// it, by 0.5 at most): a point's share is the running mean of its first 49
-    /// frames, then learns 2 % per frame. A fixed 2 % from the
+    /// that move at least 1 px: in the point's k-th such frame its share moves
+    /// 1/k of the way to what the frame says (about a running mean: each step is
+    /// clamped to ±0.5, and the pattern is scaled back to mean 1 every frame),
+    /// from its 50th frame 2 % of the way, so a mis-track moves it by at most
+    /// 0.5/k, and by 1 % of the mean once learnt. A fixed 2 % from the
     /// start needed about 100 frames of motion: a few seconds at 30 Hz, but 10 s
     /// of a 10 Hz camera, whose bottom rows (30-45 px per frame at 0.6 m/s on
     /// 320x240) are the ones lost while the robot is fast, so the unlearnt flat
@@ -257,7 +261,8 @@ impl Reducer {
             if v.abs() >= PATTERN_MIN_PX && v.is_finite() {
                 // every contributing point learns (a point that is always trimmed
                 // would otherwise never leave the flat start); a wild vector moves
-                // its point's share by at most 1 % of the mean
+                // its point's share by at most 0.5 / k in its k-th frame, 1 % of the
+                // mean after the warm-up
                 for &(_, s, _, i) in pairs.iter() {
                     let g = &mut self.pattern[i];
                     let k = &mut self.taught[i];
@@ -417,7 +422,7 @@ mod tests {
     fn the_pattern_is_learnt_within_a_few_frames_of_motion() {
         // a slow camera's first seconds of driving: the fastest row goes missing
         // after five frames of motion (with a fixed 2 % per frame from the flat
-        // start the grid then read 2.68 px for 3, the tracked points' mean)
+        // start the grid then read 2.54 px for 3; the tracked points' mean is 2.50)
         let mut r = Reducer::new(Reduction::default(), 0.1).unwrap();
         r.reserve(32);
         for k in 0..5 {
@@ -433,7 +438,7 @@ mod tests {
         // bounded step (0.5) and is averaged away as a running mean: five
         // frames later its share is on its way back and the grid, its fastest
         // row missing, reads the motion to about 1 % (3.03 px; the flat
-        // pattern of a fixed 2 % rate read 2.7)
+        // pattern of a fixed 2 % rate read 2.55)
         let mut r = Reducer::new(Reduction::default(), 0.1).unwrap();
         r.reserve(32);
         let mut wild = floor_grid(3.0, |_| false);
