@@ -1159,10 +1159,14 @@ mod tests {
                         let n = sums.n;
                         let vx = n * sums.sxx - sums.sx * sums.sx;
                         let d = vx * (n * sums.yy[s] - sums.y[s] * sums.y[s]);
-                        if d <= 0.0 || !d.is_finite() {
+                        // a ratio that overflows (or is NaN) says nothing either:
+                        // 0, not a clamped ±1 (a numerator past f64::MAX over a
+                        // finite root, found by this test with n ~ 3e307)
+                        let r = (n * sums.xy[s] - sums.sx * sums.y[s]) / d.sqrt();
+                        if d <= 0.0 || !d.is_finite() || !r.is_finite() {
                             0.0
                         } else {
-                            ((n * sums.xy[s] - sums.sx * sums.y[s]) / d.sqrt()).clamp(-1.0, 1.0)
+                            r.clamp(-1.0, 1.0)
                         }
                     };
                     for got in [v, sums.ncc(s)] {
