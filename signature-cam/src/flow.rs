@@ -726,23 +726,10 @@ impl PyrLk {
                 if !vx.is_finite() {
                     continue;
                 }
-                let mut nx = [0.0f32; 8];
-                let mut ny = [0.0f32; 8];
-                let mut k = 0;
-                for jj in j.saturating_sub(1)..(j + 2).min(rows) {
-                    for ii in i.saturating_sub(1)..(i + 2).min(cols) {
-                        let [ax, ay] = field[jj * cols + ii];
-                        if (ii, jj) != (i, j) && ax.is_finite() {
-                            nx[k] = ax;
-                            ny[k] = ay;
-                            k += 1;
-                        }
-                    }
-                }
+                let ([mx, my], k) = neighbour_median(field, cols, rows, j, i);
                 if k < 3 {
                     continue;
                 }
-                let (mx, my) = (median_small(&mut nx[..k]), median_small(&mut ny[..k]));
                 let tol = c.outlier_px + c.outlier_rel * mx.hypot(my);
                 if (vx - mx).hypot(vy - my) > tol {
                     self.outlier[j * cols + i] = true;
@@ -793,21 +780,9 @@ fn predicted_flow(prior: &[[f32; 2]], cols: usize, i: usize) -> Option<[f32; 2]>
     }
     let rows = prior.len() / cols;
     let (j, c) = (i / cols, i % cols);
-    let mut nx = [0.0f32; 8];
-    let mut ny = [0.0f32; 8];
-    let mut k = 0;
-    for jj in j.saturating_sub(1)..(j + 2).min(rows) {
-        for ii in c.saturating_sub(1)..(c + 2).min(cols) {
-            let [ax, ay] = prior[jj * cols + ii];
-            if (ii, jj) != (c, j) && ax.is_finite() && ay.is_finite() {
-                nx[k] = ax;
-                ny[k] = ay;
-                k += 1;
-            }
-        }
-    }
+    let (median, k) = neighbour_median(prior, cols, rows, j, c);
     if k > 0 {
-        return Some([median_small(&mut nx[..k]), median_small(&mut ny[..k])]);
+        return Some(median);
     }
     let row = &prior[j * cols..(j + 1) * cols];
     (1..cols).find_map(|step| {
@@ -818,6 +793,35 @@ fn predicted_flow(prior: &[[f32; 2]], cols: usize, i: usize) -> Option<[f32; 2]>
             .find(|v| v[0].is_finite() && v[1].is_finite())
             .copied()
     })
+}
+
+/// The componentwise median of the tracked 8-neighbours of grid point `(row j,
+/// column i)` in a row-major `field` of `rows` whole rows of `cols` (NaN:
+/// untracked), and how many there are (NaN medians when none).
+fn neighbour_median(
+    field: &[[f32; 2]],
+    cols: usize,
+    rows: usize,
+    j: usize,
+    i: usize,
+) -> ([f32; 2], usize) {
+    let mut nx = [0.0f32; 8];
+    let mut ny = [0.0f32; 8];
+    let mut k = 0;
+    for jj in j.saturating_sub(1)..(j + 2).min(rows) {
+        for ii in i.saturating_sub(1)..(i + 2).min(cols) {
+            let [ax, ay] = field[jj * cols + ii];
+            if (ii, jj) != (i, j) && ax.is_finite() && ay.is_finite() {
+                nx[k] = ax;
+                ny[k] = ay;
+                k += 1;
+            }
+        }
+    }
+    if k == 0 {
+        return (NO_FLOW, 0);
+    }
+    ([median_small(&mut nx[..k]), median_small(&mut ny[..k])], k)
 }
 
 /// Median of a small non-empty slice (sorts it).
@@ -1141,6 +1145,30 @@ pub(crate) mod tests {
         }
     }
 
+    /// A ROI high in a 320x240 frame, so that 32 px of downward motion stay in
+    /// the crop.
+    fn room_below(predict: bool) -> FlowConfig {
+        FlowConfig {
+            predict,
+            margin_px: 48,
+            roi: Roi {
+                x0: 0.25,
+                x1: 0.75,
+                y0: 0.3,
+                y1: 0.6,
+            },
+            ..FlowConfig::default()
+        }
+    }
+
+    /// Vectors of the last pair within 0.1 px of `d` px straight down.
+    fn good_downward(lk: &PyrLk, d: f32) -> usize {
+        lk.vectors()
+            .iter()
+            .filter(|v| v.dx.abs() < 0.1 && (v.dy - d).abs() < 0.1)
+            .count()
+    }
+
     #[test]
     fn fast_motion_is_tracked_from_the_prediction() {
         // a robot speeding up: 4, 8, ..., 32 px per frame downward. From the
@@ -1149,28 +1177,13 @@ pub(crate) mod tests {
         let (w, h) = (320, 240);
         let steps = [4.0f32, 8.0, 12.0, 16.0, 20.0, 24.0, 28.0, 32.0];
         for predict in [true, false] {
-            let cfg = FlowConfig {
-                predict,
-                margin_px: 48,
-                roi: Roi {
-                    x0: 0.25,
-                    x1: 0.75,
-                    y0: 0.3,
-                    y1: 0.6,
-                },
-                ..FlowConfig::default()
-            };
-            let mut lk = PyrLk::new(cfg).unwrap();
+            let mut lk = PyrLk::new(room_below(predict)).unwrap();
             let mut pos = 0.0f32;
             lk.push(&frame(w, h, |x, y| (x, y))).unwrap();
             for (i, &d) in steps.iter().enumerate() {
                 pos += d;
                 let st = lk.push(&frame(w, h, |x, y| (x, y - pos))).unwrap().unwrap();
-                let good = lk
-                    .vectors()
-                    .iter()
-                    .filter(|v| v.dx.abs() < 0.1 && (v.dy - d).abs() < 0.1)
-                    .count();
+                let good = good_downward(&lk, d);
                 if predict {
                     assert!(good >= st.points * 9 / 10, "{d} px: {good} good, {st:?}");
                 } else if d >= 28.0 {
@@ -1197,17 +1210,7 @@ pub(crate) mod tests {
         // or worse, for as long as the robot is fast
         let (w, h) = (320, 240);
         let steps = [4.0f32, 8.0, 12.0, 16.0, 20.0, 24.0, 28.0, 32.0];
-        let cfg = FlowConfig {
-            margin_px: 48,
-            roi: Roi {
-                x0: 0.25,
-                x1: 0.75,
-                y0: 0.3,
-                y1: 0.6,
-            },
-            ..FlowConfig::default()
-        };
-        let mut lk = PyrLk::new(cfg).unwrap();
+        let mut lk = PyrLk::new(room_below(true)).unwrap();
         let mut pos = 0.0f32;
         lk.push(&frame(w, h, |x, y| (x, y))).unwrap();
         for (i, &d) in steps.iter().enumerate() {
@@ -1228,11 +1231,7 @@ pub(crate) mod tests {
                 frame(w, h, |x, y| (x, y - pos))
             };
             let st = lk.push(&f).unwrap().unwrap();
-            let good = lk
-                .vectors()
-                .iter()
-                .filter(|v| v.dx.abs() < 0.1 && (v.dy - d).abs() < 0.1)
-                .count();
+            let good = good_downward(&lk, d);
             eprintln!("pair {i}, {d} px: {good} good of {}", st.points);
             if i == 6 {
                 // the left half had no template in the last pair
