@@ -162,10 +162,7 @@ fn main() -> ExitCode {
             c.lidar.rate_hz = hz;
         }
         if a.ideal {
-            c.clock.cam_jitter_s = 0.0;
-            c.clock.lidar_jitter_s = 0.0;
-            c.lidar.range_noise_m = 0.0;
-            c.frame_drop_probability = 0.0;
+            pipeline::ideal_sensors(&mut c);
         }
         c
     };
@@ -244,19 +241,28 @@ fn print_audit(results: &[pipeline::RunResult]) {
     );
     println!("| seed | camera delay ms | LiDAR delay ms | camera gain 0.05-0.2 / 0.2-0.4 / 0.4-0.6 / 0.6+ m/s (samples) | LiDAR gain, same bands |");
     println!("|---:|---:|---:|---|---|");
+    // a run without rows to fit (all of it turning, or too short) has no delay
+    let ms = |d: f64| {
+        if d.is_finite() {
+            format!("{:+.2}", d * 1e3)
+        } else {
+            "-".into()
+        }
+    };
     for r in results {
         let Some(rows) = &r.audit else { continue };
         println!(
-            "| {} | {:+.2} | {:+.2} | {} | {} |",
+            "| {} | {} | {} | {} | {} |",
             r.seed,
-            pipeline::delay(&rows.cam[0]) * 1e3,
-            pipeline::delay(&rows.lidar[0]) * 1e3,
+            ms(pipeline::delay(&rows.cam[0])),
+            ms(pipeline::delay(&rows.lidar[0])),
             gains(&rows.cam[0]).join(" / "),
             gains(&rows.lidar[0]).join(" / "),
         );
     }
 }
 
+/// The median of the finite values (the upper one of an even count).
 fn median(mut v: Vec<f64>) -> Option<f64> {
     v.retain(|x| x.is_finite());
     if v.is_empty() {

@@ -13,7 +13,7 @@
 
 mod support;
 
-use support::pipeline::{delay, run, run_seeds, table_row, RunResult, TABLE_HEADER};
+use support::pipeline::{delay, ideal_sensors, run, run_seeds, table_row, RunResult, TABLE_HEADER};
 use vlsync_render::RenderConfig;
 
 fn cfg(seed: u64) -> RenderConfig {
@@ -135,10 +135,7 @@ fn a_10_hz_camera_meets_the_target_too() {
 #[test]
 fn each_front_end_is_stamped_where_its_sample_belongs() {
     let mut c = cfg(5);
-    c.clock.cam_jitter_s = 0.0;
-    c.clock.lidar_jitter_s = 0.0;
-    c.lidar.range_noise_m = 0.0;
-    c.frame_drop_probability = 0.0;
+    ideal_sensors(&mut c);
     let r = run(c, true);
     let rows = r.audit.expect("audit rows");
     let [cm, ce] = [delay(&rows.cam[0]), delay(&rows.cam[1])];

@@ -242,6 +242,16 @@ pub fn follow_times(
     out
 }
 
+/// Takes the sensors' imperfections that hide the front-ends' own timing out of
+/// `c`: the stamp jitter of both clocks, the LiDAR's range noise and the dropped
+/// frames (the camera's pixel noise stays).
+pub fn ideal_sensors(c: &mut RenderConfig) {
+    c.clock.cam_jitter_s = 0.0;
+    c.clock.lidar_jitter_s = 0.0;
+    c.lidar.range_noise_m = 0.0;
+    c.frame_drop_probability = 0.0;
+}
+
 /// Runs `seeds` (each with `make(seed)`) on `threads` threads; results in seed order.
 /// With `audit`, each result holds its timing audit's rows ([`run`]).
 pub fn run_seeds(
