@@ -141,6 +141,23 @@ pub struct DriverArgs {
     /// (true event time against the stamp published; see `vlsync_driver::SampleTruth`).
     #[arg(long, value_name = "FILE")]
     pub truth_out: Option<PathBuf>,
+    /// Seconds between progress lines (default 600, what the systemd units use):
+    /// published samples, drops, and what the front-end sees (the LiDAR's fitted wall:
+    /// distance, normal and returns; the camera's tracked points). `--report-every 1`
+    /// while aiming the sensors. 1 ..= 86400.
+    #[arg(long, allow_negative_numbers = true, value_name = "SECS")]
+    pub report_every: Option<f64>,
+}
+
+/// `--report-every`: the period of the progress lines ([`PROGRESS_EVERY`] without it).
+pub fn report_every(args: &DriverArgs) -> Result<Duration, DriverError> {
+    match args.report_every {
+        None => Ok(PROGRESS_EVERY),
+        Some(s) if s.is_finite() && (1.0..=86_400.0).contains(&s) => Ok(Duration::from_secs_f64(s)),
+        Some(s) => Err(DriverError::Options(format!(
+            "--report-every {s} is out of range: allowed 1 ..= 86400 seconds"
+        ))),
+    }
 }
 
 /// `--stamp`.
@@ -767,6 +784,7 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     // from then on ends the driver cleanly
     vlsync_ipc::handle_termination_signals();
     let prefix = prefix(args)?;
+    let every = report_every(args)?;
     // an invalid prefix is an options error (exit 78, not restarted), wherever it came from
     let names = ServiceNames::new(&prefix).map_err(|e| DriverError::Options(e.to_string()))?;
     let Selected {
@@ -820,7 +838,7 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         &termination_requested,
         truth.as_mut(),
         Some(Progress {
-            every: PROGRESS_EVERY,
+            every,
             report: &mut report,
             notice: &mut |line| {
                 vlsync_common::console::print_err(&format!("vlsync-{stream}: {line}\n"))
@@ -1020,6 +1038,29 @@ mod tests {
 
     fn args(a: &[&str]) -> DriverArgs {
         DriverArgs::try_parse_from(std::iter::once("vlsync-cam").chain(a.iter().copied())).unwrap()
+    }
+
+    #[test]
+    fn the_report_period_is_checked_and_defaults_to_ten_minutes() {
+        assert_eq!(report_every(&args(&[])).unwrap(), PROGRESS_EVERY);
+        assert_eq!(
+            report_every(&args(&["--report-every", "1"])).unwrap(),
+            Duration::from_secs(1)
+        );
+        assert_eq!(
+            report_every(&args(&["--report-every", "86400"])).unwrap(),
+            Duration::from_secs(86_400)
+        );
+        for bad in ["0.5", "0", "-1", "NaN", "inf", "86401"] {
+            let e = report_every(&args(&["--report-every", bad])).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!(
+                    "options: --report-every {} is out of range: allowed 1 ..= 86400 seconds",
+                    bad.parse::<f64>().unwrap()
+                )
+            );
+        }
     }
 
     /// Each binary's `--help` lists its own sources and options, not the other's;

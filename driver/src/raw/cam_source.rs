@@ -631,6 +631,9 @@ pub struct CamCounts {
     pub size_changed: u64,
     /// Frames the processor refused (bad exposure time, unusable size).
     pub refused: u64,
+    /// The point counts of the last frame pair compared (its sample published or
+    /// not): what an installer aiming the camera wants to see.
+    pub last_flow: Option<cam::FlowStats>,
 }
 
 /// Camera frames through `SignatureProcessor`.
@@ -1016,6 +1019,7 @@ impl Source for CamSource {
                     }
                 }
                 Ok(cam::Step::Sample(s)) => {
+                    counts.last_flow = Some(s.stats);
                     let before = prev.replace(this);
                     let mut sample = s.sample;
                     if *software {
@@ -1087,6 +1091,19 @@ impl Source for CamSource {
         );
         if let Some(r) = &self.last_refusal {
             s.push_str(&format!(" (last: {r})"));
+        }
+        match c.last_flow {
+            Some(f) => {
+                s.push_str(&format!(
+                "; last frame pair: {} of {} grid points tracked ({} textured, {} inconsistent{})",
+                f.tracked,
+                f.points,
+                f.textured,
+                f.inconsistent,
+                if f.low_texture { "; too few: low texture" } else { "" }
+            ))
+            }
+            None => s.push_str("; no frame pair compared yet"),
         }
         // a live camera's bad buffers (its source counts them), a recording's bad images
         for (n, last) in [self.frames.unusable(), self.skipped.counts()]
@@ -1271,6 +1288,32 @@ mod tests {
                 std::thread::sleep(Duration::from_millis(10));
             }
         }
+    }
+
+    #[test]
+    fn the_report_says_how_many_points_the_last_frame_pair_tracked() {
+        let mut src = CamSource::render(renderer(2, 1.0).unwrap()).unwrap();
+        let report = src.report().unwrap();
+        assert!(report.contains("; no frame pair compared yet"), "{report}");
+        while src.next_sample().unwrap().is_some() {}
+        let report = src.report().unwrap();
+        let tracked = report
+            .split("last frame pair: ")
+            .nth(1)
+            .and_then(|r| r.split(" of 128 grid points tracked").next())
+            .and_then(|n| n.parse::<usize>().ok())
+            .unwrap_or_else(|| panic!("no tracked count in {report}"));
+        // the rendered floor is textured everywhere
+        assert!(tracked >= 100, "{report}");
+        assert!(!report.contains("low texture)"), "{report}");
+        // flat frames: nothing tracked, and the report says why no sample came
+        let mut src = CamSource::new(fake(0, 5), "v4l2 fake".into(), never).unwrap();
+        assert_eq!(src.next_sample().unwrap(), None);
+        let report = src.report().unwrap();
+        assert!(
+            report.contains("last frame pair: 0 of 128 grid points tracked (0 textured, 0 inconsistent; too few: low texture)"),
+            "{report}"
+        );
     }
 
     #[test]

@@ -590,6 +590,7 @@ impl Source for LidarSource {
             s.push_str(&format!(" {} {},", r.name(), c.dropped(r)));
         }
         s.push_str(&format!(" invalid returns {}", c.invalid_returns));
+        s.push_str(&wall_text("wall", self.proc.ahead().last_measurement()));
         if let Some((n, last)) = self.skipped.counts() {
             s.push_str(&format!("; {n} unusable scans skipped (last: {last})"));
         }
@@ -601,6 +602,7 @@ impl Source for LidarSource {
                 c.samples,
                 w.out_of_order()
             ));
+            s.push_str(&wall_text("opposite wall", w.behind().last_measurement()));
         }
         if let ScanInput::Mcap(m) = &self.input {
             let back = m.reader().out_of_order();
@@ -652,6 +654,25 @@ impl Source for LidarSource {
     }
 }
 
+/// What a window's front-end measured last, for the progress line: the fitted wall's
+/// distance, the bearing of its normal and the returns on it (what an installer aiming
+/// the window wants to see), or the median range when that is the distance used.
+fn wall_text(which: &str, m: Option<lidar::Measurement>) -> String {
+    match m {
+        None => format!("; {which}: none measured yet (since the start or the last gap)"),
+        Some(m) if m.normal_rad.is_finite() => format!(
+            "; {which}: {:.3} m, normal at {:+.1}°, {} returns",
+            m.distance_m,
+            m.normal_rad.to_degrees(),
+            m.rays_used
+        ),
+        Some(m) => format!(
+            "; {which}: median range {:.3} m of {} returns",
+            m.distance_m, m.rays_used
+        ),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -679,6 +700,54 @@ mod tests {
         assert_eq!(got, want);
         // the first scans give none (a sample spans two passes over the window)
         assert!(idle > 0);
+    }
+
+    /// `(distance m, normal °, returns)` of the report's `{which}: ...` part.
+    fn wall(report: &str, which: &str) -> (f64, f64, usize) {
+        let key = format!("; {which}: ");
+        let part = report
+            .split(key.as_str())
+            .nth(1)
+            .and_then(|p| p.split(" returns").next())
+            .unwrap_or_else(|| panic!("no `{key}` in {report}"));
+        // "7.145 m, normal at +0.1°, 49"
+        let f: Vec<&str> = part.split(", ").collect();
+        let num = |x: &str| {
+            x.parse::<f64>()
+                .unwrap_or_else(|e| panic!("`{x}` in {part}: {e}"))
+        };
+        (
+            num(f[0].trim_end_matches(" m")),
+            num(f[1].trim_start_matches("normal at ").trim_end_matches('°')),
+            num(f[2]) as usize,
+        )
+    }
+
+    #[test]
+    fn the_report_says_where_the_wall_is() {
+        let front = vlsync_config::LidarConfig {
+            opposite_window: true,
+            ..vlsync_config::LidarConfig::default()
+        };
+        let mut src = rendered(3.0).with_front(&front).unwrap();
+        let report = src.report().unwrap();
+        assert!(
+            report.contains("; wall: none measured yet")
+                && report.contains("; opposite wall: none measured yet"),
+            "{report}"
+        );
+        while src.next_sample().unwrap().is_some() {}
+        let report = src.report().unwrap();
+        // the rendered room is 8 m long and the robot drives along it: the walls
+        // ahead and behind are 8 m apart, each seen square on by some 50 returns
+        let (ahead, normal, rays) = wall(&report, "wall");
+        let (behind, back, rays_back) = wall(&report, "opposite wall");
+        assert!((ahead + behind - 8.0).abs() < 0.08, "{report}");
+        assert!(
+            normal.abs() < 3.0 && (back.abs() - 180.0).abs() < 3.0,
+            "{report}"
+        );
+        assert!(rays >= 30 && rays_back >= 30, "{report}");
     }
 
     fn yes() -> bool {
