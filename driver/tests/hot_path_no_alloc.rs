@@ -27,7 +27,6 @@
 //! Uses iceoryx2: run under the suite's lock (`flock /tmp/vlsync-ipc.lock`).
 //! This file is its own crate: it installs `vlsync-alloc-count`'s allocator.
 
-use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use vlsync_common::wire::SignatureSample;
@@ -138,7 +137,7 @@ fn rplidar_device(
             while let Some((cmd, _, used)) = parse_request(&inbox) {
                 inbox.drain(..used);
                 match cmd {
-                    0x52 => master.write_all(&answer(ANS_HEALTH, &[0, 0, 0])).unwrap(),
+                    0x52 => write_patiently(&mut master, &answer(ANS_HEALTH, &[0, 0, 0])),
                     0x20 => break 'start,
                     _ => {}
                 }
@@ -149,7 +148,7 @@ fn rplidar_device(
             assert!(std::time::Instant::now() < deadline, "no scan request");
         }
         for p in &pieces {
-            master.write_all(p).expect("write to the pty");
+            write_patiently(&mut master, p);
             std::thread::sleep(Duration::from_micros(20));
         }
         // time for a late reader to catch up before the stop
@@ -158,6 +157,31 @@ fn rplidar_device(
         // the port stays open until the driver has stopped (a closed one is an error)
         master
     })
+}
+
+/// Writes all of `bytes` to the pty `master`, waiting while its buffer is full: the
+/// port's 50 ms timeout is for the start-up's reads, and a driver descheduled for
+/// longer on a loaded machine (the test suite runs beside it) lets the pty's buffer
+/// fill, which is no failure of the path under test (`write_all` would give up at the
+/// first timed-out write, not knowing how much of it went out).
+fn write_patiently(master: &mut serialport::TTYPort, bytes: &[u8]) {
+    use std::io::{ErrorKind, Write};
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let mut sent = 0;
+    while sent < bytes.len() {
+        match master.write(&bytes[sent..]) {
+            Ok(n) => sent += n,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted
+                ) && std::time::Instant::now() < deadline => {}
+            Err(e) => panic!(
+                "write to the pty ({sent} of {} bytes sent): {e}",
+                bytes.len()
+            ),
+        }
+    }
 }
 
 /// The response descriptor and `SCANS` revolutions of 120 nodes of a wall ahead
