@@ -48,6 +48,11 @@
 //! **A stream that is not regular** (jitter above `T/15`, half its stamps off the
 //! grid, a run of stamps off it that never settles into a step, a step of a period
 //! or more) is passed through with its level frozen, and the grid is learnt again.
+//! So is **a stream whose rate doubled**, at once: a second sample halfway between
+//! two frames' points, with one on a frame's point between them (a LiDAR front-end
+//! fitting the walls ahead and behind, whose stream goes from one sample a turn to
+//! two when the second wall comes into range). Tracked on, each sample between two
+//! frames would go to the next frame's point, half a period late.
 //! A step's level is refined over [`LEVEL_SAMPLES`] samples, then fixed: slow
 //! latency changes reach the correlator as they are (as drift), and the grid's fit,
 //! which only tells stamps on it from stamps off it, follows them ([`FIT_MEMORY_S`]).
@@ -128,6 +133,18 @@ impl Default for CadenceParams {
             confirm: 3,
         }
     }
+}
+
+/// Where a tracked sample fell on the grid (the last two are kept).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Place {
+    /// A frame's grid point.
+    Frame,
+    /// Halfway between two frames' points, less than a period and a half after the
+    /// sample before.
+    Between,
+    /// Anywhere else, or not tracked.
+    Other,
 }
 
 /// A latency step [`Cadence::push`] just found ([`Cadence::take_step`]).
@@ -275,6 +292,10 @@ pub struct Cadence {
     last_off_dev: Option<f64>,
     /// The step deviation of the last sample.
     last_step_dev: f64,
+    /// What the last two samples were, newest last: a frame's grid point, or
+    /// halfway to the next one less than a period and a half after the sample
+    /// before (the pattern of a rate that doubled, see [`Cadence::push_track`]).
+    last_places: [Place; 2],
     /// For a while after a step: the level before it, and how many samples have come
     /// back to it in a row (a latency excursion of a few frames, not a step: see
     /// [`Cadence::excursion_back`]), and how many samples the chance has left.
@@ -337,6 +358,7 @@ impl Cadence {
             back: 0,
             last_off_dev: None,
             last_step_dev: 0.0,
+            last_places: [Place::Other; 2],
             prev_level: None,
             drop_rate: 0.0,
             new_step: None,
@@ -456,6 +478,7 @@ impl Cadence {
                 self.flush_window();
                 self.back = 0;
                 self.last_off_dev = None;
+                self.last_places = [Place::Other; 2];
             }
             Kind::Normal => {}
         }
@@ -475,6 +498,7 @@ impl Cadence {
     /// without a jump).
     fn relearn(&mut self) {
         self.flush_window();
+        self.last_places = [Place::Other; 2];
         self.mode = Mode::Learn;
         self.learn_n = 0;
         self.back = 0;
@@ -675,6 +699,31 @@ impl Cadence {
             && ho > self.h_last as f64
             && (xq - ho).abs() * 0.5 * t <= tol;
         let on = on_frame || on_half;
+        // ... or halfway, but sooner: a sample between two frames. Alone it is a late
+        // stamp or a step's first (moved to a frame's point below); between samples
+        // on the frames' points it says the stream's rate doubled (a LiDAR front-end
+        // measuring a second wall half a turn later, a camera back to its full frame
+        // rate): the grid is learnt again at once, the stamps passing unchanged
+        // meanwhile. Tracked on, every other sample would go to the next frame's point
+        // half a period later (its share of off-grid samples settles just under the
+        // half that makes a stream irregular).
+        let between = !on
+            && ho > self.h_last as f64
+            && (xq - ho).abs() * 0.5 * t <= tol
+            && from_last < 1.5 * t - tol;
+        let place = if on_frame {
+            Place::Frame
+        } else if between {
+            Place::Between
+        } else {
+            Place::Other
+        };
+        if place == Place::Between && self.last_places == [Place::Between, Place::Frame] {
+            self.relearns += 1;
+            self.relearn();
+            return self.push_learn(s);
+        }
+        self.last_places = [self.last_places[1], place];
         let h = if on_frame {
             he as i64
         } else if on_half {
@@ -1366,6 +1415,45 @@ mod tests {
         let (l, _) = c.level_at(*out.last().unwrap());
         assert!(l.abs() < 50.0 * MS, "{}", l / MS);
         assert!(out.windows(2).all(|w| w[1] > w[0]));
+    }
+
+    #[test]
+    fn a_doubled_rate_is_learnt_again_without_moving_its_samples() {
+        // a LiDAR front-end fitting the wall ahead and the one behind merges two
+        // windows half a turn apart into one stream: 10 Hz while one wall is out of
+        // range, 20 Hz while both are seen, and 10 Hz again
+        let mut seed = 11u64;
+        let mut s: Vec<Nanos> = Vec::new();
+        for k in 0..900usize {
+            let both = (300..600).contains(&k);
+            for half in [0.0, 0.5] {
+                if half > 0.0 && !both {
+                    continue;
+                }
+                let t = 1e12 + (k as f64 + half) * 100.0 * MS + 0.2 * MS * lcg(&mut seed);
+                s.push(t as Nanos);
+            }
+        }
+        let mut c = Cadence::new(CadenceParams::default());
+        let out = run(&mut c, &s);
+        // one sample, the first between two frames, goes to the next frame's point
+        // before the pattern is plain (and the frame's own stamp after it stays after
+        // it, by the jitter); every other stamp reaches the correlator as it is
+        let moved: Vec<(usize, f64)> = out
+            .iter()
+            .zip(&s)
+            .enumerate()
+            .filter(|(_, (o, s))| o != s)
+            .map(|(i, (o, s))| (i, (*o - *s) as f64 / MS))
+            .collect();
+        assert!(
+            moved.len() <= 2 && moved.iter().skip(1).all(|m| m.1.abs() < 1.0),
+            "moved (index, ms): {moved:?}"
+        );
+        assert_eq!((c.steps(), c.relearns()), (0, 1));
+        // learnt at 20 Hz, which holds the 10 Hz stretch after it as dropped frames
+        assert_eq!(c.period_ns().map(|t| (t / MS).round()), Some(50.0));
+        assert!(c.level().abs() < 1e3, "level {} ns", c.level());
     }
 
     #[test]

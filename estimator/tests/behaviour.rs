@@ -1437,3 +1437,48 @@ fn a_long_park_does_not_track_noise() {
         );
     }
 }
+
+/// A LiDAR front-end fitting the wall ahead and the wall behind publishes one stream
+/// at twice its rotation rate while both walls are seen, and at the rotation rate
+/// while one is out of range (a long room): here a `rates-15x20` run whose 20 Hz
+/// LiDAR loses every other sample outside two stretches. The stamps' cadence learnt
+/// at 10 Hz must take the 20 Hz stretches for what they are: until 2026-12-07 it moved
+/// every sample between two frames to the next frame's point, 50 ms late, and the
+/// rendered long room read 4-8 ms off (docs/accuracy.md, "A long room").
+#[test]
+fn a_lidar_stream_whose_rate_doubles_keeps_its_stamps() {
+    let mut worst = 0.0f64;
+    for seed in [1, 2, 3] {
+        let mut run = generate(Family::Rates15x20, seed, Some(100.0));
+        let t0 = run.lidar[0].t_ns;
+        let both = |t: i64| {
+            let s = (t - t0) as f64 * 1e-9;
+            (30.0..55.0).contains(&s) || (75.0..85.0).contains(&s)
+        };
+        let mut k = 0usize;
+        run.lidar.retain(|s| {
+            k += 1;
+            both(s.t_ns) || k % 2 == 1
+        });
+        let lidar_cadence_off = EstimatorConfig {
+            cadence: vlsync_config::CadenceStreams::Camera,
+            ..EstimatorConfig::default()
+        };
+        let mut with = Estimator::new(&EstimatorConfig::default());
+        let (mae, _) = locked_errors(&replay(&run, &mut with), &run);
+        let mut without = Estimator::new(&lidar_cadence_off);
+        let (mae_off, _) = locked_errors(&replay(&run, &mut without), &run);
+        eprintln!(
+            "seed {seed}: MAE {:.3} ms with the LiDAR's cadence, {:.3} ms without; {} relearns",
+            mae * 1e3,
+            mae_off * 1e3,
+            with.stats().cadence_relearns[1]
+        );
+        worst = worst.max(mae - mae_off);
+    }
+    assert!(
+        worst < 0.1e-3,
+        "the cadence costs up to {:.3} ms",
+        worst * 1e3
+    );
+}
