@@ -11,6 +11,9 @@
 //! # a slower camera or another LiDAR rate (the renderer's checks apply)
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --lidar-hz 5.5
+//! # another room (length, width in metres), lens or camera mounting
+//! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --room 16,5
+//! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --hfov 90 --pitch 40
 //! # each front-end against the true speed (delay, gain by speed), without stamp jitter,
 //! # range noise or dropped frames
 //! cargo run --release -p vlsync-render --example accuracy -- --seeds 1-8 --fps 10 --audit --ideal-sensors
@@ -44,6 +47,10 @@ struct Args {
     lidar_hz: Option<f64>,
     audit: bool,
     ideal: bool,
+    room: Option<(f64, f64)>,
+    hfov: Option<f64>,
+    pitch: Option<f64>,
+    cam_height: Option<f64>,
 }
 
 fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
@@ -88,7 +95,7 @@ fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
         .collect()
 }
 
-const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--fps F] [--lidar-hz H] [--opposite-window] [--audit] [--ideal-sensors] [--steps T_S:DELTA_MS,...]";
+const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--fps F] [--lidar-hz H] [--room LENGTH,WIDTH] [--hfov DEG] [--pitch DEG] [--cam-height M] [--opposite-window] [--audit] [--ideal-sensors] [--steps T_S:DELTA_MS,...]";
 
 fn parse() -> Result<Args, String> {
     let mut a = Args {
@@ -101,6 +108,10 @@ fn parse() -> Result<Args, String> {
         lidar_hz: None,
         audit: false,
         ideal: false,
+        room: None,
+        hfov: None,
+        pitch: None,
+        cam_height: None,
     };
     let mut it = std::env::args().skip(1);
     let mut width = None;
@@ -119,6 +130,23 @@ fn parse() -> Result<Args, String> {
             "--fps" => a.fps = Some(value()?.parse().map_err(|e| format!("--fps: {e}"))?),
             "--lidar-hz" => {
                 a.lidar_hz = Some(value()?.parse().map_err(|e| format!("--lidar-hz: {e}"))?)
+            }
+            "--room" => {
+                let v = value()?;
+                let (l, w) = v
+                    .split_once(',')
+                    .ok_or(format!("--room: `{v}` is not LENGTH,WIDTH (metres)"))?;
+                let num = |x: &str| {
+                    x.trim()
+                        .parse::<f64>()
+                        .map_err(|e| format!("--room: `{x}` in `{v}`: {e}"))
+                };
+                a.room = Some((num(l)?, num(w)?));
+            }
+            "--hfov" => a.hfov = Some(value()?.parse().map_err(|e| format!("--hfov: {e}"))?),
+            "--pitch" => a.pitch = Some(value()?.parse().map_err(|e| format!("--pitch: {e}"))?),
+            "--cam-height" => {
+                a.cam_height = Some(value()?.parse().map_err(|e| format!("--cam-height: {e}"))?)
             }
             "--audit" => a.audit = true,
             "--ideal-sensors" => a.ideal = true,
@@ -160,6 +188,19 @@ fn main() -> ExitCode {
         }
         if let Some(hz) = a.lidar_hz {
             c.lidar.rate_hz = hz;
+        }
+        if let Some((l, w)) = a.room {
+            c.room.0 = l;
+            c.room.1 = w;
+        }
+        if let Some(deg) = a.hfov {
+            c.camera.hfov_deg = deg;
+        }
+        if let Some(deg) = a.pitch {
+            c.camera.pitch_deg = deg;
+        }
+        if let Some(m) = a.cam_height {
+            c.camera.height_m = m;
         }
         if a.ideal {
             pipeline::ideal_sensors(&mut c);
