@@ -702,8 +702,8 @@ impl Cadence {
         // ... or halfway, but sooner: a sample between two frames. Alone it is a late
         // stamp or a step's first (moved to a frame's point below); between samples
         // on the frames' points it says the stream's rate doubled (a LiDAR front-end
-        // measuring a second wall half a turn later, a camera back to its full frame
-        // rate): the grid is learnt again at once, the stamps passing unchanged
+        // measuring a second wall half a turn later; a stream stamped per frame back
+        // to its full rate): the grid is learnt again at once, the stamps passing unchanged
         // meanwhile. Tracked on, every other sample would go to the next frame's point
         // half a period later (its share of off-grid samples settles just under the
         // half that makes a stream irregular).

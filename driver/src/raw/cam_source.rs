@@ -1094,14 +1094,16 @@ impl Source for CamSource {
         }
         match c.last_flow {
             Some(f) => {
+                let few = if f.low_texture {
+                    "; too few: low texture"
+                } else {
+                    ""
+                };
                 s.push_str(&format!(
-                "; last frame pair: {} of {} grid points tracked ({} textured, {} inconsistent{})",
-                f.tracked,
-                f.points,
-                f.textured,
-                f.inconsistent,
-                if f.low_texture { "; too few: low texture" } else { "" }
-            ))
+                    "; last frame pair: {} of {} grid points tracked \
+                     ({} textured, {} inconsistent{few})",
+                    f.tracked, f.points, f.textured, f.inconsistent
+                ));
             }
             None => s.push_str("; no frame pair compared yet"),
         }
