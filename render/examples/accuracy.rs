@@ -80,19 +80,25 @@ fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
 fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
     s.split(',')
         .map(|part| {
-            let (t, d) = part
-                .split_once(':')
-                .ok_or(format!("--steps: `{part}` is not TIME_S:DELTA_MS"))?;
-            let num = |x: &str| {
-                x.trim()
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .ok_or(format!("--steps: `{x}` in `{part}` is not a number"))
-            };
-            Ok((num(t)?, num(d)? * 1e-3))
+            let (t, d) = parse_pair("--steps", part, ':', "TIME_S:DELTA_MS")?;
+            Ok((t, d * 1e-3))
         })
         .collect()
+}
+
+/// Two finite numbers `A<sep>B` of `flag`'s value `v` (`shape` names them in the error).
+fn parse_pair(flag: &str, v: &str, sep: char, shape: &str) -> Result<(f64, f64), String> {
+    let (a, b) = v
+        .split_once(sep)
+        .ok_or(format!("{flag}: `{v}` is not {shape}"))?;
+    let num = |x: &str| {
+        x.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|n| n.is_finite())
+            .ok_or(format!("{flag}: `{x}` in `{v}` is not a number"))
+    };
+    Ok((num(a)?, num(b)?))
 }
 
 const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--fps F] [--lidar-hz H] [--room LENGTH,WIDTH] [--hfov DEG] [--pitch DEG] [--cam-height M] [--opposite-window] [--audit] [--ideal-sensors] [--steps T_S:DELTA_MS,...]";
@@ -132,16 +138,12 @@ fn parse() -> Result<Args, String> {
                 a.lidar_hz = Some(value()?.parse().map_err(|e| format!("--lidar-hz: {e}"))?)
             }
             "--room" => {
-                let v = value()?;
-                let (l, w) = v
-                    .split_once(',')
-                    .ok_or(format!("--room: `{v}` is not LENGTH,WIDTH (metres)"))?;
-                let num = |x: &str| {
-                    x.trim()
-                        .parse::<f64>()
-                        .map_err(|e| format!("--room: `{x}` in `{v}`: {e}"))
-                };
-                a.room = Some((num(l)?, num(w)?));
+                a.room = Some(parse_pair(
+                    "--room",
+                    &value()?,
+                    ',',
+                    "LENGTH,WIDTH (metres)",
+                )?)
             }
             "--hfov" => a.hfov = Some(value()?.parse().map_err(|e| format!("--hfov: {e}"))?),
             "--pitch" => a.pitch = Some(value()?.parse().map_err(|e| format!("--pitch: {e}"))?),
