@@ -235,18 +235,32 @@ fn main() -> ExitCode {
     if a.audit {
         print_audit(&results);
     }
-    let n = results.len() as f64;
-    let mean = |f: &dyn Fn(&pipeline::RunResult) -> f64| results.iter().map(f).sum::<f64>() / n;
+    // a run that never locked has no error to average: it is counted apart, so
+    // one such run does not turn every mean into NaN
+    let mean_ms = |f: &dyn Fn(&pipeline::RunResult) -> f64, signed: bool| {
+        let v: Vec<f64> = results.iter().map(f).filter(|x| x.is_finite()).collect();
+        let m = v.iter().sum::<f64>() / v.len() as f64 * 1e3;
+        match (v.is_empty(), signed) {
+            (true, _) => "-".to_string(),
+            (false, true) => format!("{m:+.2}"),
+            (false, false) => format!("{m:.2}"),
+        }
+    };
     let met = results
         .iter()
         .filter(|r| r.scores[0].mae_s <= 0.003)
         .count();
+    let unlocked = results.iter().filter(|r| r.scores[0].n == 0).count();
+    let unlocked = match unlocked {
+        0 => String::new(),
+        k => format!(" ({k} never tracking, left out of the means)"),
+    };
     println!(
-        "\nmidpoint: mean MAE {:.2} ms, mean bias {:+.2} ms, {met}/{} runs <= 3 ms; end: mean MAE {:.2} ms",
-        mean(&|r| r.scores[0].mae_s) * 1e3,
-        mean(&|r| r.scores[0].bias_s) * 1e3,
+        "\nmidpoint: mean MAE {} ms, mean bias {} ms, {met}/{} runs <= 3 ms{unlocked}; end: mean MAE {} ms",
+        mean_ms(&|r| r.scores[0].mae_s, false),
+        mean_ms(&|r| r.scores[0].bias_s, true),
         results.len(),
-        mean(&|r| r.scores[1].mae_s) * 1e3,
+        mean_ms(&|r| r.scores[1].mae_s, false),
     );
     ExitCode::SUCCESS
 }

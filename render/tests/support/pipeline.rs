@@ -297,16 +297,25 @@ pub fn delay(rows: &[(f64, f64, f64)]) -> f64 {
 /// One line of the per-seed table (milliseconds).
 pub fn table_row(r: &RunResult) -> String {
     let [m, e] = &r.scores;
+    // a run with no tracking estimate has no error: "-" rather than NaN
+    let ms = |x: f64| match x.is_finite() {
+        true => format!("{:.2}", x * 1e3),
+        false => "-".into(),
+    };
+    let signed = |x: f64| match x.is_finite() {
+        true => format!("{:+.2}", x * 1e3),
+        false => "-".into(),
+    };
     format!(
-        "| {} | {:.2} | {:+.2} | {:.2} | {} | {:.2} | {:+.2} | {:.2} | {:.1} |",
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
         r.seed,
-        m.mae_s * 1e3,
-        m.bias_s * 1e3,
-        m.p95_s * 1e3,
+        ms(m.mae_s),
+        signed(m.bias_s),
+        ms(m.p95_s),
         m.n,
-        e.mae_s * 1e3,
-        e.bias_s * 1e3,
-        e.p95_s * 1e3,
+        ms(e.mae_s),
+        signed(e.bias_s),
+        ms(e.p95_s),
         r.elapsed.as_secs_f64()
     )
 }
