@@ -53,6 +53,31 @@ fn bench(c: &mut Criterion) {
         })
     });
 
+    // the first pair of a start or a restart: no point has a flow to start
+    // from, so the coarse search runs (predict on, the default); with predict
+    // off the points search from zero and nothing else runs. The difference is
+    // the search's cost, paid once per start
+    for (name, predict) in [
+        ("first pair after a reset 640x480, coarse search", true),
+        ("first pair after a reset 640x480, from zero", false),
+    ] {
+        let big: Vec<Vec<u8>> = [0.0, 30.0].iter().map(|&d| gray(0.0, d)).collect();
+        c.bench_function(name, |b| {
+            let cfg = vlsync_signature_cam::FlowConfig {
+                predict,
+                ..SignatureConfig::default().flow
+            };
+            let mut lk = PyrLk::new(cfg).unwrap();
+            b.iter(|| {
+                lk.reset();
+                for f in &big {
+                    let f = GrayFrame::borrowed(W, H, f).unwrap();
+                    black_box(lk.push(&f)).unwrap();
+                }
+            })
+        });
+    }
+
     let yuyv: Vec<u8> = frames[0].iter().flat_map(|&g| [g, 128]).collect();
     c.bench_function("yuyv to gray 640x480", |b| {
         let mut out = Vec::new();

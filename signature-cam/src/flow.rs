@@ -17,7 +17,10 @@
 //! (default 64 px: a 640x480 camera at 30 Hz sees the floor at the bottom of the
 //! default ROI move 30 px per frame at 0.6 m/s; each point starts from its last
 //! flow, or, lost in the last pair, from its tracked grid neighbours', so the
-//! pyramid only has to find the change).
+//! pyramid only has to find the change). A pair in which no point has such a
+//! start (the first after a start or a reset, or with every point lost) starts
+//! the points from a coarse search of the ROI's shift within the margin, band by
+//! band of its rows, on the pyramid's top level (`PyrLk::coarse_search`).
 //!
 //! All buffers are allocated for the first frame of a given size and reused
 //! (the previous and current pyramids are swapped), so steady-state processing
@@ -120,7 +123,11 @@ pub struct FlowConfig {
     /// tracked point of its row. The pyramid then only has to find the change of the
     /// flow, so fast motion (15+ px per frame) is tracked as reliably as slow motion;
     /// a point that fails from its prediction is retried from zero (a second
-    /// forward solve).
+    /// forward solve). When no point has a prediction (the first pair after a start
+    /// or a reset, or every point lost), the points start from a coarse search of
+    /// the ROI's shift (within [`FlowConfig::margin_px`], at most 24 px of the
+    /// pyramid's top level), so a camera started while the robot is fast tracks
+    /// from its first pair; off, they start from zero.
     pub predict: bool,
     /// Track each grid point both ways, previous → current frame and current →
     /// previous, and average the two displacements (default true). Moving
@@ -304,6 +311,8 @@ struct Geometry {
     dims: Vec<(usize, usize)>,
     /// Grid points in crop coordinates.
     points: Vec<(f32, f32)>,
+    /// The ROI in crop coordinates, `[x0, y0, x1, y1)`.
+    roi: [usize; 4],
 }
 
 /// Pyramidal Lucas-Kanade tracker with reusable buffers.
@@ -329,10 +338,36 @@ pub struct PyrLk {
     outlier: Vec<bool>,
     has_prior: bool,
     prediction_scale: f32,
+    /// Scratch of the coarse search: each band's NCC surface, then the scores.
+    search: Vec<f32>,
+    /// The coarse search's start for the points of each band of ROI rows.
+    band_start: [Option<(f32, f32)>; SEARCH_BANDS],
 }
 
 /// Marks a grid point without a flow vector.
 const NO_FLOW: [f32; 2] = [f32::NAN, f32::NAN];
+
+/// Reach of the coarse search (`PyrLk::coarse_search`) at most, in pixels of the
+/// pyramid's top level (±24: ±96 px at full resolution with the default 3
+/// levels); within that, the margin's.
+const SEARCH_REACH: usize = 24;
+/// Side of the coarse search's NCC surface.
+const SEARCH_SIDE: usize = 2 * SEARCH_REACH + 1;
+/// Template samples the coarse search compares per shift, at most (over all its
+/// bands): a larger ROI is thinned by a stride.
+const SEARCH_SAMPLES: usize = 1024;
+/// Bands of ROI rows the coarse search correlates apart...
+const SEARCH_BANDS: usize = 4;
+/// ...each allowed to differ from the ROI's shift by this many top-level pixels.
+const SEARCH_BAND_REACH: usize = 3;
+/// The coarse search's best score (the bands' mean normalised cross-correlation)
+/// must reach this (unrelated content: about 0.3; the ROI of a 10 Hz camera at
+/// 0.5 m/s, whose bands move 20-36 px: 0.6-0.8)...
+const SEARCH_MIN_NCC: f32 = 0.4;
+/// ...and exceed by this every other local maximum of the scores beyond the
+/// bands' reach around it: a periodic floor, whose shift is ambiguous, gives no
+/// start.
+const SEARCH_MARGIN: f32 = 0.1;
 
 #[derive(Debug, Clone, Default)]
 struct Template {
@@ -377,6 +412,8 @@ impl PyrLk {
             outlier: Vec::new(),
             has_prior: false,
             prediction_scale: 1.0,
+            search: vec![f32::NAN; (SEARCH_BANDS + 1) * SEARCH_SIDE * SEARCH_SIDE],
+            band_start: [None; SEARCH_BANDS],
         })
     }
 
@@ -541,6 +578,7 @@ impl PyrLk {
             crop_y: cy0,
             dims,
             points,
+            roi: [x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0],
         })
     }
 
@@ -575,6 +613,11 @@ impl PyrLk {
         let npts = g.points.len();
         let scale = self.prediction_scale;
         let predict = c.predict && self.has_prior && scale.is_finite() && scale > 0.0;
+        // no point has a start of its own (a start, a restart after a gap, every
+        // point lost): the whole ROI's shift, searched coarsely, is every point's
+        // start; searched once, at the first point that needs it
+        let search = c.predict && !(predict && self.prior_flow.iter().any(|v| v[0].is_finite()));
+        let mut searched = false;
         let mut textured = 0;
         for i in 0..npts {
             let (px, py) = self.geom.as_ref().map_or((0.0, 0.0), |g| g.points[i]);
@@ -584,7 +627,13 @@ impl PyrLk {
                 continue;
             }
             textured += 1;
-            let guess = if predict {
+            let guess = if search {
+                if !searched {
+                    self.coarse_search();
+                    searched = true;
+                }
+                self.band_start[(i / c.grid_cols) * SEARCH_BANDS / c.grid_rows]
+            } else if predict {
                 predicted_flow(&self.prior_flow, c.grid_cols, i)
                     .map(|[fx, fy]| (fx * scale, fy * scale))
             } else {
@@ -652,6 +701,140 @@ impl PyrLk {
         guess
             .and_then(|g| self.track_point(px, py, g, backward))
             .or_else(|| self.track_point(px, py, (0.0, 0.0), backward))
+    }
+
+    /// Each band of the ROI's shift from the previous frame to the current one,
+    /// in full-resolution pixels, into `self.band_start` (`None` for all when the
+    /// search finds nothing). On the pyramid's top level, each of
+    /// [`SEARCH_BANDS`] bands of ROI rows is correlated (normalised) with the
+    /// current frame at every integer shift within the margin's reach (at most
+    /// [`SEARCH_REACH`]); the floor's flow grows down the image (at 10 Hz, 0.5
+    /// m/s and 320x240: 20 px a frame at the ROI's top rows, 36 px at its bottom
+    /// ones), so a shift's score is the mean over the bands of each band's best
+    /// within [`SEARCH_BAND_REACH`] of it. The best score must reach
+    /// [`SEARCH_MIN_NCC`] and beat every other local maximum of the scores by
+    /// [`SEARCH_MARGIN`] (a periodic floor gives no start); each band then starts
+    /// from its own best near it.
+    ///
+    /// Why: a point without a flow to start from searches from zero, and from zero
+    /// three levels with a 9x9 window reach about 28 px at best. A camera started
+    /// (or restarted after a gap) while the robot is fast tracked almost nothing
+    /// until the robot slowed (rendered 10 Hz runs at 0.45-0.58 m/s: 16-43 of 128
+    /// points, against 66-109 tracked by a front-end running throughout). The
+    /// forward/backward and neighbourhood checks judge each point as before, and a
+    /// point that fails from its band's start is retried from zero.
+    ///
+    /// Cost: at most `(2 * reach + 1)^2` comparisons of [`SEARCH_SAMPLES`]
+    /// samples, 1-3 ms; only for a pair in which no point has a prediction.
+    fn coarse_search(&mut self) {
+        self.band_start = [None; SEARCH_BANDS];
+        let Some(g) = self.geom.as_ref() else { return };
+        let Some(top) = self.prev.len().checked_sub(1) else {
+            return;
+        };
+        let f = 1usize << top;
+        let reach = (self.cfg.margin_px / f).min(SEARCH_REACH);
+        let (Some(prev), Some(cur)) = (self.prev.get(top), self.cur.get(top)) else {
+            return;
+        };
+        if reach == 0 || cur.w != prev.w || cur.h != prev.h {
+            return;
+        }
+        let [x0, y0, x1, y1] = g.roi;
+        let (x0, x1) = (x0 / f, x1.div_ceil(f).min(prev.w));
+        let (y0, y1) = (y0 / f, y1.div_ceil(f).min(prev.h));
+        if x1 <= x0 || y1 < y0 + SEARCH_BANDS {
+            return;
+        }
+        let side = 2 * reach + 1;
+        let n = side * side;
+        let (bands, score) = self
+            .search
+            .split_at_mut(SEARCH_BANDS * SEARCH_SIDE * SEARCH_SIDE);
+        let band = |b: usize| {
+            [
+                x0,
+                y0 + (y1 - y0) * b / SEARCH_BANDS,
+                x1,
+                y0 + (y1 - y0) * (b + 1) / SEARCH_BANDS,
+            ]
+        };
+        for (b, surface) in bands.chunks_exact_mut(n).take(SEARCH_BANDS).enumerate() {
+            for (k, out) in surface.iter_mut().enumerate() {
+                let (dx, dy) = (
+                    (k % side) as isize - reach as isize,
+                    (k / side) as isize - reach as isize,
+                );
+                *out = ncc(prev, cur, band(b), dx, dy, SEARCH_SAMPLES / SEARCH_BANDS);
+            }
+        }
+        let bands = &bands[..SEARCH_BANDS * n];
+        // a band's best within the band reach of (x, y), and where
+        let near_best = |b: usize, x: usize, y: usize| {
+            let r = SEARCH_BAND_REACH;
+            let surface = &bands[b * n..(b + 1) * n];
+            let mut best: Option<(usize, f32)> = None;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(side) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(side) {
+                    let v = surface[yy * side + xx];
+                    if v.is_finite() && best.is_none_or(|(_, m)| v > m) {
+                        best = Some((yy * side + xx, v));
+                    }
+                }
+            }
+            best
+        };
+        let score = &mut score[..n];
+        for (k, out) in score.iter_mut().enumerate() {
+            let (x, y) = (k % side, k / side);
+            let (sum, m) = (0..SEARCH_BANDS)
+                .filter_map(|b| near_best(b, x, y))
+                .fold((0.0f32, 0usize), |(s, m), (_, v)| (s + v, m + 1));
+            // every band must see the floor at a shift
+            *out = if m == SEARCH_BANDS {
+                sum / m as f32
+            } else {
+                f32::NAN
+            };
+        }
+        let Some((best, top_score)) = score
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_finite())
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(k, &v)| (k, v))
+        else {
+            return;
+        };
+        if top_score < SEARCH_MIN_NCC {
+            return;
+        }
+        let (bx, by) = (best % side, best / side);
+        let at = |x: usize, y: usize| score[y * side + x];
+        for y in 0..side {
+            for x in 0..side {
+                let v = at(x, y);
+                // the scores are each band's best within the band reach: flat
+                // around a peak, so a second peak must lie beyond it
+                let near = x.abs_diff(bx).max(y.abs_diff(by)) <= 2 * SEARCH_BAND_REACH;
+                if near || v.is_nan() || v <= top_score - SEARCH_MARGIN {
+                    continue;
+                }
+                // a local maximum: no neighbour higher (NaN neighbours are not)
+                let peak = (y.saturating_sub(1)..(y + 2).min(side)).all(|yy| {
+                    (x.saturating_sub(1)..(x + 2).min(side))
+                        .all(|xx| at(xx, yy).partial_cmp(&v) != Some(std::cmp::Ordering::Greater))
+                });
+                if peak {
+                    return;
+                }
+            }
+        }
+        let full = |c: usize| (c as isize - reach as isize) as f32 * f as f32;
+        for (b, start) in self.band_start.iter_mut().enumerate() {
+            let k = near_best(b, bx, by).map_or(best, |(k, _)| k);
+            *start = Some((full(k % side), full(k / side)));
+        }
     }
 
     /// Pyramidal LK of one point (crop coordinates, template of level 0 in
@@ -944,6 +1127,52 @@ fn mean_norm(v: &[f32]) -> (f32, f32) {
     (mean, ss.sqrt())
 }
 
+/// The normalised cross-correlation of `prev` over `rect` (`[x0, y0, x1, y1)`)
+/// with `cur` shifted by `(dx, dy)`, over the samples of a stride that keeps at
+/// most `samples` of them, and of those the ones the shift keeps inside
+/// `cur` (at least half); NaN when fewer overlap, or either side has no contrast
+/// (or holds a non-finite pixel). `prev` and `cur` have the same size.
+fn ncc(prev: &Level, cur: &Level, rect: [usize; 4], dx: isize, dy: isize, samples: usize) -> f32 {
+    let [x0, y0, x1, y1] = rect;
+    let (w, h) = (prev.w as isize, prev.h as isize);
+    let area = (x1 - x0) * (y1 - y0);
+    let stride = ((area as f64 / samples.max(1) as f64).sqrt().ceil() as usize).max(1);
+    let count = (x1 - x0).div_ceil(stride) * (y1 - y0).div_ceil(stride);
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0f64, 0.0, 0.0, 0.0, 0.0);
+    for y in (y0..y1).step_by(stride) {
+        let qy = y as isize + dy;
+        if qy < 0 || qy >= h {
+            continue;
+        }
+        let (ra, rb) = (y * prev.w, qy as usize * cur.w);
+        for x in (x0..x1).step_by(stride) {
+            let qx = x as isize + dx;
+            if qx < 0 || qx >= w {
+                continue;
+            }
+            let a = f64::from(prev.data[ra + x]);
+            let b = f64::from(cur.data[rb + qx as usize]);
+            n += 1;
+            sa += a;
+            sb += b;
+            saa += a * a;
+            sbb += b * b;
+            sab += a * b;
+        }
+    }
+    if 2 * n < count || n < 2 {
+        return f32::NAN;
+    }
+    let m = n as f64;
+    let va = saa - sa * sa / m;
+    let vb = sbb - sb * sb / m;
+    if va > 1e-6 * m && vb > 1e-6 * m {
+        ((sab - sa * sb / m) / (va * vb).sqrt()) as f32
+    } else {
+        f32::NAN
+    }
+}
+
 /// Gauss-Newton iterations of one level, starting at `(x, y)` in `cur`.
 /// Returns the refinement `(dx, dy)` and the relative residual, or `None` when the system is singular or
 /// the point leaves the level.
@@ -1063,6 +1292,50 @@ pub(crate) mod tests {
             v += a * (kx * x + ky * y + ph).sin();
         }
         v
+    }
+
+    /// A floor-like, broadband texture: value noise of periods 4-64 px (a hashed
+    /// lattice, smoothly interpolated), amplitudes falling by 15 % an octave.
+    /// Unlike [`texture`], whose few sinusoids correlate almost as well at many
+    /// shifts on the pyramid's top level, it has one best shift at every scale.
+    pub(crate) fn grain(x: f32, y: f32) -> f32 {
+        let lattice = |i: i64, j: i64, o: u64| {
+            let mut h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+                ^ o.wrapping_mul(0x1656_67B1_9E37_79F9);
+            h ^= h >> 29;
+            h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            h ^= h >> 32;
+            (h & 0xFFFF) as f32 / 65535.0 - 0.5
+        };
+        let smooth = |t: f32| t * t * (3.0 - 2.0 * t);
+        let (mut v, mut amp) = (128.0, 90.0);
+        for (o, period) in [4.0f32, 8.0, 16.0, 32.0, 64.0].into_iter().enumerate() {
+            let (gx, gy) = (x / period, y / period);
+            let (i, j) = (gx.floor(), gy.floor());
+            let (fx, fy) = (smooth(gx - i), smooth(gy - j));
+            let (i, j, o) = (i as i64, j as i64, o as u64);
+            let top = lattice(i, j, o) + (lattice(i + 1, j, o) - lattice(i, j, o)) * fx;
+            let bot = lattice(i, j + 1, o) + (lattice(i + 1, j + 1, o) - lattice(i, j + 1, o)) * fx;
+            v += amp * (top + (bot - top) * fy);
+            amp *= 0.85;
+        }
+        v
+    }
+
+    /// A frame whose content at pixel p is `grain(map(p))`.
+    fn grain_frame(
+        w: usize,
+        h: usize,
+        map: impl Fn(f32, f32) -> (f32, f32),
+    ) -> GrayFrame<'static, f32> {
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = map((i % w) as f32, (i / w) as f32);
+                grain(x, y)
+            })
+            .collect();
+        GrayFrame::owned_f32(w, h, data).unwrap()
     }
 
     /// A frame whose content at pixel p is `texture(map(p))`.
@@ -1198,6 +1471,94 @@ pub(crate) mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_start_at_speed_is_found_by_the_coarse_search() {
+        // the first pair of a tracker (a start, a restart after a gap) while the
+        // robot is fast: no point has a flow to start from. From zero the pyramid
+        // does not reach 30+ px (predict off: no search); the ROI's coarse shift
+        // is a start within reach for every point
+        let (w, h) = (320, 240);
+        let a = grain_frame(w, h, |x, y| (x, y));
+        for (sx, sy) in [(0.0f32, 36.0f32), (10.0, 40.0), (-14.0, 30.0), (0.0, 2.5)] {
+            let b = grain_frame(w, h, |x, y| (x - sx, y - sy));
+            for predict in [true, false] {
+                let (st, v) = flow_of(room_below(predict), &a, &b);
+                let good = v
+                    .iter()
+                    .filter(|p| (p.dx - sx).hypot(p.dy - sy) < 0.1)
+                    .count();
+                eprintln!(
+                    "shift ({sx}, {sy}), predict {predict}: {good} good of {}",
+                    st.points
+                );
+                if predict || sy < 10.0 {
+                    assert!(
+                        good >= st.points * 9 / 10,
+                        "({sx}, {sy}): {good} good, {st:?}"
+                    );
+                } else {
+                    assert!(
+                        good < st.points / 2,
+                        "({sx}, {sy}): {good} good from zero, {st:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    const NONE: [Option<(f32, f32)>; SEARCH_BANDS] = [None; SEARCH_BANDS];
+
+    /// The coarse search on the pair `a` → `b`, as the tracker's first pair sees
+    /// it: each band's start.
+    fn coarse(
+        cfg: FlowConfig,
+        a: &GrayFrame<f32>,
+        b: &GrayFrame<f32>,
+    ) -> [Option<(f32, f32)>; SEARCH_BANDS] {
+        let mut lk = PyrLk::new(cfg).unwrap();
+        assert!(lk.push(a).unwrap().is_none());
+        lk.build_pyramid(b);
+        lk.coarse_search();
+        lk.band_start
+    }
+
+    #[test]
+    fn a_periodic_floor_gives_no_coarse_start() {
+        // tiles: a pattern repeating every 24 px both ways, shifted by 30 px. The
+        // shifts 24 px apart match equally well: no start (the points search from
+        // zero, as without the search)
+        let (w, h) = (320, 240);
+        let tile = |x: f32, y: f32| {
+            let k = std::f32::consts::TAU / 24.0;
+            128.0 + 40.0 * (k * x).sin() + 40.0 * (k * y).cos() + 20.0 * (2.0 * k * (x + y)).sin()
+        };
+        let make = |dy: f32| {
+            let data = (0..w * h)
+                .map(|i| tile((i % w) as f32, (i / w) as f32 - dy))
+                .collect();
+            GrayFrame::owned_f32(w, h, data).unwrap()
+        };
+        assert_eq!(coarse(room_below(true), &make(0.0), &make(30.0)), NONE);
+        // the same shift of a floor's grain is found, to the top level's pixel
+        let a = grain_frame(w, h, |x, y| (x, y));
+        let b = grain_frame(w, h, |x, y| (x, y - 30.0));
+        for start in coarse(room_below(true), &a, &b) {
+            let (gx, gy) = start.expect("a start");
+            assert!(gx.abs() <= 2.0 && (gy - 30.0).abs() <= 2.0, "({gx}, {gy})");
+        }
+        // a frame without contrast, or unrelated content: no start
+        let flat = GrayFrame::owned_f32(w, h, vec![100.0; w * h]).unwrap();
+        assert_eq!(coarse(room_below(true), &a, &flat), NONE);
+        let other = grain_frame(w, h, |x, y| (y + 500.0, -x));
+        assert_eq!(coarse(room_below(true), &a, &other), NONE);
+        // no margin, nothing to reach
+        let none = FlowConfig {
+            margin_px: 0,
+            ..room_below(true)
+        };
+        assert_eq!(coarse(none, &a, &b), NONE);
     }
 
     #[test]
@@ -1668,6 +2029,20 @@ pub(crate) mod tests {
         }
 
         /// Uniform subpixel shifts in range are recovered to 0.1 px.
+        #[test]
+        /// Any shift within the margin's reach: the coarse search finds it to
+        /// within the top level's pixel (4 px), and the first pair tracks it.
+        #[test]
+        fn coarse_search_finds_any_shift_within_reach(sx in -40.0f32..40.0, sy in -40.0f32..40.0) {
+            let a = grain_frame(320, 240, |x, y| (x, y));
+            let b = grain_frame(320, 240, |x, y| (x - sx, y - sy));
+            let cfg = FlowConfig { margin_px: 48, ..room_below(true) };
+            for start in coarse(cfg, &a, &b) {
+                let (gx, gy) = start.expect("a start");
+                prop_assert!((gx - sx).abs() <= 4.0 && (gy - sy).abs() <= 4.0, "({gx}, {gy})");
+            }
+        }
+
         #[test]
         fn random_shifts(sx in -6.0f32..6.0, sy in -6.0f32..6.0) {
             let a = frame(240, 180, |x, y| (x, y));

@@ -8,9 +8,9 @@
 //!    owned) and gray/RGB/BGR/RGBA/YUYV/UYVY/NV12/NV21/YU12/YV12 to gray conversion
 //!    ([`image::RawFrame`]; the planar formats by their luma plane).
 //! 2. [`flow`]: pyramidal Lucas-Kanade on a grid of points in the ROI, with a
-//!    Shi-Tomasi texture test, each point started from its last flow, tracked
-//!    both ways and checked against its neighbours; allocation-free after the
-//!    first frame.
+//!    Shi-Tomasi texture test, each point started from its last flow (on a
+//!    start, from a coarse search of the ROI's shift), tracked both ways and
+//!    checked against its neighbours; allocation-free after the first frame.
 //! 3. [`reduce`]: flow vectors to one number (by default the downward
 //!    component over the whole grid against a learnt per-point pattern, i.e.
 //!    forward motion for a camera looking at the floor; mean or median
