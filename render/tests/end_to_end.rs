@@ -44,7 +44,7 @@ fn report(results: &[RunResult]) {
 /// Issue 4's target on the first four seeds (those the front-end defaults were
 /// tuned on, with 5 and 6): the mean error of the tracking estimates against the
 /// truth is at most 3 ms on every run. Measured with the segment estimator:
-/// 2.34, 1.24, 2.22, 0.76 ms (mean 1.64). Held-out seeds 100-109: 0.64-3.07 ms,
+/// 2.34, 1.25, 2.22, 0.76 ms (mean 1.64). Held-out seeds 100-109: 0.64-3.07 ms,
 /// mean 1.42 (README, `--example accuracy`).
 ///
 /// And the stamping matters: end-of-interval stamping (the camera sample at its
