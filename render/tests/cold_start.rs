@@ -12,7 +12,7 @@
 //! throughout, and its samples must read what that one reads from the first
 //! on. Before `signature-cam`'s coarse search and row-filled pattern (measured
 //! on these starts): 16-43 points tracked against 66-109, and its samples
-//! 17-47 % low on the first pair, still 8-16 % low a second later.
+//! 17-47 % low on the first pair, still up to 19 % low a second later.
 
 use vlsync_render::{Event, RenderConfig, Renderer};
 use vlsync_signature_cam as cam;
