@@ -102,8 +102,8 @@ fn midpoint_stamping_meets_the_target_and_end_stamping_does_not() {
 /// 15.15 ms. A lost point now starts from its neighbours' flow and the pattern
 /// learns each point's share as a running mean first: 2.13, 0.71, 2.06, 1.36 ms
 /// (seeds 1-8: mean 1.62 ms, against 1.60 at 30 Hz); since outliers teach the
-/// pattern at a tenth of the rate (2026-12-07, session 54), 2.46, 0.85, 1.79,
-/// 0.88 ms (seeds 1-8: 1.59 ms).
+/// pattern at a tenth of the settled rate (2026-12-07, session 54), 2.46, 0.87,
+/// 1.79, 0.88 ms (seeds 1-8: 1.61 ms).
 #[test]
 fn a_10_hz_camera_meets_the_target_too() {
     let slow = |seed| {
@@ -123,8 +123,9 @@ fn a_10_hz_camera_meets_the_target_too() {
 /// are often mis-tracked, and at the full rate those outliers bent the grid's
 /// pattern with the speed, a scale error that follows the speed and reads like
 /// a delay: -2.47 ms (seed 101) and -3.36 ms (seed 106), the runs' MAE with
-/// noise 4.50 and 6.97 ms. Outliers now teach at a tenth of the rate: +0.26 and
-/// +0.02 ms (MAE 1.67 and 2.52 ms; seeds 100-109 with noise 2.61 → 1.67 ms).
+/// noise 4.50 and 6.97 ms. Outliers now teach at a tenth of the settled rate:
+/// +0.44 and +0.24 ms (MAE 1.64 and 2.17 ms; seeds 100-109 with noise 2.61 →
+/// 1.66 ms).
 #[test]
 fn a_10_hz_camera_is_on_time_on_its_fastest_drives() {
     let slow_ideal = |seed| {
