@@ -1332,19 +1332,29 @@ pub(crate) mod tests {
         v
     }
 
+    /// A frame whose content at pixel p is `tex(map(p))`.
+    fn textured(
+        w: usize,
+        h: usize,
+        tex: fn(f32, f32) -> f32,
+        map: impl Fn(f32, f32) -> (f32, f32),
+    ) -> GrayFrame<'static, f32> {
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = map((i % w) as f32, (i / w) as f32);
+                tex(x, y)
+            })
+            .collect();
+        GrayFrame::owned_f32(w, h, data).unwrap()
+    }
+
     /// A frame whose content at pixel p is `grain(map(p))`.
     fn grain_frame(
         w: usize,
         h: usize,
         map: impl Fn(f32, f32) -> (f32, f32),
     ) -> GrayFrame<'static, f32> {
-        let data = (0..w * h)
-            .map(|i| {
-                let (x, y) = map((i % w) as f32, (i / w) as f32);
-                grain(x, y)
-            })
-            .collect();
-        GrayFrame::owned_f32(w, h, data).unwrap()
+        textured(w, h, grain, map)
     }
 
     /// A frame whose content at pixel p is `texture(map(p))`.
@@ -1353,13 +1363,7 @@ pub(crate) mod tests {
         h: usize,
         map: impl Fn(f32, f32) -> (f32, f32),
     ) -> GrayFrame<'static, f32> {
-        let data = (0..w * h)
-            .map(|i| {
-                let (x, y) = map((i % w) as f32, (i / w) as f32);
-                texture(x, y)
-            })
-            .collect();
-        GrayFrame::owned_f32(w, h, data).unwrap()
+        textured(w, h, texture, map)
     }
 
     fn flow_of(
