@@ -127,7 +127,8 @@ pub struct FlowConfig {
     /// or a reset, or every point lost), the points start from a coarse search of
     /// the ROI's shift (within [`FlowConfig::margin_px`], at most 24 px of the
     /// pyramid's top level), so a camera started while the robot is fast tracks
-    /// from its first pair; off, they start from zero.
+    /// from its first pair; while nothing tracks, the search runs on one pair in
+    /// four. Off, the points start from zero.
     pub predict: bool,
     /// Track each grid point both ways, previous → current frame and current →
     /// previous, and average the two displacements (default true). Moving
@@ -342,6 +343,11 @@ pub struct PyrLk {
     search: Vec<f32>,
     /// The coarse search's start for the points of each band of ROI rows.
     band_start: [Option<(f32, f32)>; SEARCH_BANDS],
+    /// Pairs still to wait before the next coarse search (after one that led to
+    /// nothing tracked).
+    search_wait: u32,
+    /// Coarse searches run.
+    searches: u64,
 }
 
 /// Marks a grid point without a flow vector.
@@ -356,6 +362,8 @@ const SEARCH_SIDE: usize = 2 * SEARCH_REACH + 1;
 /// Template samples the coarse search compares per shift, about (over all its
 /// bands): a larger ROI is thinned by a whole stride, which may leave a few more.
 const SEARCH_SAMPLES: usize = 1024;
+/// While nothing tracks, the coarse search runs on one pair in this many.
+const SEARCH_EVERY: u32 = 4;
 /// Bands of ROI rows the coarse search correlates apart...
 const SEARCH_BANDS: usize = 4;
 /// ...each allowed to differ from the ROI's shift by this many top-level pixels.
@@ -416,6 +424,8 @@ impl PyrLk {
             prediction_scale: 1.0,
             search: vec![f32::NAN; (SEARCH_BANDS + 1) * SEARCH_SIDE * SEARCH_SIDE],
             band_start: [None; SEARCH_BANDS],
+            search_wait: 0,
+            searches: 0,
         })
     }
 
@@ -428,9 +438,18 @@ impl PyrLk {
     pub fn reset(&mut self) {
         self.has_prev = false;
         self.has_prior = false;
+        // a fresh start searches at once
+        self.search_wait = 0;
         self.vectors.clear();
         // no pair, no flows: grid() must not serve the last pair's
         self.grid_flow.fill(NO_FLOW);
+    }
+
+    /// Coarse searches run so far (see [`FlowConfig::predict`]): one per start
+    /// while the robot moves, and while nothing tracks one every
+    /// `SEARCH_EVERY` (4) pairs.
+    pub fn searches(&self) -> u64 {
+        self.searches
     }
 
     /// Scales the prediction of the next [`PyrLk::push`]: the ratio of the coming
@@ -514,6 +533,7 @@ impl PyrLk {
             self.vectors.clear();
             self.grid_flow.fill(NO_FLOW);
             self.has_prior = false;
+            self.search_wait = 0;
             None
         };
         self.prediction_scale = 1.0;
@@ -619,7 +639,14 @@ impl PyrLk {
         // no point has a start of its own (a start, a restart after a gap, every
         // point lost): the whole ROI's shift, searched coarsely, is every point's
         // start; searched once, at the first point that needs it
-        let search = c.predict && !(predict && self.prior_flow.iter().any(|v| v[0].is_finite()));
+        // (while nothing tracks, every SEARCH_EVERY-th pair: its 2-3 ms at 640x480
+        // must not become every frame's cost on a small computer)
+        let unpredicted =
+            c.predict && !(predict && self.prior_flow.iter().any(|v| v[0].is_finite()));
+        let search = unpredicted && self.search_wait == 0;
+        if unpredicted && !search {
+            self.search_wait -= 1;
+        }
         let mut searched = false;
         let mut textured = 0;
         for i in 0..npts {
@@ -684,6 +711,11 @@ impl PyrLk {
             }
         }
         let tracked = self.vectors.len();
+        if searched {
+            self.searches += 1;
+            // a search that found nothing to track waits a few pairs
+            self.search_wait = if tracked == 0 { SEARCH_EVERY - 1 } else { 0 };
+        }
         FlowStats {
             points: npts,
             textured,
@@ -730,9 +762,9 @@ impl PyrLk {
     /// point that fails from its band's start is retried from zero.
     ///
     /// Cost: `(2 * reach + 1)^2` comparisons of about [`SEARCH_SAMPLES`]
-    /// samples, 2.8 ms at 640x480 on an x86 server core; for each pair in which no
-    /// point has a prediction (once per start, but every frame while nothing
-    /// tracks).
+    /// samples, 2.8 ms at 640x480 on an x86 server core; for a pair in which no
+    /// point has a prediction: once per start, and while nothing tracks on one
+    /// pair in [`SEARCH_EVERY`].
     fn coarse_search(&mut self) {
         self.band_start = [None; SEARCH_BANDS];
         let Some(g) = self.geom.as_ref() else { return };
@@ -1535,6 +1567,40 @@ pub(crate) mod tests {
         lk.build_pyramid(b);
         lk.coarse_search();
         lk.band_start
+    }
+
+    #[test]
+    fn while_nothing_tracks_the_search_runs_on_one_pair_in_four() {
+        // every frame unrelated to the one before (a textured scene, nothing
+        // that tracks): the search that finds nothing waits three pairs
+        let (w, h) = (320, 240);
+        let mut lk = PyrLk::new(room_below(true)).unwrap();
+        for k in 0..13u64 {
+            // fresh pixel noise every frame
+            let data = (0..w * h)
+                .map(|i| {
+                    let mut z = (i as u64 ^ (k << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                    z ^= z >> 31;
+                    z = z.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                    z ^= z >> 29;
+                    64.0 + (z & 0x7F) as f32
+                })
+                .collect();
+            let f = GrayFrame::owned_f32(w, h, data).unwrap();
+            if let Some(st) = lk.push(&f).unwrap() {
+                assert_eq!(st.tracked, 0, "pair {k}: {st:?}");
+            }
+        }
+        assert_eq!(lk.searches(), 3, "12 pairs");
+        // a reset searches at once: a start at speed is found
+        lk.reset();
+        lk.push(&grain_frame(w, h, |x, y| (x, y))).unwrap();
+        let st = lk
+            .push(&grain_frame(w, h, |x, y| (x, y - 36.0)))
+            .unwrap()
+            .unwrap();
+        assert_eq!(lk.searches(), 4);
+        assert!(st.tracked >= st.points * 9 / 10, "{st:?}");
     }
 
     #[test]
