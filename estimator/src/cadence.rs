@@ -694,10 +694,8 @@ impl Cadence {
         // between was dropped: only after a period and a half (a stamp half a period
         // off the grid a period after the last is a step of the latency)
         let ho = 2.0 * (0.5 * xq).floor() + 1.0;
-        let on_half = !on_frame
-            && from_last >= 1.5 * t - tol
-            && ho > self.h_last as f64
-            && (xq - ho).abs() * 0.5 * t <= tol;
+        let halfway = !on_frame && ho > self.h_last as f64 && (xq - ho).abs() * 0.5 * t <= tol;
+        let on_half = halfway && from_last >= 1.5 * t - tol;
         let on = on_frame || on_half;
         // ... or halfway, but sooner: a sample between two frames. Alone it is a late
         // stamp or a step's first (moved to a frame's point below); between samples
@@ -707,10 +705,7 @@ impl Cadence {
         // meanwhile. Tracked on, every other sample would go to the next frame's point
         // half a period later (its share of off-grid samples settles just under the
         // half that makes a stream irregular).
-        let between = !on
-            && ho > self.h_last as f64
-            && (xq - ho).abs() * 0.5 * t <= tol
-            && from_last < 1.5 * t - tol;
+        let between = halfway && !on_half;
         let place = if on_frame {
             Place::Frame
         } else if between {
