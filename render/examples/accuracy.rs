@@ -239,12 +239,8 @@ fn main() -> ExitCode {
     // one such run does not turn every mean into NaN
     let mean_ms = |f: &dyn Fn(&pipeline::RunResult) -> f64, signed: bool| {
         let v: Vec<f64> = results.iter().map(f).filter(|x| x.is_finite()).collect();
-        let m = v.iter().sum::<f64>() / v.len() as f64 * 1e3;
-        match (v.is_empty(), signed) {
-            (true, _) => "-".to_string(),
-            (false, true) => format!("{m:+.2}"),
-            (false, false) => format!("{m:.2}"),
-        }
+        // none: NaN, printed "-"
+        pipeline::ms(v.iter().sum::<f64>() / v.len() as f64, signed)
     };
     let met = results
         .iter()
@@ -299,13 +295,7 @@ fn print_audit(results: &[pipeline::RunResult]) {
     println!("| seed | camera delay ms | LiDAR delay ms | camera gain 0.05-0.2 / 0.2-0.4 / 0.4-0.6 / 0.6+ m/s (samples) | LiDAR gain, same bands |");
     println!("|---:|---:|---:|---|---|");
     // a run without rows to fit (all of it turning, or too short) has no delay
-    let ms = |d: f64| {
-        if d.is_finite() {
-            format!("{:+.2}", d * 1e3)
-        } else {
-            "-".into()
-        }
-    };
+    let ms = |d: f64| pipeline::ms(d, true);
     for r in results {
         let Some(rows) = &r.audit else { continue };
         println!(

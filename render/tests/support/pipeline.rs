@@ -297,27 +297,29 @@ pub fn delay(rows: &[(f64, f64, f64)]) -> f64 {
 /// One line of the per-seed table (milliseconds).
 pub fn table_row(r: &RunResult) -> String {
     let [m, e] = &r.scores;
-    // a run with no tracking estimate has no error: "-" rather than NaN
-    let ms = |x: f64| match x.is_finite() {
-        true => format!("{:.2}", x * 1e3),
-        false => "-".into(),
-    };
-    let signed = |x: f64| match x.is_finite() {
-        true => format!("{:+.2}", x * 1e3),
-        false => "-".into(),
-    };
+    let (plain, signed) = (|x| ms(x, false), |x| ms(x, true));
     format!(
         "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
         r.seed,
-        ms(m.mae_s),
+        plain(m.mae_s),
         signed(m.bias_s),
-        ms(m.p95_s),
+        plain(m.p95_s),
         m.n,
-        ms(e.mae_s),
+        plain(e.mae_s),
         signed(e.bias_s),
-        ms(e.p95_s),
+        plain(e.p95_s),
         r.elapsed.as_secs_f64()
     )
+}
+
+/// Seconds `x` as milliseconds to 0.01 (with its sign when `signed`), or "-" when
+/// not finite: a run with no tracking estimate has no error to print.
+pub fn ms(x: f64, signed: bool) -> String {
+    match (x.is_finite(), signed) {
+        (false, _) => "-".into(),
+        (true, true) => format!("{:+.2}", x * 1e3),
+        (true, false) => format!("{:.2}", x * 1e3),
+    }
 }
 
 /// The header of [`table_row`]'s table.
