@@ -93,6 +93,16 @@ pub struct DriverArgs {
     /// Render this seed's run with the rendering simulator (both drivers of a pair use the same).
     #[arg(long, allow_negative_numbers = true, value_name = "SEED")]
     pub render: Option<u64>,
+    /// With --render: the rendered camera's frame rate, Hz (default 30). The run's
+    /// draws depend on it, so both drivers of a pair take the same, as they take the
+    /// same seed. 1..=1000, and frames no further apart than `estimator.max_gap_s`.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    pub render_fps: Option<f64>,
+    /// With --render: the rendered LiDAR's revolutions a second, Hz (default 10, an
+    /// LD06's). Both drivers of a pair take the same. 0.5..=100, and scans no further
+    /// apart than `estimator.max_gap_s`.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    pub render_lidar_hz: Option<f64>,
     /// Publish as fast as possible instead of in real time (recorded and simulated
     /// sources; a live device publishes as its data arrives). Nothing slows the
     /// driver down for the daemon: a running daemon keeps what its subscriber buffer
@@ -332,6 +342,7 @@ pub fn select_source(
             )));
         }
     }
+    render_rates(args, flag)?;
     let piped = ["--pipe", "--pipe-cmd"].contains(&flag);
     let raw_layout = pipe_layout(args, piped)?;
     if args.baud.is_some() && args.ld06.is_none() && args.rplidar.is_none() {
@@ -463,7 +474,7 @@ pub fn select_source(
             let seed = args.render.unwrap_or_default();
             let duration = args.duration.unwrap_or(raw::DEFAULT_RENDER_DURATION_S);
             // the renderer's configuration is the command line's: an options error
-            let r = raw::renderer(seed, duration)
+            let r = raw::renderer_at(seed, duration, render_rates(args, flag)?)
                 .map_err(|e| DriverError::Options(format!("--duration {duration}: {e}")))?;
             let anchor = raw::render_anchor_ns(&r);
             // mono stamps are built on the start instant: pick one now if none was given
@@ -759,6 +770,37 @@ fn pipe_layout(
     cfg.layout()
         .map_err(|e| DriverError::Options(format!("--size {size} --raw-format {format}: {e}")))?;
     Ok(Some(cfg))
+}
+
+/// `--render-fps` and `--render-lidar-hz`: refused without `--render`, and checked
+/// as [`raw::RenderRates::check`] does against this driver's configuration.
+fn render_rates(args: &DriverArgs, flag: &str) -> Result<raw::RenderRates, DriverError> {
+    let rates = raw::RenderRates {
+        cam_fps: args.render_fps,
+        lidar_hz: args.render_lidar_hz,
+    };
+    if rates == raw::RenderRates::default() {
+        return Ok(rates);
+    }
+    if flag != "--render" {
+        let name = if rates.cam_fps.is_some() {
+            "--render-fps"
+        } else {
+            "--render-lidar-hz"
+        };
+        return Err(DriverError::Options(format!(
+            "{name} applies to --render only (other sources keep their own rates)"
+        )));
+    }
+    let whose = if args.config.is_some() {
+        "as --config sets it"
+    } else {
+        "its default: no --config"
+    };
+    rates
+        .check(config(args)?.estimator.max_gap_s, whose)
+        .map_err(DriverError::Options)?;
+    Ok(rates)
 }
 
 /// The frame rate asked of a V4L2 camera: `--fps`, else `camera.v4l2_fps` of
@@ -1526,6 +1568,71 @@ mod tests {
             Some("stopped before publishing")
         );
         assert_eq!(stopped_before_publishing(None, never), None);
+    }
+
+    #[test]
+    fn render_rates_apply_to_render_only_and_within_their_ranges() {
+        assert_eq!(
+            options_error(&["--csv", "/nonexistent.csv", "--render-fps", "15"]),
+            "--render-fps applies to --render only (other sources keep their own rates)"
+        );
+        assert_eq!(
+            options_error(&["--sim", "robot", "--render-lidar-hz", "5"]),
+            "--render-lidar-hz applies to --render only (other sources keep their own rates)"
+        );
+        for bad in ["0.5", "125", "1e9", "-30", "NaN", "inf"] {
+            let e = options_error(&["--render", "1", "--render-fps", bad]);
+            assert_eq!(
+                e,
+                format!(
+                    "--render-fps {} is out of range: allowed 1 <= HZ < 125 (the rendered \
+                     camera exposes each frame for 8 ms)",
+                    bad.parse::<f64>().unwrap()
+                )
+            );
+        }
+        for bad in ["0.4", "101", "NaN"] {
+            let e = options_error(&["--render", "1", "--render-lidar-hz", bad]);
+            assert_eq!(
+                e,
+                format!(
+                    "--render-lidar-hz {} is out of range: allowed 0.5 ..= 100",
+                    bad.parse::<f64>().unwrap()
+                )
+            );
+        }
+        // within the renderer's range, but too slow for the estimator's gap limit
+        let e = options_error(&["--render", "1", "--render-lidar-hz", "1"]);
+        assert!(
+            e.starts_with(
+                "--render-lidar-hz 1: LiDAR scans 1.000 s apart, more than \
+                 `estimator.max_gap_s` = 0.75 (its default: no --config)"
+            ),
+            "{e}"
+        );
+        let e = options_error(&["--render", "1", "--render-fps", "1.2"]);
+        assert!(
+            e.starts_with("--render-fps 1.2: camera frames 0.833 s apart"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_rendered_lidar_at_half_the_rate_gives_half_the_samples() {
+        let count = |extra: &[&str]| {
+            let a = [&["--render", "2", "--duration", "6", "--fast"][..], extra].concat();
+            let mut sel = match select_source(&args(&a), Stream::Lidar, never) {
+                Ok(s) => s,
+                Err(e) => panic!("{e}"),
+            };
+            let mut n = 0;
+            while sel.source.next_sample().unwrap().is_some() {
+                n += 1;
+            }
+            n as f64
+        };
+        let (n10, n5) = (count(&[]), count(&["--render-lidar-hz", "5"]));
+        assert!(n5 >= 20.0 && (n10 / n5 - 2.0).abs() < 0.2, "{n10} {n5}");
     }
 
     #[test]

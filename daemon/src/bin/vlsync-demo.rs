@@ -61,6 +61,14 @@ struct Args {
     /// at each end), which halves the LiDAR signature's noise variance.
     #[arg(long)]
     front_wall_only: bool,
+    /// Rendered run: the camera's frame rate, Hz (default 30). Under 1 / 0.75 s (the
+    /// estimator's `max_gap_s`) or from the exposure's 125 Hz on is refused.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    render_fps: Option<f64>,
+    /// Rendered run: the LiDAR's revolutions a second, Hz (default 10, an LD06's).
+    /// 1.34 ..= 100.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    render_lidar_hz: Option<f64>,
     /// On long runs, a summary line every this many seconds of reference time (error,
     /// states, the σ's honesty, drift against the truth), with `--quiet` too; 0: none.
     #[arg(long, allow_negative_numbers = true, default_value_t = 300.0)]
@@ -147,6 +155,14 @@ impl Convergence {
     }
 }
 
+/// The rendered sensors' rates the command line asks for.
+fn render_rates(a: &Args) -> vlsync_driver::raw::RenderRates {
+    vlsync_driver::raw::RenderRates {
+        cam_fps: a.render_fps,
+        lidar_hz: a.render_lidar_hz,
+    }
+}
+
 /// Checks the numeric arguments before anything is started or created.
 fn check_args(a: &Args) -> Result<(), String> {
     // the signature simulator runs 2 s at least, the rendering simulator 1 s
@@ -162,6 +178,22 @@ fn check_args(a: &Args) -> Result<(), String> {
         vlsync_sim::families::MAX_DURATION_S,
     )?;
     check_arg("--speed", a.speed, MIN_SPEED, MAX_SPEED)?;
+    let rendered_only = [
+        ("--front-wall-only", a.front_wall_only),
+        ("--render-fps", a.render_fps.is_some()),
+        ("--render-lidar-hz", a.render_lidar_hz.is_some()),
+    ];
+    if let (Some(f), Some((name, _))) = (&a.family, rendered_only.iter().find(|o| o.1)) {
+        return Err(format!(
+            "{name} applies to the rendered run only, not to --family {f} (the signature \
+             simulator has no front-ends and its family sets its rates)"
+        ));
+    }
+    // as the drivers will check them (they run without --config)
+    render_rates(a).check(
+        vlsync_config::Config::default().estimator.max_gap_s,
+        "the drivers' default",
+    )?;
     if a.summary_every != 0.0 {
         check_arg(
             "--summary-every",
@@ -248,6 +280,7 @@ fn run(a: Args) -> Result<(), String> {
             speed: a.speed,
             stamping: Stamping::Sensor,
             opposite_window: !a.front_wall_only,
+            rates: render_rates(&a),
         },
     };
     let truth = source
@@ -529,10 +562,36 @@ mod tests {
                 &["--family", "robot", "--duration", "1.5"][..],
                 "--duration",
             ),
+            (&["--render-fps", "0.5"][..], "--render-fps"),
+            (&["--render-fps", "125"][..], "--render-fps"),
+            (&["--render-lidar-hz", "1"][..], "--render-lidar-hz"),
+            (&["--render-lidar-hz", "nan"][..], "--render-lidar-hz"),
         ] {
             let e = check_args(&args(argv)).unwrap_err();
             assert!(e.starts_with(&format!("{flag} ")), "{argv:?}: {e}");
         }
+    }
+
+    #[test]
+    fn the_rendered_runs_options_are_refused_with_a_family() {
+        assert!(check_args(&args(&["--render-fps", "15", "--render-lidar-hz", "5.5"])).is_ok());
+        for flag in [
+            "--front-wall-only",
+            "--render-fps=15",
+            "--render-lidar-hz=5",
+        ] {
+            let e = check_args(&args(&["--family", "robot", flag])).unwrap_err();
+            let name = flag.split('=').next().unwrap();
+            assert!(
+                e.starts_with(&format!(
+                    "{name} applies to the rendered run only, not to --family robot"
+                )),
+                "{e}"
+            );
+        }
+        // what the drivers are given: both take both rates
+        let a = args(&["--render-fps", "15"]);
+        assert_eq!(render_rates(&a).resolved(), (15.0, 10.0));
     }
 
     #[test]

@@ -254,6 +254,7 @@ fn run(a: &Args) -> Result<bool, String> {
                 frame_cpu_us: (a.cam_frame_cpu_ms * 1e3).round() as u32,
             },
             opposite_window: !a.front_wall_only,
+            rates: Default::default(),
         },
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),

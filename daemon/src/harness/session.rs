@@ -41,6 +41,9 @@ pub enum Source {
         /// The LiDAR front-end also fits the wall behind (`--opposite-window`; the
         /// rendered room has a wall at each end).
         opposite_window: bool,
+        /// The rendered sensors' rates (`--render-fps`, `--render-lidar-hz`; both
+        /// drivers are given the same).
+        rates: vlsync_driver::raw::RenderRates,
     },
 }
 
@@ -91,8 +94,9 @@ impl Source {
                 speed,
                 stamping,
                 opposite_window,
+                rates,
             } => format!(
-                "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}{}",
+                "rendered run seed {seed} through the front-ends, {duration_s} s at {speed}x, {}{}{}",
                 match stamping {
                     Stamping::Sensor => "sensor clocks",
                     Stamping::Software { .. } =>
@@ -102,6 +106,12 @@ impl Source {
                     ", LiDAR walls ahead and behind"
                 } else {
                     ""
+                },
+                if rates.is_default() {
+                    String::new()
+                } else {
+                    let (c, l) = rates.resolved();
+                    format!(", camera {c} Hz, LiDAR {l} Hz")
                 }
             ),
         }
@@ -122,8 +132,9 @@ impl Source {
                 seed,
                 duration_s,
                 stamping: Stamping::Sensor,
+                rates,
                 ..
-            } => vlsync_driver::raw::renderer(seed, duration_s)
+            } => vlsync_driver::raw::renderer_at(seed, duration_s, rates)
                 .map(|r| Some(r.truth().clone()))
                 .map_err(|e| e.to_string()),
             Source::Render {
@@ -847,6 +858,7 @@ fn driver_args(
             speed,
             stamping,
             opposite_window,
+            rates,
         } => {
             a.extend([
                 "--render".into(),
@@ -856,6 +868,13 @@ fn driver_args(
                 "--speed".into(),
                 speed.to_string(),
             ]);
+            // both drivers: the run's draws depend on both rates
+            if let Some(fps) = rates.cam_fps {
+                a.extend(["--render-fps".into(), fps.to_string()]);
+            }
+            if let Some(hz) = rates.lidar_hz {
+                a.extend(["--render-lidar-hz".into(), hz.to_string()]);
+            }
             if role == Role::Lidar && *opposite_window {
                 a.push("--opposite-window".into());
             }
@@ -926,6 +945,7 @@ mod tests {
             speed: 1.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
             opposite_window: false,
+            rates: Default::default(),
         };
         let cam = driver_args(&src, "p/1", 77, Role::Cam, Path::new("/l"), "").join(" ");
         assert_eq!(
@@ -945,6 +965,7 @@ mod tests {
                 frame_cpu_us: 12_500,
             },
             opposite_window: true,
+            rates: Default::default(),
         };
         let cam = driver_args(&heavy, "p/1", 77, Role::Cam, Path::new("/l"), "").join(" ");
         assert!(cam.contains("--frame-cpu-ms 12.5 --start-at 77"), "{cam}");
@@ -953,6 +974,32 @@ mod tests {
         // the wall behind: the LiDAR driver only
         assert!(lidar.contains("--opposite-window"), "{lidar}");
         assert!(!cam.contains("--opposite-window"), "{cam}");
+        // the rendered rates: both drivers (the run's draws depend on both)
+        let slow = Source::Render {
+            seed: 3,
+            duration_s: 40.0,
+            speed: 1.0,
+            stamping: Stamping::Sensor,
+            opposite_window: false,
+            rates: vlsync_driver::raw::RenderRates {
+                cam_fps: Some(15.0),
+                lidar_hz: Some(5.5),
+            },
+        };
+        for role in [Role::Cam, Role::Lidar] {
+            let line = driver_args(&slow, "p/1", 77, role, Path::new("/l"), "").join(" ");
+            assert!(
+                line.contains("--render-fps 15 --render-lidar-hz 5.5 --start-at 77"),
+                "{line}"
+            );
+        }
+        assert!(
+            slow.describe()
+                .ends_with("sensor clocks, camera 15 Hz, LiDAR 5.5 Hz"),
+            "{}",
+            slow.describe()
+        );
+        assert!(!cam.contains("--render-fps"), "{cam}");
         let sim = Source::Sim {
             family: vlsync_sim::Family::Robot,
             seed: 2,
@@ -995,6 +1042,7 @@ mod tests {
             speed: 2.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
             opposite_window: false,
+            rates: Default::default(),
         };
         assert!(bad.check().unwrap_err().contains("real time"));
         let bad = Source::Sim {
@@ -1010,6 +1058,7 @@ mod tests {
             speed: 1.0,
             stamping: Stamping::Sensor,
             opposite_window: false,
+            rates: Default::default(),
         };
         let t = sensor.known_truth().unwrap().unwrap();
         let r = vlsync_driver::raw::renderer(1, 10.0).unwrap();
@@ -1023,6 +1072,7 @@ mod tests {
             speed: 1.0,
             stamping: Stamping::Software { frame_cpu_us: 0 },
             opposite_window: false,
+            rates: Default::default(),
         };
         assert!(sw.known_truth().unwrap().is_none());
     }

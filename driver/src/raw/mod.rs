@@ -212,6 +212,52 @@ struct SilenceWords {
 }
 
 #[cfg(test)]
+mod render_rates_tests {
+    use super::*;
+
+    #[test]
+    fn the_rates_reach_the_rendered_run() {
+        let at = |cam_fps, lidar_hz| {
+            renderer_at(3, 20.0, RenderRates { cam_fps, lidar_hz }).expect("a valid run")
+        };
+        let default = at(None, None);
+        assert_eq!(RenderRates::default().resolved(), (30.0, 10.0));
+        assert!(RenderRates::default().is_default());
+        assert!(RenderRates {
+            cam_fps: Some(30.0),
+            lidar_hz: Some(10.0)
+        }
+        .is_default());
+        let slow = at(Some(15.0), Some(5.0));
+        assert!(!RenderRates {
+            cam_fps: Some(15.0),
+            lidar_hz: None
+        }
+        .is_default());
+        // half the rates, about half the frames and scans (2 % of frames dropped at random)
+        let (f30, f15) = (
+            default.frame_schedule().len() as f64,
+            slow.frame_schedule().len() as f64,
+        );
+        assert!((f30 / f15 - 2.0).abs() < 0.1, "{f30} {f15}");
+        let (s10, s5) = (
+            default.scan_schedule().len() as f64,
+            slow.scan_schedule().len() as f64,
+        );
+        assert!((s10 / s5 - 2.0).abs() < 0.1, "{s10} {s5}");
+        // the clocks are the seed's whatever the rates
+        assert_eq!(default.truth(), slow.truth());
+        // the same rates, the same run (what the two drivers of a pair rely on)
+        let again = at(Some(15.0), Some(5.0));
+        assert_eq!(again.anchor_ns(), slow.anchor_ns());
+        assert_eq!(
+            again.scan_schedule().first().map(|s| s.stamp_ns),
+            slow.scan_schedule().first().map(|s| s.stamp_ns)
+        );
+    }
+}
+
+#[cfg(test)]
 mod silence_tests {
     use super::*;
 
@@ -285,11 +331,92 @@ mod silence_tests {
 /// Default render duration when none is given, seconds.
 pub const DEFAULT_RENDER_DURATION_S: f64 = 60.0;
 
-/// The rendering simulator's run for `seed` (camera and LiDAR drivers given the
-/// same seed and duration render the same run).
+/// The rendering simulator's run for `seed` at its default sensor rates (camera and
+/// LiDAR drivers given the same seed and duration render the same run).
 pub fn renderer(seed: u64, duration_s: f64) -> Result<vlsync_render::Renderer, SourceError> {
-    vlsync_render::Renderer::new(vlsync_render::RenderConfig::from_seed(seed, duration_s))
-        .map_err(|e| SourceError(format!("render seed {seed}: {e}")))
+    renderer_at(seed, duration_s, RenderRates::default())
+}
+
+/// The sensor rates of a rendered run (`vlsync-cam` / `vlsync-lidar --render-fps`,
+/// `--render-lidar-hz`); `None` keeps the rendering simulator's default (a 30 Hz
+/// camera, a 10 Hz LiDAR). The run's draws depend on both, so the two drivers of a
+/// pair must be given the same rates, as they are the same seed.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RenderRates {
+    /// Camera frames a second.
+    pub cam_fps: Option<f64>,
+    /// LiDAR revolutions a second.
+    pub lidar_hz: Option<f64>,
+}
+
+impl RenderRates {
+    /// The rendered rates, `(camera fps, LiDAR Hz)`, defaults filled in.
+    pub fn resolved(self) -> (f64, f64) {
+        let c = vlsync_render::RenderConfig::from_seed(0, 1.0);
+        (
+            self.cam_fps.unwrap_or(c.camera.fps),
+            self.lidar_hz.unwrap_or(c.lidar.rate_hz),
+        )
+    }
+
+    /// Whether both are the defaults.
+    pub fn is_default(self) -> bool {
+        let (c, l) = self.resolved();
+        (c, l) == RenderRates::default().resolved()
+    }
+
+    /// The rates given, checked as options (`--render-fps`, `--render-lidar-hz`):
+    /// within the rendering simulator's ranges (the camera's period longer than its
+    /// exposure), and samples no further apart than `max_gap_s`, the longest gap the
+    /// estimator interpolates across (`whose` says where that value came from).
+    pub fn check(self, max_gap_s: f64, whose: &str) -> Result<(), String> {
+        // the rendered camera exposes each frame for a fixed time, shorter than its period
+        let exposure_s = vlsync_render::RenderConfig::from_seed(0, 1.0)
+            .camera
+            .exposure_s;
+        let given = [
+            ("--render-fps", self.cam_fps, "camera frames"),
+            ("--render-lidar-hz", self.lidar_hz, "LiDAR scans"),
+        ];
+        for (name, hz, what) in given {
+            let Some(hz) = hz else { continue };
+            let (ok, allowed) = if name == "--render-fps" {
+                (
+                    (1.0..1.0 / exposure_s).contains(&hz),
+                    format!(
+                        "1 <= HZ < {} (the rendered camera exposes each frame for {} ms)",
+                        1.0 / exposure_s,
+                        exposure_s * 1e3
+                    ),
+                )
+            } else {
+                ((0.5..=100.0).contains(&hz), "0.5 ..= 100".to_string())
+            };
+            if !ok {
+                return Err(format!("{name} {hz} is out of range: allowed {allowed}"));
+            }
+            if 1.0 / hz > max_gap_s {
+                return Err(format!(
+                    "{name} {hz}: {what} {:.3} s apart, more than `estimator.max_gap_s` = \
+                     {max_gap_s} ({whose}), the longest gap the estimator interpolates \
+                     across: none of the stream would be usable",
+                    1.0 / hz
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The rendering simulator's run for `seed` at `rates`.
+pub fn renderer_at(
+    seed: u64,
+    duration_s: f64,
+    rates: RenderRates,
+) -> Result<vlsync_render::Renderer, SourceError> {
+    let mut cfg = vlsync_render::RenderConfig::from_seed(seed, duration_s);
+    (cfg.camera.fps, cfg.lidar.rate_hz) = rates.resolved();
+    vlsync_render::Renderer::new(cfg).map_err(|e| SourceError(format!("render seed {seed}: {e}")))
 }
 
 /// The pacing anchor of a rendered pair: the earlier of the first frame's and
