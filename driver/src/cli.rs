@@ -95,12 +95,13 @@ pub struct DriverArgs {
     pub render: Option<u64>,
     /// With --render: the rendered camera's frame rate, Hz (default 30). The run's
     /// draws depend on it, so both drivers of a pair take the same, as they take the
-    /// same seed. 1..=1000, and frames no further apart than `estimator.max_gap_s`.
+    /// same seed. Under 125 (the frame's 8 ms exposure must fit its period), and frames
+    /// at most half `estimator.max_gap_s` apart (2.67 Hz or more by default).
     #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
     pub render_fps: Option<f64>,
     /// With --render: the rendered LiDAR's revolutions a second, Hz (default 10, an
-    /// LD06's). Both drivers of a pair take the same. 0.5..=100, and scans no further
-    /// apart than `estimator.max_gap_s`.
+    /// LD06's). Both drivers of a pair take the same. Up to 100, and scans at most half
+    /// `estimator.max_gap_s` apart (2.67 Hz or more by default).
     #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
     pub render_lidar_hz: Option<f64>,
     /// Publish as fast as possible instead of in real time (recorded and simulated
@@ -1580,41 +1581,40 @@ mod tests {
             options_error(&["--sim", "robot", "--render-lidar-hz", "5"]),
             "--render-lidar-hz applies to --render only (other sources keep their own rates)"
         );
-        for bad in ["0.5", "125", "1e9", "-30", "NaN", "inf"] {
+        for bad in ["0.5", "2.6", "125", "1e9", "-30", "NaN", "inf"] {
             let e = options_error(&["--render", "1", "--render-fps", bad]);
             assert_eq!(
                 e,
                 format!(
-                    "--render-fps {} is out of range: allowed 1 <= HZ < 125 (the rendered \
-                     camera exposes each frame for 8 ms)",
+                    "--render-fps {} is out of range: allowed 2.67 <= HZ < 125 (samples at \
+                     most half `estimator.max_gap_s` = 0.75 apart (its default: no --config), \
+                     so that a dropped one does not break the stream; the rendered camera \
+                     exposes each frame for 8 ms)",
                     bad.parse::<f64>().unwrap()
                 )
             );
         }
-        for bad in ["0.4", "101", "NaN"] {
+        for bad in ["0.4", "1", "101", "NaN"] {
             let e = options_error(&["--render", "1", "--render-lidar-hz", bad]);
-            assert_eq!(
-                e,
-                format!(
-                    "--render-lidar-hz {} is out of range: allowed 0.5 ..= 100",
+            assert!(
+                e.starts_with(&format!(
+                    "--render-lidar-hz {} is out of range: allowed 2.67 ..= 100",
                     bad.parse::<f64>().unwrap()
-                )
+                )),
+                "{e}"
             );
         }
-        // within the renderer's range, but too slow for the estimator's gap limit
-        let e = options_error(&["--render", "1", "--render-lidar-hz", "1"]);
-        assert!(
-            e.starts_with(
-                "--render-lidar-hz 1: LiDAR scans 1.000 s apart, more than \
-                 `estimator.max_gap_s` = 0.75 (its default: no --config)"
-            ),
-            "{e}"
-        );
-        let e = options_error(&["--render", "1", "--render-fps", "1.2"]);
-        assert!(
-            e.starts_with("--render-fps 1.2: camera frames 0.833 s apart"),
-            "{e}"
-        );
+        // a configuration with a longer gap limit lets a slower LiDAR through
+        let dir = std::env::temp_dir().join(format!("vlsync-cli-rates-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = dir.join("gap.toml");
+        std::fs::write(&cfg, "[estimator]\nmax_gap_s = 2.0\n").unwrap();
+        let c = cfg.to_str().unwrap();
+        let a = args(&["--render", "1", "--render-lidar-hz", "1", "--config", c]);
+        assert_eq!(render_rates(&a, "--render").unwrap().lidar_hz, Some(1.0));
+        let e = options_error(&["--render", "1", "--render-lidar-hz", "0.9", "--config", c]);
+        assert!(e.contains("= 2 apart (as --config sets it)"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -61,12 +61,13 @@ struct Args {
     /// at each end), which halves the LiDAR signature's noise variance.
     #[arg(long)]
     front_wall_only: bool,
-    /// Rendered run: the camera's frame rate, Hz (default 30). Under 1 / 0.75 s (the
-    /// estimator's `max_gap_s`) or from the exposure's 125 Hz on is refused.
+    /// Rendered run: the camera's frame rate, Hz (default 30). 2.67 <= HZ < 125: frames
+    /// at most half the estimator's `max_gap_s` (0.75 s) apart, and the frame's 8 ms
+    /// exposure within its period.
     #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
     render_fps: Option<f64>,
     /// Rendered run: the LiDAR's revolutions a second, Hz (default 10, an LD06's).
-    /// 1.34 ..= 100.
+    /// 2.67 ..= 100.
     #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
     render_lidar_hz: Option<f64>,
     /// On long runs, a summary line every this many seconds of reference time (error,
@@ -299,6 +300,10 @@ fn run(a: Args) -> Result<(), String> {
         fifo_priority: options.daemon_fifo_priority,
     })
     .map_err(|e| format!("--config: {e}"))?;
+    if a.procs.config.is_some() && a.family.is_none() {
+        // the daemon's estimator must be able to use the rendered streams too
+        render_rates(&a).check(daemon_cfg.estimator.max_gap_s, "as --config sets it")?;
+    }
     let mut s = Session::start(options)?;
     out.line(format_args!(
         "vlsync-demo: {} on prefix `{}` (logs in {})",
@@ -564,7 +569,7 @@ mod tests {
             ),
             (&["--render-fps", "0.5"][..], "--render-fps"),
             (&["--render-fps", "125"][..], "--render-fps"),
-            (&["--render-lidar-hz", "1"][..], "--render-lidar-hz"),
+            (&["--render-lidar-hz", "2.6"][..], "--render-lidar-hz"),
             (&["--render-lidar-hz", "nan"][..], "--render-lidar-hz"),
         ] {
             let e = check_args(&args(argv)).unwrap_err();
@@ -589,7 +594,7 @@ mod tests {
                 "{e}"
             );
         }
-        // what the drivers are given: both take both rates
+        // the rates the session passes on (its test checks that both drivers get both)
         let a = args(&["--render-fps", "15"]);
         assert_eq!(render_rates(&a).resolved(), (15.0, 10.0));
     }

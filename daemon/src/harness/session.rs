@@ -158,6 +158,13 @@ impl Source {
                 "duration {d} s and speed {s} must be finite numbers > 0"
             ));
         }
+        if let Source::Render { rates, .. } = self {
+            // as the drivers will check them (they run without --config)
+            rates.check(
+                vlsync_config::Config::default().estimator.max_gap_s,
+                "the drivers' default",
+            )?;
+        }
         if let Source::Render {
             stamping: Stamping::Software { .. },
             ..
@@ -1045,6 +1052,19 @@ mod tests {
             rates: Default::default(),
         };
         assert!(bad.check().unwrap_err().contains("real time"));
+        let slow = Source::Render {
+            seed: 1,
+            duration_s: 10.0,
+            speed: 1.0,
+            stamping: Stamping::Sensor,
+            opposite_window: false,
+            rates: vlsync_driver::raw::RenderRates {
+                cam_fps: None,
+                lidar_hz: Some(1.0),
+            },
+        };
+        let e = slow.check().unwrap_err();
+        assert!(e.starts_with("--render-lidar-hz 1 is out of range"), "{e}");
         let bad = Source::Sim {
             family: vlsync_sim::Family::Robot,
             seed: 1,

@@ -247,13 +247,73 @@ mod render_rates_tests {
         assert!((s10 / s5 - 2.0).abs() < 0.1, "{s10} {s5}");
         // the clocks are the seed's whatever the rates
         assert_eq!(default.truth(), slow.truth());
-        // the same rates, the same run (what the two drivers of a pair rely on)
-        let again = at(Some(15.0), Some(5.0));
-        assert_eq!(again.anchor_ns(), slow.anchor_ns());
+        // the LiDAR's scans depend on the camera's rate too (the draws are one
+        // sequence): why both drivers of a pair take both rates
+        let cam_only = at(Some(15.0), None);
+        let scan_stamps = |r: &vlsync_render::Renderer| {
+            r.scan_schedule()
+                .iter()
+                .map(|s| s.stamp_ns)
+                .collect::<Vec<_>>()
+        };
         assert_eq!(
-            again.scan_schedule().first().map(|s| s.stamp_ns),
-            slow.scan_schedule().first().map(|s| s.stamp_ns)
+            cam_only.scan_schedule().len(),
+            default.scan_schedule().len()
         );
+        assert_ne!(scan_stamps(&cam_only), scan_stamps(&default));
+    }
+
+    #[test]
+    fn rates_are_checked_where_the_renderer_and_the_estimator_would_refuse_them() {
+        let check = |cam_fps, lidar_hz, gap| RenderRates { cam_fps, lidar_hz }.check(gap, "here");
+        assert!(check(None, None, 0.75).is_ok());
+        assert!(check(Some(124.9), Some(100.0), 0.75).is_ok());
+        assert!(check(Some(2.67), Some(2.67), 0.75).is_ok());
+        // what the renderer refuses is refused here, the exposure's edge included
+        for fps in [
+            125.0,
+            124.99999999999999,
+            1e9,
+            f64::NAN,
+            f64::INFINITY,
+            -30.0,
+        ] {
+            let e = check(Some(fps), None, 0.75).unwrap_err();
+            assert!(
+                e.starts_with(&format!("--render-fps {fps} is out of range")),
+                "{e}"
+            );
+            let render = |cam_fps| {
+                renderer_at(
+                    1,
+                    2.0,
+                    RenderRates {
+                        cam_fps,
+                        lidar_hz: None,
+                    },
+                )
+            };
+            assert!(render(Some(fps)).is_err(), "{fps}");
+        }
+        assert!(renderer_at(
+            1,
+            2.0,
+            RenderRates {
+                cam_fps: Some(124.9),
+                lidar_hz: Some(100.0)
+            }
+        )
+        .is_ok());
+        let e = check(None, Some(2.6), 0.75).unwrap_err();
+        assert_eq!(
+            e,
+            "--render-lidar-hz 2.6 is out of range: allowed 2.67 ..= 100 (samples at most half \
+             `estimator.max_gap_s` = 0.75 apart (here), so that a dropped one does not break \
+             the stream)"
+        );
+        // a longer gap limit lets slower sensors through, down to the renderer's own limits
+        assert!(check(Some(1.0), Some(0.5), 4.0).is_ok());
+        assert!(check(None, Some(0.4), 4.0).is_err());
     }
 }
 
@@ -367,41 +427,44 @@ impl RenderRates {
 
     /// The rates given, checked as options (`--render-fps`, `--render-lidar-hz`):
     /// within the rendering simulator's ranges (the camera's period longer than its
-    /// exposure), and samples no further apart than `max_gap_s`, the longest gap the
-    /// estimator interpolates across (`whose` says where that value came from).
+    /// exposure, as the renderer checks it), and samples at most half `max_gap_s`
+    /// apart, so that one dropped sample does not break the stream (the estimator
+    /// never interpolates across a gap longer than `max_gap_s`; `whose` says where
+    /// that value came from).
     pub fn check(self, max_gap_s: f64, whose: &str) -> Result<(), String> {
         // the rendered camera exposes each frame for a fixed time, shorter than its period
         let exposure_s = vlsync_render::RenderConfig::from_seed(0, 1.0)
             .camera
             .exposure_s;
+        // the slowest rate that passes, rounded up to the hundredth shown
+        let slowest = (200.0 / max_gap_s).ceil() / 100.0;
+        let gap = format!(
+            "samples at most half `estimator.max_gap_s` = {max_gap_s} apart ({whose}), so that \
+             a dropped one does not break the stream"
+        );
         let given = [
-            ("--render-fps", self.cam_fps, "camera frames"),
-            ("--render-lidar-hz", self.lidar_hz, "LiDAR scans"),
+            ("--render-fps", self.cam_fps, 1.0_f64, 1000.0_f64),
+            ("--render-lidar-hz", self.lidar_hz, 0.5, 100.0),
         ];
-        for (name, hz, what) in given {
+        for (name, hz, lo, hi) in given {
             let Some(hz) = hz else { continue };
-            let (ok, allowed) = if name == "--render-fps" {
-                (
-                    (1.0..1.0 / exposure_s).contains(&hz),
+            let camera = name == "--render-fps";
+            let in_range = hz.is_finite()
+                && hz >= lo.max(slowest)
+                && hz <= hi
+                && (!camera || exposure_s < 1.0 / hz);
+            if !in_range {
+                let allowed = if camera {
                     format!(
-                        "1 <= HZ < {} (the rendered camera exposes each frame for {} ms)",
+                        "{} <= HZ < {} ({gap}; the rendered camera exposes each frame for {} ms)",
+                        lo.max(slowest),
                         1.0 / exposure_s,
                         exposure_s * 1e3
-                    ),
-                )
-            } else {
-                ((0.5..=100.0).contains(&hz), "0.5 ..= 100".to_string())
-            };
-            if !ok {
+                    )
+                } else {
+                    format!("{} ..= {hi} ({gap})", lo.max(slowest))
+                };
                 return Err(format!("{name} {hz} is out of range: allowed {allowed}"));
-            }
-            if 1.0 / hz > max_gap_s {
-                return Err(format!(
-                    "{name} {hz}: {what} {:.3} s apart, more than `estimator.max_gap_s` = \
-                     {max_gap_s} ({whose}), the longest gap the estimator interpolates \
-                     across: none of the stream would be usable",
-                    1.0 / hz
-                ));
             }
         }
         Ok(())
