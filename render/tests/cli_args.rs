@@ -162,3 +162,36 @@ fn no_png_writes_no_frame_list_and_says_so() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn an_mcap_file_that_cannot_be_written_is_refused_before_the_run() {
+    let dir = temp_dir("mcap-dir");
+    let d = dir.to_str().unwrap();
+    let missing = dir.join("no-such-dir").join("x.mcap");
+    refused(
+        &[
+            &["--out", d, "--mcap", missing.to_str().unwrap()][..],
+            &SMALL,
+        ]
+        .concat(),
+        &["--mcap ", "x.mcap", "does not exist"],
+    );
+    // nothing was made: not the run's directory, not its frames
+    assert!(!dir.exists(), "{}", dir.display());
+    // a FILE in --out's own directory is made with it
+    let inside = dir.join("inside.mcap");
+    let out = render_bin(
+        &[
+            &["--out", d, "--mcap", inside.to_str().unwrap(), "--no-png"][..],
+            &SMALL,
+        ]
+        .concat(),
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(inside.is_file());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -3,7 +3,7 @@
 
 use clap::{CommandFactory, Parser};
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vlsync_common::text::number;
@@ -263,6 +263,14 @@ fn progress_line(p: &Progress, elapsed: Duration) -> String {
     )
 }
 
+/// The directory a file path is in (`.` for a bare name).
+fn dir_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
 fn main() -> ExitCode {
     let a = Args::parse();
     if let Err(msg) = check_args(&a) {
@@ -294,6 +302,14 @@ fn main() -> ExitCode {
                 out_dir.join("run.mcap").display()
             ));
             return ExitCode::from(2);
+        }
+        // an explicit FILE elsewhere is checked before the run's directory is made and
+        // rendered into (a FILE in --out's own directory is made with it)
+        if let (Some(Some(file)), false) = (&a.mcap, dir_of(&m.path) == out_dir.as_path()) {
+            if let Err(e) = vlsync_common::file::check_writable("--mcap", file) {
+                vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
+                return ExitCode::from(2);
+            }
         }
     }
     let t0 = Instant::now();
