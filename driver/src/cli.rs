@@ -270,6 +270,39 @@ pub fn select_source(
             "{f} is not a source of vlsync-{stream}; give one of {choices}"
         ))
     };
+    // the other driver's sources and options first: what follows checks them as if
+    // they applied here ("this vlsync-cam is built without V4L2" from vlsync-lidar)
+    let (other_sources, other_options): (&[&str], Vec<(&str, bool)>) = match stream {
+        Stream::Cam => (
+            &["--ld06", "--rplidar", "--scans"],
+            vec![
+                ("--opposite-window", args.opposite_window),
+                ("--baud", args.baud.is_some()),
+            ],
+        ),
+        Stream::Lidar => (
+            &["--frames", "--v4l2", "--pipe", "--pipe-cmd"],
+            vec![
+                ("--fps", args.fps.is_some()),
+                ("--size", args.size.is_some()),
+                ("--raw-format", args.raw_format.is_some()),
+                ("--stride", args.stride.is_some()),
+                ("--frame-cpu-ms", args.frame_cpu_ms != 0.0),
+            ],
+        ),
+    };
+    if other_sources.contains(&flag) {
+        return Err(wrong_stream(flag));
+    }
+    if let Some((o, _)) = other_options.iter().find(|o| o.1) {
+        let other = match stream {
+            Stream::Cam => "lidar",
+            Stream::Lidar => "cam",
+        };
+        return Err(DriverError::Options(format!(
+            "{o} is an option of vlsync-{other}, not of vlsync-{stream}"
+        )));
+    }
     if args.stamp != StampArg::Sensor {
         if flag != "--render" {
             return Err(DriverError::Options(format!(
@@ -1276,6 +1309,52 @@ mod tests {
             ),
             other => panic!("{:?}", other.map(|_| ()).map_err(|e| e.to_string())),
         }
+    }
+
+    #[test]
+    fn the_other_drivers_sources_and_options_are_named_as_its() {
+        let lidar_error = |a: &[&str]| match select_source(&args(a), Stream::Lidar, never) {
+            Err(DriverError::Options(e)) => e,
+            other => panic!("{a:?}: {:?}", other.map(|_| ()).map_err(|e| e.to_string())),
+        };
+        // before the checks of a camera source's own (a build without V4L2 said
+        // "this vlsync-cam is built without V4L2 support" from vlsync-lidar)
+        for a in [
+            &["--v4l2", "/dev/video0"][..],
+            &["--v4l2", "/dev/video0", "--fps", "30"],
+        ] {
+            let e = lidar_error(a);
+            assert!(
+                e.starts_with("--v4l2 is not a source of vlsync-lidar; give one of"),
+                "{e}"
+            );
+        }
+        for (a, o) in [
+            (&["--render", "1", "--fps", "30"][..], "--fps"),
+            (&["--render", "1", "--size", "8x8"], "--size"),
+            (&["--render", "1", "--raw-format", "gray"], "--raw-format"),
+            (&["--render", "1", "--stride", "8"], "--stride"),
+            (&["--render", "1", "--frame-cpu-ms", "2"], "--frame-cpu-ms"),
+        ] {
+            assert_eq!(
+                lidar_error(a),
+                format!("{o} is an option of vlsync-cam, not of vlsync-lidar")
+            );
+        }
+        for (a, o) in [
+            (
+                &["--render", "1", "--opposite-window"][..],
+                "--opposite-window",
+            ),
+            (&["--render", "1", "--baud", "230400"], "--baud"),
+        ] {
+            assert_eq!(
+                options_error(a),
+                format!("{o} is an option of vlsync-lidar, not of vlsync-cam")
+            );
+        }
+        assert!(options_error(&["--ld06", "/dev/ttyUSB0"])
+            .starts_with("--ld06 is not a source of vlsync-cam"));
     }
 
     #[test]
