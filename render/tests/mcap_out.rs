@@ -200,12 +200,26 @@ fn binary_writes_png_mcap_by_default_in_the_output_directory_and_names_bad_paths
     let bad = "/proc/no/such/dir/run.mcap";
     let out = render_bin(&[&common[..], &["--mcap", bad]].concat());
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    // refused as an option, before the run (since 2026-12-07)
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.starts_with(&format!("vlsync-render: error: {bad}: creating")),
+        stderr.starts_with(&format!(
+            "vlsync-render: error: --mcap {bad}: directory /proc/no/such/dir does not exist"
+        )),
         "{stderr}"
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
+    // the library, given such a FILE, opens it before it touches the directory's files
+    let mut r = Renderer::new(RenderConfig::from_seed(3, 1.0)).unwrap();
+    let m = McapOutput {
+        path: PathBuf::from(bad),
+        png: false,
+    };
+    let e = write_run_with(&mut r, &dir, false, Some(&m)).unwrap_err();
+    assert!(
+        e.to_string().starts_with(&format!("{bad}: creating")),
+        "{e}"
+    );
     let after = [
         std::fs::read(dir.join("frames.csv")).unwrap(),
         std::fs::read(dir.join("scans.csv")).unwrap(),
