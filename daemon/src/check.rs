@@ -37,7 +37,13 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
             ));
         }
     }
-    if let Some(note) = core_note(cfg.daemon.core, &vlsync_ipc::rt::available_cores()) {
+    // the machine's CPUs, not this shell's: a core kept from login shells (`isolcpus`,
+    // a CPU set) is the daemon's under its unit (`CPUAffinity=`)
+    let cores = std::fs::read_to_string("/sys/devices/system/cpu/online")
+        .ok()
+        .and_then(|s| parse_cpu_list(&s))
+        .unwrap_or_else(vlsync_ipc::rt::available_cores);
+    if let Some(note) = core_note(cfg.daemon.core, &cores) {
         out.push_str(&format!("{comment}{note}\n"));
     }
     if print {
@@ -48,19 +54,42 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
     Ok(out)
 }
 
-/// A note when `daemon.core` names a core this process may not run on here (not an
+/// A note when `daemon.core` names a core this machine does not have online (not an
 /// error: the check often runs on another machine than the robot, as for the state
-/// file). `cores`: the CPUs it may run on (empty: unknown).
+/// file). `cores`: the machine's online CPUs (empty: unknown).
 fn core_note(core: i64, cores: &[usize]) -> Option<String> {
     if core < 0 || cores.is_empty() || cores.iter().any(|&c| c as i64 == core) {
         return None;
     }
     let list: Vec<String> = cores.iter().map(|c| c.to_string()).collect();
     Some(format!(
-        "note: daemon.core = {core}: not a CPU this process may use on this machine (available: \
-         [{}]); here the daemon would run unpinned, and say so at start",
+        "note: daemon.core = {core}: not a CPU of this machine (online: [{}]); here the \
+         daemon would run unpinned, and say so at start",
         list.join(", ")
     ))
+}
+
+/// The kernel's CPU list format (`/sys/devices/system/cpu/online`: `0-3`, `0,2-3`),
+/// sorted; `None` when it is not one.
+fn parse_cpu_list(text: &str) -> Option<Vec<usize>> {
+    let mut cpus = Vec::new();
+    for part in text.trim().split(',') {
+        let (a, b) = match part.split_once('-') {
+            Some((a, b)) => (a.parse::<usize>().ok()?, b.parse::<usize>().ok()?),
+            None => {
+                let a = part.parse::<usize>().ok()?;
+                (a, a)
+            }
+        };
+        // a kernel has at most a few thousand CPUs: a range beyond is no CPU list
+        if a > b || b >= 1 << 16 {
+            return None;
+        }
+        cpus.extend(a..=b);
+    }
+    cpus.sort_unstable();
+    cpus.dedup();
+    Some(cpus)
 }
 
 #[cfg(test)]
@@ -73,9 +102,43 @@ mod tests {
         assert_eq!(super::core_note(3, &[2, 3]), None);
         let n = super::core_note(3, &[0, 1]).unwrap();
         assert!(
-            n.starts_with("note: daemon.core = 3: not a CPU this process may use on this machine (available: [0, 1])"),
+            n.starts_with("note: daemon.core = 3: not a CPU of this machine (online: [0, 1])"),
             "{n}"
         );
+    }
+
+    #[test]
+    fn the_kernels_cpu_lists_are_read() {
+        assert_eq!(super::parse_cpu_list("0-3\n"), Some(vec![0, 1, 2, 3]));
+        assert_eq!(super::parse_cpu_list("0,2-3"), Some(vec![0, 2, 3]));
+        assert_eq!(super::parse_cpu_list("5"), Some(vec![5]));
+        for bad in ["", "a", "3-1", "0-", "-2", "0,,1", "0-99999999", "1-2-3"] {
+            assert_eq!(super::parse_cpu_list(bad), None, "{bad:?}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Any set of CPUs written as the kernel writes it (runs of consecutive
+        /// CPUs as ranges) reads back as that set.
+        #[test]
+        fn any_cpu_set_reads_back(set in proptest::collection::btree_set(0usize..512, 1..40)) {
+            let cpus: Vec<usize> = set.into_iter().collect();
+            let mut parts = Vec::new();
+            let mut i = 0;
+            while i < cpus.len() {
+                let mut j = i;
+                while j + 1 < cpus.len() && cpus[j + 1] == cpus[j] + 1 {
+                    j += 1;
+                }
+                parts.push(if i == j {
+                    cpus[i].to_string()
+                } else {
+                    format!("{}-{}", cpus[i], cpus[j])
+                });
+                i = j + 1;
+            }
+            proptest::prop_assert_eq!(super::parse_cpu_list(&parts.join(",")), Some(cpus));
+        }
     }
 
     use super::*;
