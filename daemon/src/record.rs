@@ -53,7 +53,7 @@ pub const SIGNATURE_HEADER: &str = "t,value,seq,publish,flags";
 pub const FILES: [&str; 3] = ["cam.csv", "lidar.csv", "est.csv"];
 
 /// A recording file that always ends on a whole row: rows gather in memory and go to
-/// the file at each [`Write::flush`] (every [`FLUSH_EVERY`]); a flush that fails part
+/// the file at each [`Write::flush`] (every second, `FLUSH_EVERY`); a flush that fails part
 /// way (a full disk) cuts the file back to the end of the last flush that succeeded,
 /// so `vlsyncd replay` reads it whole, never a row cut in its value.
 pub struct RowFile<F: Cut = std::fs::File> {

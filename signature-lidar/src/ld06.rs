@@ -368,7 +368,7 @@ pub struct Ld06Stats {
 pub struct Ld06Decoder {
     buf: [u8; PACKET_LEN],
     len: usize,
-    /// stream offset of buf[0]
+    /// stream offset of `buf[0]`
     buf_offset: u64,
     /// stream offset of the next byte pushed
     offset: u64,

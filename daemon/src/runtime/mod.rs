@@ -275,7 +275,7 @@ pub enum RtEvent {
     /// An iceoryx2 call of the real-time loop failed (the text is static); the loop
     /// goes on (a failed receive marks that stream empty until the next wake-up; a
     /// failed wait is followed by a [`WAKE_PERIOD`] sleep, and
-    /// [`rt::MAX_WAIT_FAILURES`] in a row stop the daemon with an error).
+    /// `MAX_WAIT_FAILURES` (50) in a row stop the daemon with an error).
     /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
     Fatal(&'static str),
 }
