@@ -210,6 +210,26 @@ pub fn own_output(dir: &Path, path: &Path) -> Option<String> {
         .then(|| format!("frames/{name}"))
 }
 
+/// Whether a run into `dir` makes the directory `d` itself: `dir`, its `frames/`
+/// when PNGs are written, or an ancestor of `dir` that does not exist yet (compared
+/// resolved, so `./out` is `out`). An MCAP recording's directory that the run makes
+/// need not exist before it.
+///
+/// ```
+/// use std::path::Path;
+/// use vlsync_render::output::run_makes;
+/// let dir = Path::new("/tmp/no-such-base/runs/seed3");
+/// assert!(run_makes(dir, false, Path::new("/tmp/no-such-base/runs/./seed3")));
+/// assert!(run_makes(dir, false, Path::new("/tmp/no-such-base/runs")));
+/// assert!(run_makes(dir, true, Path::new("/tmp/no-such-base/runs/seed3/frames")));
+/// assert!(!run_makes(dir, false, Path::new("/tmp/no-such-base/runs/seed3/frames")));
+/// assert!(!run_makes(dir, false, Path::new("/tmp/no-such-base/elsewhere")));
+/// ```
+pub fn run_makes(dir: &Path, png: bool, d: &Path) -> bool {
+    let (dir, d) = (resolve(dir), resolve(d));
+    d == dir || (png && d == dir.join("frames")) || dir.starts_with(&d)
+}
+
 /// Renders the whole run into `dir` (created if needed). With `png = false`
 /// the frames are rendered but neither written nor listed: no `frames/` and no
 /// `frames.csv` (for timing, or with an MCAP recording only).

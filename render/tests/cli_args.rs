@@ -178,6 +178,35 @@ fn an_mcap_file_that_cannot_be_written_is_refused_before_the_run() {
     );
     // nothing was made: not the run's directory, not its frames
     assert!(!dir.exists(), "{}", dir.display());
+    // a FILE in a directory the run makes: --out however spelt, its frames/ (PNGs
+    // on), an ancestor of a new --out
+    for (out, file) in [
+        (dir.clone(), dir.join(".").join("dot.mcap")),
+        (dir.clone(), dir.join("frames").join("in-frames.mcap")),
+        (
+            dir.join("runs").join("seed3"),
+            dir.join("runs").join("seed3.mcap"),
+        ),
+    ] {
+        let args = [
+            &[
+                "--out",
+                out.to_str().unwrap(),
+                "--mcap",
+                file.to_str().unwrap(),
+            ][..],
+            &SMALL,
+        ]
+        .concat();
+        let run = render_bin(&args);
+        assert!(
+            run.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        assert!(file.is_file(), "{}", file.display());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
     // a FILE in --out's own directory is made with it
     let inside = dir.join("inside.mcap");
     let out = render_bin(

@@ -119,6 +119,8 @@ impl Source {
 
     /// The offset model when it is known in advance (simulators on their own clocks).
     pub fn known_truth(&self) -> Result<Option<vlsync_sim::Truth>, String> {
+        // a bad option is said as one, not as the simulator's field
+        self.check()?;
         match *self {
             Source::Sim {
                 family,

@@ -311,6 +311,13 @@ mod render_rates_tests {
              `estimator.max_gap_s` = 0.75 apart (here), so that a dropped one does not break \
              the stream)"
         );
+        // a gap limit no camera rate fits says so (not "allowed 200 <= HZ < 125")
+        let e = check(Some(30.0), None, 0.01).unwrap_err();
+        assert!(
+            e.starts_with("--render-fps 30: no camera rate fits: samples at most half"),
+            "{e}"
+        );
+        assert!(e.contains("needs 200 Hz or more"), "{e}");
         // a longer gap limit lets slower sensors through, down to the renderer's own limits
         assert!(check(Some(1.0), Some(0.5), 4.0).is_ok());
         assert!(check(None, Some(0.4), 4.0).is_err());
@@ -453,6 +460,14 @@ impl RenderRates {
                 && hz >= lo.max(slowest)
                 && hz <= hi
                 && (!camera || exposure_s < 1.0 / hz);
+            if camera && lo.max(slowest) >= 1.0 / exposure_s {
+                return Err(format!(
+                    "{name} {hz}: no camera rate fits: {gap} needs {slowest} Hz or more, and \
+                     the rendered camera's {} ms exposure allows under {} Hz",
+                    exposure_s * 1e3,
+                    1.0 / exposure_s
+                ));
+            }
             if !in_range {
                 let allowed = if camera {
                     format!(

@@ -303,9 +303,11 @@ fn main() -> ExitCode {
             ));
             return ExitCode::from(2);
         }
-        // an explicit FILE elsewhere is checked before the run's directory is made and
-        // rendered into (a FILE in --out's own directory is made with it)
-        if let (Some(Some(file)), false) = (&a.mcap, dir_of(&m.path) == out_dir.as_path()) {
+        // an explicit FILE is checked before the run's directory is made and rendered
+        // into, unless the run makes FILE's directory itself (--out, its frames/, an
+        // ancestor of --out)
+        let made = vlsync_render::output::run_makes(out_dir, !a.no_png, dir_of(&m.path));
+        if let (Some(Some(file)), false) = (&a.mcap, made) {
             if let Err(e) = vlsync_common::file::check_writable("--mcap", file) {
                 vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
                 return ExitCode::from(2);
