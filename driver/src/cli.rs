@@ -366,13 +366,9 @@ pub fn select_source(
         // at start, not once --wait-device has seen the camera (maybe hours later);
         // a rate in the file was checked as the file was read
         if let Some(why) = config(args)?.camera_rate_problem(fps) {
-            let whose = if args.config.is_some() {
-                "as --config sets it"
-            } else {
-                "its default: no --config"
-            };
             return Err(DriverError::Options(format!(
-                "--fps {fps}: {why} ({whose})"
+                "--fps {fps}: {why} ({})",
+                config_source(args)
             )));
         }
     }
@@ -806,6 +802,15 @@ fn pipe_layout(
     Ok(Some(cfg))
 }
 
+/// Where a value of the driver's configuration comes from, for a message about it.
+fn config_source(args: &DriverArgs) -> &'static str {
+    if args.config.is_some() {
+        "as --config sets it"
+    } else {
+        "its default: no --config"
+    }
+}
+
 /// `--render-fps` and `--render-lidar-hz`: refused without `--render`, and checked
 /// as [`raw::RenderRates::check`] does against this driver's configuration.
 fn render_rates(args: &DriverArgs, flag: &str) -> Result<raw::RenderRates, DriverError> {
@@ -826,13 +831,8 @@ fn render_rates(args: &DriverArgs, flag: &str) -> Result<raw::RenderRates, Drive
             "{name} applies to --render only (other sources keep their own rates)"
         )));
     }
-    let whose = if args.config.is_some() {
-        "as --config sets it"
-    } else {
-        "its default: no --config"
-    };
     rates
-        .check(config(args)?.estimator.max_gap_s, whose)
+        .check(config(args)?.estimator.max_gap_s, config_source(args))
         .map_err(DriverError::Options)?;
     Ok(rates)
 }
