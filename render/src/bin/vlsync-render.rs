@@ -95,8 +95,9 @@ struct Args {
     #[arg(long)]
     no_png: bool,
     /// Also write a ROS 2 MCAP recording of the run to FILE (default, when
-    /// given without a value: DIR/run.mcap; FILE's directory must exist, and FILE
-    /// must not be one of the run's own files):
+    /// given without a value: DIR/run.mcap; FILE's directory must exist or be one
+    /// the run makes, DIR, its frames/ or an ancestor of DIR, and FILE must not be
+    /// one of the run's own files):
     /// /camera/image_raw (sensor_msgs/Image, mono8) and /scan
     /// (sensor_msgs/LaserScan), header stamps on each sensor's clock as in
     /// frames.csv (mid-exposure) and scans.csv (first ray); log time = true
