@@ -3,7 +3,7 @@
 
 use clap::{CommandFactory, Parser};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use vlsync_common::text::number;
@@ -264,14 +264,6 @@ fn progress_line(p: &Progress, elapsed: Duration) -> String {
     )
 }
 
-/// The directory a file path is in (`.` for a bare name).
-fn dir_of(path: &Path) -> &Path {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    }
-}
-
 fn main() -> ExitCode {
     let a = Args::parse();
     if let Err(msg) = check_args(&a) {
@@ -307,7 +299,11 @@ fn main() -> ExitCode {
         // an explicit FILE is checked before the run's directory is made and rendered
         // into, unless the run makes FILE's directory itself (--out, its frames/, an
         // ancestor of --out)
-        let made = vlsync_render::output::run_makes(out_dir, !a.no_png, dir_of(&m.path));
+        let made = vlsync_render::output::run_makes(
+            out_dir,
+            !a.no_png,
+            vlsync_common::file::dir_of(&m.path),
+        );
         if let (Some(Some(file)), false) = (&a.mcap, made) {
             if let Err(e) = vlsync_common::file::check_writable("--mcap", file) {
                 vlsync_common::console::print_err(&format!("vlsync-render: error: {e}\n"));
