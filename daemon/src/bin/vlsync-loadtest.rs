@@ -55,7 +55,7 @@ struct Args {
     /// CPU the camera front-end spends per frame before stamping it, ms
     /// (`vlsync-cam --frame-cpu-ms`): a heavier front-end than this machine's
     /// 320x240 flow (about 1 ms), so that CPU load delays the stamps measurably.
-    /// 0: the front-end's own cost.
+    /// 0: the front-end's own cost. At most 90 % of the frame period (30 ms at 30 Hz).
     #[arg(
         long,
         allow_negative_numbers = true,
@@ -73,6 +73,14 @@ struct Args {
     /// end), which halves the LiDAR signature's noise variance, as the demo does.
     #[arg(long, conflicts_with = "opposite_window")]
     front_wall_only: bool,
+    /// The camera's frame rate, Hz (default 30). 2.67 <= HZ < 125: frames at most half
+    /// the estimator's `max_gap_s` (0.75 s) apart, and the frame's 8 ms exposure within
+    /// its period.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    render_fps: Option<f64>,
+    /// The LiDAR's revolutions a second, Hz (default 10, an LD06's). 2.67 ..= 100.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    render_lidar_hz: Option<f64>,
     /// The wall behind too: the default now (kept for older commands).
     #[arg(long, hide = true)]
     opposite_window: bool,
@@ -96,6 +104,20 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// The rendered sensors' rates the command line asks for.
+fn render_rates(a: &Args) -> vlsync_driver::raw::RenderRates {
+    vlsync_driver::raw::RenderRates {
+        cam_fps: a.render_fps,
+        lidar_hz: a.render_lidar_hz,
+    }
+}
+
+/// The most CPU `--cam-frame-cpu-ms` may burn per frame at `fps`, ms: 90 % of the
+/// frame period (30 ms at 30 Hz), so that the front-end keeps up with its frames.
+fn max_frame_cpu_ms(fps: f64) -> f64 {
+    (0.9e3 / fps * 100.0).floor() / 100.0
 }
 
 /// The daemon's own words about its real-time settings (from its log).
@@ -180,10 +202,20 @@ fn run(a: &Args) -> Result<bool, String> {
         return Ok(true);
     }
     let prof = profile(&a.profile)?;
-    if !(a.cam_frame_cpu_ms.is_finite() && (0.0..=30.0).contains(&a.cam_frame_cpu_ms)) {
+    let rates = render_rates(a);
+    // as the drivers will check them (they run without --config)
+    rates.check(
+        vlsync_config::Config::default().estimator.max_gap_s,
+        "the drivers' default",
+    )?;
+    let (fps, lidar_hz) = rates.resolved();
+    let max_cpu_ms = max_frame_cpu_ms(fps);
+    if !(a.cam_frame_cpu_ms.is_finite() && (0.0..=max_cpu_ms).contains(&a.cam_frame_cpu_ms)) {
         return Err(format!(
-            "--cam-frame-cpu-ms {} is out of range: allowed 0 ..= 30 (a 30 Hz camera has 33 ms per frame)",
-            a.cam_frame_cpu_ms
+            "--cam-frame-cpu-ms {} is out of range: allowed 0 ..= {max_cpu_ms} (90 % of the \
+             camera's {:.1} ms frame period at {fps} Hz)",
+            a.cam_frame_cpu_ms,
+            1e3 / fps
         ));
     }
     let stress = if prof.needs_stress_ng() {
@@ -192,6 +224,10 @@ fn run(a: &Args) -> Result<bool, String> {
         None
     };
     let cfg = daemon_config(a)?;
+    if a.config.is_some() {
+        // the daemon's estimator must be able to use the rendered streams too
+        rates.check(cfg.estimator.max_gap_s, "as --config sets it")?;
+    }
     let text = toml::to_string(&cfg).map_err(|e| format!("daemon configuration: {e}"))?;
     let pid = std::process::id();
     let out = a
@@ -233,7 +269,7 @@ fn run(a: &Args) -> Result<bool, String> {
 
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     con.line(format_args!(
-        "vlsync-loadtest: profile `{}` ({:.0} s: {}), rendered seed {}, {cpus} CPUs; report and logs in {}",
+        "vlsync-loadtest: profile `{}` ({:.0} s: {}), rendered seed {}, camera {fps} Hz, LiDAR {lidar_hz} Hz, {cpus} CPUs; report and logs in {}",
         prof.name,
         prof.duration_s(),
         prof.about,
@@ -254,7 +290,7 @@ fn run(a: &Args) -> Result<bool, String> {
                 frame_cpu_us: (a.cam_frame_cpu_ms * 1e3).round() as u32,
             },
             opposite_window: !a.front_wall_only,
-            rates: Default::default(),
+            rates,
         },
         // the camera driver renders ahead meanwhile
         start_delay: Duration::from_secs(2),
@@ -375,7 +411,7 @@ fn run(a: &Args) -> Result<bool, String> {
     // the stamping-latency steps the estimator's cadence followed, as the daemon logged them
     let latency_steps = |stream: &str| journal::latency_steps_logged(&daemon_log, stream);
     let mut md = format!(
-        "# vlsync load test: profile `{}`{}\n\nRendered seed {}, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\nLoad hints (`daemon.load_hints`): {hints}.\nCamera front-end: {}.\nLiDAR front-end: {}.\nStamp cadence (`estimator.cadence` = \"{}\"): stamping-latency steps followed from the stamps: camera {}, LiDAR {}.\n\n",
+        "# vlsync load test: profile `{}`{}\n\nRendered seed {}, camera {fps} Hz, LiDAR {lidar_hz} Hz, {cpus} CPUs, daemon budget {budget} µs per sample, estimator window {} s.\nDaemon: {}.\nLoad hints (`daemon.load_hints`): {hints}.\nCamera front-end: {}.\nLiDAR front-end: {}.\nStamp cadence (`estimator.cadence` = \"{}\"): stamping-latency steps followed from the stamps: camera {}, LiDAR {}.\n\n",
         prof.name,
         if interrupted { " (interrupted)" } else { "" },
         a.seed,
@@ -438,6 +474,8 @@ fn run(a: &Args) -> Result<bool, String> {
             "profile": prof.name,
             "interrupted": interrupted,
             "seed": a.seed,
+            "camera_hz": fps,
+            "lidar_hz": lidar_hz,
             "cpus": cpus,
             "daemon": {
                 "core": a.core,
@@ -510,6 +548,26 @@ mod tests {
                 "--cam-frame-cpu-ms",
             ),
             (&["--profile", "nope"][..], "unknown profile"),
+            (
+                &["--profile", "idle", "--render-fps", "200"][..],
+                "--render-fps 200",
+            ),
+            (
+                &["--profile", "idle", "--render-lidar-hz", "0"][..],
+                "--render-lidar-hz 0",
+            ),
+            // 90 % of a 15 Hz camera's period is 60 ms
+            (
+                &[
+                    "--profile",
+                    "idle",
+                    "--render-fps",
+                    "15",
+                    "--cam-frame-cpu-ms",
+                    "60.5",
+                ][..],
+                "allowed 0 ..= 60 (90 % of the camera's 66.7 ms frame period at 15 Hz)",
+            ),
         ] {
             let a = Args::try_parse_from(
                 ["vlsync-loadtest", "--quiet", "--out", o.as_str()]
@@ -521,6 +579,58 @@ mod tests {
             assert!(e.contains(want), "{argv:?}: {e}");
             assert!(!out.exists(), "{argv:?} made {o}");
         }
+    }
+
+    #[test]
+    fn the_frame_cpu_limit_follows_the_frame_rate() {
+        assert_eq!(max_frame_cpu_ms(30.0), 30.0);
+        assert_eq!(max_frame_cpu_ms(15.0), 60.0);
+        assert_eq!(max_frame_cpu_ms(124.0), 7.25);
+        // allowed at 15 Hz, not at the default 30
+        let parse = |argv: &[&str]| {
+            Args::try_parse_from(["vlsync-loadtest", "--profile", "idle"].iter().chain(argv))
+                .unwrap()
+        };
+        let e = run(&parse(&[
+            "--cam-frame-cpu-ms",
+            "45",
+            "--out",
+            "/nonexistent/x",
+        ]))
+        .unwrap_err();
+        assert!(e.contains("--cam-frame-cpu-ms 45"), "{e}");
+    }
+
+    /// A `--config` whose `estimator.max_gap_s` a slow rendered sensor's samples would
+    /// break is refused before anything is written.
+    #[test]
+    fn rates_the_configured_estimator_cannot_use_are_refused() {
+        let dir = std::env::temp_dir().join(format!("vlsync-loadtest-gap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = dir.join("gap.toml");
+        std::fs::write(&cfg, "[estimator]\nmax_gap_s = 0.3\n").unwrap();
+        let out = dir.join("out");
+        let (o, c) = (out.display().to_string(), cfg.display().to_string());
+        let a = Args::try_parse_from([
+            "vlsync-loadtest",
+            "--quiet",
+            "--profile",
+            "idle",
+            "--render-lidar-hz",
+            "5",
+            "--out",
+            o.as_str(),
+            "--config",
+            c.as_str(),
+        ])
+        .unwrap();
+        let e = run(&a).unwrap_err();
+        assert!(
+            e.contains("--render-lidar-hz 5") && e.contains("--config"),
+            "{e}"
+        );
+        assert!(!out.exists());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// `--config D/vlsyncd.toml --out D` used to replace the user's file with the
