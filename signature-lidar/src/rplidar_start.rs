@@ -96,10 +96,12 @@ pub fn parse_request(bytes: &[u8]) -> Option<(u8, &[u8], usize)> {
     (checksum == want).then_some((cmd, payload, 4 + len))
 }
 
-/// The payload of the first complete answer of type `kind` in `bytes` (its
-/// descriptor `A5 5A <size: 30 bits, little-endian, with 2 mode bits> <type>`
-/// and `size` bytes), if there is one.
-pub fn find_answer(bytes: &[u8], kind: u8) -> Option<&[u8]> {
+/// The payload of the first complete answer of type `kind` with at least `min_len`
+/// payload bytes in `bytes` (its descriptor `A5 5A <size: 30 bits, little-endian,
+/// with 2 mode bits> <type>` and `size` bytes), if there is one. A shorter match
+/// (leftover scan bytes that happen to look like a descriptor) is passed over, so
+/// that it cannot hide the device's real answer after it.
+pub fn find_answer(bytes: &[u8], kind: u8, min_len: usize) -> Option<&[u8]> {
     let mut i = 0;
     while i + 7 <= bytes.len() {
         if bytes[i] == 0xA5 && bytes[i + 1] == 0x5A && bytes[i + 6] == kind {
@@ -109,6 +111,7 @@ pub fn find_answer(bytes: &[u8], kind: u8) -> Option<&[u8]> {
             if let Some(payload) = start
                 .checked_add(size as usize)
                 .and_then(|end| bytes.get(start..end))
+                .filter(|p| p.len() >= min_len)
             {
                 return Some(payload);
             }
@@ -260,7 +263,7 @@ fn ask(
     let deadline = Instant::now() + wait;
     let mut got = Vec::new();
     loop {
-        if let Some(p) = find_answer(&got, kind).filter(|p| p.len() >= len) {
+        if let Some(p) = find_answer(&got, kind, len) {
             return Ok(Some(p.to_vec()));
         }
         if Instant::now() >= deadline || got.len() > 1 << 16 {
@@ -361,6 +364,8 @@ mod tests {
         pending: Vec<u8>,
         requests: Vec<(u8, Vec<u8>)>,
         inbox: Vec<u8>,
+        /// Bytes that read as a zero-size board answer come before the real one.
+        lookalike: bool,
     }
 
     impl Device {
@@ -374,6 +379,7 @@ mod tests {
                 pending: Vec::new(),
                 requests: Vec::new(),
                 inbox: Vec::new(),
+                lookalike: false,
             }
         }
 
@@ -405,6 +411,9 @@ mod tests {
                     }
                     CMD_GET_ACC_BOARD_FLAG => {
                         if let Some(b) = self.board {
+                            if self.lookalike {
+                                self.pending.extend(answer(ANS_ACC_BOARD_FLAG, &[]));
+                            }
                             self.pending
                                 .extend(answer(ANS_ACC_BOARD_FLAG, &b.to_le_bytes()));
                         }
@@ -451,6 +460,15 @@ mod tests {
             "health good; standard scan at 2000 nodes/s; motor started by the accessory \
              board at PWM 660"
         );
+    }
+
+    #[test]
+    fn a_lookalike_before_the_board_answer_does_not_leave_the_motor_off() {
+        let mut d = Device::new(Some([0, 0, 0]), Some(1));
+        d.lookalike = true;
+        let r = start_scan(&mut d, WAIT).unwrap();
+        assert_eq!(d.commands(), [0x25, 0x52, 0x59, 0xFF, 0xF0, 0x20]);
+        assert_eq!((r.board_flags, r.motor_pwm), (Some(1), Some(660)));
     }
 
     #[test]
@@ -533,11 +551,26 @@ mod tests {
     fn an_answer_is_found_after_noise_and_only_when_complete() {
         let mut bytes = vec![0x00, 0xA5, 0x5A, 0x01];
         bytes.extend(answer(ANS_HEALTH, &[1, 2, 0]));
-        assert_eq!(find_answer(&bytes, ANS_HEALTH), Some(&[1, 2, 0][..]));
-        assert_eq!(find_answer(&bytes[..bytes.len() - 1], ANS_HEALTH), None);
-        assert_eq!(find_answer(&bytes, ANS_ACC_BOARD_FLAG), None);
+        assert_eq!(find_answer(&bytes, ANS_HEALTH, 3), Some(&[1, 2, 0][..]));
+        assert_eq!(find_answer(&bytes[..bytes.len() - 1], ANS_HEALTH, 3), None);
+        assert_eq!(find_answer(&bytes, ANS_ACC_BOARD_FLAG, 0), None);
+        assert_eq!(find_answer(&bytes, ANS_HEALTH, 4), None);
         assert_eq!(Health::decode(&[1, 2, 0]), Some(Health::Warning(2)));
         assert_eq!(Health::decode(&[1, 2]), None);
+    }
+
+    /// Leftover bytes that look like a zero-size answer of the same type came first:
+    /// the real answer after them is still found (it used to be hidden until the
+    /// request's deadline).
+    #[test]
+    fn a_short_lookalike_does_not_hide_the_answer_after_it() {
+        let mut bytes = answer(ANS_ACC_BOARD_FLAG, &[]);
+        bytes.extend(answer(ANS_ACC_BOARD_FLAG, &[1, 0, 0, 0]));
+        assert_eq!(find_answer(&bytes, ANS_ACC_BOARD_FLAG, 0), Some(&[][..]));
+        assert_eq!(
+            find_answer(&bytes, ANS_ACC_BOARD_FLAG, 4),
+            Some(&[1, 0, 0, 0][..])
+        );
     }
 
     proptest! {
@@ -558,7 +591,8 @@ mod tests {
 
         #[test]
         fn any_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..64), kind in any::<u8>()) {
-            let _ = find_answer(&bytes, kind);
+            let _ = find_answer(&bytes, kind, 0);
+            let _ = find_answer(&bytes, kind, 4);
             let _ = parse_request(&bytes);
             let _ = Health::decode(&bytes);
         }
