@@ -173,7 +173,8 @@ pub enum Kind {
     First,
     /// The next sample.
     Normal,
-    /// After a silence longer than the gap limit: the grid carries on.
+    /// After a silence longer than the gap limit: the grid is learnt again (the
+    /// stream may come back at a new phase of its frames), the level kept.
     Gap,
     /// After a clock jump: the grid is learnt again, the level kept.
     Reset,
@@ -475,10 +476,14 @@ impl Cadence {
                 self.last_internal = None;
             }
             Kind::Gap => {
-                self.flush_window();
-                self.back = 0;
-                self.last_off_dev = None;
-                self.last_places = [Place::Other; 2];
+                // a stream that falls silent for longer than the gap limit was most
+                // likely restarted (a new capture stream, a driver process started
+                // again, a LiDAR's motor spun up again): its frames come back at a
+                // new phase, which is no change of latency. The grid is learnt again
+                // and the level kept; a latency step at the same time is left to the
+                // correlation's own step test, as for a stream without a cadence.
+                self.relearns += 1;
+                self.relearn();
             }
             Kind::Normal => {}
         }
@@ -1140,6 +1145,54 @@ mod tests {
                 (l_after - l_before - step * MS).abs() < 1e3,
                 "{step}: {l_after}"
             );
+        }
+    }
+
+    /// A driver restarted on the same clock (a new capture stream, a LiDAR's motor
+    /// started again) comes back after a silence at a new phase of its frames: the
+    /// frames moved, not their latency, so it is no step. Read as one, the level would
+    /// move the correlator's stamps off the frames' times by the phase, and the
+    /// published offset would be off by it until the correlation's own step test
+    /// caught up.
+    #[test]
+    fn a_new_phase_after_a_gap_is_no_step() {
+        for (phase, jitter) in [(12.0, 0.0), (25.0, 1.0), (-8.0, 1.0), (5.0, 0.3)] {
+            let period = 33.333 * MS;
+            let mut seed = 11u64;
+            // 300 frames, 3 s of silence, then 300 frames at the new phase
+            let s: Vec<Nanos> = (0..690usize)
+                .filter(|k| !(300..390).contains(k))
+                .map(|k| {
+                    let shift = if k >= 390 { phase * MS } else { 0.0 };
+                    (1e12 + k as f64 * period + shift + jitter * MS * lcg(&mut seed)) as Nanos
+                })
+                .collect();
+            let mut c = Cadence::new(CadenceParams::default());
+            let mut out = Vec::new();
+            for (i, &t) in s.iter().enumerate() {
+                let kind = match i {
+                    0 => Kind::First,
+                    300 => Kind::Gap,
+                    _ => Kind::Normal,
+                };
+                out.push(c.push(t, kind));
+            }
+            assert_eq!(c.steps(), 0, "phase {phase} ms");
+            assert!(c.tracking(), "phase {phase} ms");
+            // the level stays: the frames after the gap reach the correlator at their
+            // own stamps, not moved by the phase
+            for i in [300, 350, 599] {
+                let (level, _) = c.level_at(out[i]);
+                assert!(
+                    level.abs() < 0.5 * MS,
+                    "phase {phase} ms, sample {i}: {level}"
+                );
+                assert!(
+                    (out[i] - s[i]).abs() as f64 <= 3.0 * jitter * MS + 0.01 * MS || i == 300,
+                    "phase {phase} ms, sample {i}: {} ms",
+                    (out[i] - s[i]) as f64 / MS
+                );
+            }
         }
     }
 

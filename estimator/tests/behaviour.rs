@@ -1482,3 +1482,64 @@ fn a_lidar_stream_whose_rate_doubles_keeps_its_stamps() {
         worst * 1e3
     );
 }
+
+/// A camera driver restarted on the same clock: 3 s of silence, then frames at a new
+/// phase (12 ms later in each period: a new capture stream), their stamps as right as
+/// before. The frames moved, not their latency, so the published offset must not move:
+/// no cadence step, and the estimates after the return as close to the truth as before
+/// the silence. (Read as a latency step, the phase used to put the estimates 12 ms off
+/// until the correlation's own step test caught up.)
+#[test]
+fn a_camera_restarted_at_a_new_phase_keeps_the_offset() {
+    let run = generate(Family::Robot, 9, Some(120.0));
+    let (from, to) = (60_000_000_000i64, 63_000_000_000i64);
+    let phase_ns = 12_000_000i64;
+    // the camera's signature at a time between its frames, interpolated
+    let value_at = |t: i64| -> f64 {
+        let k = run
+            .cam
+            .partition_point(|s| s.t_ns <= t)
+            .clamp(1, run.cam.len() - 1);
+        let (a, b) = (run.cam[k - 1], run.cam[k]);
+        let w = (t - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64;
+        a.value + w.clamp(0.0, 1.0) * (b.value - a.value)
+    };
+    let mut cam: Vec<Sample> = Vec::new();
+    for s in &run.cam {
+        if s.t_ns < from {
+            cam.push(*s);
+        } else if s.t_ns >= to {
+            let t = s.t_ns + phase_ns;
+            cam.push(Sample::new(t, value_at(t)));
+        }
+    }
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let (mut i, mut j) = (0, 0);
+    let mut out = Vec::new();
+    while i < cam.len() || j < run.lidar.len() {
+        if j >= run.lidar.len() || (i < cam.len() && cam[i].t_ns <= run.lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, cam[i]);
+            i += 1;
+        } else {
+            let _ = est.push(Stream::Lidar, run.lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            out.push(e);
+        }
+    }
+    assert_eq!(est.stats().cadence_steps, [0, 0], "{:?}", est.stats());
+    let worst = |lo: i64, hi: i64| {
+        out.iter()
+            .filter(|e| e.state == EstimatorState::Tracking && (lo..hi).contains(&e.t_ref_ns))
+            .map(|e| (e.offset_s - run.truth.offset_at(e.t_ref_ns)).abs())
+            .fold(0.0f64, f64::max)
+    };
+    let (before, after) = (worst(30_000_000_000, from), worst(to, 120_000_000_000));
+    assert!(
+        after < before.max(0.004) + 0.002,
+        "after the restart up to {:.2} ms off, before it {:.2} ms",
+        after * 1e3,
+        before * 1e3
+    );
+}

@@ -35,6 +35,8 @@
 //! * `intensities` may be empty (intensity 0) or have one value per range.
 //! * At most [`MAX_RAYS_PER_SCAN`] ranges per scan (a scanner gives a few
 //!   thousand); a longer scan is an error naming the message.
+//! * `scan_time` may be at most [`MAX_SCAN_TIME_S`] (10 s: no scanner turns more
+//!   slowly); a longer one is an error naming the message.
 //! * The rays may span at most two turns of `scan_time` (10 s when it is not
 //!   given): an increment (given or derived) that dates them further apart is an
 //!   error naming the message. A `header.stamp` is `sec · 1e9 + nanosec` as
@@ -61,6 +63,9 @@ use crate::read::{McapReader, ReaderOptions, Select, TopicInfo};
 use std::path::Path;
 use vlsync_common::Nanos;
 use vlsync_signature_lidar::csv::MAX_RAYS_PER_SCAN;
+
+/// The longest `scan_time` a message may give, s: no scanner turns more slowly.
+pub const MAX_SCAN_TIME_S: f64 = 10.0;
 use vlsync_signature_lidar::scan::wrap_pi;
 use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
 
@@ -205,6 +210,13 @@ pub fn laser_scan_to_rays(
     }
     let (a0, da) = (f64::from(m.angle_min), f64::from(m.angle_increment));
     let period = f32_as_decimal(m.scan_time) * 1e9;
+    if period > MAX_SCAN_TIME_S * 1e9 {
+        // else "two turns" would allow rays dated years apart
+        return Err(format!(
+            "scan_time {} s is more than {MAX_SCAN_TIME_S} s: no scanner turns that slowly",
+            vlsync_common::text::number(f64::from(m.scan_time))
+        ));
+    }
     let period_ns = if period.is_finite() && period > 0.0 {
         period.round() as i64
     } else {
@@ -511,6 +523,23 @@ mod tests {
             angle_increment: 0.0174,
             time_increment: 0.1 / 360.0,
             scan_time: 0.1,
+            ..m
+        };
+        laser_scan_to_rays(&m, 0, &mut rays).unwrap();
+        // a turn of years would let the rays span years
+        let m = LaserScan {
+            time_increment: 1e8,
+            scan_time: 1e9,
+            ..m
+        };
+        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
+        assert_eq!(
+            e,
+            "scan_time 1e9 s is more than 10 s: no scanner turns that slowly"
+        );
+        let m = LaserScan {
+            time_increment: 0.0,
+            scan_time: 10.0,
             ..m
         };
         laser_scan_to_rays(&m, 0, &mut rays).unwrap();
