@@ -380,7 +380,10 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     })?;
     if let Some(d) = args.duration {
         if !(d.is_finite() && (5.0..=3600.0).contains(&d)) {
-            return Err(format!("--duration {d}: allowed 5 ..= 3600 s"));
+            return Err(format!(
+                "--duration {}: allowed 5 ..= 3600 s",
+                vlsync_common::text::number(d)
+            ));
         }
     }
     if let Some(d) = &args.plots {

@@ -371,7 +371,7 @@ pub struct RecordArgs {
     /// Stop after this many seconds (0: at Ctrl-C or SIGTERM).
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     pub duration: f64,
-    /// A progress line on stderr every this many seconds (0: none).
+    /// A progress line on stderr every this many seconds, 1 or more (0: none).
     #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
     pub progress_every: f64,
     /// Overwrite the files of an earlier recording in --out.
@@ -400,13 +400,14 @@ fn check_args(a: &RecordArgs) -> Result<(vlsync_ipc::ServiceNames, usize), Strin
     if !(a.duration.is_finite() && a.duration >= 0.0) {
         return Err(format!(
             "--duration {} must be a finite number of seconds >= 0",
-            a.duration
+            vlsync_common::text::number(a.duration)
         ));
     }
-    if !(a.progress_every.is_finite() && a.progress_every >= 0.0) {
+    if !(a.progress_every == 0.0 || (a.progress_every.is_finite() && a.progress_every >= 1.0)) {
+        // a tiny period would print a line at every poll, for ever
         return Err(format!(
-            "--progress-every {} must be a finite number of seconds >= 0",
-            a.progress_every
+            "--progress-every {} is out of range: allowed 0 (no progress lines) or 1 s or more",
+            vlsync_common::text::number(a.progress_every)
         ));
     }
     if !(0..=19).contains(&a.nice) {
@@ -894,9 +895,20 @@ mod tests {
         assert!(check_args(&args(-1.0, 10.0))
             .unwrap_err()
             .starts_with("--duration -1 must be"));
-        assert!(check_args(&args(1.0, f64::NAN))
-            .unwrap_err()
-            .starts_with("--progress-every NaN must be"));
+        for (bad, shown) in [
+            (f64::NAN, "NaN"),
+            (1e-300, "1e-300"),
+            (0.5, "0.5"),
+            (-1.0, "-1"),
+        ] {
+            assert_eq!(
+                check_args(&args(1.0, bad)).unwrap_err(),
+                format!(
+                    "--progress-every {shown} is out of range: allowed 0 (no progress lines) or 1 s or more"
+                )
+            );
+        }
+        assert!(check_args(&args(1.0, 1.0)).is_ok());
         let (names, service_buffer) = check_args(&args(0.0, 0.0)).unwrap();
         assert_eq!(
             (names.prefix.as_str(), service_buffer),

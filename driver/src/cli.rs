@@ -111,7 +111,7 @@ pub struct DriverArgs {
     /// up; --speed 100 is lossless.
     #[arg(long, conflicts_with = "speed")]
     pub fast: bool,
-    /// Real-time speed factor (1 = real time, 100 = 100x); live devices accept only 1.
+    /// Real-time speed factor (1 = real time, 100 = 100x), 0.01 ..= 1000; live devices accept only 1.
     #[arg(long, allow_negative_numbers = true)]
     pub speed: Option<f64>,
     /// Live devices (--v4l2, --ld06, --rplidar): wait for the device node to appear
@@ -160,13 +160,20 @@ pub struct DriverArgs {
     pub report_every: Option<f64>,
 }
 
+/// Largest real-time speed factor `--speed` accepts (and the live tools built on the
+/// drivers).
+pub const MAX_SPEED: f64 = 1000.0;
+/// Smallest real-time speed factor `--speed` accepts.
+pub const MIN_SPEED: f64 = 0.01;
+
 /// `--report-every`: the period of the progress lines ([`PROGRESS_EVERY`] without it).
 pub fn report_every(args: &DriverArgs) -> Result<Duration, DriverError> {
     match args.report_every {
         None => Ok(PROGRESS_EVERY),
         Some(s) if s.is_finite() && (1.0..=86_400.0).contains(&s) => Ok(Duration::from_secs_f64(s)),
         Some(s) => Err(DriverError::Options(format!(
-            "--report-every {s} is out of range: allowed 1 ..= 86400 seconds"
+            "--report-every {} is out of range: allowed 1 ..= 86400 seconds",
+            vlsync_common::text::number(s)
         ))),
     }
 }
@@ -336,7 +343,7 @@ pub fn select_source(
         if !(args.frame_cpu_ms.is_finite() && (0.0..=1000.0).contains(&args.frame_cpu_ms)) {
             return Err(DriverError::Options(format!(
                 "--frame-cpu-ms {} is out of range: allowed 0 ..= 1000",
-                args.frame_cpu_ms
+                vlsync_common::text::number(args.frame_cpu_ms)
             )));
         }
         if vlsync_ipc::rt::thread_cpu_ns().is_none() {
@@ -358,7 +365,8 @@ pub fn select_source(
         }
         if !vlsync_config::CameraConfig::fps_is_valid(fps) {
             return Err(DriverError::Options(format!(
-                "--fps {fps} is out of range: allowed 0 (the camera's own rate) or {} ..= {}",
+                "--fps {} is out of range: allowed 0 (the camera's own rate) or {} ..= {}",
+                vlsync_common::text::number(fps),
                 vlsync_config::CAMERA_FPS_RANGE.start(),
                 vlsync_config::CAMERA_FPS_RANGE.end()
             )));
@@ -391,9 +399,11 @@ pub fn select_source(
         }
     }
     if let Some(v) = args.speed {
-        if !(v.is_finite() && v > 0.0) {
+        if !(v.is_finite() && (MIN_SPEED..=MAX_SPEED).contains(&v)) {
+            // a factor of 1e-300 would pace the second sample centuries out
             return Err(DriverError::Options(format!(
-                "--speed {v} must be a finite number > 0"
+                "--speed {} is out of range: allowed {MIN_SPEED} ..= {MAX_SPEED}",
+                vlsync_common::text::number(v)
             )));
         }
     }
@@ -504,8 +514,12 @@ pub fn select_source(
             let seed = args.render.unwrap_or_default();
             let duration = args.duration.unwrap_or(raw::DEFAULT_RENDER_DURATION_S);
             // the renderer's configuration is the command line's: an options error
-            let r = raw::renderer_at(seed, duration, render_rates(args, flag)?)
-                .map_err(|e| DriverError::Options(format!("--duration {duration}: {e}")))?;
+            let r = raw::renderer_at(seed, duration, render_rates(args, flag)?).map_err(|e| {
+                DriverError::Options(format!(
+                    "--duration {}: {e}",
+                    vlsync_common::text::number(duration)
+                ))
+            })?;
             let anchor = raw::render_anchor_ns(&r);
             // mono stamps are built on the start instant: pick one now if none was given
             let start_at = match args.stamp {
@@ -1133,7 +1147,7 @@ mod tests {
                 e.to_string(),
                 format!(
                     "options: --report-every {} is out of range: allowed 1 ..= 86400 seconds",
-                    bad.parse::<f64>().unwrap()
+                    vlsync_common::text::number(bad.parse::<f64>().unwrap())
                 )
             );
         }
@@ -1660,6 +1674,13 @@ mod tests {
             options_error(&["--sim", "robot", "--render-lidar-hz", "5"]),
             "--render-lidar-hz applies to --render only (other sources keep their own rates)"
         );
+        // a speed that would pace the second sample centuries out, or none at all
+        for (bad, shown) in [("1e-300", "1e-300"), ("0.001", "0.001"), ("2e3", "2000")] {
+            assert_eq!(
+                options_error(&["--csv", "/nonexistent.csv", "--speed", bad]),
+                format!("--speed {shown} is out of range: allowed 0.01 ..= 1000")
+            );
+        }
         for bad in ["0.5", "2.6", "125", "1e9", "-30", "NaN", "inf"] {
             let e = options_error(&["--render", "1", "--render-fps", bad]);
             assert_eq!(
@@ -1669,7 +1690,7 @@ mod tests {
                      most half `estimator.max_gap_s` = 0.75 apart (its default: no --config), \
                      so that a dropped one does not break the stream; the rendered camera \
                      exposes each frame for 8 ms)",
-                    bad.parse::<f64>().unwrap()
+                    vlsync_common::text::number(bad.parse::<f64>().unwrap())
                 )
             );
         }

@@ -214,7 +214,7 @@ fn run(a: &Args) -> Result<bool, String> {
         return Err(format!(
             "--cam-frame-cpu-ms {} is out of range: allowed 0 ..= {max_cpu_ms} (90 % of the \
              camera's {:.1} ms frame period at {fps} Hz)",
-            a.cam_frame_cpu_ms,
+            vlsync_common::text::number(a.cam_frame_cpu_ms),
             1e3 / fps
         ));
     }

@@ -14,10 +14,8 @@ pub mod session;
 pub mod stats;
 pub mod truth;
 
-/// Largest real-time speed factor the live tools accept (`--speed`).
-pub const MAX_SPEED: f64 = 1000.0;
-/// Smallest real-time speed factor the live tools accept (`--speed`).
-pub const MIN_SPEED: f64 = 0.01;
+/// The real-time speed factors the live tools accept (`--speed`): the drivers'.
+pub use vlsync_driver::cli::{MAX_SPEED, MIN_SPEED};
 
 /// Checks a numeric command-line argument before anything is started or written:
 /// finite and within `min ..= max`; the error names the flag.
@@ -30,13 +28,21 @@ pub const MIN_SPEED: f64 = 0.01;
 ///     "--speed 0 is out of range: allowed 0.01 ..= 1000"
 /// );
 /// assert!(check_arg("--speed", f64::NAN, 0.01, 1000.0).is_err());
+/// assert_eq!(
+///     check_arg("--duration", 1e300, 1.0, 1e6).unwrap_err(),
+///     "--duration 1e300 is out of range: allowed 1 ..= 1e6"
+/// );
 /// ```
 pub fn check_arg(flag: &str, v: f64, min: f64, max: f64) -> Result<f64, String> {
     if v.is_finite() && (min..=max).contains(&v) {
         Ok(v)
     } else {
+        // 1e300 as 1e300, not its 301 digits
         Err(format!(
-            "{flag} {v} is out of range: allowed {min} ..= {max}"
+            "{flag} {} is out of range: allowed {} ..= {}",
+            vlsync_common::text::number(v),
+            vlsync_common::text::number(min),
+            vlsync_common::text::number(max)
         ))
     }
 }

@@ -135,9 +135,14 @@ pub fn parse_some_total(text: &str) -> Result<u64, String> {
     let v = line
         .split_whitespace()
         .find_map(|f| f.strip_prefix("total="))
-        .ok_or_else(|| format!("no `total=` in `{line}`"))?;
-    v.parse::<u64>()
-        .map_err(|e| format!("`total={v}` in `{line}`: {e}"))
+        .ok_or_else(|| format!("no `total=` in `{}`", vlsync_common::text::clip(line)))?;
+    v.parse::<u64>().map_err(|e| {
+        format!(
+            "`total={}` in `{}`: {e}",
+            vlsync_common::text::clip(v),
+            vlsync_common::text::clip(line)
+        )
+    })
 }
 
 /// The most of a pressure file read (the kernel's is about 100 bytes).

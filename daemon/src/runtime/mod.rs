@@ -361,8 +361,8 @@ pub const EXIT_CONFIG: u8 = 78;
 /// `vlsyncd run` with the configuration [`load_config`] gave: runs until
 /// SIGINT/SIGTERM.
 pub fn run_cli(cfg: Config) -> Result<(), String> {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // a RUST_LOG that does not parse is said once logging runs, not dropped silently
+    let (filter, bad_filter) = log_filter(std::env::var("RUST_LOG").ok().as_deref());
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -378,7 +378,29 @@ pub fn run_cli(cfg: Config) -> Result<(), String> {
     } else {
         builder.try_init()
     };
+    if let Some(why) = bad_filter {
+        tracing::warn!("{why}");
+    }
     run(cfg, Arc::new(AtomicBool::new(false)))
+}
+
+/// The log filter for `RUST_LOG` (`info` without it), and what was wrong with a
+/// `RUST_LOG` that does not parse (the daemon then logs at `info`).
+fn log_filter(rust_log: Option<&str>) -> (tracing_subscriber::EnvFilter, Option<String>) {
+    let info = || tracing_subscriber::EnvFilter::new("info");
+    match rust_log {
+        None => (info(), None),
+        Some(v) => match tracing_subscriber::EnvFilter::try_new(v) {
+            Ok(f) => (f, None),
+            Err(e) => (
+                info(),
+                Some(format!(
+                    "RUST_LOG `{}` is no log filter ({e}): logging at info",
+                    vlsync_common::text::clip(v)
+                )),
+            ),
+        },
+    }
 }
 
 /// A log line to the journal: the `sd-daemon(3)` priority prefix of its level, then
@@ -726,6 +748,21 @@ mod tests {
     use super::*;
     use vlsync_common::wire::STATE_NONE;
     use vlsync_common::RejectReason;
+
+    #[test]
+    fn a_rust_log_that_does_not_parse_is_said() {
+        assert_eq!(log_filter(None).1, None);
+        let (f, bad) = log_filter(Some("vlsyncd=debug"));
+        assert_eq!((f.to_string(), bad), ("vlsyncd=debug".to_string(), None));
+        let (f, bad) = log_filter(Some("vlsync=loud"));
+        assert_eq!(f.to_string(), "info");
+        let bad = bad.expect("said");
+        assert!(
+            bad.starts_with("RUST_LOG `vlsync=loud` is no log filter (")
+                && bad.ends_with("): logging at info"),
+            "{bad}"
+        );
+    }
 
     #[test]
     fn the_command_lines_fifo_priority_overrides_the_configurations() {

@@ -280,7 +280,10 @@ mod render_rates_tests {
         ] {
             let e = check(Some(fps), None, 0.75).unwrap_err();
             assert!(
-                e.starts_with(&format!("--render-fps {fps} is out of range")),
+                e.starts_with(&format!(
+                    "--render-fps {} is out of range",
+                    vlsync_common::text::number(fps)
+                )),
                 "{e}"
             );
             let render = |cam_fps| {
@@ -462,8 +465,9 @@ impl RenderRates {
                 && (!camera || exposure_s < 1.0 / hz);
             if camera && lo.max(slowest) >= 1.0 / exposure_s {
                 return Err(format!(
-                    "{name} {hz}: no camera rate fits: {gap} needs {slowest} Hz or more, and \
+                    "{name} {}: no camera rate fits: {gap} needs {slowest} Hz or more, and \
                      the rendered camera's {} ms exposure allows under {} Hz",
+                    vlsync_common::text::number(hz),
                     exposure_s * 1e3,
                     1.0 / exposure_s
                 ));
@@ -479,7 +483,10 @@ impl RenderRates {
                 } else {
                     format!("{} ..= {hi} ({gap})", lo.max(slowest))
                 };
-                return Err(format!("{name} {hz} is out of range: allowed {allowed}"));
+                return Err(format!(
+                    "{name} {} is out of range: allowed {allowed}",
+                    vlsync_common::text::number(hz)
+                ));
             }
         }
         Ok(())
