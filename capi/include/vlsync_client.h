@@ -80,9 +80,10 @@ extern "C" {
  * n needs vlsync_client_abi_minor() >= n. Minor 1 added vlsync_client_abi_minor,
  * vlsync_client_latest_err, vlsync_client_camera_to_lidar_err and
  * vlsync_estimate_age_ns; a library of minor 0 has none of them (a program calling one
- * fails to load or to resolve it: "undefined symbol"). */
+ * fails to load or to resolve it: "undefined symbol"). Minor 2 added
+ * vlsync_status_invalid_count. */
 #define VLSYNC_CLIENT_ABI_VERSION 1u
-#define VLSYNC_CLIENT_ABI_MINOR 1u
+#define VLSYNC_CLIENT_ABI_MINOR 2u
 
 /* vlsync_estimate.state */
 #define VLSYNC_STATE_ACQUIRING 0 /* searching; no lock yet */
@@ -301,6 +302,11 @@ int vlsync_status_close(vlsync_status_client *c);
  * payloads so far. */
 int vlsync_status_latest(vlsync_status_client *c, vlsync_daemon_status *out, char *err,
                          size_t err_len);
+
+/* Status payloads refused by validation so far; 0 too for a NULL or another thread's
+ * handle. A vlsync_status_latest that returned -1 while this count rose met only invalid
+ * payloads: they are skipped, and the next call reads on. Minor 2. */
+uint64_t vlsync_status_invalid_count(vlsync_status_client *c);
 
 /* "acquiring", "tracking", "holding", "lost", or "unknown": a static string. */
 const char *vlsync_state_name(uint8_t state);

@@ -236,16 +236,24 @@ class StatusClient {
         c_ = nullptr;
     }
 
-    /// The newest valid status; empty before the first.
+    /// The newest valid status; empty before the first (invalid payloads are skipped
+    /// and counted: invalid_count()).
     std::optional<vlsync_daemon_status> latest() {
         vlsync_daemon_status s;
         char err[512] = {0};
+        const uint64_t invalid = invalid_count();
         switch (vlsync_status_latest(c_, &s, err, sizeof err)) {
         case 1: return s;
         case 0: return std::nullopt;
-        default: throw Error(err);
+        default:
+            // only invalid payloads so far: skipped, no error of this reader
+            if (invalid_count() > invalid) return std::nullopt;
+            throw Error(err);
         }
     }
+
+    /// Status payloads refused by validation so far (ABI minor 2).
+    uint64_t invalid_count() { return vlsync_status_invalid_count(c_); }
 
   private:
     /// As Client's.

@@ -54,8 +54,9 @@ pub const ABI_VERSION: u32 = 1;
 /// library of the same [`ABI_VERSION`] and a minor `>= n`. Minor 0 is the first set of
 /// functions (the library then had no `vlsync_client_abi_minor`); minor 1 added
 /// `vlsync_client_abi_minor`, `vlsync_client_latest_err`,
-/// `vlsync_client_camera_to_lidar_err` and `vlsync_estimate_age_ns`.
-pub const ABI_MINOR: u32 = 1;
+/// `vlsync_client_camera_to_lidar_err` and `vlsync_estimate_age_ns`; minor 2 added
+/// `vlsync_status_invalid_count`.
+pub const ABI_MINOR: u32 = 2;
 
 /// An estimate as the C API hands it out (`vlsync_estimate` in the header): the
 /// offset service's own payload, validated, with the time the daemon published it.
@@ -792,6 +793,23 @@ pub unsafe extern "C" fn vlsync_status_latest(
     }
 }
 
+/// Status payloads refused by validation so far (0 for NULL or another thread's
+/// handle): a [`vlsync_status_latest`] that returned -1 while this count rose met only
+/// invalid payloads (they are skipped; the next call reads on).
+///
+/// # Safety
+/// `c` is NULL or an open status handle.
+#[allow(unsafe_code)]
+#[no_mangle]
+pub unsafe extern "C" fn vlsync_status_invalid_count(c: *mut VlsyncStatusClient) -> u64 {
+    guarded("vlsync_status_invalid_count", || {
+        // SAFETY: `c` is NULL or an open handle (the caller's promise); the reference
+        // lives only for this call
+        unsafe { handle(c, "vlsync_status_invalid_count") }.map(|h| h.invalid_count())
+    })
+    .unwrap_or(0)
+}
+
 /// Lowercase name of a state code (`"acquiring"`, `"tracking"`, `"holding"`,
 /// `"lost"`), `"unknown"` for any other: a static string, never freed.
 #[allow(unsafe_code)]
@@ -1039,6 +1057,7 @@ mod tests {
                 -1
             );
             assert_eq!(vlsync_client_invalid_count(null), 0);
+            assert_eq!(vlsync_status_invalid_count(std::ptr::null_mut()), 0);
             assert_eq!(vlsync_client_close(null), 0);
         }
     }

@@ -2,8 +2,9 @@
 //!
 //! Every type here is `#[repr(C)]` with a fixed, documented layout, explicit
 //! padding and an explicit iceoryx2 type name, so that C, C++ and Python
-//! subscribers can open the same services (`examples/c/vlsync_wire.h`,
-//! `examples/python/vlsync_subscriber.py` mirror these layouts). The layout
+//! subscribers can open the same services (`examples/c/vlsync_wire.h` mirrors
+//! all three layouts; `examples/python/vlsync_subscriber.py` mirrors
+//! [`OffsetEstimate`], the one it reads). The layout
 //! tests at the bottom pin size, alignment and every field offset: a change
 //! that breaks them is an ABI change and must bump the `.vN` suffix of the
 //! type name, so that old and new processes refuse to share a service instead

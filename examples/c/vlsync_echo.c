@@ -18,7 +18,11 @@
  * skipped, and --count counts printed lines. Exit status: 0 after --count lines, on
  * Ctrl-C / SIGTERM or when the reader of its output goes away; 1 when --timeout seconds
  * (at most 1e9) pass without an estimate (a status); 2 on a bad argument, a library error
- * or a failed write to stdout (the message on stderr).
+ * or a failed write to stdout (the message on stderr). Payloads that fail validation (a
+ * NaN offset, an unknown state) are skipped by the library and counted: each batch is
+ * said on stderr ("skipped N invalid estimate payload(s)"), and the echo reads on. With
+ * nothing received for 5 s it says so once on stderr (a wrong --prefix, or no daemon)
+ * and keeps waiting.
  */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
@@ -33,11 +37,11 @@
 static volatile sig_atomic_t stop = 0;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
-#define USAGE "usage: vlsync_echo [--prefix P] [--count N] [--timeout S] [--status]\n"
+#define USAGE "usage: vlsync_echo_c [--prefix P] [--count N] [--timeout S] [--status]\n"
 
 /* the message `why arg after`, then the usage; exit status 2 */
 static int usage3(const char *why, const char *arg, const char *after) {
-    fprintf(stderr, "vlsync_echo: %s%s%s\n" USAGE, why, arg, after);
+    fprintf(stderr, "vlsync_echo_c: %s%s%s\n" USAGE, why, arg, after);
     return 2;
 }
 
@@ -64,10 +68,22 @@ static double now_s(void) {
 static int flushed(int *status) {
     if (fflush(stdout) == 0) return 1;
     if (!stop && errno != EPIPE) {
-        fprintf(stderr, "vlsync_echo: writing to stdout: %s\n", strerror(errno));
+        fprintf(stderr, "vlsync_echo_c: writing to stdout: %s\n", strerror(errno));
         *status = 2;
     }
     return 0;
+}
+
+/* Once, after 5 s with nothing received: what to check (a wrong prefix or no daemon
+ * looks the same from here: the client waits for the service either way). */
+static void quiet_notice(int *heard, int *told, double start, const char *prefix,
+                         const char *service) {
+    if (*heard || *told || now_s() - start < 5.0) return;
+    *told = 1;
+    fprintf(stderr,
+            "vlsync_echo_c: nothing on %s/%s for 5 s; waiting (is vlsyncd running with this "
+            "prefix?)\n",
+            prefix, service);
 }
 
 /* rejected samples of stream s, every reason */
@@ -83,25 +99,37 @@ static int echo_status(const char *prefix, long count, double timeout) {
     char err[512];
     vlsync_status_client *c = vlsync_status_open(prefix, err, sizeof err);
     if (!c) {
-        fprintf(stderr, "vlsync_echo: %s\n", err);
+        fprintf(stderr, "vlsync_echo_c: %s\n", err);
         return 2;
     }
     long got = 0;
     int status = 0;
     int64_t last_publish = INT64_MIN;
-    double last = now_s();
+    double last = now_s(), start = last;
+    int heard = 0, told = 0;
+    uint64_t invalid = 0;
     struct timespec tick = {0, 250 * 1000 * 1000};
     while (!stop && (count == 0 || got < count)) {
         vlsync_daemon_status st;
         int r = vlsync_status_latest(c, &st, err, sizeof err);
+        uint64_t now_invalid = vlsync_status_invalid_count(c);
+        if (now_invalid > invalid) {
+            /* skipped; -1 with only invalid payloads so far is no error of the reader */
+            fprintf(stderr, "vlsync_echo_c: skipped %llu invalid status payload(s) on %s/status\n",
+                    (unsigned long long)(now_invalid - invalid), prefix);
+            invalid = now_invalid;
+            heard = 1;
+            if (r < 0) r = 0;
+        }
         if (r < 0) {
-            fprintf(stderr, "vlsync_echo: %s\n", err);
+            fprintf(stderr, "vlsync_echo_c: %s\n", err);
             status = 2;
             break;
         }
         if (r == 0 || st.publish_ns == last_publish) {
+            quiet_notice(&heard, &told, start, prefix, "status");
             if (timeout > 0 && now_s() - last > timeout) {
-                fprintf(stderr, "vlsync_echo: no status on %s/status for %.1f s\n", prefix, timeout);
+                fprintf(stderr, "vlsync_echo_c: no status on %s/status for %.1f s\n", prefix, timeout);
                 status = 1;
                 break;
             }
@@ -110,6 +138,7 @@ static int echo_status(const char *prefix, long count, double timeout) {
         }
         last_publish = st.publish_ns;
         last = now_s();
+        heard = 1;
         got++;
         printf("status %-9s received %llu %llu rejected %llu %llu lost %llu %llu estimates %llu "
                "overruns %llu degraded %u p99 %.1f us\n",
@@ -155,7 +184,7 @@ int main(int argc, char **argv) {
             return usage3("--timeout takes seconds >= 0, not ", val, " (at most 1e9)");
     }
     if (vlsync_client_abi_version() != VLSYNC_CLIENT_ABI_VERSION) {
-        fprintf(stderr, "vlsync_echo: libvlsync_client has ABI %u, this program %u\n",
+        fprintf(stderr, "vlsync_echo_c: libvlsync_client has ABI %u, this program %u\n",
                 vlsync_client_abi_version(), VLSYNC_CLIENT_ABI_VERSION);
         return 2;
     }
@@ -172,29 +201,42 @@ int main(int argc, char **argv) {
     char err[512];
     vlsync_client *c = vlsync_client_open(prefix, err, sizeof err);
     if (!c) {
-        fprintf(stderr, "vlsync_echo: %s\n", err);
+        fprintf(stderr, "vlsync_echo_c: %s\n", err);
         return 2;
     }
     long got = 0;
     int status = 0;
-    double last = now_s();
+    double last = now_s(), start = last;
+    int heard = 0, told = 0;
+    uint64_t invalid = 0;
     while (!stop && (count == 0 || got < (long)count)) {
         vlsync_estimate e;
         int r = vlsync_client_wait_one(c, 250, &e, err, sizeof err);
+        uint64_t now_invalid = vlsync_client_invalid_count(c);
+        if (now_invalid > invalid) {
+            /* the library skips what fails validation (NaN, an unknown state, ...) */
+            fprintf(stderr,
+                    "vlsync_echo_c: skipped %llu invalid estimate payload(s) on %s/offset\n",
+                    (unsigned long long)(now_invalid - invalid), prefix);
+            invalid = now_invalid;
+            heard = 1;
+        }
         if (r < 0) {
-            fprintf(stderr, "vlsync_echo: %s\n", err);
+            fprintf(stderr, "vlsync_echo_c: %s\n", err);
             status = 2;
             break;
         }
         if (r == 0) {
+            quiet_notice(&heard, &told, start, prefix, "offset");
             if (timeout > 0 && now_s() - last > timeout) {
-                fprintf(stderr, "vlsync_echo: no estimate on %s/offset for %.1f s\n", prefix, timeout);
+                fprintf(stderr, "vlsync_echo_c: no estimate on %s/offset for %.1f s\n", prefix, timeout);
                 status = 1;
                 break;
             }
             continue;
         }
         last = now_s();
+        heard = 1;
         got++;
         printf("seq %llu %-9s t_ref %.3f s offset %+.3f ms +- %.3f ms drift %+.2f ppm\n",
                (unsigned long long)e.seq, vlsync_state_name(e.state), e.t_ref_ns * 1e-9,

@@ -6,8 +6,12 @@
  * static asserts pin every size and offset, exactly like the Rust layout tests.
  * They need C11 or C++11 (static assertions, alignof): an older C or C++ (C89/C99,
  * C++98/03) includes the header without them, as vlsync_client.h does.
- * iceoryx2 itself compares only the type name, size and alignment: the ".v1" in
- * each name is what guards the fields (a change of layout gets a new name).
+ * iceoryx2 compares the service's whole message type description: the payload's
+ * type variant (FixedSize), name, size and alignment, and the user header's (the
+ * vlsync services have none: Rust's (), size 0, alignment 1, which a C program on
+ * iceoryx2's own bindings must give too, or it gets IncompatibleTypes). It does not
+ * compare fields: the ".v1" in each name is what guards them (a change of layout
+ * gets a new name).
  *
  * Services (one robot per prefix):
  *   <prefix>/cam/signature, <prefix>/lidar/signature  vlsync_signature_sample  (publish-subscribe)
@@ -175,4 +179,7 @@ VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, state) == 208, "Status.state");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, degraded) == 209, "Status.degraded");
 VLSYNC_STATIC_ASSERT(offsetof(vlsync_status, reserved) == 210, "Status.reserved");
 #endif /* VLSYNC_STATIC_ASSERT */
+/* the helpers are this header's own: not left defined for the includer */
+#undef VLSYNC_STATIC_ASSERT
+#undef VLSYNC_ALIGNOF
 #endif /* VLSYNC_WIRE_H */

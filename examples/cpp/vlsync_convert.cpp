@@ -3,7 +3,8 @@
 //
 //   cargo build --release -p vlsync-capi
 //   c++ -std=c++17 -Wall -I capi/include examples/cpp/vlsync_convert.cpp -L target/release
-//       -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_convert   (one line)
+//       -lvlsync_client -Wl,-rpath,"$PWD/target/release" -o vlsync_convert   (one line: a
+//       backslash would continue this comment)
 //   ./vlsync_convert --prefix vlsync/robot [--timeout S] [--max-age A] < camera_stamps_ns.txt
 //
 // Waits (up to --timeout seconds, default 30, at most 1e6; 0: no limit) for the
@@ -15,7 +16,8 @@
 // forever in the client), so the stamp is not to be trusted; stderr says when that
 // starts (with the age) and when fresh estimates come back.
 // Exit status: 0 at the end of the input, on Ctrl-C / SIGTERM, or when the reader of its
-// output goes away; 1 when no lock came within the timeout; 2 on a bad argument, a line
+// output goes away; 1 when no lock came within the timeout (the message counts the invalid
+// payloads the library skipped meanwhile, if any); 2 on a bad argument, a line
 // that is not a 64-bit integer (named by its number), an output that cannot be written,
 // or a library error. Each path out closes the client (its iceoryx2 resources released).
 #include <cerrno>
@@ -120,6 +122,10 @@ int main(int argc, char **argv) {
                     std::cerr << " (only a stale one, "
                               << std::chrono::duration<double>(vlsync::age(*e)).count()
                               << " s old)";
+                // what the library skipped: a publisher of broken payloads, not no lock
+                if (auto bad = c.invalid_count())
+                    std::cerr << "; " << bad
+                              << " invalid estimate payload(s) skipped (NaN, unknown state, ...)";
                 std::cerr << "\n";
                 return 1;
             }

@@ -858,6 +858,8 @@ impl OffsetClient {
 pub struct StatusClient {
     subscriber: Subscriber<Svc, Status, ()>,
     latest: Option<Status>,
+    /// Payloads validation refused so far.
+    invalid: u64,
     /// `<prefix>/status`, for error messages.
     service: String,
     _service: PubSubFactory<Svc, Status, ()>,
@@ -874,6 +876,7 @@ impl StatusClient {
         Ok(Self {
             subscriber,
             latest: None,
+            invalid: 0,
             service: names.status(),
             _service: svc,
             _node: node,
@@ -900,13 +903,22 @@ impl StatusClient {
                     self.latest = Some(st);
                     out.push(st);
                 }
-                Err(e) => last_err = Some(e),
+                Err(e) => {
+                    self.invalid += 1;
+                    last_err = Some(e);
+                }
             }
         }
         match (out.is_empty(), last_err) {
             (true, Some(e)) => Err(WireErrorOrIpc::Wire(e)),
             _ => Ok(out),
         }
+    }
+
+    /// Status payloads validation refused so far (skipped by [`Self::receive_all`]
+    /// and [`Self::latest`]).
+    pub fn invalid_count(&self) -> u64 {
+        self.invalid
     }
 
     /// The most recent valid status; invalid payloads are skipped (the validation
@@ -1155,5 +1167,6 @@ mod tests {
         })
         .unwrap();
         assert_eq!(c.latest().unwrap().unwrap().estimates_published, 3);
+        assert_eq!(c.invalid_count(), 2);
     }
 }

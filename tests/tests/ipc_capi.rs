@@ -488,7 +488,7 @@ fn the_examples_refuse_bad_input_with_their_exit_codes() {
     }
     // --help: the usage on stdout, exit 0, nothing opened
     for (exe, usage) in [
-        (&echo, "usage: vlsync_echo [--prefix P]"),
+        (&echo, "usage: vlsync_echo_c [--prefix P]"),
         (&convert, "usage: vlsync_convert [--prefix P]"),
     ] {
         let out = run(exe, &["--help"], "");
@@ -553,5 +553,129 @@ int main(int argc, char **argv) {
         stderr.contains("vlsync::Client destroyed on another thread"),
         "{stderr}"
     );
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// Payloads that fail validation reach the C echo's reader as a line on stderr, not as
+/// silence (estimates) or an exit 2 (a status that came before any valid one); a
+/// prefix nobody publishes on is said once after 5 s.
+#[test]
+fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
+    use std::time::Duration;
+    use vlsync_ipc::{
+        create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
+        ServiceNames,
+    };
+    let tmp = scratch("skipped");
+    let (echo, _) = build_examples(&tmp);
+    let spawn = |args: &[&str]| {
+        linked("timeout")
+            .arg("60")
+            .arg(&echo)
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run the echo")
+    };
+    // nobody publishes here: said once, at 5 s, then the --timeout
+    let silent = format!("vlsync-it/capi-quiet-{}", std::process::id());
+    let quiet = spawn(&["--prefix", &silent, "--timeout", "6.5"]);
+    let quiet_status = spawn(&["--prefix", &silent, "--status", "--timeout", "6.5"]);
+
+    let names = ServiceNames::new(&format!("vlsync-it/capi-skip-{}", std::process::id())).unwrap();
+    let node = create_node("test-daemon", false).unwrap();
+    let offset =
+        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+    let offset_ev = open_or_create_event(&node, &names.offset()).unwrap();
+    let offset_pub = publisher(&offset, "offset").unwrap();
+    let offset_note = notifier(&offset_ev, "offset").unwrap();
+    let status = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
+    let status_pub = publisher(&status, "status").unwrap();
+
+    let estimates = spawn(&["--prefix", &names.prefix, "--count", "1", "--timeout", "20"]);
+    let statuses = spawn(&[
+        "--prefix",
+        &names.prefix,
+        "--status",
+        "--count",
+        "1",
+        "--timeout",
+        "20",
+    ]);
+    std::thread::sleep(Duration::from_millis(1500));
+    let e = vlsync_common::Estimate {
+        seq: 7,
+        t_ref_ns: 10_000_000_000,
+        offset_s: 0.02,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 0.0,
+        state: vlsync_common::EstimatorState::Tracking,
+        polarity: vlsync_common::Polarity::Positive,
+        peak_score: 0.8,
+        peak_ratio: 2.0,
+        measured_offset_s: 0.02,
+    };
+    let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
+    bad.offset_s = f64::NAN;
+    offset_pub.send_copy(bad).unwrap();
+    offset_note.notify().unwrap();
+    // an invalid status alone first: the echo polls every 250 ms and meets it alone
+    status_pub
+        .send_copy(Status {
+            degraded: 9,
+            ..Status::default()
+        })
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1000));
+    offset_pub
+        .send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
+        .unwrap();
+    offset_note.notify().unwrap();
+    status_pub
+        .send_copy(Status {
+            estimates_published: 5,
+            ..Status::default()
+        })
+        .unwrap();
+
+    let text = |o: &Output| {
+        (
+            String::from_utf8_lossy(&o.stdout).to_string(),
+            String::from_utf8_lossy(&o.stderr).to_string(),
+        )
+    };
+    let out = estimates.wait_with_output().unwrap();
+    let (so, se) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{so}\n{se}");
+    assert!(so.starts_with("seq 7 tracking"), "{so}");
+    assert!(
+        se.contains(&format!(
+            "vlsync_echo_c: skipped 1 invalid estimate payload(s) on {}/offset",
+            names.prefix
+        )),
+        "{se}"
+    );
+    let out = statuses.wait_with_output().unwrap();
+    let (so, se) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{so}\n{se}");
+    assert!(so.contains("estimates 5 "), "{so}");
+    assert!(
+        se.contains(&format!(
+            "vlsync_echo_c: skipped 1 invalid status payload(s) on {}/status",
+            names.prefix
+        )),
+        "{se}"
+    );
+    for (child, service) in [(quiet, "offset"), (quiet_status, "status")] {
+        let out = child.wait_with_output().unwrap();
+        let (so, se) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{so}\n{se}");
+        let notice = format!(
+            "vlsync_echo_c: nothing on {silent}/{service} for 5 s; waiting (is vlsyncd running with this prefix?)"
+        );
+        assert_eq!(se.matches(&notice).count(), 1, "{se}");
+    }
     std::fs::remove_dir_all(&tmp).unwrap();
 }
