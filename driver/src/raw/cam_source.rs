@@ -166,6 +166,11 @@ impl PipeFrames {
             }
             PipeInput::Command(c) => {
                 use std::os::unix::process::CommandExt;
+                // earlier programs SIGKILL could not end still there: no new one
+                // until one of them exits (else a hung camera driver or USB link
+                // would gain one every restart, 8600 a day)
+                wait_for_fewer_left(&LEFT, MAX_LEFT, stop, Duration::from_millis(100))
+                    .map_err(err)?;
                 let mut child = std::process::Command::new("sh")
                     .arg("-c")
                     .arg(c)
@@ -200,6 +205,45 @@ impl PipeFrames {
         }
         Ok(Self { src, stop, child })
     }
+}
+
+/// Camera programs SIGKILL has not ended yet, each waited for by a reaper thread
+/// ([`reap_or_leave`]).
+static LEFT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// The most camera programs left to reaper threads before no new one is started
+/// ([`wait_for_fewer_left`]).
+const MAX_LEFT: usize = 3;
+
+/// Returns once fewer than `max` programs are `left` (at once when they are), polling
+/// every `poll`; says once on stderr that it waits. A stop while it waits is an error.
+fn wait_for_fewer_left(
+    left: &std::sync::atomic::AtomicUsize,
+    max: usize,
+    stop: StopFn,
+    poll: Duration,
+) -> Result<(), String> {
+    let mut said = false;
+    while left.load(std::sync::atomic::Ordering::Acquire) >= max {
+        if stop() {
+            return Err(format!(
+                "stopped while {max} earlier camera programs were still there after SIGKILL"
+            ));
+        }
+        if !said {
+            said = true;
+            vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Warning,
+                &format!(
+                    "vlsync-cam: {max} earlier camera programs are still there after SIGKILL \
+                     (uninterruptible sleep: a hung camera driver or USB link?): no new one is \
+                     started until one of them exits (a reboot may be needed)\n"
+                ),
+            );
+        }
+        std::thread::sleep(poll);
+    }
+    Ok(())
 }
 
 /// How long a killed camera program is waited for before a thread is left to reap
@@ -254,11 +298,14 @@ fn reap_or_leave(mut child: std::process::Child, limit: Duration, stop: StopFn) 
             ),
         );
     }
-    // a thread that cannot start leaves a zombie until the driver exits
+    // a thread that cannot start leaves a zombie until the driver exits (counted
+    // as left for good: the program may never exit either)
+    LEFT.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
     let _ = std::thread::Builder::new()
         .name("vlsync-reap".into())
         .spawn(move || {
             let _ = child.wait();
+            LEFT.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
         });
     false
 }
@@ -1141,6 +1188,39 @@ impl Source for CamSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// At most [`MAX_LEFT`] unkillable camera programs: the next one waits until one of
+    /// them exits, and a stop ends the wait.
+    #[test]
+    fn no_new_camera_program_while_too_many_are_left() {
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+        static LEFT_HERE: AtomicUsize = AtomicUsize::new(0);
+        static STOP_HERE: AtomicBool = AtomicBool::new(false);
+        fn never() -> bool {
+            false
+        }
+        fn stop() -> bool {
+            STOP_HERE.load(Ordering::Relaxed)
+        }
+        let poll = Duration::from_millis(1);
+        LEFT_HERE.store(2, Ordering::Relaxed);
+        assert_eq!(wait_for_fewer_left(&LEFT_HERE, 3, never, poll), Ok(()));
+        // at the limit: returns only once one of them was reaped
+        LEFT_HERE.store(3, Ordering::Relaxed);
+        let reaper = std::thread::spawn(|| {
+            std::thread::sleep(Duration::from_millis(30));
+            LEFT_HERE.fetch_sub(1, Ordering::AcqRel);
+        });
+        assert_eq!(wait_for_fewer_left(&LEFT_HERE, 3, never, poll), Ok(()));
+        assert_eq!(LEFT_HERE.load(Ordering::Relaxed), 2);
+        reaper.join().unwrap();
+        LEFT_HERE.store(3, Ordering::Relaxed);
+        STOP_HERE.store(true, Ordering::Relaxed);
+        assert_eq!(
+            wait_for_fewer_left(&LEFT_HERE, 3, stop, poll),
+            Err("stopped while 3 earlier camera programs were still there after SIGKILL".into())
+        );
+    }
 
     /// A camera that stalls `stalls` times, then delivers `frames` flat frames and ends.
     struct Fake {
