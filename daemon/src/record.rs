@@ -138,6 +138,8 @@ pub struct StreamCounts {
     pub restarts: u64,
     /// Payloads skipped because their structure is invalid.
     pub malformed: u64,
+    /// What was wrong with the last of them.
+    pub last_malformed: Option<vlsync_common::wire::WireError>,
     /// Rows written whose value is NaN or infinite.
     pub non_finite: u64,
 }
@@ -195,7 +197,8 @@ impl<W: Write> Recording<W> {
     /// structure is invalid).
     pub fn signature(&mut self, stream: Stream, s: &SignatureSample) -> Result<(), String> {
         let i = vlsync_ipc::stream_index(stream);
-        let valid = s.validate().is_ok();
+        let check = s.validate();
+        let valid = check.is_ok();
         let c = &mut self.counts[i];
         // the daemon's rule: a gap is lost; a new run after the first row is a driver
         // restart; a run's first row that is not its driver's first sample leaves the
@@ -222,8 +225,9 @@ impl<W: Write> Recording<W> {
         if follow {
             self.last_seq[i] = Some(s.seq);
         }
-        if !valid {
+        if let Err(e) = check {
             c.malformed += 1;
+            c.last_malformed = Some(e);
             return Ok(());
         }
         c.rows += 1;
@@ -317,8 +321,15 @@ impl<W: Write> Recording<W> {
         for (name, c) in ["cam", "lidar"].iter().zip(self.counts) {
             let _ = writeln!(
                 s,
-                "{name:>9}: {} samples, {} lost (sequence gaps), {} published before the first recorded, {} driver restarts, {} malformed payloads skipped, {} non-finite values kept",
-                c.rows, c.lost, c.before_first, c.restarts, c.malformed, c.non_finite
+                "{name:>9}: {} samples, {} lost (sequence gaps), {} published before the first recorded, {} driver restarts, {} malformed payloads skipped{}, {} non-finite values kept",
+                c.rows,
+                c.lost,
+                c.before_first,
+                c.restarts,
+                c.malformed,
+                c.last_malformed
+                    .map_or(String::new(), |e| format!(" (the last: {e})")),
+                c.non_finite
             );
         }
         let st = |x: EstimatorState| self.states[x as usize];
@@ -764,13 +775,16 @@ mod tests {
                 before_first: 40,
                 restarts: 2,
                 malformed: 3,
+                last_malformed: Some(vlsync_common::wire::WireError::NonZeroPadding {
+                    field: "reserved"
+                }),
                 non_finite: 0
             }
         );
         assert_eq!(r.counts()[1], StreamCounts::default());
         let summary = r.summary();
         assert!(
-            summary.contains("cam: 9 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 3 malformed payloads skipped"),
+            summary.contains("cam: 9 samples, 2 lost (sequence gaps), 40 published before the first recorded, 2 driver restarts, 3 malformed payloads skipped (the last: padding field `reserved` is not zero (layout mismatch?)), 0 non-finite"),
             "{summary}"
         );
         assert!(summary.contains("estimates: 0 ("), "{summary}");

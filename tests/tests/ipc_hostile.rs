@@ -126,6 +126,12 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     assert!(cam_rej[RejectReason::TooLarge.index()] >= 1, "{st:?}");
     assert!(cam_rej[RejectReason::Backwards.index()] >= 1, "{st:?}");
     assert_eq!(cam_rej[REJECT_MALFORMED], 2, "{st:?}");
+    // the first malformed sample's line says what was wrong with it (the second is
+    // counted in the throttle's next line)
+    assert!(
+        log.contains("rejected: malformed (unknown flag bits 0x80000000 (known: 0x1))"),
+        "{log}"
+    );
     assert_eq!(st.rejected_total(1), 0, "{st:?}");
     // the estimator never fell back to acquisition and stays near the truth
     assert!(

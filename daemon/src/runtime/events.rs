@@ -22,12 +22,14 @@ pub(super) fn log_event(
             stream,
             reason,
             t_ns,
+            why,
         } => {
             let key = journal::rejected_key(stream_index(*stream), *reason);
             if let Some(n) = throttle.admit(key, 1, now) {
                 tracing::warn!(
-                    "{stream} sample at t={t_ns} ns rejected: {}{}",
+                    "{stream} sample at t={t_ns} ns rejected: {}{}{}",
                     REJECT_NAMES.get(*reason).copied().unwrap_or("?"),
+                    why.map_or(String::new(), |w| format!(" ({w})")),
                     more(n)
                 )
             }

@@ -204,6 +204,9 @@ pub enum RtEvent {
         reason: usize,
         /// Its timestamp.
         t_ns: Nanos,
+        /// What its validation said, for a malformed sample (which flag bits, which
+        /// field: what a C driver's author needs to fix it).
+        why: Option<vlsync_common::wire::WireError>,
     },
     /// Samples lost: a sequence gap.
     Lost {

@@ -264,7 +264,8 @@ pub(super) fn admit(
 ) -> bool {
     let si = stream_index(stream);
     c.status.received[si] += 1;
-    let valid = w.validate().is_ok();
+    let check = w.validate();
+    let valid = check.is_ok();
     if valid && w.is_first() {
         emit(tx, c, RtEvent::DriverStarted { stream });
     }
@@ -292,6 +293,7 @@ pub(super) fn admit(
                 stream,
                 reason: REJECT_MALFORMED,
                 t_ns: w.t_ns,
+                why: check.err(),
             },
         );
     }
@@ -593,6 +595,7 @@ pub(super) fn rt_thread(
                         stream,
                         reason: r.index(),
                         t_ns: w.t_ns,
+                        why: None,
                     },
                 );
             } else if let Some((t_l, pub_ns)) = clock_reading {
