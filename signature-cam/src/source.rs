@@ -183,6 +183,23 @@ pub struct FrameEntry {
     pub line: usize,
 }
 
+/// The text of a timestamps file's bytes; bytes that are not UTF-8 are an error naming
+/// their line and byte, as every CSV reader of vlsync names them.
+fn frames_csv_text<'a>(bytes: &'a [u8], csv: &Path) -> Result<&'a str, Error> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        let good = &bytes[..e.valid_up_to()];
+        let line_start = good.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+        Error::Parse {
+            path: csv.to_path_buf(),
+            line: good.iter().filter(|&&b| b == b'\n').count() + 1,
+            reason: format!(
+                "not UTF-8 (byte {} of the line)",
+                good.len() - line_start + 1
+            ),
+        }
+    })
+}
+
 /// Parses the text of a timestamps file (see the module docs). `csv` names the
 /// file in errors and is the base for relative frame paths.
 pub fn parse_frames_csv(text: &str, csv: &Path) -> Result<Vec<FrameEntry>, Error> {
@@ -279,12 +296,20 @@ impl DirSource {
     pub fn from_csv(csv: impl AsRef<Path>) -> Result<Self, Error> {
         let csv = csv.as_ref().to_path_buf();
         // regular files only: a named pipe would block the open
-        let text =
-            vlsync_common::file::read_regular_to_string(&csv).map_err(|source| Error::Io {
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(
+            &mut vlsync_common::file::open_regular(&csv).map_err(|source| Error::Io {
                 path: csv.clone(),
                 source,
-            })?;
-        let entries = parse_frames_csv(&text, &csv)?;
+            })?,
+            &mut bytes,
+        )
+        .map_err(|source| Error::Io {
+            path: csv.clone(),
+            source,
+        })?;
+        let text = frames_csv_text(&bytes, &csv)?;
+        let entries = parse_frames_csv(text, &csv)?;
         for e in &entries {
             match vlsync_common::file::check_regular(&e.path) {
                 Ok(()) => {}
@@ -461,6 +486,29 @@ mod tests {
                 "{text:?}: {msg}"
             );
         }
+    }
+
+    #[test]
+    fn bytes_that_are_not_utf8_are_named_by_line_and_byte() {
+        let csv = Path::new("/data/run1/frames.csv");
+        assert_eq!(frames_csv_text(b"file,t_s\n", csv).unwrap(), "file,t_s\n");
+        let msg = frames_csv_text(b"file,t_s\na.png,1\nb\xffc.png,2\n", csv)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            msg,
+            "/data/run1/frames.csv:3: not UTF-8 (byte 2 of the line)"
+        );
+        // and through the file itself
+        let dir = std::env::temp_dir().join(format!("vlsync-frames-utf8-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("frames.csv"), b"file,t_s\n\xfe.png,1\n").unwrap();
+        let msg = DirSource::open(&dir).err().expect("refused").to_string();
+        assert!(
+            msg.ends_with("frames.csv:2: not UTF-8 (byte 1 of the line)"),
+            "{msg}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
