@@ -503,7 +503,10 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("vlsync-frames-utf8-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("frames.csv"), b"file,t_s\n\xfe.png,1\n").unwrap();
-        let msg = DirSource::open(&dir).err().expect("refused").to_string();
+        let Err(e) = DirSource::open(&dir) else {
+            panic!("accepted")
+        };
+        let msg = e.to_string();
         assert!(
             msg.ends_with("frames.csv:2: not UTF-8 (byte 1 of the line)"),
             "{msg}"
