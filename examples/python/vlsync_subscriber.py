@@ -201,6 +201,9 @@ def open_service(node, name, attempts=50):
             return pubsub, event
         except Exception as err:  # iceoryx2 raises typed errors; retry transient ones
             last = err
+            # a service of another layout or settings stays so: no use retrying
+            if "Incompatible" in repr(err):
+                break
             time.sleep(0.02)
     raise RuntimeError(f"cannot open service {name!r}: {last!r}")
 
@@ -243,6 +246,7 @@ def main() -> int:
         return 2
 
     got = invalid = 0
+    invalid_said, invalid_told = 0.0, 0  # when the last skipped line was printed, and the count then
     status = 0
     started = last_seen = time.monotonic()
     noticed = False
@@ -274,7 +278,17 @@ def main() -> int:
                     e = validate(copy)
                 except ValueError as err:
                     invalid += 1
-                    print(f"vlsync_subscriber: skipped invalid estimate: {err}", file=sys.stderr)
+                    # the first said at once, then at most a line per 10 s with a count:
+                    # a publisher of garbage must not flood stderr
+                    now = time.monotonic()
+                    if invalid == 1 or now - invalid_said >= 10.0:
+                        more = invalid - invalid_told - 1
+                        print(
+                            f"vlsync_subscriber: skipped invalid estimate: {err}"
+                            + (f" ({more} more since the last such line)" if more else ""),
+                            file=sys.stderr,
+                        )
+                        invalid_said, invalid_told = now, invalid
                     continue
                 got += 1
                 last_seen = time.monotonic()

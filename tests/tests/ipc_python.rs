@@ -317,3 +317,82 @@ fn python_subscriber_stops_cleanly_on_sigint_and_sigterm() {
         let _ = std::fs::remove_file(&log);
     }
 }
+
+/// A publisher of broken estimates (NaN offsets): the subscriber skips them, says the
+/// first on stderr and counts the rest (at most a line per 10 s: it used to print a
+/// line per payload), and still prints the valid estimate that follows.
+#[test]
+fn python_subscriber_skips_invalid_estimates_without_flooding_stderr() {
+    let Some(script) =
+        subscriber_or_skip("python_subscriber_skips_invalid_estimates_without_flooding_stderr")
+    else {
+        return;
+    };
+    use vlsync_ipc::{notifier, open_or_create_event, open_or_create_pubsub, publisher};
+    let tag = "python-invalid";
+    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
+    let log = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}.log", std::process::id()));
+    let mut py = Managed::spawn(
+        "python subscriber",
+        Path::new(&python()),
+        &[
+            script.display().to_string(),
+            "--prefix".into(),
+            prefix.clone(),
+            "--count".into(),
+            "1".into(),
+            "--timeout".into(),
+            "60".into(),
+        ],
+        Some(&log),
+    )
+    .expect("spawn the Python subscriber");
+    // in its wait loop, subscribed
+    wait_for_quiet_notice(&mut py, &log);
+    let node = create_node("python-invalid-publisher", false).unwrap();
+    let name = format!("{prefix}/offset");
+    let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &name, Qos::latest()).unwrap();
+    let ev = open_or_create_event(&node, &name).unwrap();
+    let publ = publisher(&svc, "offset").unwrap();
+    let note = notifier(&ev, "offset").unwrap();
+    let e = vlsync_common::Estimate {
+        seq: 7,
+        t_ref_ns: 10_000_000_000,
+        offset_s: 0.02,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 0.0,
+        state: vlsync_common::EstimatorState::Tracking,
+        polarity: vlsync_common::Polarity::Positive,
+        peak_score: 0.8,
+        peak_ratio: 2.0,
+        measured_offset_s: 0.02,
+    };
+    let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
+    bad.offset_s = f64::NAN;
+    // in batches within the subscriber's buffer of 16, each read before the next
+    for _ in 0..5 {
+        for _ in 0..10 {
+            publ.send_copy(bad).unwrap();
+        }
+        note.notify().unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    publ.send_copy(OffsetEstimate::from_estimate(&e, 2).unwrap())
+        .unwrap();
+    note.notify().unwrap();
+    let code = exit_code_within(&mut py, Duration::from_secs(20));
+    let out = std::fs::read_to_string(&log).unwrap_or_default();
+    assert_eq!(code, Some(0), "{out}");
+    assert_eq!(
+        out.matches("skipped invalid estimate: ").count(),
+        1,
+        "{out}"
+    );
+    assert!(
+        out.contains("1 estimates received, 50 invalid ones skipped"),
+        "{out}"
+    );
+    assert!(out.lines().any(|l| l.starts_with("#7 ")), "{out}");
+    let _ = std::fs::remove_file(&log);
+}
