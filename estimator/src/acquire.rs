@@ -22,7 +22,34 @@ impl Estimator {
             return false;
         }
         self.acq_tries = 0;
+        if let Some(to) = self.drifted_lag0() {
+            // the lost lock's offset has drifted out of the middle of this range
+            self.alt_lag0 = Some(to);
+            return self.move_search(SearchMoveReason::Drift);
+        }
         self.move_search(SearchMoveReason::NothingFound)
+    }
+
+    /// The range centred on the lost lock's offset as its drift predicts it now, when
+    /// that is known to within a quarter of the range (the drift's uncertainty over
+    /// the time since the loss) and lies outside the middle half of the range
+    /// searched. Two clocks tens of ppm apart carry the offset out of the range the
+    /// lock was lost in after hours of a park; the range must follow, as the published
+    /// offset does.
+    fn drifted_lag0(&self) -> Option<i64> {
+        let lost = self.lost_from?;
+        let dt = self.cur.t - lost.t;
+        let max_lag_s = self.p.half_lags as f64 * self.p.dt_s;
+        if !(dt > 0.0 && lost.drift_var.sqrt() * dt < 0.25 * max_lag_s) {
+            return None;
+        }
+        let centre = ((lost.o + lost.drift * dt) * self.p.fs).round();
+        if !centre.is_finite() {
+            return None;
+        }
+        let to = (centre as i64).saturating_sub(self.p.half_lags);
+        let off = to.saturating_sub(self.corr.lag0()).unsigned_abs();
+        (off > self.p.half_lags.unsigned_abs() / 2).then_some(to)
     }
 
     /// Moves the lag range to [`Estimator::alt_lag0`] (the one it leaves becomes the
@@ -170,6 +197,7 @@ impl Estimator {
         self.acq = Streak::default();
         self.stats.locks += 1;
         self.locked_hops = 0;
+        self.lost_from = None;
         // the lock's own estimate comes from the segment (robust, at the reference time)
         self.hop_track(t_ref_ns, t, motion);
     }

@@ -296,6 +296,22 @@ pub enum SearchMoveReason {
     /// `RECENTRE_HOPS` hops of LiDAR time: the prediction put the camera's
     /// data out of reach (a restored state far off, clocks that stepped apart).
     Unserved,
+    /// A lock lost long ago (a long park) and clocks that drift apart: the drift the
+    /// lock had measured carried the offset's prediction out of the middle of the
+    /// range searched, so the search follows it.
+    Drift,
+}
+
+/// Where a lost lock was ([`Estimator::lost_from`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LostFrom {
+    /// Tracker time of the loss, s.
+    t: f64,
+    /// The offset then (internal stamps), s.
+    o: f64,
+    /// The drift the lock had measured, and its variance.
+    drift: f64,
+    drift_var: f64,
 }
 
 /// A move of the acquisition's lag range to its other candidate centre
@@ -473,6 +489,11 @@ pub struct Estimator {
     /// wrong), then the range it left. `None`: nowhere else (at the start's range, or
     /// the range left could not be served, [`Estimator::check_unserved`]).
     alt_lag0: Option<i64>,
+    /// The lost lock's offset, when it was lost and the drift it had measured, for
+    /// the search to follow ([`SearchMoveReason::Drift`]): tracker time s, offset s,
+    /// drift and its variance. `None` before a lock, while locked, and once a clock
+    /// jump or a restore put the range elsewhere.
+    lost_from: Option<LostFrom>,
     /// Acquisition hops with motion since the range last moved (a lock
     /// lost within `RECENTRE_HOPS` hops does not reset them: at a wrong centre the
     /// signatures' own structure can lock for a few seconds).
@@ -597,6 +618,7 @@ impl Estimator {
             other_at_last: [None; 2],
             jumps: [0; 2],
             alt_lag0: None,
+            lost_from: None,
             acq_tries: 0,
             locked_hops: 0,
             unserved_since: None,
@@ -829,6 +851,7 @@ impl Estimator {
         // a lost restored lock searches the start's range next (see `lose`)
         self.acq_tries = 0;
         self.alt_lag0 = None;
+        self.lost_from = None;
         self.unserved_since = None;
         self.info_t = f64::NEG_INFINITY;
         let lag = (self.cur.o * self.p.fs).round() as i64;
@@ -897,6 +920,7 @@ impl Estimator {
         self.acq = Streak::default();
         self.acq_tries = 0;
         self.alt_lag0 = self.home_alt();
+        self.lost_from = None;
         // the watch's times are on the clock before the step
         self.unserved_since = None;
         self.new_segment(i64::MIN, f64::NEG_INFINITY);
@@ -1080,6 +1104,14 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
+        if self.mode == Mode::Locked {
+            self.lost_from = Some(LostFrom {
+                t: self.cur.t,
+                o: self.cur.o,
+                drift: self.d.0,
+                drift_var: self.d.1,
+            });
+        }
         self.step_job = None;
         self.corr.restart_acq();
         self.enter_acquisition();

@@ -1543,3 +1543,89 @@ fn a_camera_restarted_at_a_new_phase_keeps_the_offset() {
         before * 1e3
     );
 }
+
+/// Two clocks 250 ppm apart and the robot parked for 50 minutes: the offset moves by
+/// 0.75 s meanwhile, out of the range the lock was lost in (and of the start's). The lost
+/// search must follow the drift's prediction, as the published offset does; it used to
+/// stay on the two ranges it knew and never find the offset again.
+#[test]
+fn a_lost_search_follows_the_drift_through_a_long_park() {
+    use vlsync_sim::families::{try_generate_with, CAM_NOISE, LIDAR_NOISE};
+    let (park_at, park_s, ramp, after_s) = (300.0, 3000.0, 2.0, 240.0);
+    let envelope = |tau: f64| {
+        let x = tau - park_at;
+        if x < 0.0 || x > park_s + 2.0 * ramp {
+            1.0
+        } else if x < ramp {
+            0.5 * (1.0 + (std::f64::consts::PI * x / ramp).cos())
+        } else if x < ramp + park_s {
+            0.0
+        } else {
+            0.5 * (1.0 - (std::f64::consts::PI * (x - ramp - park_s) / ramp).cos())
+        }
+    };
+    let run = try_generate_with(
+        Family::Robot,
+        5,
+        Some(park_at + park_s + 2.0 * ramp + after_s),
+        0.0,
+    )
+    .unwrap();
+    let o0 = run.truth.offset_at(run.lidar[0].t_ns);
+    // away from the start's range (centred on 0): the offset leaves both ranges
+    let drift = 250e-6 * o0.signum();
+    let t0 = run.lidar[0].t_ns as f64 * 1e-9;
+    let truth = |t_lidar_ns: i64| o0 + drift * (t_lidar_ns as f64 * 1e-9 - t0);
+    let mut n = normal(77);
+    let mut pushes: Vec<(Stream, Sample)> = run
+        .pushes()
+        .into_iter()
+        .map(|(stream, s)| {
+            let t = s.t_ns as f64 * 1e-9;
+            match stream {
+                Stream::Cam => {
+                    // the event's LiDAR time; the camera's stamp is that less the
+                    // drifting offset
+                    let tau = t + o0;
+                    let v = envelope(tau) * s.value + CAM_NOISE * n();
+                    let t_c = tau - (o0 + drift * (tau - t0));
+                    (stream, Sample::new((t_c * 1e9).round() as i64, v))
+                }
+                Stream::Lidar => (
+                    stream,
+                    Sample::new(s.t_ns, envelope(t) * s.value + LIDAR_NOISE * n()),
+                ),
+            }
+        })
+        .collect();
+    pushes.sort_by_key(|(_, s)| s.t_ns);
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    let mut out = vec![];
+    for (stream, s) in pushes {
+        let _ = est.push(stream, s);
+        out.extend(std::iter::from_fn(|| est.poll()));
+    }
+    let moved = (truth(run.lidar.last().unwrap().t_ns) - o0).abs();
+    assert!(moved > 0.75, "the offset moved by {moved} s only");
+    let resumed = park_at + park_s + 2.0 * ramp;
+    let back = out.iter().find(|e| {
+        e.state == EstimatorState::Tracking
+            && e.t_ref_ns as f64 * 1e-9 > resumed
+            && (e.offset_s - truth(e.t_ref_ns)).abs() <= 0.02
+    });
+    let last = out.last().unwrap();
+    eprintln!(
+        "back {:?} s after the park; {:?}",
+        back.map(|e| e.t_ref_ns as f64 * 1e-9 - resumed),
+        est.stats()
+    );
+    assert!(
+        back.is_some_and(|e| e.t_ref_ns as f64 * 1e-9 < resumed + 120.0),
+        "not tracking within 20 ms in the 120 s after the park (found at {:?} s); last: {} \
+         ms off, {:?}; {:?}",
+        back.map(|e| e.t_ref_ns as f64 * 1e-9 - resumed),
+        (last.offset_s - truth(last.t_ref_ns)) * 1e3,
+        last.state,
+        est.stats()
+    );
+}

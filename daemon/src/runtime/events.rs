@@ -151,10 +151,19 @@ pub(super) fn log_event(
                     "no correlation for {:.0} s although both streams deliver (the prediction is far from the data)",
                     m.after_s
                 ),
+                vlsync_estimator::SearchMoveReason::Drift => format!(
+                    "the lost lock's offset drifted out of the middle of the search (no lock in {:.0} s of motion or noise)",
+                    m.after_s
+                ),
             };
             if let Some(n) = throttle.admit(journal::SEARCH_MOVE_KEY, 1, now) {
+                let causes = match m.reason {
+                    // the search follows the drift: nothing to look for
+                    vlsync_estimator::SearchMoveReason::Drift => "",
+                    _ => " (a restored state far off, clocks that stepped apart, or an offset beyond estimator.max_lag_s of lag_center_s)",
+                };
                 tracing::warn!(
-                    "{why}: searching around {:+.1} ms now instead of {:+.1} ms (a restored state far off, clocks that stepped apart, or an offset beyond estimator.max_lag_s of lag_center_s){}",
+                    "{why}: searching around {:+.1} ms now instead of {:+.1} ms{causes}{}",
                     m.to_s * 1e3,
                     m.from_s * 1e3,
                     more(n)
