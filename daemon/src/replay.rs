@@ -194,7 +194,7 @@ pub fn summary(stats: &EstimatorStats, ests: &[Estimate], rows: [usize; 2]) -> S
     if stats.recentres > 0 {
         let _ = writeln!(
             s,
-            "searches moved: {} (an acquisition found nothing where it searched and moved to the other centre)",
+            "searches moved: {} (an acquisition found nothing where it searched and moved to the other centre or to a lost lock's drifted offset, or could not be served)",
             stats.recentres
         );
     }

@@ -476,9 +476,12 @@ fn run_into(
             anchor_ns,
             start_mono_ns,
         } => {
-            if !(speed.is_finite() && speed > 0.0) {
+            if !(speed.is_finite() && (cli::MIN_SPEED..=cli::MAX_SPEED).contains(&speed)) {
                 return Err(DriverError::Options(format!(
-                    "speed {speed} must be a finite number > 0"
+                    "speed {} is out of range: allowed {} ..= {}",
+                    vlsync_common::text::number(speed),
+                    cli::MIN_SPEED,
+                    cli::MAX_SPEED
                 )));
             }
             let start_ns = start_mono_ns.unwrap_or(started);

@@ -31,16 +31,19 @@ impl Estimator {
     }
 
     /// The range centred on the lost lock's offset as its drift predicts it now, when
-    /// that is known to within a quarter of the range (the drift's uncertainty over
-    /// the time since the loss) and lies outside the middle half of the range
-    /// searched. Two clocks tens of ppm apart carry the offset out of the range the
-    /// lock was lost in after hours of a park; the range must follow, as the published
-    /// offset does.
+    /// the drift has moved it by more than a quarter of the range since the loss, that
+    /// prediction is known to within a quarter of the range (the drift's uncertainty,
+    /// at least 1 ppm, over the time since the loss), and it lies outside the middle
+    /// half of the range searched. Two clocks tens of ppm apart carry the offset out of
+    /// the range the lock was lost in after hours of a park; the range must follow, as
+    /// the published offset does. Clocks that do not drift apart never move it.
     fn drifted_lag0(&self) -> Option<i64> {
         let lost = self.lost_from?;
         let dt = self.cur.t - lost.t;
         let max_lag_s = self.p.half_lags as f64 * self.p.dt_s;
-        if !(dt > 0.0 && lost.drift_var.sqrt() * dt < 0.25 * max_lag_s) {
+        // a restored drift's variance may be tiny: no clock pair is known that well
+        let sd = lost.drift_var.max(1e-12).sqrt();
+        if !(dt > 0.0 && (lost.drift * dt).abs() > 0.25 * max_lag_s && sd * dt < 0.25 * max_lag_s) {
             return None;
         }
         let centre = ((lost.o + lost.drift * dt) * self.p.fs).round();
@@ -119,8 +122,10 @@ impl Estimator {
                 self.lose();
             }
             if self.move_search(SearchMoveReason::Unserved) {
-                // the range just left could not be served: no way back to it
+                // the range just left could not be served: no way back to it, nor
+                // to where its lock's drift would take it
                 self.alt_lag0 = None;
+                self.lost_from = None;
             }
         }
     }
@@ -197,7 +202,6 @@ impl Estimator {
         self.acq = Streak::default();
         self.stats.locks += 1;
         self.locked_hops = 0;
-        self.lost_from = None;
         // the lock's own estimate comes from the segment (robust, at the reference time)
         self.hop_track(t_ref_ns, t, motion);
     }

@@ -112,6 +112,9 @@ const TRANS: usize = 8;
 const TRANS_NS: Nanos = 1_500_000_000;
 /// Largest level (stamping latency relative to the grid's phase), ns.
 const MAX_LEVEL_NS: f64 = 1e9;
+/// Samples after a silence longer than the gap limit within which a step is read as a
+/// new phase of the frames (a restarted driver), not as a change of latency.
+const GAP_PHASE_SAMPLES: u32 = 16;
 
 /// Settings of [`Cadence`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -173,8 +176,9 @@ pub enum Kind {
     First,
     /// The next sample.
     Normal,
-    /// After a silence longer than the gap limit: the grid is learnt again (the
-    /// stream may come back at a new phase of its frames), the level kept.
+    /// After a silence longer than the gap limit: the grid carries on, but a step
+    /// within the next samples is read as a new phase of the frames (a restarted
+    /// driver): the grid is learnt again, the level kept.
     Gap,
     /// After a clock jump: the grid is learnt again, the level kept.
     Reset,
@@ -329,6 +333,9 @@ pub struct Cadence {
     last_internal: Option<Nanos>,
     steps: u64,
     relearns: u64,
+    /// Samples left after a gap within which a step is a new phase
+    /// ([`GAP_PHASE_SAMPLES`]).
+    after_gap: u32,
 }
 
 impl Cadence {
@@ -377,6 +384,7 @@ impl Cadence {
             last_internal: None,
             steps: 0,
             relearns: 0,
+            after_gap: 0,
         }
     }
 
@@ -385,8 +393,8 @@ impl Cadence {
         self.steps
     }
 
-    /// Times the grid was learnt again (the stream was not regular enough, or its
-    /// clock jumped).
+    /// Times the grid was learnt again (the stream was not regular enough, its clock
+    /// jumped, or its frames came back at a new phase after a silence).
     pub fn relearns(&self) -> u64 {
         self.relearns
     }
@@ -476,14 +484,22 @@ impl Cadence {
                 self.last_internal = None;
             }
             Kind::Gap => {
-                // a stream that falls silent for longer than the gap limit was most
-                // likely restarted (a new capture stream, a driver process started
-                // again, a LiDAR's motor spun up again): its frames come back at a
-                // new phase, which is no change of latency. The grid is learnt again
-                // and the level kept; a latency step at the same time is left to the
-                // correlation's own step test, as for a stream without a cadence.
-                self.relearns += 1;
-                self.relearn();
+                // the grid carries on (the frames a stalled driver queued come back to
+                // their grid points); but a stream that falls silent for longer than
+                // the gap limit may have been restarted (a new capture stream, a driver
+                // process started again, a LiDAR's motor spun up again) and come back
+                // at a new phase of its frames, which is no change of latency: a step
+                // found within its first samples after the silence relearns the grid,
+                // the level kept (`try_step`). A latency step at the same time is then
+                // left to the correlation's own step test, as for a stream without a
+                // cadence.
+                self.flush_window();
+                self.back = 0;
+                self.last_off_dev = None;
+                self.last_places = [Place::Other; 2];
+                if self.mode == Mode::Track {
+                    self.after_gap = GAP_PHASE_SAMPLES;
+                }
             }
             Kind::Normal => {}
         }
@@ -509,6 +525,7 @@ impl Cadence {
         self.back = 0;
         self.last_off_dev = None;
         self.prev_level = None;
+        self.after_gap = 0;
     }
 
     /// The window's samples on the grid go to the level bins (no step among them).
@@ -661,6 +678,7 @@ impl Cadence {
     }
 
     fn push_track(&mut self, s: Nanos) -> Nanos {
+        self.after_gap = self.after_gap.saturating_sub(1);
         let t = self.line.1;
         let rel = s.saturating_sub(self.s0) as f64 - self.lref;
         let from_last = rel - self.grid(self.h_last);
@@ -963,7 +981,9 @@ impl Cadence {
             return false;
         }
         let t = self.line.1;
-        if step.abs() >= 0.9 * t {
+        // a period or more is no latency step it could follow; found just after a
+        // silence, the frames came back at another phase (a restarted driver)
+        if step.abs() >= 0.9 * t || self.after_gap > 0 {
             self.relearns += 1;
             self.relearn();
             return true;
@@ -1193,6 +1213,41 @@ mod tests {
                     (out[i] - s[i]) as f64 / MS
                 );
             }
+        }
+    }
+
+    /// A driver stalled for longer than the gap limit, then stamping the frames it
+    /// queued back to back until it is on time: no step, and the frames on time again
+    /// sit on their grid points.
+    #[test]
+    fn a_stall_longer_than_the_gap_limit_keeps_the_grid() {
+        let period = 33.333 * MS;
+        let mut s = Vec::new();
+        let mut next_free = 0.0f64;
+        for k in 0..600usize {
+            let ev = 1e12 + k as f64 * period;
+            let ready = if k == 300 { ev + 1000.0 * MS } else { ev };
+            let t = ready.max(next_free);
+            next_free = t + 1.0 * MS;
+            s.push(t as Nanos);
+        }
+        let mut c = Cadence::new(CadenceParams::default());
+        let mut out = Vec::new();
+        for (i, &t) in s.iter().enumerate() {
+            let kind = match i {
+                0 => Kind::First,
+                // the stall's first stamp comes 1.03 s after the one before
+                300 => Kind::Gap,
+                _ => Kind::Normal,
+            };
+            out.push(c.push(t, kind));
+        }
+        // (its backlog of 30 frames, 1 ms apart, is no grid: learnt again after it)
+        assert_eq!(c.steps(), 0);
+        let phase = out[100] as f64 - (1e12 + 100.0 * period);
+        for (k, &o) in out.iter().enumerate().skip(400) {
+            let e = o as f64 - (1e12 + k as f64 * period) - phase;
+            assert!(e.abs() < 0.01 * MS, "frame {k}: {:.3} ms off", e / MS);
         }
     }
 

@@ -98,13 +98,15 @@ pub struct EstimatorStats {
     pub steps: u64,
     /// Locks acquired (first lock and re-acquisitions).
     pub locks: u64,
-    /// Times an acquisition that found nothing moved its lag range to the other
-    /// candidate centre (the start's, or the one it left).
+    /// Times an acquisition moved its lag range: having found nothing, to the other
+    /// candidate centre (the start's, or the one it left) or to a lost lock's offset
+    /// as its drift predicts it; or away from a range it could not be served in.
     pub recentres: u64,
     /// Stamping-latency steps each stream's cadence found (index: 0 cam, 1 lidar):
     /// followed from the stamps, not the correlation ([`cadence`]).
     pub cadence_steps: [u64; 2],
-    /// Times each stream's cadence was learnt again (not regular enough, a clock jump).
+    /// Times each stream's cadence was learnt again (not regular enough, a clock jump,
+    /// a new phase of its frames after a silence).
     pub cadence_relearns: [u64; 2],
 }
 
@@ -325,8 +327,9 @@ pub struct SearchMove {
     pub to_s: f64,
     /// What made it move.
     pub reason: SearchMoveReason,
-    /// How long it waited before moving (motion for [`SearchMoveReason::NothingFound`],
-    /// LiDAR time for [`SearchMoveReason::Unserved`]), s.
+    /// How long it waited before moving (hops with motion for
+    /// [`SearchMoveReason::NothingFound`] and [`SearchMoveReason::Drift`], LiDAR time
+    /// for [`SearchMoveReason::Unserved`]), s.
     pub after_s: f64,
 }
 
@@ -489,10 +492,10 @@ pub struct Estimator {
     /// wrong), then the range it left. `None`: nowhere else (at the start's range, or
     /// the range left could not be served, [`Estimator::check_unserved`]).
     alt_lag0: Option<i64>,
-    /// The lost lock's offset, when it was lost and the drift it had measured, for
-    /// the search to follow ([`SearchMoveReason::Drift`]): tracker time s, offset s,
-    /// drift and its variance. `None` before a lock, while locked, and once a clock
-    /// jump or a restore put the range elsewhere.
+    /// The last lock that held `RECENTRE_HOPS` hops and was lost: its offset, when,
+    /// and the drift it had measured, for the search to follow
+    /// ([`SearchMoveReason::Drift`]). `None` before such a lock, and once a clock
+    /// jump, a restore or an unserved range put the offset elsewhere.
     lost_from: Option<LostFrom>,
     /// Acquisition hops with motion since the range last moved (a lock
     /// lost within `RECENTRE_HOPS` hops does not reset them: at a wrong centre the
@@ -1104,7 +1107,10 @@ impl Estimator {
 
     /// The lock is gone: re-acquire (state `lost` once it had locked).
     fn lose(&mut self) {
-        if self.mode == Mode::Locked {
+        // a lock that held (the same test as for the alternative below): one of a few
+        // hops may have been the signatures' own structure, and leaves an earlier
+        // lock's record as it was
+        if self.mode == Mode::Locked && self.locked_hops >= RECENTRE_HOPS {
             self.lost_from = Some(LostFrom {
                 t: self.cur.t,
                 o: self.cur.o,

@@ -193,6 +193,9 @@ impl Estimator {
                 // moving, yet no peak near the prediction for two windows: the lock is wrong
                 self.blind_moving = if motion { self.blind_moving + 1 } else { 0 };
                 if self.blind_moving >= 2 * self.p.acq_blocks && self.mode == Mode::Locked {
+                    // (a lock that held `RECENTRE_HOPS` hops is kept as `lost_from`:
+                    // after a long park, the park's noise passes the motion gate and
+                    // ends a good lock here)
                     self.lose();
                     // a restored lock found wrong was no better than its state file:
                     // its drift goes too (a no-op once the restored slope has faded)

@@ -188,6 +188,12 @@ int main(int argc, char **argv) {
                 vlsync_client_abi_version(), VLSYNC_CLIENT_ABI_VERSION);
         return 2;
     }
+    /* it calls vlsync_status_invalid_count, of minor 2 */
+    if (vlsync_client_abi_minor() < VLSYNC_CLIENT_ABI_MINOR) {
+        fprintf(stderr, "vlsync_echo_c: libvlsync_client has ABI minor %u, this program needs %u\n",
+                vlsync_client_abi_minor(), VLSYNC_CLIENT_ABI_MINOR);
+        return 2;
+    }
     /* no SA_RESTART: a signal ends the library's wait, which then returns 0 */
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);

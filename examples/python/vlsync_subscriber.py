@@ -304,7 +304,7 @@ def main() -> int:
                 if args.count and got >= args.count:
                     break
             now = time.monotonic()
-            if not got and not noticed and now - started >= QUIET_NOTICE_S:
+            if not got and not invalid and not noticed and now - started >= QUIET_NOTICE_S:
                 noticed = True
                 print(
                     f"vlsync_subscriber: nothing received on `{name}` for {QUIET_NOTICE_S:.0f} s; "

@@ -296,15 +296,7 @@ impl DirSource {
     pub fn from_csv(csv: impl AsRef<Path>) -> Result<Self, Error> {
         let csv = csv.as_ref().to_path_buf();
         // regular files only: a named pipe would block the open
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(
-            &mut vlsync_common::file::open_regular(&csv).map_err(|source| Error::Io {
-                path: csv.clone(),
-                source,
-            })?,
-            &mut bytes,
-        )
-        .map_err(|source| Error::Io {
+        let bytes = vlsync_common::file::read_regular(&csv).map_err(|source| Error::Io {
             path: csv.clone(),
             source,
         })?;

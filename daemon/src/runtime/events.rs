@@ -152,7 +152,7 @@ pub(super) fn log_event(
                     m.after_s
                 ),
                 vlsync_estimator::SearchMoveReason::Drift => format!(
-                    "the lost lock's offset drifted out of the middle of the search (no lock in {:.0} s of motion or noise)",
+                    "the acquisition found no lock in {:.0} s of motion, and the lost lock's offset has drifted out of the middle of the search",
                     m.after_s
                 ),
             };

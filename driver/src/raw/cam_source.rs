@@ -298,15 +298,19 @@ fn reap_or_leave(mut child: std::process::Child, limit: Duration, stop: StopFn) 
             ),
         );
     }
-    // a thread that cannot start leaves a zombie until the driver exits (counted
-    // as left for good: the program may never exit either)
+    // a thread that cannot start leaves a zombie until the driver exits
     LEFT.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
-    let _ = std::thread::Builder::new()
+    let reaper = std::thread::Builder::new()
         .name("vlsync-reap".into())
         .spawn(move || {
             let _ = child.wait();
             LEFT.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
         });
+    if reaper.is_err() {
+        // no thread to count it down: not counted (it would block new programs for
+        // good once it exits)
+        LEFT.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+    }
     false
 }
 
