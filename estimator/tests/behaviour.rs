@@ -1383,18 +1383,7 @@ fn noise_alone_never_tracks() {
 fn a_long_park_does_not_track_noise() {
     use vlsync_sim::families::{try_generate_with, CAM_NOISE, LIDAR_NOISE};
     let (park_at, park_s, ramp) = (60.0, 600.0, 2.0);
-    let envelope = |tau: f64| {
-        let x = tau - park_at;
-        if x < 0.0 || x > park_s + 2.0 * ramp {
-            1.0
-        } else if x < ramp {
-            0.5 * (1.0 + (std::f64::consts::PI * x / ramp).cos())
-        } else if x < ramp + park_s {
-            0.0
-        } else {
-            0.5 * (1.0 - (std::f64::consts::PI * (x - ramp - park_s) / ramp).cos())
-        }
-    };
+    let envelope = park_envelope(park_at, park_s, ramp);
     for seed in 1..=2u64 {
         let run =
             try_generate_with(Family::Robot, seed, Some(park_at + park_s + 90.0), 0.0).unwrap();
@@ -1544,6 +1533,23 @@ fn a_camera_restarted_at_a_new_phase_keeps_the_offset() {
     );
 }
 
+/// The motion's envelope of a park at `park_at` s (LiDAR time) lasting `park_s`: the
+/// motion fades out over `ramp` s, is 0 in the park, and fades in over `ramp` s.
+fn park_envelope(park_at: f64, park_s: f64, ramp: f64) -> impl Fn(f64) -> f64 + Copy {
+    move |tau: f64| {
+        let x = tau - park_at;
+        if x < 0.0 || x > park_s + 2.0 * ramp {
+            1.0
+        } else if x < ramp {
+            0.5 * (1.0 + (std::f64::consts::PI * x / ramp).cos())
+        } else if x < ramp + park_s {
+            0.0
+        } else {
+            0.5 * (1.0 - (std::f64::consts::PI * (x - ramp - park_s) / ramp).cos())
+        }
+    }
+}
+
 /// A robot run of `family` (seed `seed`) with the camera clock drifting `drift_ppm`
 /// away from the start's range (sign taken from the first offset), 300 s of motion, a
 /// 50-minute park, 240 s of motion: the estimates, the search moves, the truth and
@@ -1561,18 +1567,7 @@ fn park_with_drift(
 ) {
     use vlsync_sim::families::{try_generate_with, CAM_NOISE, LIDAR_NOISE};
     let (park_at, park_s, ramp, after_s) = (300.0, 3000.0, 2.0, 240.0);
-    let envelope = move |tau: f64| {
-        let x = tau - park_at;
-        if x < 0.0 || x > park_s + 2.0 * ramp {
-            1.0
-        } else if x < ramp {
-            0.5 * (1.0 + (std::f64::consts::PI * x / ramp).cos())
-        } else if x < ramp + park_s {
-            0.0
-        } else {
-            0.5 * (1.0 - (std::f64::consts::PI * (x - ramp - park_s) / ramp).cos())
-        }
-    };
+    let envelope = park_envelope(park_at, park_s, ramp);
     let run = try_generate_with(
         family,
         seed,

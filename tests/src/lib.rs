@@ -473,6 +473,24 @@ pub fn locked_errors(est: &[Estimate], sim: &vlsync_sim::SimRun) -> Vec<f64> {
         .collect()
 }
 
+/// A valid estimate in state `tracking` (offset 20 ± 1 ms at t = 10 s, seq `seq`), for
+/// tests that publish on the offset service themselves.
+pub fn tracking_estimate(seq: u64) -> Estimate {
+    Estimate {
+        seq,
+        t_ref_ns: 10_000_000_000,
+        offset_s: 0.02,
+        drift: 0.0,
+        offset_std_s: 0.001,
+        drift_std: 0.0,
+        state: vlsync_common::EstimatorState::Tracking,
+        polarity: vlsync_common::Polarity::Positive,
+        peak_score: 0.8,
+        peak_ratio: 2.0,
+        measured_offset_s: 0.02,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

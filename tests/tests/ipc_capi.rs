@@ -604,19 +604,7 @@ fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
         "20",
     ]);
     std::thread::sleep(Duration::from_millis(1500));
-    let e = vlsync_common::Estimate {
-        seq: 7,
-        t_ref_ns: 10_000_000_000,
-        offset_s: 0.02,
-        drift: 0.0,
-        offset_std_s: 0.001,
-        drift_std: 0.0,
-        state: vlsync_common::EstimatorState::Tracking,
-        polarity: vlsync_common::Polarity::Positive,
-        peak_score: 0.8,
-        peak_ratio: 2.0,
-        measured_offset_s: 0.02,
-    };
+    let e = vlsync_tests::tracking_estimate(7);
     let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
     bad.offset_s = f64::NAN;
     offset_pub.send_copy(bad).unwrap();

@@ -355,19 +355,7 @@ fn python_subscriber_skips_invalid_estimates_without_flooding_stderr() {
     let ev = open_or_create_event(&node, &name).unwrap();
     let publ = publisher(&svc, "offset").unwrap();
     let note = notifier(&ev, "offset").unwrap();
-    let e = vlsync_common::Estimate {
-        seq: 7,
-        t_ref_ns: 10_000_000_000,
-        offset_s: 0.02,
-        drift: 0.0,
-        offset_std_s: 0.001,
-        drift_std: 0.0,
-        state: vlsync_common::EstimatorState::Tracking,
-        polarity: vlsync_common::Polarity::Positive,
-        peak_score: 0.8,
-        peak_ratio: 2.0,
-        measured_offset_s: 0.02,
-    };
+    let e = vlsync_tests::tracking_estimate(7);
     let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
     bad.offset_s = f64::NAN;
     // in batches of half the subscriber's buffer of 16: a reader one batch late
