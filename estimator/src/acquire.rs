@@ -8,24 +8,35 @@ use super::*;
 impl Estimator {
     /// Counts an acquisition hop that could have locked (the window moved); after
     /// `RECENTRE_HOPS` of them, unless consistent peaks are building a lock here,
-    /// the lag range moves to the alternative centre ([`Estimator::alt_lag0`]) and
-    /// the one it left becomes the alternative: a wrong prediction (a restored state
-    /// off, two clocks that stepped apart) cannot keep the search away from the
-    /// offset. Returns whether it moved.
+    /// the lag range moves to a lost lock's drifted offset ([`Self::drifted_lag0`])
+    /// or, when most of those hops moved as the last lock's motion did
+    /// ([`Estimator::moving_as_locked`]: a park's noise does not), to the alternative
+    /// centre ([`Estimator::alt_lag0`]), the one it left becoming the alternative: a
+    /// wrong prediction (a restored state off, two clocks that stepped apart) cannot
+    /// keep the search away from the offset. Returns whether it moved.
     pub(super) fn acquisition_try(&mut self) -> bool {
         if self.mode != Mode::Acquire {
             return false;
         }
         self.acq_tries += 1;
+        if !self.moving_as_locked() {
+            self.acq_quiet += 1;
+        }
         // not while consistent peaks are building up to a lock here
         if self.acq_tries < RECENTRE_HOPS || self.acq.count > 0 {
             return false;
         }
+        let quiet = self.acq_quiet;
         self.acq_tries = 0;
+        self.acq_quiet = 0;
         if let Some(to) = self.drifted_lag0() {
             // the lost lock's offset has drifted out of the middle of this range
             self.alt_lag0 = Some(to);
             return self.move_search(SearchMoveReason::Drift);
+        }
+        // most of them a park's noise: nothing says the offset is elsewhere
+        if 2 * quiet > RECENTRE_HOPS {
+            return false;
         }
         self.move_search(SearchMoveReason::NothingFound)
     }
@@ -74,6 +85,7 @@ impl Estimator {
             after_s: RECENTRE_HOPS as f64 * self.p.hop_len as f64 * self.p.dt_s,
         });
         self.acq_tries = 0;
+        self.acq_quiet = 0;
         // nothing found where the search was (a restored offset from another setup,
         // clocks that stepped apart): a restored drift is no better than that offset
         self.drift.forget_restored();

@@ -123,6 +123,8 @@ const QUEUE: usize = 64;
 /// the LiDAR time without a correlator hop, both streams delivering, after which it
 /// moves at once ([`Estimator::check_unserved`]): 30 s at the default hop.
 const RECENTRE_HOPS: usize = 60;
+/// Tracking hops between two refreshes of [`Estimator::lock_motion`].
+const LOCK_MOTION_HOPS: usize = 20;
 /// Floor of the measurement standard deviation (stamp jitter, interpolation), seconds.
 const MIN_MEAS_STD_S: f64 = 2e-4;
 /// Window length at which the peak-sharpness variance formula matches the observed scatter, s.
@@ -501,6 +503,12 @@ pub struct Estimator {
     /// lost within `RECENTRE_HOPS` hops does not reset them: at a wrong centre the
     /// signatures' own structure can lock for a few seconds).
     acq_tries: usize,
+    /// Of those, the hops whose motion was not as the last lock's
+    /// ([`Estimator::moving_as_locked`]): a park's noise.
+    acq_quiet: usize,
+    /// The motion references while the last lock tracked with motion (refreshed every
+    /// [`LOCK_MOTION_HOPS`] tracking hops): what motion looks like on this robot.
+    lock_motion: Option<[f64; 2]>,
     /// Tracking hops since the last lock.
     locked_hops: usize,
     /// Where the watch of [`Estimator::check_unserved`] started: the LiDAR's and the
@@ -623,6 +631,8 @@ impl Estimator {
             alt_lag0: None,
             lost_from: None,
             acq_tries: 0,
+            acq_quiet: 0,
+            lock_motion: None,
             locked_hops: 0,
             unserved_since: None,
             hops_done: 0,
@@ -853,6 +863,7 @@ impl Estimator {
         self.locked_hops = 0;
         // a lost restored lock searches the start's range next (see `lose`)
         self.acq_tries = 0;
+        self.acq_quiet = 0;
         self.alt_lag0 = None;
         self.lost_from = None;
         self.unserved_since = None;
@@ -922,6 +933,7 @@ impl Estimator {
         self.enter_acquisition();
         self.acq = Streak::default();
         self.acq_tries = 0;
+        self.acq_quiet = 0;
         self.alt_lag0 = self.home_alt();
         self.lost_from = None;
         // the watch's times are on the clock before the step
@@ -1125,6 +1137,7 @@ impl Estimator {
         self.blind_moving = 0;
         if self.locked_hops >= RECENTRE_HOPS || self.alt_lag0.is_none() {
             self.acq_tries = 0;
+            self.acq_quiet = 0;
             self.alt_lag0 = self.home_alt();
         }
     }

@@ -56,16 +56,9 @@ impl Estimator {
     /// a decaying maximum: a few seconds of one signature spiking (a turn sweeping the
     /// LiDAR's window across a corner) must not make ordinary motion look like none.
     pub(super) fn motion_ok(&mut self, update_ref: bool) -> bool {
-        let w = self.corr.acq();
-        let mid = self.corr.n_lags() / 2;
-        let (a, b) = self.corr.active();
-        // within the slots the window holds (all of them but after a lag shift); a
-        // window whose blocks share none cannot tell
-        if w.lo > w.hi {
+        let Some(v) = self.window_vars() else {
             return false;
-        }
-        let slot = mid.clamp(a, b).clamp(w.lo, w.hi);
-        let v = [w.var_y(slot), w.var_x()];
+        };
         let mut ok = true;
         for (h, &vi) in self.motion_hist.iter_mut().zip(v.iter()) {
             if update_ref {
@@ -77,6 +70,36 @@ impl Estimator {
             }
         }
         ok
+    }
+
+    /// The acquisition window's LiDAR and camera variances, at the middle of the
+    /// active slots it holds (all of them but after a lag shift); `None` for a window
+    /// whose blocks share none, which cannot tell.
+    fn window_vars(&self) -> Option<[f64; 2]> {
+        let w = self.corr.acq();
+        let mid = self.corr.n_lags() / 2;
+        let (a, b) = self.corr.active();
+        if w.lo > w.hi {
+            return None;
+        }
+        let slot = mid.clamp(a, b).clamp(w.lo, w.hi);
+        Some([w.var_y(slot), w.var_x()])
+    }
+
+    /// Whether the acquisition window moves as the signatures did while the last lock
+    /// tracked with motion (both at least `min_motion_ratio` of that lock's motion
+    /// references, [`Estimator::lock_motion`]); true before any such lock. After
+    /// minutes of a park the motion gate's own reference is the park's noise, which
+    /// then passes it: that noise must not move the search between its ranges.
+    pub(super) fn moving_as_locked(&self) -> bool {
+        let Some(refs) = self.lock_motion else {
+            return true;
+        };
+        self.window_vars().is_some_and(|v| {
+            v.iter()
+                .zip(refs)
+                .all(|(&vi, r)| vi > 0.0 && vi >= self.p.min_motion * r)
+        })
     }
 
     /// The motion references: the upper quartiles of the acquisition windows'

@@ -168,6 +168,10 @@ impl Estimator {
                 if motion {
                     self.info_t = t;
                     self.stats.measurements += 1;
+                    // what motion looks like on this robot, from a confident lock
+                    if m.score >= self.p.acq_min_score && self.locked_hops % LOCK_MOTION_HOPS == 0 {
+                        self.lock_motion = Some(self.motion_refs());
+                    }
                 }
                 let st = self.current_state(motion);
                 self.emit(t_ref_ns, st, raw, m.score, m.ratio);

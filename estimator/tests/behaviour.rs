@@ -1622,7 +1622,11 @@ fn a_lost_search_follows_the_drift_through_a_long_park() {
     let (out, moves, truth, resumed) = park_with_drift(Family::Robot, 5, 250.0);
     let moved = (truth(out.last().unwrap().t_ref_ns) - truth(out[0].t_ref_ns)).abs();
     assert!(moved > 0.75, "the offset moved by {moved} s only");
-    assert!(moves.iter().any(|m| m.reason == SearchMoveReason::Drift));
+    // only to follow the drift: the park's noise moves it nowhere else
+    assert!(
+        !moves.is_empty() && moves.iter().all(|m| m.reason == SearchMoveReason::Drift),
+        "{moves:?}"
+    );
     let back = out.iter().find(|e| {
         e.state == EstimatorState::Tracking
             && e.t_ref_ns as f64 * 1e-9 > resumed
@@ -1645,14 +1649,14 @@ fn a_lost_search_follows_the_drift_through_a_long_park() {
 }
 
 /// The same park with clocks that do not drift apart, at an offset of 0.45 s (a lock
-/// near the range's edge): no search moves for drift, and the lock comes back.
+/// near the range's edge): no search moves at all, and the lock comes back.
 #[test]
 fn a_park_without_drift_moves_no_search_for_drift() {
     let (out, moves, truth, resumed) = park_with_drift(Family::BigOffset, 5, 0.0);
-    assert!(
-        moves.iter().all(|m| m.reason != SearchMoveReason::Drift),
-        "{moves:?}"
-    );
+    // the park's noise passes the motion gate after two minutes, but is no motion
+    // like the lock's: no search moves (it moved every 30 s, between the start's
+    // range and the lock's, before `Estimator::moving_as_locked`)
+    assert!(moves.is_empty(), "{moves:?}");
     assert!(out.iter().any(|e| e.state == EstimatorState::Tracking
         && e.t_ref_ns as f64 * 1e-9 > resumed
         && (e.offset_s - truth(e.t_ref_ns)).abs() <= 0.02));
