@@ -169,7 +169,9 @@ impl Estimator {
                     self.info_t = t;
                     self.stats.measurements += 1;
                     // what motion looks like on this robot, from a confident lock
-                    if m.score >= self.p.acq_min_score && self.locked_hops % LOCK_MOTION_HOPS == 0 {
+                    if m.score >= self.p.acq_min_score
+                        && self.locked_hops.is_multiple_of(LOCK_MOTION_HOPS)
+                    {
                         self.lock_motion = Some(self.motion_refs());
                     }
                 }
