@@ -1083,6 +1083,21 @@ mod tests {
         run_levels(c, stamps, 0).0
     }
 
+    /// The internal stamps, sample `gap_at` marked as the first after a silence
+    /// longer than the gap limit (as the resampler marks it).
+    fn run_with_gap(c: &mut Cadence, stamps: &[Nanos], gap_at: usize) -> Vec<Nanos> {
+        let kind = |i: usize| match i {
+            0 => Kind::First,
+            i if i == gap_at => Kind::Gap,
+            _ => Kind::Normal,
+        };
+        stamps
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| c.push(t, kind(i)))
+            .collect()
+    }
+
     /// The internal stamps, and the level of each sample as `level_at` tells it
     /// `lag` samples later (as the estimator asks, a few seconds back).
     fn run_levels(c: &mut Cadence, stamps: &[Nanos], lag: usize) -> (Vec<Nanos>, Vec<f64>) {
@@ -1188,15 +1203,7 @@ mod tests {
                 })
                 .collect();
             let mut c = Cadence::new(CadenceParams::default());
-            let mut out = Vec::new();
-            for (i, &t) in s.iter().enumerate() {
-                let kind = match i {
-                    0 => Kind::First,
-                    300 => Kind::Gap,
-                    _ => Kind::Normal,
-                };
-                out.push(c.push(t, kind));
-            }
+            let out = run_with_gap(&mut c, &s, 300);
             assert_eq!(c.steps(), 0, "phase {phase} ms");
             assert!(c.tracking(), "phase {phase} ms");
             // the level stays: the frames after the gap reach the correlator at their
@@ -1232,16 +1239,8 @@ mod tests {
             s.push(t as Nanos);
         }
         let mut c = Cadence::new(CadenceParams::default());
-        let mut out = Vec::new();
-        for (i, &t) in s.iter().enumerate() {
-            let kind = match i {
-                0 => Kind::First,
-                // the stall's first stamp comes 1.03 s after the one before
-                300 => Kind::Gap,
-                _ => Kind::Normal,
-            };
-            out.push(c.push(t, kind));
-        }
+        // the stall's first stamp comes 1.03 s after the one before
+        let out = run_with_gap(&mut c, &s, 300);
         // (its backlog of 30 frames, 1 ms apart, is no grid: learnt again after it)
         assert_eq!(c.steps(), 0);
         let phase = out[100] as f64 - (1e12 + 100.0 * period);

@@ -599,6 +599,22 @@ mod tests {
         ]))
         .unwrap_err();
         assert!(e.contains("--cam-frame-cpu-ms 45"), "{e}");
+        // at 15 Hz the same passes its check: the run fails later, at an --out that
+        // cannot be made (under a regular file), before anything starts
+        let file = std::env::temp_dir().join(format!("vlsync-loadtest-cpu-{}", std::process::id()));
+        std::fs::write(&file, "").unwrap();
+        let out = file.join("out").display().to_string();
+        let e = run(&parse(&[
+            "--render-fps",
+            "15",
+            "--cam-frame-cpu-ms",
+            "45",
+            "--out",
+            out.as_str(),
+        ]))
+        .unwrap_err();
+        assert!(!e.contains("--cam-frame-cpu-ms"), "{e}");
+        std::fs::remove_file(&file).unwrap();
     }
 
     /// A `--config` whose `estimator.max_gap_s` a slow rendered sensor's samples would
