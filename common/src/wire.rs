@@ -386,7 +386,8 @@ pub struct Status {
     pub events_dropped: u64,
     /// Processing time per sample (receive to estimator done), `[p50, p99, max]` ns.
     pub processing_ns: [u64; 3],
-    /// Sample publish (driver) to estimate published (daemon), `[p50, p99, max]` ns.
+    /// Sample publish (driver) to the daemon done with that sample (its estimate
+    /// published if one was due), `[p50, p99, max]` ns.
     pub end_to_end_ns: [u64; 3],
     /// Number of end-to-end latency measurements (`end_to_end_ns`'s; `processing_ns`
     /// may cover more samples).

@@ -16,9 +16,11 @@ process does, so any start order works.
 Every field read from shared memory is validated as the Rust client does
 (state and polarity codes, finite offset/drift/deviations, a peak ratio that is
 not NaN or negative, a measured offset that is not infinite, zero reserved
-bytes); invalid samples are skipped, each with a line on stderr, and how
-many were skipped is printed at exit. With nothing received for 5 s it says once on
-stderr what it waits for (a daemon on another prefix is the usual cause). Exit
+bytes); invalid samples are skipped: the first is said on stderr with its
+reason, then at most one line per 10 s, with how many more were skipped since the
+last such line, and how many were skipped in all is printed at exit. With nothing
+received for 5 s it says once on stderr what it waits for (a daemon on another
+prefix is the usual cause). Exit
 status: 0 after --count valid estimates, on Ctrl-C (SIGINT) or SIGTERM, or when
 the reader of its output goes away (`| head -1`); 1 on timeout; 2 on error (a bad
 argument, such as a prefix the daemon would refuse or a negative count, iceoryx2
