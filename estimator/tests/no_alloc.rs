@@ -85,3 +85,109 @@ fn push_and_poll_allocate_nothing() {
         assert_eq!(allocs, 0, "allocations on the hot path");
     }
 }
+
+/// The rare paths allocate nothing either, counted from the first push: a restored
+/// lock found wrong (lost, its search moved), a camera restarted at a new frame
+/// phase after a silence (the cadence relearns its grid), a LiDAR silence long
+/// enough to hold, degraded mode switched on and off while locked. Each is asserted
+/// to have run.
+#[test]
+fn rare_paths_allocate_nothing() {
+    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    use vlsync_sim::families::{generate, Family};
+    let run = generate(Family::Robot, 22, Some(240.0));
+    let s = |t: f64| (t * 1e9) as i64;
+    // the camera silent 60-63 s, then 12 ms later in its frame phase (a driver restart)
+    let phase = 12_000_000;
+    let cam: Vec<Sample> = run
+        .cam
+        .iter()
+        .filter(|x| !(s(60.0)..s(63.0)).contains(&x.t_ns))
+        .map(|x| {
+            if x.t_ns >= s(63.0) {
+                Sample::new(x.t_ns + phase, x.value)
+            } else {
+                *x
+            }
+        })
+        .collect();
+    // the LiDAR silent 150-170 s
+    let mut lidar: Vec<Sample> = run
+        .lidar
+        .iter()
+        .filter(|x| !(s(150.0)..s(170.0)).contains(&x.t_ns))
+        .copied()
+        .collect();
+    // then the run again from 250 s (both streams reset: a clock jump) with the
+    // offset 0.6 s further, out of both ranges the search alternates between: it
+    // moves every 30 s
+    let mut cam = cam;
+    let (again, further) = (s(250.0), s(0.6));
+    cam.extend(
+        run.cam
+            .iter()
+            .map(|x| Sample::new(x.t_ns + again - further, x.value)),
+    );
+    lidar.extend(
+        run.lidar
+            .iter()
+            .map(|x| Sample::new(x.t_ns + again, x.value)),
+    );
+    let truth0 = run.truth.offset_at(0);
+    let mut est = Estimator::new(&EstimatorConfig::default());
+    // a state file 0.3 s off (restored before the loop, as the daemon does)
+    est.restore(
+        &Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s: truth0 + 0.3,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: f64::NAN,
+        },
+        1.0,
+    );
+    let (mut states, mut moves, mut switched) = ([0usize; 4], 0usize, 0);
+    let before = vlsync_alloc_count::this_thread();
+    let (mut i, mut j) = (0, 0);
+    while i < cam.len() || j < lidar.len() {
+        if j >= lidar.len() || (i < cam.len() && cam[i].t_ns <= lidar[j].t_ns) {
+            let _ = est.push(Stream::Cam, cam[i]);
+            i += 1;
+        } else {
+            let t = lidar[j].t_ns;
+            // degraded mode on at 100 s and off at 120 s, while locked
+            if (t >= s(100.0) && switched == 0) || (t >= s(120.0) && switched == 1) {
+                est.set_degraded(switched == 0);
+                switched += 1;
+            }
+            let _ = est.push(Stream::Lidar, lidar[j]);
+            j += 1;
+        }
+        while let Some(e) = est.poll() {
+            states[e.state as usize] += 1;
+        }
+        moves += est.take_search_move().is_some() as usize;
+    }
+    let allocs = vlsync_alloc_count::this_thread() - before;
+    vlsync_alloc_count::assert_counting();
+    // each path ran while counting (here: 2 locks, 85 holding and 508 lost
+    // estimates, 6 search moves, a relearn and a reset per stream)
+    let st = est.stats().clone();
+    assert_eq!(switched, 2);
+    assert!(
+        st.locks >= 2 && states[2] >= 1 && states[3] >= 1,
+        "{st:?} {states:?}"
+    );
+    assert!(st.recentres >= 1 && moves >= 1, "{st:?} {moves}");
+    assert!(
+        st.cadence_relearns.iter().all(|&n| n >= 1) && st.resets.iter().all(|&n| n >= 1),
+        "{st:?}"
+    );
+    assert_eq!(allocs, 0, "allocations on the rare paths");
+}

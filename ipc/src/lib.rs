@@ -387,6 +387,28 @@ pub fn publisher<T: std::fmt::Debug + ZeroCopySend>(
         .map_err(|e| IpcError::new(format!("create publisher on {what}"), format!("{e:?}")))
 }
 
+/// [`publisher`], calling `on_degraded` whenever a subscriber that joined cannot be
+/// connected or its connection is found corrupt at a send (a crashed or foreign
+/// subscriber): that subscriber is left out, the others are served. By default
+/// iceoryx2 would log an error at every send, from the sending thread.
+/// `on_degraded` runs on the thread that sends: it must not block or allocate
+/// there (count, e.g.).
+pub fn publisher_telling<T: std::fmt::Debug + ZeroCopySend>(
+    factory: &PubSubFactory<Svc, T, ()>,
+    what: &str,
+    on_degraded: impl Fn() + Send + 'static,
+) -> Result<Publisher<Svc, T, ()>, IpcError> {
+    factory
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::DiscardData)
+        .set_degradation_handler(move |_, _: &iceoryx2::port::DegradationInfo| {
+            on_degraded();
+            iceoryx2::port::DegradationAction::Ignore
+        })
+        .create()
+        .map_err(|e| IpcError::new(format!("create publisher on {what}"), format!("{e:?}")))
+}
+
 /// A notifier on event service `factory`.
 pub fn notifier(factory: &EventFactory<Svc>, what: &str) -> Result<Notifier<Svc>, IpcError> {
     factory

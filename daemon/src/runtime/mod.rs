@@ -96,6 +96,7 @@ pub mod procs;
 
 mod events;
 mod instance;
+pub mod iox_log;
 #[cfg(test)]
 mod live_tests;
 pub(crate) mod rt;
@@ -123,8 +124,8 @@ use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
 use vlsync_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use vlsync_ipc::{
     cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
-    open_or_create_pubsub, publisher, stream_event_id, stream_index, subscriber_telling,
-    termination_requested, Qos, ServiceNames,
+    open_or_create_pubsub, publisher, publisher_telling, stream_event_id, stream_index,
+    subscriber_telling, termination_requested, Qos, ServiceNames,
 };
 
 /// Says (a warning) when the real-time thread's subscribers counted a publisher
@@ -143,6 +144,33 @@ fn tell_unconnected(counts: &[AtomicU64; 2], told: &mut [u64; 2], names: &Servic
             );
             told[stream_index(stream)] = n;
         }
+    }
+}
+
+/// Says (a warning, at most once a minute) when the offset publisher could not
+/// connect a client or found a client's connection corrupt since the last line:
+/// that client receives no estimates (a crashed or foreign subscriber, or one
+/// whose memory could not be mapped). `told`: the count said and when.
+fn tell_offset_clients(
+    count: &AtomicU64,
+    told: &mut (u64, Option<Nanos>),
+    now_ns: Nanos,
+    names: &ServiceNames,
+) {
+    let n = count.load(Ordering::Relaxed);
+    if n > told.0
+        && told
+            .1
+            .is_none_or(|t| now_ns - t >= iox_log::MUTED_LINE_EVERY_NS)
+    {
+        tracing::warn!(
+            "{}: a client could not be connected or its connection is corrupt ({} time(s) \
+             since the last line, {n} in all): that client receives no estimates until it \
+             reopens the service",
+            names.offset(),
+            n - told.0
+        );
+        *told = (n, Some(now_ns));
     }
 }
 
@@ -442,6 +470,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let start_ns = monotonic_ns();
     let names = ServiceNames::new(&cfg.services.prefix).map_err(|e| e.to_string())?;
     let _lock = single_instance_lock(&names.prefix)?;
+    // before the first node: iceoryx2 takes its logger once
+    iox_log::install();
     let node = create_node("vlsyncd", true).map_err(|e| e.to_string())?;
     let (cleaned, failed) = cleanup_dead_nodes(&node);
     if cleaned > 0 || failed > 0 {
@@ -492,6 +522,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let mut load = load_watch(&cfg);
     let unconnected = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
     let mut unconnected_told = [0u64; 2];
+    let offset_degraded = Arc::new(AtomicU64::new(0));
+    let mut offset_told = (0u64, None);
+    let mut muted_log = iox_log::MutedLog::default();
     let setup = RtSetup {
         cfg: cfg.clone(),
         names: names.clone(),
@@ -503,6 +536,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         restore,
         hints: hint_rx,
         unconnected: unconnected.clone(),
+        offset_degraded: offset_degraded.clone(),
     };
     let rt = std::thread::Builder::new()
         .name(RT_THREAD_NAME.into())
@@ -662,6 +696,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         busy = got > 0;
         tell_unconnected(&unconnected, &mut unconnected_told, &names);
         let mono = monotonic_ns();
+        if let Some(line) = muted_log.take(mono) {
+            tracing::warn!("{line}");
+        }
+        tell_offset_clients(&offset_degraded, &mut offset_told, mono, &names);
         throttle.due(mono, report_suppressed);
         if let Some(line) = summary.due(mono) {
             tracing::info!("{line}");

@@ -363,6 +363,9 @@ pub(super) struct RtSetup {
     /// Per stream: publishers that joined and could not be connected (counted by the
     /// subscriber's degradation handler; the service thread says so).
     pub(super) unconnected: Arc<[AtomicU64; 2]>,
+    /// Offset clients the publisher could not connect, or whose connection it found
+    /// corrupt at a send (its degradation handler; the service thread says so).
+    pub(super) offset_degraded: Arc<AtomicU64>,
 }
 
 /// What the real-time thread reports once, before its loop.
@@ -429,7 +432,10 @@ pub(super) fn rt_thread(
         let ready_ev = open_or_create_event(&node, &s.names.signature_ready())?;
         let lis = listener(&ready_ev, &s.names.signature_ready())?;
         let off = open_or_create_pubsub::<OffsetEstimate>(&node, &s.names.offset(), Qos::latest())?;
-        let off_pub = publisher(&off, &s.names.offset())?;
+        let degraded = s.offset_degraded.clone();
+        let off_pub = publisher_telling(&off, &s.names.offset(), move || {
+            degraded.fetch_add(1, Ordering::Relaxed);
+        })?;
         let off_ev = open_or_create_event(&node, &s.names.offset())?;
         let off_not = notifier(&off_ev, &s.names.offset())?;
         Ok((
@@ -480,6 +486,8 @@ pub(super) fn rt_thread(
     // how the loop ended: a stop, or (Err) a wait that kept failing
     let mut ended = Ok(());
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
+    // (iceoryx2's own messages from the calls below are held, not printed: iox_log)
+    super::iox_log::mute_this_thread();
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
         // sleeps until a driver notifies; a signal or timeout just loops
@@ -716,6 +724,7 @@ pub(super) fn rt_thread(
             emit(&s.tx, &mut c, RtEvent::Latency(l));
         }
     }
+    super::iox_log::unmute_this_thread();
     // final status so the last counters are not lost, then the last stretch's
     // latency (since the last summary period's end), which the service thread logs
     // with its "at stop" summary. The thread is ending: it may wait for a slot (a
