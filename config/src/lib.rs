@@ -562,7 +562,12 @@ impl EstimatorConfig {
         c.range(&k("highpass_hz"), self.highpass_hz, 0.0, 100.0)?;
         c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, MAX_ABS_VALUE)?;
         c.range(&k("min_peak_score"), self.min_peak_score, 0.0, MAX_SCORE)?;
-        c.range(&k("min_acquire_score"), self.min_acquire_score, 0.0, MAX_SCORE)?;
+        c.range(
+            &k("min_acquire_score"),
+            self.min_acquire_score,
+            0.0,
+            MAX_SCORE,
+        )?;
         c.range(&k("min_peak_ratio"), self.min_peak_ratio, 1.0, 100.0)?;
         c.range(&k("min_motion_ratio"), self.min_motion_ratio, 0.0, 1.0)?;
         c.int_range(
@@ -1182,7 +1187,10 @@ mod tests {
         ok("[estimator]\nsegment_s = 12.0\n");
         // a gap limit under the slowest LiDAR's interval: every interval a gap
         let e = err("[estimator]\nmax_gap_s = 0.1\n");
-        assert!(e.contains("estimator.max_gap_s") && e.contains("0.25"), "{e}");
+        assert!(
+            e.contains("estimator.max_gap_s") && e.contains("0.25"),
+            "{e}"
+        );
         ok("[estimator]\nmax_gap_s = 0.25\n");
         // a silence interpolated across most of a window
         let e = err("[estimator]\nmax_gap_s = 3.5\n");
@@ -1202,11 +1210,26 @@ mod tests {
         // drift prior wide enough for noise to pass as drift, a budget nothing meets
         for (text, key) in [
             ("[estimator]\nlowpass_hz = 0.2\n", "estimator.lowpass_hz"),
-            ("[estimator]\nmin_peak_score = 1.0\n", "estimator.min_peak_score"),
-            ("[estimator]\nmin_acquire_score = 1.0\n", "estimator.min_acquire_score"),
-            ("[estimator]\nmeasurement_noise_scale = 0.01\n", "estimator.measurement_noise_scale"),
-            ("[estimator]\ninitial_drift_std = 0.05\n", "estimator.initial_drift_std"),
-            ("[daemon]\nlatency_budget_us = 5.0\n", "daemon.latency_budget_us"),
+            (
+                "[estimator]\nmin_peak_score = 1.0\n",
+                "estimator.min_peak_score",
+            ),
+            (
+                "[estimator]\nmin_acquire_score = 1.0\n",
+                "estimator.min_acquire_score",
+            ),
+            (
+                "[estimator]\nmeasurement_noise_scale = 0.01\n",
+                "estimator.measurement_noise_scale",
+            ),
+            (
+                "[estimator]\ninitial_drift_std = 0.05\n",
+                "estimator.initial_drift_std",
+            ),
+            (
+                "[daemon]\nlatency_budget_us = 5.0\n",
+                "daemon.latency_budget_us",
+            ),
         ] {
             let e = err(text);
             assert!(e.contains(key) && e.contains("allowed"), "{text}: {e}");
