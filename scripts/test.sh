@@ -97,6 +97,12 @@ command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test wil
 # there, the test must find it rather than skip.
 command -v systemd-analyze >/dev/null 2>&1 || install_deb systemd "the systemd units will not be verified"
 if command -v systemd-analyze >/dev/null 2>&1; then export VLSYNC_REQUIRE_SYSTEMD_ANALYZE=1; fi
+# As root (CI runs this as root, as its apt-get needs) every install above could be
+# made: a Python or systemd test that would skip for a failed install (the network, a
+# mirror) fails instead, so a green run never hides one.
+if [ "$(id -u)" -eq 0 ]; then
+    export VLSYNC_REQUIRE_PYTHON=1 VLSYNC_REQUIRE_SYSTEMD_ANALYZE=1
+fi
 # The V4L2 camera source (feature `v4l2`) generates its kernel bindings with libclang
 # (bindgen in a build script): without it a build with the feature fails as a whole.
 has_libclang() {
