@@ -145,13 +145,33 @@ pub const CADENCE_CONFIRM_MAX: u32 = 15;
 fn count<'de, const MIN: u32, const MAX: u32, D: serde::Deserializer<'de>>(
     d: D,
 ) -> Result<u32, D::Error> {
-    let v = i64::deserialize(d)?;
-    match u32::try_from(v) {
-        Ok(n) if (MIN..=MAX).contains(&n) => Ok(n),
-        _ => Err(serde::de::Error::custom(format!(
-            "{v} is out of range: allowed {MIN} ..= {MAX}"
-        ))),
+    struct Count<const MIN: u32, const MAX: u32>;
+    impl<const MIN: u32, const MAX: u32> serde::de::Visitor<'_> for Count<MIN, MAX> {
+        type Value = u32;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "a whole number {MIN} ..= {MAX}")
+        }
+        fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<u32, E> {
+            match u32::try_from(v) {
+                Ok(n) if (MIN..=MAX).contains(&n) => Ok(n),
+                _ => Err(E::custom(format!(
+                    "{v} is out of range: allowed {MIN} ..= {MAX}"
+                ))),
+            }
+        }
+        fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<u32, E> {
+            self.visit_i64(i64::try_from(v).unwrap_or(i64::MAX))
+        }
+        // a count written as 2.0 or 2.5: said with the range (serde's own message
+        // would be "expected i64")
+        fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<u32, E> {
+            Err(E::custom(format!(
+                "{} is not a whole number: allowed {MIN} ..= {MAX}",
+                num(v)
+            )))
+        }
     }
+    d.deserialize_any(Count::<MIN, MAX>)
 }
 
 impl Default for EstimatorConfig {
@@ -1252,6 +1272,11 @@ mod tests {
                 "cadence_confirm = 16",
                 "16 is out of range: allowed 1 ..= 15",
             ),
+            (
+                "acquire_confirm = 2.5",
+                "2.5 is not a whole number: allowed 1 ..= 100",
+            ),
+            ("step_confirm = \"3\"", "expected a whole number 1 ..= 100"),
         ] {
             let e = Config::from_toml_str(&format!("[estimator]\n{text}\n"), "x.toml")
                 .unwrap_err()
