@@ -1285,6 +1285,28 @@ mod tests {
         d
     }
 
+    /// A background saver's jobs waiting in its slot for the thread, and the outcomes
+    /// of saves its [`Saver::tick`] has not taken yet.
+    fn queued(sv: &Saver) -> (usize, usize) {
+        match &sv.writer {
+            Writer::Thread(t) => (t.jobs.as_ref().map_or(0, |j| j.len()), t.done.len()),
+            Writer::Inline { .. } => panic!("the saver writes inline, not in the background"),
+        }
+    }
+
+    /// Waits until `done` holds, for up to 20 s (a busy machine may keep a thread
+    /// from running for long), failing the test with `what` after that.
+    fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+        let t0 = Instant::now();
+        while !done() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "{what}: not within 20 s"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
     /// Re-signs a modified body so that only the modification is wrong.
     fn resign(text: &str) -> String {
         let i = text.trim_end_matches('\n').rfind('\n').unwrap() + 1;
@@ -1777,7 +1799,7 @@ mod tests {
         assert!(sv.tick(t0), "handed over");
         // the outcome arrives; the same estimate is tried again after the period (5 s),
         // not after the refresh period (60 s) of an estimate already saved
-        std::thread::sleep(Duration::from_millis(200));
+        wait_until("the failed save's outcome", || queued(&sv) == (0, 1));
         sv.offer(&est());
         assert!(!sv.tick(t0 + Duration::from_secs(4)));
         assert!(sv.tick(t0 + Duration::from_secs(5)), "retried");
@@ -1806,7 +1828,8 @@ mod tests {
         };
         sv.offer(&e(1));
         assert!(sv.tick(at(0)));
-        std::thread::sleep(Duration::from_millis(200)); // the thread takes it, and blocks
+        // the thread takes it out of the slot, and blocks in the FIFO
+        wait_until("the thread took the first save", || queued(&sv).0 == 0);
         sv.offer(&e(2));
         assert!(sv.tick(at(5)), "into the slot");
         sv.offer(&e(3));
@@ -1818,15 +1841,11 @@ mod tests {
             let mut sink = Vec::new();
             let _ = std::fs::File::open(&fifo).map(|mut f| f.read_to_end(&mut sink));
         });
-        let mut handed = false;
-        for k in 0..100u64 {
-            std::thread::sleep(Duration::from_millis(20));
-            if sv.tick(at(10) + Duration::from_millis(200 + k)) {
-                handed = true;
-                break;
-            }
-        }
-        assert!(handed, "the pending estimate was offered again within 2 s");
+        let mut k = 0;
+        wait_until("the pending estimate offered again", || {
+            k += 1;
+            sv.tick(at(10) + Duration::from_millis(200 + k))
+        });
         let _ = sv.finish(Duration::from_millis(300));
         let _ = reader.join();
         let _ = std::fs::remove_dir_all(&d);

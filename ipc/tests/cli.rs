@@ -51,27 +51,66 @@ fn catches_sigint(pid: &str) -> bool {
         .is_some_and(|mask| mask & (1 << (2 - 1)) != 0)
 }
 
+/// A child process stopped when dropped, so that a failing assertion leaves no echo
+/// behind: resumed (it may be stopped) and interrupted, which ends it cleanly with its
+/// iceoryx2 resources removed, else killed after 5 s; reaped either way.
+struct Stopped(std::process::Child);
+
+impl Drop for Stopped {
+    fn drop(&mut self) {
+        use rustix::process::{kill_process, Pid, Signal};
+        use std::time::{Duration, Instant};
+        if let (Ok(None), Some(pid)) = (
+            self.0.try_wait(),
+            i32::try_from(self.0.id()).ok().and_then(Pid::from_raw),
+        ) {
+            let _ = kill_process(pid, Signal::CONT);
+            let _ = kill_process(pid, Signal::INT);
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(5) {
+                if let Ok(Some(_)) = self.0.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// Job control works on the echo: Ctrl-Z (SIGTSTP) stops it and SIGCONT resumes
 /// it, and it goes on waiting. iceoryx2's handlers used to catch both: SIGTSTP did
 /// not stop it, and the interrupted wait ended it with exit 1 ("wait on offset
 /// event: InterruptSignal"). SIGINT then ends it with 0.
 #[test]
 fn echo_survives_job_control_and_stops_on_sigint() {
+    use std::io::Read;
     use std::time::{Duration, Instant};
+    use vlsync_common::wire::OffsetEstimate;
+    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
+    use vlsync_ipc::{create_node, open_or_create_pubsub, Qos, ServiceNames};
     let bin = env!("CARGO_BIN_EXE_vlsync-echo");
-    let prefix = format!("vlsync-test/echo-sig-{}", std::process::id());
+    let names = ServiceNames::new(&format!("vlsync-test/echo-sig-{}", std::process::id())).unwrap();
+    // the offset service, to see the echo's subscriber on it
+    let node = create_node("test-observer", false).unwrap();
+    let svc =
+        open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
     // its own process group, whose parent (this test) is in the same session: the
     // kernel ignores SIGTSTP in an orphaned group, which the test binary's may be
-    // under a CI runner without job control
+    // under a CI runner without job control; stopped when dropped, and ending by itself
+    // within a minute whatever happens to this test
     use std::os::unix::process::CommandExt;
-    let mut child = Command::new(bin)
-        .args(["--prefix", &prefix])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .process_group(0)
-        .spawn()
-        .unwrap();
-    let pid = child.id().to_string();
+    let mut child = Stopped(
+        Command::new(bin)
+            .args(["--prefix", &names.prefix, "--duration", "60"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .process_group(0)
+            .spawn()
+            .unwrap(),
+    );
+    let pid = child.0.id().to_string();
     // kill(2) itself: procps's `kill` is not on every minimal system
     let kill = |sig: &str| {
         use rustix::process::{kill_process, Pid, Signal};
@@ -91,30 +130,46 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         }
         proc_state(&pid)
     };
-    // its own SIGINT handler is installed first thing, then the iceoryx2 node (whose
-    // set-up used to take over SIGTSTP); a loaded machine's start-up may outlast a
-    // fixed wait, and a SIGTSTP before the node would prove nothing
+    let stderr = |child: &mut Stopped| {
+        let mut text = String::new();
+        if let Some(mut e) = child.0.stderr.take() {
+            let _ = e.read_to_string(&mut text);
+        }
+        text
+    };
+    // its own SIGINT handler is installed first thing, then the iceoryx2 nodes (whose
+    // set-up used to take over SIGTSTP), then its subscriber: a SIGTSTP before them
+    // would prove nothing, and a loaded machine's start-up may outlast a fixed wait
     let t0 = Instant::now();
-    while !catches_sigint(&pid) && t0.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(20));
+    while svc.dynamic_config().number_of_subscribers() == 0 {
+        if let Some(st) = child.0.try_wait().unwrap() {
+            panic!(
+                "the echo ended at its start: {st:?}, stderr: {}",
+                stderr(&mut child)
+            );
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "vlsync-echo never subscribed"
+        );
+        std::thread::sleep(Duration::from_millis(10));
     }
-    std::thread::sleep(Duration::from_millis(500));
+    assert!(catches_sigint(&pid), "no SIGINT handler once subscribed");
     kill("-TSTP");
     let stopped = wait_state('T');
     kill("-CONT");
     std::thread::sleep(Duration::from_millis(300));
-    if let Some(st) = child.try_wait().unwrap() {
-        let out = child.wait_with_output().unwrap();
+    if let Some(st) = child.0.try_wait().unwrap() {
         panic!(
             "the echo ended on SIGTSTP/SIGCONT: {st:?}, stderr: {}",
-            String::from_utf8_lossy(&out.stderr)
+            stderr(&mut child)
         );
     }
     assert_eq!(stopped, Some('T'), "SIGTSTP did not stop the echo");
     kill("-INT");
     let start = Instant::now();
     let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
+        if let Some(s) = child.0.try_wait().unwrap() {
             break s;
         }
         assert!(
@@ -123,13 +178,7 @@ fn echo_survives_job_control_and_stops_on_sigint() {
         );
         std::thread::sleep(Duration::from_millis(20));
     };
-    let out = child.wait_with_output().unwrap();
-    assert_eq!(
-        status.code(),
-        Some(0),
-        "stderr: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(status.code(), Some(0), "stderr: {}", stderr(&mut child));
 }
 
 /// A publisher of estimates on a prefix of its own (`tag`), standing in for the

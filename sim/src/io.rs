@@ -746,14 +746,13 @@ mod tests {
         // a named pipe without a writer would block the open forever
         let fifo = dir.join("cam.csv");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
-        if made.is_ok_and(|s| s.success()) {
-            for e in [
-                read_signature_csv(&fifo).unwrap_err(),
-                read_truth_csv(&fifo).unwrap_err(),
-            ] {
-                assert_eq!(e.path, fifo);
-                assert!(e.to_string().contains("not a regular file"), "{e}");
-            }
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        for e in [
+            read_signature_csv(&fifo).unwrap_err(),
+            read_truth_csv(&fifo).unwrap_err(),
+        ] {
+            assert_eq!(e.path, fifo);
+            assert!(e.to_string().contains("not a regular file"), "{e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -10,7 +10,36 @@ use std::time::{Duration, Instant};
 use vlsync_common::wire::Status;
 use vlsync_common::{Estimate, Stream};
 use vlsync_ipc::{monotonic_ns, OffsetClient, StatusClient};
-pub use vlsyncd::runtime::procs::{cpu_seconds, ipc_resources, Managed};
+pub use vlsyncd::runtime::procs::{cpu_seconds, Managed};
+
+/// How iceoryx2 names its files in `/dev/shm`: its default `global.prefix`, which
+/// vlsync does not change (`iox2_<hash>.dynamic`, `.event_mgmt`, `.data`, ...).
+pub const ICEORYX2_SHM_PREFIX: &str = "iox2_";
+
+/// The iceoryx2 resources a clean shutdown must leave as it found them: every file
+/// under iceoryx2's directory (`/tmp/iceoryx2`) and its files in `/dev/shm`
+/// ([`ICEORYX2_SHM_PREFIX`]), sorted, without the global management segment it keeps
+/// by design (`vlsyncd::runtime::procs::ipc_resources`, narrowed). Another program's
+/// shared memory coming or going in `/dev/shm` (a browser's, a database's, another
+/// test suite's) is none of them and fails no test.
+pub fn ipc_resources() -> Vec<String> {
+    vlsyncd::runtime::procs::ipc_resources()
+        .into_iter()
+        .filter(|p| is_iceoryx2_resource(p))
+        .collect()
+}
+
+/// Whether `path` (from [`ipc_resources`]'s walk) is iceoryx2's: in `/dev/shm` only
+/// its prefixed files are.
+fn is_iceoryx2_resource(path: &str) -> bool {
+    let p = Path::new(path);
+    if !p.starts_with("/dev/shm") {
+        return true;
+    }
+    p.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.starts_with(ICEORYX2_SHM_PREFIX))
+}
 
 /// Asserts that no iceoryx2 resource beyond `before` ([`ipc_resources`]) is left,
 /// after up to 3 s for the clean-up (iceoryx2 removes a service's files when its
@@ -494,6 +523,28 @@ pub fn tracking_estimate(seq: u64) -> Estimate {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_iceoryx2_s_files_in_dev_shm_are_its_resources() {
+        for (path, ours) in [
+            ("/dev/shm/iox2_1124_1584.dynamic", true),
+            ("/dev/shm/iox2_33c1_3169.event_mgmt", true),
+            ("/dev/shm/pulse-shm-2717", false),
+            ("/dev/shm/sem.mp-x1", false),
+            ("/dev/shm/other/iox2", false),
+            ("/tmp/iceoryx2/nodes/2246/iox2_node.details", true),
+            ("/tmp/iceoryx2/services/iox2_833e.service", true),
+        ] {
+            assert_eq!(is_iceoryx2_resource(path), ours, "{path}");
+        }
+        // what the walk finds: this machine's iceoryx2 files, and nothing else of /dev/shm
+        let other = format!("/dev/shm/vlsync-tests-not-iox2-{}", std::process::id());
+        std::fs::write(&other, b"").unwrap();
+        let found = ipc_resources();
+        std::fs::remove_file(&other).unwrap();
+        assert!(!found.contains(&other), "{found:?}");
+        assert!(found.iter().all(|p| is_iceoryx2_resource(p)), "{found:?}");
+    }
 
     #[test]
     fn output_within_gives_what_a_run_printed_and_its_exit() {

@@ -1,6 +1,6 @@
 //! A restart of both drivers (a new session: another run, both clocks back at its
-//! start) that the daemon reads from a backlog: it was connected to the new drivers
-//! but not running when they began (SIGSTOPped: a starved or stalled process, as a
+//! start) that the daemon reads from a backlog: it was subscribed but not running
+//! when the new drivers began (SIGSTOPped: a starved or stalled process, as a
 //! daemon descheduled for a few ms is at 200x), so when it resumes both streams'
 //! first seconds of the new session wait in its buffers. Each clock jump is judged
 //! by the other stream's progress, so the daemon must take the two backlogs in the
@@ -10,7 +10,28 @@
 use std::time::Duration;
 use vlsync_common::{EstimatorState, Stream};
 use vlsync_ipc::{monotonic_ns, OffsetClient};
-use vlsync_tests::{collect, locked_errors, Rig};
+use vlsync_tests::{collect, locked_errors, Managed, Rig};
+
+/// A process stopped with SIGSTOP until this guard is dropped, which resumes it with
+/// SIGCONT: also when an assertion fails in between, since a stopped process acts on
+/// no SIGINT or SIGTERM, and only the SIGKILL at the end of its [`Managed`] stop
+/// would end it, leaving its iceoryx2 resources behind.
+struct Stopped<'a>(&'a mut Managed);
+
+impl<'a> Stopped<'a> {
+    fn stop(m: &'a mut Managed) -> Self {
+        m.signal("STOP").expect("SIGSTOP");
+        Self(m)
+    }
+}
+
+impl Drop for Stopped<'_> {
+    fn drop(&mut self) {
+        if let Err(e) = self.0.signal("CONT") {
+            eprintln!("cannot resume {}: {e}", self.0.name);
+        }
+    }
+}
 
 #[test]
 fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move() {
@@ -27,30 +48,25 @@ fn a_restart_of_both_drivers_found_in_the_backlog_relocks_without_a_search_move(
     );
 
     // the session ends; a new one (another seed, so another offset, both clocks back
-    // at the start) is to start 1.5 s from now. The daemon connects to the new
-    // drivers, then stops reading just before they begin; when it resumes, 1 s of
-    // wall time (4 s of the session) waits in both of its buffers
+    // at the start) starts 1.5 s after the daemon stopped reading, which it does
+    // before the new drivers are even started: stopped after the session began, it
+    // would have read its start live and the backlog this test is about would not
+    // exist, so the order is made, not left to a sleep's precision. Its subscribers
+    // stay on the services, and the new drivers deliver into their buffers; when it
+    // resumes, 1 s of wall time (4 s of the session) waits in both of them
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     let seed = 8;
     let new = vlsync_sim::generate("robot".parse().unwrap(), seed, Some(60.0));
+    // a moment to read the first session's last samples, as it had before (what it has
+    // not read by then comes first after the resume, which the checks below allow)
+    std::thread::sleep(Duration::from_secs(1));
+    let stopped = Stopped::stop(&mut daemon);
     let start_at = monotonic_ns() + 1_500_000_000;
     let mut next =
         [Stream::Cam, Stream::Lidar].map(|st| rig.session_driver(st, seed, 60.0, start_at, "new"));
-    // stopped 0.3 s before the drivers begin, however long their start took
-    let lead = start_at - 300_000_000 - monotonic_ns();
-    std::thread::sleep(Duration::from_nanos(lead.max(0) as u64));
-    daemon.signal("STOP").unwrap();
-    // stopped after the session began, the daemon would have read its start live and
-    // the backlog this test is about would not exist
-    let stopped = monotonic_ns();
-    assert!(
-        stopped < start_at,
-        "the daemon was stopped {:.0} ms after the new session began: no backlog",
-        (stopped - start_at) as f64 / 1e6
-    );
     let resume = start_at + 1_000_000_000 - monotonic_ns();
     std::thread::sleep(Duration::from_nanos(resume.max(0) as u64));
-    daemon.signal("CONT").unwrap();
+    drop(stopped);
 
     // 10 s of wall time: 40 s of the new session
     let after = collect(&mut client, Duration::from_secs(10));
@@ -110,9 +126,9 @@ fn a_stall_that_overflows_the_camera_buffer_is_a_gap_not_a_clock_jump() {
         "no lock before the stall"
     );
     // 5 s of wall time: 20 s of the run, 11.5 s more than the camera's buffer holds
-    daemon.signal("STOP").unwrap();
+    let stopped = Stopped::stop(&mut daemon);
     std::thread::sleep(Duration::from_secs(5));
-    daemon.signal("CONT").unwrap();
+    drop(stopped);
     let after = collect(&mut client, Duration::from_secs(5));
     for d in &mut drivers {
         assert!(d.stop(Duration::from_secs(3)));

@@ -154,7 +154,10 @@ fn c_and_cpp_programs_read_a_live_daemon() {
     let tmp = scratch("live");
     let (echo, convert) = build_examples(&tmp);
 
-    let rig = Rig::new("capi", "robot", 3, 40.0, 5.0);
+    // 120 s of the run (24 s of wall time) are more than the test needs: the stale
+    // converter below must lock on a fresh estimate first, on a loaded machine too,
+    // and the drivers are stopped before the daemon, whenever the test gets there
+    let rig = Rig::new("capi", "robot", 3, 120.0, 5.0);
     let mut daemon = rig.daemon(0);
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
@@ -562,6 +565,7 @@ int main(int argc, char **argv) {
 #[test]
 fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
     use std::time::Duration;
+    use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
     use vlsync_ipc::{
         create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
         ServiceNames,
@@ -603,7 +607,18 @@ fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
         "--timeout",
         "20",
     ]);
-    std::thread::sleep(Duration::from_millis(1500));
+    // both echoes subscribed (each service's one subscriber: the quiet ones are on
+    // another prefix) before anything is published, however slow their start
+    let t0 = std::time::Instant::now();
+    while offset.dynamic_config().number_of_subscribers() == 0
+        || status.dynamic_config().number_of_subscribers() == 0
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the echoes did not subscribe within 30 s"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
     let e = vlsync_tests::tracking_estimate(7);
     let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
     bad.offset_s = f64::NAN;

@@ -1,10 +1,12 @@
 //! `vlsync-demo` interrupted with Ctrl-C (SIGINT) stops every child and leaves
 //! no shared-memory resource behind, on the signature simulator and on its
 //! default source, rendered frames and scans through the front-ends; and so it
-//! does when its reader goes away (`vlsync-demo | head`).
+//! does when its reader goes away (`vlsync-demo | head`). Every stop is given
+//! [`HARNESS_GRACE`], the time the demo's own clean stop may take (it stops its
+//! daemon, drivers and recorder one after the other, each with seconds of grace).
 
 use std::time::{Duration, Instant};
-use vlsync_tests::{assert_nothing_left, bin, ipc_resources, Harness, Managed};
+use vlsync_tests::{assert_nothing_left, bin, ipc_resources, Harness, Managed, HARNESS_GRACE};
 
 /// Runs the demo with `args` for at least `run_for` and until its output satisfies
 /// `until` (at most `deadline`: a slow machine's first lock comes later, and a
@@ -27,32 +29,28 @@ fn interrupt_demo(
         "--log-dir".to_string(),
         dir.join("children").display().to_string(),
     ]);
-    let mut m = Managed::spawn("vlsync-demo", &demo, &args, Some(&log)).unwrap();
+    // stopped with its grace when dropped: a failing assertion leaves no run behind
+    let mut m = Harness(Managed::spawn("vlsync-demo", &demo, &args, Some(&log)).unwrap());
     let started = Instant::now();
     std::thread::sleep(run_for);
     while started.elapsed() < deadline
-        && m.running()
+        && m.0.running()
         && !until(&std::fs::read_to_string(&log).unwrap_or_default())
     {
         std::thread::sleep(Duration::from_millis(200));
     }
     assert!(
-        m.running(),
+        m.0.running(),
         "demo ended early:\n{}",
         std::fs::read_to_string(&log).unwrap_or_default()
     );
-    m.signal("INT").unwrap();
-    let t0 = Instant::now();
-    let status = loop {
-        if let Ok(Some(s)) = m.child.try_wait() {
-            break s;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "demo did not stop on SIGINT"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    m.0.signal("INT").unwrap();
+    let status = m.0.wait_up_to(HARNESS_GRACE).unwrap_or_else(|| {
+        panic!(
+            "demo did not stop within {HARNESS_GRACE:?} of SIGINT:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        )
+    });
     let out = std::fs::read_to_string(&log).unwrap_or_default();
     assert!(status.success(), "demo exit {status}:\n{out}");
     assert!(out.contains("=== summary (interrupted) ==="), "{out}");
@@ -126,10 +124,9 @@ fn close_the_reader() {
     drop(lines);
     // (a failure drops `demo`, which interrupts it: Ctrl-C first, so that its
     // children stop too)
-    let status = demo
-        .0
-        .wait_up_to(Duration::from_secs(15))
-        .expect("demo still running 15 s after its reader went away");
+    let status = demo.0.wait_up_to(HARNESS_GRACE).unwrap_or_else(|| {
+        panic!("demo still running {HARNESS_GRACE:?} after its reader went away")
+    });
     let stderr = std::fs::read_to_string(&err).unwrap_or_default();
     assert!(status.success(), "demo exit {status}:\n{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
@@ -247,7 +244,7 @@ fn a_child_killed_mid_run_is_a_failure() {
     let dir = std::env::temp_dir().join(format!("vlsync-demo-crash-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let (out_file, err_file) = (dir.with_extension("stdout"), dir.with_extension("stderr"));
-    // stopped when dropped, so a failing assertion does not leave a 30 s run behind
+    // stopped when dropped, so a failing assertion does not leave a 60 s run behind
     let mut demo = Harness(Managed {
         name: "vlsync-demo".into(),
         child: std::process::Command::new(bin("vlsync-demo"))
@@ -255,7 +252,7 @@ fn a_child_killed_mid_run_is_a_failure() {
                 "--family",
                 "robot",
                 "--duration",
-                "60",
+                "120",
                 "--speed",
                 "2",
                 "--quiet",
@@ -282,22 +279,18 @@ fn a_child_killed_mid_run_is_a_failure() {
     };
     std::thread::sleep(Duration::from_secs(2));
     vlsyncd::runtime::procs::send_signal(pid, "KILL").unwrap();
-    let killed_at = Instant::now();
-    let status = demo.0.child.wait().unwrap();
-    let waited = killed_at.elapsed();
+    // the run would last 120 s (60 s at --speed 2): ending within the grace of its own
+    // stop is at once (its stop waits for each driver and the recorder in turn, and
+    // 3 s for a status that a dead daemon never publishes)
+    let status = demo.0.wait_up_to(HARNESS_GRACE);
     let (stdout, stderr) = (
         std::fs::read_to_string(&out_file).unwrap_or_default(),
         std::fs::read_to_string(&err_file).unwrap_or_default(),
     );
+    let status = status.unwrap_or_else(|| {
+        panic!("the demo ran on for {HARNESS_GRACE:?} after its daemon died:\n{stdout}\n{stderr}")
+    });
     assert_eq!(status.code(), Some(2), "{stdout}\n{stderr}");
-    // the run would last 60 s (30 s at --speed 2): within 20 s of the kill is at once
-    // (its stop waits for each driver and the recorder in turn, and 3 s for a status
-    // that a dead daemon never publishes)
-    assert!(
-        waited < Duration::from_secs(20),
-        "the demo ran on for {:.1} s after its daemon died:\n{stdout}",
-        waited.as_secs_f64()
-    );
     let log = dir.join("logs").join("vlsyncd.log");
     let said = format!(
         "vlsyncd: killed by signal 9 (SIGKILL) (log: {})",

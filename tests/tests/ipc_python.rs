@@ -378,10 +378,16 @@ fn python_subscriber_skips_invalid_estimates_without_flooding_stderr() {
         1,
         "{out}"
     );
-    assert!(
-        out.contains("1 estimates received, 48 invalid ones skipped"),
-        "{out}"
-    );
+    // every payload it read is counted: all 48 when it kept up; a reader held up
+    // past its buffer of 16 (two batches: a busy machine's Python) lost the oldest
+    // (the publisher never blocks), and still read at least the 15 the buffer held
+    // beside the valid one. Counted per wake-up it would say 6, twice each 96.
+    let skipped: u64 = out
+        .split_once("1 estimates received, ")
+        .and_then(|(_, rest)| rest.split_once(" invalid ones skipped"))
+        .and_then(|(n, _)| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count of the skipped payloads:\n{out}"));
+    assert!((15..=48).contains(&skipped), "{skipped} skipped:\n{out}");
     assert!(out.lines().any(|l| l.starts_with("#7 ")), "{out}");
     let _ = std::fs::remove_file(&log);
 }

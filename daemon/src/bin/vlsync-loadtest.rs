@@ -599,22 +599,33 @@ mod tests {
         ]))
         .unwrap_err();
         assert!(e.contains("--cam-frame-cpu-ms 45"), "{e}");
-        // at 15 Hz the same passes its check: the run fails later, at an --out that
-        // cannot be made (under a regular file), before anything starts
-        let file = std::env::temp_dir().join(format!("vlsync-loadtest-cpu-{}", std::process::id()));
-        std::fs::write(&file, "").unwrap();
-        let out = file.join("out").display().to_string();
+        // at 15 Hz the same passes its check: the run fails later, at a --config the
+        // run would write over in --out, before anything starts (a refusal of its own
+        // that comes after the check, and before the workspace's binaries are looked
+        // for, which a unit test's build may not have made)
+        let dir = std::env::temp_dir().join(format!("vlsync-loadtest-cpu-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = dir.join("vlsyncd.toml");
+        std::fs::write(&cfg, "[daemon]\n").unwrap();
+        let (o, c) = (dir.display().to_string(), cfg.display().to_string());
         let e = run(&parse(&[
             "--render-fps",
             "15",
             "--cam-frame-cpu-ms",
             "45",
             "--out",
-            out.as_str(),
+            o.as_str(),
+            "--config",
+            c.as_str(),
         ]))
         .unwrap_err();
-        assert!(!e.contains("--cam-frame-cpu-ms"), "{e}");
-        std::fs::remove_file(&file).unwrap();
+        assert!(
+            e.starts_with(&format!(
+                "--config {c} is the vlsyncd.toml this run writes into --out {o}"
+            )),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A `--config` whose `estimator.max_gap_s` a slow rendered sensor's samples would

@@ -205,6 +205,19 @@ mod tests {
     use super::*;
     use std::os::unix::fs::{MetadataExt, PermissionsExt};
 
+    /// Says that a test skipped its check for want of root (`why`: "test: reason"), as
+    /// `vlsync_tests::skipped` does (this crate cannot use it): on stderr, and as a line
+    /// of the file `VLSYNC_SKIP_LOG` names, which `scripts/test.sh` lists after its
+    /// summary (cargo counts a skipped test as passed).
+    fn skipped(why: &str) {
+        eprintln!("SKIPPED {why}");
+        if let Some(log) = std::env::var_os("VLSYNC_SKIP_LOG") {
+            use std::io::Write;
+            let f = std::fs::OpenOptions::new().append(true).open(log);
+            let _ = f.and_then(|mut f| f.write_all(format!("{why}\n").as_bytes()));
+        }
+    }
+
     /// Run as `nobody` by the test below: takes the lock in `VLSYNC_LOCK_CHILD_DIR` and
     /// prints what it found, one line per fact.
     fn child(dir: &Path) {
@@ -265,9 +278,9 @@ mod tests {
     #[test]
     fn a_lock_directory_others_can_write_into_is_refused() {
         if rustix::process::geteuid().as_raw() != 0 {
-            eprintln!(
-                "SKIPPED a_lock_directory_others_can_write_into_is_refused: not root, \
-                 no directory of another user can be made"
+            skipped(
+                "a_lock_directory_others_can_write_into_is_refused: not root, \
+                 no directory of another user can be made",
             );
             return;
         }
@@ -319,10 +332,9 @@ mod tests {
         // a FIFO planted under the name is refused at once, not waited on
         let _ = std::fs::remove_file(&path);
         let made = std::process::Command::new("mkfifo").arg(&path).status();
-        if made.is_ok_and(|s| s.success()) {
-            let e = lock_file(path.clone(), "p").unwrap_err();
-            assert!(e.contains("it is not a regular file"), "{e}");
-        }
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", path.display());
+        let e = lock_file(path.clone(), "p").unwrap_err();
+        assert!(e.contains("it is not a regular file"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -362,16 +374,10 @@ mod tests {
             return;
         }
         if !std::fs::metadata("/proc/self").is_ok_and(|m| m.uid() == 0) {
-            // as vlsync_tests::skipped does (this crate cannot use it): listed by
-            // scripts/test.sh after its summary
-            let why = "a_lock_file_left_by_another_user_does_not_stop_the_daemon: not root, \
-                       a second user cannot be played\n";
-            eprint!("SKIPPED {why}");
-            if let Some(log) = std::env::var_os("VLSYNC_SKIP_LOG") {
-                use std::io::Write;
-                let f = std::fs::OpenOptions::new().append(true).open(log);
-                let _ = f.and_then(|mut f| f.write_all(why.as_bytes()));
-            }
+            skipped(
+                "a_lock_file_left_by_another_user_does_not_stop_the_daemon: not root, \
+                 a second user cannot be played",
+            );
             return;
         }
         const NOBODY: u32 = 65534;
