@@ -44,16 +44,19 @@ struct Input {
 fn config(f: &[F; 31], cadence: u8) -> EstimatorConfig {
     let grid_hz = f[0].log(10.0, 2000.0);
     let step = 1.0 / grid_hz;
-    let segment_s = f[1].log(1.0, 600.0);
-    let window_s = f[2].lin(1.0, segment_s.min(120.0));
+    // the cross-key rules: a segment of two windows or more, a window at least the
+    // lag range's width, a lag range of four grid steps or more, a gap limit of at
+    // most half a window, a step window of at least one hop
+    let segment_s = f[1].log(2.0, 600.0);
+    let window_s = f[2].lin(1.0, (0.5 * segment_s).min(120.0));
     let hop_s = f[3].log(
         0.05f64.max(step),
         10.0f64.min(window_s).max(0.05f64.max(step)),
     );
-    let max_lag_s = f[4].log((2.0 * step).max(0.01), 2.0);
+    let max_lag_s = f[4].log((4.0 * step).max(0.01), (0.5 * window_s).min(2.0));
     let track_range_s = f[5].log((2.0 * step).max(0.005), max_lag_s);
-    let lowpass_hz = f[6].log(0.05, (0.45 * grid_hz).min(500.0));
-    let max_gap_s = f[7].log(0.01, 60.0);
+    let lowpass_hz = f[6].log(0.5, (0.45 * grid_hz).min(500.0));
+    let max_gap_s = f[7].log(0.25, (0.5 * window_s).min(60.0));
     EstimatorConfig {
         grid_hz,
         window_s,
@@ -64,21 +67,21 @@ fn config(f: &[F; 31], cadence: u8) -> EstimatorConfig {
         max_lag_s,
         lag_center_s: f[9].lin(-1.0, 1.0),
         track_range_s,
-        step_window_s: f[10].lin(0.5, window_s.max(0.5)),
+        step_window_s: f[10].lin(hop_s.max(0.5), window_s.max(0.5)),
         max_gap_s,
         reset_jump_s: max_gap_s + f[11].log(0.1, 1e6),
         lowpass_hz,
         highpass_hz: f[12].lin(0.0, (0.9 * lowpass_hz).min(100.0)),
         max_abs_value: f[13].log(1e-9, 1e12),
-        min_peak_score: f[14].unit(),
-        min_acquire_score: f[30].unit(),
+        min_peak_score: f[14].unit() * 0.99,
+        min_acquire_score: f[30].unit() * 0.99,
         min_peak_ratio: f[15].lin(1.0, 100.0),
         min_motion_ratio: f[16].unit(),
         acquire_confirm: 1 + (f[17].unit() * 99.0) as u32,
-        measurement_noise_scale: f[18].log(1e-3, 1e3),
+        measurement_noise_scale: f[18].log(0.1, 1e3),
         offset_process_noise: f[19].unit(),
         drift_memory_s: f[20].log(1.0, 1e9),
-        initial_drift_std: f[21].log(1e-9, 0.1),
+        initial_drift_std: f[21].log(1e-9, 0.02),
         hold_process_noise: f[22].unit(),
         gate_sigma: f[23].lin(1.0, 100.0),
         step_gate_sigma: f[24].lin(1.0, 100.0),
