@@ -149,7 +149,8 @@ typedef struct vlsync_daemon_status {
     uint64_t budget_overruns;                    /* samples over daemon.latency_budget_us */
     uint64_t estimates_published;
     uint64_t events_dropped;                     /* log events the real-time thread dropped */
-    uint64_t processing_ns[3];                   /* receive to estimator done */
+    uint64_t processing_ns[3];                   /* sample's turn after receive to daemon done
+                                                    (validated, estimated, estimate published) */
     uint64_t end_to_end_ns[3];                   /* driver publish to daemon done with the sample
                                                     (its estimate published if one was due) */
     uint64_t latency_count;

@@ -384,7 +384,9 @@ pub struct Status {
     pub estimates_published: u64,
     /// Events the real-time thread could not hand to the logging thread.
     pub events_dropped: u64,
-    /// Processing time per sample (receive to estimator done), `[p50, p99, max]` ns.
+    /// Processing time per sample: from the sample's turn in the publish-order merge
+    /// (after `receive`) to the daemon done with it (validated, in the estimator, its
+    /// estimate published if one was due), `[p50, p99, max]` ns.
     pub processing_ns: [u64; 3],
     /// Sample publish (driver) to the daemon done with that sample (its estimate
     /// published if one was due), `[p50, p99, max]` ns.
