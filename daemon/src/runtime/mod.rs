@@ -158,15 +158,14 @@ fn tell_offset_clients(
     names: &ServiceNames,
 ) {
     let n = count.load(Ordering::Relaxed);
-    if n > told.0
-        && told
-            .1
-            .is_none_or(|t| now_ns - t >= iox_log::MUTED_LINE_EVERY_NS)
-    {
+    let due = told
+        .1
+        .is_none_or(|t| now_ns - t >= iox_log::MUTED_LINE_EVERY_NS);
+    if n > told.0 && due {
         tracing::warn!(
-            "{}: a client could not be connected or its connection is corrupt ({} time(s) \
-             since the last line, {n} in all): that client receives no estimates until it \
-             reopens the service",
+            "{}: a client could not be connected or its connection is corrupt ({} attempt(s) \
+             since the last line, {n} in all; iceoryx2 tries again at every send and every \
+             0.1 s): that client receives no estimates until it reopens the service",
             names.offset(),
             n - told.0
         );
@@ -416,10 +415,13 @@ pub fn run_cli(cfg: Config) -> Result<(), String> {
 }
 
 /// The log filter for `RUST_LOG` (`info` without it), and what was wrong with a
-/// `RUST_LOG` that does not parse (the daemon then logs at `info`).
+/// `RUST_LOG` that does not parse (the daemon then logs at `info`). iceoryx2's own
+/// messages (target `iceoryx2`, [`iox_log`]) pass whatever the filter says unless
+/// `RUST_LOG` names that target: `IOX2_LOG_LEVEL` already chose them (error by
+/// default), as it did when iceoryx2 printed them itself.
 fn log_filter(rust_log: Option<&str>) -> (tracing_subscriber::EnvFilter, Option<String>) {
     let info = || tracing_subscriber::EnvFilter::new("info");
-    match rust_log {
+    let (f, bad) = match rust_log {
         None => (info(), None),
         Some(v) => match tracing_subscriber::EnvFilter::try_new(v) {
             Ok(f) => (f, None),
@@ -431,6 +433,13 @@ fn log_filter(rust_log: Option<&str>) -> (tracing_subscriber::EnvFilter, Option<
                 )),
             ),
         },
+    };
+    if rust_log.is_some_and(|v| bad.is_none() && v.contains("iceoryx2")) {
+        return (f, bad);
+    }
+    match "iceoryx2=trace".parse() {
+        Ok(d) => (f.add_directive(d), bad),
+        Err(_) => (f, bad),
     }
 }
 
@@ -471,7 +480,12 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let names = ServiceNames::new(&cfg.services.prefix).map_err(|e| e.to_string())?;
     let _lock = single_instance_lock(&names.prefix)?;
     // before the first node: iceoryx2 takes its logger once
-    iox_log::install();
+    if !iox_log::install() {
+        tracing::warn!(
+            "iceoryx2 chose its logger before the daemon could route it: its messages on \
+             the real-time thread are printed there (stderr), not held"
+        );
+    }
     let node = create_node("vlsyncd", true).map_err(|e| e.to_string())?;
     let (cleaned, failed) = cleanup_dead_nodes(&node);
     if cleaned > 0 || failed > 0 {
@@ -756,8 +770,13 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // a real-time thread that panicked must not look like a clean stop: the exit
     // code is what makes systemd restart the daemon (`Restart=on-failure`)
     let rt_end = rt_outcome(rt.join());
-    // every warning still held back (the channel was drained: the loop ends on disconnect)
+    // every warning still held back (the channel was drained: the loop ends on disconnect),
+    // iceoryx2's held messages and the offset clients' failures within the last minute
     throttle.due(Nanos::MAX, report_suppressed);
+    if let Some(line) = muted_log.take(Nanos::MAX) {
+        tracing::warn!("{line}");
+    }
+    tell_offset_clients(&offset_degraded, &mut offset_told, Nanos::MAX, &names);
     if let Some(sv) = saver.as_mut() {
         if sv.finish(crate::state::FINAL_SAVE_WAIT) {
             tracing::info!("last good estimate saved to {}", sv.path().display());
@@ -793,10 +812,22 @@ mod tests {
     #[test]
     fn a_rust_log_that_does_not_parse_is_said() {
         assert_eq!(log_filter(None).1, None);
+        let has = |f: &tracing_subscriber::EnvFilter, parts: &[&str]| {
+            let text = f.to_string();
+            let mut got: Vec<&str> = text.split(',').collect();
+            got.sort_unstable();
+            let mut want = parts.to_vec();
+            want.sort_unstable();
+            assert_eq!(got, want, "{text}");
+        };
         let (f, bad) = log_filter(Some("vlsyncd=debug"));
-        assert_eq!((f.to_string(), bad), ("vlsyncd=debug".to_string(), None));
+        has(&f, &["vlsyncd=debug", "iceoryx2=trace"]);
+        assert_eq!(bad, None);
+        // iceoryx2's messages as the user filters them, when RUST_LOG names them
+        let (f, _) = log_filter(Some("info,iceoryx2=off"));
+        has(&f, &["info", "iceoryx2=off"]);
         let (f, bad) = log_filter(Some("vlsync=loud"));
-        assert_eq!(f.to_string(), "info");
+        has(&f, &["info", "iceoryx2=trace"]);
         let bad = bad.expect("said");
         assert!(
             bad.starts_with("RUST_LOG `vlsync=loud` is no log filter (")
