@@ -166,8 +166,7 @@ fn count<'de, const MIN: u32, const MAX: u32, D: serde::Deserializer<'de>>(
         // would be "expected i64")
         fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<u32, E> {
             Err(E::custom(format!(
-                "{} is not a whole number: allowed {MIN} ..= {MAX}",
-                num(v)
+                "{v:?} is not a whole number: allowed {MIN} ..= {MAX}"
             )))
         }
     }
@@ -669,8 +668,8 @@ impl EstimatorConfig {
             let default = self.reference_lag_s == EstimatorConfig::default().reference_lag_s;
             format!(
                 "`estimator.reference_lag_s` = {} must not exceed the acquisition window: `estimator.window_s` = {} in whole hops of {} s is {} s{}",
-                self.reference_lag_s,
-                self.window_s,
+                num(self.reference_lag_s),
+                num(self.window_s),
                 num(self.effective_hop_s()),
                 num(window),
                 if default {
@@ -744,7 +743,11 @@ impl EstimatorConfig {
         c.rule(lags * blocks <= 4.0e6, || {
             format!(
                 "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.segment_s`/`estimator.hop_s` = {}/{} need {} lag sums: allowed at most 4000000 (about 100 MB)",
-                self.max_lag_s, self.grid_hz, self.segment_s, self.hop_s, lags * blocks
+                num(self.max_lag_s),
+                num(self.grid_hz),
+                num(self.segment_s),
+                num(self.hop_s),
+                num(lags * blocks)
             )
         })?;
         c.rule(self.track_range_s <= self.max_lag_s, || {
@@ -1275,6 +1278,10 @@ mod tests {
             (
                 "acquire_confirm = 2.5",
                 "2.5 is not a whole number: allowed 1 ..= 100",
+            ),
+            (
+                "acquire_confirm = 2.0",
+                "2.0 is not a whole number: allowed 1 ..= 100",
             ),
             ("step_confirm = \"3\"", "expected a whole number 1 ..= 100"),
         ] {

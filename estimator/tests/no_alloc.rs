@@ -153,6 +153,11 @@ fn rare_paths_allocate_nothing() {
         1.0,
     );
     let (mut states, mut moves, mut switched) = ([0usize; 4], 0usize, 0);
+    // the state when degraded mode was switched, and whether the restored lock was
+    // lost before the LiDAR's silence
+    let mut last_state = EstimatorState::Acquiring;
+    let mut switched_in = [EstimatorState::Acquiring; 2];
+    let mut lost_early = false;
     let before = vlsync_alloc_count::this_thread();
     let (mut i, mut j) = (0, 0);
     while i < cam.len() || j < lidar.len() {
@@ -164,6 +169,7 @@ fn rare_paths_allocate_nothing() {
             // degraded mode on at 100 s and off at 120 s, while locked
             if (t >= s(100.0) && switched == 0) || (t >= s(120.0) && switched == 1) {
                 est.set_degraded(switched == 0);
+                switched_in[switched] = last_state;
                 switched += 1;
             }
             let _ = est.push(Stream::Lidar, lidar[j]);
@@ -171,6 +177,8 @@ fn rare_paths_allocate_nothing() {
         }
         while let Some(e) = est.poll() {
             states[e.state as usize] += 1;
+            last_state = e.state;
+            lost_early |= e.state == EstimatorState::Lost && e.t_ref_ns < s(150.0);
         }
         moves += est.take_search_move().is_some() as usize;
     }
@@ -180,6 +188,11 @@ fn rare_paths_allocate_nothing() {
     // estimates, 6 search moves, a relearn and a reset per stream)
     let st = est.stats().clone();
     assert_eq!(switched, 2);
+    assert!(
+        switched_in.iter().all(|&st| st == EstimatorState::Tracking),
+        "degraded mode switched while {switched_in:?}"
+    );
+    assert!(lost_early, "the restored lock, 0.3 s off, was never lost");
     assert!(
         st.locks >= 2 && states[2] >= 1 && states[3] >= 1,
         "{st:?} {states:?}"

@@ -20,8 +20,8 @@ pub const ICEORYX2_SHM_PREFIX: &str = "iox2_";
 /// under iceoryx2's directory (`/tmp/iceoryx2`) and its files in `/dev/shm`
 /// ([`ICEORYX2_SHM_PREFIX`]), sorted, without the global management segment it keeps
 /// by design (`vlsyncd::runtime::procs::ipc_resources`, narrowed). Another program's
-/// shared memory coming or going in `/dev/shm` (a browser's, a database's, another
-/// test suite's) is none of them and fails no test.
+/// shared memory coming or going in `/dev/shm` (a browser's, a database's) is none of
+/// them and fails no test; another iceoryx2 program's (a second vlsync run) still is.
 pub fn ipc_resources() -> Vec<String> {
     vlsyncd::runtime::procs::ipc_resources()
         .into_iter()
@@ -543,7 +543,6 @@ mod tests {
         let found = ipc_resources();
         std::fs::remove_file(&other).unwrap();
         assert!(!found.contains(&other), "{found:?}");
-        assert!(found.iter().all(|p| is_iceoryx2_resource(p)), "{found:?}");
     }
 
     #[test]
