@@ -6,6 +6,9 @@ use vlsync_config::EstimatorConfig;
 use vlsync_estimator::{Estimator, SearchMoveReason};
 use vlsync_sim::families::{generate, Family, SimRun};
 
+mod common;
+use common::saved_tracking;
+
 /// The newest estimate in state `tracking`, if any.
 fn last_tracking(out: &[vlsync_common::Estimate]) -> Option<&vlsync_common::Estimate> {
     out.iter()
@@ -826,23 +829,6 @@ fn a_restored_drift_is_kept_after_the_relock() {
             );
             }
         }
-    }
-}
-
-/// A saved tracking estimate of `offset_s` (1 ms, 1 ppm), as a state file holds one.
-fn saved_tracking(offset_s: f64) -> vlsync_common::Estimate {
-    vlsync_common::Estimate {
-        seq: 0,
-        t_ref_ns: 0,
-        offset_s,
-        drift: 0.0,
-        offset_std_s: 0.001,
-        drift_std: 1e-6,
-        state: EstimatorState::Tracking,
-        polarity: Polarity::Negative,
-        peak_score: 0.9,
-        peak_ratio: 2.0,
-        measured_offset_s: f64::NAN,
     }
 }
 

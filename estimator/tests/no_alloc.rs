@@ -5,6 +5,8 @@ use vlsync_common::{Sample, Stream};
 use vlsync_config::EstimatorConfig;
 use vlsync_estimator::Estimator;
 
+mod common;
+
 #[global_allocator]
 static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
@@ -93,7 +95,7 @@ fn push_and_poll_allocate_nothing() {
 /// to have run.
 #[test]
 fn rare_paths_allocate_nothing() {
-    use vlsync_common::{Estimate, EstimatorState, Polarity};
+    use vlsync_common::EstimatorState;
     use vlsync_sim::families::{generate, Family};
     let run = generate(Family::Robot, 22, Some(240.0));
     let s = |t: f64| (t * 1e9) as i64;
@@ -136,22 +138,7 @@ fn rare_paths_allocate_nothing() {
     let truth0 = run.truth.offset_at(0);
     let mut est = Estimator::new(&EstimatorConfig::default());
     // a state file 0.3 s off (restored before the loop, as the daemon does)
-    est.restore(
-        &Estimate {
-            seq: 0,
-            t_ref_ns: 0,
-            offset_s: truth0 + 0.3,
-            drift: 0.0,
-            offset_std_s: 0.001,
-            drift_std: 1e-6,
-            state: EstimatorState::Tracking,
-            polarity: Polarity::Negative,
-            peak_score: 0.9,
-            peak_ratio: 2.0,
-            measured_offset_s: f64::NAN,
-        },
-        1.0,
-    );
+    est.restore(&common::saved_tracking(truth0 + 0.3), 1.0);
     let (mut states, mut moves, mut switched) = ([0usize; 4], 0usize, 0);
     // the state when degraded mode was switched, and whether the restored lock was
     // lost before the LiDAR's silence
