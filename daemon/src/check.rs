@@ -46,12 +46,68 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
     if let Some(note) = core_note(cfg.daemon.core, &cores) {
         out.push_str(&format!("{comment}{note}\n"));
     }
+    if let Some(note) = work_note(&cfg.estimator) {
+        out.push_str(&format!("{comment}{note}\n"));
+    }
     if print {
         let text = toml::to_string(&cfg)
             .map_err(|e| format!("cannot print the configuration of {}: {e}", path.display()))?;
         out.push_str(&text);
     }
     Ok(out)
+}
+
+/// The estimator's lag-sum work per second of data, `(searching, locked)`: the sums
+/// each grid sample updates and each hop reads (the acquisition window's blocks
+/// while searching, the segment's while locked, at every lag the state keeps). A
+/// model, not a timing: its ratio between two configurations is what it is for.
+pub fn estimator_work(e: &vlsync_config::EstimatorConfig) -> (f64, f64) {
+    let hop = e.effective_hop_s();
+    let lags = (2.0 * (e.max_lag_s * e.grid_hz).round() + 1.0).max(1.0);
+    // the tracking range, the slots beyond it the segment's search reads and the
+    // spare each side (estimator/src/track.rs: TRACK_NEED_SLOTS, TRACK_SPARE_SLOTS)
+    let active = (2.0 * (e.track_range_s * e.grid_hz + 6.0 + 8.0) + 1.0).min(lags);
+    let window_blocks = (e.effective_window_s() / hop).round().max(1.0);
+    let segment_blocks = (e.segment_s / hop).ceil() + 1.0;
+    (
+        e.grid_hz * lags + window_blocks * lags / hop,
+        e.grid_hz * active + segment_blocks * active / hop,
+    )
+}
+
+/// Above this many times the shipped defaults' work, [`work_note`] speaks.
+pub const WORK_NOTE_RATIO: f64 = 10.0;
+
+/// A note when the estimator keys ask for much more work per second of data than
+/// the shipped defaults ([`estimator_work`], either state): the validation bounds the
+/// lag sums' memory, not the time, and a configuration a small core cannot keep up
+/// with falls behind live (budget overruns, degraded mode).
+pub fn work_note(e: &vlsync_config::EstimatorConfig) -> Option<String> {
+    let (acq, lock) = estimator_work(e);
+    let (acq0, lock0) = estimator_work(&vlsync_config::EstimatorConfig::default());
+    let (ra, rl) = (acq / acq0, lock / lock0);
+    if ra.max(rl) <= WORK_NOTE_RATIO {
+        return None;
+    }
+    let x = |r: f64| {
+        if r < 100.0 {
+            format!("{r:.0}")
+        } else {
+            vlsync_common::text::number(
+                (r / 10f64.powf(r.log10().floor() - 1.0)).round()
+                    * 10f64.powf(r.log10().floor() - 1.0),
+            )
+        }
+    };
+    Some(format!(
+        "note: estimator: about {}x the shipped defaults' work per second of data while \
+         locked, {}x while searching (the defaults: some 20 ms of estimator time per 120 s \
+         of data on a 2-core x86 VM, several times that on a Pi); time it with `vlsyncd \
+         replay --config` on a recording (it prints its estimator time) before running it \
+         live, where a daemon that cannot keep up overruns its budget",
+        x(rl),
+        x(ra)
+    ))
 }
 
 /// A note when `daemon.core` names a core this machine does not have online (not an
@@ -105,6 +161,41 @@ mod tests {
             n.starts_with("note: daemon.core = 3: not a CPU of this machine (online: [0, 1])"),
             "{n}"
         );
+    }
+
+    /// The shipped defaults, and the settings README's speed table measures, say
+    /// nothing; a configuration thousands of times the work gets the note, rounded (a
+    /// review's: 118 s of estimator time for 120 s of data on this VM against the
+    /// defaults' 19 ms, 6200x; the model says 6000x).
+    #[test]
+    fn a_configuration_of_much_more_work_gets_a_note() {
+        use vlsync_config::EstimatorConfig;
+        let d = EstimatorConfig::default();
+        assert_eq!(super::work_note(&d), None);
+        let longer = EstimatorConfig {
+            window_s: 12.0,
+            max_lag_s: 1.0,
+            ..d.clone()
+        };
+        assert_eq!(super::work_note(&longer), None);
+        let heavy = EstimatorConfig {
+            grid_hz: 2000.0,
+            max_lag_s: 2.0,
+            track_range_s: 2.0,
+            segment_s: 24.0,
+            hop_s: 0.05,
+            step_window_s: 2.0,
+            ..d.clone()
+        };
+        heavy.validate("heavy").unwrap();
+        let n = super::work_note(&heavy).expect("a note");
+        assert!(
+            n.starts_with("note: estimator: about 6000x the shipped defaults' work per second of data while locked, 2800x while searching"),
+            "{n}"
+        );
+        let (acq, lock) = super::estimator_work(&heavy);
+        let (acq0, lock0) = super::estimator_work(&d);
+        assert!(lock / lock0 > 1000.0 && acq / acq0 > 1000.0);
     }
 
     #[test]

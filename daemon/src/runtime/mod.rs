@@ -479,6 +479,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let start_ns = monotonic_ns();
     let names = ServiceNames::new(&cfg.services.prefix).map_err(|e| e.to_string())?;
     let _lock = single_instance_lock(&names.prefix)?;
+    if let Some(note) = crate::check::work_note(&cfg.estimator) {
+        tracing::warn!("{}", note.trim_start_matches("note: "));
+    }
     // before the first node: iceoryx2 takes its logger once
     if !iox_log::install() {
         tracing::warn!(
