@@ -34,6 +34,24 @@ pub(super) fn log_event(
                 )
             }
         }
+        RtEvent::Silence {
+            stream,
+            after_ns,
+            limit_ns,
+        } => {
+            let key = journal::silence_key(stream_index(*stream));
+            if let Some(n) = throttle.admit(key, 1, now) {
+                tracing::warn!(
+                    "{stream}: {} s without a sample, longer than estimator.max_gap_s = {} s: \
+                     the correlation breaks there (a driver restarted, a sensor stalled; when \
+                     every interval is this long, the sensor is slower than max_gap_s allows \
+                     and nothing is ever estimated){}",
+                    format!("{:.3}", *after_ns as f64 * 1e-9),
+                    vlsync_common::text::number((*limit_ns as f64 * 1e-6).round() * 1e-3),
+                    more(n)
+                )
+            }
+        }
         RtEvent::Lost { stream, count } => {
             let key = journal::lost_key(stream_index(*stream));
             if let Some(n) = throttle.admit(key, *count, now) {
@@ -243,6 +261,49 @@ mod tests {
         assert!(
             text.contains("estimate #20 has an invalid field; not published (19 more since"),
             "{text}"
+        );
+    }
+
+    /// A LiDAR whose every interval is a gap (a 2 Hz sensor against the 0.75 s
+    /// limit... here 0.5 s against 0.3 s): a warning naming the key and both
+    /// durations, once per period with the count, as a warning, per stream.
+    #[test]
+    fn silences_are_said_once_per_period_with_the_limit() {
+        let buf = Buf::default();
+        let w = buf.clone();
+        let sub = tracing_subscriber::fmt()
+            .with_writer(move || w.clone())
+            .with_ansi(false)
+            .finish();
+        tracing::subscriber::with_default(sub, || {
+            let mut t = journal::Throttle::new(10_000_000_000);
+            for k in 0..40i64 {
+                let ev = RtEvent::Silence {
+                    stream: Stream::Lidar,
+                    after_ns: 500_000_000,
+                    limit_ns: 300_000_000,
+                };
+                log_event(&ev, &mut t, k * 500_000_000, 200.0);
+            }
+        });
+        let text = String::from_utf8(buf.0.lock().expect("log buffer").clone()).expect("utf-8");
+        assert_eq!(
+            text.matches("lidar: 0.500 s without a sample").count(),
+            2,
+            "{text}"
+        );
+        assert!(
+            text.contains("longer than estimator.max_gap_s = 0.3 s")
+                && text.contains("(19 more since the last such line)")
+                && text.contains(" WARN "),
+            "{text}"
+        );
+        assert!(!journal::is_info(journal::silence_key(1)));
+        assert_ne!(journal::silence_key(0), journal::silence_key(1));
+        assert!(journal::silence_key(1) < journal::KINDS);
+        assert_eq!(
+            journal::kind_text(journal::silence_key(0)),
+            "cam silences longer than estimator.max_gap_s"
         );
     }
 }

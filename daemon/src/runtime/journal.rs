@@ -20,9 +20,12 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// stream's driver (information: a publisher that flags every sample as its first
 /// would log one a sample), the errors of the real-time loop, the changes of the
 /// estimator state per new state (information: a flapping estimator would log two
-/// lines a hop), and the estimates not published, invalid or refused by the offset
-/// service (a lasting fault would log one line per estimate, 170,000 a day).
-pub const KINDS: usize = 2 * REJECT_REASONS + 18;
+/// lines a hop), the estimates not published, invalid or refused by the offset
+/// service (a lasting fault would log one line per estimate, 170,000 a day), the
+/// publishers first read mid-run per stream (information), and the silences longer
+/// than `estimator.max_gap_s` per stream (a warning: a sensor slower than the limit
+/// makes every interval one, and nothing is ever estimated).
+pub const KINDS: usize = 2 * REJECT_REASONS + 20;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -67,6 +70,12 @@ pub const PUBLISH_FAILED_KEY: usize = DEGRADED_KEY + 13;
 /// read not its first one: `RtEvent::Joined`).
 pub fn joined_key(si: usize) -> usize {
     DEGRADED_KEY + 14 + si.min(1)
+}
+
+/// Throttle key of a silence of stream `si` longer than `estimator.max_gap_s`
+/// (`RtEvent::Silence`).
+pub fn silence_key(si: usize) -> usize {
+    DEGRADED_KEY + 16 + si.min(1)
 }
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
@@ -145,6 +154,7 @@ pub fn is_info(key: usize) -> bool {
             key,
             SEARCH_MOVE_KEY | RT_ERROR_KEY | INVALID_ESTIMATE_KEY | PUBLISH_FAILED_KEY
         )
+        && key < silence_key(0)
 }
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
@@ -238,6 +248,11 @@ pub fn kind_text(key: usize) -> String {
         "estimates with an invalid field (not published)".to_string()
     } else if key == PUBLISH_FAILED_KEY {
         "estimates the offset service did not take".to_string()
+    } else if key >= silence_key(0) {
+        format!(
+            "{} silences longer than estimator.max_gap_s",
+            stream((key - silence_key(0)).min(1))
+        )
     } else if key >= joined_key(0) {
         format!(
             "{} publishers first read mid-run",
@@ -530,7 +545,8 @@ mod tests {
         );
         assert_eq!(state_key(EstimatorState::Lost), INVALID_ESTIMATE_KEY - 1);
         assert_eq!(PUBLISH_FAILED_KEY, joined_key(0) - 1);
-        assert_eq!(joined_key(1), KINDS - 1);
+        assert_eq!(joined_key(1), silence_key(0) - 1);
+        assert_eq!(silence_key(1), KINDS - 1);
         assert_eq!(
             kind_text(joined_key(0)),
             "cam publishers first read mid-run"

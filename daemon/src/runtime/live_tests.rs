@@ -127,6 +127,34 @@ fn a_malformed_sample_is_rejected_not_also_lost() {
     d.stop();
 }
 
+/// A stream silent for longer than `estimator.max_gap_s` is said in the log, with
+/// both durations: a sensor slower than the limit would otherwise leave the daemon
+/// estimating nothing with a clean log.
+#[test]
+fn a_silence_longer_than_the_gap_limit_is_said() {
+    let d = Daemon::start("silence", |_| {});
+    let node = create_node("live-test", false).unwrap();
+    let mut lidar = SignaturePublisher::open(&node, &d.names, Stream::Lidar).unwrap();
+    let mut status = StatusClient::open(&d.names.prefix).unwrap();
+    // 0.1 s apart, then 1.4 s without a sample (stamps on the LiDAR's clock)
+    for t_ms in [1000i64, 1100, 1200, 2600, 2700] {
+        lidar.publish(t_ms * 1_000_000, 0.5).unwrap();
+    }
+    d.status_when(&mut status, |st| st.received[1] == 5);
+    let t0 = Instant::now();
+    let said = "lidar: 1.400 s without a sample, longer than estimator.max_gap_s = 0.75 s";
+    while !d.log().contains(said) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "not said in 10 s:\n{}",
+            d.log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let log = d.stop();
+    assert_eq!(log.matches("without a sample").count(), 1, "{log}");
+}
+
 /// Publishes a simulated run's two streams in real time (each sample notified, as
 /// the drivers do) on a thread, until the run ends or the returned flag is set.
 fn drive(names: &ServiceNames, seed: u64) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {

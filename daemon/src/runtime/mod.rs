@@ -235,6 +235,16 @@ pub enum RtEvent {
         /// field: what a C driver's author needs to fix it).
         why: Option<vlsync_common::wire::WireError>,
     },
+    /// A silence of a stream longer than `estimator.max_gap_s`: the estimator broke
+    /// its window there (no interpolation across it).
+    Silence {
+        /// Stream.
+        stream: Stream,
+        /// From the stream's last accepted sample to this one, ns (0: none before).
+        after_ns: Nanos,
+        /// `estimator.max_gap_s`, ns.
+        limit_ns: Nanos,
+    },
     /// Samples lost: a sequence gap.
     Lost {
         /// Stream.

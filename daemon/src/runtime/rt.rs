@@ -473,6 +473,10 @@ pub(super) fn rt_thread(
     // the newest LiDAR sample: its stamp and when its driver published it
     // (`CLOCK_MONOTONIC`), which dates a load hint on the LiDAR clock
     let mut lidar_clock: Option<(Nanos, Nanos)> = None;
+    // per stream: the estimator's gap count already said, the last accepted stamp
+    let mut seen_gaps = [0u64; 2];
+    let mut last_t: [Option<Nanos>; 2] = [None; 2];
+    let max_gap_ns = (s.cfg.estimator.max_gap_s * 1e9) as Nanos;
     let _ = ready.send(Ok(report));
 
     // a wake-up that served MAX_SAMPLES_PER_WAKE left samples waiting: the next one
@@ -594,7 +598,27 @@ pub(super) fn rt_thread(
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
-            if let Err(r) = est.push_urgent(stream, w.sample()) {
+            let pushed = est.push_urgent(stream, w.sample());
+            // a silence longer than estimator.max_gap_s broke the window here: said
+            // (throttled), or a stream whose every interval is one would leave the
+            // daemon silent with a clean log
+            let gaps = est.stats().gaps[si];
+            if gaps > seen_gaps[si] {
+                seen_gaps[si] = gaps;
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Silence {
+                        stream,
+                        after_ns: last_t[si].map_or(0, |t| w.t_ns.saturating_sub(t)),
+                        limit_ns: max_gap_ns,
+                    },
+                );
+            }
+            if pushed.is_ok() {
+                last_t[si] = Some(w.t_ns);
+            }
+            if let Err(r) = pushed {
                 c.status.rejected[si][r.index()] += 1;
                 emit(
                     &s.tx,
