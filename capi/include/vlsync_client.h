@@ -36,11 +36,20 @@
  * Errors: every function checks its pointers (NULL is an error, never a crash) and
  * returns a code; those taking `err, err_len` write the reason there, NUL-terminated and
  * cut to fit (`err` may be NULL). Those without (vlsync_client_latest,
- * vlsync_client_camera_to_lidar, the two closes, vlsync_client_invalid_count) give a bare
- * -1 (0 for the count) and cannot report a failed receive: prefer the _err variants.
+ * vlsync_client_camera_to_lidar, the two closes, vlsync_client_invalid_count,
+ * vlsync_status_invalid_count) give a bare -1 (0 for the counts) and cannot report a
+ * failed receive: prefer the _err variants. Every call first finds its handle among the
+ * open ones: a handle closed already (a second close, a use after close), a handle of the
+ * other type or a pointer that never was a handle is an error (-1, 0 for the counts,
+ * "not an open handle"), not a crash. (A later open may be given the same address: a
+ * stale pointer then reaches that open handle, so do not keep pointers past close.)
  * A handle is single-threaded: use it on the thread that opened it (calls from another
- * thread are refused with -1: a check that catches the mistake while the handle is open,
- * not a licence to share it; a handle closed on its thread must not be used anywhere).
+ * thread are refused with -1: a check that catches the mistake, not a licence to share
+ * it), and close it before that thread exits: no other thread can close it, and it holds
+ * one of the service's 16 subscriber places until the process exits. No function is
+ * async-signal-safe: do not call one from a signal handler (set a flag there instead).
+ * vlsync_client_open and vlsync_status_open may block for up to about 2 s while a
+ * daemon that is starting creates the services.
  *
  * Signals: the library leaves every signal's disposition as it found it. The first open
  * in a process lets iceoryx2 install its handlers (SIGINT, SIGTERM and others) and at
@@ -231,7 +240,7 @@ uint32_t vlsync_client_abi_minor(void);
 vlsync_client *vlsync_client_open(const char *prefix, char *err, size_t err_len);
 
 /* Closes a handle (NULL: nothing). 0, or -1 from another thread (the handle stays open;
- * no message: there is no err buffer). */
+ * no message: there is no err buffer) or for a handle closed already. */
 int vlsync_client_close(vlsync_client *c);
 
 /* Waits up to timeout_ms (negative: no limit) for the next estimate: the newest when
@@ -296,7 +305,7 @@ uint64_t vlsync_client_invalid_count(vlsync_client *c);
 vlsync_status_client *vlsync_status_open(const char *prefix, char *err, size_t err_len);
 
 /* Closes a status handle (NULL: nothing). 0, or -1 from another thread (it stays open;
- * no message). */
+ * no message) or for a handle closed already. */
 int vlsync_status_close(vlsync_status_client *c);
 
 /* The newest valid status (invalid payloads are skipped). 1: written to *out; 0: none

@@ -19,7 +19,9 @@
 // Errors: every failure throws vlsync::Error with the library's message, which names the
 // C function and the cause (a handle used on another thread, a failed receive on the
 // offset service, an internal error). latest() and camera_to_lidar() call the _err
-// variants of ABI minor 1, so the constructor requires a library of that minor.
+// variants of ABI minor 1 and StatusClient the invalid count of minor 2, so each
+// constructor requires a library of this header's minor (VLSYNC_CLIENT_ABI_MINOR).
+// invalid_count() does not throw: 0 on a moved-from object or another thread.
 //
 // Like the handle it wraps, a Client (and a StatusClient) is used, and destroyed, on the
 // thread that constructed it: close() throws when called from another thread (the

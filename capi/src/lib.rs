@@ -7,12 +7,14 @@
 //! The library is [`vlsync_ipc::OffsetClient`] behind a handle: the same services,
 //! the same validation of every payload, the same conversion of camera stamps.
 //!
-//! Every function checks its pointers (NULL is an error, not a crash), catches any
-//! panic at the boundary, and reports errors as a return code; the functions that take
-//! an `err, err_len` buffer also write the reason there. Four take none
-//! (`vlsync_client_latest`, `vlsync_client_camera_to_lidar`, `vlsync_client_close`,
-//! `vlsync_client_invalid_count`; `vlsync_status_close` likewise): their failures are a
-//! bare -1 (or 0 for the count). `vlsync_client_latest_err` and
+//! Every function checks its pointers (NULL is an error, not a crash), finds its handle
+//! among the open ones before it touches it (a closed or made-up handle is an error, not
+//! a use-after-free), catches any panic at the boundary, and reports errors as a return
+//! code; the functions that take an `err, err_len` buffer also write the reason there.
+//! Four take none (`vlsync_client_latest`, `vlsync_client_camera_to_lidar`,
+//! `vlsync_client_close`, `vlsync_client_invalid_count`; `vlsync_status_close` and
+//! `vlsync_status_invalid_count` likewise): their failures are a bare -1 (or 0 for the
+//! counts). `vlsync_client_latest_err` and
 //! `vlsync_client_camera_to_lidar_err` (ABI minor 1) are the first two with a buffer,
 //! and also report a failed receive, which the buffer-less ones cannot. A handle is used
 //! on the thread that opened it: a call from another thread is refused (with a message
@@ -35,8 +37,10 @@
 // for `#[no_mangle]`, on the attribute: why its exported name clashes with nothing)
 #![deny(unsafe_code)]
 
+use std::any::TypeId;
 use std::ffi::{c_char, c_int, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Mutex;
 use std::thread::ThreadId;
 use std::time::Duration;
 pub use vlsync_common::wire::Status;
@@ -83,10 +87,43 @@ pub struct VlsyncConversion {
     pub estimate: OffsetEstimate,
 }
 
-/// A client behind an opaque C handle, with the thread that opened it.
+/// A client behind an opaque C handle.
 pub struct Handle<T> {
     inner: T,
-    thread: ThreadId,
+}
+
+/// Every open handle: its address, its type and the thread that opened it. A handle
+/// is dereferenced only once it is found here, of its type, on its thread: a handle
+/// closed already (closed twice, used after close) or a pointer that never was one
+/// is an error, not a use-after-free. (An address a later open got again is that
+/// open's live handle: still no dangling access.)
+static LIVE: Mutex<Vec<(usize, TypeId, ThreadId)>> = Mutex::new(Vec::new());
+
+/// [`LIVE`], even after a panic while it was held (it holds plain values only).
+fn live() -> std::sync::MutexGuard<'static, Vec<(usize, TypeId, ThreadId)>> {
+    LIVE.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Where handle `c` is in [`LIVE`]: `Ok(index)` when open, of type `T`, on this
+/// thread; else what is wrong with it (prefixed with `what`).
+fn find_live<T: 'static>(
+    live: &[(usize, TypeId, ThreadId)],
+    c: *mut Handle<T>,
+    what: &str,
+) -> CallResult<usize> {
+    let i = live
+        .iter()
+        .position(|&(addr, ty, _)| addr == c.addr() && ty == TypeId::of::<T>())
+        .ok_or_else(|| {
+            format!("{what}: not an open handle (closed already, or not one this library opened)")
+        })?;
+    if live[i].2 != std::thread::current().id() {
+        return Err(format!(
+            "{what}: the client was opened on another thread (use a handle only on the thread that opened it)"
+        ));
+    }
+    Ok(i)
 }
 
 /// The handle behind `vlsync_client *`.
@@ -151,27 +188,19 @@ unsafe fn write_message(buf: *mut c_char, cap: usize, msg: &str) {
 /// The client behind handle `c`, on the thread that opened it.
 ///
 /// # Safety
-/// `c` is NULL or a handle from [`vlsync_client_open`] not yet closed, and the
-/// reference returned is dropped before the handle is closed.
+/// The reference returned is dropped before the handle is closed (the caller's
+/// thread is the only one that can close it: [`find_live`]).
 #[allow(unsafe_code)]
-unsafe fn handle<'a, T>(c: *mut Handle<T>, what: &str) -> CallResult<&'a mut T> {
+unsafe fn handle<'a, T: 'static>(c: *mut Handle<T>, what: &str) -> CallResult<&'a mut T> {
     if c.is_null() {
         return Err(format!("{what}: the client is NULL"));
     }
-    // SAFETY: a non-NULL `c` is a handle from `vlsync_client_open` not yet closed
-    // (this function's contract). Only its `thread` field is read here, through the raw
-    // pointer: it is written once, before the handle is returned, and never again, and
-    // no reference anyone makes covers it (the owner's is to `inner` alone, below), so
-    // a foreign thread's read aliases nothing.
-    let owner = unsafe { std::ptr::addr_of!((*c).thread).read() };
-    if owner != std::thread::current().id() {
-        return Err(format!(
-            "{what}: the client was opened on another thread (use a handle only on the thread that opened it)"
-        ));
-    }
-    // SAFETY: as above, and on the thread that opened it, which is the only one that
-    // makes references into it: the single-threaded ports inside stay on their thread.
-    // The reference is to the `inner` field only, made from the raw pointer.
+    find_live(&live(), c, what)?;
+    // SAFETY: `c` is an open handle of type `T` (found in LIVE: `open_handle` put it
+    // there when it made it with `Box::into_raw`, and `close_handle` takes it out before
+    // freeing it), opened on this thread, the only one that makes references into it or
+    // can close it: the single-threaded ports inside stay on their thread. The
+    // reference is to the `inner` field only, made from the raw pointer.
     Ok(unsafe { &mut *std::ptr::addr_of_mut!((*c).inner) })
 }
 
@@ -260,7 +289,7 @@ pub unsafe extern "C" fn vlsync_client_open(
 /// # Safety
 /// As [`vlsync_client_open`]'s.
 #[allow(unsafe_code)]
-unsafe fn open_handle<T>(
+unsafe fn open_handle<T: 'static>(
     prefix: *const c_char,
     err: *mut c_char,
     err_len: usize,
@@ -284,13 +313,14 @@ unsafe fn open_handle<T>(
             ));
         }
         let inner = open(p).map_err(|e| format!("{what}: {e}"))?;
-        Ok(Box::new(Handle {
-            inner,
-            thread: std::thread::current().id(),
-        }))
+        Ok(Box::new(Handle { inner }))
     });
     match r {
-        Ok(b) => Box::into_raw(b),
+        Ok(b) => {
+            let c = Box::into_raw(b);
+            live().push((c.addr(), TypeId::of::<T>(), std::thread::current().id()));
+            c
+        }
         Err(m) => {
             // SAFETY: `err` is NULL or `err_len` writable bytes (the caller's promise)
             unsafe { write_message(err, err_len, &m) };
@@ -317,20 +347,22 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
 /// # Safety
 /// `c` is NULL or a handle from `open_handle` not closed before.
 #[allow(unsafe_code)]
-unsafe fn close_handle<T>(c: *mut Handle<T>, what: &str) -> c_int {
+unsafe fn close_handle<T: 'static>(c: *mut Handle<T>, what: &str) -> c_int {
     if c.is_null() {
         return 0;
     }
-    let r = guarded(what, || {
-        // SAFETY: `c` is an open handle (the caller's promise); the reference is
-        // dropped here
-        unsafe { handle(c, what) }.map(|_| ())
-    });
-    if r.is_err() {
-        return -1;
+    {
+        let mut live = live();
+        match find_live(&live, c, what) {
+            Ok(i) => {
+                live.swap_remove(i);
+            }
+            Err(_) => return -1,
+        }
     }
-    // SAFETY: `c` came from `Box::into_raw` in `open_handle` and is closed once (the
-    // caller's promise); on its own thread (checked above).
+    // SAFETY: `c` was in LIVE, so it came from `Box::into_raw` in `open_handle` and was
+    // not freed since; it is out of LIVE now, so no later call reaches it; on its own
+    // thread (checked by `find_live`), which holds no reference into it between calls.
     let b = unsafe { Box::from_raw(c) };
     // a panic in a port's drop is caught; the handle is gone either way
     let _ = catch_unwind(AssertUnwindSafe(move || drop(b)));
@@ -405,7 +437,7 @@ unsafe fn wait_into(
 /// `c` is NULL or an open handle; `out` is NULL or points to a writable `V`; `err` is
 /// NULL or points to `err_len` writable bytes.
 #[allow(unsafe_code)]
-unsafe fn fetch_into<T, V>(
+unsafe fn fetch_into<T: 'static, V>(
     c: *mut Handle<T>,
     out: *mut V,
     err: *mut c_char,
@@ -1281,6 +1313,57 @@ mod tests {
         assert!(msg.contains("another thread"), "{msg}");
         // SAFETY: valid pointers: C strings, buffers with their true lengths, and handles from vlsync_client_open not yet closed.
         assert_eq!(unsafe { vlsync_client_close(c) }, 0);
+    }
+
+    /// A handle closed already (closed twice, used after close), a handle of the other
+    /// type and a pointer that never was a handle are errors, not a use-after-free or
+    /// a double free: every call finds its handle among the open ones first.
+    #[test]
+    fn a_closed_or_foreign_handle_is_an_error_not_a_crash() {
+        let prefix = format!("vlsync/capi-closed-{}", std::process::id());
+        let cp = std::ffi::CString::new(prefix).unwrap();
+        let mut err = [0u8; 300];
+        // SAFETY: a C string and a buffer with its true length
+        let (c, st) = unsafe {
+            (
+                vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()),
+                vlsync_status_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()),
+            )
+        };
+        assert!(!c.is_null() && !st.is_null(), "{}", text(&err));
+        let mut est = OffsetEstimate::from_estimate(&zero(), 0).unwrap();
+        // SAFETY: every pointer below is NULL-free and the buffers have their true
+        // lengths; the handles are checked by the library, which is what is tested
+        unsafe {
+            assert_eq!(vlsync_client_close(c), 0);
+            // closed twice, then used after close
+            assert_eq!(vlsync_client_close(c), -1);
+            assert_eq!(vlsync_client_latest(c, &mut est), -1);
+            assert_eq!(
+                vlsync_client_latest_err(c, &mut est, err.as_mut_ptr().cast(), err.len()),
+                -1
+            );
+            assert_eq!(
+                text(&err),
+                "vlsync_client_latest_err: not an open handle (closed already, or not one this library opened)"
+            );
+            assert_eq!(vlsync_client_invalid_count(c), 0);
+            // the status handle passed as an offset client, and a made-up pointer
+            for bogus in [
+                st.cast::<VlsyncClient>(),
+                std::ptr::without_provenance_mut::<VlsyncClient>(0x1234_5678),
+            ] {
+                assert_eq!(
+                    vlsync_client_wait_next(bogus, 0, &mut est, err.as_mut_ptr().cast(), err.len()),
+                    -1
+                );
+                assert!(text(&err).contains("not an open handle"), "{}", text(&err));
+                assert_eq!(vlsync_client_close(bogus), -1);
+            }
+            // the status handle itself is still open, and closes once
+            assert_eq!(vlsync_status_close(st), 0);
+            assert_eq!(vlsync_status_close(st), -1);
+        }
     }
 
     /// A panic inside a call is an error naming the function and the panic's message
