@@ -117,6 +117,11 @@ else
 fi
 if id -u vlsync >/dev/null 2>&1; then
     echo "user vlsync exists"
+    # logind's RemoveIPC=yes (its default) removes a regular user's /dev/shm files when
+    # that user's last login session ends: every iceoryx2 segment of the running units
+    if [ "$(id -u vlsync)" -ge 1000 ]; then
+        echo "warning: user vlsync has uid $(id -u vlsync), a regular user's: logind removes its shared memory (iceoryx2's) whenever a login session of vlsync ends; make it a system user (uid below 1000) or set RemoveIPC=no in /etc/systemd/logind.conf" >&2
+    fi
 else
     run useradd --system --gid vlsync --home-dir /var/lib/vlsync --no-create-home \
         --shell /usr/sbin/nologin --comment "vlsync daemon and drivers" vlsync
@@ -136,6 +141,16 @@ if [ -e "$etc_dir/vlsync.toml" ] && grep -Eq '^[[:space:]]*state_file[[:space:]]
 fi
 install_config "$here/cam.env" "$etc_dir/cam.env"
 install_config "$here/lidar.env" "$etc_dir/lidar.env"
+# the configuration in place (kept from an earlier install, or the shipped one), checked
+# by the daemon being installed: a key it no longer takes would stop it at its next
+# restart for good (exit 78), weeks later
+# (a dry run before the first install: the shipped one)
+in_place="$etc_dir/vlsync.toml"
+[ -e "$in_place" ] || in_place="$here/vlsync.toml"
+if ! "$bin_dir/vlsyncd" check --config "$in_place"; then
+    echo "error: $in_place does not pass this vlsyncd's check (above): fix it (the shipped version is $etc_dir/vlsync.toml.new when it was kept) and run this again" >&2
+    exit 1
+fi
 
 for f in "${units[@]}"; do
     run install -m 0644 "$here/systemd/$f" "$unit_dir/$f"
@@ -178,9 +193,14 @@ else
     echo "systemd is not running here: skipped systemd-tmpfiles and daemon-reload"
 fi
 
+# units already running keep the binaries they started with until they restart
+if [ -d /run/systemd/system ] && systemctl is-active --quiet vlsync.target 2>/dev/null; then
+    echo "warning: vlsync.target is running the previous binaries: sudo systemctl restart vlsync.target" >&2
+fi
 cat <<EOF
 done. Next:
-  check that CPUAffinity= in $unit_dir/vlsyncd.service includes the core in $etc_dir/vlsync.toml (daemon.core)
+  check that CPUAffinity= in $unit_dir/vlsyncd.service includes the core in $etc_dir/vlsync.toml (daemon.core);
+    change it in a drop-in (sudo systemctl edit vlsyncd.service), which a later install leaves alone
   sudo systemctl enable --now vlsync.target
   systemctl status vlsyncd            # READY, state, offset ± std in the status line
   journalctl -u vlsyncd -f

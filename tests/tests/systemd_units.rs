@@ -87,7 +87,8 @@ fn daemon_unit_has_notify_watchdog_restart_rt_limits_and_hardening() {
         ("Type", "notify"),
         ("NotifyAccess", "main"),
         ("WatchdogSec", "5s"),
-        ("Restart", "on-failure"),
+        // a clean exit (a stray SIGTERM or SIGHUP) is restarted too
+        ("Restart", "always"),
         ("RestartSec", "2"),
         // a configuration the daemon cannot load is not retried (`vlsyncd run` exits
         // 78 then, `a_configuration_it_cannot_load_exits_78`); everything else is,
@@ -231,7 +232,9 @@ fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
         // `option_and_configuration_errors_exit_78_source_errors_2`)
         assert_eq!(get(&u, n, "Service", "RestartPreventExitStatus"), "78");
         assert!(words(&u, "Unit", "After").contains(&"vlsyncd.service".to_string()));
-        assert!(words(&u, "Unit", "Wants").contains(&"vlsyncd.service".to_string()));
+        // a driver's restart must not start a daemon stopped on purpose (Wants= would):
+        // the target wants all three
+        assert!(!words(&u, "Unit", "Wants").contains(&"vlsyncd.service".to_string()));
         assert_eq!(get(&u, n, "Unit", "PartOf"), "vlsync.target");
         assert_eq!(get(&u, n, "Install", "WantedBy"), "vlsync.target");
         let exec = get(&u, n, "Service", "ExecStart");
@@ -358,6 +361,9 @@ fn install_script_previews_refuses_without_root_and_checks_inputs() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(text.contains("dry run: nothing is changed"), "{text}");
+    // the configuration in place (here the shipped one) is checked by the daemon
+    // being installed: a kept file it would refuse stops the install
+    assert!(text.contains("vlsync.toml: ok"), "{text}");
     for b in ["vlsyncd", "vlsync-cam", "vlsync-lidar", "vlsync-echo"] {
         let want = format!("install -m 0755 {}/{b} /usr/local/bin/{b}", bins.display());
         assert!(text.contains(&want), "no `{want}` in\n{text}");
