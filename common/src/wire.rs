@@ -32,8 +32,12 @@ pub const STATUS_TYPE_NAME: &str = "vlsync.Status.v1";
 /// [`SignatureSample::flags`] bit: the first sample a driver publishes after it
 /// (re)started; its sequence number restarts and must not count as a gap.
 pub const FLAG_FIRST: u32 = 1;
+/// [`SignatureSample::flags`] bit: the sample comes from a simulator (the drivers'
+/// `--sim` and `--render` sources), not from a sensor: an offset estimated from it is
+/// not the robot's. The daemon says so in its log while such samples arrive.
+pub const FLAG_SIMULATED: u32 = 2;
 /// All flag bits defined in this version; any other bit makes a sample malformed.
-pub const KNOWN_FLAGS: u32 = FLAG_FIRST;
+pub const KNOWN_FLAGS: u32 = FLAG_FIRST | FLAG_SIMULATED;
 
 /// One signature sample on the wire (`<prefix>/cam/signature`, `<prefix>/lidar/signature`).
 ///
@@ -148,6 +152,11 @@ impl SignatureSample {
             return Err(WireError::NonZeroPadding { field: "reserved" });
         }
         Ok(())
+    }
+
+    /// True when [`FLAG_SIMULATED`] is set.
+    pub fn is_simulated(&self) -> bool {
+        self.flags & FLAG_SIMULATED != 0
     }
 
     /// True when [`FLAG_FIRST`] is set.
@@ -688,8 +697,15 @@ mod tests {
         assert!(s.validate().is_ok());
         assert!(!s.is_first());
         let mut f = s;
-        f.flags = FLAG_FIRST;
-        assert!(f.validate().is_ok() && f.is_first());
+        f.flags = FLAG_FIRST | FLAG_SIMULATED;
+        assert!(f.validate().is_ok() && f.is_first() && f.is_simulated());
+        assert!(!s.is_simulated());
+        f.flags = 4;
+        assert!(f
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("0x4 (known: 0x3)"));
         f.flags = 0x10;
         assert!(f.validate().unwrap_err().to_string().contains("0x10"));
         let mut p = s;

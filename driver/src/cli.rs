@@ -896,6 +896,9 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     let buffer = usize::try_from(config(args)?.services.subscriber_buffer).unwrap_or(1);
     let mut publisher =
         SignaturePublisher::open_sized(&node, &names, stream, buffer).map_err(DriverError::Ipc)?;
+    // the simulators' samples say so: the daemon warns that its offset is not the
+    // robot's (a unit shipped with --sim and never pointed at the sensors)
+    publisher.set_simulated(args.sim.is_some() || args.render.is_some());
     let mut truth = match &args.truth_out {
         Some(p) => Some(crate::TruthLog::create(p)?),
         None => None,

@@ -55,7 +55,8 @@
 
 /* SignatureSample.flags */
 #define VLSYNC_FLAG_FIRST 1u /* first sample after a driver (re)start */
-#define VLSYNC_KNOWN_FLAGS VLSYNC_FLAG_FIRST
+#define VLSYNC_FLAG_SIMULATED 2u /* from a simulator (--sim, --render), not a sensor */
+#define VLSYNC_KNOWN_FLAGS (VLSYNC_FLAG_FIRST | VLSYNC_FLAG_SIMULATED)
 
 /* OffsetEstimate.state / Status.state */
 #define VLSYNC_STATE_ACQUIRING 0

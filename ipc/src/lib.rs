@@ -433,6 +433,8 @@ pub struct SignaturePublisher {
     next_seq: u64,
     unreached: u64,
     unwoken: u64,
+    /// Every sample marked [`vlsync_common::wire::FLAG_SIMULATED`] ([`Self::set_simulated`]).
+    simulated: bool,
     _services: (PubSubFactory<Svc, SignatureSample, ()>, EventFactory<Svc>),
 }
 
@@ -471,8 +473,15 @@ impl SignaturePublisher {
             next_seq: 0,
             unreached: 0,
             unwoken: 0,
+            simulated: false,
             _services: (svc, ev),
         })
+    }
+
+    /// Marks every sample [`Self::publish`] sends from now on as simulated
+    /// ([`vlsync_common::wire::FLAG_SIMULATED`]: a simulator's, not a sensor's), or not.
+    pub fn set_simulated(&mut self, on: bool) {
+        self.simulated = on;
     }
 
     /// Publishes one sample stamped with the next sequence number and now
@@ -484,6 +493,9 @@ impl SignaturePublisher {
         let mut s = SignatureSample::new(t_ns, value, seq, monotonic_ns());
         if seq == 0 {
             s.flags |= vlsync_common::wire::FLAG_FIRST;
+        }
+        if self.simulated {
+            s.flags |= vlsync_common::wire::FLAG_SIMULATED;
         }
         // the sample is out once sent, whether or not the wake-up after it fails:
         // its sequence number is used (reusing it would repeat a number, and a second

@@ -6,8 +6,9 @@ use core::mem::{offset_of, size_of};
 use std::path::Path;
 use std::process::Command;
 use vlsync_common::wire::{
-    OffsetEstimate, SignatureSample, Status, FLAG_FIRST, KNOWN_FLAGS, OFFSET_ESTIMATE_TYPE_NAME,
-    REJECT_MALFORMED, REJECT_REASONS, SIGNATURE_SAMPLE_TYPE_NAME, STATE_NONE, STATUS_TYPE_NAME,
+    OffsetEstimate, SignatureSample, Status, FLAG_FIRST, FLAG_SIMULATED, KNOWN_FLAGS,
+    OFFSET_ESTIMATE_TYPE_NAME, REJECT_MALFORMED, REJECT_REASONS, SIGNATURE_SAMPLE_TYPE_NAME,
+    STATE_NONE, STATUS_TYPE_NAME,
 };
 use vlsync_common::{EstimatorState, Polarity, RejectReason};
 
@@ -29,7 +30,7 @@ int main(void) {
          offsetof(vlsync_offset_estimate, polarity));
   printf("%zu %zu %zu %zu\n", sizeof(vlsync_status), offsetof(vlsync_status, budget_overruns),
          offsetof(vlsync_status, events_dropped), offsetof(vlsync_status, degraded));
-  printf("%u %u %s %s %s\n", VLSYNC_FLAG_FIRST, VLSYNC_KNOWN_FLAGS,
+  printf("%u %u %u %s %s %s\n", VLSYNC_FLAG_FIRST, VLSYNC_FLAG_SIMULATED, VLSYNC_KNOWN_FLAGS,
          VLSYNC_SIGNATURE_SAMPLE_TYPE_NAME, VLSYNC_OFFSET_ESTIMATE_TYPE_NAME, VLSYNC_STATUS_TYPE_NAME);
   printf("%d %d %d %d %d %d %d %d\n", VLSYNC_STATE_ACQUIRING, VLSYNC_STATE_TRACKING,
          VLSYNC_STATE_HOLDING, VLSYNC_STATE_LOST, VLSYNC_STATE_NONE, VLSYNC_POLARITY_UNKNOWN,
@@ -66,7 +67,7 @@ int main(void) {
         offset_of!(Status, degraded),
     );
     expect += &format!(
-        "{FLAG_FIRST} {KNOWN_FLAGS} {SIGNATURE_SAMPLE_TYPE_NAME} {OFFSET_ESTIMATE_TYPE_NAME} \
+        "{FLAG_FIRST} {FLAG_SIMULATED} {KNOWN_FLAGS} {SIGNATURE_SAMPLE_TYPE_NAME} {OFFSET_ESTIMATE_TYPE_NAME} \
          {STATUS_TYPE_NAME}\n"
     );
     let states = [

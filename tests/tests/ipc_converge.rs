@@ -92,6 +92,13 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let tail = &errs[errs.len() - 20..];
     let worst = tail.iter().cloned().fold(0.0, f64::max);
     assert!(worst < 0.015, "late errors up to {:.1} ms", worst * 1e3);
+    // the simulator's samples are flagged, and the daemon says its offset is not the
+    // robot's (once per stream: the flag does not change)
+    let log = rig.log("vlsyncd-0.log");
+    for stream in ["cam", "lidar"] {
+        let said = format!("{stream}: samples from a simulator (a driver's --sim or --render)");
+        assert_eq!(log.matches(&said).count(), 1, "{stream}:\n{log}");
+    }
     // every sample arrived, none lost or rejected
     assert_eq!(st.received, all);
     assert_eq!(st.lost, [0, 0]);

@@ -129,7 +129,7 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     // the first malformed sample's line says what was wrong with it (the second is
     // counted in the throttle's next line)
     assert!(
-        log.contains("rejected: malformed (unknown flag bits 0x80000000 (known: 0x1))"),
+        log.contains("rejected: malformed (unknown flag bits 0x80000000 (known: 0x3))"),
         "{log}"
     );
     assert_eq!(st.rejected_total(1), 0, "{st:?}");

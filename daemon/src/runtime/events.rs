@@ -52,6 +52,21 @@ pub(super) fn log_event(
                 )
             }
         }
+        RtEvent::Simulated { stream, on } => {
+            let key = journal::simulated_key(stream_index(*stream), *on);
+            if let Some(n) = throttle.admit(key, 1, now) {
+                if *on {
+                    tracing::warn!(
+                        "{stream}: samples from a simulator (a driver's --sim or --render), not \
+                         a sensor: the offset this daemon publishes is not the robot's (point \
+                         the driver at the sensor: /etc/vlsync/{stream}.env on the Pi){}",
+                        more(n)
+                    )
+                } else {
+                    tracing::info!("{stream}: samples from a sensor again{}", more(n))
+                }
+            }
+        }
         RtEvent::Lost { stream, count } => {
             let key = journal::lost_key(stream_index(*stream));
             if let Some(n) = throttle.admit(key, *count, now) {

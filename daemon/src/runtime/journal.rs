@@ -25,7 +25,7 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// publishers first read mid-run per stream (information), and the silences longer
 /// than `estimator.max_gap_s` per stream (a warning: a sensor slower than the limit
 /// makes every interval one, and nothing is ever estimated).
-pub const KINDS: usize = 2 * REJECT_REASONS + 20;
+pub const KINDS: usize = 2 * REJECT_REASONS + 24;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -76,6 +76,12 @@ pub fn joined_key(si: usize) -> usize {
 /// (`RtEvent::Silence`).
 pub fn silence_key(si: usize) -> usize {
     DEGRADED_KEY + 16 + si.min(1)
+}
+
+/// Throttle key of a change of stream `si` to simulated samples (`on`) or back to a
+/// sensor's (`RtEvent::Simulated`).
+pub fn simulated_key(si: usize, on: bool) -> usize {
+    DEGRADED_KEY + 18 + si.min(1) + if on { 0 } else { 2 }
 }
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
@@ -154,7 +160,9 @@ pub fn is_info(key: usize) -> bool {
             key,
             SEARCH_MOVE_KEY | RT_ERROR_KEY | INVALID_ESTIMATE_KEY | PUBLISH_FAILED_KEY
         )
-        && key < silence_key(0)
+        // silences and switches to simulated samples are warnings; back to a sensor
+        // is information
+        && !(silence_key(0)..simulated_key(0, false)).contains(&key)
 }
 
 /// Throttle key of a rejected sample of stream `si` (0 cam, 1 LiDAR) for `reason`.
@@ -248,6 +256,16 @@ pub fn kind_text(key: usize) -> String {
         "estimates with an invalid field (not published)".to_string()
     } else if key == PUBLISH_FAILED_KEY {
         "estimates the offset service did not take".to_string()
+    } else if key >= simulated_key(0, false) {
+        format!(
+            "{} switches back to sensor samples",
+            stream((key - simulated_key(0, false)).min(1))
+        )
+    } else if key >= simulated_key(0, true) {
+        format!(
+            "{} switches to simulated samples",
+            stream((key - simulated_key(0, true)).min(1))
+        )
     } else if key >= silence_key(0) {
         format!(
             "{} silences longer than estimator.max_gap_s",
@@ -374,6 +392,8 @@ pub struct Summary {
     last: Option<Estimate>,
     status_then: Option<Status>,
     status_now: Option<Status>,
+    /// Per stream: its samples come from a simulator (`FLAG_SIMULATED`).
+    simulated: [bool; 2],
 }
 
 impl Summary {
@@ -388,7 +408,14 @@ impl Summary {
             last: None,
             status_then: None,
             status_now: None,
+            simulated: [false; 2],
         }
+    }
+
+    /// Stream `si`'s samples come from a simulator (`on`), or from a sensor again:
+    /// every summary line says so while any does.
+    pub fn on_simulated(&mut self, si: usize, on: bool) {
+        self.simulated[si.min(1)] = on;
     }
 
     /// Counts an estimate.
@@ -484,6 +511,17 @@ impl Summary {
                 now.budget_overruns.saturating_sub(then.budget_overruns)
             ));
         }
+        let sim: Vec<&str> = ["cam", "lidar"]
+            .iter()
+            .zip(self.simulated)
+            .filter_map(|(name, on)| on.then_some(*name))
+            .collect();
+        if !sim.is_empty() {
+            out.push_str(&format!(
+                "; SIMULATED samples ({}): not the robot's offset",
+                sim.join(", ")
+            ));
+        }
         out
     }
 }
@@ -546,7 +584,19 @@ mod tests {
         assert_eq!(state_key(EstimatorState::Lost), INVALID_ESTIMATE_KEY - 1);
         assert_eq!(PUBLISH_FAILED_KEY, joined_key(0) - 1);
         assert_eq!(joined_key(1), silence_key(0) - 1);
-        assert_eq!(silence_key(1), KINDS - 1);
+        assert_eq!(silence_key(1), simulated_key(0, true) - 1);
+        assert_eq!(simulated_key(1, true), simulated_key(0, false) - 1);
+        assert_eq!(simulated_key(1, false), KINDS - 1);
+        assert_eq!(
+            kind_text(simulated_key(1, true)),
+            "lidar switches to simulated samples"
+        );
+        assert_eq!(
+            kind_text(simulated_key(0, false)),
+            "cam switches back to sensor samples"
+        );
+        assert!(!is_info(simulated_key(0, true)) && !is_info(silence_key(1)));
+        assert!(is_info(simulated_key(1, false)));
         assert_eq!(
             kind_text(joined_key(0)),
             "cam publishers first read mid-run"

@@ -155,6 +155,42 @@ fn a_silence_longer_than_the_gap_limit_is_said() {
     assert_eq!(log.matches("without a sample").count(), 1, "{log}");
 }
 
+/// A stream whose samples carry `FLAG_SIMULATED` is said to be a simulator's (a
+/// warning) and in the summary line; once unflagged samples come, a sensor's again.
+#[test]
+fn simulated_samples_are_said() {
+    let d = Daemon::start("simulated", |cfg| cfg.daemon.summary_period_s = 1.0);
+    let node = create_node("live-test", false).unwrap();
+    let mut cam = SignaturePublisher::open(&node, &d.names, Stream::Cam).unwrap();
+    let mut status = StatusClient::open(&d.names.prefix).unwrap();
+    cam.set_simulated(true);
+    for k in 0..3i64 {
+        cam.publish(1_000_000_000 + k * 33_000_000, 0.5).unwrap();
+    }
+    d.status_when(&mut status, |st| st.received[0] == 3);
+    let wait_for = |text: &str| {
+        let t0 = Instant::now();
+        while !d.log().contains(text) {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "no {text:?} in 10 s:\n{}",
+                d.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    wait_for("cam: samples from a simulator (a driver's --sim or --render), not a sensor");
+    wait_for("; SIMULATED samples (cam): not the robot's offset");
+    cam.set_simulated(false);
+    for k in 3..6i64 {
+        cam.publish(1_000_000_000 + k * 33_000_000, 0.5).unwrap();
+    }
+    wait_for("cam: samples from a sensor again");
+    let log = d.stop();
+    assert_eq!(log.matches("samples from a simulator").count(), 1, "{log}");
+    assert!(!log.contains("lidar: samples from a simulator"), "{log}");
+}
+
 /// Publishes a simulated run's two streams in real time (each sample notified, as
 /// the drivers do) on a thread, until the run ends or the returned flag is set.
 fn drive(names: &ServiceNames, seed: u64) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {

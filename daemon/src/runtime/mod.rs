@@ -245,6 +245,14 @@ pub enum RtEvent {
         /// `estimator.max_gap_s`, ns.
         limit_ns: Nanos,
     },
+    /// A stream's samples started to come from a simulator (`FLAG_SIMULATED`), or
+    /// from a sensor again.
+    Simulated {
+        /// Stream.
+        stream: Stream,
+        /// Simulated now.
+        on: bool,
+    },
     /// Samples lost: a sequence gap.
     Lost {
         /// Stream.
@@ -681,6 +689,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                     match &ev {
                         RtEvent::OffsetStep(_) => summary.on_offset_step(),
                         RtEvent::SearchMoved(_) => summary.on_search_move(),
+                        RtEvent::Simulated { stream, on } => {
+                            summary.on_simulated(stream_index(*stream), *on)
+                        }
                         // the real-time thread's stretch ended: the period's summary,
                         // then its latency line (`log_event`), over the same stretch.
                         // The status it handed over just before may have come after

@@ -475,6 +475,8 @@ pub(super) fn rt_thread(
     let mut lidar_clock: Option<(Nanos, Nanos)> = None;
     // per stream: the estimator's gap count already said, the last accepted stamp
     let mut seen_gaps = [0u64; 2];
+    // per stream: its samples come from a simulator (FLAG_SIMULATED), said on change
+    let mut simulated = [false; 2];
     let mut last_t: [Option<Nanos>; 2] = [None; 2];
     let max_gap_ns = (s.cfg.estimator.max_gap_s * 1e9) as Nanos;
     let _ = ready.send(Ok(report));
@@ -595,6 +597,17 @@ pub(super) fn rt_thread(
             let t0 = monotonic_ns();
             if !admit(&mut c, &s.tx, stream, &w, pid) {
                 continue;
+            }
+            if w.is_simulated() != simulated[si] {
+                simulated[si] = w.is_simulated();
+                emit(
+                    &s.tx,
+                    &mut c,
+                    RtEvent::Simulated {
+                        stream,
+                        on: simulated[si],
+                    },
+                );
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
