@@ -175,13 +175,22 @@ pub fn lost_key(si: usize) -> usize {
     2 * REJECT_REASONS + si.min(1)
 }
 
-/// Rate limit per kind of warning.
+/// The longest period [`Throttle`] stretches a kind's to while its events go on, ns
+/// (10 minutes): a lasting fault logs some 150 lines a day per kind, not 8,600.
+pub const THROTTLE_MAX_NS: Nanos = 600_000_000_000;
+
+/// Rate limit per kind of warning. While a kind's events go on through whole periods
+/// (each line carries a count held back), its period doubles at each line, up to
+/// [`THROTTLE_MAX_NS`] (or its own period, if longer); a line that held nothing back
+/// (the events had stopped) starts it again from its own period.
 #[derive(Debug, Clone)]
 pub struct Throttle {
     period: [Nanos; KINDS],
     last: [Option<Nanos>; KINDS],
     /// Events (rejections: samples; losses: samples lost) suppressed since the last line.
     suppressed: [u64; KINDS],
+    /// Doublings of the kind's period: lines in a row that held events back.
+    stretch: [u32; KINDS],
 }
 
 impl Throttle {
@@ -191,7 +200,22 @@ impl Throttle {
             period: [period; KINDS],
             last: [None; KINDS],
             suppressed: [0; KINDS],
+            stretch: [0; KINDS],
         }
+    }
+
+    /// Kind `k`'s period now: its own, doubled per line in a row that held events back.
+    fn current(&self, k: usize) -> Nanos {
+        let base = self.period[k];
+        let cap = base.max(THROTTLE_MAX_NS);
+        base.saturating_mul(1i64 << self.stretch[k].min(30))
+            .min(cap)
+    }
+
+    /// A line of kind `k` goes out now with `held` events held back before it.
+    fn line(&mut self, k: usize, now: Nanos, held: u64) {
+        self.last[k] = Some(now);
+        self.stretch[k] = if held > 0 { self.stretch[k] + 1 } else { 0 };
     }
 
     /// The same with kind `key` let through once per `period` instead.
@@ -206,13 +230,14 @@ impl Throttle {
     pub fn admit(&mut self, key: usize, n: u64, now: Nanos) -> Option<u64> {
         let k = key.min(KINDS - 1);
         match self.last[k] {
-            Some(t) if now.saturating_sub(t) < self.period[k] => {
+            Some(t) if now.saturating_sub(t) < self.current(k) => {
                 self.suppressed[k] = self.suppressed[k].saturating_add(n);
                 None
             }
             _ => {
-                self.last[k] = Some(now);
-                Some(std::mem::take(&mut self.suppressed[k]))
+                let held = std::mem::take(&mut self.suppressed[k]);
+                self.line(k, now, held);
+                Some(held)
             }
         }
     }
@@ -221,10 +246,11 @@ impl Throttle {
     /// period, and starts its next period now.
     pub fn due(&mut self, now: Nanos, mut report: impl FnMut(usize, u64)) {
         for k in 0..KINDS {
-            let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.period[k]);
+            let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.current(k));
             if waited && self.suppressed[k] > 0 {
-                self.last[k] = Some(now);
-                report(k, std::mem::take(&mut self.suppressed[k]));
+                let held = std::mem::take(&mut self.suppressed[k]);
+                self.line(k, now, held);
+                report(k, held);
             }
         }
     }
@@ -534,6 +560,29 @@ mod tests {
 
     const S: Nanos = 1_000_000_000;
 
+    /// A fault that lasts a day (an event a second, the service thread's `due` every
+    /// second) logs some 150 lines, not 8,640, and every event is in a line's count.
+    #[test]
+    fn a_lasting_fault_stretches_the_period_to_ten_minutes() {
+        let mut t = Throttle::new(10 * S);
+        let k = lost_key(1);
+        let (mut lines, mut counted) = (0u64, 0u64);
+        for i in 0..86_400i64 {
+            if let Some(held) = t.admit(k, 1, i * S) {
+                lines += 1;
+                counted += held + 1;
+            }
+            t.due(i * S, |_, held| {
+                lines += 1;
+                counted += held;
+            });
+        }
+        t.due(i64::MAX, |_, held| counted += held);
+        assert_eq!(counted, 86_400);
+        assert!((140..=160).contains(&lines), "{lines} lines");
+        assert_eq!(t.current(k), THROTTLE_MAX_NS);
+    }
+
     #[test]
     fn first_event_is_logged_then_one_line_per_period_with_the_count() {
         let mut t = Throttle::new(10 * S);
@@ -549,9 +598,15 @@ mod tests {
         assert!(seen.is_empty());
         t.due(10 * S, |k, n| seen.push((k, n)));
         assert_eq!(seen, vec![(k, 30)]);
-        // reported: the next event waits for the next period, and counts from zero
+        // reported: the next event waits for the next period, now twice as long (the
+        // events went on through the last one), and counts from zero
         assert_eq!(t.admit(k, 1, 11 * S), None);
-        assert_eq!(t.admit(k, 1, 20 * S), Some(1));
+        assert_eq!(t.admit(k, 1, 20 * S), None);
+        assert_eq!(t.admit(k, 1, 30 * S), Some(2));
+        // a quiet period (nothing held back by its line) starts again from 10 s
+        assert_eq!(t.admit(k, 1, 70 * S), Some(0));
+        assert_eq!(t.admit(k, 1, 80 * S), Some(0));
+        assert_eq!(t.admit(k, 1, 85 * S), None);
         assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
         assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
         assert!(kind_text(DEGRADED_KEY).contains("degraded"));
