@@ -8,8 +8,10 @@
 #   the C/C++ client library libvlsync_client.so to /usr/local/lib (then ldconfig),
 #   its headers to /usr/local/include and its pkg-config file vlsync_client.pc to
 #   /usr/local/lib/pkgconfig, when it was built (cargo build --release
-#   builds it; --bins alone does not); then daemon-reload. It does not enable or
-#   start anything.
+#   builds it; --bins alone does not); then daemon-reload. It first checks the
+#   configuration in place with the vlsyncd it installs (an error stops it before any
+#   change). It does not enable or start anything; vlsync units already running are
+#   restarted on the new binaries (try-restart).
 #
 #   sudo deploy/install.sh [--bin-dir DIR] [--dry-run]
 #
@@ -108,6 +110,19 @@ install_config() {
 
 [ "$dry_run" -eq 1 ] && echo "dry run: nothing is changed"
 
+# the configuration in place (kept from an earlier install, or the shipped one), checked
+# by the daemon about to be installed, before anything changes: a key it no longer takes
+# would stop it at its next restart for good (exit 78), weeks later
+in_place="$etc_dir/vlsync.toml"
+[ -e "$in_place" ] || in_place="$here/vlsync.toml"
+if ! "$bin_dir/vlsyncd" --version >/dev/null 2>&1; then
+    echo "note: $bin_dir/vlsyncd does not run here (built for another machine?): $in_place is not checked; run \`vlsyncd check --config $etc_dir/vlsync.toml\` on the robot"
+elif ! "$bin_dir/vlsyncd" check --config "$in_place"; then
+    echo "error: $in_place does not pass this vlsyncd's check (above): fix it (compare the shipped deploy/vlsync.toml) and run this again; nothing was changed" >&2
+    exit 1
+fi
+
+
 # user and group shared by the daemon, the drivers and every client
 # (iceoryx2 creates its files mode 0600)
 if getent group vlsync >/dev/null; then
@@ -141,16 +156,6 @@ if [ -e "$etc_dir/vlsync.toml" ] && grep -Eq '^[[:space:]]*state_file[[:space:]]
 fi
 install_config "$here/cam.env" "$etc_dir/cam.env"
 install_config "$here/lidar.env" "$etc_dir/lidar.env"
-# the configuration in place (kept from an earlier install, or the shipped one), checked
-# by the daemon being installed: a key it no longer takes would stop it at its next
-# restart for good (exit 78), weeks later
-# (a dry run before the first install: the shipped one)
-in_place="$etc_dir/vlsync.toml"
-[ -e "$in_place" ] || in_place="$here/vlsync.toml"
-if ! "$bin_dir/vlsyncd" check --config "$in_place"; then
-    echo "error: $in_place does not pass this vlsyncd's check (above): fix it (the shipped version is $etc_dir/vlsync.toml.new when it was kept) and run this again" >&2
-    exit 1
-fi
 
 for f in "${units[@]}"; do
     run install -m 0644 "$here/systemd/$f" "$unit_dir/$f"
@@ -193,9 +198,12 @@ else
     echo "systemd is not running here: skipped systemd-tmpfiles and daemon-reload"
 fi
 
-# units already running keep the binaries they started with until they restart
-if [ -d /run/systemd/system ] && systemctl is-active --quiet vlsync.target 2>/dev/null; then
-    echo "warning: vlsync.target is running the previous binaries: sudo systemctl restart vlsync.target" >&2
+# units already running keep the binaries they started with until they restart, and a
+# running daemon and the new drivers may not speak the same wire (a flag it does not
+# know is a malformed sample to it): the running ones are restarted
+if [ -d /run/systemd/system ] && systemctl is-active --quiet vlsyncd.service vlsync-cam.service vlsync-lidar.service 2>/dev/null; then
+    echo "restarting the running vlsync units on the new binaries"
+    run systemctl try-restart vlsyncd.service vlsync-cam.service vlsync-lidar.service
 fi
 cat <<EOF
 done. Next:

@@ -330,10 +330,11 @@ unsafe fn open_handle<T: 'static>(
 }
 
 /// Closes a handle (NULL: nothing to do). Returns 0, or -1 when called on another
-/// thread than the one that opened it: the handle is then left open.
+/// thread than the one that opened it (the handle is then left open) or for a handle
+/// that is not open (closed already: no double free).
 ///
 /// # Safety
-/// `c` is NULL or a handle from [`vlsync_client_open`] not closed before.
+/// None beyond the C header's: the handle is looked up among the open ones before use.
 #[allow(unsafe_code)]
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
@@ -342,23 +343,24 @@ pub unsafe extern "C" fn vlsync_client_close(c: *mut VlsyncClient) -> c_int {
 }
 
 /// Closes handle `c` on its own thread: 0 (NULL: nothing to do), or -1 on another
-/// thread, the handle left open.
+/// thread (the handle left open) or for a handle not open.
 ///
 /// # Safety
-/// `c` is NULL or a handle from `open_handle` not closed before.
+/// None beyond the C header's: `c` is looked up in [`LIVE`] before it is freed.
 #[allow(unsafe_code)]
 unsafe fn close_handle<T: 'static>(c: *mut Handle<T>, what: &str) -> c_int {
     if c.is_null() {
         return 0;
     }
-    {
+    // out of LIVE first (a panic in the lookup is caught: no unwinding into C)
+    let found = guarded(what, || {
         let mut live = live();
-        match find_live(&live, c, what) {
-            Ok(i) => {
-                live.swap_remove(i);
-            }
-            Err(_) => return -1,
-        }
+        let i = find_live(&live, c, what)?;
+        live.swap_remove(i);
+        Ok(())
+    });
+    if found.is_err() {
+        return -1;
     }
     // SAFETY: `c` was in LIVE, so it came from `Box::into_raw` in `open_handle` and was
     // not freed since; it is out of LIVE now, so no later call reaches it; on its own
@@ -788,10 +790,11 @@ pub unsafe extern "C" fn vlsync_status_open(
 }
 
 /// Closes a status handle (NULL: nothing to do). Returns 0, or -1 when called on
-/// another thread than the one that opened it: the handle is then left open.
+/// another thread than the one that opened it (the handle is then left open) or for a
+/// handle that is not open (closed already: no double free).
 ///
 /// # Safety
-/// `c` is NULL or a handle from [`vlsync_status_open`] not closed before.
+/// None beyond the C header's: the handle is looked up among the open ones before use.
 #[allow(unsafe_code)]
 #[no_mangle]
 pub unsafe extern "C" fn vlsync_status_close(c: *mut VlsyncStatusClient) -> c_int {

@@ -89,16 +89,7 @@ pub fn work_note(e: &vlsync_config::EstimatorConfig) -> Option<String> {
     if ra.max(rl) <= WORK_NOTE_RATIO {
         return None;
     }
-    let x = |r: f64| {
-        if r < 100.0 {
-            format!("{r:.0}")
-        } else {
-            vlsync_common::text::number(
-                (r / 10f64.powf(r.log10().floor() - 1.0)).round()
-                    * 10f64.powf(r.log10().floor() - 1.0),
-            )
-        }
-    };
+    let x = ratio_text;
     Some(format!(
         "note: estimator: about {}x the shipped defaults' work per second of data while \
          locked, {}x while searching (the defaults: some 20 ms of estimator time per 120 s \
@@ -108,6 +99,19 @@ pub fn work_note(e: &vlsync_config::EstimatorConfig) -> Option<String> {
         x(rl),
         x(ra)
     ))
+}
+
+/// A work ratio as [`work_note`] prints it: a fraction below 1 with one decimal, whole
+/// below 100, two significant digits above.
+fn ratio_text(r: f64) -> String {
+    if r < 1.0 {
+        format!("{r:.1}")
+    } else if r < 100.0 {
+        format!("{r:.0}")
+    } else {
+        let unit = 10f64.powf(r.log10().floor() - 1.0);
+        vlsync_common::text::number((r / unit).round() * unit)
+    }
 }
 
 /// A note when `daemon.core` names a core this machine does not have online (not an
@@ -193,6 +197,10 @@ mod tests {
             n.starts_with("note: estimator: about 6000x the shipped defaults' work per second of data while locked, 2800x while searching"),
             "{n}"
         );
+        // less work in one state than the defaults: a fraction, not "0x"
+        assert_eq!(super::ratio_text(0.23), "0.2");
+        assert_eq!(super::ratio_text(39.4), "39");
+        assert_eq!(super::ratio_text(6123.0), "6100");
         let (acq, lock) = super::estimator_work(&heavy);
         let (acq0, lock0) = super::estimator_work(&d);
         assert!(lock / lock0 > 1000.0 && acq / acq0 > 1000.0);

@@ -42,8 +42,9 @@ pub(super) fn log_event(
             let key = journal::silence_key(stream_index(*stream));
             if let Some(n) = throttle.admit(key, 1, now) {
                 tracing::warn!(
-                    "{stream}: {} s without a sample, longer than estimator.max_gap_s = {} s: \
-                     the correlation breaks there (a driver restarted, a sensor stalled; when \
+                    "{stream}: {} s without a sample (or its stamps jumped), longer than \
+                     estimator.max_gap_s = {} s: the correlation breaks there (a driver \
+                     restarted, a sensor stalled; said as the stream resumes; when \
                      every interval is this long, the sensor is slower than max_gap_s allows \
                      and nothing is ever estimated){}",
                     format!("{:.3}", *after_ns as f64 * 1e-9),

@@ -181,8 +181,8 @@ pub const THROTTLE_MAX_NS: Nanos = 600_000_000_000;
 
 /// Rate limit per kind of warning. While a kind's events go on through whole periods
 /// (each line carries a count held back), its period doubles at each line, up to
-/// [`THROTTLE_MAX_NS`] (or its own period, if longer); a line that held nothing back
-/// (the events had stopped) starts it again from its own period.
+/// [`THROTTLE_MAX_NS`] (or its own period, if longer); a whole period without one (seen
+/// by [`Throttle::due`], or a line that held nothing back) starts it again from its own.
 #[derive(Debug, Clone)]
 pub struct Throttle {
     period: [Nanos; KINDS],
@@ -215,7 +215,11 @@ impl Throttle {
     /// A line of kind `k` goes out now with `held` events held back before it.
     fn line(&mut self, k: usize, now: Nanos, held: u64) {
         self.last[k] = Some(now);
-        self.stretch[k] = if held > 0 { self.stretch[k] + 1 } else { 0 };
+        self.stretch[k] = if held > 0 {
+            self.stretch[k].saturating_add(1)
+        } else {
+            0
+        };
     }
 
     /// The same with kind `key` let through once per `period` instead.
@@ -251,6 +255,10 @@ impl Throttle {
                 let held = std::mem::take(&mut self.suppressed[k]);
                 self.line(k, now, held);
                 report(k, held);
+            } else if waited {
+                // a whole period without one: the fault is over, the next one is said
+                // at once and then every period from the kind's own again
+                self.stretch[k] = 0;
             }
         }
     }
@@ -607,6 +615,15 @@ mod tests {
         assert_eq!(t.admit(k, 1, 70 * S), Some(0));
         assert_eq!(t.admit(k, 1, 80 * S), Some(0));
         assert_eq!(t.admit(k, 1, 85 * S), None);
+        // stretched again (the 85 s event said at 90 s: 20 s now), then a whole such
+        // period without an event, seen by `due`: back to 10 s
+        let mut said = vec![];
+        t.due(90 * S, |_, n| said.push(n));
+        assert_eq!(said, vec![1]);
+        assert_eq!(t.current(k), 20 * S);
+        t.due(111 * S, |_, _| {});
+        assert_eq!(t.current(k), 10 * S);
+        assert_eq!(t.admit(k, 1, 112 * S), Some(0));
         assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
         assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
         assert!(kind_text(DEGRADED_KEY).contains("degraded"));

@@ -791,8 +791,8 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     if !summary_at_stop {
         tracing::info!("at stop, {}", summary.close(monotonic_ns()));
     }
-    // a real-time thread that panicked must not look like a clean stop: the exit
-    // code is what makes systemd restart the daemon (`Restart=on-failure`)
+    // a real-time thread that panicked must not look like a clean stop: its exit code
+    // says the failure (`systemctl status`, `NRestarts`; the unit restarts any exit)
     let rt_end = rt_outcome(rt.join());
     // every warning still held back (the channel was drained: the loop ends on disconnect),
     // iceoryx2's held messages and the offset clients' failures within the last minute

@@ -84,9 +84,17 @@ impl RtCounters {
 }
 
 pub(super) fn emit(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) {
+    emit_sent(tx, c, ev);
+}
+
+/// [`emit`], saying whether the event went out (false: dropped and counted).
+pub(super) fn emit_sent(tx: &Sender<RtEvent>, c: &mut RtCounters, ev: RtEvent) -> bool {
     match tx.try_send(ev) {
-        Ok(()) => {}
-        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => c.events_dropped += 1,
+        Ok(()) => true,
+        Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+            c.events_dropped += 1;
+            false
+        }
     }
 }
 
@@ -302,7 +310,8 @@ pub(super) fn admit(
 
 /// Failed waits on the signature event in a row after which the real-time thread
 /// gives up (about 5 s of them, each followed by a [`WAKE_PERIOD`] sleep): the daemon
-/// then stops with an error, which makes systemd restart it (`Restart=on-failure`),
+/// then stops with an error, which makes systemd restart it (`Restart=always`; its
+/// non-zero exit also marks the stop as a failure in `systemctl status`),
 /// rather than read its streams by polling for good.
 pub const MAX_WAIT_FAILURES: u32 = 50;
 
@@ -598,16 +607,19 @@ pub(super) fn rt_thread(
             if !admit(&mut c, &s.tx, stream, &w, pid) {
                 continue;
             }
-            if w.is_simulated() != simulated[si] {
-                simulated[si] = w.is_simulated();
-                emit(
+            // the state changes only with an event that reached the service thread (a
+            // full channel drops it: the next sample tries again)
+            if w.is_simulated() != simulated[si]
+                && emit_sent(
                     &s.tx,
                     &mut c,
                     RtEvent::Simulated {
                         stream,
-                        on: simulated[si],
+                        on: w.is_simulated(),
                     },
-                );
+                )
+            {
+                simulated[si] = w.is_simulated();
             }
             let clock_reading =
                 (stream == Stream::Lidar && w.publish_ns > 0).then_some((w.t_ns, w.publish_ns));
@@ -615,18 +627,23 @@ pub(super) fn rt_thread(
             // a silence longer than estimator.max_gap_s broke the window here: said
             // (throttled), or a stream whose every interval is one would leave the
             // daemon silent with a clean log
+            // (said when the stream resumes; a gap the estimator counts for a stamp
+            // that did not advance after its cadence correction is no silence)
             let gaps = est.stats().gaps[si];
             if gaps > seen_gaps[si] {
                 seen_gaps[si] = gaps;
-                emit(
-                    &s.tx,
-                    &mut c,
-                    RtEvent::Silence {
-                        stream,
-                        after_ns: last_t[si].map_or(0, |t| w.t_ns.saturating_sub(t)),
-                        limit_ns: max_gap_ns,
-                    },
-                );
+                let after_ns = last_t[si].map_or(0, |t| w.t_ns.saturating_sub(t));
+                if after_ns > max_gap_ns {
+                    emit(
+                        &s.tx,
+                        &mut c,
+                        RtEvent::Silence {
+                            stream,
+                            after_ns,
+                            limit_ns: max_gap_ns,
+                        },
+                    );
+                }
             }
             if pushed.is_ok() {
                 last_t[si] = Some(w.t_ns);
