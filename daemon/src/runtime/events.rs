@@ -246,15 +246,22 @@ mod tests {
         }
     }
 
-    #[test]
-    fn estimates_not_published_are_logged_once_per_period_with_the_count() {
+    /// What `f` logs, as text.
+    fn logged(f: impl FnOnce()) -> String {
         let buf = Buf::default();
         let w = buf.clone();
         let sub = tracing_subscriber::fmt()
             .with_writer(move || w.clone())
             .with_ansi(false)
             .finish();
-        tracing::subscriber::with_default(sub, || {
+        tracing::subscriber::with_default(sub, f);
+        let bytes = buf.0.lock().expect("log buffer").clone();
+        String::from_utf8(bytes).expect("utf-8")
+    }
+
+    #[test]
+    fn estimates_not_published_are_logged_once_per_period_with_the_count() {
+        let text = logged(|| {
             let mut t = journal::Throttle::new(10_000_000_000);
             // a lasting fault: both kinds at every hop (0.5 s) for 20 s
             for seq in 0..40u64 {
@@ -263,7 +270,6 @@ mod tests {
                 log_event(&RtEvent::InvalidEstimate { seq }, &mut t, now, 200.0);
             }
         });
-        let text = String::from_utf8(buf.0.lock().expect("log buffer").clone()).expect("utf-8");
         assert_eq!(text.matches("could not be published").count(), 2, "{text}");
         assert_eq!(text.matches("has an invalid field").count(), 2, "{text}");
         assert!(
@@ -285,13 +291,7 @@ mod tests {
     /// durations, once per period with the count, as a warning, per stream.
     #[test]
     fn silences_are_said_once_per_period_with_the_limit() {
-        let buf = Buf::default();
-        let w = buf.clone();
-        let sub = tracing_subscriber::fmt()
-            .with_writer(move || w.clone())
-            .with_ansi(false)
-            .finish();
-        tracing::subscriber::with_default(sub, || {
+        let text = logged(|| {
             let mut t = journal::Throttle::new(10_000_000_000);
             for k in 0..40i64 {
                 let ev = RtEvent::Silence {
@@ -302,7 +302,6 @@ mod tests {
                 log_event(&ev, &mut t, k * 500_000_000, 200.0);
             }
         });
-        let text = String::from_utf8(buf.0.lock().expect("log buffer").clone()).expect("utf-8");
         assert_eq!(
             text.matches("lidar: 0.500 s without a sample").count(),
             2,

@@ -70,6 +70,19 @@ impl Daemon {
         String::from_utf8_lossy(&self.log.lock().unwrap()).into_owned()
     }
 
+    /// Waits up to 10 s for `text` in the daemon's log.
+    fn wait_for_log(&self, text: &str) {
+        let t0 = Instant::now();
+        while !self.log().contains(text) {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "no {text:?} in 10 s:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Stops the daemon and returns its log (panics when it ended with an error).
     fn stop(mut self) -> String {
         self.stop.store(true, Ordering::Relaxed);
@@ -141,16 +154,9 @@ fn a_silence_longer_than_the_gap_limit_is_said() {
         lidar.publish(t_ms * 1_000_000, 0.5).unwrap();
     }
     d.status_when(&mut status, |st| st.received[1] == 5);
-    let t0 = Instant::now();
-    let said = "lidar: 1.400 s without a sample (or its stamps jumped), longer than estimator.max_gap_s = 0.75 s";
-    while !d.log().contains(said) {
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "not said in 10 s:\n{}",
-            d.log()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    d.wait_for_log(
+        "lidar: 1.400 s without a sample (or its stamps jumped), longer than estimator.max_gap_s = 0.75 s",
+    );
     let log = d.stop();
     assert_eq!(log.matches("without a sample").count(), 1, "{log}");
 }
@@ -168,24 +174,13 @@ fn simulated_samples_are_said() {
         cam.publish(1_000_000_000 + k * 33_000_000, 0.5).unwrap();
     }
     d.status_when(&mut status, |st| st.received[0] == 3);
-    let wait_for = |text: &str| {
-        let t0 = Instant::now();
-        while !d.log().contains(text) {
-            assert!(
-                t0.elapsed() < Duration::from_secs(10),
-                "no {text:?} in 10 s:\n{}",
-                d.log()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    };
-    wait_for("cam: samples from a simulator (a driver's --sim or --render), not a sensor");
-    wait_for("; SIMULATED samples (cam): not the robot's offset");
+    d.wait_for_log("cam: samples from a simulator (a driver's --sim or --render), not a sensor");
+    d.wait_for_log("; SIMULATED samples (cam): not the robot's offset");
     cam.set_simulated(false);
     for k in 3..6i64 {
         cam.publish(1_000_000_000 + k * 33_000_000, 0.5).unwrap();
     }
-    wait_for("cam: samples from a sensor again");
+    d.wait_for_log("cam: samples from a sensor again");
     let log = d.stop();
     assert_eq!(log.matches("samples from a simulator").count(), 1, "{log}");
     assert!(!log.contains("lidar: samples from a simulator"), "{log}");
