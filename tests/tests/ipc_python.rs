@@ -195,6 +195,32 @@ fn wait_for_quiet_notice(py: &mut Managed, log: &Path) -> String {
 /// them with iceoryx2's defaults, which a daemon started later adopts: no estimate
 /// kept for late subscribers, every client's buffer cut to 2). The daemon and the
 /// drivers then start and it receives their estimates.
+/// Starts the Python subscriber on the prefix `vlsync-it/<tag>-<pid>` for `count`
+/// estimates (60 s at most), with `extra` arguments, its output in a log file of its
+/// own: the process, the prefix and the log's path.
+fn spawn_subscriber(
+    script: &Path,
+    tag: &str,
+    count: u32,
+    extra: &[&str],
+) -> (Managed, String, std::path::PathBuf) {
+    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
+    let log = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}.log", std::process::id()));
+    let mut args = vec![
+        script.display().to_string(),
+        "--prefix".into(),
+        prefix.clone(),
+        "--count".into(),
+        count.to_string(),
+        "--timeout".into(),
+        "60".into(),
+    ];
+    args.extend(extra.iter().map(|a| a.to_string()));
+    let py = Managed::spawn("python subscriber", Path::new(&python()), &args, Some(&log))
+        .expect("spawn the Python subscriber");
+    (py, prefix, log)
+}
+
 #[test]
 fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
     let Some(script) = subscriber_or_skip(
@@ -204,24 +230,7 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
     };
     let tag = "python-first";
     // the prefix Rig::new will choose, needed before the rig's schedule starts
-    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
-    let log = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}.log", std::process::id()));
-    let mut py = Managed::spawn(
-        "python subscriber",
-        Path::new(&python()),
-        &[
-            script.display().to_string(),
-            "--prefix".into(),
-            prefix.clone(),
-            "--count".into(),
-            "3".into(),
-            "--timeout".into(),
-            "60".into(),
-            "--json".into(),
-        ],
-        Some(&log),
-    )
-    .expect("spawn the Python subscriber");
+    let (mut py, prefix, log) = spawn_subscriber(&script, tag, 3, &["--json"]);
     let notice = wait_for_quiet_notice(&mut py, &log);
     assert!(notice.contains(&format!("`{prefix}/offset`")), "{notice}");
     {
@@ -329,24 +338,7 @@ fn python_subscriber_skips_invalid_estimates_without_flooding_stderr() {
         return;
     };
     use vlsync_ipc::{notifier, open_or_create_event, open_or_create_pubsub, publisher};
-    let tag = "python-invalid";
-    let prefix = format!("vlsync-it/{tag}-{}", std::process::id());
-    let log = std::env::temp_dir().join(format!("vlsync-it-{tag}-{}.log", std::process::id()));
-    let mut py = Managed::spawn(
-        "python subscriber",
-        Path::new(&python()),
-        &[
-            script.display().to_string(),
-            "--prefix".into(),
-            prefix.clone(),
-            "--count".into(),
-            "1".into(),
-            "--timeout".into(),
-            "60".into(),
-        ],
-        Some(&log),
-    )
-    .expect("spawn the Python subscriber");
+    let (mut py, prefix, log) = spawn_subscriber(&script, "python-invalid", 1, &[]);
     // in its wait loop, subscribed
     wait_for_quiet_notice(&mut py, &log);
     let node = create_node("python-invalid-publisher", false).unwrap();
