@@ -603,10 +603,7 @@ mod tests {
         // run would write over in --out, before anything starts (a refusal of its own
         // that comes after the check, and before the workspace's binaries are looked
         // for, which a unit test's build may not have made)
-        let dir = std::env::temp_dir().join(format!("vlsync-loadtest-cpu-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let cfg = dir.join("vlsyncd.toml");
-        std::fs::write(&cfg, "[daemon]\n").unwrap();
+        let (dir, cfg) = config_in("cpu", "vlsyncd.toml", "[daemon]\n");
         let (o, c) = (dir.display().to_string(), cfg.display().to_string());
         let e = run(&parse(&[
             "--render-fps",
@@ -628,14 +625,22 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// A directory of this test process (`vlsync-loadtest-<tag>-<pid>`) holding the
+    /// configuration file `name` with `text`: the directory and the file.
+    fn config_in(tag: &str, name: &str, text: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+        let dir =
+            std::env::temp_dir().join(format!("vlsync-loadtest-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = dir.join(name);
+        std::fs::write(&cfg, text).unwrap();
+        (dir, cfg)
+    }
+
     /// A `--config` whose `estimator.max_gap_s` a slow rendered sensor's samples would
     /// break is refused before anything is written.
     #[test]
     fn rates_the_configured_estimator_cannot_use_are_refused() {
-        let dir = std::env::temp_dir().join(format!("vlsync-loadtest-gap-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let cfg = dir.join("gap.toml");
-        std::fs::write(&cfg, "[estimator]\nmax_gap_s = 0.3\n").unwrap();
+        let (dir, cfg) = config_in("gap", "gap.toml", "[estimator]\nmax_gap_s = 0.3\n");
         let out = dir.join("out");
         let (o, c) = (out.display().to_string(), cfg.display().to_string());
         let a = Args::try_parse_from([
@@ -664,11 +669,8 @@ mod tests {
     /// generated one; it is refused before anything is written.
     #[test]
     fn a_config_the_run_would_overwrite_is_refused() {
-        let out = std::env::temp_dir().join(format!("vlsync-loadtest-same-{}", std::process::id()));
-        std::fs::create_dir_all(&out).unwrap();
-        let cfg = out.join("vlsyncd.toml");
         let text = "# mine\n[daemon]\nlatency_budget_us = 300.0\n";
-        std::fs::write(&cfg, text).unwrap();
+        let (out, cfg) = config_in("same", "vlsyncd.toml", text);
         let (o, c) = (out.display().to_string(), cfg.display().to_string());
         let a = Args::try_parse_from([
             "vlsync-loadtest",
