@@ -168,3 +168,62 @@ fn errors_are_clear() {
     assert!(help.contains("0 to 1000"), "{help}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_recording_in_the_out_directory_is_not_overwritten() {
+    let dir = tmp("recording");
+    std::fs::create_dir_all(&dir).unwrap();
+    // what `vlsyncd record` leaves: stamps with their publish times, no truth
+    let recorded = "t,value,publish\n1.0,0.5,1.001\n";
+    std::fs::write(dir.join("cam.csv"), recorded).unwrap();
+    std::fs::write(dir.join("lidar.csv"), recorded).unwrap();
+    std::fs::write(dir.join("est.csv"), "t,offset\n").unwrap();
+    let run = |force: bool| {
+        let mut c = bin();
+        c.args(["--family", "robot", "--duration", "10", "--out"])
+            .arg(&dir);
+        if force {
+            c.arg("--force");
+        }
+        c.output().unwrap()
+    };
+    let out = run(false);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("{} exists", dir.join("cam.csv").display()))
+            && err.contains("`t,value,publish`")
+            && err.contains("--force"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("cam.csv")).unwrap(),
+        recorded
+    );
+    assert!(!dir.join("truth.csv").exists());
+
+    // a user's own streams with the sim's header but no truth beside them
+    std::fs::write(dir.join("cam.csv"), "t,value\n1.0,0.5\n").unwrap();
+    std::fs::write(dir.join("lidar.csv"), "t,value\n1.0,0.5\n").unwrap();
+    let out = run(false);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("no truth.csv beside it"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(dir.join("lidar.csv")).unwrap(),
+        "t,value\n1.0,0.5\n"
+    );
+
+    // --force writes the run
+    let out = run(true);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (cam, _) = io::read_signature_csv(dir.join("cam.csv")).unwrap();
+    assert_eq!(cam, generate(Family::Robot, 0, Some(10.0)).cam);
+    // and the run it wrote is replaced again without --force
+    assert!(run(false).status.success());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -27,9 +27,14 @@ struct Args {
     /// jitter, drops and gaps unchanged). Useful to tell estimator bias from noise.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     noise_scale: f64,
-    /// Output directory (created if missing).
+    /// Output directory (created if missing). An earlier vlsync-sim run there is
+    /// replaced; any other cam.csv, lidar.csv or truth.csv (a recording) is refused.
     #[arg(long, required_unless_present = "list")]
     out: Option<PathBuf>,
+    /// Overwrite cam.csv, lidar.csv and truth.csv in --out even when they are not
+    /// an earlier vlsync-sim run.
+    #[arg(long)]
+    force: bool,
 }
 
 fn main() -> ExitCode {
@@ -41,6 +46,72 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The header vlsync-sim writes in each of its files.
+const OWN_FILES: [(&str, &str); 3] = [
+    ("cam.csv", "t,value"),
+    ("lidar.csv", "t,value"),
+    ("truth.csv", "t,offset"),
+];
+
+/// Refuses a directory whose cam.csv, lidar.csv or truth.csv is not an earlier
+/// vlsync-sim run: a `vlsyncd record` recording (its files carry a `publish` column
+/// and no truth), or a user's own streams without the truth beside them. A run of
+/// this tool is replaced: every one of its files present has the header it writes,
+/// and the truth is there.
+fn refuse_foreign_files(out: &std::path::Path) -> Result<(), String> {
+    let present: Vec<_> = OWN_FILES
+        .iter()
+        .filter(|(name, _)| out.join(name).symlink_metadata().is_ok())
+        .collect();
+    if present.is_empty() {
+        return Ok(());
+    }
+    let refuse = |name: &str, why: String| {
+        Err(format!(
+            "{} exists and {why}: refusing to overwrite it (--force overwrites it)",
+            out.join(name).display()
+        ))
+    };
+    for (name, header) in &present {
+        match first_line(&out.join(name)) {
+            Some(line) if line == *header => {}
+            Some(line) => {
+                let shown: String = line.chars().take(60).collect();
+                return refuse(
+                    name,
+                    format!("is not a vlsync-sim file (its header `{shown}`, not `{header}`)"),
+                );
+            }
+            None => return refuse(name, "is not a vlsync-sim file (no header line)".into()),
+        }
+    }
+    if !present.iter().any(|(name, _)| *name == "truth.csv") {
+        return refuse(
+            present[0].0,
+            "has no truth.csv beside it: not a vlsync-sim run".into(),
+        );
+    }
+    Ok(())
+}
+
+/// The first line of a regular file, without its line end (at most 4 KiB read).
+fn first_line(path: &std::path::Path) -> Option<String> {
+    use std::io::Read;
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
+    let mut buf = Vec::with_capacity(4096);
+    std::fs::File::open(path)
+        .ok()?
+        .take(4096)
+        .read_to_end(&mut buf)
+        .ok()?;
+    let end = buf.iter().position(|&b| b == b'\n')?;
+    let line = String::from_utf8_lossy(&buf[..end]);
+    let line = line.trim_end_matches('\r');
+    Some(line.trim_start_matches('\u{feff}').to_string())
 }
 
 fn run(args: &Args) -> Result<(), String> {
@@ -69,6 +140,9 @@ fn run(args: &Args) -> Result<(), String> {
         ("lidar.csv", io::signature_csv_string(&run.lidar)),
         ("truth.csv", io::truth_csv_string(&run.truth, 10_000_000)),
     ];
+    if !args.force {
+        refuse_foreign_files(out)?;
+    }
     for (name, _) in &files {
         vlsync_common::file::check_writable("--out", &out.join(name))?;
     }
