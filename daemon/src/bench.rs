@@ -367,6 +367,16 @@ pub fn run_cli(args: &BenchArgs) -> Result<(), String> {
     }
     // a --json that cannot be written is found now, not after the whole run
     if let Some(p) = &args.json {
+        if args
+            .config
+            .as_ref()
+            .is_some_and(|c| vlsync_common::file::same_file(p, c))
+        {
+            return Err(format!(
+                "--json {} is the same file as --config: refusing to overwrite it",
+                p.display()
+            ));
+        }
         vlsync_common::file::check_writable("--json", p)?;
     }
     // the last seed must exist: a wrapped range would run nothing

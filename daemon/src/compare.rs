@@ -44,8 +44,18 @@ pub fn parse_estimates_csv(bytes: &[u8], source: &str) -> Result<Vec<Estimate>, 
         line,
         message,
     };
-    let text = std::str::from_utf8(bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes))
-        .map_err(|e| err(None, format!("invalid UTF-8 at byte {}", e.valid_up_to())))?;
+    let body = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let text = std::str::from_utf8(body).map_err(|e| {
+        // named by its line, as the signature and truth readers do
+        let before = &body[..e.valid_up_to()];
+        let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+        let column = before.len()
+            - before
+                .iter()
+                .rposition(|&b| b == b'\n')
+                .map_or(0, |i| i + 1);
+        err(Some(line), format!("invalid UTF-8 at byte {column}"))
+    })?;
     let mut lines = text.split('\n').enumerate();
     let header = lines.next().map_or("", |(_, l)| l.trim_end_matches('\r'));
     // a file with CR-only line ends is one line here: said so, not read as a header
@@ -336,6 +346,19 @@ mod tests {
             peak_ratio: f64::INFINITY,
             measured_offset_s: f64::NAN,
         }
+    }
+
+    #[test]
+    fn invalid_utf8_is_named_by_its_line() {
+        let mut bytes = format!("{}\n", crate::replay::ESTIMATE_HEADER).into_bytes();
+        bytes.extend_from_slice(b"1.0,0,0,0,0,lost\n2.0,\xff\n");
+        let e = parse_estimates_csv(&bytes, "e.csv").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("e.csv:3: invalid UTF-8 at byte 4"),
+            "{e}"
+        );
     }
 
     fn file(ests: &[Estimate]) -> String {

@@ -277,7 +277,11 @@ fn check_outputs(a: &ReplayArgs<'_>) -> Result<(), String> {
     }
     for (i, (out_flag, out)) in files.iter().take(2).enumerate() {
         let Some(out) = out else { continue };
-        for (flag, other) in &files[i + 1..] {
+        for (j, (flag, other)) in files.iter().enumerate().skip(i + 1) {
+            // both outputs to one device (`/dev/null`, a terminal) truncate nothing
+            if j < 2 && other.is_some_and(is_char_device) {
+                continue;
+            }
             if other.is_some_and(|p| vlsync_common::file::same_file(out, p)) {
                 return Err(format!(
                     "{out_flag} {} is the same file as {flag}: refusing to overwrite it",
@@ -287,6 +291,12 @@ fn check_outputs(a: &ReplayArgs<'_>) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// Whether `p` names a character device (after links): `/dev/null`, a terminal.
+fn is_char_device(p: &Path) -> bool {
+    use std::os::unix::fs::FileTypeExt;
+    std::fs::metadata(p).is_ok_and(|m| m.file_type().is_char_device())
 }
 
 /// Truth offset at `t`, linearly interpolated (clamped at the ends); `None` when empty.

@@ -224,6 +224,22 @@ fn replay_refuses_an_output_that_names_an_input_or_the_other_output() {
         ],
     );
     assert_eq!(code, 0, "{err}");
+    // both outputs thrown away: one device, nothing truncated, accepted
+    let (code, _, err) = run(
+        vlsyncd,
+        &[
+            "replay",
+            "--cam",
+            &cam_s,
+            "--lidar",
+            &lidar_s,
+            "--out",
+            "/dev/null",
+            "--plot",
+            "/dev/null",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
     // written whole, with no temporary file beside it
     let names: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
@@ -419,6 +435,20 @@ fn bench_outputs_that_cannot_be_written_name_their_option() {
         args.extend_from_slice(extra);
         run(vlsyncd, &args)
     };
+    // the configuration it read named as its JSON output: refused before the run
+    let cfg = dir.join("my.toml");
+    std::fs::write(&cfg, "[estimator]\n").unwrap();
+    let cfg_s = cfg.to_str().unwrap();
+    let (code, out, err) = bench("seed", &["--config", cfg_s, "--json", cfg_s]);
+    assert_ne!(code, 0, "{err}");
+    assert!(
+        err.contains(&format!(
+            "--json {cfg_s} is the same file as --config: refusing to overwrite it"
+        )),
+        "{err}"
+    );
+    assert!(out.is_empty(), "no run before the refusal: {out}");
+    assert_eq!(std::fs::read_to_string(&cfg).unwrap(), "[estimator]\n");
     let (code, out, err) = bench("seed", &["--json", json.to_str().unwrap()]);
     assert_ne!(code, 0, "{err}");
     let want = format!(
