@@ -808,7 +808,10 @@ impl SignatureProcessor {
         let normal_rad = wrap_pi(centre + normal);
         let turning = self
             .prev
-            .is_some_and(|p| !(wrap_pi(p.normal_rad - normal_rad).abs() <= TURNING_RAD));
+            .is_some_and(|p| {
+                let turned = wrap_pi(p.normal_rad - normal_rad).abs();
+                turned > TURNING_RAD || turned.is_nan()
+            });
         let shift = if turning {
             0
         } else {
@@ -916,7 +919,7 @@ impl TimeSums {
         let cov_uv = fit.sxy / k - mu * mv;
         let var_s = b * b * var_u + 2.0 * b * cov_uv + var_v;
         let cov_ts = b * (self.tu / k - mt * mu) + (self.tv / k - mt * mv);
-        if !(var_s > 1e-12) {
+        if var_s.is_nan() || var_s <= 1e-12 {
             return 0;
         }
         let shift = cov_ts / var_s * ((b * ox + oy) - (b * mu + mv));
