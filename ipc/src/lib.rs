@@ -46,7 +46,7 @@ use vlsync_common::wire::{OffsetEstimate, SignatureSample, Status, WireError};
 use vlsync_common::{Estimate, EstimatorState, Nanos, Stream};
 
 pub use iceoryx2;
-pub use signals::{handle_termination_signals, termination_requested};
+pub use signals::{handle_termination_signals, termination_requested, STOP_WITH_PARENT_ENV};
 pub use vlsync_common::wire;
 
 /// `open(2)`'s `O_NOFOLLOW` on this target (its value differs between

@@ -23,6 +23,14 @@ use std::sync::Once;
 /// Set by [`on_termination`], never cleared.
 static TERMINATION: AtomicBool = AtomicBool::new(false);
 
+/// The environment variable a launcher (`vlsync-demo`, `vlsync-latency`,
+/// `vlsync-loadtest`, `vlsync-soak`, the tests' rigs) sets to its own process id
+/// for the processes it starts: a vlsync process that finds it stops, as on
+/// SIGTERM, when that launcher dies without stopping it (SIGKILL, the OOM
+/// killer), where it used to run on forever (a daemon at SCHED_FIFO holding its
+/// prefix and shared memory). See [`handle_termination_signals`].
+pub const STOP_WITH_PARENT_ENV: &str = "VLSYNC_STOP_WITH_PARENT";
+
 /// Every signal whose action can be set: 1..=SIGRTMAX but SIGKILL and SIGSTOP (the
 /// C library's reserved ones refuse `sigaction` and are skipped).
 fn settable() -> impl Iterator<Item = libc::c_int> {
@@ -117,6 +125,55 @@ pub fn handle_termination_signals() {
     });
     // after ours, so a stop iceoryx2's handler caught in between reaches the flag
     tame_iceoryx2_signals();
+    static FOLLOW: Once = Once::new();
+    FOLLOW.call_once(follow_launcher);
+}
+
+/// With [`STOP_WITH_PARENT_ENV`] naming this process's parent: asks the kernel
+/// for SIGTERM when the parent ends (`PR_SET_PDEATHSIG`; it reaches the flag
+/// [`termination_requested`] reads), and stops at once if the parent has ended
+/// already (between its fork and this call the signal could not be asked for).
+/// A process whose parent is not the one named inherited the variable from a
+/// launcher further up (a camera program's child, say): it follows nothing while
+/// that launcher lives, and stops if it has gone.
+fn follow_launcher() {
+    let Some(launcher) = std::env::var(STOP_WITH_PARENT_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<libc::pid_t>().ok())
+        .filter(|&p| p > 1)
+    else {
+        return;
+    };
+    let parent_is_launcher =
+        || libc::pid_t::try_from(std::os::unix::process::parent_id()) == Ok(launcher);
+    if !parent_is_launcher() {
+        if !alive(launcher) {
+            TERMINATION.store(true, Ordering::SeqCst);
+        }
+        return;
+    }
+    // SAFETY: prctl(PR_SET_PDEATHSIG) takes a signal number and no pointer; it
+    // only sets this process's parent-death signal.
+    unsafe {
+        libc::prctl(
+            libc::PR_SET_PDEATHSIG,
+            libc::SIGTERM as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+        );
+    }
+    if !parent_is_launcher() {
+        TERMINATION.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Whether process `pid` exists (signal 0: checked, not sent; a process of
+/// another user exists too).
+fn alive(pid: libc::pid_t) -> bool {
+    // SAFETY: kill(2) with signal 0 sends nothing; it only checks the pid.
+    let r = unsafe { libc::kill(pid, 0) };
+    r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
 }
 
 /// True once SIGINT, SIGTERM or (unless it was ignored) SIGHUP arrived after [`handle_termination_signals`] (which

@@ -419,8 +419,10 @@ pub fn status_when(
 /// check that a run leaves none.
 pub struct Harness(pub Managed);
 
-/// The grace a harness gets to stop its children before it is killed.
-pub const HARNESS_GRACE: Duration = Duration::from_secs(20);
+/// The grace a harness gets to stop its children before it is killed: at most
+/// 3 + 3 s for the drivers, 3 s for a last status, 6 s for the recorder and 7 s
+/// for the daemon (`Session::stop`), one after the other.
+pub const HARNESS_GRACE: Duration = Duration::from_secs(25);
 
 impl Drop for Harness {
     fn drop(&mut self) {

@@ -1,7 +1,8 @@
 //! `vlsync-demo` interrupted with Ctrl-C (SIGINT) stops every child and leaves
 //! no shared-memory resource behind, on the signature simulator and on its
 //! default source, rendered frames and scans through the front-ends; and so it
-//! does when its reader goes away (`vlsync-demo | head`). Every stop is given
+//! does when its reader goes away (`vlsync-demo | head`); killed with SIGKILL, its
+//! children stop on their own and clean up. Every stop is given
 //! [`HARNESS_GRACE`], the time the demo's own clean stop may take (it stops its
 //! daemon, drivers and recorder one after the other, each with seconds of grace).
 
@@ -222,8 +223,83 @@ fn demo_ctrl_c_stops_children_and_leaves_nothing() {
     );
     assert!(locked(&out), "no locked estimate in 45 s:\n{out}");
     close_the_reader();
+    a_killed_demo_takes_its_children_with_it();
     // last: the daemon it kills leaves its files to the next daemon's clean-up
     a_child_killed_mid_run_is_a_failure();
+}
+
+/// The pids of the running processes whose command line names `prefix` as an
+/// argument (the demo's daemon, drivers and recorder; a zombie has no command line).
+fn pids_with(prefix: &str) -> Vec<u32> {
+    let want = format!("\0{prefix}\0");
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    dir.flatten()
+        .filter_map(|e| {
+            let pid: u32 = e.file_name().to_str()?.parse().ok()?;
+            let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
+            String::from_utf8_lossy(&cmd).contains(&want).then_some(pid)
+        })
+        .collect()
+}
+
+/// `kill -9` of the demo (or the OOM killer): no clean-up of its own runs, but its
+/// daemon, drivers and recorder stop as on SIGTERM (each asked the kernel for a
+/// signal at its parent's death) and leave no shared memory and no lock behind,
+/// where they used to run on (the daemon and recorder forever).
+fn a_killed_demo_takes_its_children_with_it() {
+    let before = ipc_resources();
+    let prefix = format!("vlsync-test/demo-kill9-{}", std::process::id());
+    let dir = std::env::temp_dir().join(format!("vlsync-demo-kill9-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut demo = Harness(Managed {
+        name: "vlsync-demo".into(),
+        child: std::process::Command::new(bin("vlsync-demo"))
+            .args(["--family", "robot", "--duration", "120", "--speed", "2"])
+            .args(["--quiet", "--prefix", &prefix, "--log-dir"])
+            .arg(dir.join("logs"))
+            .arg("--record")
+            .arg(dir.join("rec"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    });
+    // the daemon, both drivers and the recorder
+    let t0 = Instant::now();
+    while pids_with(&prefix).len() < 4 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30) && demo.0.running(),
+            "the demo's four children never ran: {:?}",
+            pids_with(&prefix)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    demo.0.signal("KILL").unwrap();
+    assert!(demo.0.wait_up_to(Duration::from_secs(5)).is_some());
+    let t0 = Instant::now();
+    while !pids_with(&prefix).is_empty() && t0.elapsed() < HARNESS_GRACE {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let left = pids_with(&prefix);
+    let log = std::fs::read_to_string(dir.join("logs").join("vlsyncd.log")).unwrap_or_default();
+    assert!(
+        left.is_empty(),
+        "still running {HARNESS_GRACE:?} after the demo's SIGKILL: {left:?}\n{log}"
+    );
+    // stopped as on SIGTERM: its summary and its own clean-up
+    assert!(
+        log.contains("at stop, ") && log.contains("stopped"),
+        "{log}"
+    );
+    assert!(
+        !vlsyncd::runtime::lock_path(&prefix).exists(),
+        "the daemon's lock is left"
+    );
+    assert_nothing_left(&before);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The pid of the running `vlsyncd run --prefix <prefix>`, from `/proc/*/cmdline`.

@@ -487,6 +487,12 @@ fn run(a: Args) -> Result<(), String> {
         plot.display()
     ));
     match s.failures.len() {
+        // a child that needed SIGKILL is a failure too: a daemon killed that way
+        // leaves its shared memory to the next one's clean-up
+        0 if !clean => Err(
+            "a process of the run did not stop within its grace and was killed (SIGKILL)"
+                .to_string(),
+        ),
         0 => Ok(()),
         n => Err(format!(
             "{n} process(es) of the run ended with a failure: {}",

@@ -690,7 +690,10 @@ impl Session {
             .recorder
             .as_mut()
             .is_none_or(|r| r.stop(Duration::from_secs(6)));
-        let clean_daemon = self.procs[0].stop(Duration::from_secs(3));
+        // its clean stop may take the final state save's wait and two bounded
+        // sends of its last counters: SIGKILL only after all of them
+        let clean_daemon =
+            self.procs[0].stop(crate::state::FINAL_SAVE_WAIT + Duration::from_secs(4));
         self.note_failures(true);
         Ok(clean_drivers.iter().all(|c| *c)
             && clean_daemon

@@ -43,7 +43,13 @@ impl Managed {
         log: Option<&Path>,
     ) -> Result<Self, String> {
         let mut cmd = Command::new(program);
-        cmd.args(args).stdin(Stdio::null());
+        // a vlsync child stops if this process dies without stopping it (the
+        // kernel's parent-death signal, asked for by the child; it follows the
+        // thread that spawned it, so the launchers spawn from their main thread)
+        cmd.args(args).stdin(Stdio::null()).env(
+            vlsync_ipc::STOP_WITH_PARENT_ENV,
+            std::process::id().to_string(),
+        );
         if let Some(log) = log {
             let f = std::fs::File::create(log)
                 .map_err(|e| format!("cannot create log {}: {e}", log.display()))?;
