@@ -634,10 +634,31 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         names.prefix
     ));
 
+    // a status that cannot be published (no loan, a failed send) is said: at
+    // once, then at most once a minute with the count, and at stop
+    let status_failures = std::cell::Cell::new((0u64, 0u64, i64::MIN));
     let publish_status = |st: &Status| {
-        if let Ok(s) = status_pub.loan_uninit() {
-            if s.write_payload(*st).send().is_ok() {
+        let sent = match status_pub.loan_uninit() {
+            Ok(s) => s.write_payload(*st).send().map_err(|e| format!("{e:?}")),
+            Err(e) => Err(format!("{e:?}")),
+        };
+        match sent {
+            Ok(_) => {
                 let _ = status_not.notify();
+            }
+            Err(why) => {
+                let (total, unsaid, said_at) = status_failures.get();
+                let now = monotonic_ns();
+                if said_at == i64::MIN || now.saturating_sub(said_at) >= 60_000_000_000 {
+                    tracing::warn!(
+                        "cannot publish the status on {}: {why} ({} failed so far)",
+                        names.status(),
+                        total + 1
+                    );
+                    status_failures.set((total + 1, 0, now));
+                } else {
+                    status_failures.set((total + 1, unsaid + 1, said_at));
+                }
             }
         }
         tracing::debug!(
@@ -801,6 +822,12 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         tracing::warn!("{line}");
     }
     tell_offset_clients(&offset_degraded, &mut offset_told, Nanos::MAX, &names);
+    if let (total, unsaid @ 1.., _) = status_failures.get() {
+        tracing::warn!(
+            "{unsaid} more status(es) could not be published on {} ({total} in all)",
+            names.status()
+        );
+    }
     if let Some(sv) = saver.as_mut() {
         if sv.finish(crate::state::FINAL_SAVE_WAIT) {
             tracing::info!("last good estimate saved to {}", sv.path().display());
