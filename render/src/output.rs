@@ -129,11 +129,17 @@ pub struct Progress {
     pub scans: usize,
 }
 
-/// The files of a run in its directory besides `frames/*.png`: a new run
-/// removes them all before it writes any (`frames.csv` is not written with
+/// The files of a run in its directory besides `frames/*.png` and the default
+/// recording ([`DEFAULT_MCAP`]): a new run removes them all (and those) before it
+/// writes any (`frames.csv` is not written with
 /// `png = false`), so a run that fails leaves none of an earlier run's beside
 /// its own.
 pub const RUN_FILES: [&str; 4] = ["frames.csv", "scans.csv", "truth.csv", "motion.csv"];
+
+/// The recording's file name in the run's directory when `--mcap` names none;
+/// an earlier run's is removed with [`RUN_FILES`] and `frames/frame_*.png` unless
+/// this run writes it.
+pub const DEFAULT_MCAP: &str = "run.mcap";
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RenderError + '_ {
     move |source| RenderError::Io {
@@ -288,8 +294,31 @@ pub fn write_run_observed(
         Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
         None => None,
     };
-    for f in RUN_FILES {
-        let path = dir.join(f);
+    // an earlier run's frames (a longer run's beyond this one's last) and its
+    // default recording, unless that is the recording being written now: a
+    // directory then holds one run, not parts of two
+    let default_mcap = dir.join(DEFAULT_MCAP);
+    let old_mcap = (default_mcap.exists()
+        && !mcap.is_some_and(|m| vlsync_common::file::same_file(&m.path, &default_mcap)))
+    .then_some(default_mcap);
+    let old_frames = std::fs::read_dir(&frames_dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("frame_") && n.ends_with(".png"))
+        });
+    let stale: Vec<PathBuf> = RUN_FILES
+        .iter()
+        .map(|f| dir.join(f))
+        .chain(old_mcap)
+        .chain(old_frames)
+        .collect();
+    for path in stale {
         match std::fs::remove_file(&path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
                 return Err(io_err(&path)(e));
@@ -543,7 +572,8 @@ mod tests {
     }
 
     /// Without PNGs no frames.csv is written (its rows would name files that do
-    /// not exist), and an earlier run's is removed.
+    /// not exist), and an earlier run's is removed, with its frames and its
+    /// default recording.
     #[test]
     fn without_png_no_frame_list_is_left() {
         let dir = temp("nopng");
@@ -553,9 +583,26 @@ mod tests {
         let r = small(4);
         assert_eq!(s.frames, r.frame_schedule().len());
         assert_eq!(s.scans, r.scan_schedule().len());
-        write_run(&mut small(5), &dir, true).unwrap();
+        // an earlier run with its frames and its default recording
+        let m = McapOutput {
+            path: dir.join(DEFAULT_MCAP),
+            png: false,
+        };
+        write_run_with(&mut small(5), &dir, true, Some(&m)).unwrap();
+        let pngs = |d: &Path| {
+            std::fs::read_dir(d.join("frames"))
+                .map(|r| r.flatten().count())
+                .unwrap_or(0)
+        };
+        assert!(pngs(&dir) > 0 && dir.join(DEFAULT_MCAP).exists());
+        // the same recording written again is kept (it is this run's)
+        write_run_with(&mut small(4), &dir, true, Some(&m)).unwrap();
+        assert!(dir.join(DEFAULT_MCAP).metadata().unwrap().len() > 0);
         write_run(&mut small(4), &dir, false).unwrap();
         assert!(!dir.join("frames.csv").exists());
+        // neither the earlier frames nor its recording are left beside this run
+        assert_eq!(pngs(&dir), 0);
+        assert!(!dir.join(DEFAULT_MCAP).exists());
         for f in ["scans.csv", "truth.csv", "motion.csv"] {
             assert_eq!(read(&dir.join(f)), read(&fresh.join(f)), "{f}");
         }

@@ -280,7 +280,9 @@ fn main() -> ExitCode {
     let cfg = config(&a);
     let mcap = a.out.as_ref().and_then(|out_dir| {
         a.mcap.as_ref().map(|file| McapOutput {
-            path: file.clone().unwrap_or_else(|| out_dir.join("run.mcap")),
+            path: file
+                .clone()
+                .unwrap_or_else(|| out_dir.join(vlsync_render::output::DEFAULT_MCAP)),
             png: a.mcap_png,
         })
     });
@@ -292,7 +294,7 @@ fn main() -> ExitCode {
                  {})\n",
                 m.path.display(),
                 out_dir.display(),
-                out_dir.join("run.mcap").display()
+                out_dir.join(vlsync_render::output::DEFAULT_MCAP).display()
             ));
             return ExitCode::from(2);
         }
