@@ -1514,6 +1514,27 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    #[test]
+    fn frames_too_small_for_the_flow_end_the_source_naming_why() {
+        // 8x8 frames cannot hold the region of interest, its margin and pyramid:
+        // every one is refused, and the source ends instead of publishing nothing
+        let cfg = gray8_frames(Duration::from_secs(5));
+        // paced as a camera is (frames already waiting in the pipe are dropped)
+        let cmd = "for i in $(seq 40); do head -c 64 /dev/zero; sleep 0.03; done; exec sleep 30"
+            .to_string();
+        let mut src = raw::CamSource::pipe(raw::PipeInput::Command(cmd), cfg, never).unwrap();
+        let e = match src.next_sample() {
+            Err(e) => e.to_string(),
+            Ok(Some(_)) => panic!("a sample from 8x8 frames"),
+            Ok(None) => panic!("the stream ended without the error"),
+        };
+        assert!(
+            e.contains("frame 8x8 too small") && e.contains("10 frames in a row"),
+            "{e}"
+        );
+        assert!(e.contains("--size"), "{e}");
+    }
+
     fn yes() -> bool {
         true
     }

@@ -695,6 +695,10 @@ pub struct CamSource {
     stop: StopFn,
     counts: CamCounts,
     last_refusal: Option<String>,
+    /// Frames refused in a row as too small for the flow's region, margin and
+    /// pyramid: a stream of one size refuses every frame, and ends the source
+    /// at [`TOO_SMALL_IN_A_ROW`] instead of running on without a sample.
+    too_small: u32,
     /// Stamp each frame with `CLOCK_MONOTONIC` after processing it.
     software: bool,
     /// Software stamp and truth of the previous frame the processor kept.
@@ -718,6 +722,10 @@ pub struct CamSource {
     /// [`Next::Idle`].
     idle_every: Duration,
 }
+
+/// Frames refused in a row as too small that end a camera source (a size
+/// change mid-stream refuses a few at most; a stream of one too small size all).
+const TOO_SMALL_IN_A_ROW: u32 = 10;
 
 impl std::fmt::Debug for CamSource {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -748,6 +756,7 @@ impl CamSource {
             stop,
             counts: CamCounts::default(),
             last_refusal: None,
+            too_small: 0,
             software,
             prev: None,
             last_truth: None,
@@ -1012,6 +1021,7 @@ impl Source for CamSource {
                 what,
                 counts,
                 last_refusal,
+                too_small,
                 software,
                 prev,
                 last_truth,
@@ -1054,7 +1064,18 @@ impl Source for CamSource {
             // software stamping: the clock is read once the front-end is done
             let t_done = monotonic_ns();
             let this = (t_done, truth);
+            *too_small = match &step {
+                Err(cam::Error::FrameTooSmall { .. }) => too_small.saturating_add(1),
+                _ => 0,
+            };
             match step {
+                Err(e) if *too_small >= TOO_SMALL_IN_A_ROW => {
+                    return Err(SourceError(format!(
+                        "{what}: {e} ({TOO_SMALL_IN_A_ROW} frames in a row): no sample can \
+                         come from this stream; give the camera a larger size (--size for \
+                         a pipe)"
+                    )));
+                }
                 Err(e) => {
                     counts.refused += 1;
                     *last_refusal = Some(e.to_string());
