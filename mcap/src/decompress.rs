@@ -5,7 +5,9 @@
 //! its own decoders for the two compressions the MCAP specification names:
 //!
 //! * `zstd`: Zstandard frames (skippable frames skipped), decoded by `ruzstd`;
-//! * `lz4`: LZ4 frames, decoded by `lz4_flex`;
+//! * `lz4`: LZ4 frames (skippable frames skipped), decoded by `lz4_flex`; frames
+//!   whose declared block buffers add up to far more than the chunk may hold
+//!   (`lz4_buffer_budget`) are refused, as each costs a clear of its buffer;
 //! * `""`: uncompressed.
 //!
 //! rosbag2's MCAP storage compresses chunks with zstd by default in several
@@ -26,6 +28,42 @@ use mcap::sans_io::decompressor::{DecompressResult, Decompressor};
 use mcap::sans_io::indexed_reader::IndexedReader;
 use mcap::{McapError, McapResult};
 use std::io::{Read, Write};
+
+/// Magic numbers of LZ4 skippable frames (LZ4 frame format, "Skippable frames").
+const LZ4_SKIPPABLE_MAGIC: std::ops::RangeInclusive<u32> = 0x184D_2A50..=0x184D_2A5F;
+
+/// The most the LZ4 frames of a chunk that may hold `limit` bytes may declare in
+/// block buffers (see [`lz4_block_buffer`]). The decoder clears and zeroes a
+/// frame's block buffer (up to 4 MiB) as the frame starts, so a chunk of tiny
+/// frames declaring big blocks costs 4 MiB of work per 27 bytes (a 1 MiB chunk of
+/// them took 10 s). 1 GiB (about 70 ms of clearing) covers thousands of small
+/// frames, and 8 bytes a byte of the chunk's size any frames that fill an
+/// eighth of their blocks: the work stays of the order of decoding what the chunk
+/// declares.
+fn lz4_buffer_budget(limit: u64) -> u64 {
+    (1u64 << 30).saturating_add(limit.saturating_mul(8))
+}
+
+/// The block buffer the LZ4 decoder clears for the frame at the start of `rest`:
+/// the maximum block size its descriptor declares (8 MiB for a legacy frame), 0
+/// where no frame starts (the decoder refuses it).
+fn lz4_block_buffer(rest: &[u8]) -> u64 {
+    match rest
+        .get(..4)
+        .map(|m| u32::from_le_bytes([m[0], m[1], m[2], m[3]]))
+    {
+        // magic, FLG, then BD: the block maximum size in bits 4-6
+        Some(0x184D_2204) => match rest.get(5).map(|bd| (bd >> 4) & 7) {
+            Some(4) => 64 << 10,
+            Some(5) => 256 << 10,
+            Some(6) => 1 << 20,
+            Some(7) => 4 << 20,
+            _ => 0,
+        },
+        Some(0x184C_2102) => 8 << 20,
+        _ => 0,
+    }
+}
 
 /// Appended to an "unsupported compression" error.
 pub const UNSUPPORTED_HINT: &str = " (supported chunk compressions: none, zstd, lz4)";
@@ -80,8 +118,49 @@ fn decode_all<W: Write>(
     };
     match codec {
         Codec::Lz4 => {
-            let mut d = lz4_flex::frame::FrameDecoder::new(src);
-            copy(&mut d, &mut written)?;
+            // `FrameDecoder` ends quietly at each frame's end mark and starts the next
+            // frame when read again: one decoder for them all keeps its buffers (a
+            // new one per frame would allocate and fault in up to 12 MiB each)
+            let mut s = src;
+            let mut d = lz4_flex::frame::FrameDecoder::new(&mut s);
+            let budget = lz4_buffer_budget(limit);
+            let mut buffers = 0u64;
+            loop {
+                // between frames: the decoder holds nothing of the next one yet
+                let rest: &[u8] = d.get_ref();
+                if rest.is_empty() {
+                    break;
+                }
+                let magic = rest
+                    .get(..4)
+                    .map(|m| u32::from_le_bytes([m[0], m[1], m[2], m[3]]));
+                if magic.is_some_and(|m| LZ4_SKIPPABLE_MAGIC.contains(&m)) {
+                    // magic, little-endian length, then `length` bytes
+                    let length = rest
+                        .get(4..8)
+                        .map(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]))
+                        .ok_or("skippable lz4 frame is truncated")?;
+                    let n = usize::try_from(length).unwrap_or(usize::MAX);
+                    **d.get_mut() = rest
+                        .get(n.saturating_add(8)..)
+                        .ok_or("skippable lz4 frame runs past the chunk")?;
+                    continue;
+                }
+                buffers = buffers.saturating_add(lz4_block_buffer(rest));
+                if buffers > budget {
+                    return Err(format!(
+                        "its frames declare {buffers} bytes of block buffers, over the {budget} \
+                         a chunk of at most {limit} bytes may (1 GiB plus 8 times that size: \
+                         the decoder clears each frame's, up to 4 MiB, as the frame starts)"
+                    )
+                    .into());
+                }
+                copy(&mut d, &mut written)?;
+                // a frame read is a frame consumed: stop rather than spin if not
+                if d.get_ref().len() == rest.len() {
+                    return Err("lz4 decoder made no progress".into());
+                }
+            }
         }
         Codec::Zstd => {
             use ruzstd::decoding::errors::{FrameDecoderError, ReadFrameHeaderError};
@@ -389,6 +468,148 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// An LZ4 skippable frame with magic `0x184D2A50 + nibble` and `len` bytes.
+    fn lz4_skippable(nibble: u32, len: usize) -> Vec<u8> {
+        let mut f = (0x184D_2A50 + nibble).to_le_bytes().to_vec();
+        f.extend_from_slice(&(len as u32).to_le_bytes());
+        f.extend((0..len).map(|i| i as u8));
+        f
+    }
+
+    #[test]
+    fn an_lz4_chunk_of_several_frames_or_with_skippable_frames_decodes_whole() {
+        let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let two = [lz4(&data[..3000]), lz4(&data[3000..])].concat();
+        let skip_first = [lz4_skippable(0, 12), lz4(&data)].concat();
+        let mixed = [
+            lz4_skippable(0xF, 0),
+            lz4(&data[..1]),
+            lz4(&[]),
+            lz4_skippable(7, 300),
+            lz4(&data[1..4000]),
+            lz4(&data[4000..]),
+            lz4_skippable(3, 5),
+        ]
+        .concat();
+        for (what, src) in [
+            ("two", &two),
+            ("skip_first", &skip_first),
+            ("mixed", &mixed),
+        ] {
+            let n = data.len() as u64;
+            assert_eq!(
+                check_size("lz4", src, n, 1 << 20),
+                Ok(crc32fast::hash(&data)),
+                "{what}"
+            );
+            let mut out = Vec::new();
+            assert_eq!(
+                decode_chunk("lz4", src, n, 1 << 20, &mut out),
+                Ok(()),
+                "{what}"
+            );
+            assert_eq!(out, data, "{what}");
+            let mut d = WholeChunk::new(Codec::Lz4, 1 << 20);
+            assert_eq!(drive(&mut d, src, data.len()).unwrap(), data, "{what}");
+        }
+        // a skippable frame cut short is corrupt, as in zstd
+        for (cut, want) in [
+            (
+                lz4_skippable(0, 10)[..6].to_vec(),
+                "skippable lz4 frame is truncated",
+            ),
+            (
+                lz4_skippable(0, 10)[..17].to_vec(),
+                "skippable lz4 frame runs past the chunk",
+            ),
+        ] {
+            let src = [lz4(&data), cut].concat();
+            assert_eq!(
+                check_size("lz4", &src, 5000, 1 << 20),
+                Err(ChunkError::Corrupt(format!("lz4: {want}")))
+            );
+        }
+    }
+
+    #[test]
+    fn lz4_frames_after_the_first_are_held_to_the_declared_size_and_the_limit() {
+        let data = vec![7u8; 1000];
+        // the first frame holds exactly what is declared, the second 64 MiB more
+        let bomb = [lz4(&data), lz4(&vec![0u8; 64 << 20])].concat();
+        assert!(bomb.len() < 1 << 20, "{}", bomb.len());
+        let want = "the lz4 chunk decodes to more than the 1000 bytes BY declares";
+        assert_eq!(
+            check_size("lz4", &bomb, 1000, 256 << 20),
+            Err(ChunkError::Corrupt(want.replace("BY", "its chunk index")))
+        );
+        let mut out = Vec::new();
+        assert_eq!(
+            decode_chunk("lz4", &bomb, 1000, 256 << 20, &mut out),
+            Err(ChunkError::Corrupt(want.replace("BY", "its header")))
+        );
+        // the output never grew toward what the frames hold
+        assert!(out.capacity() < 1 << 20, "{}", out.capacity());
+        let mut d = WholeChunk::new(Codec::Lz4, 4096);
+        let e = d.decompress(&bomb, &mut [0; 10]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("lz4: decompressed chunk exceeds the limit of 4096 bytes"),
+            "{e}"
+        );
+        // and behind a skippable frame
+        let bomb = [lz4_skippable(0, 3), bomb].concat();
+        let e = d.decompress(&bomb, &mut [0; 10]).unwrap_err();
+        assert!(
+            e.to_string().contains("exceeds the limit of 4096 bytes"),
+            "{e}"
+        );
+    }
+
+    /// `n` LZ4 frames of 100 zero bytes each (a compressed block) with `block_size`.
+    fn tiny_lz4_frames(block_size: lz4_flex::frame::BlockSize, n: usize) -> Vec<u8> {
+        let mut info = lz4_flex::frame::FrameInfo::new();
+        info.block_size = block_size;
+        let mut e = lz4_flex::frame::FrameEncoder::with_frame_info(info, Vec::new());
+        e.write_all(&[0u8; 100]).unwrap();
+        e.finish().unwrap().repeat(n)
+    }
+
+    #[test]
+    fn tiny_lz4_frames_declaring_big_blocks_are_refused_before_they_cost_seconds() {
+        use lz4_flex::frame::BlockSize;
+        // each of these costs the decoder a 4 MiB clear: 10 000 took over 2 s
+        let n = 10_000;
+        let src = tiny_lz4_frames(BlockSize::Max4MB, n);
+        assert!(src.len() < 1 << 20, "{}", src.len());
+        let declared = 100 * n as u64;
+        let e = check_size("lz4", &src, declared, 256 << 20).unwrap_err();
+        let ChunkError::Corrupt(e) = e else {
+            panic!("{e:?}")
+        };
+        assert!(
+            e == "lz4: its frames declare 1082130432 bytes of block buffers, over the \
+                  1081741824 a chunk of at most 1000000 bytes may (1 GiB plus 8 times that \
+                  size: the decoder clears each frame's, up to 4 MiB, as the frame starts)",
+            "{e}"
+        );
+        // (refused at the 258th frame, after 1 GiB of clearing: some 70 ms)
+        // the same frames with 64 KiB blocks, the common default, are read
+        let src = tiny_lz4_frames(BlockSize::Max64KB, n);
+        let mut out = Vec::new();
+        assert_eq!(
+            decode_chunk("lz4", &src, declared, 256 << 20, &mut out),
+            Ok(())
+        );
+        assert_eq!(out, vec![0u8; 100 * n]);
+        // and big blocks that frames fill an eighth of
+        let chunk: Vec<u8> = (0..4).flat_map(|_| lz4(&vec![1u8; 512 << 10])).collect();
+        assert_eq!(lz4_block_buffer(&chunk), 4 << 20);
+        assert_eq!(
+            check_size("lz4", &chunk, 2 << 20, 256 << 20),
+            Ok(crc32fast::hash(&vec![1u8; 2 << 20]))
+        );
     }
 
     #[test]

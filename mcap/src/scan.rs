@@ -8,27 +8,30 @@
 //!   The `float32` increment is taken as the decimal it prints as (its shortest
 //!   round-trip representation, see [`f32_as_decimal`]): `0.025` means 25 ms,
 //!   not the binary `0.0250000004`, which would put ray 2 one nanosecond late.
-//! * A driver that publishes `time_increment = 0` with a positive `scan_time`
-//!   (the time between scans: one turn) leaves the rays' times to be derived:
-//!   the beam sweeps at a constant rate, so ray `i` is measured at
-//!   `stamp + i · |angle_increment| / 2π · scan_time` (the part of a turn it is
-//!   from the first ray), as [`ScanTiming::time_at_bearing`] times a turn; the
-//!   sweep's direction is then `angle_increment`'s sign. (A source whose rays are
-//!   truly simultaneous, e.g. a depth image turned into a scan, would say so with
-//!   `scan_time = 0` too; see below.)
-//! * `time_increment = 0` with `scan_time` not positive (or `angle_increment = 0`)
-//!   says nothing of when the rays were measured: such a scan of more than one
-//!   ray is an error naming the message (the drivers skip it as a missed
-//!   revolution, and say so), not a scan whose rays all get the stamp. Stamping
-//!   them alike would date the window's returns up to a turn off, depending on
-//!   where the window lies.
+//! * `time_increment = 0`, whatever `scan_time`, says the rays were not spread in
+//!   time (`LaserScan.msg`: the time between measurements, used to place the
+//!   points of a moving scanner): every ray gets the first ray's time, and the
+//!   scan is reported as [`RayTiming::Simultaneous`] ([`McapScanSource::ray_timing`],
+//!   counted by [`McapScanSource::simultaneous_scans`]). Depth cameras turned into
+//!   scans publish this (`depthimage_to_laserscan`, `pointcloud_to_laserscan`,
+//!   `ira_laser_tools`, with `scan_time` their output period), and so do
+//!   simulators (Gazebo's ray sensors, `ros_gz_bridge`: both 0). `scan_time` is
+//!   the time between scans, not a sweep, so it dates no ray: spreading the rays
+//!   over it would date a depth camera's returns up to a frame period apart.
+//!   The cost: a spinning scanner whose driver leaves `time_increment` at 0 has
+//!   all its rays dated at the stamp, each up to a turn off the time it was
+//!   measured (by where the window lies in the turn), and nothing in the message
+//!   tells. Check that a spinning scanner's driver fills `time_increment`, or
+//!   watch for [`RayTiming::Simultaneous`] scans from one.
 //! * Ray `i` points at `angle_min + i · angle_increment` radians, about +Z,
 //!   counter-clockwise positive, 0 forward (+X): the same bearing convention as
 //!   `vlsync_signature_lidar::scan` (REP-103), wrapped into `(-π, π]`.
 //! * Sweep direction: bearings grow with time ([`Rotation::Ccw`]) when
-//!   `angle_increment` and `time_increment` (or the one derived from
-//!   `scan_time`) have the same sign, else [`Rotation::Cw`]. The scan's period is `scan_time` (0 when not positive),
-//!   read as its decimal like `time_increment`.
+//!   `angle_increment` and `time_increment` have the same sign (simultaneous
+//!   rays: when `angle_increment` is not negative), else [`Rotation::Cw`]. The
+//!   scan's period is `scan_time` (0 when not positive), read as its decimal like
+//!   `time_increment`.
+//! * A `time_increment` that is NaN or infinite is an error naming the message.
 //! * A ray is valid when its range is finite, positive and within
 //!   `[range_min, range_max]` (REP-117: ±Inf and NaN are not measurements;
 //!   drivers that mean "no return" by 0 are covered by "positive").
@@ -38,7 +41,7 @@
 //! * `scan_time` may be at most [`MAX_SCAN_TIME_S`] (10 s: no scanner turns more
 //!   slowly); a longer one is an error naming the message.
 //! * The rays may span at most two turns of `scan_time` (10 s when it is not
-//!   given): an increment (given or derived) that dates them further apart is an
+//!   given): a `time_increment` that dates them further apart is an
 //!   error naming the message. A `header.stamp` is `sec · 1e9 + nanosec` as
 //!   `rclcpp` reads it, a `nanosec` of a second or more included.
 //! * `rplidar_ros` / `sllidar_ros2` recordings (default `inverted = false`) store
@@ -71,6 +74,30 @@ use vlsync_signature_lidar::{Ray, Rotation, Scan, ScanTiming};
 
 /// The schema of a scan topic.
 pub const SCAN_SCHEMAS: [&str; 1] = [LaserScan::SCHEMA_NAME];
+
+/// How the rays of a `LaserScan` were dated (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RayTiming {
+    /// By the message: ray `i` at the first ray's time `+ i · time_increment`.
+    Increment,
+    /// All at the first ray's time: `time_increment` is 0, which says the rays
+    /// were not spread in time (a depth camera or a simulator; or a spinning
+    /// scanner whose driver does not fill `time_increment`, then each ray up to a
+    /// turn off).
+    Simultaneous,
+}
+
+impl RayTiming {
+    /// How [`laser_scan_to_rays`] dates the rays of `m`.
+    pub fn of(m: &LaserScan<'_>) -> Self {
+        // -0 too: no spread either way
+        if m.time_increment == 0.0 {
+            RayTiming::Simultaneous
+        } else {
+            RayTiming::Increment
+        }
+    }
+}
 
 /// Options of [`McapScanSource`].
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
@@ -119,6 +146,11 @@ pub struct McapScanSource {
     reader: McapReader,
     stamp: StampSource,
     scan: Scan,
+    /// How the rays of `scan` were dated; `None` before the first scan and after
+    /// an error.
+    ray_timing: Option<RayTiming>,
+    /// Scans returned whose rays were taken as simultaneous.
+    simultaneous: u64,
 }
 
 impl McapScanSource {
@@ -129,6 +161,8 @@ impl McapScanSource {
             reader,
             stamp: options.stamp,
             scan: Scan::with_capacity(0),
+            ray_timing: None,
+            simultaneous: 0,
         })
     }
 
@@ -142,9 +176,26 @@ impl McapScanSource {
         &self.reader
     }
 
+    /// How the rays of the scan last returned by [`Self::next_scan`] were dated:
+    /// by the message's `time_increment`, or all at the stamp because it is 0
+    /// (see the module docs); `None` before the first scan, at the end and after an
+    /// error.
+    pub fn ray_timing(&self) -> Option<RayTiming> {
+        self.ray_timing
+    }
+
+    /// How many of the scans returned so far had their rays taken as simultaneous
+    /// ([`RayTiming::Simultaneous`]: `time_increment` 0). From a spinning scanner
+    /// this is a driver that does not fill `time_increment`: each ray is then
+    /// dated up to a turn off.
+    pub fn simultaneous_scans(&self) -> u64 {
+        self.simultaneous
+    }
+
     /// The next scan, `Ok(None)` at the end of the topic. The scan borrows the
     /// source's buffer until the next call.
     pub fn next_scan(&mut self) -> Result<Option<&Scan>, Error> {
+        self.ray_timing = None;
         let Some(msg) = self.reader.next_message()? else {
             return Ok(None);
         };
@@ -158,11 +209,15 @@ impl McapScanSource {
                     StampSource::LogTime => i64::try_from(log_time)
                         .map_err(|_| format!("log time {log_time} ns does not fit i64"))?,
                 };
-                laser_scan_to_rays(&m, start, &mut rays)
+                laser_scan_to_rays(&m, start, &mut rays).map(|t| (t, RayTiming::of(&m)))
             });
         match result {
-            Ok(timing) => {
+            Ok((timing, ray_timing)) => {
                 self.scan = Scan::from_timed(timing, rays);
+                self.ray_timing = Some(ray_timing);
+                if ray_timing == RayTiming::Simultaneous {
+                    self.simultaneous += 1;
+                }
                 Ok(Some(&self.scan))
             }
             Err(reason) => Err(Error::Message {
@@ -179,7 +234,9 @@ impl McapScanSource {
 }
 
 /// Fills `rays` (cleared first) from a `LaserScan` whose first ray is at
-/// `start_ns`; returns the scan timing. See the module docs for the rules.
+/// `start_ns`; returns the scan timing. The rays are dated as
+/// [`RayTiming::of`] says: all at `start_ns` when `time_increment` is 0. See the
+/// module docs for the rules.
 pub fn laser_scan_to_rays(
     m: &LaserScan<'_>,
     start_ns: Nanos,
@@ -222,26 +279,14 @@ pub fn laser_scan_to_rays(
     } else {
         0
     };
-    let mut dt_ns = f32_as_decimal(m.time_increment) * 1e9;
-    if dt_ns == 0.0 {
-        // the rays' times left to be derived: a constant sweep over the turn
-        // `scan_time` lasts
-        dt_ns = da.abs() / std::f64::consts::TAU * period_ns as f64;
-        if dt_ns == 0.0 && n > 1 {
-            return Err(format!(
-                "time_increment is 0 and {}: the rays' measurement times are unknown \
-                 (every ray would get the stamp)",
-                if period_ns == 0 {
-                    format!("scan_time is {} (no turn to spread them over)", m.scan_time)
-                } else {
-                    "angle_increment is 0 (no sweep to spread them over)".to_string()
-                }
-            ));
-        }
-    }
-    // rays over more than two turns (or 10 s where no turn is given), whether their
-    // increment is given or derived, are no scan: a hostile or broken increment
-    // would date them hours or centuries apart
+    let dt_ns = match RayTiming::of(m) {
+        // not spread in time: every ray at the stamp, whatever `scan_time` (the
+        // time between scans, not a sweep)
+        RayTiming::Simultaneous => 0.0,
+        RayTiming::Increment => f32_as_decimal(m.time_increment) * 1e9,
+    };
+    // rays over more than two turns (or 10 s where no turn is given) are no scan: a
+    // hostile or broken increment would date them hours or centuries apart
     let span_ns = dt_ns.abs() * n.saturating_sub(1) as f64;
     let max_span_ns = if period_ns > 0 {
         2.0 * period_ns as f64
@@ -250,13 +295,8 @@ pub fn laser_scan_to_rays(
     };
     if span_ns > max_span_ns {
         return Err(format!(
-            "{n} ranges {} s apart ({}) span {:.3} s, more than {}",
+            "{n} ranges {} s apart (time_increment) span {:.3} s, more than {}",
             dt_ns.abs() * 1e-9,
-            if m.time_increment == 0.0 {
-                "derived from angle_increment and scan_time"
-            } else {
-                "time_increment"
-            },
             span_ns * 1e-9,
             if period_ns > 0 {
                 format!("two turns of scan_time {} s", m.scan_time)
@@ -322,7 +362,6 @@ mod tests {
         let ranges = vec![1.0f32; MAX_RAYS_PER_SCAN + 1];
         let m = LaserScan {
             angle_increment: 0.001,
-            // (a time increment: rays of unknown times are refused too)
             time_increment: 1e-7,
             range_max: 12.0,
             ranges: F32Seq::from_slice(&ranges),
@@ -379,12 +418,17 @@ mod tests {
         assert!((rays[1].bearing_rad - (3.5 - std::f64::consts::TAU)).abs() < 1e-12);
     }
 
-    /// A scan of `n` rays a turn's `n`th apart, from `angle_min`, with the given
-    /// increments.
-    fn turn(n: usize, angle_increment: f32, time_increment: f32, scan_time: f32) -> Vec<Ray> {
+    /// A scan of `n` 2 m rays from bearing -0.5 rad stamped at 1 s, with the given
+    /// increments, and how its rays were dated.
+    fn scan_of(
+        n: usize,
+        angle_increment: f32,
+        time_increment: f32,
+        scan_time: f32,
+    ) -> (ScanTiming, Vec<Ray>, RayTiming) {
         let ranges = vec![2.0f32; n];
         let m = LaserScan {
-            angle_min: -3.0,
+            angle_min: -0.5,
             angle_increment,
             time_increment,
             scan_time,
@@ -393,75 +437,100 @@ mod tests {
             ..LaserScan::default()
         };
         let mut rays = Vec::new();
-        laser_scan_to_rays(&m, 1_000_000_000, &mut rays)
-            .map(|timing| {
-                let ccw = angle_increment > 0.0;
-                assert_eq!(
-                    timing.rotation,
-                    if ccw { Rotation::Ccw } else { Rotation::Cw }
-                );
-                assert_eq!(timing.period_ns, 100_000_000);
-                rays
-            })
-            .unwrap()
+        let timing = laser_scan_to_rays(&m, 1_000_000_000, &mut rays).unwrap();
+        assert_eq!(rays.len(), n);
+        (timing, rays, RayTiming::of(&m))
     }
 
     #[test]
-    fn without_a_time_increment_the_rays_are_spread_over_the_scan_time() {
-        let inc = (std::f64::consts::TAU / 720.0) as f32;
-        for da in [inc, -inc] {
-            let given = turn(720, da, 0.1 / 720.0, 0.1);
-            let derived = turn(720, da, 0.0, 0.1);
-            for (i, (g, d)) in given.iter().zip(&derived).enumerate() {
-                // ray i a 720th of a turn after ray i - 1: 0.1 / 720 s
-                assert!(
-                    (g.t_ns - d.t_ns).abs() <= 2,
-                    "ray {i}: {} vs {}",
-                    g.t_ns,
-                    d.t_ns
-                );
-                assert_eq!(g.bearing_rad, d.bearing_rad);
-            }
-            assert!((derived[719].t_ns - 1_099_861_111).abs() <= 2);
+    fn a_depth_camera_scan_with_a_scan_time_has_every_ray_at_the_stamp() {
+        // pointcloud_to_laserscan / depthimage_to_laserscan: time_increment 0 and
+        // scan_time the output period, for returns measured at one instant
+        for da in [0.0016f32, -0.0016] {
+            let (timing, rays, how) = scan_of(640, da, 0.0, 1.0 / 30.0);
+            assert_eq!(how, RayTiming::Simultaneous);
+            assert!(
+                rays.iter().all(|r| r.t_ns == 1_000_000_000),
+                "rays spread over {} ns",
+                rays[639].t_ns - rays[0].t_ns
+            );
+            assert_eq!(timing.start_ns, 1_000_000_000);
+            // the scan period is still scan_time (1/30 as f32 prints as 0.033333335),
+            // the sweep follows angle_increment
+            assert_eq!(timing.period_ns, 33_333_335);
+            let ccw = da > 0.0;
+            assert_eq!(
+                timing.rotation,
+                if ccw { Rotation::Ccw } else { Rotation::Cw }
+            );
+            let last = wrap_pi(-0.5 + 639.0 * f64::from(da));
+            assert!((rays[639].bearing_rad - last).abs() < 1e-9);
         }
-        // a 270° scanner: its rays span three quarters of the turn
-        let quarter = (std::f64::consts::TAU / 1440.0) as f32;
-        let r = turn(1081, quarter, 0.0, 0.1);
-        assert!(
-            (r[1080].t_ns - 1_075_000_000).abs() <= 10,
-            "{}",
-            r[1080].t_ns
+    }
+
+    #[test]
+    fn a_gazebo_scan_without_time_increment_or_scan_time_is_accepted() {
+        // Gazebo's ray sensors and ros_gz_bridge: an instantaneous simulated scan
+        let inc = (std::f64::consts::TAU / 720.0) as f32;
+        let (timing, rays, how) = scan_of(720, inc, 0.0, 0.0);
+        assert_eq!(how, RayTiming::Simultaneous);
+        assert!(rays.iter().all(|r| r.t_ns == 1_000_000_000));
+        assert_eq!(timing.period_ns, 0);
+        assert_eq!(timing.rotation, Rotation::Ccw);
+        // -0 is 0, and a scan of one ray has nothing to spread
+        let (_, rays, how) = scan_of(8, 0.1, -0.0, 0.0);
+        assert_eq!(how, RayTiming::Simultaneous);
+        assert!(rays.iter().all(|r| r.t_ns == 1_000_000_000));
+        assert_eq!(scan_of(1, 0.0, 0.0, 0.0).2, RayTiming::Simultaneous);
+    }
+
+    #[test]
+    fn a_time_increment_dates_each_ray_from_the_stamp() {
+        let inc = (std::f64::consts::TAU / 720.0) as f32;
+        for (da, rotation) in [(inc, Rotation::Ccw), (-inc, Rotation::Cw)] {
+            let (timing, rays, how) = scan_of(720, da, 0.1 / 720.0, 0.1);
+            assert_eq!(how, RayTiming::Increment);
+            assert_eq!((timing.period_ns, timing.rotation), (100_000_000, rotation));
+            // 0.1 / 720 as f32 prints as 0.00013888889: 138888.89 ns a ray
+            for (i, r) in rays.iter().enumerate() {
+                assert_eq!(
+                    r.t_ns,
+                    1_000_000_000 + (i as f64 * 138_888.89).round() as i64,
+                    "ray {i}"
+                );
+            }
+        }
+        // a negative increment dates the rays back from the stamp: a sweep the
+        // other way
+        let (timing, rays, how) = scan_of(4, 0.1, -0.001, 0.1);
+        assert_eq!(how, RayTiming::Increment);
+        assert_eq!(timing.rotation, Rotation::Cw);
+        let times: Vec<Nanos> = rays.iter().map(|r| r.t_ns).collect();
+        assert_eq!(
+            times,
+            [1_000_000_000, 999_000_000, 998_000_000, 997_000_000]
         );
     }
 
     #[test]
-    fn rays_whose_times_are_unknown_are_an_error_not_all_stamped_alike() {
-        let ranges = [2.0f32; 8];
-        let m = LaserScan {
-            angle_increment: 0.1,
-            range_max: 12.0,
-            ranges: F32Seq::from_slice(&ranges),
-            ..LaserScan::default()
-        };
+    fn a_time_increment_that_is_no_number_is_refused() {
+        let r = [1.0f32; 4];
         let mut rays = Vec::new();
-        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
-        assert!(
-            e.starts_with("time_increment is 0 and scan_time is 0 (no turn"),
-            "{e}"
-        );
-        let m = LaserScan {
-            angle_increment: 0.0,
-            scan_time: 0.1,
-            ..m
-        };
-        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
-        assert!(e.contains("angle_increment is 0"), "{e}");
-        // one ray (or none) has no spread to lose
-        let m = LaserScan {
-            ranges: F32Seq::from_slice(&ranges[..1]),
-            ..LaserScan::default()
-        };
-        assert!(laser_scan_to_rays(&m, 0, &mut rays).is_ok());
+        for (ti, want) in [
+            (f32::NAN, "time_increment is NaN"),
+            (f32::INFINITY, "time_increment is inf"),
+            (f32::NEG_INFINITY, "time_increment is -inf"),
+        ] {
+            let m = LaserScan {
+                angle_increment: 0.1,
+                time_increment: ti,
+                scan_time: 0.1,
+                range_max: 10.0,
+                ranges: F32Seq::from_slice(&r),
+                ..LaserScan::default()
+            };
+            assert_eq!(laser_scan_to_rays(&m, 0, &mut rays).unwrap_err(), want);
+        }
     }
 
     #[test]
@@ -476,13 +545,6 @@ mod tests {
         assert!(laser_scan_to_rays(&m, 0, &mut rays)
             .unwrap_err()
             .contains("1 intensities for 2 ranges"));
-        let m = LaserScan {
-            time_increment: f32::NAN,
-            ..LaserScan::default()
-        };
-        assert!(laser_scan_to_rays(&m, 0, &mut rays)
-            .unwrap_err()
-            .contains("time_increment"));
         // rays dated over more than two turns, or 10 s without a turn: no scan
         let r = [1.0f32; 361];
         let m = LaserScan {
@@ -505,19 +567,15 @@ mod tests {
         };
         let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
         assert!(e.ends_with("more than 10 s (scan_time not given)"), "{e}");
-        // a derived increment is held to the same bound
+        // time_increment 0 spreads nothing, whatever the angles and scan_time
         let m = LaserScan {
             time_increment: 0.0,
             angle_increment: 1e30,
             scan_time: 0.1,
             ..m
         };
-        let e = laser_scan_to_rays(&m, 0, &mut rays).unwrap_err();
-        assert!(
-            e.contains("(derived from angle_increment and scan_time)")
-                && e.ends_with("more than two turns of scan_time 0.1 s"),
-            "{e}"
-        );
+        laser_scan_to_rays(&m, 0, &mut rays).unwrap();
+        assert!(rays.iter().all(|r| r.t_ns == 0));
         // one turn is a scan
         let m = LaserScan {
             angle_increment: 0.0174,

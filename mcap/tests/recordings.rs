@@ -170,6 +170,76 @@ fn scans_round_trip_exactly() {
     assert!(src.next_scan().unwrap().is_none());
 }
 
+/// `time_increment = 0` says the rays were not spread in time, whatever `scan_time`:
+/// a depth camera turned into scans (`pointcloud_to_laserscan`: `scan_time` its
+/// period) and a Gazebo scan (both 0) have every ray at the stamp the source takes,
+/// and the source says so; a scan with an increment is dated by it.
+#[test]
+fn scans_without_a_time_increment_have_every_ray_at_the_stamp() {
+    use vlsync_mcap::scan::RayTiming;
+    let tmp = Tmp::new("simultaneous");
+    let mut w = McapWriter::create(&tmp.0).unwrap();
+    let ranges = [2.0f32; 100];
+    // (time_increment, scan_time): pointcloud_to_laserscan, Gazebo, a spinning scanner
+    let kinds = [(0.0f32, 1.0f32 / 30.0), (0.0, 0.0), (0.001, 0.1)];
+    let mut buf = Vec::new();
+    for (k, &(time_increment, scan_time)) in kinds.iter().enumerate() {
+        LaserScan {
+            header: vlsync_mcap::cdr::Header {
+                stamp: vlsync_mcap::cdr::Time {
+                    sec: 10 + k as i32,
+                    nanosec: 0,
+                },
+                frame_id: "laser",
+            },
+            angle_min: -0.8,
+            angle_increment: 0.016,
+            time_increment,
+            scan_time,
+            range_max: 10.0,
+            ranges: vlsync_mcap::cdr::F32Seq::from_slice(&ranges),
+            ..LaserScan::default()
+        }
+        .encode(&mut buf)
+        .unwrap();
+        w.write_serialized::<LaserScan>("/scan", 20_000_000_000 + k as u64, &buf)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    for stamp in [StampSource::Header, StampSource::LogTime] {
+        let mut src = McapScanSource::open(
+            &tmp.0,
+            ScanSourceOptions {
+                stamp,
+                ..ScanSourceOptions::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(src.ray_timing(), None);
+        for (k, &(time_increment, _)) in kinds.iter().enumerate() {
+            let t0 = match stamp {
+                StampSource::Header => 10_000_000_000 + k as i64 * 1_000_000_000,
+                StampSource::LogTime => 20_000_000_000 + k as i64,
+            };
+            let s = src.next_scan().unwrap().unwrap();
+            assert_eq!(s.timing().start_ns, t0);
+            let times: Vec<i64> = s.rays().iter().map(|r| r.t_ns).collect();
+            let how = if time_increment == 0.0 {
+                assert!(times.iter().all(|&t| t == t0), "{stamp:?} {k}: {times:?}");
+                RayTiming::Simultaneous
+            } else {
+                let want: Vec<i64> = (0..100).map(|i| t0 + i * 1_000_000).collect();
+                assert_eq!(times, want);
+                RayTiming::Increment
+            };
+            assert_eq!(src.ray_timing(), Some(how), "{stamp:?} {k}");
+        }
+        assert_eq!(src.simultaneous_scans(), 2);
+        assert!(src.next_scan().unwrap().is_none());
+        assert_eq!(src.ray_timing(), None);
+    }
+}
+
 #[test]
 fn scans_feed_the_lidar_signature() {
     use vlsync_signature_lidar::{SignatureConfig, SignatureProcessor};
@@ -818,20 +888,7 @@ fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
         let cut = Tmp::new(&format!("{name}-cut"));
         std::fs::write(&cut.0, &bytes[..bytes.len() - 200]).unwrap();
         for (path, indexed) in [(&tmp.0, true), (&cut.0, false)] {
-            let mut src = McapImageSource::open(path, ImageSourceOptions::topic("/cam")).unwrap();
-            assert_eq!(src.reader().is_indexed(), indexed, "{name}");
-            for k in 0..8u32 {
-                let (f, t) = src.next_frame().unwrap().unwrap();
-                assert_eq!(f, frame(k as u8, 32, 24).view(), "{name} {k}");
-                assert_eq!(t, FrameTime::Instant(1_000_000_000 + i64::from(k)));
-            }
-            let mut scans = McapScanSource::open(path, ScanSourceOptions::default()).unwrap();
-            for k in 0..8 {
-                let s = scans.next_scan().unwrap().unwrap();
-                assert_eq!(s.len(), 360);
-                assert_eq!(s.rays()[359].range_m, f64::from(1.5f32 + k as f32));
-                assert_eq!(s.rays()[10].t_ns, 1_000_000); // stamp 0 + 10 x 0.1 ms
-            }
+            reads_as_the_fixture(path, indexed, name);
         }
         // an unknown compression name: patch "zstd"/"lz4" in place
         let mut patched = bytes.clone();
@@ -853,6 +910,157 @@ fn zstd_and_lz4_chunks_are_read_indexed_and_linearly() {
                 && err.contains("supported chunk compressions: none, zstd, lz4"),
             "{err}"
         );
+    }
+}
+
+/// Reads `path`, a compressed fixture (or one rewritten from it), through the index
+/// or linearly as `indexed` says, and checks it holds what the fixture was written
+/// with.
+fn reads_as_the_fixture(path: &std::path::Path, indexed: bool, what: &str) {
+    let mut src = McapImageSource::open(path, ImageSourceOptions::topic("/cam")).unwrap();
+    assert_eq!(src.reader().is_indexed(), indexed, "{what}");
+    for k in 0..8u32 {
+        let (f, t) = src
+            .next_frame()
+            .unwrap_or_else(|e| panic!("{what} indexed {indexed}: {e}"))
+            .unwrap();
+        assert_eq!(f, frame(k as u8, 32, 24).view(), "{what} {k}");
+        assert_eq!(t, FrameTime::Instant(1_000_000_000 + i64::from(k)));
+    }
+    // (a cut file ends in an error after its last whole chunk)
+    if indexed {
+        assert!(src.next_frame().unwrap().is_none());
+    }
+    let mut scans = McapScanSource::open(path, ScanSourceOptions::default()).unwrap();
+    for k in 0..8 {
+        let s = scans.next_scan().unwrap().unwrap();
+        assert_eq!(s.len(), 360);
+        assert_eq!(s.rays()[359].range_m, f64::from(1.5f32 + k as f32));
+        assert_eq!(s.rays()[10].t_ns, 1_000_000); // stamp 0 + 10 x 0.1 ms
+    }
+    if indexed {
+        assert!(scans.next_scan().unwrap().is_none());
+    }
+}
+
+/// The lz4 fixture with each chunk's records compressed again as a skippable frame
+/// and two LZ4 frames (the records split in the middle), as the LZ4 frame format
+/// allows and the reference MCAP readers read; the chunk indexes, summary offsets
+/// and footer moved to match, the data section and summary CRCs left out.
+fn lz4_fixture_in_several_frames() -> Vec<u8> {
+    use std::io::{Read, Write};
+    let bytes = std::fs::read(fixture("lz4")).unwrap();
+    let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let u32_at = |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+    let lz4 = |data: &[u8]| {
+        let mut e = lz4_flex::frame::FrameEncoder::new(Vec::new());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    };
+    // the top-level records after the magic, up to the end magic, rewritten; where
+    // each old record now starts
+    let mut out = mcap::MAGIC.to_vec();
+    let mut moved = std::collections::HashMap::new();
+    let mut recs = vec![];
+    let mut at = 8;
+    let mut chunks = 0;
+    while at + 9 <= bytes.len() - 8 {
+        let (op, len) = (bytes[at], u64_at(&bytes, at + 1) as usize);
+        let mut body = bytes[at + 9..at + 9 + len].to_vec();
+        if op == 0x06 {
+            // start, end, uncompressed size, CRC, compression, then the records
+            let c = u32_at(&body, 28) as usize;
+            assert_eq!(&body[32..32 + c], b"lz4");
+            let records_at = 32 + c + 8;
+            let mut records = Vec::new();
+            lz4_flex::frame::FrameDecoder::new(&body[records_at..])
+                .read_to_end(&mut records)
+                .unwrap();
+            assert_eq!(records.len() as u64, u64_at(&body, 16));
+            let half = records.len() / 2;
+            let mut frames = 0x184D_2A53u32.to_le_bytes().to_vec();
+            frames.extend_from_slice(&4u32.to_le_bytes());
+            frames.extend_from_slice(b"skip");
+            frames.extend_from_slice(&lz4(&records[..half]));
+            frames.extend_from_slice(&lz4(&records[half..]));
+            body.truncate(32 + c);
+            body.extend_from_slice(&(frames.len() as u64).to_le_bytes());
+            body.extend_from_slice(&frames);
+            chunks += 1;
+        }
+        if op == 0x0F {
+            // data end: its CRC covered the old chunks
+            body[..4].fill(0);
+        }
+        moved.insert(at as u64, out.len() as u64);
+        recs.push((out.len(), op));
+        out.push(op);
+        out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        out.extend_from_slice(&body);
+        at += 9 + len;
+    }
+    out.extend_from_slice(mcap::MAGIC);
+    assert!(chunks > 1);
+    let to = |old: u64| {
+        *moved
+            .get(&old)
+            .unwrap_or_else(|| panic!("no record at {old}"))
+    };
+    let put = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    for (rec_at, op) in recs {
+        let body_at = rec_at + 9;
+        match op {
+            0x08 => {
+                // chunk index: start, end, chunk offset, chunk length, message index
+                // offsets (u32 byte length, then channel u16 + offset u64 each),
+                // message index length, compression, compressed size, uncompressed size
+                let chunk = to(u64_at(&out, body_at + 16));
+                put(&mut out, body_at + 16, chunk);
+                let chunk_len = 9 + u64_at(&out, chunk as usize + 1);
+                put(&mut out, body_at + 24, chunk_len);
+                let map_len = u32_at(&out, body_at + 32) as usize;
+                let mut e = body_at + 36;
+                while e < body_at + 36 + map_len {
+                    let index_at = to(u64_at(&out, e + 2));
+                    put(&mut out, e + 2, index_at);
+                    e += 10;
+                }
+                let c = u32_at(&out, e + 8) as usize;
+                let chunk_body = chunk as usize + 9;
+                let records_len = u64_at(&out, chunk_body + 32 + c);
+                put(&mut out, e + 12 + c, records_len);
+            }
+            0x0E => {
+                // summary offset: group opcode, group start, group length
+                let start = to(u64_at(&out, body_at + 1));
+                put(&mut out, body_at + 1, start);
+            }
+            0x02 => {
+                // footer: summary start, summary offset start, summary CRC
+                for f in [body_at, body_at + 8] {
+                    let v = to(u64_at(&out, f));
+                    put(&mut out, f, v);
+                }
+                out[body_at + 16..body_at + 20].fill(0);
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+/// A chunk may hold several LZ4 frames and skippable frames (the LZ4 frame format
+/// allows both, the reference MCAP readers read them): read through the index and
+/// linearly as the one-frame chunk is.
+#[test]
+fn lz4_chunks_of_several_frames_read_indexed_and_linearly() {
+    let bytes = lz4_fixture_in_several_frames();
+    let tmp = Tmp::new("lz4-frames");
+    std::fs::write(&tmp.0, &bytes).unwrap();
+    let cut = Tmp::new("lz4-frames-cut");
+    std::fs::write(&cut.0, &bytes[..bytes.len() - 200]).unwrap();
+    for (path, indexed) in [(&tmp.0, true), (&cut.0, false)] {
+        reads_as_the_fixture(path, indexed, "lz4 in several frames");
     }
 }
 

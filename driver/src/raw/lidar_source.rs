@@ -612,6 +612,13 @@ impl Source for LidarSource {
                      not sorted)"
                 ));
             }
+            let same = m.simultaneous_scans();
+            if same > 0 {
+                s.push_str(&format!(
+                    "; {same} scans with time_increment 0: their rays taken as simultaneous, \
+                     at the stamp (a spinning scanner's driver should fill it in)"
+                ));
+            }
         }
         if let ScanInput::Serial(ser) = &self.input {
             match &ser.parser {
