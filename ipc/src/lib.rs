@@ -201,6 +201,22 @@ pub const DEFAULT_SIGNATURE_BUFFER: usize = 256;
 /// it was (a client library must not take an application's signals). Either way
 /// iceoryx2's own signal handlers are undone ([`signals::tame_iceoryx2_signals`]).
 pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError> {
+    build_node(name, handle_signals, true)
+}
+
+/// [`create_node`] with signal handling, without iceoryx2's clean-up of dead nodes
+/// at creation, for a process that calls [`cleanup_dead_nodes`] next and reports
+/// its count (the daemon): done at creation, the explicit clean-up found nothing
+/// and a crash's clean-up was never said.
+pub fn create_node_cleaning_later(name: &str) -> Result<IpcNode, IpcError> {
+    build_node(name, true, false)
+}
+
+fn build_node(
+    name: &str,
+    handle_signals: bool,
+    cleanup_on_creation: bool,
+) -> Result<IpcNode, IpcError> {
     let node_name = NodeName::new(name)
         .map_err(|e| IpcError::new(format!("node name {name:?}"), format!("{e:?}")))?;
     // iceoryx2 logs at Info by default (e.g. "no config file loaded"); keep its
@@ -213,8 +229,11 @@ pub fn create_node(name: &str, handle_signals: bool) -> Result<IpcNode, IpcError
     } else {
         signals::tame_iceoryx2_signals();
     }
+    let mut config = iceoryx2::config::Config::global_config().clone();
+    config.global.node.cleanup_dead_nodes_on_creation = cleanup_on_creation;
     NodeBuilder::new()
         .name(&node_name)
+        .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Svc>()
         .map_err(|e| IpcError::new(format!("create iceoryx2 node {name:?}"), format!("{e:?}")))

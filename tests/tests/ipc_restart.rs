@@ -81,6 +81,13 @@ fn sigkill_of_a_driver_and_of_the_daemon_recovers() {
         "{}",
         rig.log("vlsyncd-1.log")
     );
+    // the crashed daemon's resources were found and said (the node's creation used
+    // to remove them first, and the count said nothing)
+    let log = rig.log("vlsyncd-1.log");
+    assert!(
+        log.contains("removed the iceoryx2 resources of ") && log.contains(" dead process(es)"),
+        "{log}"
+    );
 
     // the new daemon received both streams and relocked near the truth
     assert!(st.received[0] > 100 && st.received[1] > 30, "{st:?}");

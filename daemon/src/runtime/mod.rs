@@ -507,7 +507,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
              the real-time thread are printed there (stderr), not held"
         );
     }
-    let node = create_node("vlsyncd", true).map_err(|e| e.to_string())?;
+    let node = vlsync_ipc::create_node_cleaning_later("vlsyncd").map_err(|e| e.to_string())?;
     let (cleaned, failed) = cleanup_dead_nodes(&node);
     if cleaned > 0 || failed > 0 {
         tracing::info!(
