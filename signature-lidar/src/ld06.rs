@@ -35,8 +35,11 @@
 //! skipped and counted; after a CRC failure the decoder rescans the 46 bytes
 //! after the false header for the next header, so a corrupted or truncated
 //! packet costs only itself. The scan assembler additionally rejects packets
-//! with a zero speed, an angle ≥ 360° or an angle span above
-//! [`Ld06Config::max_span_cdeg`]; with [`Ld06Clock::Device`] (the only clock
+//! with a zero speed, an angle ≥ 360°, an angle span above
+//! [`Ld06Config::max_span_cdeg`] or one their speed cannot sweep in their points'
+//! time (over [`MAX_SPAN_OVER_SWEEP`] times it: a speed or an angle the CRC-8
+//! missed, which would date the points up to `span / speed` before the last, 45 s
+//! at 1°/s); with [`Ld06Clock::Device`] (the only clock
 //! that reads the stamp) also a timestamp ≥ [`Ld06Config::timestamp_wrap_ms`],
 //! and a timestamp that jumps (see below).
 //! Every rejection is counted in [`Ld06Stats`] and the latest one is kept as
@@ -112,6 +115,22 @@ pub const BAUD: u32 = 230_400;
 /// intervals, if longer): packets come every 2.7 ms, and a few lost to line
 /// noise make a step of a few of those.
 pub const MAX_STAMP_STEP_MS: u16 = 1000;
+/// Largest ratio of a packet's span to the angle its speed sweeps in its 11 point
+/// intervals (`speed · 11 / point_rate_hz`) that is taken.
+///
+/// A packet's 12 points are measured `1 / point_rate_hz` apart at the speed it
+/// sends, so the ratio is 1 but for rounding: the speed is whole °/s (0.14 % even
+/// at 1 Hz), the angles 0.01° (about 1 % of the 0.88° a packet spans at 1 Hz), and
+/// the motor's speed does not change by half within a packet's 2.7 ms. LDROBOT's
+/// `LiPkg::Parse` takes a packet whose span (whole degrees) is at most 1.5 times
+/// what its speed sweeps in 12 point intervals, 1.64 times the 11 its span covers;
+/// the bound here is 1.5 times those 11. At the bound the first point is dated
+/// 1.2 ms too early (3.7 ms before the last instead of 2.4 ms); beyond it lie the
+/// speeds a corruption the CRC-8 missed (1 in 256) makes: at 1 °/s the first point
+/// of an 8.8° packet would be dated 8.8 s before its last. (A speed too high for
+/// the span is not refused, nor by LDROBOT: it squeezes the packet's points
+/// towards its last, within its own 2.4 ms.)
+pub const MAX_SPAN_OVER_SWEEP: f64 = 1.5;
 
 const fn crc_table() -> [u8; 256] {
     let mut t = [0u8; 256];
@@ -200,6 +219,14 @@ pub enum Ld06ErrorKind {
         /// Span, 0.01°.
         span_cdeg: u16,
     },
+    /// Start-to-end span over [`MAX_SPAN_OVER_SWEEP`] times what the packet's
+    /// speed sweeps in its points' time (a corrupted speed or angle).
+    SpanOverSpeed {
+        /// Span, 0.01°.
+        span_cdeg: u16,
+        /// Rotation speed, degrees per second.
+        speed_dps: u16,
+    },
     /// Timestamp at or above the wrap value.
     TimestampOutOfRange {
         /// Timestamp, ms.
@@ -243,6 +270,15 @@ impl fmt::Display for Ld06ErrorKind {
             Ld06ErrorKind::ImplausibleSpan { span_cdeg } => {
                 write!(f, "packet spans {span_cdeg} x 0.01 deg, above the limit")
             }
+            Ld06ErrorKind::SpanOverSpeed {
+                span_cdeg,
+                speed_dps,
+            } => write!(
+                f,
+                "packet spans {span_cdeg} x 0.01 deg, over {MAX_SPAN_OVER_SWEEP} times what \
+                 its speed, {speed_dps} deg/s, sweeps in its points' time (a corrupted speed \
+                 or angle)"
+            ),
             Ld06ErrorKind::TimestampOutOfRange { timestamp_ms } => {
                 write!(f, "timestamp {timestamp_ms} ms at or above the wrap value")
             }
@@ -354,7 +390,8 @@ pub struct Ld06Stats {
     pub bad_ver_len: u64,
     /// Packets with a CRC mismatch.
     pub crc_errors: u64,
-    /// CRC-valid packets rejected by the scan assembler (speed, angle, span, timestamp).
+    /// CRC-valid packets rejected by the scan assembler (speed, angle, span, a span
+    /// the speed cannot sweep, timestamp).
     pub invalid_packets: u64,
     /// Of `invalid_packets`, those rejected for a timestamp jump
     /// ([`Ld06ErrorKind::TimestampJump`], device clock only).
@@ -554,7 +591,10 @@ pub struct Ld06Config {
     pub timestamp_wrap_ms: u16,
     /// Largest accepted start-to-end span of one packet, 0.01°.
     pub max_span_cdeg: u16,
-    /// A scan is emitted early if it reaches this many rays.
+    /// A scan is emitted early if it reaches this many rays. The parser reserves
+    /// room for them when it is made (32 bytes a ray: 256 KiB for the default
+    /// 8192), so a long scan (a motor below 4.4 Hz holds over 1024 rays, a missed
+    /// wrap up to this) never allocates after start-up.
     pub max_scan_rays: usize,
 }
 
@@ -597,7 +637,8 @@ impl Ld06Parser {
         Self {
             cfg,
             decoder: Ld06Decoder::new(),
-            scan: Scan::with_capacity(1024),
+            // every ray a scan can hold (it is emitted on reaching the limit)
+            scan: Scan::with_capacity(cfg.max_scan_rays.max(1)),
             last_angle_deg: None,
             speed_dps: 0,
             dev_clock: None,
@@ -672,6 +713,20 @@ impl Ld06Parser {
         let span = p.span_cdeg();
         if span > self.cfg.max_span_cdeg {
             return self.reject(offset, Ld06ErrorKind::ImplausibleSpan { span_cdeg: span });
+        }
+        // the points are dated `span / 11 / speed` apart: a speed the CRC-8 missed
+        // (1 °/s) would date the packet's first points seconds before its last, out
+        // of place among the scan's other rays (MAX_SPAN_OVER_SWEEP: the bound)
+        let sweep_cdeg = f64::from(p.speed_dps) * 100.0 * (POINTS_PER_PACKET - 1) as f64
+            / f64::from(self.cfg.point_rate_hz.max(1));
+        if f64::from(span) > MAX_SPAN_OVER_SWEEP * sweep_cdeg {
+            return self.reject(
+                offset,
+                Ld06ErrorKind::SpanOverSpeed {
+                    span_cdeg: span,
+                    speed_dps: p.speed_dps,
+                },
+            );
         }
         let wrap = self.cfg.timestamp_wrap_ms.max(1);
         // only a device clock reads the stamp: on the host clock a firmware whose
@@ -1136,6 +1191,75 @@ mod tests {
                 want.len()
             );
         }
+    }
+
+    /// 10 Hz packets from an encoder started at 1000 ms, `n` of them, with packet
+    /// `k`'s speed changed to `speed(k)` (the CRC recomputed: a corruption the CRC-8
+    /// misses).
+    fn respeeded(n: usize, speed: impl Fn(usize) -> Option<u16>) -> Vec<u8> {
+        let mut enc = Ld06Encoder::new(3600, 1000);
+        let mut v = Vec::new();
+        for k in 0..n {
+            let mut b = enc.next_packet(|_| 2000);
+            if let Some(dps) = speed(k) {
+                let mut p = Ld06Packet::decode(&b).unwrap();
+                p.speed_dps = dps;
+                b = p.encode();
+            }
+            v.extend_from_slice(&b);
+        }
+        v
+    }
+
+    #[test]
+    fn a_packet_whose_speed_cannot_sweep_its_span_is_refused() {
+        let truth = device_times(&respeeded(60, |_| None)).0;
+        // packet 30 (8.8 deg, 880 x 0.01 deg, at 3600 deg/s) says 1 deg/s: its first
+        // point would be dated 8.8 s before its last; 2000 deg/s, 4.4 ms before
+        // (1.8 times its 2.4 ms: the bound, 1.5 times, is 2400 deg/s)
+        for bad in [1, 100, 2000] {
+            let bytes = respeeded(60, |k| (k == 30).then_some(bad));
+            let (got, st, e) = device_times(&bytes);
+            assert_eq!((st.invalid_packets, st.crc_errors), (1, 0), "{st:?}");
+            let e = e.unwrap();
+            assert_eq!(
+                (e.offset, e.kind),
+                (
+                    30 * PACKET_LEN as u64,
+                    Ld06ErrorKind::SpanOverSpeed {
+                        span_cdeg: 880,
+                        speed_dps: bad
+                    }
+                )
+            );
+            assert!(e.to_string().contains(&format!(" {bad} deg/s")), "{e}");
+            // every packet but the bad one, at its own time
+            let mut want = truth.clone();
+            remove_each(&mut want, &packet_times(1000, 30));
+            assert!(
+                got == want,
+                "{bad} deg/s: {} rays, want {}",
+                got.len(),
+                want.len()
+            );
+            // on the host clock: no ray before the first packet's first point
+            let mut p = Ld06Parser::new(Ld06Config::default());
+            let rx = 100_000_000_000;
+            let mut first = Nanos::MAX;
+            p.push(&bytes, rx, |sc| first = first.min(sc.rays()[0].t_ns));
+            p.finish(|sc| first = first.min(sc.rays()[0].t_ns));
+            assert_eq!(p.stats().invalid_packets, 1);
+            // 60 packets 12 / 4500 s apart, the last's last point 2.04 ms (its wire
+            // time) before rx, the first's first point 11 / 4500 s before its last
+            let earliest = rx
+                - 2_039_931
+                - (59.0 * 12.0 / 4500.0 * 1e9_f64).round() as Nanos
+                - (11.0 / 4500.0 * 1e9_f64).round() as Nanos;
+            assert!((first - earliest).abs() <= 2, "{bad} deg/s: {first}");
+        }
+        // a speed a quarter low (motor ripple far beyond a real one's) is still taken
+        let bytes = respeeded(60, |k| (k == 30).then_some(2700));
+        assert_eq!(device_times(&bytes).1.invalid_packets, 0);
     }
 
     #[test]

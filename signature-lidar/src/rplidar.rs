@@ -52,9 +52,13 @@
 //! single misread angle in it adds nothing). A revolution that swept more than
 //! one and a half turns (two turns whose start could not be found), or less
 //! than half a turn (one begun at a misread angle, which its rays' times would
-//! be interpolated from), is dropped ([`RplidarStats::wrong_turns`]). A
-//! revolution whose period (scaled to a whole turn) is over 1.5 times, or under
-//! two thirds of, the last good period is dropped too
+//! be interpolated from), is dropped ([`RplidarStats::wrong_turns`]), as is one
+//! whose nodes reached more than [`MAX_ONE_TURN_DEG`] (a turn and 20°) along
+//! their path, a jump counting only once the node after it follows (a turn and
+//! the part of the next before a start made up late, where the nodes after a
+//! lost flag have no return). A revolution whose period (scaled to a whole
+//! turn) is over 1.5 times, or under two thirds of, the last good period is
+//! dropped too, as is one over [`RplidarConfig::max_period_ns`] or not above 0
 //! ([`RplidarStats::implausible_periods`]); the first is checked against
 //! [`RplidarConfig::nominal_period_ns`], and the last good period is kept across
 //! a drop: it is replaced by one outside those bounds only when two consecutive
@@ -287,12 +291,17 @@ pub struct RplidarStats {
     /// Revolutions dropped because the time between their start and the next
     /// (scaled to a whole turn) was over 1.5 times the last good period (the
     /// nominal period before the first), or under two thirds of it (not a
-    /// revolution of this motor), and the revolution before did not agree on it.
+    /// revolution of this motor), and the revolution before did not agree on it;
+    /// or was over [`RplidarConfig::max_period_ns`] or not above 0 (the host's
+    /// clock stepped back), whatever the revolution before.
     pub implausible_periods: u64,
     /// Revolutions dropped because their nodes (with a return or not) did not
     /// sweep one turn: more than one and a half (two turns whose start could not
     /// be found, the flagged node lost where no node has a return), never timed
-    /// as one; or less than a half (a revolution begun at a misread angle).
+    /// as one; or less than a half (a revolution begun at a misread angle); or
+    /// reached more than [`MAX_ONE_TURN_DEG`] past the first node along their path
+    /// (a turn and the part of the next before a start made up late: the flagged
+    /// node lost where the nodes after it have no return).
     pub wrong_turns: u64,
     /// Scans emitted.
     pub scans: u64,
@@ -308,15 +317,20 @@ pub struct RplidarConfig {
     /// node interval, the time between nodes on a line that idles between them,
     /// for the whole nodes after a revolution's first in a chunk.
     pub sample_rate_hz: u32,
-    /// Longest plausible rotation period; a longer interval between
-    /// revolution starts uses the last good period.
+    /// Longest plausible rotation period: a revolution whose start is followed by
+    /// the next one's later than this is dropped
+    /// ([`RplidarStats::implausible_periods`]), not timed with another period.
     pub max_period_ns: Nanos,
     /// Period used before a good one has been measured, and the one the first
     /// revolution's is checked against (a first revolution whose period is not
     /// within 2/3 to 1.5 times this is dropped, as is the second unless the two
     /// agree).
     pub nominal_period_ns: Nanos,
-    /// A scan is emitted early if it reaches this many rays.
+    /// A scan is emitted early if it reaches this many rays. The parser reserves
+    /// room for them twice when it is made (the revolution's nodes and the scan
+    /// made of them, 32 bytes a ray: 512 KiB for the default 8192), so a long
+    /// revolution (a slow motor, a fast sample rate, two turns merged) never
+    /// allocates after start-up.
     pub max_scan_rays: usize,
 }
 
@@ -377,6 +391,14 @@ pub struct RplidarParser {
     extent_deg: f64,
     /// A node's swept angle that jumped, awaiting the next node.
     extent_jump: Option<f64>,
+    /// The farthest the revolution's nodes reached along their path (`turn_deg`
+    /// after each), a node that jumped over [`STRAY_JUMP_DEG`] beyond it counting
+    /// only once the node after it confirms it: the extent unwrapped, over 360° for
+    /// nodes past a whole turn (a misread angle at the end, which the sweep counts
+    /// and the next start may follow, adds nothing).
+    reach_deg: f64,
+    /// A node's `turn_deg` that jumped, awaiting the next node.
+    reach_jump: Option<f64>,
     /// The angle of the revolution's last node.
     last_angle_deg: f64,
     /// The last good period.
@@ -396,12 +418,28 @@ pub const START_JITTER_DEG: f64 = 5.0;
 /// half a turn behind it shows it misread ([`RplidarStats::stray_nodes`]).
 pub const STRAY_JUMP_DEG: f64 = 30.0;
 
+/// How far (degrees) a revolution's nodes may reach beyond or short of a whole
+/// turn and still be timed as one, without scaling (its period up to 5.6 % off):
+/// the angles of the nodes that start two revolutions jitter by a node's step
+/// (about a degree), and a lost flag made up a few nodes late stretches the turn
+/// by those few nodes.
+pub const TURN_SLACK_DEG: f64 = 20.0;
+
 /// A revolution whose nodes swept more than this (degrees) is two turns.
 pub const MAX_TURN_DEG: f64 = 540.0;
+
 /// A revolution whose nodes swept less than this (degrees) began at a misread
 /// angle: a real one, even cut short by a made-up start, sweeps about a turn
 /// up to the node that starts the next.
 pub const MIN_TURN_DEG: f64 = 180.0;
+
+/// A revolution whose nodes reached more than this (degrees) past its first node,
+/// along their path (see [`RplidarStats::wrong_turns`]), is more than one turn: a
+/// turn and the part of the next before a start made up late (the flagged node lost
+/// among nodes without a return, the start made up at the first node with one). Its
+/// period would be that much too long (1.11 times for 40° more), and the extent of
+/// its nodes, whose angles wrap at 360°, cannot show it.
+pub const MAX_ONE_TURN_DEG: f64 = 360.0 + TURN_SLACK_DEG;
 
 /// The step from `from` to `to` (degrees clockwise) the short way round, in
 /// `(-180, 180]`.
@@ -438,8 +476,9 @@ impl RplidarParser {
             offset: 0,
             stats: RplidarStats::default(),
             last_error: None,
-            rays: Vec::with_capacity(1024),
-            scan: Scan::with_capacity(1024),
+            // every ray a revolution can hold (it is emitted on reaching the limit)
+            rays: Vec::with_capacity(cfg.max_scan_rays.max(1)),
+            scan: Scan::with_capacity(cfg.max_scan_rays.max(1)),
             scan_start: None,
             swept_max_deg: 0.0,
             last_valid_swept: None,
@@ -451,6 +490,8 @@ impl RplidarParser {
             end_step_deg: 0.0,
             extent_deg: 0.0,
             extent_jump: None,
+            reach_deg: 0.0,
+            reach_jump: None,
             last_angle_deg: 0.0,
             last_period: None,
             dropped_period: None,
@@ -516,8 +557,11 @@ impl RplidarParser {
         self.state = State::Node;
         let mut out = None;
         for (j, &x) in tail[1..n].iter().enumerate() {
-            // fewer than NODE_LEN bytes are replayed: at most one node could
-            // only complete if n > NODE_LEN, which never happens
+            // at most six bytes are replayed (a descriptor that mismatches at its
+            // last byte, 6; a node rejected at its byte 1, for the check bit, or
+            // once complete, for the angle, replays one or four): fewer than two
+            // nodes' ten, so at most one node completes here, the bytes after it
+            // only beginning the next
             if let Some(node) = self.step(x, start + j as u64) {
                 out = Some(node);
             }
@@ -652,6 +696,17 @@ impl RplidarParser {
                 self.end_step_deg = step;
             } else {
                 self.turn_deg += step;
+                // as the extent below, a jump counting once the next node follows it
+                if let Some(j) = self.reach_jump.take() {
+                    if (self.turn_deg - j).abs() <= STRAY_JUMP_DEG {
+                        self.reach_deg = self.reach_deg.max(j);
+                    }
+                }
+                if self.turn_deg > self.reach_deg + STRAY_JUMP_DEG {
+                    self.reach_jump = Some(self.turn_deg);
+                } else {
+                    self.reach_deg = self.reach_deg.max(self.turn_deg);
+                }
             }
             self.last_angle_deg = angle;
         }
@@ -665,6 +720,8 @@ impl RplidarParser {
             self.last_angle_deg = angle;
             self.extent_deg = 0.0;
             self.extent_jump = None;
+            self.reach_deg = 0.0;
+            self.reach_jump = None;
             self.implicit_revolution = !node.start;
             self.swept_max_deg = 0.0;
             self.last_valid_swept = None;
@@ -741,19 +798,43 @@ impl RplidarParser {
             self.rays.clear();
             return;
         }
+        // the nodes' reach (or extent) plus one node's step: 360° for a whole turn
+        let n = self.rays.len() as f64;
+        let per_node = if n >= 2.0 { n / (n - 1.0) } else { 1.0 };
+        if measured_end && self.reach_deg * per_node > MAX_ONE_TURN_DEG {
+            // a turn and the part of the next before a start made up late: its time
+            // is more than a period, and its extent, wrapped at 360°, says one turn,
+            // so nothing would scale it. Not rescaled by 360° / reach either: the
+            // period would be right, but the part's nodes, a turn later than the
+            // ones at the same angles, would be dated with them. It happens only
+            // where a lost flag is followed by nodes without a return; dropping it
+            // costs one revolution, and keeps the last good period
+            self.stats.wrong_turns += 1;
+            self.dropped_period = None;
+            self.rays.clear();
+            return;
+        }
         let mut measured = end_ns.saturating_sub(start);
-        if measured_end && self.rays.len() >= 2 {
-            // the nodes' extent plus one node's step: 360° for a whole turn
-            let n = self.rays.len() as f64;
-            let turn = self.extent_deg * n / (n - 1.0);
-            if turn > 0.0 && !(340.0..=380.0).contains(&turn) {
+        if measured_end && n >= 2.0 {
+            let turn = self.extent_deg * per_node;
+            if turn > 0.0 && (turn - 360.0).abs() > TURN_SLACK_DEG {
                 measured = (measured as f64 * 360.0 / turn).round() as Nanos;
             }
         }
         let good = self.last_period.unwrap_or(self.cfg.nominal_period_ns);
         let within = |p: Nanos, of: Nanos| p <= of.saturating_add(of / 2) && p >= of - of / 3;
         let measured_ok = measured > 0 && measured <= self.cfg.max_period_ns;
-        if measured_end && measured_ok && !within(measured, good) {
+        if measured_end && !measured_ok {
+            // no turn of this motor lasts that long (a stall, the host not reading)
+            // or the next start is dated before this one (the host's clock stepped
+            // back): timed with the last good period instead, its rays would be
+            // squeezed into a turn they did not take. No period to agree on either
+            self.stats.implausible_periods += 1;
+            self.dropped_period = None;
+            self.rays.clear();
+            return;
+        }
+        if measured_end && !within(measured, good) {
             let dropped = self.dropped_period.take();
             if dropped.is_none_or(|d| (measured - d).abs() > d / 5) {
                 // not one revolution of this motor (two merged, a stall, or a start
@@ -1140,6 +1221,81 @@ mod tests {
         assert!(scans
             .iter()
             .all(|s| s.timing().period_ns == 200_000_000 && s.len() == 360));
+    }
+
+    #[test]
+    fn a_lost_flag_before_nodes_without_a_return_does_not_stretch_the_turn_before() {
+        // the third revolution's flag is lost and its nodes up to 40 deg have no
+        // return: the start is made up at 40 deg, so the second revolution's nodes
+        // sweep 400 deg (its extent one turn, wrapped) in 1.11 periods
+        let mut revs: Vec<_> = (0..6).map(|_| rev_nodes(360, |_| true)).collect();
+        revs[2] = rev_nodes(360, |a| a >= 40.0);
+        revs[2].remove(0);
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(
+            (
+                stats.implicit_starts,
+                stats.wrong_turns,
+                stats.implausible_periods
+            ),
+            (1, 1, 0),
+            "{stats:?}"
+        );
+        // the first revolution, the third cut short from 40 deg (320 nodes; with
+        // nodes dated 0.5 ms apart within a chunk, 180 ms from its made-up start to
+        // the next flag, scaled from its extent, 320 deg, to a whole turn), and the
+        // fourth and fifth, whole; the second, which would have been timed with a
+        // period 11 % long (220 ms, then the last good one), is dropped
+        let lens: Vec<usize> = scans.iter().map(|s| s.len()).collect();
+        assert_eq!(lens, [360, 320, 360, 360], "{stats:?}");
+        let periods: Vec<Nanos> = scans.iter().map(|s| s.timing().period_ns).collect();
+        assert_eq!(
+            periods,
+            [200_000_000, 202_500_000, 200_000_000, 200_000_000],
+            "{stats:?}"
+        );
+        assert!((scans[1].rays()[0].bearing_deg() + 40.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn misread_angles_before_a_start_do_not_make_its_turn_too_long() {
+        // the second revolution's last node (no return) reads 74.5 deg and the third's
+        // flagged node 151 deg (line noise): the second's nodes sweep 511 deg up to
+        // that start, but along their path they reach 359 deg only (a jump counts
+        // once the next node follows it): it is one turn, timed as one
+        let mut revs: Vec<_> = (0..5).map(|_| rev_nodes(360, |_| true)).collect();
+        let last = &mut revs[1][359];
+        (last.angle_q6, last.distance_q2, last.quality) = (74 * 64 + 32, 0, 0);
+        revs[2][0].angle_q6 = 151 * 64;
+        let (scans, stats) = scans_of(&revs);
+        assert_eq!(scans.len(), 4, "{stats:?}");
+        assert_eq!(scans[1].len(), 360);
+        assert_eq!(scans[1].timing().period_ns, 200_000_000);
+        // the third, begun at the misread 151 deg, is dropped for its sweep (-1 deg
+        // up to the start made up at the real 151 deg), as before
+        assert_eq!(
+            (
+                stats.wrong_turns,
+                stats.implicit_starts,
+                stats.implausible_periods
+            ),
+            (1, 1, 0),
+            "{stats:?}"
+        );
+    }
+
+    #[test]
+    fn a_revolution_longer_than_the_longest_period_is_dropped_not_squeezed() {
+        // 1.2 s between two starts, over `max_period_ns` (1 s): not a turn to time
+        // with the last good period, which would squeeze its rays into 200 ms
+        let (periods, stats) = periods_at(&[1.0, 1.2, 1.4, 2.6, 2.8, 3.0]);
+        assert_eq!(periods, [200, 200, 200, 200], "{stats:?}");
+        assert_eq!((stats.implausible_periods, stats.wrong_turns), (1, 0));
+        // the same for a start dated before the one before (the host's clock
+        // stepped back): a period below 0
+        let (periods, stats) = periods_at(&[1.0, 1.2, 1.4, 1.3, 1.5, 1.7]);
+        assert_eq!(periods, [200, 200, 200, 200], "{stats:?}");
+        assert_eq!((stats.implausible_periods, stats.wrong_turns), (1, 0));
     }
 
     /// Pushes each revolution (360 nodes, all with a return) as one chunk at the

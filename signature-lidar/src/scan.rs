@@ -319,6 +319,13 @@ mod tests {
     }
 
     #[test]
+    fn a_ray_is_32_bytes() {
+        // the LD06 and RPLIDAR parsers reserve room for `max_scan_rays` of them when
+        // made, so no scan grows after start-up: 256 KiB a buffer at the default 8192
+        assert_eq!(std::mem::size_of::<Ray>(), 32);
+    }
+
+    #[test]
     fn device_degrees_convert_both_ways() {
         assert!((cw_degrees_to_bearing(90.0) + PI / 2.0).abs() < 1e-12);
         assert!((cw_degrees_to_bearing(270.0) - PI / 2.0).abs() < 1e-12);

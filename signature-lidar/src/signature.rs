@@ -806,12 +806,10 @@ impl SignatureProcessor {
         // the line's own time (relative to the centre return: xc, yc are still
         // subtracted from the sums)
         let normal_rad = wrap_pi(centre + normal);
-        let turning = self
-            .prev
-            .is_some_and(|p| {
-                let turned = wrap_pi(p.normal_rad - normal_rad).abs();
-                turned > TURNING_RAD || turned.is_nan()
-            });
+        let turning = self.prev.is_some_and(|p| {
+            let turned = wrap_pi(p.normal_rad - normal_rad).abs();
+            turned > TURNING_RAD || turned.is_nan()
+        });
         let shift = if turning {
             0
         } else {
