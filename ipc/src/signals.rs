@@ -70,6 +70,13 @@ pub fn tame_iceoryx2_signals() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         use iceoryx2_bb_posix::signal::{Signal, SignalHandler};
+        // every signal held back on this thread from the snapshot to the restore: a
+        // stop arriving while iceoryx2 installs its handlers (which then clears its
+        // slot) or before the restore (where the SIGCONT that follows would take the
+        // slot) waits, and reaches the restored action when unblocked. (Another
+        // thread of the process may still take one meanwhile; its slot is the
+        // fallback below.)
+        let held = block_all_signals();
         let before: Vec<(libc::c_int, libc::sigaction)> = settable()
             .filter_map(|s| current_action(s).map(|a| (s, a)))
             .collect();
@@ -81,6 +88,9 @@ pub fn tame_iceoryx2_signals() {
                 set_action(*signal, action);
             }
         }
+        if let Some(mask) = held {
+            restore_signal_mask(&mask);
+        }
         if let Some(caught) = SignalHandler::last_signal() {
             let signal = Signal::from(caught) as libc::c_int;
             // SAFETY: raise(3) of a signal number iceoryx2 took from the system; its
@@ -91,6 +101,29 @@ pub fn tame_iceoryx2_signals() {
             }
         }
     });
+}
+
+/// Blocks every signal on the calling thread; the mask before, to restore.
+fn block_all_signals() -> Option<libc::sigset_t> {
+    // SAFETY: `sigfillset` initialises `all`, a zeroed `sigset_t` owned by this
+    // frame; `pthread_sigmask` reads it and writes the old mask into `old`, also
+    // owned by this frame.
+    unsafe {
+        let mut all: libc::sigset_t = std::mem::zeroed();
+        let mut old: libc::sigset_t = std::mem::zeroed();
+        libc::sigfillset(&mut all);
+        (libc::pthread_sigmask(libc::SIG_BLOCK, &all, &mut old) == 0).then_some(old)
+    }
+}
+
+/// Puts back the calling thread's signal mask from [`block_all_signals`]; the
+/// signals that arrived meanwhile are delivered now.
+fn restore_signal_mask(mask: &libc::sigset_t) {
+    // SAFETY: `mask` is a valid `sigset_t` filled by `pthread_sigmask`; the old mask
+    // is not asked for.
+    unsafe {
+        libc::pthread_sigmask(libc::SIG_SETMASK, mask, std::ptr::null_mut());
+    }
 }
 
 /// Installs vlsync's SIGINT/SIGTERM handler, and SIGHUP's unless it is ignored (once

@@ -2,6 +2,7 @@
 //! binaries, stopping them gracefully, and reading their CPU time and memory
 //! from `/proc`.
 
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -46,7 +47,12 @@ impl Managed {
         // a vlsync child stops if this process dies without stopping it (the
         // kernel's parent-death signal, asked for by the child; it follows the
         // thread that spawned it, so the launchers spawn from their main thread)
-        cmd.args(args).stdin(Stdio::null()).env(
+        // In a process group of its own: a terminal's Ctrl-C (or SIGHUP) reaches
+        // the launcher alone, which stops its children in order (the drivers, a last
+        // status, the recorder once it has the last estimates, then the daemon);
+        // sent to the whole group, they all stopped at once and a recording lost
+        // its last estimates.
+        cmd.args(args).stdin(Stdio::null()).process_group(0).env(
             vlsync_ipc::STOP_WITH_PARENT_ENV,
             std::process::id().to_string(),
         );
@@ -605,6 +611,21 @@ mod tests {
         assert!(sibling_binary("definitely-not-a-binary")
             .unwrap_err()
             .contains("not found"));
+    }
+
+    #[test]
+    fn a_child_has_a_process_group_of_its_own() {
+        let mut m = Managed::spawn("sleep", Path::new("sleep"), &["30".into()], None).unwrap();
+        let stat = std::fs::read_to_string(format!("/proc/{}/stat", m.pid())).unwrap();
+        // pid (comm) state ppid pgrp ...
+        let pgrp: u32 = stat
+            .rsplit(") ")
+            .next()
+            .and_then(|r| r.split(' ').nth(2))
+            .and_then(|g| g.parse().ok())
+            .unwrap();
+        assert_eq!(pgrp, m.pid(), "{stat}");
+        m.stop(Duration::from_secs(4));
     }
 
     #[test]
