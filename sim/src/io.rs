@@ -284,7 +284,7 @@ fn parse_rows(
                     ),
                 ));
             }
-            // an estimates file (`vlsyncd replay --out`, `vlsync-echo --csv`) begins
+            // an estimates file (`vlsyncd replay --out`, `vlsyncd record`'s est.csv) begins
             // `t,offset` too: scored as the truth, it would grade a run against itself
             if value_name == "offset" {
                 if let Some(col) = line

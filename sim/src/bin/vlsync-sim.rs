@@ -20,7 +20,7 @@ struct Args {
     /// Random seed.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     seed: u64,
-    /// Duration in seconds (default: 12 for seed, 120 otherwise).
+    /// Duration in seconds, 2 to 3600 (default: 12 for seed, 120 otherwise).
     #[arg(long, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Multiplier of the family's signature noise, 0 to 1000 (0: noiseless values;
