@@ -398,6 +398,17 @@ fn resolve(
                 vlsync_common::text::clip(&t.message_encoding)
             )));
         }
+        // one message type per topic: the messages are decoded as the first
+        // channel's type (a merged file with `Image` and `CompressedImage` on one
+        // topic would fail message by message)
+        if t.schema_name != first.schema_name {
+            return Err(topic_err(format!(
+                "topic `{}` has channels of two schemas, `{}` and `{}`: name one topic of one type",
+                vlsync_common::text::clip(&name),
+                vlsync_common::text::clip(&first.schema_name),
+                vlsync_common::text::clip(&t.schema_name)
+            )));
+        }
     }
     let mut info = (*first).clone();
     info.message_count = mine

@@ -388,6 +388,36 @@ fn wrong_topic_or_schema_is_a_clear_error() {
     assert!(e.starts_with("/nonexistent/x.mcap: opening"), "{e}");
 }
 
+/// A merged file with `Image` and `CompressedImage` channels on one topic: refused
+/// at the start, naming both schemas (the messages were decoded as the first
+/// channel's type, and each of the other's failed on its own).
+#[test]
+fn one_topic_of_two_schemas_is_refused() {
+    use std::collections::BTreeMap;
+    let tmp = Tmp::new("two-schemas");
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(&tmp.0).unwrap());
+        let mut w = mcap::Writer::new(file).unwrap();
+        for (name, text) in [
+            (Image::SCHEMA_NAME, Image::SCHEMA_TEXT),
+            (CompressedImage::SCHEMA_NAME, CompressedImage::SCHEMA_TEXT),
+        ] {
+            let schema = w.add_schema(name, "ros2msg", text.as_bytes()).unwrap();
+            w.add_channel(schema, "/cam", "cdr", &BTreeMap::new())
+                .unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let e = err_text(McapImageSource::open(
+        &tmp.0,
+        ImageSourceOptions::topic("/cam"),
+    ));
+    assert!(
+        e.contains("topic `/cam` has channels of two schemas, `sensor_msgs/msg/Image` and `sensor_msgs/msg/CompressedImage`"),
+        "{e}"
+    );
+}
+
 #[test]
 fn bad_cdr_and_bad_encodings_name_topic_index_and_log_time() {
     let tmp = Tmp::new("badcdr");
