@@ -16,6 +16,18 @@
 //! otherwise (the reader was held up: its stamp would be late by an unknown
 //! amount) is read and dropped, counted as *queued*; reading it takes
 //! microseconds, so the frame after it is waited for and stamped on time again.
+//!
+//! Both inferences need the wait to tell the writer's own time: a frame larger
+//! than the pipe's buffer (64 KiB on Linux; 320x240 I420 is 115,200 bytes) keeps
+//! a writer that fell behind blocked inside it, and each read lets it write on
+//! within microseconds, the frames it owes right behind. So a frame's tail
+//! brings the next frame's head only when it was waited for long (a quarter of
+//! the frames' interval, at least [`LONG_WAIT_MIN`]: a buffering writer's tail
+//! waits about a frame period), and a frame whose first bytes came within that
+//! of the last frame's end, which itself came without such a wait, is a
+//! writer's that had fallen behind: dropped as queued too, never stamped at its
+//! late write.
+//!
 //! The source waits with `poll`, inside a frame too, so it notices a stop request
 //! and a writer that went silent, or hung halfway through a frame.
 //!
@@ -192,7 +204,31 @@ pub struct PipeSource<R: Read + AsFd> {
     queued_in_row: u32,
     /// When the next frame's first bytes came, if known already.
     head_at: Option<Nanos>,
+    /// How the last frame read ended (`None` before the first).
+    tail: Option<TailEnd>,
+    /// The last intervals between the ends of frames read one after the other,
+    /// dropped ones too, ns (a ring; 0: not yet filled).
+    intervals: [Nanos; INTERVALS],
+    interval_pos: usize,
     ended: bool,
+}
+
+/// A wait for the pipe that ended when bytes came.
+#[derive(Debug, Clone, Copy)]
+struct Wake {
+    /// When it ended (the caller's clock).
+    at: Nanos,
+    /// How long it waited, ns.
+    waited: Nanos,
+}
+
+/// How the last frame read ended.
+#[derive(Debug, Clone, Copy)]
+struct TailEnd {
+    /// When its last bytes had been read (the caller's clock).
+    read_at: Nanos,
+    /// They came after a long wait ([`PipeSource::long_wait_ns`]).
+    long: bool,
 }
 
 /// How a frame's reading ended.
@@ -200,8 +236,8 @@ enum FrameRead {
     /// Read whole: the wake-up before its first bytes and before its last
     /// (`None`: they were already there).
     Frame {
-        first: Option<Nanos>,
-        last: Option<Nanos>,
+        first: Option<Wake>,
+        last: Option<Wake>,
     },
     /// The writer closed the pipe between frames.
     End,
@@ -211,6 +247,29 @@ enum FrameRead {
 
 /// How often a wait for the next frame checks the stop request.
 const STOP_CHECK: Duration = Duration::from_millis(100);
+
+/// The shortest wait for bytes that shows the writer's own time (module docs):
+/// a quarter of the frames' interval, and at least this (before any interval is
+/// known, this). The interval is the median (the upper of the middle two) of the
+/// last 8 between the ends of frames read one after the other, those dropped
+/// too: a writer that sped up is followed, its frames dropped meanwhile counting
+/// as much as those stamped, and up to four of a backlog's frames come within
+/// microseconds of each other without moving it.
+///
+/// A writer blocked on a full pipe writes on within microseconds of a read, but
+/// a loaded machine's scheduler may hold it, or this reader, for milliseconds; a
+/// quarter of a period stays above that, and below what a writer's own time
+/// gives: a buffering writer's tail waits a period less the reader's work on a
+/// frame (that work may take up to three quarters of a period: 25 ms at 30 Hz),
+/// and a frame written whole on time comes a period after the last one's end,
+/// less its transfer. Bunched stamps a wait of this length lets through are the
+/// signature's to refuse ([`crate::SignatureConfig::SHORT_PERIODS`]).
+pub const LONG_WAIT_MIN: Duration = Duration::from_millis(2);
+const LONG_WAIT_MIN_NS: Nanos = LONG_WAIT_MIN.as_nanos() as Nanos;
+
+/// Intervals between frames' ends whose median sets the long wait
+/// ([`LONG_WAIT_MIN`]).
+const INTERVALS: usize = 8;
 
 impl<R: Read + AsFd> PipeSource<R> {
     /// A source reading `cfg`'s frames from `reader`, called `name` in messages
@@ -243,6 +302,9 @@ impl<R: Read + AsFd> PipeSource<R> {
             queued: 0,
             queued_in_row: 0,
             head_at: None,
+            tail: None,
+            intervals: [0; INTERVALS],
+            interval_pos: 0,
             ended: false,
         })
     }
@@ -285,6 +347,19 @@ impl<R: Read + AsFd> PipeSource<R> {
         }
     }
 
+    /// How long a wait must last to be the writer's own time ([`LONG_WAIT_MIN`]).
+    fn long_wait_ns(&self) -> Nanos {
+        let mut v = self.intervals;
+        v.sort_unstable();
+        let known = v.iter().filter(|&&d| d > 0).count();
+        if known == 0 {
+            return LONG_WAIT_MIN_NS;
+        }
+        // the zeros sort first: the median of the known ones (the upper of two)
+        let median = v[INTERVALS - known + known / 2];
+        (median / 4).max(LONG_WAIT_MIN_NS)
+    }
+
     /// Waits up to `d` for the pipe to be readable (data or the writer's end). A
     /// signal that interrupts a wait ends it early (`false`); one that interrupts
     /// the zero-time look is looked again, which must not read as "nothing there".
@@ -308,10 +383,10 @@ impl<R: Read + AsFd> PipeSource<R> {
     }
 
     /// Waits until the pipe is readable. `Some(None)`: it already was;
-    /// `Some(Some(t))`: a wait that ended at `t`, when bytes came; `None`: a stop
+    /// `Some(Some(wake))`: a wait that ended when bytes came; `None`: a stop
     /// was asked for. No bytes for the configured silence is [`Error::Stalled`],
     /// inside a frame too (a writer that hung halfway).
-    fn wait_readable(&mut self) -> Result<Option<Option<Nanos>>, Error> {
+    fn wait_readable(&mut self) -> Result<Option<Option<Wake>>, Error> {
         if self.readable_within(Duration::ZERO)? {
             return Ok(Some(None));
         }
@@ -324,7 +399,11 @@ impl<R: Read + AsFd> PipeSource<R> {
                 return Ok(None);
             }
             if self.readable_within(STOP_CHECK)? {
-                return Ok(Some(Some((self.clock)())));
+                let at = (self.clock)();
+                return Ok(Some(Some(Wake {
+                    at,
+                    waited: at.saturating_sub(asked),
+                })));
             }
             let quiet = (self.clock)().saturating_sub(asked);
             if quiet >= silence {
@@ -402,6 +481,7 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
         loop {
             // this frame's first bytes came with the last one's end (module docs)
             let head = self.head_at.take();
+            let before = self.tail.take();
             let (first, last) = match self.read_frame()? {
                 FrameRead::Frame { first, last } => (first, last),
                 FrameRead::End => {
@@ -410,15 +490,37 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
                 }
                 FrameRead::Stopped => return Ok(None),
             };
+            let read_at = (self.clock)();
+            if let Some(b) = before {
+                if read_at > b.read_at {
+                    self.intervals[self.interval_pos] = read_at - b.read_at;
+                    self.interval_pos = (self.interval_pos + 1) % INTERVALS;
+                }
+            }
+            let long = self.long_wait_ns();
+            let long_tail = last.is_some_and(|w| w.waited >= long);
+            self.tail = Some(TailEnd {
+                read_at,
+                long: long_tail,
+            });
             // the next frame's first bytes already here, when this one's last bytes
-            // were waited for: they came in that same write, at that wake-up
+            // were waited for long: they came in that same write, at that wake-up
+            // (after a short wait they may be a blocked writer's, behind: module docs)
             self.head_at = match last {
-                Some(t) if self.readable_within(Duration::ZERO)? => Some(t),
+                Some(w) if long_tail && self.readable_within(Duration::ZERO)? => Some(w.at),
                 _ => None,
             };
-            let Some(t) = head.or(first) else {
-                // it was already waiting when asked for: held up by this reader (or,
-                // the first one, written before it started), its stamp unknown
+            // a frame waited for, but come right behind the last one's end, which came
+            // without a long wait: written by a writer that fell behind, blocked in
+            // the last frame, as soon as it could (a buffering writer's head right
+            // behind the tail it waited long for is on time)
+            let first = first.filter(|w| {
+                before.is_none_or(|b| b.long || w.at.saturating_sub(b.read_at) >= long)
+            });
+            let Some(t) = head.or(first.map(|w| w.at)) else {
+                // it was already waiting when asked for, or written right behind the
+                // last frame by a writer behind: held up by this reader (or, the first
+                // one, written before it started), its stamp unknown
                 self.queued += 1;
                 self.queued_in_row += 1;
                 if self.queued_in_row >= MAX_UNUSABLE_IN_ROW {
@@ -439,7 +541,8 @@ impl<R: Read + AsFd> FrameSource for PipeSource<R> {
     fn unusable(&self) -> Option<(u64, &str)> {
         (self.queued > 0).then_some((
             self.queued,
-            "already waiting in the pipe when asked for (its stamp would be late)",
+            "already waiting in the pipe when asked for, or written right behind the frame \
+             before by a writer that fell behind (its stamp would be late)",
         ))
     }
 }
@@ -598,6 +701,130 @@ mod tests {
                 "head written {h}, stamped {t}"
             );
         }
+    }
+
+    #[test]
+    fn a_writer_behind_with_frames_over_the_pipe_s_buffer_is_dropped_not_bunched() {
+        // 320x240 I420 (115,200 bytes, over the 64 KiB a pipe holds), a frame due
+        // every INTERVAL; the reader held up 3.5 intervals after its fourth frame,
+        // so the writer, blocked inside the fifth, is three frames behind when it
+        // goes on and writes each as soon as the last is read. Those frames must
+        // not be stamped at their late writes, bunched within microseconds (one
+        // frame's flow over such an interval is a value tens of times too large):
+        // every frame handed on is stamped within a quarter interval of its due
+        // time, none within half an interval of the one before, and the frames
+        // after the hold-up are handed on again. Both for a writer that writes
+        // each frame whole and for one that buffers (each write the last frame's
+        // 1000-byte tail and the next one's head)
+        let (w, h) = (320, 240);
+        let bytes = PipeFormat::I420.frame_bytes(w, h, w).unwrap();
+        assert!(bytes > 1 << 16);
+        for buffered in [false, true] {
+            let (r, mut wr) = std::io::pipe().unwrap();
+            let mut src =
+                PipeSource::new(r, "p", cfg(PipeFormat::I420, w, h, None), clock).unwrap();
+            let frames = 12u8;
+            let t0 = clock() + INTERVAL_NS / 2;
+            let due = move |k: u8| t0 + Nanos::from(k) * INTERVAL_NS;
+            let writer = std::thread::spawn(move || {
+                let mut tail = vec![];
+                for k in 0..frames {
+                    let wait = due(k) - clock();
+                    if wait > 0 {
+                        std::thread::sleep(Duration::from_nanos(wait as u64));
+                    }
+                    // every byte k: the frame's luma says which it is
+                    let f = vec![k; bytes];
+                    if buffered {
+                        let mut chunk = std::mem::take(&mut tail);
+                        chunk.extend_from_slice(&f[..bytes - 1000]);
+                        wr.write_all(&chunk).unwrap();
+                        tail = f[bytes - 1000..].to_vec();
+                    } else {
+                        wr.write_all(&f).unwrap();
+                    }
+                }
+                std::thread::sleep(INTERVAL);
+                wr.write_all(&tail).unwrap();
+            });
+            let mut got = vec![];
+            while let Some((f, t)) = src.next_frame().unwrap() {
+                let k = f.get(0, 0).unwrap();
+                assert!(f.pixels().iter().all(|&v| v == k));
+                got.push((k, t.instant_ns().unwrap()));
+                if got.len() == 4 {
+                    std::thread::sleep(INTERVAL * 7 / 2);
+                }
+            }
+            writer.join().unwrap();
+            let what = if buffered { "buffering" } else { "flushing" };
+            for &(k, t) in &got {
+                let late = t - due(k);
+                assert!(
+                    // (half an interval: a shared machine may hold either
+                    // thread for milliseconds; the old stamps were 150-250 ms late)
+                    (0..INTERVAL_NS / 2).contains(&late),
+                    "{what}: frame {k} stamped {:.3} ms after its due time: {:?}",
+                    late as f64 * 1e-6,
+                    got.iter()
+                        .map(|&(k, t)| (k, (t - due(k)) as f64 * 1e-6))
+                        .collect::<Vec<_>>()
+                );
+            }
+            for pair in got.windows(2) {
+                assert!(pair[1].1 - pair[0].1 >= INTERVAL_NS / 2, "{what}: {got:?}");
+            }
+            // the frames owed were dropped; from frame 9 on, all handed on again
+            let (read, queued) = src.counts();
+            assert_eq!(read, u64::from(frames), "{what}");
+            assert!(queued >= 2, "{what}: {queued} dropped: {got:?}");
+            let ks: Vec<u8> = got.iter().map(|&(k, _)| k).collect();
+            assert!(ks.starts_with(&[0, 1, 2, 3]), "{what}: {ks:?}");
+            assert!(ks.ends_with(&[9, 10, 11]), "{what}: {ks:?}");
+        }
+    }
+
+    #[test]
+    fn a_writer_that_speeds_up_is_stamped_again_within_a_few_frames() {
+        // 150 ms between frames, then 15 ms: a frame coming 15 ms after the last
+        // one's end is within a quarter of the interval learnt (37.5 ms) and
+        // dropped, but those dropped count in the interval too, so the new rate
+        // is learnt within five frames, never 30 dropped in a row
+        let (r, mut wr) = std::io::pipe().unwrap();
+        let mut src = PipeSource::new(r, "p", cfg(PipeFormat::Gray, 8, 8, None), clock).unwrap();
+        let (slow, fast) = (8u8, 40u8);
+        let writer = std::thread::spawn(move || {
+            let mut sent = vec![];
+            for k in 0..slow + fast {
+                let ms = if k < slow { 150 } else { 15 };
+                std::thread::sleep(Duration::from_millis(ms));
+                sent.push(clock());
+                wr.write_all(&[k; 64]).unwrap();
+            }
+            sent
+        });
+        let mut got = vec![];
+        while let Some((f, t)) = src.next_frame().unwrap() {
+            got.push((f.get(0, 0).unwrap(), t.instant_ns().unwrap()));
+        }
+        let sent = writer.join().unwrap();
+        let (read, queued) = src.counts();
+        assert_eq!(read, u64::from(slow + fast));
+        // (a loaded machine that holds the reader drops a few more, rightly)
+        assert!(queued <= 12, "{queued} dropped: {got:?}");
+        for &(k, t) in &got {
+            let s = sent[usize::from(k)];
+            assert!(
+                t >= s && t < s + 50_000_000,
+                "frame {k} written {s}, stamped {t}"
+            );
+        }
+        // the fast frames are stamped again (most of them: never 30 dropped in a row)
+        let fast_got = got.iter().filter(|&&(k, _)| k >= slow + 5).count();
+        assert!(
+            fast_got >= usize::from(fast - 5) * 3 / 4,
+            "{fast_got} of the fast frames stamped: {got:?}"
+        );
     }
 
     #[test]

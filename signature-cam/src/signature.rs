@@ -12,7 +12,10 @@
 //! leaves the scale unchanged. An interval longer than the gap limit
 //! ([`SignatureConfig::max_gap_ns`], 250 ms, or 4.5 frame periods of a camera
 //! slower than 18 Hz: [`SignatureProcessor::gap_limit_ns`]), or a time that does
-//! not increase, produces no sample: the processor restarts from the new frame.
+//! not increase, or, once the frame period is confirmed, by less than a quarter of
+//! it ([`SignatureConfig::SHORT_PERIODS`]: two frames' times bunched, one frame's
+//! flow over a sliver of its interval), produces no sample: the processor restarts
+//! from the new frame.
 //!
 //! # Stamp jitter and the scale
 //!
@@ -165,6 +168,17 @@ impl SignatureConfig {
     /// default decides.)
     pub const GAP_PERIODS: f64 = 4.5;
 
+    /// Share of a confirmed frame period under which an interval gives no sample
+    /// ([`StartReason::Bunched`]): no camera delivers two frames a quarter
+    /// of a period apart, but a source that stamps at arrival may see two
+    /// frames that were held up come together (a late dequeue, a pipe's writer
+    /// that fell behind), and one frame's flow divided by such a sliver would be
+    /// many times the true speed (0.5 ms at 30 Hz: 67 times). A real change to
+    /// over four times the rate is still followed: each such interval counts as
+    /// one that disagrees with the period ([`FramePeriod::interval`]), so the
+    /// fourth makes the new period and samples resume at the fifth.
+    pub const SHORT_PERIODS: f64 = 0.25;
+
     /// Checks every field.
     pub fn validate(&self) -> Result<(), Error> {
         self.flow.validate()?;
@@ -217,6 +231,13 @@ pub enum StartReason {
     /// The frame time is not after the previous one.
     NotIncreasing {
         /// The interval, ns (<= 0).
+        dt_ns: Nanos,
+    },
+    /// Once the frame period is confirmed, the frame time is after the previous
+    /// one by less than [`SignatureConfig::SHORT_PERIODS`] of it: two frames'
+    /// times bunched, no interval to scale a frame's flow by.
+    Bunched {
+        /// The interval, ns (under a quarter of the period).
         dt_ns: Nanos,
     },
     /// The frame size differs from the previous frame's.
@@ -341,8 +362,12 @@ impl FramePeriod {
     /// `(interval to scale by, periods spanned)`: `(n · period, n)` when `dt_ns` is
     /// within 30 % of one period of a whole number `n` (1..=8) of periods, else
     /// `(dt_ns, dt_ns / period)` (raw; the first interval, a changed rate or
-    /// irregular timing). Agreeing intervals refine the period. A `dt_ns <= 0`
-    /// is returned as `(dt_ns, 0)` and changes nothing.
+    /// irregular timing). Agreeing intervals refine the period. An interval under
+    /// half a period (`n = 0`) spans no whole period: it disagrees, is returned
+    /// raw, and counts towards a change of rate like any other (the processor
+    /// gives no sample for one under a quarter of a confirmed period,
+    /// [`SignatureConfig::SHORT_PERIODS`], rather than scale a frame's flow by
+    /// it). A `dt_ns <= 0` is returned as `(dt_ns, 0)` and changes nothing.
     pub fn interval(&mut self, dt_ns: Nanos) -> (f64, f64) {
         self.take(dt_ns, Self::MAX_PERIODS)
     }
@@ -372,7 +397,9 @@ impl FramePeriod {
         }
         let n = (dt / self.period_ns).round();
         // the tolerance applies to the interval, not to the period it implies:
-        // 1.5 periods is a miss, not two periods 25 % short
+        // 1.5 periods is a miss, not two periods 25 % short; so is an interval
+        // under half a period (n = 0), though within 30 % of a period of none:
+        // returned raw, it may be a faster rate's (three of them adopt it)
         if (1.0..=max_periods).contains(&n)
             && (dt - n * self.period_ns).abs() <= Self::TOLERANCE * self.period_ns
         {
@@ -441,6 +468,14 @@ impl SignatureProcessor {
         self.cfg.max_gap_ns.max(periods)
     }
 
+    /// An interval under [`SignatureConfig::SHORT_PERIODS`] of the confirmed
+    /// frame period: two frames' times bunched, no interval to scale by.
+    fn bunched(&self, dt_ns: Nanos) -> bool {
+        self.period
+            .confirmed_period_ns()
+            .is_some_and(|period| (dt_ns as f64) < SignatureConfig::SHORT_PERIODS * period)
+    }
+
     /// The frame period tracker (the period is kept across restarts).
     pub fn frame_period(&self) -> &FramePeriod {
         &self.period
@@ -477,6 +512,12 @@ impl SignatureProcessor {
                     // not a sample, but maybe the camera's new, slower rate
                     self.period.gap(dt_ns);
                     Some(StartReason::Gap { dt_ns })
+                } else if self.bunched(dt_ns) {
+                    // two times bunched (see SHORT_PERIODS): no sample, but taken as
+                    // a disagreeing interval, so a camera that did speed up that
+                    // much gets its new period
+                    self.period.interval(dt_ns);
+                    Some(StartReason::Bunched { dt_ns })
                 } else {
                     None
                 }
@@ -945,6 +986,113 @@ mod tests {
             }
             assert!((p.frame_period().period_ns() - new as f64).abs() < 1e3);
         }
+    }
+
+    #[test]
+    fn bunched_frame_times_give_no_sample_not_a_spike() {
+        // 60 px/s at 30 Hz (2 px a frame); frame 30 held up and stamped 0.5 ms
+        // before frame 31, on time: one frame's flow over 0.5 ms would be
+        // 4000 px/s. The bunched interval restarts, counted as a time that did
+        // not increase (by a frame); every value is the true speed's, but frame
+        // 30's (stamped late: half of it)
+        let p_ns = 33_333_333i64;
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let mut steps = Vec::new();
+        for k in 0..50i64 {
+            let t = if k == 30 {
+                31 * p_ns - 500_000
+            } else {
+                k * p_ns
+            };
+            let step = p
+                .process(&shifted(2.0 * k as f32), FrameTime::Instant(t))
+                .unwrap();
+            steps.push(step);
+        }
+        assert_eq!(
+            steps[31],
+            Step::Started(StartReason::Bunched { dt_ns: 500_000 })
+        );
+        for (k, s) in steps.iter().enumerate().skip(1) {
+            match s {
+                // frame 30's late stamp makes 29 to 30 two periods: half the speed
+                Step::Sample(s) if k == 30 => {
+                    assert!((s.sample.value / 30.0 - 1.0).abs() < 0.02, "{s:?}")
+                }
+                Step::Sample(s) => {
+                    assert!((s.sample.value / 60.0 - 1.0).abs() < 0.02, "{k}: {s:?}")
+                }
+                other => assert_eq!(k, 31, "{other:?}"),
+            }
+        }
+        // the period is left as it was (but for frame 30's late stamp, which
+        // agreed as two periods 0.5 ms short)
+        assert!((p.frame_period().period_ns() - p_ns as f64).abs() < 2e4);
+        // without dejitter too: the raw interval would divide alike
+        let mut p = SignatureProcessor::new(SignatureConfig {
+            dejitter: false,
+            ..SignatureConfig::default()
+        })
+        .unwrap();
+        for k in 0..31i64 {
+            p.process(&shifted(2.0 * k as f32), FrameTime::Instant(k * p_ns))
+                .unwrap();
+        }
+        let t = 30 * p_ns + 2 * MS;
+        assert_eq!(
+            p.process(&shifted(62.0), FrameTime::Instant(t)).unwrap(),
+            Step::Started(StartReason::Bunched { dt_ns: 2 * MS })
+        );
+    }
+
+    #[test]
+    fn a_camera_that_speeds_up_past_a_quarter_period_gives_samples_again() {
+        // 30 Hz, then 150 Hz (a fifth of the period, under the quarter): the
+        // first four fast intervals give no sample, the fourth making the new
+        // period, and from the fifth on every value is the true 120 px/s
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let mut t = 0;
+        for k in 0..70 {
+            if k > 0 {
+                t += if k < 40 { 33_333_333 } else { 6_666_667 };
+            }
+            let step = p
+                .process(&shifted(t as f32 * 120e-9), FrameTime::Instant(t))
+                .unwrap();
+            match k {
+                0 => assert_eq!(step, Step::Started(StartReason::First)),
+                40..=43 => assert!(
+                    matches!(step, Step::Started(StartReason::Bunched { .. })),
+                    "{k}: {step:?}"
+                ),
+                _ => {
+                    let v = sample(step).sample.value;
+                    assert!((v / 120.0 - 1.0).abs() < 0.03, "{k}: {v}");
+                }
+            }
+        }
+        assert!((p.frame_period().period_ns() - 6_666_667.0).abs() < 1e3);
+    }
+
+    #[test]
+    fn frame_period_takes_an_interval_under_half_a_period_as_a_miss() {
+        let mut fp = FramePeriod::default();
+        for _ in 0..50 {
+            fp.interval(33_333_333);
+        }
+        // no whole number of periods (n = 0): raw, the period unchanged, and an
+        // agreeing interval after it clears the miss
+        assert_eq!(fp.interval(500_000), (500_000.0, 500_000.0 / 33_333_333.0));
+        assert_eq!(fp.period_ns(), 33_333_333.0);
+        assert_eq!(fp.interval(33_333_333).1, 1.0);
+        // three in a row make the fourth the period (a camera that sped up)
+        for _ in 0..3 {
+            assert!(fp.interval(8_000_000).1 < 0.5);
+        }
+        assert_eq!(fp.interval(8_000_000), (8_000_000.0, 1.0));
+        assert_eq!(fp.confirmed_period_ns(), None);
+        assert_eq!(fp.interval(8_000_000).1, 1.0);
+        assert_eq!(fp.confirmed_period_ns(), Some(8_000_000.0));
     }
 
     #[test]

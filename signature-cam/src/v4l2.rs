@@ -204,19 +204,39 @@ pub const MAX_STAMP_AGE_NS: Nanos = 1_000_000_000;
 /// this margin only covers rounding to microseconds).
 pub const MAX_STAMP_AHEAD_NS: Nanos = 1_000_000;
 
-/// Frames beyond the buffers requested that a stream's stamps get to show they are
-/// on `CLOCK_MONOTONIC`: a driver held up between the stream's start and its first
-/// read finds every queued buffer filled, each with an old stamp, and only the
-/// frames after them are fresh (the first of them, dropped unread at every opening,
-/// counts as one of the frames, [`StampCheck::unread`]); a V4L2 driver may also grant
-/// a few more buffers than requested. Only a stream whose stamps are not on that clock waits out all of them
-/// (8 frames at the default 4 buffers: a quarter of a second at 30 Hz).
+/// Frames beyond the buffers the driver granted (every one queued at the opening,
+/// [`negotiate::queue_all`]; a driver may grant more than requested) that a
+/// stream's stamps get to show they are on `CLOCK_MONOTONIC`: a driver held up
+/// between the stream's start and its first read finds every queued buffer
+/// filled, each with an old stamp, and only the frames after them are fresh (the
+/// first of them, dropped unread at every opening, counts as one of the frames,
+/// [`StampCheck::unread`]); the extra frames are a margin for those filled while
+/// the first were read. Only a stream whose stamps are not on that clock waits out
+/// all of them (8 frames at the default 4 buffers: a quarter of a second at 30 Hz).
 pub const DECIDE_EXTRA_FRAMES: u32 = 4;
+
+/// The frames a stream's stamps get to show they are on `CLOCK_MONOTONIC`
+/// ([`StampCheck::new`]), for `granted` buffers queued at its opening: all of
+/// them and [`DECIDE_EXTRA_FRAMES`] more (saturating). The count the driver
+/// granted, not the one asked for: a driver granting 8 when asked for 4 fills 8
+/// with old stamps while the first read is late, and a window of 4 + 4 frames
+/// would see none fresh and stamp a `CLOCK_MONOTONIC` camera at dequeue all run.
+///
+/// ```
+/// use vlsync_signature_cam::v4l2::decide_frames;
+/// assert_eq!(decide_frames(4), 8);
+/// assert_eq!(decide_frames(8), 12);
+/// assert_eq!(decide_frames(u32::MAX), u32::MAX);
+/// ```
+pub fn decide_frames(granted: u32) -> u32 {
+    granted.saturating_add(DECIDE_EXTRA_FRAMES)
+}
 
 /// Decides, at a stream's first frames, whether the driver's buffer stamps are on
 /// `CLOCK_MONOTONIC`, whatever the flags say. The first stamp found from
 /// [`MAX_STAMP_AGE_NS`] before the clock's reading at its dequeue to
-/// [`MAX_STAMP_AHEAD_NS`] after it, within the first `decide_frames`, makes the
+/// [`MAX_STAMP_AHEAD_NS`] after it, within the first `decide_frames` (an
+/// opening's: [`decide_frames`] of the buffers granted), makes the
 /// stream keep the driver's stamps from that frame on; none such (stamps at zero, on
 /// the wall clock, a device's own counter) makes every frame from the last of them on
 /// stamped at dequeue. The frames before the decision are dropped, not published on
@@ -838,7 +858,8 @@ mod imp {
             })
             .map_err(|reason| device_error(p, reason))?;
             guarded(p, "start streaming (VIDIOC_STREAMON)", || stream.start())?;
-            let decide_frames = asked_buffers.saturating_add(DECIDE_EXTRA_FRAMES);
+            // the buffers granted, all queued: each may hold an old stamp
+            let decide_frames = decide_frames(buffers);
             let plan = match cfg.stamps {
                 Some(c) => StampPlan::Kept(c),
                 None => StampPlan::Check(decide_frames),
@@ -1323,6 +1344,39 @@ mod tests {
     }
 
     #[test]
+    fn the_decision_waits_out_every_buffer_the_driver_granted() {
+        // asked for 4, granted 8, the first read 3 s after the stream's start:
+        // all 8 queued buffers hold old stamps (the first dropped unread), the
+        // frame after them is fresh. A window of the 4 asked for and 4 more
+        // ends with the 8th frame, old, and would stamp this CLOCK_MONOTONIC
+        // camera at dequeue for the whole run; one of the 8 granted and 4 more
+        // reaches the fresh frame
+        let (asked, granted) = (4u32, 8u32);
+        assert_eq!(decide_frames(granted), 12);
+        let run = |window: u32| {
+            let mut c = StampCheck::new(window);
+            c.unread();
+            for i in 1..granted as i64 {
+                if let Some(t) = c.stamp(StampClock::Monotonic, 10 * S + i * 33 * MS, 13 * S) {
+                    return (i + 1, t, c.chosen());
+                }
+            }
+            let fresh = 13 * S + 30 * MS;
+            let t = c
+                .stamp(StampClock::Monotonic, fresh - 5 * MS, fresh)
+                .unwrap();
+            (granted as i64 + 1, t, c.chosen())
+        };
+        assert_eq!(run(asked + 4), (8, 13 * S, Some(FrameStamps::Dequeue)));
+        assert_eq!(
+            run(decide_frames(granted)),
+            (9, 13 * S + 25 * MS, Some(FrameStamps::Driver))
+        );
+        // a count near the top does not wrap
+        assert_eq!(decide_frames(u32::MAX - 1), u32::MAX);
+    }
+
+    #[test]
     fn a_reopen_keeps_the_earlier_choice_and_says_nothing() {
         for choice in [FrameStamps::Driver, FrameStamps::Dequeue] {
             let mut c = StampCheck::decided(choice);
@@ -1363,11 +1417,16 @@ mod tests {
         ) {
             let mut c = StampCheck::new(n);
             let clock = StampClock::from_flags(flags);
-            let window = -MAX_STAMP_AHEAD_NS..=MAX_STAMP_AGE_NS;
+            // the window, stated apart from the implementation's expression: a
+            // stamp from 1 s before the clock's reading at its dequeue to 1 ms
+            // after it, the difference taken exactly
+            let in_window = |d: i64, now: i64| {
+                (-1_000_000i128..=1_000_000_000).contains(&(i128::from(now) - i128::from(d)))
+            };
             let first_in = frames
                 .iter()
                 .take(n as usize)
-                .position(|&(d, age)| window.contains(&d.saturating_add(age).saturating_sub(d)));
+                .position(|&(d, age)| in_window(d, d.saturating_add(age)));
             for (i, &(d, age)) in frames.iter().enumerate() {
                 let now = d.saturating_add(age);
                 let expect = match first_in {

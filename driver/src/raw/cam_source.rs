@@ -678,6 +678,10 @@ pub struct CamCounts {
     pub gaps: u64,
     /// Frames whose time was not after the previous one (sequence restarted).
     pub not_increasing: u64,
+    /// Frames whose time came less than a quarter of the confirmed frame period
+    /// after the previous one (two frames held up and delivered together: no
+    /// interval to scale the flow by; sequence restarted).
+    pub bunched: u64,
     /// Frames whose size changed (sequence restarted).
     pub size_changed: u64,
     /// Frames the processor refused (bad exposure time, unusable size).
@@ -1087,6 +1091,7 @@ impl Source for CamSource {
                         cam::StartReason::First => {}
                         cam::StartReason::Gap { .. } => counts.gaps += 1,
                         cam::StartReason::NotIncreasing { .. } => counts.not_increasing += 1,
+                        cam::StartReason::Bunched { .. } => counts.bunched += 1,
                         cam::StartReason::SizeChanged { .. } => counts.size_changed += 1,
                     }
                 }
@@ -1151,13 +1156,14 @@ impl Source for CamSource {
         let c = &self.counts;
         let mut s = format!(
             "{} frames, {} samples; dropped: {} low texture, {} no flow; restarts: {} gaps, \
-             {} non-increasing times, {} size changes; {} frames refused",
+             {} non-increasing times, {} bunched times, {} size changes; {} frames refused",
             c.frames,
             c.samples,
             c.low_texture,
             c.no_flow,
             c.gaps,
             c.not_increasing,
+            c.bunched,
             c.size_changed,
             c.refused
         );
