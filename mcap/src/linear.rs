@@ -355,6 +355,13 @@ impl LinearWalk {
                 }
                 return Err(Fault::Mcap(McapError::UnexpectedEof));
             }
+            // a record no reader here uses (an attachment, metadata, an index, the
+            // summary) is stepped over, not read: a large attachment before the
+            // data ended the walk (over the limit) and lost every message after it
+            if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK) {
+                self.pos += HEAD as u64 + len;
+                continue;
+            }
             if len > self.limit as u64 {
                 return Err(Fault::Mcap(McapError::RecordTooLarge { opcode, len }));
             }
@@ -603,6 +610,25 @@ mod tests {
             ),
             "{fault:?}"
         );
+    }
+
+    /// An attachment (or metadata, an index) over the limit before the data is
+    /// stepped over unread: the messages after it are read.
+    #[test]
+    fn a_large_record_no_reader_uses_is_stepped_over() {
+        const ATTACHMENT: u8 = 0x09;
+        let (_p, mut f, len) = file(&[
+            &record(op::SCHEMA, b"s"),
+            &record(ATTACHMENT, &[7u8; 100]),
+            &record(op::MESSAGE, b"after"),
+            &footer(),
+        ]);
+        let mut w = LinearWalk::new(50);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert!(fault.is_none(), "{fault:?}");
+        let bodies: Vec<&[u8]> = recs.iter().map(|(_, b)| b.as_slice()).collect();
+        assert_eq!(bodies, [&b"s"[..], b"after"]);
+        assert!(w.body.capacity() < 100, "{}", w.body.capacity());
     }
 
     #[test]
