@@ -173,10 +173,13 @@ impl SignatureConfig {
     /// of a period apart, but a source that stamps at arrival may see two
     /// frames that were held up come together (a late dequeue, a pipe's writer
     /// that fell behind), and one frame's flow divided by such a sliver would be
-    /// many times the true speed (0.5 ms at 30 Hz: 67 times). A real change to
-    /// over four times the rate is still followed: each such interval counts as
-    /// one that disagrees with the period ([`FramePeriod::interval`]), so the
-    /// fourth makes the new period and samples resume at the fifth.
+    /// many times the true speed (0.5 ms at 30 Hz: 67 times). A run of them is
+    /// held to the period before it until together they span it, so a backlog
+    /// of frames delivered at once stays refused however long it is. A real
+    /// change to over four times the rate is still followed: each such interval
+    /// counts as one that disagrees with the period ([`FramePeriod::interval`]),
+    /// so the fourth makes the new period, and samples resume once the new
+    /// rate's intervals have lasted one old period.
     pub const SHORT_PERIODS: f64 = 0.25;
 
     /// Checks every field.
@@ -276,6 +279,9 @@ pub struct SignatureProcessor {
     recent_pos: usize,
     /// Frame size the reducer's learnt grid pattern belongs to.
     pattern_size: Option<(usize, usize)>,
+    /// A run of bunched intervals: the confirmed period they are held to and
+    /// their sum, ns (see [`SignatureProcessor::bunched`]).
+    bunch: Option<(f64, Nanos)>,
 }
 
 /// Intervals whose fewest periods spanned scale the gap limit
@@ -430,6 +436,7 @@ impl SignatureProcessor {
             recent_spans: [0; RECENT_SPANS],
             recent_pos: 0,
             pattern_size: None,
+            bunch: None,
         })
     }
 
@@ -469,11 +476,30 @@ impl SignatureProcessor {
     }
 
     /// An interval under [`SignatureConfig::SHORT_PERIODS`] of the confirmed
-    /// frame period: two frames' times bunched, no interval to scale by.
-    fn bunched(&self, dt_ns: Nanos) -> bool {
-        self.period
-            .confirmed_period_ns()
-            .is_some_and(|period| (dt_ns as f64) < SignatureConfig::SHORT_PERIODS * period)
+    /// frame period: two frames' times bunched, no interval to scale by. A run of
+    /// them is held to the period confirmed before it until together they span
+    /// that period: a backlog of buffers dequeued at once (eight in a
+    /// millisecond) stays refused, where the period tracker adopts the fourth as
+    /// a new rate and the fifth gave one frame's flow over a sliver; a camera
+    /// that really sped up gives samples again once its frames have lasted one
+    /// old period.
+    fn bunched(&mut self, dt_ns: Nanos) -> bool {
+        let held = self
+            .bunch
+            .filter(|&(period, sum)| (sum as f64) < period)
+            .map(|(period, _)| period);
+        let Some(period) = held.or_else(|| self.period.confirmed_period_ns()) else {
+            self.bunch = None;
+            return false;
+        };
+        if (dt_ns as f64) < SignatureConfig::SHORT_PERIODS * period {
+            let sum = self.bunch.filter(|_| held.is_some()).map_or(0, |b| b.1);
+            self.bunch = Some((period, sum.saturating_add(dt_ns)));
+            true
+        } else {
+            self.bunch = None;
+            false
+        }
     }
 
     /// The frame period tracker (the period is kept across restarts).
@@ -511,6 +537,7 @@ impl SignatureProcessor {
                 } else if dt > i128::from(self.gap_limit_ns()) {
                     // not a sample, but maybe the camera's new, slower rate
                     self.period.gap(dt_ns);
+                    self.bunch = None;
                     Some(StartReason::Gap { dt_ns })
                 } else if self.bunched(dt_ns) {
                     // two times bunched (see SHORT_PERIODS): no sample, but taken as
@@ -1048,8 +1075,9 @@ mod tests {
     #[test]
     fn a_camera_that_speeds_up_past_a_quarter_period_gives_samples_again() {
         // 30 Hz, then 150 Hz (a fifth of the period, under the quarter): the
-        // first four fast intervals give no sample, the fourth making the new
-        // period, and from the fifth on every value is the true 120 px/s
+        // first five fast intervals (one old period) give no sample, the fourth
+        // making the new period, and from the sixth on every value is the true
+        // 120 px/s
         let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
         let mut t = 0;
         for k in 0..70 {
@@ -1061,7 +1089,7 @@ mod tests {
                 .unwrap();
             match k {
                 0 => assert_eq!(step, Step::Started(StartReason::First)),
-                40..=43 => assert!(
+                40..=44 => assert!(
                     matches!(step, Step::Started(StartReason::Bunched { .. })),
                     "{k}: {step:?}"
                 ),
@@ -1072,6 +1100,42 @@ mod tests {
             }
         }
         assert!((p.frame_period().period_ns() - 6_666_667.0).abs() < 1e3);
+    }
+
+    #[test]
+    fn a_backlog_of_frames_delivered_at_once_gives_no_sample_however_long() {
+        // 30 Hz, then eight buffers dequeued within a millisecond (a driver held
+        // up 250 ms): every one of the seven slivers is refused (the period
+        // tracker adopts the fourth as a rate, which let the fifth through), and
+        // the camera's own rate gives samples again after it
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let p_ns = 33_333_333i64;
+        let mut t = 0;
+        let mut values = vec![];
+        for k in 0..60 {
+            if k > 0 {
+                t += match k {
+                    30 => 250_000_000,
+                    31..=37 => 140_000,
+                    _ => p_ns,
+                };
+            }
+            // the camera captures at its own rate; the stamps are the late ones
+            let captured = k as f32 * p_ns as f32;
+            let step = p
+                .process(&shifted(captured * 60e-9), FrameTime::Instant(t))
+                .unwrap();
+            match (k, step) {
+                (31..=37, s) => assert!(
+                    matches!(s, Step::Started(StartReason::Bunched { .. })),
+                    "{k}: {s:?}"
+                ),
+                (_, Step::Sample(s)) => values.push((k, s.sample.value)),
+                _ => {}
+            }
+        }
+        assert!(values.iter().all(|&(_, v)| v < 200.0), "{values:?}");
+        assert!(values.iter().any(|&(k, _)| k > 45), "{values:?}");
     }
 
     #[test]
