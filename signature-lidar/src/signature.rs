@@ -10,8 +10,8 @@
 //!   ([`Distance::Median`]) the median range, and
 //! * its **measurement time** `t_d[k]`: when the beam pointed along the fitted
 //!   wall's normal, found from the times of the returns it was fitted to (their
-//!   mean time while the wall turns in the scan frame; the median time of the
-//!   rays used, for the median),
+//!   mean time, at both ends of a derivative across a turn; the median time of
+//!   the rays used, for the median),
 //!
 //! and emits the sample `(d[k] - d[k-1]) / (t_d[k] - t_d[k-1])` in m/s,
 //! stamped by default at the **midpoint** `(t_d[k-1] + t_d[k]) / 2`
@@ -146,8 +146,9 @@ pub enum Distance {
     /// position along the line (a wall moving steadily during the sweep tilts
     /// the fitted line so that its distance is the wall's at that time, not at
     /// the returns' mean time: up to `period / 4π` apart for a wall seen at an
-    /// angle; the two agree for a wall square to the window); while the wall's
-    /// normal turns by more than 1° per pass, the returns' mean time. No
+    /// angle; the two agree for a wall square to the window); a derivative
+    /// across passes whose normals differ by more than 1° (a turn) takes both
+    /// at the returns' mean times instead. No
     /// distance ([`DropReason::NoWall`]) when the line explains
     /// fewer than [`SignatureConfig::min_inlier_fraction`] of the returns (or
     /// fewer than `min_valid_rays`, or 3), or its normal is farther than
@@ -410,9 +411,12 @@ pub struct Measurement {
     /// Distance, metres: to the fitted wall ([`Distance::Wall`]) or the median range.
     pub distance_m: f64,
     /// Time the distance refers to, ns: for the wall, when the beam pointed
-    /// along its normal (the mean time of its inlier rays while it turns; see
-    /// [`Distance::Wall`]), or the median time of the rays used.
+    /// along its normal (see [`Distance::Wall`]), or the median time of the rays
+    /// used.
     pub t_ns: Nanos,
+    /// The mean time of the wall's inlier rays, ns (for the median, `t_ns`): the
+    /// time a derivative across a turn uses at both ends (see [`TimeSums`]).
+    pub mean_t_ns: Nanos,
     /// Number of returns used (the wall's inliers, or all valid returns).
     pub rays_used: usize,
     /// Bearing of the fitted wall's normal in the scan frame, radians (NaN for
@@ -632,6 +636,7 @@ impl SignatureProcessor {
                 Some(Measurement {
                     distance_m,
                     t_ns: midpoint(a, b),
+                    mean_t_ns: midpoint(a, b),
                     rays_used: n,
                     normal_rad: f64::NAN,
                 })
@@ -805,33 +810,34 @@ impl SignatureProcessor {
         }
         // the line's own time (relative to the centre return: xc, yc are still
         // subtracted from the sums)
-        let normal_rad = wrap_pi(centre + normal);
-        let turning = self.prev.is_some_and(|p| {
-            let turned = wrap_pi(p.normal_rad - normal_rad).abs();
-            turned > TURNING_RAD || turned.is_nan()
-        });
-        let shift = if turning {
-            0
-        } else {
-            times.foot_shift_ns(&fit, b, -xc, -yc)
-        };
-        let mean = times.st / fit.k as i128;
+        let shift = times.foot_shift_ns(&fit, b, -xc, -yc);
+        let mean = i128::from(t0) + times.st / fit.k as i128;
         Some(Measurement {
             distance_m: a / (1.0 + b * b).sqrt(),
-            t_ns: (i128::from(t0) + mean + shift) as Nanos,
+            t_ns: (mean + shift) as Nanos,
+            mean_t_ns: mean as Nanos,
             rays_used: fit.k,
-            normal_rad,
+            normal_rad: wrap_pi(centre + normal),
         })
     }
 
     fn derivative(&mut self, m: Measurement) -> Option<Sample> {
         let prev = self.prev.replace(m)?;
-        if m.t_ns <= prev.t_ns {
+        // both ends at the wall's normal while it keeps its direction, both at
+        // their returns' mean times across a turn (see `TimeSums`): one
+        // convention per derivative, whatever the next one uses
+        let turned = wrap_pi(m.normal_rad - prev.normal_rad).abs();
+        let (t_prev, t_now) = if turned <= TURNING_RAD {
+            (prev.t_ns, m.t_ns)
+        } else {
+            (prev.mean_t_ns, m.mean_t_ns)
+        };
+        if t_now <= t_prev {
             self.drop_reason(DropReason::NonIncreasingTime);
             return None;
         }
         // saturates for absurd inputs; a saturated interval is a gap
-        let dt = m.t_ns.saturating_sub(prev.t_ns);
+        let dt = t_now.saturating_sub(t_prev);
         if dt > self.cfg.max_gap_ns {
             self.drop_reason(DropReason::Gap);
             return None;
@@ -848,17 +854,17 @@ impl SignatureProcessor {
             return None;
         }
         let t_ns = match self.cfg.stamping {
-            Stamping::Midpoint => midpoint(prev.t_ns, m.t_ns),
-            Stamping::End => m.t_ns,
+            Stamping::Midpoint => midpoint(t_prev, t_now),
+            Stamping::End => t_now,
         };
         self.counters.samples += 1;
         Some(Sample::new(t_ns, value))
     }
 }
 
-/// A wall whose normal moved more than this since the previous pass (1°) is
-/// turning in the scan frame: its distance is stamped at its returns' mean time,
-/// not at the foot of its normal (see [`TimeSums`]).
+/// A wall whose normal moved more than this between two passes (1°) is turning
+/// in the scan frame: the derivative across them takes both distances at their
+/// returns' mean times, not at the foot of the normal (see [`TimeSums`]).
 const TURNING_RAD: f64 = 0.0175;
 
 /// The inlier returns' times (ns after the first ray of the pass) and their
@@ -879,7 +885,7 @@ const TURNING_RAD: f64 = 0.0175;
 /// While the robot turns, the rotation bends the returns too (the distance
 /// gains about `ω κ (s̄² - var s)`, `ω` the turn rate), a term that moves with
 /// the wall across the window and has no time of its own. There the returns'
-/// mean time is kept: on rendered drives (`vlsync-render --example accuracy
+/// mean time is kept for both ends of a derivative: on rendered drives (`vlsync-render --example accuracy
 /// --seeds 1-6`) the foot's time in turns too moved the estimates by up to
 /// 2.6 ms (MAE 1.53 → 2.31 ms), kept to straight passes it gives 1.51 ms.
 #[derive(Debug, Default, Clone, Copy)]
@@ -1511,6 +1517,63 @@ mod tests {
                 }
             }
             assert!(checked >= 2, "alpha {alpha}: {:?}", p.counters());
+        }
+    }
+
+    #[test]
+    fn a_derivative_takes_one_stamp_convention_at_both_ends() {
+        // a wall 0.4 rad off the window's centre, moving at 1 m/s: a pair of
+        // passes whose normals agree is stamped between the two feet of the
+        // normal; one across a turn (the normal 2° on) between the two mean times
+        let pass = |p: &mut SignatureProcessor, k: i64, normal: f64| {
+            let rays: Vec<Ray> = (0..450)
+                .map(|i| {
+                    let t = k * PERIOD + i * PERIOD / 450;
+                    let b = wrap_pi(-(i as f64) * TAU / 450.0);
+                    let off = wrap_pi(b - normal);
+                    let d = 2.0 - 1.0 * t as f64 * 1e-9;
+                    let r = if off.abs() < 1.4 { d / off.cos() } else { 0.0 };
+                    Ray::timed(b, r, 50.0, r > 0.0, t)
+                })
+                .collect();
+            let timing = ScanTiming {
+                start_ns: k * PERIOD,
+                period_ns: PERIOD,
+                rotation: Rotation::Cw,
+                start_bearing_rad: 0.0,
+            };
+            let mut out = vec![];
+            p.push_scan(&Scan::from_timed(timing, rays), |s| out.push(s));
+            (out, p.last_measurement())
+        };
+        for (turn, name) in [(0.0f64, "straight"), (2f64.to_radians(), "turning")] {
+            let cfg = SignatureConfig {
+                window_centre_rad: 0.7,
+                ..SignatureConfig::default()
+            };
+            let mut p = SignatureProcessor::new(cfg).unwrap();
+            let mut ms = vec![];
+            let mut samples = vec![];
+            for k in 0..4 {
+                let (out, m) = pass(&mut p, k, 0.3 + turn * k as f64);
+                if let Some(m) = m {
+                    if ms.last() != Some(&m) {
+                        ms.push(m);
+                    }
+                }
+                samples.extend(out);
+            }
+            assert!(ms.len() >= 3 && samples.len() >= 2, "{name}: {ms:?}");
+            // the foot and the mean differ here by milliseconds
+            let a = ms[ms.len() - 2];
+            let b = ms[ms.len() - 1];
+            assert!((a.t_ns - a.mean_t_ns).abs() > 1_000_000, "{a:?}");
+            let want = if turn == 0.0 {
+                midpoint(a.t_ns, b.t_ns)
+            } else {
+                midpoint(a.mean_t_ns, b.mean_t_ns)
+            };
+            assert_eq!(samples.last().unwrap().t_ns, want, "{name}");
         }
     }
 
