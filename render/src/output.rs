@@ -136,9 +136,13 @@ pub struct Progress {
 /// its own.
 pub const RUN_FILES: [&str; 4] = ["frames.csv", "scans.csv", "truth.csv", "motion.csv"];
 
+/// The header of a run's `motion.csv`: it marks a directory an earlier render
+/// wrote, whose frames and default recording a new run removes.
+const MOTION_HEADER: &str = "t,x,y,yaw,speed,yaw_rate";
+
 /// The recording's file name in the run's directory when `--mcap` names none;
-/// an earlier run's is removed with [`RUN_FILES`] and `frames/frame_*.png` unless
-/// this run writes it.
+/// an earlier render's (its `motion.csv` there) is removed with [`RUN_FILES`]
+/// and `frames/frame_*.png`, unless this run writes it.
 pub const DEFAULT_MCAP: &str = "run.mcap";
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RenderError + '_ {
@@ -294,15 +298,21 @@ pub fn write_run_observed(
         Some(m) => Some((McapWriter::create(&m.path).map_err(mcap_err)?, m)),
         None => None,
     };
-    // an earlier run's frames (a longer run's beyond this one's last) and its
+    // an earlier render's frames (a longer run's beyond this one's last) and its
     // default recording, unless that is the recording being written now: a
-    // directory then holds one run, not parts of two
+    // directory then holds one run, not parts of two. Only where an earlier
+    // render is (its motion.csv): a user's own frames or recording in a
+    // directory that held no render are left alone
+    let earlier_render = std::fs::read(dir.join("motion.csv"))
+        .is_ok_and(|b| b.starts_with(MOTION_HEADER.as_bytes()));
     let default_mcap = dir.join(DEFAULT_MCAP);
-    let old_mcap = (default_mcap.exists()
+    let old_mcap = (earlier_render
+        && default_mcap.exists()
         && !mcap.is_some_and(|m| vlsync_common::file::same_file(&m.path, &default_mcap)))
     .then_some(default_mcap);
     let old_frames = std::fs::read_dir(&frames_dir)
         .into_iter()
+        .filter(|_| earlier_render)
         .flatten()
         .flatten()
         .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
@@ -450,7 +460,7 @@ fn write_truth_and_motion(r: &Renderer, dir: &Path) -> Result<(), RenderError> {
         })?;
     let motion_csv = dir.join("motion.csv");
     let mut m = create(&motion_csv)?;
-    writeln!(m, "t,x,y,yaw,speed,yaw_rate").map_err(io_err(&motion_csv))?;
+    writeln!(m, "{MOTION_HEADER}").map_err(io_err(&motion_csv))?;
     let traj = r.trajectory();
     let steps = (r.config().duration_s * 100.0).floor() as usize;
     for k in 0..=steps {
@@ -603,6 +613,15 @@ mod tests {
         // neither the earlier frames nor its recording are left beside this run
         assert_eq!(pngs(&dir), 0);
         assert!(!dir.join(DEFAULT_MCAP).exists());
+        // a directory no render wrote: a user's own frames and recording are kept
+        let own = temp("nopng-own");
+        std::fs::create_dir_all(own.join("frames")).unwrap();
+        std::fs::write(own.join("frames/frame_000001.png"), b"mine").unwrap();
+        std::fs::write(own.join(DEFAULT_MCAP), b"mine").unwrap();
+        write_run(&mut small(4), &own, false).unwrap();
+        assert_eq!(read(&own.join(DEFAULT_MCAP)), "mine");
+        assert_eq!(read(&own.join("frames/frame_000001.png")), "mine");
+        std::fs::remove_dir_all(&own).unwrap();
         for f in ["scans.csv", "truth.csv", "motion.csv"] {
             assert_eq!(read(&dir.join(f)), read(&fresh.join(f)), "{f}");
         }

@@ -29,7 +29,8 @@ struct Args {
     duration: f64,
     /// Output directory (created if needed); give --out DIR or --raw-stdout LAYOUT.
     /// An earlier run's frames.csv, scans.csv, truth.csv and motion.csv in DIR are
-    /// removed first, so a run that fails leaves only its own files.
+    /// removed first (after an earlier render, its frames/frame_*.png and run.mcap
+    /// too), so a run that fails leaves only its own files.
     #[arg(long, value_name = "DIR", conflicts_with = "raw_stdout")]
     out: Option<PathBuf>,
     /// Write no files: write the camera's frames raw to standard output (LAYOUT:
