@@ -190,8 +190,9 @@ impl Qos {
 /// Default `services.subscriber_buffer`, and the minimum signature service buffer.
 pub const DEFAULT_SIGNATURE_BUFFER: usize = 256;
 
-/// Creates a node named `name`. iceoryx2 is configured (its defaults) to remove
-/// the resources of dead nodes whenever a node is created, so a process
+/// Creates a node named `name`. iceoryx2 is configured (its defaults, unless an
+/// iceoryx2 configuration file says otherwise) to remove the resources of dead
+/// nodes whenever a node is created, so a process
 /// restarted after a crash cleans up behind its predecessor; [`cleanup_dead_nodes`]
 /// does it explicitly and reports the count.
 ///
@@ -230,7 +231,8 @@ fn build_node(
         signals::tame_iceoryx2_signals();
     }
     let mut config = iceoryx2::config::Config::global_config().clone();
-    config.global.node.cleanup_dead_nodes_on_creation = cleanup_on_creation;
+    // (an iceoryx2 configuration file's `false` is kept)
+    config.global.node.cleanup_dead_nodes_on_creation &= cleanup_on_creation;
     NodeBuilder::new()
         .name(&node_name)
         .config(&config)

@@ -12,9 +12,13 @@
 //! [`tame_iceoryx2_signals`] (called by every `create_node`) lets iceoryx2 set its
 //! handlers up once, then puts back the action every signal had before (all of
 //! them are compared, not only iceoryx2's list), so a process keeps its signal
-//! dispositions; a signal that arrived meanwhile is raised again for that action. [`handle_termination_signals`] installs
+//! dispositions; the calling thread holds every signal back meanwhile, so one
+//! that arrives then reaches the restored action (one another thread took in
+//! iceoryx2's slot is raised again for it). [`handle_termination_signals`] installs
 //! vlsync's own SIGINT/SIGTERM (and SIGHUP, unless ignored) handler, which sets a flag
-//! that stays set: [`termination_requested`] reads it.
+//! that stays set: [`termination_requested`] reads it; and, for a process a vlsync
+//! launcher started ([`STOP_WITH_PARENT_ENV`]), asks the kernel for SIGTERM when
+//! that launcher dies.
 #![allow(unsafe_code)]
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -76,6 +80,7 @@ pub fn tame_iceoryx2_signals() {
         // slot) waits, and reaches the restored action when unblocked. (Another
         // thread of the process may still take one meanwhile; its slot is the
         // fallback below.)
+        // restored when dropped, on every path (iceoryx2's set-up may panic)
         let held = block_all_signals();
         let before: Vec<(libc::c_int, libc::sigaction)> = settable()
             .filter_map(|s| current_action(s).map(|a| (s, a)))
@@ -88,9 +93,7 @@ pub fn tame_iceoryx2_signals() {
                 set_action(*signal, action);
             }
         }
-        if let Some(mask) = held {
-            restore_signal_mask(&mask);
-        }
+        drop(held);
         if let Some(caught) = SignalHandler::last_signal() {
             let signal = Signal::from(caught) as libc::c_int;
             // SAFETY: raise(3) of a signal number iceoryx2 took from the system; its
@@ -103,8 +106,24 @@ pub fn tame_iceoryx2_signals() {
     });
 }
 
-/// Blocks every signal on the calling thread; the mask before, to restore.
-fn block_all_signals() -> Option<libc::sigset_t> {
+/// The calling thread's signal mask before [`block_all_signals`], put back when
+/// dropped (the signals that arrived meanwhile are delivered then).
+struct HeldSignals(Option<libc::sigset_t>);
+
+impl Drop for HeldSignals {
+    fn drop(&mut self) {
+        if let Some(mask) = &self.0 {
+            // SAFETY: `mask` is a valid `sigset_t` filled by `pthread_sigmask`; the
+            // old mask is not asked for.
+            unsafe {
+                libc::pthread_sigmask(libc::SIG_SETMASK, mask, std::ptr::null_mut());
+            }
+        }
+    }
+}
+
+/// Blocks every signal on the calling thread until the value returned is dropped.
+fn block_all_signals() -> HeldSignals {
     // SAFETY: `sigfillset` initialises `all`, a zeroed `sigset_t` owned by this
     // frame; `pthread_sigmask` reads it and writes the old mask into `old`, also
     // owned by this frame.
@@ -112,17 +131,7 @@ fn block_all_signals() -> Option<libc::sigset_t> {
         let mut all: libc::sigset_t = std::mem::zeroed();
         let mut old: libc::sigset_t = std::mem::zeroed();
         libc::sigfillset(&mut all);
-        (libc::pthread_sigmask(libc::SIG_BLOCK, &all, &mut old) == 0).then_some(old)
-    }
-}
-
-/// Puts back the calling thread's signal mask from [`block_all_signals`]; the
-/// signals that arrived meanwhile are delivered now.
-fn restore_signal_mask(mask: &libc::sigset_t) {
-    // SAFETY: `mask` is a valid `sigset_t` filled by `pthread_sigmask`; the old mask
-    // is not asked for.
-    unsafe {
-        libc::pthread_sigmask(libc::SIG_SETMASK, mask, std::ptr::null_mut());
+        HeldSignals((libc::pthread_sigmask(libc::SIG_BLOCK, &all, &mut old) == 0).then_some(old))
     }
 }
 

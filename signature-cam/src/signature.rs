@@ -14,7 +14,8 @@
 //! slower than 18 Hz: [`SignatureProcessor::gap_limit_ns`]), or a time that does
 //! not increase, or, once the frame period is confirmed, by less than a quarter of
 //! it ([`SignatureConfig::SHORT_PERIODS`]: two frames' times bunched, one frame's
-//! flow over a sliver of its interval), produces no sample: the processor restarts
+//! flow over a sliver of its interval; a run of them held to the period before
+//! it until together they span it), produces no sample: the processor restarts
 //! from the new frame.
 //!
 //! # Stamp jitter and the scale
@@ -1019,8 +1020,8 @@ mod tests {
     fn bunched_frame_times_give_no_sample_not_a_spike() {
         // 60 px/s at 30 Hz (2 px a frame); frame 30 held up and stamped 0.5 ms
         // before frame 31, on time: one frame's flow over 0.5 ms would be
-        // 4000 px/s. The bunched interval restarts, counted as a time that did
-        // not increase (by a frame); every value is the true speed's, but frame
+        // 4000 px/s. The bunched interval restarts (`StartReason::Bunched`);
+        // every value is the true speed's, but frame
         // 30's (stamped late: half of it)
         let p_ns = 33_333_333i64;
         let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();

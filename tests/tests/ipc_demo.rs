@@ -266,13 +266,19 @@ fn a_killed_demo_takes_its_children_with_it() {
             .spawn()
             .unwrap(),
     });
-    // the daemon, both drivers and the recorder
+    // the daemon, both drivers and the recorder (the demo names the prefix too)
+    let demo_pid = demo.0.pid();
+    let children = || {
+        let mut p = pids_with(&prefix);
+        p.retain(|&pid| pid != demo_pid);
+        p
+    };
     let t0 = Instant::now();
-    while pids_with(&prefix).len() < 4 {
+    while children().len() < 4 {
         assert!(
             t0.elapsed() < Duration::from_secs(30) && demo.0.running(),
             "the demo's four children never ran: {:?}",
-            pids_with(&prefix)
+            children()
         );
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -280,10 +286,10 @@ fn a_killed_demo_takes_its_children_with_it() {
     demo.0.signal("KILL").unwrap();
     assert!(demo.0.wait_up_to(Duration::from_secs(5)).is_some());
     let t0 = Instant::now();
-    while !pids_with(&prefix).is_empty() && t0.elapsed() < HARNESS_GRACE {
+    while !children().is_empty() && t0.elapsed() < HARNESS_GRACE {
         std::thread::sleep(Duration::from_millis(100));
     }
-    let left = pids_with(&prefix);
+    let left = children();
     let log = std::fs::read_to_string(dir.join("logs").join("vlsyncd.log")).unwrap_or_default();
     assert!(
         left.is_empty(),

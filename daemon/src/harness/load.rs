@@ -331,8 +331,8 @@ const STRESS_MARGIN_S: f64 = 5.0;
 /// is [`STRESS_MARGIN_S`] past its phase, so any exit before the phase ends, even
 /// with status 0, means the load was not applied throughout.
 fn stop_stress(mut s: Stress) -> Option<String> {
-    // a Ctrl-C at the terminal reaches stress-ng (same process group) as it reaches
-    // this harness: its exit is then the user's stop, not a failure of the load
+    // a stop asked of this harness (Ctrl-C, SIGTERM) ends the load early: its exit
+    // is then the user's stop, not a failure of the load
     if termination_requested() {
         s.m.stop(Duration::from_secs(3));
         return None;

@@ -65,8 +65,10 @@
 //! # Crash clean-up
 //!
 //! At start the daemon removes the iceoryx2 resources of dead nodes
-//! (`Node::try_cleanup_dead_nodes`; iceoryx2 also does it whenever a node is
-//! created) and reports how many it reclaimed, so a daemon or driver killed
+//! (`Node::try_cleanup_dead_nodes`, right after creating its node, which is
+//! made without iceoryx2's own clean-up at creation so that the count is the
+//! daemon's; iceoryx2 does it whenever any other node is created) and reports
+//! how many it reclaimed, so a daemon or driver killed
 //! with SIGKILL leaves nothing that blocks a restart.
 //!
 //! # systemd and persistence
