@@ -1437,6 +1437,33 @@ mod tests {
         assert!((out[1].value + 0.2).abs() < 1e-6, "{out:?}");
     }
 
+    /// Scan `k` (10 Hz, 450 rays clockwise) of a flat wall whose normal lies at
+    /// bearing `normal`, `2 - t` m away at each ray's own time (approaching at
+    /// 1 m/s), seen within `reach` rad of its normal.
+    fn approaching_wall(k: i64, normal: f64, reach: f64) -> Scan {
+        let rays: Vec<Ray> = (0..450)
+            .map(|i| {
+                let t = k * PERIOD + i * PERIOD / 450;
+                let d = 2.0 - 1.0 * t as f64 * 1e-9;
+                let b = wrap_pi(-(i as f64) * TAU / 450.0);
+                let off = wrap_pi(b - normal);
+                let r = if off.abs() < reach {
+                    d / off.cos()
+                } else {
+                    0.0
+                };
+                Ray::timed(b, r, 50.0, r > 0.0, t)
+            })
+            .collect();
+        let timing = ScanTiming {
+            start_ns: k * PERIOD,
+            period_ns: PERIOD,
+            rotation: Rotation::Cw,
+            start_bearing_rad: 0.0,
+        };
+        Scan::from_timed(timing, rays)
+    }
+
     #[test]
     fn a_moving_wall_gives_its_speed_whatever_the_window() {
         // a wall moving at 1 m/s: each distance is the wall's at its stamp, so
@@ -1452,23 +1479,7 @@ mod tests {
             let mut out = Vec::new();
             for k in 0..4i64 {
                 // per-ray times: the wall is where it is when each ray is measured
-                let rays: Vec<Ray> = (0..450)
-                    .map(|i| {
-                        let t = k * PERIOD + i * PERIOD / 450;
-                        let d = 2.0 - 1.0 * t as f64 * 1e-9;
-                        let b = wrap_pi(-(i as f64) * TAU / 450.0);
-                        let off = wrap_pi(b - 0.3);
-                        let r = if off.abs() < 1.2 { d / off.cos() } else { 0.0 };
-                        Ray::timed(b, r, 50.0, r > 0.0, t)
-                    })
-                    .collect();
-                let timing = ScanTiming {
-                    start_ns: k * PERIOD,
-                    period_ns: PERIOD,
-                    rotation: Rotation::Cw,
-                    start_bearing_rad: 0.0,
-                };
-                p.push_scan(&Scan::from_timed(timing, rays), |s| out.push(s));
+                p.push_scan(&approaching_wall(k, 0.3, 1.2), |s| out.push(s));
             }
             assert!(out.len() >= 2, "{hw}: {:?}", p.counters());
             for s in &out {
@@ -1490,26 +1501,7 @@ mod tests {
             let d_at = |t: i64| 2.0 - 1.0 * t as f64 * 1e-9;
             let mut checked = 0;
             for k in 0..4i64 {
-                let rays: Vec<Ray> = (0..450)
-                    .map(|i| {
-                        let t = k * PERIOD + i * PERIOD / 450;
-                        let b = wrap_pi(-(i as f64) * TAU / 450.0);
-                        let off = wrap_pi(b - 0.3);
-                        let r = if off.abs() < 1.4 {
-                            d_at(t) / off.cos()
-                        } else {
-                            0.0
-                        };
-                        Ray::timed(b, r, 50.0, r > 0.0, t)
-                    })
-                    .collect();
-                let timing = ScanTiming {
-                    start_ns: k * PERIOD,
-                    period_ns: PERIOD,
-                    rotation: Rotation::Cw,
-                    start_bearing_rad: 0.0,
-                };
-                p.push_scan(&Scan::from_timed(timing, rays), |_| {});
+                p.push_scan(&approaching_wall(k, 0.3, 1.4), |_| {});
                 if let Some(m) = p.last_measurement() {
                     let err = m.distance_m - d_at(m.t_ns);
                     assert!(err.abs() < 2e-4, "alpha {alpha}: {m:?} off by {err} m");
@@ -1526,24 +1518,8 @@ mod tests {
         // passes whose normals agree is stamped between the two feet of the
         // normal; one across a turn (the normal 2° on) between the two mean times
         let pass = |p: &mut SignatureProcessor, k: i64, normal: f64| {
-            let rays: Vec<Ray> = (0..450)
-                .map(|i| {
-                    let t = k * PERIOD + i * PERIOD / 450;
-                    let b = wrap_pi(-(i as f64) * TAU / 450.0);
-                    let off = wrap_pi(b - normal);
-                    let d = 2.0 - 1.0 * t as f64 * 1e-9;
-                    let r = if off.abs() < 1.4 { d / off.cos() } else { 0.0 };
-                    Ray::timed(b, r, 50.0, r > 0.0, t)
-                })
-                .collect();
-            let timing = ScanTiming {
-                start_ns: k * PERIOD,
-                period_ns: PERIOD,
-                rotation: Rotation::Cw,
-                start_bearing_rad: 0.0,
-            };
             let mut out = vec![];
-            p.push_scan(&Scan::from_timed(timing, rays), |s| out.push(s));
+            p.push_scan(&approaching_wall(k, normal, 1.4), |s| out.push(s));
             (out, p.last_measurement())
         };
         for (turn, name) in [(0.0f64, "straight"), (2f64.to_radians(), "turning")] {
