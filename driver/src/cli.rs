@@ -1492,6 +1492,25 @@ mod tests {
     }
 
     #[test]
+    fn a_camera_program_that_dies_mid_frame_is_named_with_its_status() {
+        // one frame and a half, then the program kills itself
+        let cfg = gray8_frames(Duration::from_secs(5));
+        let cmd = "head -c 100 /dev/zero; kill -9 $$".to_string();
+        let mut src = raw::CamSource::pipe(raw::PipeInput::Command(cmd), cfg, never).unwrap();
+        let e = loop {
+            match src.next_sample() {
+                Err(e) => break e.to_string(),
+                Ok(Some(_)) => {}
+                Ok(None) => panic!("the stream ended without the error"),
+            }
+        };
+        assert!(
+            e.contains("inside frame") && e.contains("the command ended (signal: 9"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn a_fifo_without_a_writer_is_a_stall_not_a_hang() {
         let dir = std::env::temp_dir().join(format!("vlsync-pipe-fifo-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

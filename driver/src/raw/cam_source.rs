@@ -350,6 +350,25 @@ impl FrameSource for PipeFrames {
                 }
                 None => Ok(None),
             },
+            // the pipe closed inside a frame: a program that crashed or was killed
+            // mid-frame says so with its status, rather than only "a wrong size?"
+            Err(cam::Error::Read { path, reason }) if self.child.is_some() => {
+                let mut how = None;
+                if let Some(mut child) = self.child.take() {
+                    for _ in 0..50 {
+                        if let Ok(Some(st)) = child.try_wait() {
+                            how = Some(format!("; the command ended ({st})"));
+                            break;
+                        }
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                    kill_group(child, self.stop);
+                }
+                Err(cam::Error::Read {
+                    path,
+                    reason: format!("{reason}{}", how.unwrap_or_default()),
+                })
+            }
             other => other,
         }
     }
