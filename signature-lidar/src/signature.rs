@@ -415,7 +415,7 @@ pub struct Measurement {
     /// used.
     pub t_ns: Nanos,
     /// The mean time of the wall's inlier rays, ns (for the median, `t_ns`): the
-    /// time a derivative across a turn uses at both ends (see [`TimeSums`]).
+    /// time a derivative across a turn uses at both ends (see [`Distance::Wall`]).
     pub mean_t_ns: Nanos,
     /// Number of returns used (the wall's inliers, or all valid returns).
     pub rays_used: usize,
