@@ -322,6 +322,18 @@ impl Drop for PipeFrames {
     }
 }
 
+/// The camera program's exit status once it has ended, waiting up to half a
+/// second for it (`None`: still running).
+fn exit_within_half_a_second(child: &mut std::process::Child) -> Option<std::process::ExitStatus> {
+    for _ in 0..50 {
+        if let Ok(Some(st)) = child.try_wait() {
+            return Some(st);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    None
+}
+
 impl FrameSource for PipeFrames {
     fn next_frame(
         &mut self,
@@ -333,14 +345,10 @@ impl FrameSource for PipeFrames {
             Ok(None) if !(self.stop)() => match self.child.take() {
                 Some(mut child) => {
                     // it closed its output: give it a moment to exit
-                    let mut how = "closed its output".to_string();
-                    for _ in 0..50 {
-                        if let Ok(Some(st)) = child.try_wait() {
-                            how = format!("ended ({st})");
-                            break;
-                        }
-                        std::thread::sleep(Duration::from_millis(10));
-                    }
+                    let how = exit_within_half_a_second(&mut child).map_or_else(
+                        || "closed its output".to_string(),
+                        |st| format!("ended ({st})"),
+                    );
                     kill_group(child, self.stop);
                     // the driver's error names the command already
                     Err(cam::Error::Device {
@@ -353,20 +361,16 @@ impl FrameSource for PipeFrames {
             // the pipe closed inside a frame: a program that crashed or was killed
             // mid-frame says so with its status, rather than only "a wrong size?"
             Err(cam::Error::Read { path, reason }) if self.child.is_some() => {
-                let mut how = None;
+                let mut how = String::new();
                 if let Some(mut child) = self.child.take() {
-                    for _ in 0..50 {
-                        if let Ok(Some(st)) = child.try_wait() {
-                            how = Some(format!("; the command ended ({st})"));
-                            break;
-                        }
-                        std::thread::sleep(Duration::from_millis(10));
+                    if let Some(st) = exit_within_half_a_second(&mut child) {
+                        how = format!("; the command ended ({st})");
                     }
                     kill_group(child, self.stop);
                 }
                 Err(cam::Error::Read {
                     path,
-                    reason: format!("{reason}{}", how.unwrap_or_default()),
+                    reason: format!("{reason}{how}"),
                 })
             }
             other => other,
