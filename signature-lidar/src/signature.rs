@@ -842,9 +842,8 @@ impl SignatureProcessor {
             self.drop_reason(DropReason::Gap);
             return None;
         }
-        if (m.normal_rad - prev.normal_rad).is_finite()
-            && wrap_pi(m.normal_rad - prev.normal_rad).abs() > self.cfg.max_normal_change_rad
-        {
+        // (not finite for the median's normals: no surface to change)
+        if turned.is_finite() && turned > self.cfg.max_normal_change_rad {
             self.drop_reason(DropReason::SurfaceChange);
             return None;
         }

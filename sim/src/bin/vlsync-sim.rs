@@ -99,11 +99,8 @@ fn refuse_foreign_files(out: &std::path::Path) -> Result<(), String> {
 /// The first line of a regular file, without its line end (at most 4 KiB read).
 fn first_line(path: &std::path::Path) -> Option<String> {
     use std::io::Read;
-    if !std::fs::metadata(path).ok()?.is_file() {
-        return None;
-    }
     let mut buf = Vec::with_capacity(4096);
-    std::fs::File::open(path)
+    vlsync_common::file::open_regular(path)
         .ok()?
         .take(4096)
         .read_to_end(&mut buf)
