@@ -50,6 +50,7 @@ pub mod flow;
 pub mod image;
 pub mod pipe;
 pub mod reduce;
+pub mod sequence_clock;
 pub mod signature;
 pub mod source;
 pub mod v4l2;

@@ -52,7 +52,10 @@
 //! checks its first frames' stamps against `CLOCK_MONOTONIC` read at their dequeue
 //! ([`StampCheck`]), and stamps that cannot be on that clock make the stream stamp
 //! its frames at dequeue instead, said once ([`FrameSource::take_note`]); a reopen
-//! keeps the earlier opening's choice ([`V4l2Config::stamps`]).
+//! keeps the earlier opening's choice ([`V4l2Config::stamps`]). A dequeue time is
+//! late by the driver's delivery latency, whose variable part bunches frames a
+//! held-up driver hands over together: the buffers' sequence numbers put each
+//! frame back on its line ([`crate::sequence_clock`]).
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
 //! when a transfer is cut) or one too short for its frame is skipped and counted
@@ -385,8 +388,10 @@ impl StampCheck {
                  first {} frames' stamps{read} is within {:.0} s before its dequeue (the \
                  {first} was {when} it; the last stamp {:.6} s{looks}); from frame {} on, frames \
                  are stamped at dequeue instead, later by the driver's delivery latency \
-                 (its constant part shows up in the offset) and with its jitter, and \
-                 frames queued while the driver falls behind get bunched times{}",
+                 (its constant part shows up in the offset), each put back on the line its \
+                 buffer sequence numbers and the measured frame period draw through the \
+                 earliest of the last 16 dequeues, so that frames delivered together \
+                 keep their own times{}",
                 clock.name(),
                 self.seen,
                 MAX_STAMP_AGE_NS as f64 * 1e-9,
@@ -572,6 +577,7 @@ mod imp {
         self, caught, guarded, io_reason, DeviceId, Exposure, Negotiated, Offered, Rate, StampPlan,
     };
     use super::*;
+    use crate::sequence_clock::{Restart, SequenceClock, BEHIND_RUN};
     use crate::source::UnusableFrames;
     use std::collections::VecDeque;
     use std::path::Path;
@@ -648,6 +654,10 @@ mod imp {
         stall: std::time::Duration,
         /// Whose stamps the frames carry (decided within the first frames).
         pub(super) stamps: StampCheck,
+        /// Frames stamped at dequeue: their times from the buffers' sequence numbers.
+        sequence: SequenceClock,
+        /// A restart of `sequence` for this reason was said already.
+        said_restart: [bool; 2],
         /// What the opening negotiated.
         pub(super) negotiated: Negotiated,
         /// The opening's notes not yet taken.
@@ -892,6 +902,8 @@ mod imp {
                     Some(c) => StampCheck::decided(c),
                     None => StampCheck::new(decide_frames),
                 },
+                sequence: SequenceClock::new(),
+                said_restart: [false; 2],
                 negotiated,
                 notes,
                 // all queued above: the first frame is dequeued unread
@@ -985,13 +997,24 @@ mod imp {
                     .saturating_mul(1_000_000_000)
                     .saturating_add((meta.timestamp.usec as i64).saturating_mul(1_000));
                 let clock = StampClock::from_flags(u32::from(meta.flags));
-                let Some(t_ns) = self.stamps.stamp(clock, driver_ns, now_ns) else {
+                let Some(mut t_ns) = self.stamps.stamp(clock, driver_ns, now_ns) else {
                     // the stamps' clock is not decided yet: dropped, not converted; the
                     // camera delivers, so the stall limit counts from here (a slow
                     // camera must not stall out before its decision)
                     since = std::time::Instant::now();
                     continue;
                 };
+                if self.stamps.chosen() == Some(FrameStamps::Dequeue) {
+                    t_ns = self.sequence.stamp(meta.sequence, now_ns);
+                    let said = &mut self.said_restart;
+                    let restart = self.sequence.take_restart();
+                    if let Some((slot, text)) = restart.and_then(|why| {
+                        restart_note(path, why, meta.sequence).filter(|(i, _)| !said[*i])
+                    }) {
+                        said[slot] = true;
+                        self.notes.push_back(text);
+                    }
+                }
                 let used = (meta.bytesused as usize).min(buf.len());
                 let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
                     .with_stride(self.stride);
@@ -1013,6 +1036,32 @@ mod imp {
             let frame = GrayFrame::borrowed(self.width, self.height, &self.gray)
                 .map_err(|e| stream_format_error(path, e))?;
             Ok(Some((frame, FrameTime::Instant(t_ns))))
+        }
+    }
+
+    /// The line on a restart of the dequeue stamps' line, with its slot in
+    /// `Inner::said_restart` (each kind is said once); none for a long pause (the
+    /// camera stopped delivering: said by the stall, if it lasts).
+    fn restart_note(path: &Path, why: Restart, sequence: u32) -> Option<(usize, String)> {
+        let path = path.display();
+        match why {
+            Restart::Repeated => Some((
+                0,
+                format!(
+                    "{path}: the buffers' sequence numbers do not count up (buffer {sequence} \
+                     came after one numbered the same or higher): frames are stamped at \
+                     their dequeue times as they are until they do (said once)"
+                ),
+            )),
+            Restart::Behind => Some((
+                1,
+                format!(
+                    "{path}: {BEHIND_RUN} frames in a row came more than half a frame period \
+                     after their line (the camera slowed down, or delivers later for good): \
+                     the frame period is measured again from buffer {sequence} (said once)"
+                ),
+            )),
+            Restart::Jump => None,
         }
     }
 
