@@ -286,8 +286,9 @@ int vlsync_client_camera_to_lidar(vlsync_client *c, int64_t t_cam_ns, vlsync_con
 int vlsync_client_camera_to_lidar_err(vlsync_client *c, int64_t t_cam_ns,
                                       vlsync_conversion *out, char *err, size_t err_len);
 
-/* How old estimate e is, ns: CLOCK_MONOTONIC now - e->publish_ns (0 if that is in the
- * future); -1 when e is NULL. e need not be aligned. ABI minor 1. */
+/* How old estimate e is, ns: CLOCK_MONOTONIC now - e->publish_ns (0 if that is up to
+ * 1 s in the future; INT64_MAX if further, which this machine's daemon never gives, so
+ * that every age check fails); -1 when e is NULL. e need not be aligned. ABI minor 1. */
 int64_t vlsync_estimate_age_ns(const vlsync_estimate *e);
 
 /* The offset's random walk (s/sqrt(s)) conversions assume while tracking and otherwise:

@@ -691,9 +691,11 @@ unsafe fn convert_into(
     }
 }
 
-/// How old estimate `e` is: `CLOCK_MONOTONIC` now minus its `publish_ns`, in ns (0 for
-/// a publish time in the future, which the same machine's daemon never gives), or -1
-/// when `e` is NULL. The state alone does not tell a live lock: after the daemon
+/// How old estimate `e` is: `CLOCK_MONOTONIC` now minus its `publish_ns`, in ns, or -1
+/// when `e` is NULL. A publish time up to [`FUTURE_MARGIN_NS`] ahead is age 0; one
+/// further ahead, which the same machine's daemon never gives (another clock, or a
+/// faulty publisher on the service), is `INT64_MAX`, so that every age check fails
+/// rather than pass for as long as that stamp lies ahead. The state alone does not tell a live lock: after the daemon
 /// stops, the last estimate stays "tracking" (or "holding") in every later
 /// [`vlsync_client_latest`] and conversion. ABI minor 1.
 ///
@@ -709,7 +711,22 @@ pub unsafe extern "C" fn vlsync_estimate_age_ns(e: *const OffsetEstimate) -> i64
     // (the caller's promise); only its `publish_ns` field is read, through the raw
     // pointer and without assuming alignment (as `put` writes)
     let publish_ns = unsafe { std::ptr::addr_of!((*e).publish_ns).read_unaligned() };
-    vlsync_ipc::monotonic_ns().saturating_sub(publish_ns).max(0)
+    age_at(vlsync_ipc::monotonic_ns(), publish_ns)
+}
+
+/// How far ahead of `CLOCK_MONOTONIC` a publish time may be and still count as age 0
+/// ([`vlsync_estimate_age_ns`]): a second.
+pub const FUTURE_MARGIN_NS: i64 = 1_000_000_000;
+
+/// The age of an estimate published at `publish_ns` when the clock reads `now_ns`
+/// ([`vlsync_estimate_age_ns`]).
+fn age_at(now_ns: i64, publish_ns: i64) -> i64 {
+    let age = now_ns.saturating_sub(publish_ns);
+    if age < -FUTURE_MARGIN_NS {
+        i64::MAX
+    } else {
+        age.max(0)
+    }
 }
 
 /// Sets the offset's random walk (s/√s) that conversions assume while tracking and
@@ -1467,6 +1484,18 @@ mod tests {
     /// A raw publisher on the offset service: the `_err` calls hand out what it sends,
     /// with the publish time, and the age is measured against `CLOCK_MONOTONIC`.
     #[test]
+    fn an_age_is_never_negative_and_a_far_future_stamp_is_the_oldest() {
+        const S: i64 = 1_000_000_000;
+        assert_eq!(age_at(10 * S, 7 * S), 3 * S);
+        assert_eq!(age_at(10 * S, 10 * S + S / 2), 0);
+        assert_eq!(age_at(10 * S, 10 * S + FUTURE_MARGIN_NS), 0);
+        assert_eq!(age_at(10 * S, 10 * S + FUTURE_MARGIN_NS + 1), i64::MAX);
+        assert_eq!(age_at(10 * S, i64::MAX), i64::MAX);
+        assert_eq!(age_at(i64::MAX, i64::MIN), i64::MAX);
+        assert_eq!(age_at(i64::MIN, i64::MAX), i64::MAX);
+    }
+
+    #[test]
     fn the_err_variants_and_the_age_of_an_estimate() {
         use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
         let names = ServiceNames::new(&format!("vlsync/capi-age-{}", std::process::id())).unwrap();
@@ -1537,8 +1566,11 @@ mod tests {
             std::ptr::write_unaligned(bytes.as_mut_ptr().add(1).cast::<OffsetEstimate>(), est);
             let unaligned = bytes.as_ptr().add(1).cast::<OffsetEstimate>();
             assert!(vlsync_estimate_age_ns(unaligned) >= 5_000_000_000);
-            // a publish time in the future (another clock) is age 0, not negative
+            // a publish time far in the future (another clock, a faulty publisher)
+            // fails every age check; one just ahead is age 0, not negative
             est.publish_ns = i64::MAX;
+            assert_eq!(vlsync_estimate_age_ns(&est), i64::MAX);
+            est.publish_ns = vlsync_ipc::monotonic_ns() + 500_000_000;
             assert_eq!(vlsync_estimate_age_ns(&est), 0);
             assert_eq!(vlsync_client_close(c), 0);
         }

@@ -154,7 +154,11 @@ int main(int argc, char **argv) {
                               << " when published): the daemon is not publishing; stamps are "
                                  "marked stale\n";
                 else
-                    std::cerr << "vlsync_convert: fresh estimates again on " << prefix << "/offset\n";
+                    // fresh is not locked: a restarted daemon acquires first
+                    std::cerr << "vlsync_convert: fresh estimates again on " << prefix
+                              << "/offset (" << vlsync::state_name(v->estimate)
+                              << (vlsync::is_locked(v->estimate) ? ")\n"
+                                                                 : ", no lock yet)\n");
             }
             std::cout << t_cam << " " << v->t_lidar_ns << " " << v->std_s * 1e6 << " "
                       << (stale ? "stale" : vlsync::state_name(v->estimate)) << "\n";
