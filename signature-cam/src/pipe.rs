@@ -925,16 +925,18 @@ mod tests {
         c.silence = Duration::MAX;
         let mut src = PipeSource::new(r, "p", c, clock).unwrap();
         src.set_stop(|| STOP.load(Ordering::Relaxed));
+        // before the stopper starts: the stop comes 350 ms after this at the earliest,
+        // so a wait that ended only on it took that long
+        let t0 = Instant::now();
         let stopper = std::thread::spawn(|| {
             std::thread::sleep(Duration::from_millis(350));
             STOP.store(true, Ordering::Relaxed);
         });
-        let t0 = Instant::now();
         let r = src.next_frame().map(|o| o.is_some());
         stopper.join().unwrap();
         assert_eq!(r.map_err(|e| e.to_string()), Ok(false));
         assert!(
-            t0.elapsed() >= Duration::from_millis(300),
+            t0.elapsed() >= Duration::from_millis(350),
             "{:?}",
             t0.elapsed()
         );

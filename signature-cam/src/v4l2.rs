@@ -15,8 +15,10 @@
 //!   Raspberry Pi camera modules', which need libcamera);
 //! * lists the node's formats (`VIDIOC_ENUM_FMT`) and asks for the cheapest to
 //!   reduce to gray ([`negotiate::PREFERENCE`]: GREY, NV12, NV21, YU12, YV12 by
-//!   their luma plane, YUYV, UYVY, RGB3, BGR3) at the size asked; a camera offering
-//!   none of them (MJPEG only, say) is an error listing what it offers. The
+//!   their luma plane, YUYV, UYVY, RGB3, BGR3) of those that list the size asked at
+//!   the rate asked (`VIDIOC_ENUM_FRAMESIZES`, `VIDIOC_ENUM_FRAMEINTERVALS`:
+//!   [`negotiate::choose_format_for`]; one passed over is said with why); a camera
+//!   offering none of them (MJPEG only, say) is an error listing what it offers. The
 //!   negotiated stride (`bytesperline`) and image size are checked against the
 //!   geometry before any frame is read;
 //! * sets the frame rate asked ([`V4l2Config::fps`], `VIDIOC_S_PARM`) and reads back
@@ -574,7 +576,8 @@ impl FrameSource for V4l2Source {
 #[cfg(feature = "v4l2")]
 mod imp {
     use super::negotiate::{
-        self, caught, guarded, io_reason, DeviceId, Exposure, Negotiated, Offered, Rate, StampPlan,
+        self, caught, guarded, io_reason, DeviceId, Exposure, Modes, Negotiated, Offered, Rate,
+        SizeOffered, StampPlan,
     };
     use super::*;
     use crate::sequence_clock::{Restart, SequenceClock, BEHIND_RUN};
@@ -583,6 +586,8 @@ mod imp {
     use std::path::Path;
     use v4l::buffer::Type;
     use v4l::control::Value;
+    use v4l::frameinterval::FrameIntervalEnum;
+    use v4l::framesize::FrameSizeEnum;
     use v4l::io::mmap::Stream;
     use v4l::io::traits::{CaptureStream, Stream as StreamTrait};
     use v4l::video::capture::Parameters;
@@ -779,7 +784,39 @@ mod imp {
                             .contains(v4l::format::description::Flags::COMPRESSED),
                     })
                     .collect();
-            let want = negotiate::choose_format(&offered).map_err(id_err)?;
+            // each format's sizes and rates, asked only as far as the choice needs; a
+            // driver that lists none (or whose answer the crate cannot read) lists
+            // nothing, and the preference decides
+            let modes = |f: PixelFormat| {
+                let Some(code) = f.fourcc() else {
+                    return Modes::default();
+                };
+                let fourcc = FourCC::new(&code);
+                let sizes =
+                    match caught(p, "VIDIOC_ENUM_FRAMESIZES", || dev.enum_framesizes(fourcc)) {
+                        Ok(Ok(list)) => list.into_iter().map(|s| size_offered(s.size)).collect(),
+                        _ => Vec::new(),
+                    };
+                let max_fps = match caught(p, "VIDIOC_ENUM_FRAMEINTERVALS", || {
+                    dev.enum_frameintervals(fourcc, cfg.width, cfg.height)
+                }) {
+                    Ok(Ok(list)) => list
+                        .iter()
+                        .filter_map(|i| {
+                            let fastest = match &i.interval {
+                                FrameIntervalEnum::Discrete(f) => f,
+                                FrameIntervalEnum::Stepwise(s) => &s.min,
+                            };
+                            negotiate::fps_of_interval(fastest.numerator, fastest.denominator)
+                        })
+                        .reduce(f64::max),
+                    _ => None,
+                };
+                Modes { sizes, max_fps }
+            };
+            let (want, passed_over) =
+                negotiate::choose_format_for(&offered, cfg.width, cfg.height, cfg.fps, modes)
+                    .map_err(id_err)?;
             let code = want
                 .fourcc()
                 .ok_or_else(|| id_err(format!("{} has no V4L2 code", want.name())))?;
@@ -886,6 +923,7 @@ mod imp {
                 buffers,
             };
             let mut notes = VecDeque::from([format!("{negotiated}; {plan}")]);
+            notes.extend(passed_over.map(|why| format!("{}: {why}", path.display())));
             notes.extend(exposure.warning(p));
             Ok(Self {
                 path,
@@ -1062,6 +1100,21 @@ mod imp {
                 ),
             )),
             Restart::Jump => None,
+        }
+    }
+
+    /// A size the `v4l` crate lists, as the pure choice takes it.
+    fn size_offered(s: FrameSizeEnum) -> SizeOffered {
+        match s {
+            FrameSizeEnum::Discrete(d) => SizeOffered::Discrete {
+                width: d.width,
+                height: d.height,
+            },
+            FrameSizeEnum::Stepwise(s) => SizeOffered::Stepwise {
+                min: (s.min_width, s.min_height),
+                max: (s.max_width, s.max_height),
+                step: (s.step_width, s.step_height),
+            },
         }
     }
 

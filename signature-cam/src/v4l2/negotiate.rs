@@ -294,6 +294,173 @@ pub fn choose_format(offered: &[Offered]) -> Result<PixelFormat, String> {
     ))
 }
 
+/// A frame size one format lists (`VIDIOC_ENUM_FRAMESIZES`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SizeOffered {
+    /// One size.
+    Discrete {
+        /// Width, px.
+        width: u32,
+        /// Height, px.
+        height: u32,
+    },
+    /// Every size from `min` to `max` in steps of `step` (a continuous range has steps
+    /// of 1), each as (width, height).
+    Stepwise {
+        /// The smallest size.
+        min: (u32, u32),
+        /// The largest size.
+        max: (u32, u32),
+        /// The steps (0 taken as 1).
+        step: (u32, u32),
+    },
+}
+
+impl SizeOffered {
+    /// Whether `width`x`height` is among these sizes.
+    pub fn holds(&self, width: u32, height: u32) -> bool {
+        let on = |v: u32, lo: u32, hi: u32, step: u32| {
+            (lo..=hi).contains(&v) && (v - lo).is_multiple_of(step.max(1))
+        };
+        match *self {
+            SizeOffered::Discrete {
+                width: w,
+                height: h,
+            } => (w, h) == (width, height),
+            SizeOffered::Stepwise { min, max, step } => {
+                on(width, min.0, max.0, step.0) && on(height, min.1, max.1, step.1)
+            }
+        }
+    }
+}
+
+impl fmt::Display for SizeOffered {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            SizeOffered::Discrete { width, height } => write!(f, "{width}x{height}"),
+            SizeOffered::Stepwise { min, max, .. } => {
+                write!(f, "{}x{} to {}x{}", min.0, min.1, max.0, max.1)
+            }
+        }
+    }
+}
+
+/// What one format lists for the size asked: its sizes, and its fastest rate at that
+/// size (`VIDIOC_ENUM_FRAMEINTERVALS`).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Modes {
+    /// The sizes listed; empty when the driver lists none.
+    pub sizes: Vec<SizeOffered>,
+    /// The fastest rate listed at the size asked, Hz; `None` when none is listed.
+    pub max_fps: Option<f64>,
+}
+
+impl Modes {
+    /// Whether the size asked is listed; `None` when no size is listed at all.
+    fn has(&self, width: u32, height: u32) -> Option<bool> {
+        (!self.sizes.is_empty()).then(|| self.sizes.iter().any(|s| s.holds(width, height)))
+    }
+
+    /// Why these modes do not serve `width`x`height` at `fps`, or `None` when they
+    /// may (what the driver does not list is taken as possible).
+    fn shortfall(&self, width: u32, height: u32, fps: Option<f64>) -> Option<String> {
+        if self.has(width, height) == Some(false) {
+            const SHOWN: usize = 6;
+            let mut list = self
+                .sizes
+                .iter()
+                .take(SHOWN)
+                .map(|s| s.to_string())
+                .collect::<Vec<_>>()
+                .join(", ");
+            if self.sizes.len() > SHOWN {
+                list.push_str(", ...");
+            }
+            return Some(format!("lists no {width}x{height} (it lists {list})"));
+        }
+        match (fps, self.max_fps) {
+            // a rate within 1 % of the one asked serves (29.97 for 30)
+            (Some(asked), Some(best)) if best < asked * 0.99 => Some(format!(
+                "lists {width}x{height} at up to {}, not {}",
+                hz(best),
+                hz(asked)
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// The format to ask for: the first of those offered, in [`PREFERENCE`] order, that
+/// lists `width`x`height` at `fps` (when asked), else the first that lists the size,
+/// else the first ([`choose_format`]'s). `modes` lists one format's sizes and rates;
+/// it is called for the formats in order until one serves. Besides the format, the
+/// reason when a format earlier in the order was passed over, for the opening's
+/// notes. A camera that lists nothing (no `VIDIOC_ENUM_FRAMESIZES`) gets the first.
+///
+/// ```
+/// use vlsync_signature_cam::v4l2::negotiate::{choose_format_for, Modes, Offered, SizeOffered};
+/// use vlsync_signature_cam::PixelFormat;
+/// let f = |c: &[u8; 4]| Offered { fourcc: *c, description: String::new(), compressed: false };
+/// let size = |width, height| SizeOffered::Discrete { width, height };
+/// // GREY only at the sensor's full size; YUYV at 640x480 too
+/// let (chosen, why) = choose_format_for(&[f(b"YUYV"), f(b"GREY")], 640, 480, None, |p| match p {
+///     PixelFormat::Gray8 => Modes { sizes: vec![size(1280, 800)], max_fps: None },
+///     _ => Modes { sizes: vec![size(1280, 800), size(640, 480)], max_fps: Some(30.0) },
+/// })
+/// .unwrap();
+/// assert_eq!(chosen, PixelFormat::Yuyv);
+/// assert!(why.unwrap().contains("GREY lists no 640x480 (it lists 1280x800)"));
+/// ```
+pub fn choose_format_for(
+    offered: &[Offered],
+    width: u32,
+    height: u32,
+    fps: Option<f64>,
+    mut modes: impl FnMut(PixelFormat) -> Modes,
+) -> Result<(PixelFormat, Option<String>), String> {
+    let first = choose_format(offered)?;
+    let candidates = PREFERENCE
+        .iter()
+        .copied()
+        .filter(|p| offered.iter().any(|o| p.fourcc() == Some(o.fourcc)));
+    let mut passed: Vec<(PixelFormat, String)> = Vec::new();
+    let mut sized: Option<PixelFormat> = None;
+    for p in candidates {
+        let m = modes(p);
+        match m.shortfall(width, height, fps) {
+            None => {
+                let why = (!passed.is_empty()).then(|| passed_over(&passed, p));
+                return Ok((p, why));
+            }
+            Some(why) => {
+                if sized.is_none() && m.has(width, height) != Some(false) {
+                    sized = Some(p);
+                }
+                passed.push((p, why));
+            }
+        }
+    }
+    // none serves both: the size before the rate, else the order's first
+    let chosen = sized.unwrap_or(first);
+    let earlier: Vec<_> = passed
+        .into_iter()
+        .take_while(|(p, _)| *p != chosen)
+        .collect();
+    let why = (!earlier.is_empty()).then(|| passed_over(&earlier, chosen));
+    Ok((chosen, why))
+}
+
+/// "GREY lists no 640x480 (...); YUYV asked for instead"
+fn passed_over(passed: &[(PixelFormat, String)], chosen: PixelFormat) -> String {
+    let code = |p: PixelFormat| p.fourcc().map_or_else(|| p.name().to_string(), fourcc_text);
+    let reasons = passed
+        .iter()
+        .map(|(p, why)| format!("{} {why}", code(*p)))
+        .collect::<Vec<_>>()
+        .join("; ");
+    format!("{reasons}; {} asked for instead", code(chosen))
+}
+
 /// Frames above this many pixels are refused at open (as images from files are).
 pub const MAX_PIXELS: usize = 64 << 20;
 
@@ -861,6 +1028,130 @@ mod tests {
             fourcc: *code,
             description: desc.into(),
             compressed,
+        }
+    }
+
+    #[test]
+    fn a_format_is_passed_over_for_the_size_or_rate_it_does_not_list() {
+        let (yuyv, nv12, grey) = (
+            offered(b"YUYV", "", false),
+            offered(b"NV12", "", false),
+            offered(b"GREY", "", false),
+        );
+        let size = |width, height| SizeOffered::Discrete { width, height };
+        let vga = || vec![size(320, 240), size(640, 480)];
+        // NV12 lists VGA only up to 15 Hz (USB bandwidth), YUYV at 30
+        let modes = |p: PixelFormat| match p {
+            PixelFormat::Nv12 => Modes {
+                sizes: vga(),
+                max_fps: Some(15.0),
+            },
+            _ => Modes {
+                sizes: vga(),
+                max_fps: Some(30.0),
+            },
+        };
+        let both = [yuyv.clone(), nv12.clone()];
+        let (p, why) = choose_format_for(&both, 640, 480, Some(30.0), modes).unwrap();
+        assert_eq!(p, PixelFormat::Yuyv);
+        assert_eq!(
+            why.unwrap(),
+            "NV12 lists 640x480 at up to 15 Hz, not 30 Hz; YUYV asked for instead"
+        );
+        // no rate asked: the cheaper one
+        assert_eq!(
+            choose_format_for(&both, 640, 480, None, modes).unwrap(),
+            (PixelFormat::Nv12, None)
+        );
+        // 29.97 serves 30
+        let ntsc = |_| Modes {
+            sizes: vga(),
+            max_fps: Some(29.97),
+        };
+        assert_eq!(
+            choose_format_for(&both, 640, 480, Some(30.0), ntsc).unwrap(),
+            (PixelFormat::Nv12, None)
+        );
+        // nothing listed (a driver without VIDIOC_ENUM_FRAMESIZES): the order's first
+        assert_eq!(
+            choose_format_for(&both, 640, 480, Some(30.0), |_| Modes::default()).unwrap(),
+            (PixelFormat::Nv12, None)
+        );
+        // none lists the size: the order's first, nothing passed over
+        let big = |_| Modes {
+            sizes: vec![size(1920, 1080)],
+            max_fps: None,
+        };
+        assert_eq!(
+            choose_format_for(&both, 640, 480, None, big).unwrap(),
+            (PixelFormat::Nv12, None)
+        );
+        // none serves size and rate: the first with the size, said why
+        let three = [grey.clone(), nv12.clone(), yuyv.clone()];
+        let slow = |p: PixelFormat| match p {
+            PixelFormat::Gray8 => Modes {
+                sizes: vec![SizeOffered::Stepwise {
+                    min: (1280, 800),
+                    max: (1280, 800),
+                    step: (0, 0),
+                }],
+                max_fps: None,
+            },
+            _ => Modes {
+                sizes: vga(),
+                max_fps: Some(10.0),
+            },
+        };
+        let (p, why) = choose_format_for(&three, 640, 480, Some(30.0), slow).unwrap();
+        assert_eq!(p, PixelFormat::Nv12);
+        assert_eq!(
+            why.unwrap(),
+            "GREY lists no 640x480 (it lists 1280x800 to 1280x800); NV12 asked for instead"
+        );
+        // the formats are asked in order, and no further than the one that serves
+        let mut asked = Vec::new();
+        choose_format_for(&three, 640, 480, None, |p| {
+            asked.push(p);
+            Modes::default()
+        })
+        .unwrap();
+        assert_eq!(asked, [PixelFormat::Gray8]);
+        // MJPEG only: choose_format's error
+        let mjpg = offered(b"MJPG", "Motion-JPEG", true);
+        assert!(
+            choose_format_for(&[mjpg], 640, 480, None, |_| Modes::default())
+                .unwrap_err()
+                .contains("MJPEG is not supported")
+        );
+    }
+
+    #[test]
+    fn stepwise_sizes_hold_the_sizes_on_their_steps() {
+        let s = SizeOffered::Stepwise {
+            min: (16, 16),
+            max: (1920, 1080),
+            step: (16, 8),
+        };
+        assert!(s.holds(640, 480));
+        assert!(s.holds(16, 16) && s.holds(1920, 1080));
+        assert!(!s.holds(642, 480) && !s.holds(640, 482) && !s.holds(1936, 480));
+        assert!(!s.holds(0, 480));
+        let continuous = SizeOffered::Stepwise {
+            min: (1, 1),
+            max: (4096, 4096),
+            step: (1, 1),
+        };
+        assert!(continuous.holds(641, 479));
+        assert_eq!(s.to_string(), "16x16 to 1920x1080");
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn sizes_never_panic(lo in proptest::array::uniform2(0u32..5000), hi in proptest::array::uniform2(0u32..5000),
+                             step in proptest::array::uniform2(0u32..64), w in 0u32..6000, h in 0u32..6000) {
+            let s = SizeOffered::Stepwise { min: (lo[0], lo[1]), max: (hi[0], hi[1]), step: (step[0], step[1]) };
+            let held = s.holds(w, h);
+            proptest::prop_assert!(!held || (lo[0]..=hi[0]).contains(&w) && (lo[1]..=hi[1]).contains(&h));
         }
     }
 
