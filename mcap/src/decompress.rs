@@ -277,6 +277,30 @@ pub(crate) fn decode_chunk(
     exact(n, uncompressed_size, compression, BY)
 }
 
+/// What a compressed chunk cut by the end of the file decodes to before the cut, into
+/// `out` (cleared first): its frames' complete blocks, at most `uncompressed_size`
+/// and `limit` bytes; nothing for a compression this crate does not decode. The
+/// caller keeps only the complete records of it (their CRC cannot be checked: it
+/// covers the whole chunk).
+pub(crate) fn decode_cut_chunk(
+    compression: &str,
+    src: &[u8],
+    uncompressed_size: u64,
+    limit: usize,
+    out: &mut Vec<u8>,
+) {
+    out.clear();
+    let Some(c) = codec(compression) else {
+        return;
+    };
+    let cap = uncompressed_size.min(limit as u64);
+    // the decoders write each block as they finish it, so the error at the cut
+    // leaves the blocks before it in `out`
+    if decode_all(c, src, out, cap).is_err() {
+        out.truncate(usize::try_from(cap).unwrap_or(usize::MAX));
+    }
+}
+
 fn declared_within(uncompressed_size: u64, limit: usize, by: &str) -> Result<u64, ChunkError> {
     if uncompressed_size > limit as u64 {
         return Err(ChunkError::Corrupt(format!(
@@ -387,7 +411,7 @@ pub(crate) fn register_indexed(reader: &mut IndexedReader, limit: usize) -> Mcap
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
     use std::io::Write;

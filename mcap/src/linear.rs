@@ -20,9 +20,11 @@
 //! * a record inside a chunk may claim at most what its chunk has left: a longer
 //!   claim is an error naming the record's place in the chunk (the `mcap` crate's
 //!   walk overflows a counter there);
-//! * an uncompressed chunk cut by the end of the file yields the complete records
-//!   it holds, then the file's truncation is reported (their CRC cannot be checked:
-//!   it covers the whole chunk).
+//! * a chunk cut by the end of the file yields the complete records it holds
+//!   (uncompressed), or that its frames' complete blocks hold (zstd, lz4: a
+//!   recorder killed by a power cut leaves its last chunk so), then the file's
+//!   truncation is reported (their CRC cannot be checked: it covers the whole
+//!   chunk).
 //!
 //! The walk yields records in file order, those inside chunks in place of their
 //! chunk; the chunk records themselves are not yielded.
@@ -433,31 +435,53 @@ impl LinearWalk {
         Ok(())
     }
 
-    /// The complete records of the cut chunk in `body`, when it is uncompressed
-    /// (a compressed one cannot be decoded in part: nothing).
+    /// The complete records of the cut chunk in `body`: those it holds when it is
+    /// uncompressed, those its frames' complete blocks hold when it is compressed.
     fn load_cut_chunk(&mut self) {
         self.chunk.content.clear();
         self.chunk.pos = 0;
         let b = &self.body[HEAD..];
+        let Some(uncompressed_size) = b.get(16..24).map(|s| u64::from_le_bytes(le8(s))) else {
+            return;
+        };
         let Some(name_len) = b.get(CHUNK_FIXED..CHUNK_FIXED + 4) else {
             return;
         };
-        if name_len != [0, 0, 0, 0] {
-            return;
-        }
-        // the compressed size, then the records
-        let records_at = CHUNK_FIXED + 4 + 8;
-        let (Some(size), Some(rest)) = (b.get(CHUNK_FIXED + 4..records_at), b.get(records_at..))
+        let name_len = u32::from_le_bytes([name_len[0], name_len[1], name_len[2], name_len[3]]);
+        let name_at = CHUNK_FIXED + 4;
+        let Some(size_at) = usize::try_from(name_len)
+            .ok()
+            .and_then(|n| name_at.checked_add(n))
         else {
             return;
         };
+        let Some(Ok(compression)) = b.get(name_at..size_at).map(std::str::from_utf8) else {
+            return;
+        };
+        // the compressed size, then the records
+        let records_at = size_at + 8;
+        let (Some(size), Some(rest)) = (b.get(size_at..records_at), b.get(records_at..)) else {
+            return;
+        };
         let size = usize::try_from(u64::from_le_bytes(le8(size))).unwrap_or(usize::MAX);
-        let records = &rest[..size.min(rest.len())];
+        let data = &rest[..size.min(rest.len())];
+        if compression.is_empty() {
+            self.chunk.content.extend_from_slice(data);
+        } else {
+            decompress::decode_cut_chunk(
+                compression,
+                data,
+                uncompressed_size,
+                self.limit,
+                &mut self.chunk.content,
+            );
+        }
+        let records = &self.chunk.content;
         let mut complete = 0;
         while let Some(Ok((_, body))) = records.get(complete..).map(split_record) {
             complete += HEAD + body.len();
         }
-        self.chunk.content.extend_from_slice(&records[..complete]);
+        self.chunk.content.truncate(complete);
     }
 }
 
@@ -652,6 +676,94 @@ mod tests {
             "{fault:?}"
         );
         assert_eq!(w.place(), Place::InChunk(1));
+    }
+
+    /// A chunk record around `compressed`, the frames of `records` in `compression`.
+    fn compressed_chunk(compression: &str, records: &[u8], compressed: &[u8]) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.extend_from_slice(&[0u8; 16]); // start, end time
+        b.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        b.extend_from_slice(&crc32fast::hash(records).to_le_bytes());
+        b.extend_from_slice(&(compression.len() as u32).to_le_bytes());
+        b.extend_from_slice(compression.as_bytes());
+        b.extend_from_slice(&(compressed.len() as u64).to_le_bytes());
+        b.extend_from_slice(compressed);
+        record(op::CHUNK, &b)
+    }
+
+    #[test]
+    fn a_cut_compressed_chunk_yields_the_records_of_its_complete_blocks() {
+        // 3,000 messages of 200 bytes (600 kB: several blocks of either codec),
+        // incompressible enough that the blocks are not tiny
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let inner: Vec<u8> = (0..3000u32)
+            .flat_map(|i| {
+                let body: Vec<u8> = (0..200)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 7;
+                        x ^= x << 17;
+                        // a few distinct bytes: compressible, not trivially
+                        b"abcdefgh"[(x % 8) as usize]
+                    })
+                    .chain(i.to_le_bytes())
+                    .collect();
+                record(op::MESSAGE, &body)
+            })
+            .collect();
+        // lz4 in 64 KiB blocks, as the C library writes them by default (rosbag2's
+        // recorder); lz4_flex's own default sizes the block by its first write
+        fn lz4_64k(data: &[u8]) -> Vec<u8> {
+            use std::io::Write;
+            let info =
+                lz4_flex::frame::FrameInfo::new().block_size(lz4_flex::frame::BlockSize::Max64KB);
+            let mut e = lz4_flex::frame::FrameEncoder::with_frame_info(info, Vec::new());
+            e.write_all(data).unwrap();
+            e.finish().unwrap()
+        }
+        type Encode = fn(&[u8]) -> Vec<u8>;
+        let encoders: [(&str, Encode); 2] =
+            [("zstd", crate::decompress::tests::zstd), ("lz4", lz4_64k)];
+        for (name, encode) in encoders {
+            let c = compressed_chunk(name, &inner, &encode(&inner));
+            // whole: every message
+            let (_p, mut f, len) = file(&[&c, &footer()]);
+            let mut w = LinearWalk::new(1 << 22);
+            let (recs, fault) = walk_all(&mut w, &mut f, len);
+            assert!(fault.is_none(), "{name}: {fault:?}");
+            assert_eq!(recs.len(), 3000, "{name}");
+            // cut at three quarters of its frames: the messages of the complete blocks
+            // before the cut, each whole and in order, then the cut
+            let cut = &c[..c.len() * 3 / 4];
+            let (_p, mut f, len) = file(&[cut]);
+            let mut w = LinearWalk::new(1 << 22);
+            let (recs, fault) = walk_all(&mut w, &mut f, len);
+            assert!(
+                matches!(fault, Some(Fault::Mcap(McapError::UnexpectedEof))),
+                "{name}: {fault:?}"
+            );
+            assert!(
+                recs.len() > 1000 && recs.len() < 3000,
+                "{name}: {} messages",
+                recs.len()
+            );
+            for (i, (op, body)) in recs.iter().enumerate() {
+                assert_eq!(*op, op::MESSAGE);
+                assert_eq!(body[200..], (i as u32).to_le_bytes(), "{name}: message {i}");
+            }
+            // cut inside its header: nothing, then the cut
+            let (_p, mut f, len) = file(&[&c[..40]]);
+            let mut w = LinearWalk::new(1 << 22);
+            let (recs, fault) = walk_all(&mut w, &mut f, len);
+            assert!(recs.is_empty() && fault.is_some(), "{name}");
+        }
+        // an unknown compression cut: nothing, then the cut
+        let c = compressed_chunk("brotli", &inner, &inner);
+        let (_p, mut f, len) = file(&[&c[..c.len() / 2]]);
+        let mut w = LinearWalk::new(1 << 22);
+        let (recs, fault) = walk_all(&mut w, &mut f, len);
+        assert!(recs.is_empty(), "{}", recs.len());
+        assert!(matches!(fault, Some(Fault::Mcap(McapError::UnexpectedEof))));
     }
 
     #[test]
