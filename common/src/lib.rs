@@ -43,6 +43,12 @@ pub type Nanos = i64;
 /// Nanoseconds in one second.
 pub const NANOS_PER_SEC: i64 = 1_000_000_000;
 
+/// Largest |offset| between the clocks anyone takes from outside, seconds (11.6
+/// days; the range of `estimator.lag_center_s`): a saved estimate beyond it is
+/// refused, by the daemon's state file and by `Estimator::restore` (the estimator's
+/// lag arithmetic stays far from the `i64` range within it).
+pub const MAX_ABS_OFFSET_S: f64 = 1e6;
+
 /// Converts seconds to the nearest nanosecond, saturating at the `i64` range.
 /// NaN maps to 0; callers validate their inputs before converting.
 pub fn secs_to_nanos(s: f64) -> Nanos {

@@ -270,7 +270,7 @@ impl Ring {
     #[inline]
     fn span(&self, a: i64, b: i64) -> &[f64] {
         let s = (a as usize) & self.mask;
-        let n = ((b - a + 1).max(0) as usize).min(self.cap);
+        let n = (b.saturating_sub(a).saturating_add(1).max(0) as usize).min(self.cap);
         &self.val[s..s + n]
     }
 }
@@ -284,6 +284,12 @@ const BATCH: usize = 10;
 /// subtraction per hop, 96 at the defaults (12 blocks), whose rounding stays near
 /// 1e-14 of the sums.
 const REBUILD_WINDOWS: usize = 4;
+
+/// The farthest slot 0 may be from lag 0, grid steps (either way): a lag range asked
+/// beyond it (a saturated conversion of an absurd offset) is clamped to it, so that a
+/// lag plus a slot, and a grid index less a lag, stay far from the `i64` range. Real
+/// lags are many orders of magnitude smaller (a 1e6 s offset at 2 kHz is 2e9 steps).
+pub const MAX_ABS_LAG0: i64 = i64::MAX / 4;
 
 /// `p % len` for `p < 2·len` (a ring position: the head, below `len`, plus an index
 /// below `len`), without the division that `%` by a length known only at run time
@@ -355,6 +361,7 @@ impl Correlator {
         ring_len: usize,
     ) -> Self {
         let n_lags = n_lags.max(3);
+        let lag0 = lag0.clamp(-MAX_ABS_LAG0, MAX_ABS_LAG0);
         let acq_blocks = acq_blocks.max(1);
         let cap_blocks = cap_blocks.max(acq_blocks);
         Self {
@@ -400,23 +407,32 @@ impl Correlator {
         self.hop_len
     }
 
-    /// Moves the lag range (slot 0 at `lag0`); forgets every block.
+    /// Moves the lag range (slot 0 at `lag0`, clamped to ±[`MAX_ABS_LAG0`]); forgets
+    /// every block.
     pub fn set_lag0(&mut self, lag0: i64) {
+        let lag0 = lag0.clamp(-MAX_ABS_LAG0, MAX_ABS_LAG0);
         if lag0 != self.lag0 {
             self.lag0 = lag0;
             self.clear_blocks();
         }
     }
 
-    /// Moves the lag range by `delta` slots (slot 0 at `lag0 + delta`) keeping the
-    /// stored blocks: each keeps the lags it holds that stay in range (its `lo..=hi`
-    /// narrows). The unfinished block and the acquisition window restart.
+    /// Moves the lag range by `delta` slots (slot 0 at `lag0 + delta`, clamped to
+    /// ±[`MAX_ABS_LAG0`]) keeping the stored blocks: each keeps the lags it holds that
+    /// stay in range (its `lo..=hi` narrows). The unfinished block and the acquisition
+    /// window restart.
     pub fn shift_lags(&mut self, delta: i64) {
+        let lag0 = self
+            .lag0
+            .saturating_add(delta)
+            .clamp(-MAX_ABS_LAG0, MAX_ABS_LAG0);
+        // the move made (within ±2·MAX_ABS_LAG0: the slot arithmetic below cannot overflow)
+        let delta = lag0 - self.lag0;
         if delta == 0 {
             return;
         }
         let n = self.n_lags as i64;
-        self.lag0 += delta;
+        self.lag0 = lag0;
         self.epoch += 1;
         for i in 0..self.count {
             let p = self.phys(i);
@@ -619,7 +635,7 @@ impl Correlator {
         // block's last index needs its LiDAR value and the camera's at the lowest lag
         let end = self.block_end(k);
         let left = end - k;
-        let m_lo = self.lag0 + self.active.0 as i64;
+        let m_lo = self.lag0.saturating_add(self.active.0 as i64);
         left < BATCH as i64 && self.lidar.end >= end && self.cam.end >= end.saturating_sub(m_lo)
     }
 
@@ -634,8 +650,10 @@ impl Correlator {
         let (Some(l0), Some(c0)) = (self.lidar.seg_start, self.cam.seg_start) else {
             return Step::Idle;
         };
-        let m_lo = self.lag0 + self.active.0 as i64;
-        let m_hi = self.lag0 + self.active.1 as i64;
+        // saturating (as every lag and index sum here): `lag0` is clamped well inside
+        // the range, but an index near its ends must not overflow either
+        let m_lo = self.lag0.saturating_add(self.active.0 as i64);
+        let m_hi = self.lag0.saturating_add(self.active.1 as i64);
         let earliest = l0.max(c0.saturating_add(m_hi));
         let k = match self.cursor {
             Some(k) if k >= earliest => k,
@@ -654,10 +672,10 @@ impl Correlator {
         // the oldest and newest camera values needed must be in the ring (segments are contiguous)
         let (Some(x), Some(_), Some(_)) = (
             self.lidar.get(k),
-            self.cam.get(k - m_hi),
-            self.cam.get(k - m_lo),
+            self.cam.get(k.saturating_sub(m_hi)),
+            self.cam.get(k.saturating_sub(m_lo)),
         ) else {
-            self.skip_to(k + 1);
+            self.skip_to(k.saturating_add(1));
             return Step::Break;
         };
         // up to BATCH consecutive indices of the same block at once, when their data are
@@ -667,7 +685,8 @@ impl Correlator {
         // or after both starts, and its values are still in), so the indices up to
         // the newest each stream covers are all there.
         let block_end = self.block_end(k);
-        let last = (k + batch.clamp(1, BATCH) as i64 - 1)
+        let last = k
+            .saturating_add(batch.clamp(1, BATCH) as i64 - 1)
             .min(block_end)
             .min(self.lidar.end)
             .min(self.cam.end.saturating_add(m_lo));
@@ -690,10 +709,12 @@ impl Correlator {
         // n_lags - 1 - s until it completes, so that position is its offset from slot
         // hi's, plus j. Only Σxy needs the pair; Σy and Σy² of a block are sliding sums
         // over the camera ring, filled in once when the block completes.
-        let ys = self.cam.span(k - m_hi, last - m_lo);
+        let ys = self
+            .cam
+            .span(k.saturating_sub(m_hi), last.saturating_sub(m_lo));
         let n = self.n_lags;
         vlsync_simd::add_products(&mut self.cur.xy[n - 1 - hi..=n - 1 - lo], ys, xs);
-        self.cursor = Some(last + 1);
+        self.cursor = Some(last.saturating_add(1));
         // the only block end in k..=last can be the block's own
         if last == block_end {
             if self.complete_block() {
@@ -728,8 +749,8 @@ impl Correlator {
     fn fill_y_sums(&mut self) -> bool {
         let (lo, hi) = self.active;
         let (k0, k1) = (self.cur.first_k, self.cur.last_k);
-        let a_hi = k0 - self.lag0 - hi as i64;
-        let b_lo = k1 - self.lag0 - lo as i64;
+        let a_hi = k0.saturating_sub(self.lag0).saturating_sub(hi as i64);
+        let b_lo = k1.saturating_sub(self.lag0).saturating_sub(lo as i64);
         if self.cam.get(a_hi).is_none() || self.cam.get(b_lo).is_none() {
             return false;
         }
@@ -1126,8 +1147,9 @@ mod tests {
 
     proptest::proptest! {
         /// The branch-free range and the per-slot correlation give the textbook
-        /// formula's values bit for bit, on any sums: too few pairs, a variance that is zero, negative or infinite by
-        /// cancellation or overflow, any bit pattern.
+        /// formula's values bit for bit, on any sums: too few pairs, a variance that is
+        /// zero, negative or infinite by cancellation or overflow (one term or both),
+        /// any bit pattern.
         #[test]
         fn ncc_range_is_ncc_slot_by_slot(
             n in proptest::prop_oneof![0.0..5.0f64, 3.0..1e6, proptest::num::f64::ANY],
@@ -1158,12 +1180,15 @@ mod tests {
                     } else {
                         let n = sums.n;
                         let vx = n * sums.sxx - sums.sx * sums.sx;
-                        let d = vx * (n * sums.yy[s] - sums.y[s] * sums.y[s]);
+                        let vy = n * sums.yy[s] - sums.y[s] * sums.y[s];
+                        let d = vx * vy;
                         // a ratio that overflows (or is NaN) says nothing either:
                         // 0, not a clamped ±1 (a numerator past f64::MAX over a
                         // finite root, found by this test with n ~ 3e307)
                         let r = (n * sums.xy[s] - sums.sx * sums.y[s]) / d.sqrt();
-                        if d <= 0.0 || !d.is_finite() || !r.is_finite() {
+                        // and two variance terms negative by cancellation, whose
+                        // product is positive, are no correlation either
+                        if vx <= 0.0 || vy <= 0.0 || d <= 0.0 || !d.is_finite() || !r.is_finite() {
                             0.0
                         } else {
                             r.clamp(-1.0, 1.0)
@@ -1189,6 +1214,47 @@ mod tests {
             c.push_lidar(k, sig(k - lag));
             while c.step() != Step::Idle {}
         }
+    }
+
+    /// A lag range asked far beyond any real lag (a saturated conversion of an absurd
+    /// offset, a huge shift) is clamped to ±`MAX_ABS_LAG0`, and stepping through data
+    /// then never overflows (the tests run with overflow checks): it correlates nothing
+    /// there, and comes back to real lags when asked.
+    #[test]
+    fn a_lag_range_beyond_the_limit_is_clamped_and_never_overflows() {
+        let mut c = Correlator::new(21, i64::MIN, 10, 4, 8, 1024);
+        assert_eq!(c.lag0(), -MAX_ABS_LAG0);
+        feed_tones(&mut c, 0..50, 2);
+        for (set, want) in [
+            (i64::MAX, MAX_ABS_LAG0),
+            (i64::MIN, -MAX_ABS_LAG0),
+            (i64::MAX - 5, MAX_ABS_LAG0),
+        ] {
+            c.set_lag0(set);
+            assert_eq!(c.lag0(), want);
+            feed_tones(&mut c, 50..80, 2);
+            c.pull_cursor_back();
+            assert_eq!(c.count(), 0, "no data at lag {want}");
+        }
+        for (delta, want) in [
+            (i64::MAX, MAX_ABS_LAG0),
+            (i64::MIN, -MAX_ABS_LAG0),
+            (i64::MIN, -MAX_ABS_LAG0),
+            (3, 3 - MAX_ABS_LAG0),
+            (i64::MAX, MAX_ABS_LAG0),
+        ] {
+            c.shift_lags(delta);
+            assert_eq!(c.lag0(), want);
+            feed_tones(&mut c, 80..100, 2);
+            c.pull_cursor_back();
+        }
+        // back at real lags the data correlate again
+        c.set_lag0(-10);
+        c.restart_cursor();
+        feed_tones(&mut c, 100..200, 2);
+        assert!(c.count() > 0);
+        let w = c.acq();
+        assert!(w.ncc(12) > 0.99, "{}", w.ncc(12));
     }
 
     #[test]

@@ -65,7 +65,9 @@ use drift::DriftFit;
 use filter::BandPass;
 use resample::{Discontinuity, Resampler};
 use segment::{PrepKey, Segment, Span};
-use vlsync_common::{Estimate, EstimatorState, Nanos, Polarity, RejectReason, Sample, Stream};
+use vlsync_common::{
+    Estimate, EstimatorState, Nanos, Polarity, RejectReason, Sample, Stream, MAX_ABS_OFFSET_S,
+};
 use vlsync_config::EstimatorConfig;
 
 pub use change::HINT_STEP_STD_S;
@@ -820,8 +822,13 @@ impl Estimator {
     /// Starts from a previously saved estimate (e.g. after a restart): the state is
     /// `holding` around `est.offset_s` with the standard deviation inflated for
     /// `age_s` seconds of blindness, and the search is centred on it.
+    ///
+    /// An estimate with a NaN or infinite value, or an offset beyond
+    /// ±[`MAX_ABS_OFFSET_S`], is ignored (the estimator goes on as it was); the drift,
+    /// its standard deviation and the age are clamped to their ranges.
     pub fn restore(&mut self, est: &Estimate, age_s: f64) {
-        if !(est.offset_s.is_finite()
+        // NaN fails the comparison too
+        if !(est.offset_s.abs() <= MAX_ABS_OFFSET_S
             && est.drift.is_finite()
             && est.offset_std_s.is_finite()
             && est.drift_std.is_finite())
@@ -1024,8 +1031,20 @@ impl Estimator {
     }
 
     /// Tracker time of (fractional) LiDAR grid index `k`, at the filter's output delay.
+    ///
+    /// `k · dt` in two parts: the whole indices in integer nanoseconds (saturating),
+    /// the fraction (the callers' ½) in `f64`, both truncated toward zero as the one
+    /// product was. One `f64` product rounds to 2^(e-52) ns beyond 2^53 ns (104 days
+    /// of `CLOCK_MONOTONIC` uptime: 256 ns at 1.8e18); below it, the two give the same
+    /// nanosecond for every whole or half index.
     fn rel_k(&mut self, k: f64) -> f64 {
-        let t_ns = ((k * self.p.dt_ns as f64) as Nanos).saturating_sub(self.group_delay_ns);
+        let whole = k.trunc();
+        // NaN and ±∞ as before: NaN 0, ±∞ saturated (its fraction, NaN, adds 0)
+        let frac_ns = ((k - whole) * self.p.dt_ns as f64) as Nanos;
+        let t_ns = (whole as Nanos)
+            .saturating_mul(self.p.dt_ns)
+            .saturating_add(frac_ns)
+            .saturating_sub(self.group_delay_ns);
         self.rel(t_ns)
     }
 
@@ -1873,6 +1892,84 @@ mod tests {
             }
         }
         assert!(restored >= 10, "{restored} restores");
+    }
+
+    /// A saved estimate with an offset beyond `vlsync_common::MAX_ABS_OFFSET_S` is
+    /// refused, like a non-finite one: the estimator stays as it was. Such an offset
+    /// used to centre the lags at a saturated lag, and the first step's lag range
+    /// overflowed (a panic with overflow checks, as in the tests and the fuzz targets).
+    #[test]
+    fn a_restore_beyond_the_offset_range_is_refused_and_pushes_never_overflow() {
+        let cfg = EstimatorConfig::default();
+        let saved = |offset_s: f64, drift: f64| Estimate {
+            seq: 0,
+            t_ref_ns: 0,
+            offset_s,
+            drift,
+            offset_std_s: 0.001,
+            drift_std: 1e-6,
+            state: EstimatorState::Tracking,
+            polarity: Polarity::Negative,
+            peak_score: 0.9,
+            peak_ratio: 2.0,
+            measured_offset_s: f64::NAN,
+        };
+        let feed = |e: &mut Estimator| {
+            for i in 0..300i64 {
+                let t = i * 10_000_000;
+                let v = (i as f64 * 0.1).sin();
+                let _ = e.push(Stream::Cam, Sample::new(t, v));
+                let _ = e.push(Stream::Lidar, Sample::new(t + 1_000_000, v));
+                while e.poll().is_some() {}
+            }
+        };
+        for offset_s in [1e17, -1e17, f64::MAX, -f64::MAX, 1.000001e6, -1.000001e6] {
+            let mut e = Estimator::new(&cfg);
+            e.restore(&saved(offset_s, 0.0), 0.0);
+            assert_eq!(e.state(), EstimatorState::Acquiring, "{offset_s}");
+            feed(&mut e);
+        }
+        // the largest accepted offset restores, drifted as far as a restore allows,
+        // and the pushes after it run
+        for (offset_s, drift) in [(MAX_ABS_OFFSET_S, 1.0), (-MAX_ABS_OFFSET_S, -1.0)] {
+            let mut e = Estimator::new(&cfg);
+            e.restore(&saved(offset_s, drift), 1e9);
+            assert_eq!(e.state(), EstimatorState::Holding, "{offset_s}");
+            feed(&mut e);
+        }
+    }
+
+    /// Tracker times of grid indices on a time base of 1.8e18 ns (57 years; past
+    /// 2^53 ns, 104 days of uptime, one `f64` product `k · dt` rounds to 256 ns) are
+    /// exact: whole and half indices a whole number of half grid steps apart.
+    #[test]
+    fn tracker_times_of_indices_are_exact_on_a_late_time_base() {
+        for grid_hz in [100.0, 30.0, 333.0, 2000.0] {
+            let cfg = EstimatorConfig {
+                grid_hz,
+                ..EstimatorConfig::default()
+            };
+            let mut e = Estimator::new(&cfg);
+            let dt = e.p.dt_ns;
+            let k0 = (1_800_000_000_000_000_000 / dt + 1) as f64;
+            // the first call anchors the tracker's time (0 at k0)
+            assert_eq!(e.rel_k(k0), 0.0);
+            let mut inexact = 0;
+            for j in 1..200i64 {
+                let want = (j * dt / 2) as f64 * 1e-9;
+                assert_eq!(
+                    e.rel_k(k0 + 0.5 * j as f64),
+                    want,
+                    "{grid_hz} Hz, {j} half steps"
+                );
+                // one product, as before, is not
+                let one = |k: f64| (k * dt as f64) as Nanos;
+                inexact += usize::from(one(k0 + 0.5 * j as f64) - one(k0) != j * dt / 2);
+            }
+            assert!(inexact > 0, "{grid_hz} Hz: one product was exact too");
+            // and going back before the anchor
+            assert_eq!(e.rel_k(k0 - 3.0), (-3 * dt) as f64 * 1e-9);
+        }
     }
 
     #[test]

@@ -122,8 +122,10 @@ fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
 /// one division and one root.
 ///
 /// Always a finite number in `[-1, 1]`:
-/// * 0 unless the variance product `vx·(n·Σy² - (Σy)²)` is positive and finite and the
-///   ratio is finite: no variance, sums that overflowed to ±∞, and any NaN or infinite
+/// * 0 unless both variance terms, `vx` and `vy = n·Σy² - (Σy)²`, are positive, their
+///   product is positive and finite, and the ratio is finite: no variance, a variance
+///   term negative by cancellation (two negative terms have a positive product, whose
+///   ratio is rounding noise), sums that overflowed to ±∞, and any NaN or infinite
 ///   input all give 0 (no correlation), never NaN nor a perfect ±1 from an ∞/finite
 ///   ratio;
 /// * a finite ratio beyond ±1 (rounding in the sums of a near-perfect correlation) is
@@ -138,16 +140,20 @@ fn add_n<const N: usize>(acc: &mut [f64], ys: &[f64], xs: &[f64; N]) {
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 34.0, 15.0, 83.0), 1.0);
 /// // no variance: 0, not NaN
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, 30.0, 15.0, 75.0), 0.0);
+/// // both variance terms negative (cancellation): 0, though their product is positive
+/// assert_eq!(vlsync_simd::pearson(3.0, 6.0, -1.0, 1.0, 15.0, 74.0), 0.0);
 /// // an overflowed or undefined Σxy: 0, not ±1 or NaN
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, f64::INFINITY, 15.0, 83.0), 0.0);
 /// assert_eq!(vlsync_simd::pearson(3.0, 6.0, vx, f64::NAN, 15.0, 83.0), 0.0);
 /// ```
 #[inline(always)]
 pub fn pearson(n: f64, sx: f64, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
-    let d = vx * (n * syy - sy * sy);
+    let vy = n * syy - sy * sy;
+    let d = vx * vy;
     let r = (n * sxy - sx * sy) / d.sqrt();
-    // every comparison is false for NaN: a NaN denominator or ratio is not `ok`
-    let ok = (d > 0.0) & (d < f64::INFINITY) & (r.abs() < f64::INFINITY);
+    // every comparison is false for NaN: a NaN denominator or ratio is not `ok`; each
+    // variance term on its own too (a positive product of two negative ones is noise)
+    let ok = (vx > 0.0) & (vy > 0.0) & (d > 0.0) & (d < f64::INFINITY) & (r.abs() < f64::INFINITY);
     let r = if r < -1.0 { -1.0 } else { r };
     let r = if r > 1.0 { 1.0 } else { r };
     if ok {
@@ -310,6 +316,101 @@ mod tests {
             if which < 6 {
                 proptest::prop_assert_eq!(r.to_bits(), 0.0f64.to_bits(), "{:?}", a);
             }
+        }
+    }
+
+    /// The textbook form with branches and `clamp`, as [`pearson`] was before it
+    /// checked each variance term: 0 unless the variance product is positive and
+    /// finite and the ratio finite.
+    fn textbook(n: f64, sx: f64, vx: f64, sxy: f64, sy: f64, syy: f64) -> f64 {
+        let d = vx * (n * syy - sy * sy);
+        let r = (n * sxy - sx * sy) / d.sqrt();
+        if d <= 0.0 || !d.is_finite() || !r.is_finite() {
+            0.0
+        } else {
+            r.clamp(-1.0, 1.0)
+        }
+    }
+
+    /// Both variance terms negative (cancellation in `n·Σ² - (Σ)²` of sums of
+    /// near-constant values): their product is positive, but the ratio is noise, not a
+    /// correlation, so 0 in every build (the textbook form gives ±1 or noise).
+    #[test]
+    fn both_variance_terms_negative_is_no_correlation() {
+        // n = 3, Σy = 15: vy = 3·Σy² - 225 < 0 for Σy² < 75
+        let cases = [
+            (-1.0, 1.0, 74.0),
+            (-1e-3, 34.0, 74.9),
+            (-4.0, -50.0, 70.0),
+            (-1e-9, 1e3, 74.999_999),
+        ];
+        for (vx, sxy, syy) in cases {
+            let vy = 3.0 * syy - 15.0 * 15.0;
+            assert!(vx < 0.0 && vy < 0.0 && vx * vy > 0.0, "{vx} {vy}");
+            assert_ne!(
+                textbook(3.0, 6.0, vx, sxy, 15.0, syy),
+                0.0,
+                "{vx} {sxy} {syy}"
+            );
+            assert_eq!(
+                pearson(3.0, 6.0, vx, sxy, 15.0, syy).to_bits(),
+                0.0f64.to_bits()
+            );
+            let (mut out, mut portable) = ([7.0; 3], [7.0; 3]);
+            let (xy, y, yy) = ([sxy; 3], [15.0; 3], [syy; 3]);
+            pearson_range(3.0, 6.0, vx, &xy, &y, &yy, &mut out);
+            pearson_range_portable(3.0, 6.0, vx, &xy, &y, &yy, &mut portable);
+            assert_eq!(out, [0.0; 3], "{vx} {sxy} {syy}");
+            assert_eq!(portable, [0.0; 3], "{vx} {sxy} {syy}");
+        }
+        // one negative term alone gave 0 before too (a negative product)
+        assert_eq!(pearson(3.0, 6.0, -1.0, 34.0, 15.0, 83.0), 0.0);
+        assert_eq!(pearson(3.0, 6.0, 6.0, 34.0, 15.0, 74.0), 0.0);
+    }
+
+    proptest::proptest! {
+        /// With both variance terms positive, [`pearson`] (and both range builds) give
+        /// the textbook form's value bit for bit: checking each term changed nothing
+        /// where the old form gave a genuine correlation.
+        #[test]
+        fn positive_variances_give_the_textbook_value_bit_for_bit(
+            n in proptest::prop_oneof![3.0..1e3f64, 3.0..1e6f64],
+            sx in proptest::prop_oneof![-1e3..1e3f64, -1e300..1e300f64],
+            vx in proptest::prop_oneof![1e-12..1e6f64, f64::MIN_POSITIVE..1e300f64],
+            slots in proptest::collection::vec(
+                (
+                    proptest::prop_oneof![-1e3..1e3f64, -1e300..1e300f64],
+                    -1e3..1e3f64,
+                    // Σy² above (Σy)²/n by this much
+                    proptest::prop_oneof![1e-12..1e6f64, 1e-300..1e300f64],
+                ),
+                1..40,
+            ),
+        ) {
+            let n = n.floor();
+            let xy: Vec<f64> = slots.iter().map(|s| s.0).collect();
+            let y: Vec<f64> = slots.iter().map(|s| s.1).collect();
+            let yy: Vec<f64> = slots.iter().map(|s| (s.1 * s.1 + s.2) / n).collect();
+            let mut got = vec![7.0; slots.len()];
+            pearson_range(n, sx, vx, &xy, &y, &yy, &mut got);
+            let mut any = vec![7.0; slots.len()];
+            pearson_range_portable(n, sx, vx, &xy, &y, &yy, &mut any);
+            let mut checked = 0;
+            for i in 0..slots.len() {
+                // rounding may still leave a term at or below 0: the forms differ
+                // (on purpose) only where one is
+                if n * yy[i] - y[i] * y[i] <= 0.0 {
+                    continue;
+                }
+                checked += 1;
+                let want = textbook(n, sx, vx, xy[i], y[i], yy[i]);
+                for v in [pearson(n, sx, vx, xy[i], y[i], yy[i]), got[i], any[i]] {
+                    proptest::prop_assert_eq!(
+                        v.to_bits(), want.to_bits(), "slot {}: {} against {}", i, v, want
+                    );
+                }
+            }
+            proptest::prop_assume!(checked > 0);
         }
     }
 
