@@ -56,7 +56,8 @@ pub struct Config {
 pub struct EstimatorConfig {
     /// Rate of the common resampling grid, Hz.
     pub grid_hz: f64,
-    /// Acquisition window length (also the motion gate's window), seconds.
+    /// Acquisition window length (also the motion gate's window), seconds; the estimator
+    /// runs it in whole hops ([`EstimatorConfig::effective_window_s`]).
     pub window_s: f64,
     /// Longest segment: once locked, the offset is measured on every block since the
     /// last change point (lock, step), at most this long, seconds.
@@ -81,7 +82,8 @@ pub struct EstimatorConfig {
     pub reset_jump_s: f64,
     /// Low-pass cut-off applied identically to both resampled signals, Hz.
     pub lowpass_hz: f64,
-    /// High-pass cut-off applied identically to both resampled signals, Hz.
+    /// High-pass cut-off applied identically to both resampled signals, Hz: 0 (off) or
+    /// at least [`MIN_HIGHPASS_HZ`].
     pub highpass_hz: f64,
     /// Samples with |value| above this are rejected.
     pub max_abs_value: f64,
@@ -275,7 +277,7 @@ pub struct DaemonConfig {
     /// Period of the log's summary lines, seconds: the estimates and stream counters
     /// of the stretch, and its latency percentiles (whatever `latency_per_period` says).
     pub summary_period_s: f64,
-    /// Where the last good estimate is saved; empty: no persistence.
+    /// Where the last good estimate is saved, an absolute path; empty: no persistence.
     pub state_file: String,
     /// A saved state older than this is ignored at start, seconds (one saved up to
     /// 60 s in the future counts as age 0).
@@ -287,8 +289,8 @@ pub struct DaemonConfig {
     /// Change of CPU pressure (share of time some task waited for a CPU, newest 2 s
     /// against the 4 s before) that counts as a load step.
     pub load_hint_threshold: f64,
-    /// The pressure file read for load hints (PSI format: the system's
-    /// `/proc/pressure/cpu`, or a cgroup's `cpu.pressure`).
+    /// The pressure file read for load hints, an absolute path (PSI format: the
+    /// system's `/proc/pressure/cpu`, or a cgroup's `cpu.pressure`).
     pub load_hint_source: String,
 }
 
@@ -425,8 +427,8 @@ struct Checker<'a> {
     source: &'a str,
 }
 
-/// The largest configuration file read, bytes (the shipped, commented one is some
-/// 13 kB): a larger one is refused before it is read whole.
+/// The largest configuration file read, bytes (1 MiB, far more than the shipped
+/// file with every key commented): a larger one is refused before it is read whole.
 pub const MAX_FILE_BYTES: u64 = 1 << 20;
 
 /// Most characters kept of each line of a TOML parse error (it quotes the offending
@@ -475,6 +477,12 @@ fn clip_toml_error(text: &str) -> String {
 /// A number for an error message (`vlsync_common::text::number`).
 fn num(v: f64) -> String {
     vlsync_common::text::number(v)
+}
+
+/// A duration the estimator derives (a hop in whole grid steps, a window in whole
+/// hops) for an error message, to the microsecond: 0.044543 s, not 0.044543427999999996.
+fn secs(v: f64) -> String {
+    num((v * 1e6).round() / 1e6)
 }
 
 impl Checker<'_> {
@@ -548,18 +556,64 @@ pub const MIN_LATENCY_BUDGET_US: f64 = 20.0;
 /// estimates of 239); four steps track as the defaults do.
 pub const MIN_LAG_STEPS: f64 = 4.0;
 
+/// Smallest non-zero `estimator.highpass_hz`. The high-pass biquad's coefficients
+/// (estimator `filter.rs`) rest on k = tan(π·highpass_hz/grid_hz): below k ≈ 1e-8 its
+/// DC gain's denominator (4k², from sums of terms near 1) rounds to 0 and every
+/// filtered value is NaN, and somewhat above, its poles sit within rounding of the
+/// unit circle. At 0.01 Hz and the fastest grid (2000 Hz) k is 1.6e-5: the poles
+/// stay 2e-5 inside the circle and that denominator is exact to 1e-7. (A cut-off
+/// that low, a 16 s time constant, removes nothing the Pearson normalisation does
+/// not; 0 turns the high-pass off.)
+pub const MIN_HIGHPASS_HZ: f64 = 0.01;
+
+/// The most lag sums the estimator's segment may hold ([`EstimatorConfig::lag_sums`]):
+/// three `f64` each, about 100 MB.
+pub const MAX_LAG_SUMS: f64 = 4.0e6;
+
 impl EstimatorConfig {
-    /// The hop the estimator runs: `hop_s` in whole steps of the grid (at least one).
-    pub fn effective_hop_s(&self) -> f64 {
+    /// The grid rate the estimator runs: `grid_hz` with its step in whole nanoseconds.
+    pub fn effective_grid_hz(&self) -> f64 {
         let dt_ns = (1e9 / self.grid_hz).round().max(1.0);
-        let fs = 1e9 / dt_ns;
-        (self.hop_s * fs).round().max(1.0) / fs
+        1e9 / dt_ns
+    }
+
+    /// The hop the estimator runs: `hop_s` in whole steps of the grid (at least one),
+    /// computed as the estimator computes it.
+    pub fn effective_hop_s(&self) -> f64 {
+        let fs = self.effective_grid_hz();
+        (self.hop_s * fs).round().max(1.0) * (1.0 / fs)
     }
 
     /// The acquisition window the estimator runs: `window_s` in whole hops (at least one).
     pub fn effective_window_s(&self) -> f64 {
-        let hop = self.effective_hop_s();
-        (self.window_s / hop).round().max(1.0) * hop
+        self.window_blocks() as f64 * self.effective_hop_s()
+    }
+
+    /// The acquisition window's blocks (hops) as the estimator counts them.
+    pub fn window_blocks(&self) -> usize {
+        ((self.window_s / self.effective_hop_s()).round() as usize).max(1)
+    }
+
+    /// The segment's blocks (hops) as the estimator keeps them: `segment_s` in whole
+    /// hops, at least the acquisition window's.
+    pub fn segment_blocks(&self) -> usize {
+        ((self.segment_s / self.effective_hop_s()).round() as usize)
+            .max(1)
+            .max(self.window_blocks())
+    }
+
+    /// The lag slots the estimator searches: 2·round(`max_lag_s`·grid rate) + 1, at
+    /// least 5.
+    pub fn lag_slots(&self) -> usize {
+        let half = ((self.max_lag_s * self.effective_grid_hz()).round() as usize).max(2);
+        half.saturating_mul(2).saturating_add(1)
+    }
+
+    /// The lag sums the estimator holds for the segment: [`Self::lag_slots`] for each of
+    /// its [`Self::segment_blocks`] and the block being filled. Bounded by
+    /// [`MAX_LAG_SUMS`]. (An `f64`: no overflow whatever the values.)
+    pub fn lag_sums(&self) -> f64 {
+        self.lag_slots() as f64 * (self.segment_blocks() as f64 + 1.0)
     }
 
     /// Checks every value; the error names the key, value and allowed range.
@@ -578,7 +632,19 @@ impl EstimatorConfig {
         c.range(&k("max_gap_s"), self.max_gap_s, MIN_MAX_GAP_S, 60.0)?;
         c.range(&k("reset_jump_s"), self.reset_jump_s, 0.1, 1e6)?;
         c.range(&k("lowpass_hz"), self.lowpass_hz, MIN_LOWPASS_HZ, 500.0)?;
-        c.range(&k("highpass_hz"), self.highpass_hz, 0.0, 100.0)?;
+        // 0 (off) or at least the floor: a tiny cut-off makes the filter degenerate
+        c.rule(
+            self.highpass_hz == 0.0
+                || (self.highpass_hz.is_finite()
+                    && (MIN_HIGHPASS_HZ..=100.0).contains(&self.highpass_hz)),
+            || {
+                format!(
+                    "`estimator.highpass_hz` = {} is out of range: allowed 0 (no high-pass) or {} ..= 100 (a cut-off under {1} Hz rounds the filter to nothing or NaN)",
+                    num(self.highpass_hz),
+                    num(MIN_HIGHPASS_HZ)
+                )
+            },
+        )?;
         c.range(&k("max_abs_value"), self.max_abs_value, 1e-9, MAX_ABS_VALUE)?;
         c.range(&k("min_peak_score"), self.min_peak_score, 0.0, MAX_SCORE)?;
         c.range(
@@ -642,27 +708,48 @@ impl EstimatorConfig {
                 num(self.window_s)
             )
         })?;
+        // the estimator runs the window in whole hops: the rules below compare that
+        // window, said beside window_s where the two differ
+        let window = self.effective_window_s();
+        let runs_as = if (window - self.window_s).abs() > 1e-9 {
+            format!(
+                " in whole hops of {} s is {} s",
+                secs(self.effective_hop_s()),
+                secs(window)
+            )
+        } else {
+            String::new()
+        };
         // a window shorter than the lag range is wide leaves the second peak as high as
         // the first: no lock ever (1 s at ±1 s), or one tens of ms off (3 s at ±2 s)
-        c.rule(self.window_s >= 2.0 * self.max_lag_s, || {
+        c.rule(window >= 2.0 * self.max_lag_s - 1e-9, || {
             format!(
-                "`estimator.window_s` = {} must be at least the lag range's width, 2 × `estimator.max_lag_s` ({})",
+                "`estimator.window_s` = {}{runs_as}{} must be at least the lag range's width, 2 × `estimator.max_lag_s` ({})",
                 num(self.window_s),
+                if runs_as.is_empty() { "" } else { ", which" },
                 num(2.0 * self.max_lag_s)
             )
         })?;
         // a gap interpolated across more than half a window measures the line drawn
         // over a silent sensor as if it were data
-        c.rule(self.max_gap_s <= 0.5 * self.window_s, || {
-            format!(
-                "`estimator.max_gap_s` = {} must not exceed half of `estimator.window_s` ({})",
-                num(self.max_gap_s),
-                num(0.5 * self.window_s)
-            )
+        c.rule(self.max_gap_s <= 0.5 * window + 1e-9, || {
+            if runs_as.is_empty() {
+                format!(
+                    "`estimator.max_gap_s` = {} must not exceed half of `estimator.window_s` ({})",
+                    num(self.max_gap_s),
+                    num(0.5 * window)
+                )
+            } else {
+                format!(
+                    "`estimator.max_gap_s` = {} must not exceed half of the acquisition window ({}): `estimator.window_s` = {}{runs_as}",
+                    num(self.max_gap_s),
+                    num(0.5 * window),
+                    num(self.window_s)
+                )
+            }
         })?;
         // the lock's first estimate refers to a time its acquisition window covers:
         // a reference further back than the window never locks
-        let window = self.effective_window_s();
         c.rule(self.reference_lag_s <= window + 1e-9, || {
             // a shorter window_s alone trips this rule on a key the file may not set
             let default = self.reference_lag_s == EstimatorConfig::default().reference_lag_s;
@@ -670,8 +757,8 @@ impl EstimatorConfig {
                 "`estimator.reference_lag_s` = {} must not exceed the acquisition window: `estimator.window_s` = {} in whole hops of {} s is {} s{}",
                 num(self.reference_lag_s),
                 num(self.window_s),
-                num(self.effective_hop_s()),
-                num(window),
+                secs(self.effective_hop_s()),
+                secs(window),
                 if default {
                     " (reference_lag_s is at its default: set it within the window too, or lengthen window_s)"
                 } else {
@@ -738,16 +825,19 @@ impl EstimatorConfig {
                 )
             })?;
         }
-        let lags = 2.0 * self.max_lag_s * self.grid_hz + 1.0;
-        let blocks = (self.segment_s / self.hop_s).ceil() + 1.0;
-        c.rule(lags * blocks <= 4.0e6, || {
+        // the estimator's own counts: the hop in whole grid steps, the segment in whole
+        // hops, the lags in whole grid steps
+        let sums = self.lag_sums();
+        c.rule(sums <= MAX_LAG_SUMS, || {
             format!(
-                "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.segment_s`/`estimator.hop_s` = {}/{} need {} lag sums: allowed at most 4000000 (about 100 MB)",
+                "`estimator.max_lag_s` = {} with `estimator.grid_hz` = {} and `estimator.segment_s`/`estimator.hop_s` = {}/{} need {sums:.0} lag sums ({} lags × {} + 1 blocks: the segment in whole hops of {} s, and the block being filled): allowed at most {MAX_LAG_SUMS:.0} (about 100 MB)",
                 num(self.max_lag_s),
                 num(self.grid_hz),
                 num(self.segment_s),
                 num(self.hop_s),
-                num(lags * blocks)
+                self.lag_slots(),
+                self.segment_blocks(),
+                secs(self.effective_hop_s()),
             )
         })?;
         c.rule(self.track_range_s <= self.max_lag_s, || {
@@ -796,6 +886,32 @@ impl DaemonConfig {
                 format!(
                     "`{key}` = {:?} contains a NUL byte, which no file name can",
                     clip(path)
+                )
+            })?;
+            // "" is the key's own meaning (no persistence; no pressure file, refused
+            // below while load hints are on); blanks are a slip, not a file name
+            c.rule(path.is_empty() || !path.trim().is_empty(), || {
+                format!(
+                    "`{key}` = {:?} is blank: give an absolute path{}",
+                    clip(path),
+                    if key == "daemon.state_file" {
+                        ", or \"\" for no persistence"
+                    } else {
+                        ""
+                    }
+                )
+            })?;
+            // the daemon's working directory is not the file's: under the systemd unit
+            // it is /, read-only (ProtectSystem=strict), where every save would fail
+            c.rule(path.trim().is_empty() || Path::new(path).is_absolute(), || {
+                format!(
+                    "`{key}` = {:?} is not an absolute path: it would be taken from the daemon's working directory, / under its systemd unit (read-only there); give the whole path, such as {}",
+                    clip(path),
+                    if key == "daemon.state_file" {
+                        "/run/vlsync/vlsync.state"
+                    } else {
+                        "/proc/pressure/cpu"
+                    }
                 )
             })?;
         }
@@ -847,6 +963,16 @@ impl ServicesConfig {
     }
 }
 
+/// The line (from 1) where the top-level key `key`'s value starts in `text` (for
+/// `[[key]]`, its first header); `None` when the text does not parse.
+fn value_line(text: &str, key: &str) -> Option<usize> {
+    let spans: std::collections::BTreeMap<String, toml::Spanned<toml::Value>> =
+        toml::from_str(text).ok()?;
+    let start = spans.get(key)?.span().start;
+    let before = text.as_bytes().get(..start)?;
+    Some(1 + before.iter().filter(|&&b| b == b'\n').count())
+}
+
 impl Config {
     /// Parses and validates TOML text; `source_name` names it in errors.
     pub fn from_toml_str(text: &str, source_name: &str) -> Result<Self, ConfigError> {
@@ -865,7 +991,8 @@ impl Config {
             let section = ["estimator", "daemon", "services", "lidar", "camera"];
             if section.contains(&key.as_str()) && !value.is_table() {
                 return Err(err(format!(
-                    "`{}` must be a section (`[{0}]` and its keys), not {}",
+                    "{}`{}` must be a section (`[{1}]` and its keys), not {}",
+                    value_line(text, key).map_or(String::new(), |l| format!("line {l}: ")),
                     clip(key),
                     match value {
                         toml::Value::Array(_) => "an array",
@@ -892,7 +1019,7 @@ impl Config {
                 cannot_read(&format!(
                     "{e}{}",
                     if e.kind() == std::io::ErrorKind::InvalidData {
-                        ": not a configuration file (the shipped one is some 13 kB)"
+                        ": too large for a configuration file"
                     } else {
                         ""
                     }
@@ -1018,19 +1145,19 @@ mod tests {
         for (text, want) in [
             (
                 "lidar = [10.0, 30.0, true, 5]\n",
-                "`lidar` must be a section (`[lidar]` and its keys), not an array",
+                "line 1: `lidar` must be a section (`[lidar]` and its keys), not an array",
             ),
             (
-                "camera = [30.0]\n",
-                "`camera` must be a section (`[camera]` and its keys), not an array",
+                "# the camera\n\ncamera = [30.0]\n",
+                "line 3: `camera` must be a section (`[camera]` and its keys), not an array",
             ),
             (
-                "[[estimator]]\ngrid_hz = 100.0\n",
-                "`estimator` must be a section (`[estimator]` and its keys), not an array",
+                "[daemon]\ncore = 1\n\n[[estimator]]\ngrid_hz = 100.0\n",
+                "line 4: `estimator` must be a section (`[estimator]` and its keys), not an array",
             ),
             (
-                "daemon = 3\n",
-                "`daemon` must be a section (`[daemon]` and its keys), not a value",
+                "x = 1\ndaemon = 3\n",
+                "line 2: `daemon` must be a section (`[daemon]` and its keys), not a value",
             ),
         ] {
             let e = Config::from_toml_str(text, "x.toml").unwrap_err();
@@ -1260,6 +1387,160 @@ mod tests {
         ok("[estimator]\nlowpass_hz = 0.5\nmin_peak_score = 0.99\nmin_acquire_score = 0.99\nmeasurement_noise_scale = 0.1\ninitial_drift_std = 0.02\n[daemon]\nlatency_budget_us = 20.0\n");
     }
 
+    /// A high-pass cut-off is 0 (off) or at least [`MIN_HIGHPASS_HZ`]: a tiny one
+    /// (1e-15 Hz passed the old range 0 ..= 100) turns the filter's output to NaN and
+    /// the estimator never locks (the real filter: `daemon/src/check.rs`).
+    #[test]
+    fn a_highpass_below_its_floor_is_refused() {
+        for bad in ["1e-15", "1e-7", "0.009", "-0.01", "nan", "100.5"] {
+            let e = Config::from_toml_str(&format!("[estimator]\nhighpass_hz = {bad}\n"), "x")
+                .unwrap_err()
+                .message;
+            assert!(
+                e.starts_with("`estimator.highpass_hz` = ")
+                    && e.contains(
+                        "is out of range: allowed 0 (no high-pass) or 0.01 ..= 100 (a cut-off under 0.01 Hz rounds the filter to nothing or NaN)"
+                    ),
+                "{bad}: {e}"
+            );
+        }
+        let e = Config::from_toml_str("[estimator]\nhighpass_hz = 1e-15\n", "x").unwrap_err();
+        assert!(
+            e.message.starts_with("`estimator.highpass_hz` = 1e-15 "),
+            "{e}"
+        );
+        for ok in ["0.0", "-0.0", "0.01", "0.5", "1.8"] {
+            Config::from_toml_str(&format!("[estimator]\nhighpass_hz = {ok}\n"), "x")
+                .unwrap_or_else(|e| panic!("{ok}: {e}"));
+        }
+        // the upper end as before, with a low-pass and grid that allow it
+        Config::from_toml_str(
+            "[estimator]\ngrid_hz = 2000.0\nlowpass_hz = 200.0\nhighpass_hz = 100.0\n",
+            "x",
+        )
+        .unwrap();
+    }
+
+    /// The lag-range and gap rules compare the window the estimator runs, `window_s` in
+    /// whole hops, as the reference-lag rule does: a 2.9 s window of 2 s hops runs as
+    /// 2 s, too short for a 2.9 s lag range (it never locks).
+    #[test]
+    fn window_rules_compare_the_window_in_whole_hops() {
+        let err = |t: &str| Config::from_toml_str(t, "x.toml").unwrap_err().message;
+        let base = "[estimator]\nhop_s = 2.0\nwindow_s = 2.9\nstep_window_s = 2.0\nreference_lag_s = 2.0\n";
+        assert_eq!(
+            err(&format!("{base}max_lag_s = 1.45\nmax_gap_s = 1.0\n")),
+            "`estimator.window_s` = 2.9 in whole hops of 2 s is 2 s, which must be at least the lag range's width, 2 × `estimator.max_lag_s` (2.9)"
+        );
+        assert_eq!(
+            err(&format!("{base}max_lag_s = 1.0\nmax_gap_s = 1.4\n")),
+            "`estimator.max_gap_s` = 1.4 must not exceed half of the acquisition window (1): `estimator.window_s` = 2.9 in whole hops of 2 s is 2 s"
+        );
+        Config::from_toml_str(&format!("{base}max_lag_s = 1.0\nmax_gap_s = 1.0\n"), "x").unwrap();
+        // rounded up: 2.75 s of 0.5 s hops runs as 3 s, wide enough for ±1.5 s
+        Config::from_toml_str(
+            "[estimator]\nwindow_s = 2.75\nmax_lag_s = 1.5\nmax_gap_s = 1.5\n",
+            "x",
+        )
+        .unwrap();
+        // a window of whole hops says only window_s, as before
+        let e = err("[estimator]\nwindow_s = 1.5\nmax_lag_s = 1.0\nreference_lag_s = 1.5\nstep_window_s = 1.5\nmax_gap_s = 0.5\n");
+        assert!(!e.contains("whole hops"), "{e}");
+    }
+
+    /// The ~100 MB bound counts the lag sums as the estimator allocates them (hop in
+    /// whole grid steps, segment in whole hops, lags in whole grid steps), not from the
+    /// values as written: this one, some 108 MB, passed as under 4000000.
+    #[test]
+    fn the_memory_bound_counts_lag_sums_as_the_estimator_does() {
+        let text = "[estimator]\ngrid_hz = 89.8\nhop_s = 0.05\nmax_lag_s = 2.0\nwindow_s = 4.0\nsegment_s = 555.0\n";
+        let e = Config::from_toml_str(text, "x").unwrap_err().message;
+        assert_eq!(
+            e,
+            "`estimator.max_lag_s` = 2 with `estimator.grid_hz` = 89.8 and `estimator.segment_s`/`estimator.hop_s` = 555/0.05 need 4498421 lag sums (361 lags × 12460 + 1 blocks: the segment in whole hops of 0.044543 s, and the block being filled): allowed at most 4000000 (about 100 MB)"
+        );
+        let c: EstimatorConfig = toml::from_str(&text.replace("[estimator]\n", "")).unwrap();
+        assert_eq!((c.lag_slots(), c.segment_blocks()), (361, 12460));
+        Config::from_toml_str(&text.replace("555.0", "490.0"), "x").unwrap();
+        // the defaults: ±50 lags, 120 blocks of 0.5 s
+        let d = EstimatorConfig::default();
+        assert_eq!(
+            (d.lag_slots(), d.window_blocks(), d.segment_blocks()),
+            (101, 12, 120)
+        );
+        assert_eq!(d.lag_sums(), 101.0 * 121.0);
+        // the estimator's floors: two grid steps each side, a segment of a window
+        let tiny = EstimatorConfig {
+            max_lag_s: 0.0,
+            segment_s: 0.0,
+            ..d.clone()
+        };
+        assert_eq!((tiny.lag_slots(), tiny.segment_blocks()), (5, 12));
+        // no panic on values never validated
+        let wild = EstimatorConfig {
+            max_lag_s: f64::INFINITY,
+            grid_hz: f64::NAN,
+            hop_s: 0.0,
+            segment_s: f64::INFINITY,
+            ..d
+        };
+        assert!(wild.lag_sums() > MAX_LAG_SUMS);
+    }
+
+    /// `daemon.state_file` and `daemon.load_hint_source` are absolute: the daemon's
+    /// working directory under its systemd unit is /, read-only, where every save of a
+    /// relative state file failed. A blank state file is refused, not taken for "".
+    #[test]
+    fn daemon_file_names_are_absolute() {
+        let err = |t: &str| Config::from_toml_str(t, "x.toml").unwrap_err().message;
+        assert_eq!(
+            err("[daemon]\nstate_file = \"vlsync.state\"\n"),
+            "`daemon.state_file` = \"vlsync.state\" is not an absolute path: it would be taken from the daemon's working directory, / under its systemd unit (read-only there); give the whole path, such as /run/vlsync/vlsync.state"
+        );
+        assert_eq!(
+            err("[daemon]\nload_hint_source = \"proc/pressure/cpu\"\n"),
+            "`daemon.load_hint_source` = \"proc/pressure/cpu\" is not an absolute path: it would be taken from the daemon's working directory, / under its systemd unit (read-only there); give the whole path, such as /proc/pressure/cpu"
+        );
+        for rel in ["./s", "../s", "~/s", " /run/s"] {
+            let e = err(&format!("[daemon]\nstate_file = \"{rel}\"\n"));
+            assert!(e.contains("is not an absolute path"), "{rel}: {e}");
+        }
+        assert_eq!(
+            err("[daemon]\nstate_file = \"  \"\n"),
+            "`daemon.state_file` = \"  \" is blank: give an absolute path, or \"\" for no persistence"
+        );
+        assert_eq!(
+            err("[daemon]\nload_hints = true\nload_hint_source = \"\\t\"\n"),
+            "`daemon.load_hint_source` = \"\\t\" is blank: give an absolute path"
+        );
+        let c = Config::from_toml_str(
+            "[daemon]\nstate_file = \"/run/vlsync/vlsync.state\"\nload_hint_source = \"/sys/fs/cgroup/a/cpu.pressure\"\n",
+            "x",
+        )
+        .unwrap();
+        assert_eq!(c.daemon.state_file, "/run/vlsync/vlsync.state");
+        // "" keeps its meaning: no persistence; no pressure file while hints are off
+        Config::from_toml_str(
+            "[daemon]\nstate_file = \"\"\nload_hint_source = \"\"\n",
+            "x",
+        )
+        .unwrap();
+        let e = err("[daemon]\nload_hints = true\nload_hint_source = \"\"\n");
+        assert!(
+            e.contains("is empty while `daemon.load_hints` is on"),
+            "{e}"
+        );
+    }
+
+    /// The installed configuration (deploy/vlsync.toml) validates, and names its
+    /// state file by an absolute path.
+    #[test]
+    fn the_installed_file_validates() {
+        let cfg =
+            Config::from_toml_str(include_str!("../../deploy/vlsync.toml"), "deploy").unwrap();
+        assert!(Path::new(&cfg.daemon.state_file).is_absolute());
+    }
+
     #[test]
     fn count_keys_name_their_range_whatever_the_integer() {
         for (text, range) in [
@@ -1394,7 +1675,9 @@ mod tests {
             .unwrap();
         let e = Config::load(&big).unwrap_err().to_string();
         assert!(
-            e.ends_with("cannot read: larger than 1048576 bytes: not a configuration file (the shipped one is some 13 kB)"),
+            e.ends_with(
+                "cannot read: larger than 1048576 bytes: too large for a configuration file"
+            ),
             "{e}"
         );
         // the largest allowed still loads

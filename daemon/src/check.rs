@@ -60,18 +60,22 @@ pub fn check(path: &Path, print: bool) -> Result<String, String> {
 /// The estimator's lag-sum work per second of data, `(searching, locked)`: the sums
 /// each grid sample updates and each hop reads (the acquisition window's blocks
 /// while searching, the segment's while locked, at every lag the state keeps). A
-/// model, not a timing: its ratio between two configurations is what it is for.
+/// model, not a timing: its ratio between two configurations is what it is for. The
+/// grid, hop, lags and blocks are counted as the estimator counts them, by the same
+/// functions as the configuration's memory bound (`EstimatorConfig::lag_slots`,
+/// `window_blocks`, `segment_blocks`).
 pub fn estimator_work(e: &vlsync_config::EstimatorConfig) -> (f64, f64) {
+    let fs = e.effective_grid_hz();
     let hop = e.effective_hop_s();
-    let lags = (2.0 * (e.max_lag_s * e.grid_hz).round() + 1.0).max(1.0);
+    let lags = e.lag_slots() as f64;
     // the tracking range, the slots beyond it the segment's search reads and the
     // spare each side (estimator/src/track.rs: TRACK_NEED_SLOTS, TRACK_SPARE_SLOTS)
-    let active = (2.0 * (e.track_range_s * e.grid_hz + 6.0 + 8.0) + 1.0).min(lags);
-    let window_blocks = (e.effective_window_s() / hop).round().max(1.0);
-    let segment_blocks = (e.segment_s / hop).ceil() + 1.0;
+    let active = (2.0 * (e.track_range_s * fs + 6.0 + 8.0) + 1.0).min(lags);
+    let window_blocks = e.window_blocks() as f64;
+    let segment_blocks = e.segment_blocks() as f64;
     (
-        e.grid_hz * lags + window_blocks * lags / hop,
-        e.grid_hz * active + segment_blocks * active / hop,
+        fs * lags + window_blocks * lags / hop,
+        fs * active + segment_blocks * active / hop,
     )
 }
 
@@ -170,7 +174,7 @@ mod tests {
     /// The shipped defaults, and the settings README's speed table measures, say
     /// nothing; a configuration thousands of times the work gets the note, rounded (a
     /// review's: 118 s of estimator time for 120 s of data on this VM against the
-    /// defaults' 19 ms, 6200x; the model says 6000x).
+    /// defaults' 19 ms, 6200x; the model, counting blocks as the estimator does, says 6100x).
     #[test]
     fn a_configuration_of_much_more_work_gets_a_note() {
         use vlsync_config::EstimatorConfig;
@@ -194,7 +198,7 @@ mod tests {
         heavy.validate("heavy").unwrap();
         let n = super::work_note(&heavy).expect("a note");
         assert!(
-            n.starts_with("note: estimator: about 6000x the shipped defaults' work per second of data while locked, 2800x while searching"),
+            n.starts_with("note: estimator: about 6100x the shipped defaults' work per second of data while locked, 2800x while searching"),
             "{n}"
         );
         // less work in one state than the defaults: a fraction, not "0x"
@@ -204,6 +208,91 @@ mod tests {
         let (acq, lock) = super::estimator_work(&heavy);
         let (acq0, lock0) = super::estimator_work(&d);
         assert!(lock / lock0 > 1000.0 && acq / acq0 > 1000.0);
+    }
+
+    /// The work model counts the segment's blocks as the estimator keeps them (60 s of
+    /// 0.5 s hops: 120, not ceil + 1 = 121) and its lags from the grid it runs.
+    #[test]
+    fn the_work_model_counts_as_the_estimator_does() {
+        use vlsync_config::EstimatorConfig;
+        let d = EstimatorConfig::default();
+        // ±50 lags; tracking reads 2·(8 + 6 + 8) + 1 = 45 of them; 12 and 120 blocks
+        assert_eq!(
+            super::estimator_work(&d),
+            (
+                100.0 * 101.0 + 12.0 * 101.0 / 0.5,
+                100.0 * 45.0 + 120.0 * 45.0 / 0.5
+            )
+        );
+        // a grid off whole nanoseconds and a hop off whole grid steps: 0.05 s at
+        // 89.8 Hz runs as 4 steps, 555 s of them as 12460 blocks
+        let odd = EstimatorConfig {
+            grid_hz: 89.8,
+            hop_s: 0.05,
+            max_lag_s: 1.0,
+            window_s: 4.0,
+            segment_s: 555.0,
+            ..d
+        };
+        odd.validate("odd").unwrap();
+        let (fs, hop) = (odd.effective_grid_hz(), odd.effective_hop_s());
+        assert_eq!((odd.lag_slots(), odd.segment_blocks()), (181, 12460));
+        let active = 2.0 * (0.08 * fs + 14.0) + 1.0;
+        let (_, lock) = super::estimator_work(&odd);
+        assert!(
+            (lock - (fs * active + 12460.0 * active / hop)).abs() < 1e-6 * lock,
+            "{lock}"
+        );
+    }
+
+    /// The floor on `estimator.highpass_hz` keeps the estimator's own band-pass
+    /// finite at every grid rate allowed, while 1e-15 Hz (which the old range 0 ..= 100
+    /// accepted) makes it NaN: refused now.
+    #[test]
+    fn the_highpass_floor_keeps_the_estimators_filter_finite() {
+        use vlsync_config::{EstimatorConfig, MIN_HIGHPASS_HZ, MIN_LOWPASS_HZ};
+        use vlsync_estimator::filter::BandPass;
+        let run = |hp: f64, fs: f64| {
+            let mut bp = BandPass::new(hp, MIN_LOWPASS_HZ, fs);
+            let n = (60.0 * fs) as usize;
+            // the largest output of the last 10 s
+            let mut peak: f64 = 0.0;
+            for i in 0..n {
+                let t = i as f64 / fs;
+                let y = bp.step(50.0 + (2.0 * std::f64::consts::PI * t).sin());
+                assert!(y.is_finite(), "{hp} Hz at {fs} Hz: sample {i} is {y}");
+                if t >= 50.0 {
+                    peak = peak.max(y.abs());
+                }
+            }
+            assert!(bp.group_delay_s(0.3).is_finite());
+            peak
+        };
+        for grid_hz in [10.0, 100.0, 2000.0] {
+            let c = EstimatorConfig {
+                grid_hz,
+                highpass_hz: MIN_HIGHPASS_HZ,
+                lowpass_hz: MIN_LOWPASS_HZ,
+                // two grid steps at 10 Hz
+                track_range_s: 0.2,
+                ..EstimatorConfig::default()
+            };
+            c.validate("floor").unwrap();
+            let fs = c.effective_grid_hz();
+            // the offset of 50 is gone; the 1 Hz motion remains, through the 0.5 Hz
+            // low-pass (a gain of 1/√17, 0.24)
+            let peak = run(MIN_HIGHPASS_HZ, fs);
+            assert!((0.2..0.3).contains(&peak), "{grid_hz} Hz: {peak}");
+        }
+        // the degenerate cut-off the review found: NaN at once, and refused
+        let mut bp = BandPass::new(1e-15, MIN_LOWPASS_HZ, 100.0);
+        assert!(bp.step(1.0).is_nan());
+        let tiny = EstimatorConfig {
+            highpass_hz: 1e-15,
+            ..EstimatorConfig::default()
+        };
+        let e = tiny.validate("tiny").unwrap_err().message;
+        assert!(e.contains("`estimator.highpass_hz` = 1e-15"), "{e}");
     }
 
     #[test]
