@@ -23,8 +23,11 @@
 //! starts cold. A good one is handed to `Estimator::restore` with its age.
 //!
 //! The age of a file saved during this boot is the monotonic clock's (the file
-//! carries the boot id and `CLOCK_MONOTONIC` of its save), whatever the wall clock
-//! did meanwhile. Another boot's file is dated by the wall clock only where that
+//! carries the boot id and the `CLOCK_MONOTONIC` time at which the service thread got
+//! its estimate, [`Saver::offer`]: not the later time of the save, which waits up to
+//! [`REFRESH_PERIOD`] or comes at the stop, and would make the estimate look younger
+//! than it is, its drift extrapolated over too short a time), whatever the wall clock
+//! did meanwhile; `saved_unix_ns` is the wall clock's at that same moment. Another boot's file is dated by the wall clock only where that
 //! clock is synchronized or kept by a real-time clock ([`Clocks::wall_trusted`]);
 //! elsewhere (a Raspberry Pi before NTP has synced: it boots at `fake-hwclock`'s
 //! last saved time, so a file saved at the last shutdown looks seconds old after a
@@ -96,8 +99,9 @@ pub const HOLD_SAVE_MAX_STD_S: f64 = 0.01;
 /// A file saved further in the future than this (the wall clock moved back, or a
 /// board without a real-time clock booted with an old time) is not trusted, seconds.
 pub const FUTURE_TOLERANCE_S: f64 = 60.0;
-/// Largest accepted |offset|, seconds (the range of `estimator.lag_center_s`).
-pub const MAX_ABS_OFFSET_S: f64 = 1e6;
+// the largest accepted |offset|: the estimator's own bound (the range of
+// `estimator.lag_center_s`), which `Estimator::restore` checks too
+use vlsync_common::MAX_ABS_OFFSET_S;
 /// Largest accepted |drift| (the estimator clamps to ±0.1 anyway).
 pub const MAX_ABS_DRIFT: f64 = 0.1;
 /// Largest accepted offset standard deviation, seconds.
@@ -131,8 +135,9 @@ const BOOT_SLOTS: [usize; 2] = [9, 10];
 pub struct BootStamp {
     /// The kernel's boot id (`/proc/sys/kernel/random/boot_id`).
     pub id: String,
-    /// `CLOCK_MONOTONIC` at the save, ns (it stops while a machine is suspended, so
-    /// one that suspends would date its file younger by that time; a robot does not).
+    /// `CLOCK_MONOTONIC` when the daemon got the saved estimate, ns (it stops while a
+    /// machine is suspended, so one that suspends would date its file younger by that
+    /// time; a robot does not).
     pub mono_ns: i64,
 }
 
@@ -191,7 +196,8 @@ impl Clocks {
 pub struct SavedState {
     /// `services.prefix` of the daemon that saved it (`None`: a version-1 file).
     pub prefix: Option<String>,
-    /// Wall-clock save time, ns since the Unix epoch.
+    /// Wall-clock time of the saved estimate (when the daemon got it), ns since the
+    /// Unix epoch.
     pub saved_unix_ns: i64,
     /// The boot it was saved in (`None`: a file of version 1 or 2, or a kernel
     /// without a boot id).
@@ -1082,14 +1088,37 @@ fn report(path: &Path, r: Result<(), String>, last_error: &mut Option<String>) -
     }
 }
 
+/// When the service thread got an estimate ([`Saver::offer`]): the file's
+/// `saved_mono_ns` and `saved_unix_ns`, so a restart dates the estimate, not its save
+/// (which waits up to [`REFRESH_PERIOD`], or comes at the stop).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Offered {
+    /// `CLOCK_MONOTONIC`, ns.
+    mono_ns: i64,
+    /// The wall clock, ns since the Unix epoch.
+    unix_ns: i64,
+}
+
+impl Offered {
+    fn now() -> Self {
+        Self {
+            mono_ns: vlsync_ipc::monotonic_ns(),
+            unix_ns: unix_now_ns(),
+        }
+    }
+}
+
 /// Saves the newest estimate worth saving at most every `period` (service thread).
 #[derive(Debug)]
 pub struct Saver {
     path: PathBuf,
     prefix: String,
+    /// This boot's id (read once: it does not change while the process runs).
+    boot_id: Option<String>,
     period: Duration,
     refresh: Duration,
-    pending: Option<Estimate>,
+    /// The estimate to save next, with the clocks when it was offered.
+    pending: Option<(Estimate, Offered)>,
     last_save: Option<Instant>,
     last_saved: Option<Estimate>,
     writer: Writer,
@@ -1103,6 +1132,7 @@ impl Saver {
         Self {
             path,
             prefix: prefix.to_string(),
+            boot_id: BootStamp::current().map(|b| b.id),
             period,
             refresh: REFRESH_PERIOD.max(period),
             pending: None,
@@ -1131,10 +1161,17 @@ impl Saver {
         &self.path
     }
 
-    /// Offers an estimate; it is kept if [`worth_saving`].
+    /// Offers an estimate; it is kept if [`worth_saving`], with the monotonic and wall
+    /// clocks now: the file dates the estimate by them, however long it then waits for
+    /// its save (a restore extrapolates it by its drift over that age).
     pub fn offer(&mut self, e: &Estimate) {
+        self.offer_at(e, Offered::now());
+    }
+
+    /// [`Saver::offer`] with the clocks `at`.
+    fn offer_at(&mut self, e: &Estimate, at: Offered) {
         if worth_saving(e) {
-            self.pending = Some(*e);
+            self.pending = Some((*e, at));
         }
     }
 
@@ -1149,7 +1186,7 @@ impl Saver {
                 self.last_saved = Some(saved);
             }
         }
-        let Some(p) = self.pending else {
+        let Some((p, _)) = self.pending else {
             return false;
         };
         let since = self.last_save.map(|t| now.saturating_duration_since(t));
@@ -1173,10 +1210,10 @@ impl Saver {
     /// handed it over; while the previous save is still being written it stays
     /// pending, and [`Saver::tick`] tries again at its next call).
     pub fn flush(&mut self) -> bool {
-        let Some(e) = self.pending.take() else {
+        let Some((e, at)) = self.pending.take() else {
             return false;
         };
-        let s = self.state_of(e);
+        let s = self.state_of(e, at);
         match &mut self.writer {
             Writer::Inline { last_error } => {
                 let done = report(&self.path, save(&self.path, &s), last_error);
@@ -1190,7 +1227,7 @@ impl Saver {
             Writer::Thread(t) => match t.offer(s) {
                 Offer::Taken => true,
                 Offer::Busy => {
-                    self.pending = Some(e);
+                    self.pending = Some((e, at));
                     false
                 }
                 // the thread is gone: said once, and saved here from now on
@@ -1216,7 +1253,7 @@ impl Saver {
     /// Returns whether the pending estimate was saved; false with nothing pending.
     pub fn finish(&mut self, wait: Duration) -> bool {
         let pending = self.pending.take();
-        let s = pending.map(|e| self.state_of(e));
+        let s = pending.map(|(e, at)| self.state_of(e, at));
         match &mut self.writer {
             Writer::Inline { last_error } => {
                 s.is_some_and(|s| report(&self.path, save(&self.path, &s), last_error))
@@ -1236,11 +1273,15 @@ impl Saver {
         }
     }
 
-    fn state_of(&self, e: Estimate) -> SavedState {
+    /// What the file says of `e`, offered `at`: dated then, not now.
+    fn state_of(&self, e: Estimate, at: Offered) -> SavedState {
         SavedState {
             prefix: Some(self.prefix.clone()),
-            saved_unix_ns: unix_now_ns(),
-            boot: BootStamp::current(),
+            saved_unix_ns: at.unix_ns,
+            boot: self.boot_id.clone().map(|id| BootStamp {
+                id,
+                mono_ns: at.mono_ns,
+            }),
             estimate: e,
         }
     }
@@ -1764,6 +1805,60 @@ mod tests {
         let gone = d.join("missing").join("vlsync.state");
         let e = save(&gone, &new).unwrap_err();
         assert!(e.contains("missing/vlsync.state.tmp"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// The file dates the estimate by when it was offered, not by its save: the
+    /// pending estimate waits for the refresh period (up to 60 s) or the stop, and a
+    /// restore extrapolates it by its drift over its age (at 50 ppm, 3 ms per minute
+    /// the age was short). Inline and through the background thread, at a tick and
+    /// at the stop.
+    #[test]
+    fn the_file_dates_the_estimate_by_its_offer_not_by_its_save() {
+        let d = dir("offer-stamp");
+        let p = d.join("s");
+        let boot = BootStamp::current();
+        let at = |k: i64| Offered {
+            mono_ns: 1_000_000_000_000 + k,
+            unix_ns: 1_795_442_000_000_000_000 + k,
+        };
+        let read = || decode(&std::fs::read(&p).unwrap()).unwrap();
+        let check = |s: SavedState, k: i64, offset_s: f64| {
+            assert_eq!(s.estimate.offset_s, offset_s);
+            assert_eq!(s.saved_unix_ns, at(k).unix_ns);
+            assert_eq!(
+                s.boot,
+                boot.as_ref().map(|b| BootStamp {
+                    id: b.id.clone(),
+                    mono_ns: at(k).mono_ns
+                })
+            );
+        };
+        let t0 = Instant::now();
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", SAVE_PERIOD);
+        sv.offer_at(&est(), at(1));
+        assert!(sv.tick(t0));
+        check(read(), 1, est().offset_s);
+        // offered at 2, saved a minute later by the refresh
+        sv.offer_at(&est(), at(2));
+        assert!(!sv.tick(t0 + Duration::from_secs(30)));
+        assert!(sv.tick(t0 + Duration::from_secs(60)));
+        check(read(), 2, est().offset_s);
+        // pending at the stop: dated by its offer, not by the stop
+        let e3 = Estimate {
+            offset_s: 0.5,
+            ..est()
+        };
+        sv.offer_at(&e3, at(3));
+        assert!(sv.finish(Duration::from_secs(1)));
+        check(read(), 3, 0.5);
+        // in the background, the last one handed over at the stop
+        let mut sv = Saver::new(p.clone(), "vlsync/robot", SAVE_PERIOD).in_background();
+        sv.offer_at(&est(), at(4));
+        assert!(sv.flush());
+        sv.offer_at(&e3, at(5));
+        assert!(sv.finish(Duration::from_secs(20)));
+        check(read(), 5, 0.5);
         std::fs::remove_dir_all(&d).unwrap();
     }
 

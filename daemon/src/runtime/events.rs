@@ -1,5 +1,7 @@
-//! How the service thread logs what the real-time thread reports ([`RtEvent`]):
-//! each kind through the journal's throttle, with the count held back.
+//! How the service thread logs what the real-time thread reports ([`RtEvent`]), and
+//! its own findings (publishers and clients iceoryx2 could not connect, streams
+//! silent for good): each kind through the journal's throttle, with the count held
+//! back.
 
 use super::*;
 
@@ -10,13 +12,6 @@ pub(super) fn log_event(
     now: Nanos,
     budget_us: f64,
 ) {
-    let more = |n: u64| {
-        if n > 0 {
-            format!(" ({n} more since the last such line)")
-        } else {
-            String::new()
-        }
-    };
     match ev {
         RtEvent::Rejected {
             stream,
@@ -141,12 +136,22 @@ pub(super) fn log_event(
                 tracing::info!("at stop, {}", journal::latency_line(l, budget_us))
             }
         }
-        RtEvent::ChangeDeclared { t_lidar_ns } => tracing::info!(
-            "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s",
-            *t_lidar_ns as f64 * 1e-9
-        ),
+        RtEvent::ChangeDeclared { t_lidar_ns } => {
+            if let Some(n) = throttle.admit(journal::HINT_DECLARED_KEY, 1, now) {
+                tracing::info!(
+                    "load hint: estimator told the offset may have stepped at LiDAR t={:.3} s{}",
+                    *t_lidar_ns as f64 * 1e-9,
+                    more(n)
+                )
+            }
+        }
         RtEvent::HintUndated => {
-            tracing::info!("load hint before any LiDAR sample: nothing to restart yet")
+            if let Some(n) = throttle.admit(journal::HINT_UNDATED_KEY, 1, now) {
+                tracing::info!(
+                    "load hint before any LiDAR sample: nothing to restart yet{}",
+                    more(n)
+                )
+            }
         }
         RtEvent::LatencyStep(st) => {
             let si = stream_index(st.stream);
@@ -208,6 +213,134 @@ pub(super) fn log_event(
             if let Some(n) = throttle.admit(journal::RT_ERROR_KEY, 1, now) {
                 tracing::error!("real-time loop: {what}{}", more(n))
             }
+        }
+    }
+}
+
+/// ` (N more since the last such line)` for `n` > 0.
+pub(super) fn more(n: u64) -> String {
+    if n > 0 {
+        format!(" ({n} more since the last such line)")
+    } else {
+        String::new()
+    }
+}
+
+/// Says (a warning, through the throttle) when the real-time thread's subscribers
+/// counted a publisher they could not connect since the last call (`told`: the counts
+/// already taken): its samples are not read, silently otherwise (iceoryx2 tries again
+/// only when a publisher joins or leaves). A driver of another user crash-looping
+/// every 2 s makes one a restart: the throttle keeps that to some 150 lines a day.
+pub(super) fn tell_unconnected(
+    counts: &[AtomicU64; 2],
+    told: &mut [u64; 2],
+    names: &ServiceNames,
+    throttle: &mut journal::Throttle,
+    now: Nanos,
+) {
+    for stream in [Stream::Cam, Stream::Lidar] {
+        let si = stream_index(stream);
+        let n = counts[si].load(Ordering::Relaxed);
+        if n <= told[si] {
+            continue;
+        }
+        let new = n - told[si];
+        told[si] = n;
+        if let Some(held) = throttle.admit(journal::unconnected_key(si), new, now) {
+            tracing::warn!(
+                "{stream}: a publisher of {} could not be connected ({} time(s) since the last \
+                 such line, {n} in all; iceoryx2 could not map its data: memory, file \
+                 descriptors, or files of another user): its samples are not read until a \
+                 publisher of the stream starts or stops (restart that driver)",
+                names.signature(stream),
+                new.saturating_add(held)
+            );
+        }
+    }
+}
+
+/// Says (a warning, through the throttle, kind `key`) when a publisher of the service
+/// `service` could not connect a client or found a client's connection corrupt since
+/// the last call (`told`: the count already taken): that client receives no `what`
+/// (a crashed or foreign subscriber, or one whose memory could not be mapped).
+/// `retries`: when iceoryx2 tries again. The offset's and the status's publishers
+/// both count such failures (`vlsync_ipc::publisher_telling`), where iceoryx2's
+/// default would log an error at every send.
+pub(super) fn tell_clients(
+    count: &AtomicU64,
+    told: &mut u64,
+    key: usize,
+    service: &str,
+    (what, retries): (&str, &str),
+    throttle: &mut journal::Throttle,
+    now: Nanos,
+) {
+    let n = count.load(Ordering::Relaxed);
+    if n <= *told {
+        return;
+    }
+    let new = n - *told;
+    *told = n;
+    if let Some(held) = throttle.admit(key, new, now) {
+        tracing::warn!(
+            "{service}: a client could not be connected or its connection is corrupt ({} \
+             attempt(s) since the last such line, {n} in all; iceoryx2 tries again {retries}): \
+             that client receives no {what} until it reopens the service",
+            new.saturating_add(held)
+        );
+    }
+}
+
+/// Watches both streams' received counts (`received`, the real-time thread's) at `now`
+/// and logs what the watch finds: a stream silent for [`journal::SILENT_STREAM_NS`]
+/// as a warning (through the throttle), naming since when (`start_ns`: the daemon's
+/// start, on the same clock); its return as information, once, when its silence was
+/// said.
+pub(super) fn tell_silent_streams(
+    watch: &mut journal::SilentStreams,
+    received: [u64; 2],
+    throttle: &mut journal::Throttle,
+    now: Nanos,
+    start_ns: Nanos,
+) {
+    let name = |si: usize| if si == 0 { Stream::Cam } else { Stream::Lidar };
+    for news in watch.observe(received, now).into_iter().flatten() {
+        match news {
+            journal::StreamNews::Silent {
+                si,
+                since_ns,
+                for_ns,
+                ever,
+            } => {
+                let Some(n) = throttle.admit(journal::silent_stream_key(si), 1, now) else {
+                    continue;
+                };
+                watch.said(si);
+                let stream = name(si);
+                if ever {
+                    tracing::warn!(
+                        "{stream}: nothing received for {:.0} s (since {:.1} s into the run): \
+                         its driver stopped or hung, or its sensor stalled (`systemctl status \
+                         vlsync-{stream}`); the estimate holds, then is lost{}",
+                        for_ns as f64 * 1e-9,
+                        since_ns.saturating_sub(start_ns) as f64 * 1e-9,
+                        more(n)
+                    )
+                } else {
+                    tracing::warn!(
+                        "{stream}: nothing received in the {:.0} s since the daemon started: \
+                         is its driver running, on this prefix (`systemctl status \
+                         vlsync-{stream}`)? No offset without it{}",
+                        for_ns as f64 * 1e-9,
+                        more(n)
+                    )
+                }
+            }
+            journal::StreamNews::Resumed { si, after_ns } => tracing::info!(
+                "{}: samples received again after {:.0} s without one",
+                name(si),
+                after_ns as f64 * 1e-9
+            ),
         }
     }
 }
@@ -284,6 +417,176 @@ mod tests {
             text.contains("estimate #20 has an invalid field; not published (19 more since"),
             "{text}"
         );
+    }
+
+    const S: Nanos = 1_000_000_000;
+
+    /// A driver of another user crash-looping every 2 s: each restart a publisher the
+    /// daemon cannot connect. Once a warning per restart (43,200 a day); through the
+    /// throttle some 150, every failure in a line's count, per stream.
+    #[test]
+    fn unconnected_publishers_are_said_through_the_throttle() {
+        let names = ServiceNames::new("vlsync/robot").unwrap();
+        let counts = [AtomicU64::new(0), AtomicU64::new(0)];
+        let mut told = [0u64; 2];
+        let mut counted = 0u64;
+        let text = logged(|| {
+            let mut t = journal::Throttle::new(journal::THROTTLE_NS);
+            // the service thread's poll every 0.1 s, a failed join every 2 s
+            for i in 0..864_000i64 {
+                if i % 20 == 0 {
+                    counts[1].fetch_add(1, Ordering::Relaxed);
+                }
+                tell_unconnected(&counts, &mut told, &names, &mut t, i * S / 10);
+                t.due(i * S / 10, |k, n| {
+                    assert_eq!(k, journal::unconnected_key(1));
+                    counted += n;
+                    report_suppressed(k, n)
+                });
+            }
+            t.due(Nanos::MAX, |_, n| counted += n);
+        });
+        let lines = text.lines().count() as u64;
+        assert!((140..=160).contains(&lines), "{lines} lines");
+        let first = text.lines().next().unwrap();
+        assert!(
+            first.contains(" WARN ")
+                && first.contains("lidar: a publisher of vlsync/robot/lidar/signature could not be connected (1 time(s) since the last such line, 1 in all;"),
+            "{first}"
+        );
+        // every failure in a line: the named ones' and the held counts
+        counted += text
+            .lines()
+            .filter_map(|l| l.split_once("could not be connected (")?.1.split_once(' '))
+            .map(|(n, _)| n.parse::<u64>().unwrap())
+            .sum::<u64>();
+        assert_eq!(counted, 43_200);
+        assert_eq!(told, [0, 43_200]);
+    }
+
+    /// A corrupt connection of a status client (or an offset client) counts at every
+    /// status sent (once a second: iceoryx2's default logged an error each time, 86,400
+    /// a day): said through the throttle, with its own key per service.
+    #[test]
+    fn clients_not_served_are_said_through_the_throttle() {
+        let count = AtomicU64::new(0);
+        let other = AtomicU64::new(0);
+        let (mut told, mut told_other, mut held) = (0u64, 0u64, 0u64);
+        let text = logged(|| {
+            let mut t = journal::Throttle::new(journal::THROTTLE_NS);
+            for i in 0..86_400i64 {
+                count.fetch_add(1, Ordering::Relaxed);
+                for (c, told, key, service) in [
+                    (&count, &mut told, journal::STATUS_CLIENTS_KEY, "p/status"),
+                    (
+                        &other,
+                        &mut told_other,
+                        journal::OFFSET_CLIENTS_KEY,
+                        "p/offset",
+                    ),
+                ] {
+                    tell_clients(
+                        c,
+                        told,
+                        key,
+                        service,
+                        ("statuses", "at every status sent"),
+                        &mut t,
+                        i * S,
+                    );
+                }
+                t.due(i * S, report_suppressed);
+            }
+            t.due(Nanos::MAX, |_, n| held += n);
+        });
+        let lines = text.lines().count();
+        assert!((140..=160).contains(&lines), "{lines} lines");
+        assert!(
+            text.lines().next().unwrap().contains(
+                "p/status: a client could not be connected or its connection is corrupt (1 \
+                 attempt(s) since the last such line, 1 in all; iceoryx2 tries again at every \
+                 status sent): that client receives no statuses until it reopens the service"
+            ),
+            "{text}"
+        );
+        // every attempt in a line's count (the stop's flush of the throttle: none held)
+        let said: u64 = text
+            .lines()
+            .filter_map(|l| l.split_once("corrupt (")?.1.split_once(' '))
+            .map(|(n, _)| n.parse::<u64>().unwrap())
+            .sum();
+        assert_eq!(said + held, 86_400);
+        assert!(!text.contains("p/offset"), "{text}");
+        assert_eq!(told, 86_400);
+    }
+
+    /// A LiDAR driver that hangs at 20 s while the camera's goes on: one warning at
+    /// 50 s naming the stream and since when, nothing more while it lasts, one line
+    /// when it comes back; a camera never started is said from the watch's start.
+    #[test]
+    fn a_stream_silent_for_good_is_warned_once_and_its_return_said() {
+        let text = logged(|| {
+            let mut t = journal::Throttle::new(journal::THROTTLE_NS);
+            let start = 3 * S;
+            let mut w = journal::SilentStreams::new(journal::SILENT_STREAM_NS, start);
+            let mut lidar = 0;
+            for i in 30..6000i64 {
+                let now = i * S / 10;
+                if now <= 20 * S || now >= 500 * S {
+                    lidar += 1;
+                }
+                tell_silent_streams(&mut w, [0, lidar], &mut t, now, start);
+                t.due(now, report_suppressed);
+            }
+        });
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3, "{text}");
+        assert!(
+            lines[0].contains(" WARN ")
+                && lines[0].contains(
+                    "cam: nothing received in the 30 s since the daemon started: is its driver running"
+                ),
+            "{text}"
+        );
+        assert!(
+            lines[1].contains(" WARN ")
+                && lines[1].contains("lidar: nothing received for 30 s (since 17.0 s into the run): its driver stopped or hung"),
+            "{text}"
+        );
+        assert!(
+            lines[2].contains(" INFO ")
+                && lines[2].contains("lidar: samples received again after 480 s without one"),
+            "{text}"
+        );
+    }
+
+    /// Load hints (up to one per 10 s) go through the throttle: a load that flaps
+    /// for a day is not two lines every 10 s.
+    #[test]
+    fn load_hints_are_said_through_the_throttle() {
+        let text = logged(|| {
+            let mut t = journal::Throttle::new(journal::THROTTLE_NS);
+            for k in 0..8640i64 {
+                let ev = RtEvent::ChangeDeclared {
+                    t_lidar_ns: k * 10 * S,
+                };
+                log_event(&ev, &mut t, k * 10 * S, 200.0);
+                log_event(&RtEvent::HintUndated, &mut t, k * 10 * S, 200.0);
+                t.due(k * 10 * S, report_suppressed);
+            }
+        });
+        let declared = text.matches("load hint: estimator told").count()
+            + text
+                .matches("more load hints told to the estimator")
+                .count();
+        assert!((140..=160).contains(&declared), "{declared}");
+        assert!(text.contains("stepped at LiDAR t=0.000 s\n"), "{text}");
+        let undated = text.matches("load hint before any LiDAR sample").count()
+            + text
+                .matches("more load hints before any LiDAR sample")
+                .count();
+        assert!((140..=160).contains(&undated), "{undated}");
+        assert!(!text.contains(" WARN "), "{text}");
     }
 
     /// A LiDAR whose every interval is a gap (a 2 Hz sensor against the 0.75 s

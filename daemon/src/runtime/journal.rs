@@ -1,6 +1,8 @@
 //! What the daemon writes to its log over months of running: a warning that repeats
 //! (a driver sending NaN at 30 Hz, a lossy link) is logged at once, then at most once
-//! per [`THROTTLE_NS`] with the count of those suppressed meanwhile; and every
+//! per [`THROTTLE_NS`] with the count of those suppressed meanwhile, that period
+//! doubling at each line while the events go on, up to [`THROTTLE_MAX_NS`], and back
+//! to [`THROTTLE_NS`] after [`THROTTLE_MAX_NS`] without one ([`Throttle`]); and every
 //! summary period (`daemon.summary_period_s`, 10 minutes by default) one line says
 //! how the estimate and the streams fared ([`Summary`]) and one what the latency was
 //! ([`LatencyStretch`], which the real-time thread measures and hands over as the
@@ -22,10 +24,14 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// estimator state per new state (information: a flapping estimator would log two
 /// lines a hop), the estimates not published, invalid or refused by the offset
 /// service (a lasting fault would log one line per estimate, 170,000 a day), the
-/// publishers first read mid-run per stream (information), and the silences longer
+/// publishers first read mid-run per stream (information), the silences longer
 /// than `estimator.max_gap_s` per stream (a warning: a sensor slower than the limit
-/// makes every interval one, and nothing is ever estimated).
-pub const KINDS: usize = 2 * REJECT_REASONS + 24;
+/// makes every interval one, and nothing is ever estimated), the switches to simulated
+/// samples and back per stream; then the service thread's own: the publishers of each
+/// stream that could not be connected, the offset and status clients not served, the
+/// streams silent for [`SILENT_STREAM_NS`], the CPU-pressure load steps, the load hints
+/// declared, undated and dropped, and the failed notifications of systemd.
+pub const KINDS: usize = 2 * REJECT_REASONS + 35;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -82,6 +88,135 @@ pub fn silence_key(si: usize) -> usize {
 /// sensor's (`RtEvent::Simulated`).
 pub fn simulated_key(si: usize, on: bool) -> usize {
     DEGRADED_KEY + 18 + si.min(1) + if on { 0 } else { 2 }
+}
+
+/// Throttle key of a publisher of stream `si` that joined and could not be connected
+/// (the subscriber's degradation handler: its samples are not read).
+pub fn unconnected_key(si: usize) -> usize {
+    DEGRADED_KEY + 22 + si.min(1)
+}
+
+/// Throttle key of the offset clients the offset publisher could not connect, or
+/// whose connection it found corrupt (its degradation handler).
+pub const OFFSET_CLIENTS_KEY: usize = DEGRADED_KEY + 24;
+
+/// Throttle key of the status clients the status publisher could not connect, or
+/// whose connection it found corrupt (its degradation handler).
+pub const STATUS_CLIENTS_KEY: usize = DEGRADED_KEY + 25;
+
+/// Throttle key of a stream `si` whose received count has not moved for
+/// [`SILENT_STREAM_NS`] ([`SilentStreams`]).
+pub fn silent_stream_key(si: usize) -> usize {
+    DEGRADED_KEY + 26 + si.min(1)
+}
+
+/// Throttle key of a load step seen in the CPU pressure (`daemon.load_hints`).
+pub const LOAD_STEP_KEY: usize = DEGRADED_KEY + 28;
+
+/// Throttle key of a load hint the estimator was told of (`RtEvent::ChangeDeclared`).
+pub const HINT_DECLARED_KEY: usize = DEGRADED_KEY + 29;
+
+/// Throttle key of a load hint before any LiDAR sample (`RtEvent::HintUndated`).
+pub const HINT_UNDATED_KEY: usize = DEGRADED_KEY + 30;
+
+/// Throttle key of a load hint the real-time thread's full channel did not take.
+pub const HINT_DROPPED_KEY: usize = DEGRADED_KEY + 31;
+
+/// Throttle key of a failure to notify systemd after a notification that went out
+/// (`notify::Supervisor`: a lasting failure is one, a flapping socket one per flap).
+pub const NOTIFY_FAILED_KEY: usize = DEGRADED_KEY + 32;
+
+/// How long a stream's received count may stand still while the daemon runs before
+/// [`SilentStreams`] says so, ns (30 s: a driver stopped, hung, waiting for its device,
+/// or publishing elsewhere; every driver sends several samples a second).
+pub const SILENT_STREAM_NS: Nanos = 30_000_000_000;
+
+/// What [`SilentStreams::observe`] found for one stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StreamNews {
+    /// The stream's received count has not moved for `for_ns` (at least
+    /// [`SILENT_STREAM_NS`]), since `since_ns` on the watch's clock (when it last
+    /// moved, or when the watch started: `ever` false, nothing received yet).
+    Silent {
+        /// Stream (0 cam, 1 LiDAR).
+        si: usize,
+        /// When the count last moved (or the watch started), on the watch's clock, ns.
+        since_ns: Nanos,
+        /// How long it has stood still, ns.
+        for_ns: Nanos,
+        /// Whether the stream had delivered anything before.
+        ever: bool,
+    },
+    /// A stream said silent ([`SilentStreams::said`]) moves again, after `after_ns`.
+    Resumed {
+        /// Stream (0 cam, 1 LiDAR).
+        si: usize,
+        /// How long it stood still, ns.
+        after_ns: Nanos,
+    },
+}
+
+/// Watches each stream's received count (from the real-time thread, read by the
+/// service thread every poll) for a stream that stops for good: a driver that hangs
+/// leaves no other trace at warning level (the estimator's silence,
+/// `RtEvent::Silence`, is said only when the stream resumes). A stream whose count
+/// has not moved for [`SILENT_STREAM_NS`] is news once per silence, whatever the
+/// other stream does; once said, its first move again is news too. Pure logic on
+/// times the caller gives.
+#[derive(Debug, Clone)]
+pub struct SilentStreams {
+    limit_ns: Nanos,
+    /// Per stream: the count last seen and when it last moved (or the watch started).
+    seen: [(u64, Nanos); 2],
+    /// Per stream: the stream has delivered since the watch started.
+    ever: [bool; 2],
+    /// Per stream: a silence found (news given), and whether it was said.
+    silent: [Option<bool>; 2],
+}
+
+impl SilentStreams {
+    /// A watch starting at `now` (the counts at zero), news after `limit_ns` still.
+    pub fn new(limit_ns: Nanos, now: Nanos) -> Self {
+        Self {
+            limit_ns,
+            seen: [(0, now); 2],
+            ever: [false; 2],
+            silent: [None; 2],
+        }
+    }
+
+    /// The counts `received` at `now`: what is news, per stream.
+    pub fn observe(&mut self, received: [u64; 2], now: Nanos) -> [Option<StreamNews>; 2] {
+        let mut out = [None; 2];
+        for si in 0..2 {
+            let (count, since) = self.seen[si];
+            if received[si] != count {
+                let after_ns = now.saturating_sub(since);
+                self.seen[si] = (received[si], now);
+                self.ever[si] = true;
+                if self.silent[si].take() == Some(true) {
+                    out[si] = Some(StreamNews::Resumed { si, after_ns });
+                }
+            } else if self.silent[si].is_none() && now.saturating_sub(since) >= self.limit_ns {
+                self.silent[si] = Some(false);
+                out[si] = Some(StreamNews::Silent {
+                    si,
+                    since_ns: since,
+                    for_ns: now.saturating_sub(since),
+                    ever: self.ever[si],
+                });
+            }
+        }
+        out
+    }
+
+    /// Stream `si`'s silence was said (not held back by the throttle): its resumption
+    /// will be news.
+    pub fn said(&mut self, si: usize) {
+        if let Some(s) = self.silent.get_mut(si).and_then(Option::as_mut) {
+            *s = true;
+        }
+    }
 }
 
 /// How many stamping-latency steps of `stream` (`cam` or `lidar`) a daemon log
@@ -155,6 +290,10 @@ fn events_logged(log: &str, named: impl Fn(&str) -> bool, held: &str) -> usize {
 
 /// Whether the kind of throttle key `key` is information (not a warning).
 pub fn is_info(key: usize) -> bool {
+    if key >= unconnected_key(0) {
+        // the service thread's own: only the load hints' are information
+        return matches!(key, LOAD_STEP_KEY | HINT_DECLARED_KEY | HINT_UNDATED_KEY);
+    }
     key > DEGRADED_KEY
         && !matches!(
             key,
@@ -176,20 +315,31 @@ pub fn lost_key(si: usize) -> usize {
 }
 
 /// The longest period [`Throttle`] stretches a kind's to while its events go on, ns
-/// (10 minutes): a lasting fault logs some 150 lines a day per kind, not 8,600.
+/// (10 minutes): a lasting fault logs some 150 lines a day per kind, not 8,600,
+/// however often its events come. It is also the quiet gap (no event of the kind at
+/// all) after which the kind's period starts again from its own.
 pub const THROTTLE_MAX_NS: Nanos = 600_000_000_000;
 
-/// Rate limit per kind of warning. While a kind's events go on through whole periods
-/// (each line carries a count held back), its period doubles at each line, up to
-/// [`THROTTLE_MAX_NS`] (or its own period, if longer); a whole period without one (seen
-/// by [`Throttle::due`], or a line that held nothing back) starts it again from its own.
+/// Rate limit per kind of warning. A kind's first event is logged at once; then its
+/// period doubles at each line, up to [`THROTTLE_MAX_NS`] (or its own period, if
+/// longer), for as long as its events go on: each event within that longest period of
+/// the kind's previous one (logged or held back) continues the fault, however sparse
+/// (a link dropping a sample every 20 s, a step every 45 s). Only a gap as long as the
+/// longest period without any event of the kind (seen by [`Throttle::due`] or the
+/// next [`Throttle::admit`]) ends the fault: the next event is logged at once and the
+/// period starts again from its own. A lasting fault therefore logs some 150 lines a
+/// day, whatever its events' rhythm; one whose events pause for 10 minutes at a time
+/// says each return at once.
 #[derive(Debug, Clone)]
 pub struct Throttle {
     period: [Nanos; KINDS],
+    /// The kind's last line.
     last: [Option<Nanos>; KINDS],
+    /// The kind's last event, logged or held back.
+    last_event: [Option<Nanos>; KINDS],
     /// Events (rejections: samples; losses: samples lost) suppressed since the last line.
     suppressed: [u64; KINDS],
-    /// Doublings of the kind's period: lines in a row that held events back.
+    /// Doublings of the kind's period: lines since the fault began.
     stretch: [u32; KINDS],
 }
 
@@ -199,26 +349,38 @@ impl Throttle {
         Self {
             period: [period; KINDS],
             last: [None; KINDS],
+            last_event: [None; KINDS],
             suppressed: [0; KINDS],
             stretch: [0; KINDS],
         }
     }
 
-    /// Kind `k`'s period now: its own, doubled per line in a row that held events back.
-    fn current(&self, k: usize) -> Nanos {
-        let base = self.period[k];
-        let cap = base.max(THROTTLE_MAX_NS);
-        base.saturating_mul(1i64 << self.stretch[k].min(30))
-            .min(cap)
+    /// Kind `k`'s longest period: [`THROTTLE_MAX_NS`], or its own if longer.
+    fn longest(&self, k: usize) -> Nanos {
+        self.period[k].max(THROTTLE_MAX_NS)
     }
 
-    /// A line of kind `k` goes out now with `held` events held back before it.
-    fn line(&mut self, k: usize, now: Nanos, held: u64) {
+    /// Kind `k`'s period now: its own, doubled per line since its fault began.
+    fn current(&self, k: usize) -> Nanos {
+        let base = self.period[k];
+        base.saturating_mul(1i64 << self.stretch[k].min(30))
+            .min(self.longest(k))
+    }
+
+    /// Whether kind `k` had no event for its longest period before `now` (or none
+    /// yet): a fault of that kind is over.
+    fn quiet(&self, k: usize, now: Nanos) -> bool {
+        self.last_event[k].is_none_or(|t| now.saturating_sub(t) >= self.longest(k))
+    }
+
+    /// A line of kind `k` goes out now; `fresh`: the first of a new fault (its next
+    /// line waits the kind's own period), else the fault goes on (twice as long).
+    fn line(&mut self, k: usize, now: Nanos, fresh: bool) {
         self.last[k] = Some(now);
-        self.stretch[k] = if held > 0 {
-            self.stretch[k].saturating_add(1)
-        } else {
+        self.stretch[k] = if fresh {
             0
+        } else {
+            self.stretch[k].saturating_add(1)
         };
     }
 
@@ -233,31 +395,34 @@ impl Throttle {
     /// counted for later.
     pub fn admit(&mut self, key: usize, n: u64, now: Nanos) -> Option<u64> {
         let k = key.min(KINDS - 1);
+        let fresh = self.quiet(k, now);
+        self.last_event[k] = Some(now);
         match self.last[k] {
-            Some(t) if now.saturating_sub(t) < self.current(k) => {
+            Some(t) if !fresh && now.saturating_sub(t) < self.current(k) => {
                 self.suppressed[k] = self.suppressed[k].saturating_add(n);
                 None
             }
             _ => {
                 let held = std::mem::take(&mut self.suppressed[k]);
-                self.line(k, now, held);
+                self.line(k, now, fresh);
                 Some(held)
             }
         }
     }
 
     /// Reports `(key, count)` of every kind whose suppressed events have waited a whole
-    /// period, and starts its next period now.
+    /// period, and starts its next period now (twice as long: the fault goes on); a
+    /// kind without an event for its longest period starts again from its own.
     pub fn due(&mut self, now: Nanos, mut report: impl FnMut(usize, u64)) {
         for k in 0..KINDS {
             let waited = self.last[k].is_some_and(|t| now.saturating_sub(t) >= self.current(k));
             if waited && self.suppressed[k] > 0 {
                 let held = std::mem::take(&mut self.suppressed[k]);
-                self.line(k, now, held);
+                self.line(k, now, false);
                 report(k, held);
-            } else if waited {
-                // a whole period without one: the fault is over, the next one is said
-                // at once and then every period from the kind's own again
+            } else if self.suppressed[k] == 0 && self.quiet(k, now) {
+                // the fault is over: the next event is said at once, and then after
+                // the kind's own period again
                 self.stretch[k] = 0;
             }
         }
@@ -290,6 +455,31 @@ pub fn kind_text(key: usize) -> String {
         "estimates with an invalid field (not published)".to_string()
     } else if key == PUBLISH_FAILED_KEY {
         "estimates the offset service did not take".to_string()
+    } else if key == NOTIFY_FAILED_KEY {
+        "failures to notify systemd (NOTIFY_SOCKET)".to_string()
+    } else if key == HINT_DROPPED_KEY {
+        "load hints dropped (the real-time thread lags)".to_string()
+    } else if key == HINT_UNDATED_KEY {
+        "load hints before any LiDAR sample".to_string()
+    } else if key == HINT_DECLARED_KEY {
+        "load hints told to the estimator".to_string()
+    } else if key == LOAD_STEP_KEY {
+        "load steps in the CPU pressure".to_string()
+    } else if key >= silent_stream_key(0) {
+        format!(
+            "{} silences of {} s or more (nothing received)",
+            stream((key - silent_stream_key(0)).min(1)),
+            SILENT_STREAM_NS / 1_000_000_000
+        )
+    } else if key == STATUS_CLIENTS_KEY {
+        "failed connections of status clients".to_string()
+    } else if key == OFFSET_CLIENTS_KEY {
+        "failed connections of offset clients".to_string()
+    } else if key >= unconnected_key(0) {
+        format!(
+            "{} publishers that could not be connected",
+            stream((key - unconnected_key(0)).min(1))
+        )
     } else if key >= simulated_key(0, false) {
         format!(
             "{} switches back to sensor samples",
@@ -591,6 +781,80 @@ mod tests {
         assert_eq!(t.current(k), THROTTLE_MAX_NS);
     }
 
+    /// A fault whose events come seldom but go on (a lossy link dropping a sample
+    /// every 20 s, a latency or offset step every 15-45 s, a NaN every 30 s, a fault
+    /// back every 599 s) stretches its period too: some 150 lines a day whatever the
+    /// rhythm (once, one line per event while each came after its period: 5,760 a day
+    /// for one every 15 s), and every event is in a line's count.
+    #[test]
+    fn a_sparse_lasting_fault_logs_some_150_lines_a_day() {
+        for every_s in [1i64, 15, 20, 25, 30, 45, 100, 300, 599, 601, 1200] {
+            let mut t = Throttle::new(10 * S);
+            let k = latency_step_key(0);
+            let (mut lines, mut counted, mut events) = (0u64, 0u64, 0u64);
+            // the service thread's `due` every second, an event every `every_s`
+            for i in 0..86_400i64 {
+                if i % every_s == 0 {
+                    events += 1;
+                    if let Some(held) = t.admit(k, 1, i * S) {
+                        lines += 1;
+                        counted += held + 1;
+                    }
+                }
+                t.due(i * S, |_, held| {
+                    lines += 1;
+                    counted += held;
+                });
+            }
+            t.due(i64::MAX, |_, held| counted += held);
+            assert_eq!(counted, events, "every {every_s} s");
+            let bound = 160.min(events);
+            assert!(lines <= bound, "every {every_s} s: {lines} lines");
+            assert!(lines >= 140.min(events), "every {every_s} s: {lines} lines");
+        }
+    }
+
+    /// A burst (an event a second for 5 minutes), then silence: the kind's period is
+    /// back at its own once 10 minutes passed without an event (not before), and the
+    /// next fault is said at once and after 10 s again.
+    #[test]
+    fn after_a_burst_and_ten_quiet_minutes_the_period_is_the_base_again() {
+        let mut t = Throttle::new(10 * S);
+        let k = lost_key(0);
+        let mut lines = 0;
+        for i in 0..300i64 {
+            if t.admit(k, 1, i * S).is_some() {
+                lines += 1;
+            }
+            t.due(i * S, |_, _| lines += 1);
+        }
+        // 0, 10, 30, 70, 150 s: stretched to 160 s, then 320 s
+        assert_eq!(lines, 5);
+        assert_eq!(t.current(k), 160 * S);
+        let mut held = vec![];
+        for i in 300..898i64 {
+            t.due(i * S, |_, n| held.push((i, n)));
+        }
+        // the burst's tail said a period after its last line
+        assert_eq!(held, vec![(310, 149)]);
+        assert_eq!(t.current(k), 320 * S);
+        // the last event at 299 s: 10 minutes later, not before, the period is 10 s
+        t.due(898 * S, |_, _| {});
+        assert_eq!(t.current(k), 320 * S);
+        t.due(899 * S, |_, _| {});
+        assert_eq!(t.current(k), 10 * S);
+        assert_eq!(t.admit(k, 1, 1000 * S), Some(0));
+        assert_eq!(t.admit(k, 1, 1005 * S), None);
+        assert_eq!(t.admit(k, 1, 1010 * S), Some(1));
+        // without `due`: an event after ten quiet minutes is said at once all the same
+        let mut t = Throttle::new(10 * S);
+        for i in 0..300i64 {
+            let _ = t.admit(k, 1, i * S);
+        }
+        assert_eq!(t.admit(k, 1, 899 * S), Some(149));
+        assert_eq!(t.current(k), 10 * S);
+    }
+
     #[test]
     fn first_event_is_logged_then_one_line_per_period_with_the_count() {
         let mut t = Throttle::new(10 * S);
@@ -611,19 +875,27 @@ mod tests {
         assert_eq!(t.admit(k, 1, 11 * S), None);
         assert_eq!(t.admit(k, 1, 20 * S), None);
         assert_eq!(t.admit(k, 1, 30 * S), Some(2));
-        // a quiet period (nothing held back by its line) starts again from 10 s
+        // a line that held nothing back does not end the fault (40 s now): its events
+        // still come, if sparsely
+        assert_eq!(t.current(k), 40 * S);
         assert_eq!(t.admit(k, 1, 70 * S), Some(0));
-        assert_eq!(t.admit(k, 1, 80 * S), Some(0));
-        assert_eq!(t.admit(k, 1, 85 * S), None);
-        // stretched again (the 85 s event said at 90 s: 20 s now), then a whole such
-        // period without an event, seen by `due`: back to 10 s
+        assert_eq!(t.current(k), 80 * S);
+        assert_eq!(t.admit(k, 1, 80 * S), None);
+        // the 80 s event said by `due` a period after the last line: 160 s now
         let mut said = vec![];
-        t.due(90 * S, |_, n| said.push(n));
+        t.due(149 * S, |_, n| said.push(n));
+        assert!(said.is_empty());
+        t.due(150 * S, |_, n| said.push(n));
         assert_eq!(said, vec![1]);
-        assert_eq!(t.current(k), 20 * S);
-        t.due(111 * S, |_, _| {});
+        assert_eq!(t.current(k), 160 * S);
+        // ten minutes without an event, seen by `due`: the fault is over, back to 10 s
+        t.due(679 * S, |_, _| panic!("nothing held"));
+        assert_eq!(t.current(k), 160 * S);
+        t.due(680 * S, |_, _| panic!("nothing held"));
         assert_eq!(t.current(k), 10 * S);
-        assert_eq!(t.admit(k, 1, 112 * S), Some(0));
+        assert_eq!(t.admit(k, 1, 681 * S), Some(0));
+        assert_eq!(t.admit(k, 1, 690 * S), None);
+        assert_eq!(t.admit(k, 1, 691 * S), Some(1));
         assert_eq!(kind_text(k), "cam samples rejected (non_finite)");
         assert_eq!(kind_text(lost_key(1)), "lidar samples lost (sequence gaps)");
         assert!(kind_text(DEGRADED_KEY).contains("degraded"));
@@ -658,7 +930,34 @@ mod tests {
         assert_eq!(joined_key(1), silence_key(0) - 1);
         assert_eq!(silence_key(1), simulated_key(0, true) - 1);
         assert_eq!(simulated_key(1, true), simulated_key(0, false) - 1);
-        assert_eq!(simulated_key(1, false), KINDS - 1);
+        assert_eq!(simulated_key(1, false), unconnected_key(0) - 1);
+        assert_eq!(unconnected_key(1), OFFSET_CLIENTS_KEY - 1);
+        assert_eq!(STATUS_CLIENTS_KEY, silent_stream_key(0) - 1);
+        assert_eq!(silent_stream_key(1), LOAD_STEP_KEY - 1);
+        assert_eq!(NOTIFY_FAILED_KEY, KINDS - 1);
+        for key in [LOAD_STEP_KEY, HINT_DECLARED_KEY, HINT_UNDATED_KEY] {
+            assert!(is_info(key), "{}", kind_text(key));
+        }
+        for key in [
+            unconnected_key(0),
+            unconnected_key(1),
+            OFFSET_CLIENTS_KEY,
+            STATUS_CLIENTS_KEY,
+            silent_stream_key(0),
+            silent_stream_key(1),
+            HINT_DROPPED_KEY,
+            NOTIFY_FAILED_KEY,
+        ] {
+            assert!(!is_info(key), "{}", kind_text(key));
+        }
+        assert_eq!(
+            kind_text(unconnected_key(1)),
+            "lidar publishers that could not be connected"
+        );
+        assert_eq!(
+            kind_text(silent_stream_key(0)),
+            "cam silences of 30 s or more (nothing received)"
+        );
         assert_eq!(
             kind_text(simulated_key(1, true)),
             "lidar switches to simulated samples"
@@ -732,6 +1031,89 @@ x WARN vlsyncd::runtime: 7 more switches to degraded mode (processing over budge
         assert_eq!(offset_steps_logged(log), 8);
         assert_eq!(degraded_switches_logged(log), 8);
         assert_eq!(search_moves_logged(log), 0);
+    }
+
+    /// A hung driver: its stream's count stands still while the other's moves. Said
+    /// once after 30 s (naming since when), not again while it lasts; its return
+    /// said once when its silence was said. A stream that never delivered is said
+    /// too, from the watch's start.
+    #[test]
+    fn a_stream_that_stops_for_good_is_news_once_and_its_return_once() {
+        let mut w = SilentStreams::new(SILENT_STREAM_NS, 5 * S);
+        // polled every 0.1 s: the camera delivers throughout, the LiDAR until 20 s
+        let mut news = vec![];
+        let mut cam = 0u64;
+        let mut lidar = 0u64;
+        for i in 50..3000i64 {
+            let now = i * S / 10;
+            cam += 3;
+            if now <= 20 * S {
+                lidar += 1;
+            }
+            if now >= 200 * S {
+                lidar += 1;
+            }
+            for n in w.observe([cam, lidar], now).into_iter().flatten() {
+                news.push(n);
+                if let StreamNews::Silent { si, .. } = n {
+                    w.said(si);
+                }
+            }
+        }
+        assert_eq!(
+            news,
+            vec![
+                StreamNews::Silent {
+                    si: 1,
+                    since_ns: 20 * S,
+                    for_ns: 30 * S,
+                    ever: true
+                },
+                StreamNews::Resumed {
+                    si: 1,
+                    after_ns: 180 * S
+                },
+            ]
+        );
+        // a silence not said (held back by the throttle): its return is no news; a
+        // stream that never delivered: silent since the watch began
+        let mut w = SilentStreams::new(SILENT_STREAM_NS, 0);
+        assert_eq!(w.observe([1, 0], 29 * S), [None, None]);
+        assert_eq!(
+            w.observe([1, 0], 30 * S),
+            [
+                None,
+                Some(StreamNews::Silent {
+                    si: 1,
+                    since_ns: 0,
+                    for_ns: 30 * S,
+                    ever: false
+                })
+            ]
+        );
+        assert_eq!(w.observe([1, 0], 31 * S)[1], None);
+        assert_eq!(w.observe([1, 5], 40 * S), [None, None]);
+        assert_eq!(
+            w.observe([1, 5], 59 * S)[0],
+            Some(StreamNews::Silent {
+                si: 0,
+                since_ns: 29 * S,
+                for_ns: 30 * S,
+                ever: true
+            })
+        );
+        w.said(0);
+        w.said(7);
+        assert_eq!(
+            w.observe([2, 6], 60 * S),
+            [
+                Some(StreamNews::Resumed {
+                    si: 0,
+                    after_ns: 31 * S
+                }),
+                None
+            ]
+        );
     }
 
     proptest! {

@@ -31,7 +31,13 @@
 //!   met [`EVENTS_PER_POLL`]. Statuses have a channel of their own (capacity
 //!   [`STATUS_CAPACITY`]), which the service thread reads before each event: a
 //!   flood of events that fills the event channel (a publisher faster than the
-//!   daemon) drops events, never the statuses that report it;
+//!   daemon) drops events, never the statuses that report it. Every repeated line
+//!   goes through one [`journal::Throttle`]: the real-time thread's events, and the
+//!   service thread's own (publishers of a stream or clients of the offset and status
+//!   services iceoryx2 could not connect, load steps and hints, failed notifications
+//!   of systemd); a stream whose received count (stored by the real-time thread every
+//!   loop) stands still for [`journal::SILENT_STREAM_NS`] is a warning, its return
+//!   information ([`journal::SilentStreams`]);
 //! * the **state thread** (`vlsync-state`) writes the state file the service thread
 //!   hands it, so a slow SD card never holds up the watchdog's petting.
 //!
@@ -103,7 +109,7 @@ pub mod iox_log;
 mod live_tests;
 pub(crate) mod rt;
 
-use events::{log_event, report_suppressed};
+use events::{log_event, report_suppressed, tell_clients, tell_silent_streams, tell_unconnected};
 pub use instance::{lock_path, single_instance_lock, InstanceLock};
 use rt::{rt_thread, RtSetup};
 pub use rt::{RtCounters, RtReport};
@@ -126,54 +132,9 @@ use vlsync_ipc::iceoryx2::identifiers::UniquePublisherId;
 use vlsync_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use vlsync_ipc::{
     cleanup_dead_nodes, create_node, listener, monotonic_ns, notifier, open_or_create_event,
-    open_or_create_pubsub, publisher, publisher_telling, stream_event_id, stream_index,
-    subscriber_telling, termination_requested, Qos, ServiceNames,
+    open_or_create_pubsub, publisher_telling, stream_event_id, stream_index, subscriber_telling,
+    termination_requested, Qos, ServiceNames,
 };
-
-/// Says (a warning) when the real-time thread's subscribers counted a publisher
-/// they could not connect since the last call: its samples are not read, silently
-/// otherwise (iceoryx2 tries again only when a publisher joins or leaves).
-fn tell_unconnected(counts: &[AtomicU64; 2], told: &mut [u64; 2], names: &ServiceNames) {
-    for stream in [Stream::Cam, Stream::Lidar] {
-        let n = counts[stream_index(stream)].load(Ordering::Relaxed);
-        if n > told[stream_index(stream)] {
-            tracing::warn!(
-                "{stream}: a publisher of {} could not be connected ({n} time(s) so far; iceoryx2 \
-                 could not map its data: memory, file descriptors, or files of another user): \
-                 its samples are not read until a publisher of the stream starts or stops \
-                 (restart that driver)",
-                names.signature(stream)
-            );
-            told[stream_index(stream)] = n;
-        }
-    }
-}
-
-/// Says (a warning, at most once a minute) when the offset publisher could not
-/// connect a client or found a client's connection corrupt since the last line:
-/// that client receives no estimates (a crashed or foreign subscriber, or one
-/// whose memory could not be mapped). `told`: the count said and when.
-fn tell_offset_clients(
-    count: &AtomicU64,
-    told: &mut (u64, Option<Nanos>),
-    now_ns: Nanos,
-    names: &ServiceNames,
-) {
-    let n = count.load(Ordering::Relaxed);
-    let due = told
-        .1
-        .is_none_or(|t| now_ns - t >= iox_log::MUTED_LINE_EVERY_NS);
-    if n > told.0 && due {
-        tracing::warn!(
-            "{}: a client could not be connected or its connection is corrupt ({} attempt(s) \
-             since the last line, {n} in all; iceoryx2 tries again at every send and every \
-             0.1 s): that client receives no estimates until it reopens the service",
-            names.offset(),
-            n - told.0
-        );
-        *told = (n, Some(now_ns));
-    }
-}
 
 /// Time without budget overrun after which degraded mode is cleared.
 pub const DEGRADED_QUIET: Duration = Duration::from_secs(5);
@@ -326,7 +287,7 @@ pub enum RtEvent {
     /// goes on (a failed receive marks that stream empty until the next wake-up; a
     /// failed wait is followed by a [`WAKE_PERIOD`] sleep, and
     /// `MAX_WAIT_FAILURES` (50) in a row stop the daemon with an error).
-    /// Logged as an error, at most once per `journal::THROTTLE_NS` with the count.
+    /// Logged as an error through the journal's throttle, with the count.
     Fatal(&'static str),
 }
 
@@ -545,7 +506,16 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         });
     let status_svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())
         .map_err(|e| e.to_string())?;
-    let status_pub = publisher(&status_svc, &names.status()).map_err(|e| e.to_string())?;
+    // a client it cannot connect, or whose connection is corrupt, is counted and said
+    // through the throttle (iceoryx2's default: an error line at every status sent)
+    let status_degraded = Arc::new(AtomicU64::new(0));
+    let status_pub = {
+        let count = status_degraded.clone();
+        publisher_telling(&status_svc, &names.status(), move || {
+            count.fetch_add(1, Ordering::Relaxed);
+        })
+        .map_err(|e| e.to_string())?
+    };
     let status_ev = open_or_create_event(&node, &names.status()).map_err(|e| e.to_string())?;
     let status_not = notifier(&status_ev, &names.status()).map_err(|e| e.to_string())?;
 
@@ -558,9 +528,9 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let (hint_tx, hint_rx) = bounded::<Nanos>(4);
     let mut load = load_watch(&cfg);
     let unconnected = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
-    let mut unconnected_told = [0u64; 2];
     let offset_degraded = Arc::new(AtomicU64::new(0));
-    let mut offset_told = (0u64, None);
+    // each stream's samples read so far, which the real-time thread stores every wake-up
+    let received = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
     let mut muted_log = iox_log::MutedLog::default();
     let setup = RtSetup {
         cfg: cfg.clone(),
@@ -574,6 +544,7 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         hints: hint_rx,
         unconnected: unconnected.clone(),
         offset_degraded: offset_degraded.clone(),
+        received: received.clone(),
     };
     let rt = std::thread::Builder::new()
         .name(RT_THREAD_NAME.into())
@@ -684,6 +655,40 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     };
     let mut throttle = journal::Throttle::new(journal::THROTTLE_NS)
         .with_period(journal::SEARCH_MOVE_KEY, journal::SEARCH_MOVE_THROTTLE_NS);
+    // a stream whose driver stops for good (hung) is said after SILENT_STREAM_NS
+    let mut silent = journal::SilentStreams::new(journal::SILENT_STREAM_NS, monotonic_ns());
+    // the service thread's own failures, said through the throttle
+    let (offset_name, status_name) = (names.offset(), names.status());
+    let tell_failures = |throttle: &mut journal::Throttle,
+                         told: &mut ([u64; 2], u64, u64),
+                         systemd: &mut notify::Supervisor,
+                         now: Nanos| {
+        tell_unconnected(&unconnected, &mut told.0, &names, throttle, now);
+        tell_clients(
+            &offset_degraded,
+            &mut told.1,
+            journal::OFFSET_CLIENTS_KEY,
+            &offset_name,
+            ("estimates", "at every send and every 0.1 s"),
+            throttle,
+            now,
+        );
+        tell_clients(
+            &status_degraded,
+            &mut told.2,
+            journal::STATUS_CLIENTS_KEY,
+            &status_name,
+            ("statuses", "at every status sent"),
+            throttle,
+            now,
+        );
+        if let Some(line) = systemd.failure_line(throttle, now) {
+            tracing::warn!("{line}");
+        }
+    };
+    // the counts of those failures already taken: unconnected publishers per stream,
+    // offset clients, status clients
+    let mut told = ([0u64; 2], 0u64, 0u64);
     let mut summary =
         journal::Summary::new((cfg.daemon.summary_period_s * 1e9) as Nanos, monotonic_ns());
     // The service thread polls its channels and never blocks on them: a receiver
@@ -755,12 +760,18 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
             std::thread::sleep(wait);
         }
         busy = got > 0;
-        tell_unconnected(&unconnected, &mut unconnected_told, &names);
         let mono = monotonic_ns();
+        tell_failures(&mut throttle, &mut told, &mut systemd, mono);
         if let Some(line) = muted_log.take(mono) {
             tracing::warn!("{line}");
         }
-        tell_offset_clients(&offset_degraded, &mut offset_told, mono, &names);
+        tell_silent_streams(
+            &mut silent,
+            [0, 1].map(|si| received[si].load(Ordering::Relaxed)),
+            &mut throttle,
+            mono,
+            start_ns,
+        );
         throttle.due(mono, report_suppressed);
         if let Some(line) = summary.due(mono) {
             tracing::info!("{line}");
@@ -772,14 +783,22 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
                 match loadwatch::read_pressure(&cfg.daemon.load_hint_source) {
                     Ok(total) => {
                         if let Some(h) = w.observe(t, total) {
-                            tracing::info!(
-                                "CPU pressure {:.0} % -> {:.0} % ({:.1} s ago): load step",
-                                h.before * 100.0,
-                                h.after * 100.0,
-                                (t - h.at_ns) as f64 * 1e-9
-                            );
+                            if let Some(n) = throttle.admit(journal::LOAD_STEP_KEY, 1, t) {
+                                tracing::info!(
+                                    "CPU pressure {:.0} % -> {:.0} % ({:.1} s ago): load step{}",
+                                    h.before * 100.0,
+                                    h.after * 100.0,
+                                    (t - h.at_ns) as f64 * 1e-9,
+                                    events::more(n)
+                                );
+                            }
                             if hint_tx.try_send(h.at_ns).is_err() {
-                                tracing::warn!("load hint dropped: the real-time thread lags");
+                                if let Some(n) = throttle.admit(journal::HINT_DROPPED_KEY, 1, t) {
+                                    tracing::warn!(
+                                        "load hint dropped: the real-time thread lags{}",
+                                        events::more(n)
+                                    );
+                                }
                             }
                         }
                     }
@@ -817,13 +836,13 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     // a real-time thread that panicked must not look like a clean stop: its exit code
     // says the failure (`systemctl status`, `NRestarts`; the unit restarts any exit)
     let rt_end = rt_outcome(rt.join());
-    // every warning still held back (the channel was drained: the loop ends on disconnect),
-    // iceoryx2's held messages and the offset clients' failures within the last minute
+    // the failures counted since the last poll, every warning still held back (the
+    // channel was drained: the loop ends on disconnect) and iceoryx2's held messages
+    tell_failures(&mut throttle, &mut told, &mut systemd, monotonic_ns());
     throttle.due(Nanos::MAX, report_suppressed);
     if let Some(line) = muted_log.take(Nanos::MAX) {
         tracing::warn!("{line}");
     }
-    tell_offset_clients(&offset_degraded, &mut offset_told, Nanos::MAX, &names);
     if let (total, unsaid @ 1.., _) = status_failures.get() {
         tracing::warn!(
             "{unsaid} more status(es) could not be published on {} ({total} in all)",
@@ -925,7 +944,7 @@ mod tests {
             Qos::signature(4),
         )
         .unwrap();
-        let p = publisher(&f, "x").unwrap();
+        let p = vlsync_ipc::publisher(&f, "x").unwrap();
         p.id()
     }
 

@@ -287,7 +287,9 @@ impl WatchdogGate {
 }
 
 /// The service thread's side of systemd: `READY=1`, the periodic `STATUS=` line,
-/// the gated watchdog and `STOPPING=1`. Problems sending are logged once.
+/// the gated watchdog and `STOPPING=1`. A failure to send after a send that went out
+/// is one event of the journal's throttle ([`Supervisor::failure_line`]): a lasting
+/// failure is said once, a socket that fails every other send some 150 times a day.
 #[derive(Debug)]
 pub struct Supervisor {
     sd: SdNotify,
@@ -296,6 +298,9 @@ pub struct Supervisor {
     last: Option<Estimate>,
     stopping: bool,
     send_failed: bool,
+    /// Failures after a send that went out, not yet handed to the throttle, and the
+    /// newest one's text.
+    failures: (u64, Option<String>),
 }
 
 impl Supervisor {
@@ -318,6 +323,7 @@ impl Supervisor {
             last: None,
             stopping: false,
             send_failed: false,
+            failures: (0, None),
         }
     }
 
@@ -326,10 +332,31 @@ impl Supervisor {
             Ok(()) => self.send_failed = false,
             Err(e) => {
                 if !std::mem::replace(&mut self.send_failed, true) {
-                    tracing::warn!("{e}");
+                    self.failures.0 += 1;
+                    self.failures.1 = Some(e);
                 }
             }
         }
+    }
+
+    /// The warning to log for the failures to notify since the last call (the first
+    /// after a send that went out, each), through `throttle` at `now` (kind
+    /// [`super::journal::NOTIFY_FAILED_KEY`]): `None` when there were none, or the
+    /// throttle holds them back (it says their count later).
+    pub fn failure_line(
+        &mut self,
+        throttle: &mut super::journal::Throttle,
+        now: vlsync_common::Nanos,
+    ) -> Option<String> {
+        let (n, text) = std::mem::take(&mut self.failures);
+        let text = text?;
+        let held = throttle.admit(super::journal::NOTIFY_FAILED_KEY, n, now)?;
+        let more = (n - 1).saturating_add(held);
+        Some(if more > 0 {
+            format!("{text} ({more} more since the last such line)")
+        } else {
+            text
+        })
     }
 
     /// `READY=1`: the services are open and the real-time thread runs. Starts the watchdog.
@@ -529,6 +556,59 @@ mod tests {
         // no socket: no watchdog either
         let (n, _) = SdNotify::from_values(None, Some(&usec), None, 42);
         assert_eq!(n.watchdog_period(), None);
+    }
+
+    /// A notify socket that fails every other send (a status every 2.5 s, say) logs
+    /// through the throttle, some 150 lines a day with the failures' count, not one
+    /// line per failure after a success (17,280 a day); a lasting failure is said
+    /// once.
+    #[test]
+    fn failures_to_notify_are_said_through_the_throttle() {
+        use super::super::journal::{Throttle, THROTTLE_NS};
+        let mut sv = Supervisor::new(SdNotify::disabled(), Arc::new(AtomicU64::new(0)));
+        let mut t = Throttle::new(THROTTLE_NS);
+        let s = 1_000_000_000i64;
+        assert_eq!(sv.failure_line(&mut t, 0), None);
+        let (mut lines, mut failures) = (0u64, 0u64);
+        let mut first = None;
+        for k in 0..34_560i64 {
+            let now = k * 5 * s / 2;
+            if k % 2 == 0 {
+                sv.check(Err(format!("cannot notify NOTIFY_SOCKET /x: failure {k}")));
+                failures += 1;
+            } else {
+                sv.check(Ok(()));
+            }
+            if let Some(line) = sv.failure_line(&mut t, now) {
+                lines += 1;
+                first.get_or_insert(line);
+            }
+            t.due(now, |_, _| lines += 1);
+        }
+        assert_eq!(failures, 17_280);
+        assert!((100..=160).contains(&lines), "{lines} lines");
+        assert_eq!(
+            first.as_deref(),
+            Some("cannot notify NOTIFY_SOCKET /x: failure 0")
+        );
+        // a lasting failure: one event, said at once (after ten quiet minutes)
+        let mut sv = Supervisor::new(SdNotify::disabled(), Arc::new(AtomicU64::new(0)));
+        let mut t = Throttle::new(THROTTLE_NS);
+        let mut said = vec![];
+        for k in 0..1000i64 {
+            sv.check(Err(format!("failure {k}")));
+            said.extend(sv.failure_line(&mut t, k * s));
+        }
+        assert_eq!(said, vec!["failure 0".to_string()]);
+        // two failures between two calls: one line, the second in its count
+        sv.check(Ok(()));
+        sv.check(Err("a".into()));
+        sv.check(Ok(()));
+        sv.check(Err("b".into()));
+        assert_eq!(
+            sv.failure_line(&mut t, 5000 * s).as_deref(),
+            Some("b (1 more since the last such line)")
+        );
     }
 
     #[test]

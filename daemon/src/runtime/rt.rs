@@ -375,6 +375,9 @@ pub(super) struct RtSetup {
     /// Offset clients the publisher could not connect, or whose connection it found
     /// corrupt at a send (its degradation handler; the service thread says so).
     pub(super) offset_degraded: Arc<AtomicU64>,
+    /// Per stream: the samples read so far (`Status::received`), stored every loop
+    /// (relaxed, no wait): the service thread says a stream that stops for good.
+    pub(super) received: Arc<[AtomicU64; 2]>,
 }
 
 /// What the real-time thread reports once, before its loop.
@@ -505,6 +508,9 @@ pub(super) fn rt_thread(
     super::iox_log::mute_this_thread();
     while !s.stop.load(Ordering::Relaxed) && !termination_requested() {
         s.heartbeat.fetch_add(1, Ordering::Relaxed);
+        for (count, &n) in s.received.iter().zip(&c.status.received) {
+            count.store(n, Ordering::Relaxed);
+        }
         // sleeps until a driver notifies; a signal or timeout just loops
         // which streams notified (each driver notifies with its stream's event id);
         // a timeout or a foreign id reads both
