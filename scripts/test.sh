@@ -6,6 +6,28 @@ cd "$(dirname "$0")/.."
 trap 'rm -f "${pip_log:-}" "${test_log:-}" "${VLSYNC_SKIP_LOG:-}"' EXIT
 
 started=$SECONDS
+# The Rust toolchain is not installed here (a network install of a compiler is the
+# machine's owner's choice): without cargo and rustc at the workspace's rust-version
+# (Cargo.toml's `rust-version`), nothing would build; say so, and how, before any
+# install or the ten-minute build.
+need_rust="$(sed -n 's/^rust-version *= *"\([0-9.]*\)".*/\1/p' Cargo.toml | head -n 1)" || need_rust=""
+rust_hint="install it with rustup (https://rustup.rs: curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh), or update it: rustup update stable"
+for tool in cargo rustc; do
+    if ! command -v "$tool" >/dev/null 2>&1; then
+        echo "scripts/test.sh: $tool not found: the tests need the Rust toolchain${need_rust:+ $need_rust or newer}; $rust_hint" >&2
+        exit 1
+    fi
+done
+# (rustup's rustc with no toolchain installed fails: said below, not a silent exit)
+have_rust="$(rustc --version 2>/dev/null | sed -n 's/^rustc \([0-9][0-9.]*\).*/\1/p')" || have_rust=""
+if [ -z "$have_rust" ]; then
+    echo "scripts/test.sh: \`rustc --version\` did not say a version (\"$(rustc --version 2>&1 | head -n 1)\"); $rust_hint" >&2
+    exit 1
+fi
+if [ -n "$need_rust" ] && [ "$(printf '%s\n%s\n' "$need_rust" "$have_rust" | sort -V | head -n 1)" != "$need_rust" ]; then
+    echo "scripts/test.sh: rustc $have_rust is older than the workspace's rust-version $need_rust (Cargo.toml); $rust_hint" >&2
+    exit 1
+fi
 # apt-get install, as root or through sudo, without questions, waiting up to 5 min for
 # another apt (a fresh VM's unattended upgrades) to let go of its lock. Never fatal: when
 # it cannot install (not root and no sudo, offline, no such package), it says what will
@@ -25,7 +47,10 @@ install_deb() {
     if [ -z "$sudo" ]; then apt=(env DEBIAN_FRONTEND=noninteractive "${apt[@]}"); else apt=($sudo "${apt[@]}"); fi
     local in=/dev/stdin
     [ -t 0 ] || in=/dev/null
-    "${apt[@]}" install -y "$1" <"$in" || { "${apt[@]}" update <"$in" && "${apt[@]}" install -y "$1" <"$in"; } || {
+    # $1: one package, or several separated by spaces
+    local pkgs
+    read -r -a pkgs <<<"$1"
+    "${apt[@]}" install -y "${pkgs[@]}" <"$in" || { "${apt[@]}" update <"$in" && "${apt[@]}" install -y "${pkgs[@]}" <"$in"; } || {
         echo "$1 could not be installed (apt-get failed above): $2" >&2
         return 0
     }
@@ -88,10 +113,23 @@ else
         pip_failed
     fi
 fi
-# A C compiler: rustc links every binary and test with `cc`, so without it nothing
-# builds; the C and C++ client tests (tests/tests/ipc_capi.rs, ipc_c_header.rs) also
-# compile the examples against libvlsync_client.so.
-command -v cc >/dev/null 2>&1 || install_deb gcc "nothing will build (rustc links with cc; install build-essential or gcc)"
+# A C compiler and the C library's development files (crt1.o, libc.so): rustc links
+# every binary and test with `cc`, so without them nothing builds; the C and C++ client
+# tests (tests/tests/ipc_capi.rs, ipc_c_header.rs) also compile the examples against
+# libvlsync_client.so. gcc only recommends libc6-dev (an install without recommends
+# leaves a cc that cannot link), so both are asked for, and a cc that is there is
+# checked by linking a program.
+cc_links() {
+    local d rc
+    command -v cc >/dev/null 2>&1 || return 1
+    d="$(mktemp -d)" || return 1
+    printf 'int main(void) { return 0; }\n' >"$d/t.c"
+    cc "$d/t.c" -o "$d/t" >/dev/null 2>&1
+    rc=$?
+    rm -rf "$d"
+    return "$rc"
+}
+cc_links || install_deb "gcc libc6-dev" "nothing will build (rustc links with cc; install build-essential, or gcc and libc6-dev)"
 command -v c++ >/dev/null 2>&1 || install_deb g++ "the C++ client test will fail"
 # The load test (tests/tests/load_short.rs) injects CPU load with stress-ng.
 command -v stress-ng >/dev/null 2>&1 || install_deb stress-ng "the load test will fail"

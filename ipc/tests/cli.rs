@@ -196,7 +196,7 @@ struct FakeDaemon {
 
 impl FakeDaemon {
     /// The publisher, and an echo run with `args` once it has subscribed.
-    fn with_echo(tag: &str, args: &[&str]) -> (Self, std::process::Child) {
+    fn with_echo(tag: &str, args: &[&str]) -> (Self, Stopped) {
         use vlsync_common::wire::OffsetEstimate;
         use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
         use vlsync_ipc::{
@@ -212,13 +212,16 @@ impl FakeDaemon {
             publisher(&svc, "offset").unwrap(),
             notifier(&ev, "offset").unwrap(),
         );
-        let echo = Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
-            .args(["--prefix", &names.prefix])
-            .args(args)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
+        // stopped when dropped: a test failing before it ends leaves no echo behind
+        let echo = Stopped(
+            Command::new(env!("CARGO_BIN_EXE_vlsync-echo"))
+                .args(["--prefix", &names.prefix])
+                .args(args)
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap(),
+        );
         let t0 = std::time::Instant::now();
         while svc.dynamic_config().number_of_subscribers() == 0 {
             assert!(t0.elapsed().as_secs() < 15, "vlsync-echo never subscribed");
@@ -255,14 +258,28 @@ fn estimate(seq: u64) -> vlsync_common::Estimate {
     }
 }
 
-/// The echo's exit, its stdout and stderr; it must have succeeded.
-fn finished(echo: std::process::Child) -> (String, String) {
-    let out = echo.wait_with_output().unwrap();
+/// The echo's exit, its stdout and stderr; it must have succeeded. (Its pipes are read
+/// to their end, both at once, then it is reaped; a failure drops it, stopped.)
+fn finished(mut echo: Stopped) -> (String, String) {
+    use std::io::Read;
+    let err = echo.0.stderr.take().map(|mut e| {
+        std::thread::spawn(move || {
+            let mut text = Vec::new();
+            let _ = e.read_to_end(&mut text);
+            text
+        })
+    });
+    let mut out = Vec::new();
+    if let Some(mut o) = echo.0.stdout.take() {
+        let _ = o.read_to_end(&mut out);
+    }
+    let err = err.and_then(|t| t.join().ok()).unwrap_or_default();
+    let status = echo.0.wait().unwrap();
     let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
+        String::from_utf8_lossy(&out).into_owned(),
+        String::from_utf8_lossy(&err).into_owned(),
     );
-    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(status.success(), "{stdout}\n{stderr}");
     (stdout, stderr)
 }
 

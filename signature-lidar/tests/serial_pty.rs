@@ -38,14 +38,18 @@ fn ld06_through_pty() {
     let mut port = SerialLidar::open(&path, BAUD, Duration::from_millis(20)).expect("open slave");
     drop(slave);
 
+    // the reader says when it is done (or, dropping the sender, that it failed):
+    // closing the master before would fail its reads
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
     let writer = std::thread::spawn(move || {
         for chunk in bytes.chunks(333) {
             master.write_all(chunk).expect("write to pty master");
             master.flush().ok();
+            // the bytes arrive in pieces, as from a serial line
             std::thread::sleep(Duration::from_millis(2));
         }
         // keep the master open until the reader is done
-        std::thread::sleep(Duration::from_millis(1500));
+        let _ = done_rx.recv_timeout(Duration::from_secs(10));
         drop(master);
     });
 
@@ -57,6 +61,7 @@ fn ld06_through_pty() {
         let chunk = chunk.to_vec();
         parser.push_bytes(&chunk, t, &mut |s| got.push(s.clone()));
     }
+    let _ = done_tx.send(());
     writer.join().expect("writer thread");
     assert_eq!(got.len(), expected.len(), "stats {:?}", parser.stats());
     assert_eq!(got, expected);

@@ -435,59 +435,95 @@ impl Drop for Harness {
 /// and fails the test with what it printed, instead of hanging the suite until CI
 /// gives up on it without a summary.
 pub fn output_within(cmd: &mut Command, limit: Duration) -> std::process::Output {
-    use std::io::Read;
-    use std::process::Stdio;
-    let what = format!("{cmd:?}");
-    let mut child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {what}: {e}"));
-    // read both pipes beside the wait, so a chatty child never blocks on a full pipe
-    let drain = |r: Option<Box<dyn Read + Send>>| {
-        std::thread::spawn(move || {
-            let mut buf = Vec::new();
-            if let Some(mut r) = r {
-                let _ = r.read_to_end(&mut buf);
-            }
-            buf
-        })
-    };
-    let out = drain(
-        child
-            .stdout
-            .take()
-            .map(|p| Box::new(p) as Box<dyn Read + Send>),
-    );
-    let err = drain(
-        child
-            .stderr
-            .take()
-            .map(|p| Box::new(p) as Box<dyn Read + Send>),
-    );
-    // stopped as a harness is (Ctrl-C, SIGTERM, SIGKILL, with its grace) when it
-    // runs past the limit
-    let mut m = Managed {
-        name: what.clone(),
-        child,
-    };
-    let Some(status) = m.wait_up_to(limit) else {
-        m.stop(HARNESS_GRACE);
-        let (out, err) = (
-            out.join().unwrap_or_default(),
-            err.join().unwrap_or_default(),
+    Piped::spawn(cmd.stdin(std::process::Stdio::null())).output_within(limit)
+}
+
+/// A child whose stdout and stderr are read beside it (so a chatty child never
+/// blocks on a full pipe), started to be waited for later (beside a test's own
+/// work), and stopped as a [`Managed`] is when dropped before its end: a test that
+/// fails meanwhile leaves no process behind.
+pub struct Piped {
+    m: Managed,
+    what: String,
+    out: std::thread::JoinHandle<Vec<u8>>,
+    err: std::thread::JoinHandle<Vec<u8>>,
+}
+
+impl Piped {
+    /// Spawns `cmd` with its stdout and stderr piped (its stdin as `cmd` says).
+    pub fn spawn(cmd: &mut Command) -> Self {
+        use std::io::Read;
+        use std::process::Stdio;
+        let what = format!("{cmd:?}");
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {what}: {e}"));
+        let drain = |r: Option<Box<dyn Read + Send>>| {
+            std::thread::spawn(move || {
+                let mut buf = Vec::new();
+                if let Some(mut r) = r {
+                    let _ = r.read_to_end(&mut buf);
+                }
+                buf
+            })
+        };
+        let out = drain(
+            child
+                .stdout
+                .take()
+                .map(|p| Box::new(p) as Box<dyn Read + Send>),
         );
-        panic!(
-            "{what} still running after {limit:?}: stopped\n{}\n{}",
-            String::from_utf8_lossy(&out),
-            String::from_utf8_lossy(&err)
+        let err = drain(
+            child
+                .stderr
+                .take()
+                .map(|p| Box::new(p) as Box<dyn Read + Send>),
         );
-    };
-    std::process::Output {
-        status,
-        stdout: out.join().unwrap_or_default(),
-        stderr: err.join().unwrap_or_default(),
+        Self {
+            m: Managed {
+                name: what.clone(),
+                child,
+            },
+            what,
+            out,
+            err,
+        }
+    }
+
+    /// The child (its stdin, when piped, to write to).
+    pub fn child(&mut self) -> &mut std::process::Child {
+        &mut self.m.child
+    }
+
+    /// Its exit status and output once it ends within `limit`; past it, it is stopped
+    /// as a harness is (Ctrl-C, SIGTERM, SIGKILL, with [`HARNESS_GRACE`]) and the test
+    /// fails with what it printed.
+    pub fn output_within(self, limit: Duration) -> std::process::Output {
+        let Self {
+            mut m,
+            what,
+            out,
+            err,
+        } = self;
+        let Some(status) = m.wait_up_to(limit) else {
+            m.stop(HARNESS_GRACE);
+            let (out, err) = (
+                out.join().unwrap_or_default(),
+                err.join().unwrap_or_default(),
+            );
+            panic!(
+                "{what} still running after {limit:?}: stopped\n{}\n{}",
+                String::from_utf8_lossy(&out),
+                String::from_utf8_lossy(&err)
+            );
+        };
+        std::process::Output {
+            status,
+            stdout: out.join().unwrap_or_default(),
+            stderr: err.join().unwrap_or_default(),
+        }
     }
 }
 

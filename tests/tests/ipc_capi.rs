@@ -8,9 +8,10 @@ use core::mem::{offset_of, size_of};
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
+use std::time::Duration;
 use vlsync_client::{OffsetEstimate, Status, VlsyncConversion};
 use vlsync_common::Stream;
-use vlsync_tests::{capi_lib_dir, Rig};
+use vlsync_tests::{capi_lib_dir, Piped, Rig};
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -62,20 +63,25 @@ fn linked(program: impl AsRef<std::ffi::OsStr>) -> Command {
     c
 }
 
+/// How long a test waits for an example run under `timeout 60`: its own limit ends
+/// it first; this one is for a `timeout` that did not.
+const RUN_LIMIT: Duration = Duration::from_secs(90);
+
+/// `exe args` under `timeout 60` (which also ends it should this test process die),
+/// with its stdout and stderr read beside it, and stopped when dropped: a test that
+/// fails before it ends leaves no example running.
+fn start(exe: &Path, args: &[&str], stdin: Stdio) -> Piped {
+    Piped::spawn(linked("timeout").arg("60").arg(exe).args(args).stdin(stdin))
+}
+
 fn run(exe: &Path, args: &[&str], stdin: &str) -> Output {
-    let mut child = linked("timeout")
-        .arg("60")
-        .arg(exe)
-        .args(args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run the example");
+    let mut p = start(exe, args, Stdio::piped());
     // a program that exits before reading all its input closes the pipe: what it said
     // and its exit code are the result, not the broken pipe
-    let _ = child.stdin.take().unwrap().write_all(stdin.as_bytes());
-    child.wait_with_output().unwrap()
+    if let Some(mut input) = p.child().stdin.take() {
+        let _ = input.write_all(stdin.as_bytes());
+    }
+    p.output_within(RUN_LIMIT)
 }
 
 #[test]
@@ -211,14 +217,15 @@ fn c_and_cpp_programs_read_a_live_daemon() {
     // that cannot be written is an error (the C++ one ignored it and exited 0); and
     // the C++ one's --timeout 0 is no limit, as the C one's (it gave up at once)
     let piped = |script: &str| {
-        Command::new("bash")
-            .args(["-c", &format!("set -o pipefail; {script}"), "piped"])
-            .arg(&echo)
-            .arg(&convert)
-            .arg(&rig.prefix)
-            .arg(stamps_text(t0))
-            .output()
-            .expect("run bash")
+        vlsync_tests::output_within(
+            Command::new("bash")
+                .args(["-c", &format!("set -o pipefail; {script}"), "piped"])
+                .arg(&echo)
+                .arg(&convert)
+                .arg(&rig.prefix)
+                .arg(stamps_text(t0)),
+            RUN_LIMIT,
+        )
     };
     // (--status: the daemon publishes one a second, with or without drivers, so the
     // second line that meets the closed pipe comes whatever the run's timing)
@@ -564,7 +571,6 @@ int main(int argc, char **argv) {
 /// prefix nobody publishes on is said once after 5 s.
 #[test]
 fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
-    use std::time::Duration;
     use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
     use vlsync_ipc::{
         create_node, notifier, open_or_create_event, open_or_create_pubsub, publisher, Qos,
@@ -572,16 +578,7 @@ fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
     };
     let tmp = scratch("skipped");
     let (echo, _) = build_examples(&tmp);
-    let spawn = |args: &[&str]| {
-        linked("timeout")
-            .arg("60")
-            .arg(&echo)
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("run the echo")
-    };
+    let spawn = |args: &[&str]| start(&echo, args, Stdio::null());
     // nobody publishes here: said once, at 5 s, then the --timeout
     let silent = format!("vlsync-it/capi-quiet-{}", std::process::id());
     let quiet = spawn(&["--prefix", &silent, "--timeout", "6.5"]);
@@ -656,7 +653,7 @@ fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
         (estimates, printed_estimate, "estimate", "offset"),
         (statuses, printed_status, "status", "status"),
     ] {
-        let out = child.wait_with_output().unwrap();
+        let out = child.output_within(RUN_LIMIT);
         let (so, se) = text(&out);
         assert_eq!(out.status.code(), Some(0), "{so}\n{se}");
         assert!(printed(&so), "{so}");
@@ -669,7 +666,7 @@ fn the_c_echo_says_what_it_skipped_and_when_nothing_comes() {
         );
     }
     for (child, service) in [(quiet, "offset"), (quiet_status, "status")] {
-        let out = child.wait_with_output().unwrap();
+        let out = child.output_within(RUN_LIMIT);
         let (so, se) = text(&out);
         assert_eq!(out.status.code(), Some(1), "{so}\n{se}");
         let notice = format!(

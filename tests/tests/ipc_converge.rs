@@ -7,7 +7,7 @@ use std::time::Duration;
 use vlsync_common::Stream;
 use vlsync_ipc::{OffsetClient, StatusClient};
 use vlsync_tests::{
-    assert_nothing_left, bin, collect, ipc_resources, locked_errors, status_when, Rig,
+    assert_nothing_left, bin, collect, ipc_resources, locked_errors, status_when, Piped, Rig,
 };
 
 #[test]
@@ -23,7 +23,8 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
     let mut lidar = rig.driver(Stream::Lidar, 0);
     // an operator's view of the running daemon: two statuses, as JSON and as text,
     // and two estimates
-    // (run beside the collection, so the client's buffer never has to hold more)
+    // (run beside the collection, so the client's buffer never has to hold more;
+    // stopped when dropped, should the test fail before they end)
     let echo = |json: bool, status: bool| {
         let mut cmd = std::process::Command::new(bin("vlsync-echo"));
         cmd.args(["--prefix", &rig.prefix, "--count", "2", "--duration", "8"]);
@@ -33,17 +34,16 @@ fn three_processes_converge_to_the_truth_and_clean_up() {
         if status {
             cmd.arg("--status");
         }
-        cmd.stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap()
+        Piped::spawn(cmd.stdin(std::process::Stdio::null()))
     };
     let (json_echo, text_echo) = (echo(true, true), echo(false, true));
     let est_echo = echo(true, false);
     let est = collect(&mut client, rig.remaining() + Duration::from_millis(1500));
-    let json_out = json_echo.wait_with_output().unwrap();
-    let text_out = text_echo.wait_with_output().unwrap();
-    let est_out = est_echo.wait_with_output().unwrap();
+    // each ends by itself within its --duration of 8 s: the limit is for a hung one
+    let limit = Duration::from_secs(60);
+    let json_out = json_echo.output_within(limit);
+    let text_out = text_echo.output_within(limit);
+    let est_out = est_echo.output_within(limit);
     // the status that counts the last samples (it may come a period later)
     let all = [rig.sim.cam.len() as u64, rig.sim.lidar.len() as u64];
     let st = status_when(&mut status, Duration::from_secs(10), |st| {

@@ -9,7 +9,7 @@ use vlsync_common::{EstimatorState, RejectReason, Stream};
 use vlsync_ipc::{
     create_node, monotonic_ns, OffsetClient, ServiceNames, SignaturePublisher, StatusClient,
 };
-use vlsync_tests::{collect, locked_errors, Rig};
+use vlsync_tests::{collect, locked_errors, status_when, Rig};
 
 #[test]
 fn hostile_samples_are_rejected_counted_and_harmless() {
@@ -76,8 +76,19 @@ fn hostile_samples_are_rejected_counted_and_harmless() {
     }
 
     let after = collect(&mut client, rig.remaining() + Duration::from_millis(1000));
-    std::thread::sleep(Duration::from_millis(1200));
-    let st = status.latest().unwrap().expect("status");
+    // a status made after the drivers ended that counts every hostile sample (one
+    // that does not, after 10 s, is the one the assertions below then show)
+    let t_end = monotonic_ns();
+    let st = status_when(&mut status, Duration::from_secs(10), |st| {
+        let rej = st.rejected[0];
+        st.publish_ns > t_end
+            && rej[RejectReason::NonFinite.index()] >= 2 + FLOOD
+            && rej[RejectReason::TooLarge.index()] >= 1
+            && rej[RejectReason::Backwards.index()] >= 1
+            && rej[REJECT_MALFORMED] >= 2
+            && st.lost[0] >= 4
+    })
+    .expect("status");
     assert!(
         daemon.running(),
         "the daemon died:\n{}",

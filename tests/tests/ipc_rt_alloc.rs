@@ -19,6 +19,46 @@ use vlsyncd::runtime::RT_THREAD_NAME;
 #[global_allocator]
 static GLOBAL: vlsync_alloc_count::Counting = vlsync_alloc_count::Counting;
 
+/// `vlsyncd::runtime::run` on a thread of this test, stopped and joined when dropped:
+/// a test that fails before its end still stops the daemon, which removes its
+/// iceoryx2 files and its lock file (left behind, they would fail the suite's later
+/// checks that a run leaves none).
+struct InProcessDaemon {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Result<(), String>>>,
+}
+
+impl InProcessDaemon {
+    fn start(cfg: vlsync_config::Config) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let thread = std::thread::spawn(move || vlsyncd::runtime::run(cfg, stop2));
+        Self {
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    /// Stops the daemon and returns how its run ended.
+    fn stop(mut self) -> Result<(), String> {
+        self.stop.store(true, Ordering::Relaxed);
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err("the daemon thread panicked".into()),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for InProcessDaemon {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 #[test]
 fn daemon_allocates_nothing_in_steady_state() {
     // 150 simulated seconds at 5x: 30 s of drivers, room for a slow lock before the
@@ -32,9 +72,8 @@ fn daemon_allocates_nothing_in_steady_state() {
     // statuses every 0.1 s: the estimates counted around the window are about its
     // own (2/s), not 2.4 s more of them, which would hide an allocation per stretch
     cfg.daemon.status_period_s = 0.1;
-    let stop = Arc::new(AtomicBool::new(false));
-    let stop2 = stop.clone();
-    let daemon = std::thread::spawn(move || vlsyncd::runtime::run(cfg, stop2));
+    // declared before the drivers: on a panic they are stopped first, then the daemon
+    let daemon = InProcessDaemon::start(cfg);
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
     // warm-up: services connected, estimator locked, degraded mode settled (at least
@@ -79,8 +118,7 @@ fn daemon_allocates_nothing_in_steady_state() {
     let samples = s1.received.iter().sum::<u64>() - s0.received.iter().sum::<u64>();
     let estimates = s1.estimates_published - s0.estimates_published;
     let running = cam.running() && lidar.running();
-    stop.store(true, Ordering::Relaxed);
-    daemon.join().unwrap().unwrap();
+    daemon.stop().unwrap();
     assert!(cam.stop(Duration::from_secs(3)) & lidar.stop(Duration::from_secs(3)));
     assert!(running, "drivers ended before the measurement window");
     // the status window (~4.1 s) contains the 4 s allocation window

@@ -1391,19 +1391,18 @@ mod tests {
         assert!(reap_or_leave(child, Duration::from_secs(5), never));
         assert!(gone(pid) || !alive(pid));
         // one that does not exit in time (standing in for a program in
-        // uninterruptible sleep, which SIGKILL does not end): the driver goes on
-        for (limit, stop, at_most) in [
+        // uninterruptible sleep, which SIGKILL does not end): the driver goes on.
+        // The program lives 30 s: a reaper that waited for it to exit (the bug), or
+        // a stop that did not cut the 30 s limit short, takes 30 s, twice the bound
+        // below; the lower bound is the wait the code guarantees first.
+        for (limit, stop, at_least) in [
             (
                 Duration::from_millis(300),
                 never as StopFn,
-                Duration::from_secs(2),
+                Duration::from_millis(300),
             ),
             // a stop shortens a long wait
-            (
-                Duration::from_secs(30),
-                yes as StopFn,
-                Duration::from_secs(2),
-            ),
+            (Duration::from_secs(30), yes as StopFn, REAP_WAIT_STOPPING),
         ] {
             let child = std::process::Command::new("sleep")
                 .arg("30")
@@ -1412,7 +1411,11 @@ mod tests {
             let pid = child.id();
             let t0 = Instant::now();
             assert!(!reap_or_leave(child, limit, stop));
-            assert!(t0.elapsed() < at_most, "{:?}", t0.elapsed());
+            let took = t0.elapsed();
+            assert!(
+                took >= at_least && took < Duration::from_secs(15),
+                "{took:?} (limit {limit:?})"
+            );
             assert!(alive(pid));
             // once it exits, the thread reaps it: no zombie left behind
             // kill(2) itself: procps's `kill` is not on every minimal system
