@@ -1981,15 +1981,14 @@ mod tests {
             let saved = sv.finish(Duration::from_millis(300));
             let _ = tx.send((ticks, saved, stop.elapsed()));
         });
-        let (ticks, saved, waited) = rx
+        // a tick or a stop that waits on the save never sends: the timeout fails it
+        // (no ceiling on the times themselves: the machine may be loaded)
+        let (_ticks, saved, waited) = rx
             .recv_timeout(Duration::from_secs(10))
             .expect("the service thread blocked on a stalled save");
-        assert!(ticks < Duration::from_secs(2), "{ticks:?}");
         assert!(!saved);
-        assert!(
-            waited >= Duration::from_millis(300) && waited < Duration::from_secs(2),
-            "{waited:?}"
-        );
+        // the stop gave the save its 300 ms
+        assert!(waited >= Duration::from_millis(300), "{waited:?}");
         // release the writer (it writes into the FIFO, whose content is discarded)
         let _ = std::fs::File::open(&fifo).map(|mut f| {
             let mut sink = Vec::new();
