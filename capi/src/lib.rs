@@ -711,23 +711,13 @@ pub unsafe extern "C" fn vlsync_estimate_age_ns(e: *const OffsetEstimate) -> i64
     // (the caller's promise); only its `publish_ns` field is read, through the raw
     // pointer and without assuming alignment (as `put` writes)
     let publish_ns = unsafe { std::ptr::addr_of!((*e).publish_ns).read_unaligned() };
-    age_at(vlsync_ipc::monotonic_ns(), publish_ns)
+    // the Rust client's own rule (saturating: any publish_ns gives an answer)
+    vlsync_ipc::estimate_age_ns(publish_ns)
 }
 
 /// How far ahead of `CLOCK_MONOTONIC` a publish time may be and still count as age 0
-/// ([`vlsync_estimate_age_ns`]): a second.
-pub const FUTURE_MARGIN_NS: i64 = 1_000_000_000;
-
-/// The age of an estimate published at `publish_ns` when the clock reads `now_ns`
-/// ([`vlsync_estimate_age_ns`]).
-fn age_at(now_ns: i64, publish_ns: i64) -> i64 {
-    let age = now_ns.saturating_sub(publish_ns);
-    if age < -FUTURE_MARGIN_NS {
-        i64::MAX
-    } else {
-        age.max(0)
-    }
-}
+/// ([`vlsync_estimate_age_ns`]): a second (`vlsync_ipc::FUTURE_MARGIN_NS`).
+pub const FUTURE_MARGIN_NS: i64 = vlsync_ipc::FUTURE_MARGIN_NS;
 
 /// Sets the offset's random walk (s/√s) that conversions assume while tracking and
 /// otherwise: the daemon's `estimator.offset_process_noise` and
@@ -1485,6 +1475,7 @@ mod tests {
     /// with the publish time, and the age is measured against `CLOCK_MONOTONIC`.
     #[test]
     fn an_age_is_never_negative_and_a_far_future_stamp_is_the_oldest() {
+        use vlsync_ipc::estimate_age_at as age_at;
         const S: i64 = 1_000_000_000;
         assert_eq!(age_at(10 * S, 7 * S), 3 * S);
         assert_eq!(age_at(10 * S, 10 * S + S / 2), 0);

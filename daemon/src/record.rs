@@ -20,7 +20,15 @@
 //!
 //! A payload whose structure is invalid (unknown flags, non-zero padding) is skipped
 //! and counted, as the daemon refuses it. Sequence numbers tell lost samples (a jump)
-//! and driver restarts (`FLAG_FIRST`, or a number that goes back).
+//! and driver restarts (`FLAG_FIRST`, or a number that goes back), by the daemon's
+//! rule (`runtime::rt::seq_step`; a malformed sample counts nothing and is followed only
+//! when it is exactly the next number, `seq_followed`), with one difference: the
+//! recorder follows one sequence per stream, where the daemon follows each publisher's
+//! (its payloads come without the publisher's id). One driver per stream, restarts
+//! included (a restarted driver's first sample is a new run), reads the same either
+//! way; two publishers alive on one stream at once (a test publisher beside a driver)
+//! interleave their numbers, and the recorder counts losses and restarts in them
+//! where the daemon counts none.
 //!
 //! ```
 //! use vlsync_common::{wire::SignatureSample, Stream};
@@ -37,7 +45,7 @@
 //! );
 //! ```
 
-use crate::runtime::rt::{seq_step, SeqStep};
+use crate::runtime::rt::{seq_followed, seq_step, SeqStep};
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -202,27 +210,25 @@ impl<W: Write> Recording<W> {
         let c = &mut self.counts[i];
         // the daemon's rule: a gap is lost; a new run after the first row is a driver
         // restart; a run's first row that is not its driver's first sample leaves the
-        // samples numbered before it unread. A malformed sample's number is followed
-        // too (it was published: the next one is its successor, not one after a lost
-        // sample), as the daemon follows it; unless it starts a new run (garbage, or
-        // going back): the daemon counts nothing for it, and the next good sample is
-        // judged against the last good one
-        let follow = match seq_step(self.last_seq[i], s.seq, s.is_first()) {
-            SeqStep::Next => true,
-            SeqStep::Lost(n) => {
-                c.lost = c.lost.saturating_add(n);
-                true
-            }
-            SeqStep::NewRun { before } if valid => {
-                if self.last_seq[i].is_some() {
-                    c.restarts += 1;
+        // samples numbered before it unread. A malformed sample counts nothing, and its
+        // number is followed only when it is exactly the next (it was published: the
+        // next one is its successor, not one after a lost sample); any other number it
+        // carries is as unreliable as the rest of it, and the next good sample is
+        // judged against the last one followed (`seq_followed`, as the daemon judges)
+        let step = seq_step(self.last_seq[i], s.seq, s.is_first());
+        if valid {
+            match step {
+                SeqStep::Next => {}
+                SeqStep::Lost(n) => c.lost = c.lost.saturating_add(n),
+                SeqStep::NewRun { before } => {
+                    if self.last_seq[i].is_some() {
+                        c.restarts += 1;
+                    }
+                    c.before_first = c.before_first.saturating_add(before);
                 }
-                c.before_first = c.before_first.saturating_add(before);
-                true
             }
-            SeqStep::NewRun { .. } => false,
-        };
-        if follow {
+        }
+        if seq_followed(step, valid) {
             self.last_seq[i] = Some(s.seq);
         }
         if let Err(e) = check {
@@ -814,6 +820,36 @@ mod tests {
             let (cam, _, _) = r.into_writers();
             proptest::prop_assert_eq!(String::from_utf8(cam).unwrap().lines().count() as u64, c.rows + 1);
         }
+    }
+
+    /// A malformed sample's number counts nothing and is followed only when it is the
+    /// exact next one (the daemon's rule): garbage there used to count good samples
+    /// lost, or a restart after a jump it made.
+    #[test]
+    fn a_malformed_sample_is_followed_only_as_the_next_number() {
+        let mut r = Recording::new(vec![], vec![], vec![]).unwrap();
+        let bad = |seq| {
+            let mut s = sample(1, 1.0, seq);
+            s.reserved = 1;
+            s
+        };
+        let (b0, b_jump, b_next) = (bad(0), bad(101 + (1 << 31)), bad(103));
+        for s in [
+            sample(1, 1.0, 100),
+            b0,
+            sample(2, 1.0, 101),
+            b_jump,
+            sample(3, 1.0, 102),
+            b_next,
+            sample(4, 1.0, 104),
+        ] {
+            r.signature(Stream::Lidar, &s).unwrap();
+        }
+        let c = r.counts()[1];
+        assert_eq!(
+            (c.rows, c.malformed, c.lost, c.restarts, c.before_first),
+            (4, 3, 0, 0, 100)
+        );
     }
 
     #[test]

@@ -26,6 +26,16 @@
 //! attach while the dead one's ports are still being reclaimed; safe overflow is
 //! on (a slow subscriber loses the oldest sample, never blocks a publisher), and
 //! the lost samples show up as sequence gaps in the daemon's status.
+//!
+//! A service that already exists may have been created by another program (a C++
+//! node with iceoryx2's defaults: history 0, subscriber buffers of 2) or another
+//! vlsync version: its settings are checked once opened ([`check_service_settings`]).
+//! A history shorter than vlsync's (a late client of an idle daemon would wait
+//! forever) and safe overflow off are errors naming the service, the setting, what was
+//! found and what vlsync expects; fewer publishers or smaller subscriber buffers are
+//! [`QosWarning`]s the caller may report ([`OffsetClient::qos_warnings`],
+//! [`StatusClient::qos_warnings`], [`service_warnings`]). A payload type of another
+//! name, size or alignment is an error naming both types.
 #![deny(unsafe_code)]
 
 pub mod rt;
@@ -273,7 +283,11 @@ const OPEN_RETRY: Duration = Duration::from_millis(20);
 
 /// Opens publish-subscribe service `name` for payload `T` without constraints,
 /// or creates it with `qos` when it does not exist. Retries transient states
-/// (being created or torn down by another process) for up to 1 s.
+/// (being created or torn down by another process) for up to 1 s. A service it
+/// opened is checked against `qos` ([`check_service_settings`]: an error for a
+/// history shorter than `qos.history` or safe overflow off; [`service_warnings`] gives
+/// the lesser differences), and one with another payload type is an error naming ours
+/// and, when iceoryx2 can read it, the existing service's.
 pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
     node: &IpcNode,
     name: &str,
@@ -283,7 +297,11 @@ pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
     let mut last = String::new();
     for _ in 0..OPEN_ATTEMPTS {
         match node.service_builder(&sn).publish_subscribe::<T>().open() {
-            Ok(s) => return Ok(s),
+            Ok(s) => {
+                // another process created it, perhaps not a vlsync one
+                check_service_settings(name, ServiceSettings::of(&s), qos)?;
+                return Ok(s);
+            }
             Err(PublishSubscribeOpenError::DoesNotExist) => {
                 match node
                     .service_builder(&sn)
@@ -306,6 +324,12 @@ pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
                 | PublishSubscribeOpenError::InternalFailure
                 | PublishSubscribeOpenError::ServiceInCorruptedState),
             ) => last = format!("open failed: {e:?}"),
+            Err(PublishSubscribeOpenError::IncompatibleTypes) => {
+                return Err(IpcError::new(
+                    format!("open service {name:?}"),
+                    incompatible_types::<T>(node, &sn),
+                ))
+            }
             Err(e) => {
                 return Err(IpcError::new(
                     format!("open service {name:?}"),
@@ -318,6 +342,188 @@ pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
         std::thread::sleep(OPEN_RETRY);
     }
     Err(IpcError::new(format!("open service {name:?}"), last))
+}
+
+/// The settings of a publish-subscribe service that vlsync depends on, as its creator
+/// set them ([`check_service_settings`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ServiceSettings {
+    /// Samples a late subscriber receives on connection.
+    pub history: usize,
+    /// Largest buffer a subscriber may request.
+    pub max_buffer: usize,
+    /// Publishers at once.
+    pub max_publishers: usize,
+    /// A full subscriber buffer loses its oldest sample (rather than refuse the newest).
+    pub safe_overflow: bool,
+}
+
+impl ServiceSettings {
+    /// The settings of an open service.
+    pub fn of<T: std::fmt::Debug + ZeroCopySend>(factory: &PubSubFactory<Svc, T, ()>) -> Self {
+        let c = factory.static_config();
+        Self {
+            history: c.history_size(),
+            max_buffer: c.subscriber_max_buffer_size(),
+            max_publishers: c.max_publishers(),
+            safe_overflow: c.has_safe_overflow(),
+        }
+    }
+}
+
+/// A setting of an opened service below what vlsync creates it with, where vlsync
+/// still works ([`check_service_settings`]); its `Display` is a sentence for a log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum QosWarning {
+    /// Fewer publishers allowed: a second live publisher (a restarted process while its
+    /// dead predecessor's port is still there, a test publisher) is refused by iceoryx2
+    /// when it is created, naming the service.
+    FewerPublishers {
+        /// The service's name.
+        service: String,
+        /// What the service allows.
+        found: usize,
+        /// What vlsync creates it with.
+        expected: usize,
+    },
+    /// Smaller subscriber buffers: a subscriber is granted the service's maximum
+    /// ([`SubscriberBuffer`]), and one that falls that many samples behind loses the
+    /// oldest (safe overflow keeps the newest).
+    SmallerBuffer {
+        /// The service's name.
+        service: String,
+        /// What the service allows.
+        found: usize,
+        /// What vlsync creates it with.
+        expected: usize,
+    },
+}
+
+impl fmt::Display for QosWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (service, what, found, expected) = match self {
+            QosWarning::FewerPublishers {
+                service,
+                found,
+                expected,
+            } => (service, "publishers at once", found, expected),
+            QosWarning::SmallerBuffer {
+                service,
+                found,
+                expected,
+            } => (service, "samples of subscriber buffer", found, expected),
+        };
+        write!(
+            f,
+            "service `{service}` allows {found} {what}, vlsync creates it with {expected}: \
+             {CREATED_ELSEWHERE}"
+        )
+    }
+}
+
+/// What a check of an opened service's settings says of its creator.
+const CREATED_ELSEWHERE: &str = "another program (or a vlsync of another version) created it \
+     with other settings; vlsync's are `vlsync_ipc::Qos`, listed for C and C++ in \
+     examples/c/vlsync_wire.h";
+
+/// Checks the settings of service `name`, opened (another process created it), against
+/// the `qos` vlsync would have created it with. Refused (the error names the service,
+/// the setting, what was found and what vlsync expects):
+/// * a history shorter than `qos.history` (the latest-value services, [`Qos::latest`]):
+///   a late subscriber would not be handed the last estimate or status, and would wait
+///   for the next, forever from an idle daemon;
+/// * safe overflow off: a subscriber's full buffer would refuse the newest samples
+///   instead of losing its oldest (a client would read stale estimates; the daemon
+///   would lose new signature samples behind a backlog).
+///
+/// Returned as warnings, since vlsync works with them: fewer publishers at once
+/// ([`QosWarning::FewerPublishers`]) and smaller subscriber buffers
+/// ([`QosWarning::SmallerBuffer`]). A longer history or larger limits are no concern.
+pub fn check_service_settings(
+    name: &str,
+    found: ServiceSettings,
+    qos: Qos,
+) -> Result<Vec<QosWarning>, IpcError> {
+    let refuse = |what: String| Err(IpcError::new(format!("open service {name:?}"), what));
+    if found.history < qos.history {
+        return refuse(format!(
+            "its history size is {}, expected at least {}: a client that opens it late would \
+             not be handed the last sample, and would wait for the next (forever, from an idle \
+             daemon); {CREATED_ELSEWHERE}",
+            found.history, qos.history
+        ));
+    }
+    if !found.safe_overflow {
+        return refuse(format!(
+            "its safe overflow is off, expected on: a full subscriber buffer would refuse the \
+             newest samples instead of losing its oldest; {CREATED_ELSEWHERE}"
+        ));
+    }
+    let mut warnings = vec![];
+    if found.max_publishers < qos.max_publishers {
+        warnings.push(QosWarning::FewerPublishers {
+            service: name.to_string(),
+            found: found.max_publishers,
+            expected: qos.max_publishers,
+        });
+    }
+    if found.max_buffer < qos.max_buffer {
+        warnings.push(QosWarning::SmallerBuffer {
+            service: name.to_string(),
+            found: found.max_buffer,
+            expected: qos.max_buffer,
+        });
+    }
+    Ok(warnings)
+}
+
+/// The warnings [`check_service_settings`] gives for service `name` as `factory` has it
+/// (none for a service whose settings it refuses, which [`open_or_create_pubsub`] did
+/// not open).
+pub fn service_warnings<T: std::fmt::Debug + ZeroCopySend>(
+    name: &str,
+    factory: &PubSubFactory<Svc, T, ()>,
+    qos: Qos,
+) -> Vec<QosWarning> {
+    check_service_settings(name, ServiceSettings::of(factory), qos).unwrap_or_default()
+}
+
+/// Why service `sn` could not be opened for payload `T`: its type, and the existing
+/// service's when iceoryx2 can read it (its static configuration, one small file).
+fn incompatible_types<T: ZeroCopySend>(node: &IpcNode, sn: &ServiceName) -> String {
+    use iceoryx2::service::static_config::message_type_details::{TypeDetail, TypeVariant};
+    let ours = TypeDetail::new::<T>(TypeVariant::FixedSize);
+    let theirs = existing_payload(node, sn)
+        .map(|(name, size, align)| {
+            format!(
+                " it carries {:?} ({size} B, alignment {align});",
+                vlsync_common::text::clip(&name)
+            )
+        })
+        .unwrap_or_default();
+    format!(
+        "its payload type is not vlsync's {:?} ({} B, alignment {}):{theirs} a vlsync of \
+         another version, or another program, created it (stop it, or give each its own \
+         --prefix)",
+        ours.type_name().to_string(),
+        ours.size(),
+        ours.alignment()
+    )
+}
+
+/// The payload type name, size and alignment of existing publish-subscribe service `sn`.
+fn existing_payload(node: &IpcNode, sn: &ServiceName) -> Option<(String, usize, usize)> {
+    use iceoryx2::service::messaging_pattern::MessagingPattern as Pattern;
+    use iceoryx2::service::static_config::messaging_pattern::MessagingPattern;
+    use iceoryx2::service::Service as _;
+    let d = Svc::details(sn, node.config(), Pattern::PublishSubscribe).ok()??;
+    match d.static_details.messaging_pattern() {
+        MessagingPattern::PublishSubscribe(c) => {
+            let p = c.message_type_details().payload;
+            Some((p.type_name().to_string(), p.size(), p.alignment()))
+        }
+        _ => None,
+    }
 }
 
 /// Opens or creates event service `name` (default QoS, more nodes for restarts).
@@ -646,9 +852,80 @@ impl SignatureSubscriber {
 /// 0.35 s of the open (the daemon hands it over within about 0.1 s, busy or idle).
 const MAX_WAIT_SLICE: Duration = Duration::from_millis(250);
 
+/// Wake-ups in a row on the offset event that found no valid estimate, after which a
+/// wait sleeps out its slice ([`MAX_WAIT_SLICE`]) instead of listening: a process that
+/// notifies the event in a loop (or floods it with invalid payloads) would otherwise
+/// keep the waiting thread busy until its deadline.
+const MAX_EMPTY_WAKES: u32 = 64;
+
+/// The most receives one call makes whatever the service's creator set (the daemon's
+/// own services give 16 × 2).
+const MAX_RECEIVES_PER_CALL: usize = 1024;
+
+/// How many receives one call of a client makes at most: what its subscriber can hold
+/// (`buffer` per publisher, `max_publishers` of them), at least 1 and at most
+/// [`MAX_RECEIVES_PER_CALL`]. Everything pending when the call began fits, so only a
+/// publisher that publishes faster than the client reads meets the bound: the call then
+/// returns (the rest waits for the next call) instead of looping, its vector growing.
+fn receive_cap(buffer: usize, max_publishers: usize) -> usize {
+    buffer
+        .max(1)
+        .saturating_mul(max_publishers.max(1))
+        .min(MAX_RECEIVES_PER_CALL)
+}
+
 /// Whether `deadline` (`None`: none) has passed.
 fn passed(deadline: Option<Instant>) -> bool {
     deadline.is_some_and(|d| Instant::now() >= d)
+}
+
+/// How far ahead of `CLOCK_MONOTONIC` a publish time may be and still count as age 0
+/// ([`estimate_age_at`]): a second.
+pub const FUTURE_MARGIN_NS: Nanos = 1_000_000_000;
+
+/// The age of an estimate published (`publish_ns`, the daemon's `CLOCK_MONOTONIC`)
+/// when the clock reads `now_ns`: `now_ns - publish_ns`, saturating, so any pair of
+/// values gives an answer (a hostile `publish_ns` of `i64::MIN` too). A publish time up
+/// to [`FUTURE_MARGIN_NS`] ahead is age 0; one further ahead, which the same
+/// machine's daemon never gives (another clock, or a faulty publisher on the service),
+/// is `i64::MAX`, so that every age check fails rather than pass for as long as that
+/// stamp lies ahead.
+///
+/// ```
+/// use vlsync_ipc::estimate_age_at;
+/// assert_eq!(estimate_age_at(10_000, 7_000), 3_000);
+/// assert_eq!(estimate_age_at(10_000, i64::MIN), i64::MAX);
+/// assert_eq!(estimate_age_at(0, i64::MAX), i64::MAX);
+/// ```
+pub fn estimate_age_at(now_ns: Nanos, publish_ns: Nanos) -> i64 {
+    let age = now_ns.saturating_sub(publish_ns);
+    if age < -FUTURE_MARGIN_NS {
+        i64::MAX
+    } else {
+        age.max(0)
+    }
+}
+
+/// [`estimate_age_at`] now ([`monotonic_ns`]): how old an estimate published at
+/// `publish_ns` is, ns. Its state alone does not tell a live lock: after the daemon
+/// stops, its last estimate stays `tracking` (or `holding`).
+pub fn estimate_age_ns(publish_ns: Nanos) -> i64 {
+    estimate_age_at(monotonic_ns(), publish_ns)
+}
+
+/// Whether a valid estimate published at `candidate` becomes the latest one, after the
+/// one published at `current` (`None`: none yet): the one published last (the greater
+/// `publish_ns`; the later arrival on a tie), whichever publisher it comes from (a dead
+/// daemon's port beside the new daemon's hands over its last estimate too). A latest
+/// whose publish time lies more than [`FUTURE_MARGIN_NS`] ahead of `now` (read only
+/// then) is no newest (another clock, a hostile publisher): it would hold the latest for
+/// as long as it lies ahead, so the next valid estimate replaces it.
+fn replaces_latest(current: Option<Nanos>, candidate: Nanos, now: impl FnOnce() -> Nanos) -> bool {
+    match current {
+        None => true,
+        Some(c) if candidate >= c => true,
+        Some(c) => now().saturating_add(FUTURE_MARGIN_NS) < c,
+    }
 }
 
 /// A camera stamp on the LiDAR time base ([`OffsetClient::camera_to_lidar`]).
@@ -675,6 +952,13 @@ pub struct Conversion {
 ///     }
 /// }
 /// ```
+///
+/// Every call that receives takes at most what the subscriber can hold (its buffer of
+/// 16 for each publisher the service allows), so a publisher faster than the client
+/// cannot keep a call looping; the waits sleep out their slice after
+/// 64 wake-ups in a row without a valid estimate, so a process
+/// that notifies the offset event in a loop cannot keep them busy (a signal then ends
+/// such a wait only at the slice's end).
 pub struct OffsetClient {
     subscriber: Subscriber<Svc, OffsetEstimate, ()>,
     listener: Listener<Svc>,
@@ -685,27 +969,41 @@ pub struct OffsetClient {
     service: String,
     /// Offset random walk (s/√s) while tracking and otherwise, for conversions.
     walk: (f64, f64),
+    /// Receives one call makes at most ([`receive_cap`]).
+    max_receives: usize,
+    /// The subscriber buffer asked for and granted.
+    buffer: SubscriberBuffer,
+    /// What [`check_service_settings`] said of a service another process created.
+    warnings: Vec<QosWarning>,
     _services: (PubSubFactory<Svc, OffsetEstimate, ()>, EventFactory<Svc>),
     _node: IpcNode,
 }
 
 impl OffsetClient {
     /// Opens `<prefix>/offset` with its own node (signals not handled: the
-    /// application owns SIGINT/SIGTERM).
+    /// application owns SIGINT/SIGTERM). A service another program created with
+    /// settings vlsync cannot work with is an error naming the setting
+    /// ([`check_service_settings`]); lesser differences are
+    /// [`OffsetClient::qos_warnings`].
     pub fn open(prefix: &str) -> Result<Self, IpcError> {
         let names = ServiceNames::new(prefix)?;
         let node = create_node("vlsync-client", false)?;
-        let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest())?;
-        let ev = open_or_create_event(&node, &names.offset())?;
-        let (subscriber, _) = subscriber(&svc, 16, &names.offset())?;
-        let listener = listener(&ev, &names.offset())?;
+        let name = names.offset();
+        let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &name, Qos::latest())?;
+        let warnings = service_warnings(&name, &svc, Qos::latest());
+        let ev = open_or_create_event(&node, &name)?;
+        let (subscriber, buffer) = subscriber(&svc, 16, &name)?;
+        let listener = listener(&ev, &name)?;
         let c = Self {
             subscriber,
             listener,
             latest: None,
             latest_publish_ns: 0,
             invalid: 0,
-            service: names.offset(),
+            max_receives: receive_cap(buffer.granted, svc.static_config().max_publishers()),
+            buffer,
+            warnings,
+            service: name,
             walk: {
                 let d = vlsync_config::EstimatorConfig::default();
                 (d.offset_process_noise, d.hold_process_noise)
@@ -720,10 +1018,28 @@ impl OffsetClient {
         Ok(c)
     }
 
+    /// Settings of `<prefix>/offset` below vlsync's, when another program created it
+    /// (empty otherwise): vlsync works with them, and the caller may say so.
+    pub fn qos_warnings(&self) -> &[QosWarning] {
+        &self.warnings
+    }
+
+    /// The subscriber buffer asked for (16) and granted (less when another program
+    /// created the service with smaller buffers).
+    pub fn buffer(&self) -> SubscriberBuffer {
+        self.buffer
+    }
+
     /// The next valid pending estimate with its publish time, skipping (and
-    /// counting, [`OffsetClient::invalid_count`]) payloads validation refuses.
-    fn next_valid(&mut self) -> Result<Option<(Estimate, Nanos)>, IpcError> {
-        loop {
+    /// counting, [`OffsetClient::invalid_count`]) payloads validation refuses; at most
+    /// `budget` receives (each taken from it). The latest estimate becomes this one
+    /// when it was published last ([`replaces_latest`]).
+    fn next_valid_within(
+        &mut self,
+        budget: &mut usize,
+    ) -> Result<Option<(Estimate, Nanos)>, IpcError> {
+        while *budget > 0 {
+            *budget -= 1;
             let s = self.subscriber.receive().map_err(|e| {
                 IpcError::new(format!("receive on `{}`", self.service), format!("{e:?}"))
             })?;
@@ -731,19 +1047,25 @@ impl OffsetClient {
             let w: OffsetEstimate = *s.payload();
             match Estimate::try_from(&w) {
                 Ok(e) => {
-                    self.latest = Some(e);
-                    self.latest_publish_ns = w.publish_ns;
+                    let current = self.latest.map(|_| self.latest_publish_ns);
+                    if replaces_latest(current, w.publish_ns, monotonic_ns) {
+                        self.latest = Some(e);
+                        self.latest_publish_ns = w.publish_ns;
+                    }
                     return Ok(Some((e, w.publish_ns)));
                 }
                 Err(_) => self.invalid += 1,
             }
         }
+        Ok(None)
     }
 
-    /// Takes every pending estimate; returns whether a new valid one arrived.
+    /// Takes every pending estimate (at most [`receive_cap`] receives); returns whether
+    /// a new valid one arrived.
     fn drain(&mut self) -> Result<bool, IpcError> {
+        let mut budget = self.max_receives;
         let mut got = false;
-        while self.next_valid()?.is_some() {
+        while self.next_valid_within(&mut budget)?.is_some() {
             got = true;
         }
         Ok(got)
@@ -755,13 +1077,34 @@ impl OffsetClient {
     /// control stop) is acted on at once. It never asks iceoryx2 whether a
     /// termination was requested: that would install iceoryx2's signal handlers in
     /// an application that owns its signals.
-    fn wait_event(&mut self, deadline: Option<Instant>) -> Result<bool, IpcError> {
+    ///
+    /// `empty_wakes`: the caller's count of wake-ups in a row after which it found
+    /// nothing (each call is one: the caller returns when it finds something); from
+    /// [`MAX_EMPTY_WAKES`] on, the slice is slept out without listening.
+    fn wait_event(
+        &mut self,
+        deadline: Option<Instant>,
+        empty_wakes: &mut u32,
+    ) -> Result<bool, IpcError> {
         let left = deadline.map_or(MAX_WAIT_SLICE, |d| {
             d.saturating_duration_since(Instant::now())
                 .min(MAX_WAIT_SLICE)
         });
+        if *empty_wakes >= MAX_EMPTY_WAKES {
+            *empty_wakes = 0;
+            std::thread::sleep(left);
+            return Ok(true);
+        }
         match self.listener.timed_wait(|_| {}, left) {
-            Ok(_) => Ok(true),
+            Ok(notifications) => {
+                // a timeout starts the count again: only notifications flood
+                *empty_wakes = if notifications > 0 {
+                    empty_wakes.saturating_add(1)
+                } else {
+                    0
+                };
+                Ok(true)
+            }
             Err(ListenerWaitError::InterruptSignal) => Ok(false),
             Err(e) => Err(IpcError::new(
                 format!("wait on the event of `{}`", self.service),
@@ -770,11 +1113,13 @@ impl OffsetClient {
         }
     }
 
-    /// The most recent estimate received (after draining what is pending). A failed
-    /// receive is not reported: the last good estimate is returned
-    /// ([`OffsetClient::try_latest`] reports it). After the daemon stops, its last
-    /// estimate stays, in the state it had: judge its age by
-    /// [`OffsetClient::latest_publish_ns`] against [`monotonic_ns`].
+    /// The most recent estimate received (after draining what is pending): of those
+    /// received, the valid one published last (`publish_ns`), whichever publisher it
+    /// came from (a dead daemon's port, not yet reclaimed beside the new daemon's, may
+    /// hand over its last estimate after the new one's). A failed receive is not
+    /// reported: the last good estimate is returned ([`OffsetClient::try_latest`]
+    /// reports it). After the daemon stops, its last estimate stays, in the state it
+    /// had: judge its age by [`OffsetClient::latest_age_ns`].
     pub fn latest(&mut self) -> Option<Estimate> {
         // a receive error keeps the last good estimate
         let _ = self.drain();
@@ -788,9 +1133,19 @@ impl OffsetClient {
         Ok(self.latest)
     }
 
-    /// `CLOCK_MONOTONIC` time at which the daemon published [`OffsetClient::latest`].
+    /// `CLOCK_MONOTONIC` time at which the daemon published [`OffsetClient::latest`]
+    /// (0 before the first; as published: any value, from a faulty publisher, so age it
+    /// with [`estimate_age_ns`], never by subtracting it yourself).
     pub fn latest_publish_ns(&self) -> Nanos {
         self.latest_publish_ns
+    }
+
+    /// How old [`OffsetClient::latest`] is now, ns ([`estimate_age_ns`] of its publish
+    /// time: never negative, never an overflow, `i64::MAX` for a publish time further
+    /// than [`FUTURE_MARGIN_NS`] ahead); `None` before the first estimate. It takes
+    /// nothing pending: call it after [`OffsetClient::latest`] or a conversion.
+    pub fn latest_age_ns(&self) -> Option<i64> {
+        self.latest.map(|_| estimate_age_ns(self.latest_publish_ns))
     }
 
     /// Payloads refused by validation so far.
@@ -810,10 +1165,10 @@ impl OffsetClient {
     /// window passed without a measurement); a daemon configured otherwise is
     /// matched with [`OffsetClient::set_process_noise`]. The
     /// estimate used comes with the result: check its `state` (a `lost` or
-    /// `acquiring` estimate is no lock) and its age, [`monotonic_ns`] minus
-    /// [`OffsetClient::latest_publish_ns`] (after the daemon stops its last estimate
-    /// stays, still `tracking`; `t_ref_ns` is on the LiDAR clock and says nothing
-    /// about it), before trusting the stamp. Draining here means a recorder that also calls
+    /// `acquiring` estimate is no lock) and its age, [`OffsetClient::latest_age_ns`]
+    /// (after the daemon stops its last estimate stays, still `tracking`; `t_ref_ns`
+    /// is on the LiDAR clock and says nothing about it), before trusting the stamp.
+    /// Draining here means a recorder that also calls
     /// [`OffsetClient::wait_all`] misses the estimates this call took.
     pub fn camera_to_lidar(&mut self, t_cam_ns: Nanos) -> Option<Conversion> {
         let e = self.latest()?;
@@ -853,25 +1208,29 @@ impl OffsetClient {
     /// [`OffsetClient::open`], when it had one (its publish time says so). Waits up to `timeout` on the offset event when none
     /// is pending; an empty vector on timeout, and early when a signal interrupts the
     /// wait. The subscriber buffers 16 estimates (8 s at the default hop): a caller
-    /// that sleeps longer loses the oldest.
+    /// that sleeps longer loses the oldest. One call returns at most what the
+    /// subscriber can hold (16 for each publisher the service allows): the rest of a
+    /// faster publisher's estimates wait for the next call.
     pub fn wait_all(&mut self, timeout: Duration) -> Result<Vec<(Estimate, Nanos)>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut out = vec![];
         let mut interrupted = false;
+        let mut empty_wakes = 0;
         loop {
-            while let Some(x) = self.next_valid()? {
+            let mut budget = self.max_receives;
+            while let Some(x) = self.next_valid_within(&mut budget)? {
                 out.push(x);
             }
             if !out.is_empty() || interrupted || passed(deadline) {
                 return Ok(out);
             }
-            interrupted = !self.wait_event(deadline)?;
+            interrupted = !self.wait_event(deadline, &mut empty_wakes)?;
         }
     }
 
     /// The oldest valid estimate pending, with the `CLOCK_MONOTONIC` time the daemon
-    /// published it: every estimate, one per call, in order, from the daemon's last one
-    /// before [`OffsetClient::open`] when it had one (the C API's
+    /// published it: every estimate, one per call, in order of arrival, from the
+    /// daemon's last one before [`OffsetClient::open`] when it had one (the C API's
     /// `vlsync_client_wait_one`; [`OffsetClient::wait_all`] without its vector). Waits
     /// up to `timeout` on the offset event when none is pending: `Ok(None)` on
     /// timeout, and early when a signal interrupts the wait. The subscriber buffers 16
@@ -879,24 +1238,28 @@ impl OffsetClient {
     pub fn wait_one(&mut self, timeout: Duration) -> Result<Option<(Estimate, Nanos)>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut interrupted = false;
+        let mut empty_wakes = 0;
         loop {
-            if let Some(x) = self.next_valid()? {
+            let mut budget = self.max_receives;
+            if let Some(x) = self.next_valid_within(&mut budget)? {
                 return Ok(Some(x));
             }
             if interrupted || passed(deadline) {
                 return Ok(None);
             }
-            interrupted = !self.wait_event(deadline)?;
+            interrupted = !self.wait_event(deadline, &mut empty_wakes)?;
         }
     }
 
     /// Waits up to `timeout` for the next estimate; sleeps on the offset event.
     /// `Ok(None)` on timeout, and early when a signal interrupts the wait (the
     /// caller checks its own stop flag and calls again). A `timeout` too long for
-    /// the clock (`Duration::MAX`) waits with no deadline.
+    /// the clock (`Duration::MAX`) waits with no deadline. What it returns is
+    /// [`OffsetClient::latest`] once a new valid estimate arrived.
     pub fn wait_next(&mut self, timeout: Duration) -> Result<Option<Estimate>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut interrupted = false;
+        let mut empty_wakes = 0;
         loop {
             if self.drain()? {
                 return Ok(self.latest);
@@ -904,7 +1267,7 @@ impl OffsetClient {
             if interrupted || passed(deadline) {
                 return Ok(None);
             }
-            interrupted = !self.wait_event(deadline)?;
+            interrupted = !self.wait_event(deadline, &mut empty_wakes)?;
         }
     }
 }
@@ -917,34 +1280,52 @@ pub struct StatusClient {
     invalid: u64,
     /// `<prefix>/status`, for error messages.
     service: String,
+    /// Receives one call makes at most ([`receive_cap`]).
+    max_receives: usize,
+    /// What [`check_service_settings`] said of a service another process created.
+    warnings: Vec<QosWarning>,
     _service: PubSubFactory<Svc, Status, ()>,
     _node: IpcNode,
 }
 
 impl StatusClient {
-    /// Opens `<prefix>/status`.
+    /// Opens `<prefix>/status` (a service another program created with settings vlsync
+    /// cannot work with is an error, [`check_service_settings`]; lesser differences are
+    /// [`StatusClient::qos_warnings`]).
     pub fn open(prefix: &str) -> Result<Self, IpcError> {
         let names = ServiceNames::new(prefix)?;
         let node = create_node("vlsync-status-client", false)?;
-        let svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())?;
-        let (subscriber, _) = subscriber(&svc, 16, &names.status())?;
+        let name = names.status();
+        let svc = open_or_create_pubsub::<Status>(&node, &name, Qos::latest())?;
+        let warnings = service_warnings(&name, &svc, Qos::latest());
+        let (subscriber, buffer) = subscriber(&svc, 16, &name)?;
         Ok(Self {
             subscriber,
             latest: None,
             invalid: 0,
-            service: names.status(),
+            max_receives: receive_cap(buffer.granted, svc.static_config().max_publishers()),
+            warnings,
+            service: name,
             _service: svc,
             _node: node,
         })
     }
 
+    /// Settings of `<prefix>/status` below vlsync's, when another program created it
+    /// (empty otherwise): vlsync works with them, and the caller may say so.
+    pub fn qos_warnings(&self) -> &[QosWarning] {
+        &self.warnings
+    }
+
     /// Every valid status pending, oldest first (the subscriber buffers 16);
     /// invalid payloads are skipped and the last validation error returned when
-    /// nothing valid arrived.
+    /// nothing valid arrived. One call takes at most what the subscriber can hold (16
+    /// for each publisher the service allows): the rest of a faster publisher's
+    /// statuses wait for the next call.
     pub fn receive_all(&mut self) -> Result<Vec<Status>, WireErrorOrIpc> {
         let mut out = vec![];
         let mut last_err = None;
-        loop {
+        for _ in 0..self.max_receives {
             let s = self.subscriber.receive().map_err(|e| {
                 WireErrorOrIpc::Ipc(IpcError::new(
                     format!("receive on `{}`", self.service),
@@ -1184,6 +1565,334 @@ mod tests {
         );
         assert!(t0.elapsed() >= Duration::from_millis(90));
         assert_eq!(c.invalid_count(), 4);
+    }
+
+    fn estimate(seq: u64) -> Estimate {
+        Estimate {
+            seq,
+            t_ref_ns: 10_000_000_000,
+            offset_s: 0.02,
+            drift: 0.0,
+            offset_std_s: 0.001,
+            drift_std: 0.0,
+            state: vlsync_common::EstimatorState::Tracking,
+            polarity: vlsync_common::Polarity::Positive,
+            peak_score: 0.8,
+            peak_ratio: 2.0,
+            measured_offset_s: 0.02,
+        }
+    }
+
+    /// The settings vlsync cannot work with are errors naming service, setting, found
+    /// and expected; the lesser ones are warnings; more than vlsync's is fine.
+    #[test]
+    fn an_opened_service_is_checked_against_our_qos() {
+        let ours = |q: Qos| ServiceSettings {
+            history: q.history,
+            max_buffer: q.max_buffer,
+            max_publishers: q.max_publishers,
+            safe_overflow: true,
+        };
+        let name = "vlsync/robot/offset";
+        assert_eq!(
+            check_service_settings(name, ours(Qos::latest()), Qos::latest()),
+            Ok(vec![])
+        );
+        // iceoryx2's defaults, as a C++ node would create it
+        let defaults = ServiceSettings {
+            history: 0,
+            max_buffer: 2,
+            max_publishers: 2,
+            safe_overflow: true,
+        };
+        let e = check_service_settings(name, defaults, Qos::latest()).unwrap_err();
+        let text = e.to_string();
+        for part in [
+            "\"vlsync/robot/offset\"",
+            "history size is 0, expected at least 1",
+            "forever",
+            "another program",
+        ] {
+            assert!(text.contains(part), "{part:?} in {text}");
+        }
+        let e = check_service_settings(
+            name,
+            ServiceSettings {
+                safe_overflow: false,
+                ..ours(Qos::latest())
+            },
+            Qos::latest(),
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("safe overflow is off, expected on"),
+            "{e}"
+        );
+        // a signature service wants no history, and a smaller one still works
+        let sig = Qos::signature(1024);
+        let found = ServiceSettings {
+            history: 0,
+            max_buffer: 256,
+            max_publishers: 2,
+            safe_overflow: true,
+        };
+        let w = check_service_settings("p/cam/signature", found, sig).unwrap();
+        assert_eq!(
+            w,
+            vec![
+                QosWarning::FewerPublishers {
+                    service: "p/cam/signature".into(),
+                    found: 2,
+                    expected: 4
+                },
+                QosWarning::SmallerBuffer {
+                    service: "p/cam/signature".into(),
+                    found: 256,
+                    expected: 1024
+                }
+            ]
+        );
+        assert!(w[0]
+            .to_string()
+            .starts_with("service `p/cam/signature` allows 2 publishers at once, vlsync creates it with 4: another program"));
+        // more than ours: nothing to say
+        let more = ServiceSettings {
+            history: 5,
+            max_buffer: 4096,
+            max_publishers: 9,
+            safe_overflow: true,
+        };
+        assert_eq!(
+            check_service_settings(name, more, Qos::latest()),
+            Ok(vec![])
+        );
+    }
+
+    /// A C++ node with iceoryx2's defaults created the offset service first: the
+    /// client refuses it, saying why, instead of waiting forever for an estimate an
+    /// idle daemon never hands over (no history).
+    #[test]
+    fn a_client_refuses_an_offset_service_without_history() {
+        let names = ServiceNames::new(&unique_prefix("foreign-qos")).unwrap();
+        let node = create_node("test-foreign", false).unwrap();
+        let sn = ServiceName::new(&names.offset()).unwrap();
+        let _svc = node
+            .service_builder(&sn)
+            .publish_subscribe::<OffsetEstimate>()
+            .history_size(0)
+            .subscriber_max_buffer_size(2)
+            .create()
+            .unwrap();
+        let e = OffsetClient::open(&names.prefix).err().expect("refused");
+        assert!(e.context.contains(&names.offset()), "{e}");
+        assert!(
+            e.message.contains("history size is 0, expected at least 1"),
+            "{e}"
+        );
+        let e = StatusClient::open(&names.prefix).err();
+        assert!(e.is_none(), "the status service was not created by it");
+    }
+
+    /// Another payload type on a service: the error names ours and theirs.
+    #[test]
+    fn a_service_of_another_type_is_refused_naming_both_types() {
+        let names = ServiceNames::new(&unique_prefix("foreign-type")).unwrap();
+        let node = create_node("test-foreign", false).unwrap();
+        let name = names.signature(Stream::Cam);
+        let sn = ServiceName::new(&name).unwrap();
+        let _svc = node
+            .service_builder(&sn)
+            .publish_subscribe::<u64>()
+            .create()
+            .unwrap();
+        let e = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(256))
+            .expect_err("refused");
+        let text = e.to_string();
+        for part in [
+            name.as_str(),
+            "\"vlsync.SignatureSample.v1\" (40 B, alignment 8)",
+            "\"u64\" (8 B, alignment 8)",
+            "a vlsync of another version, or another program",
+        ] {
+            assert!(text.contains(part), "{part:?} in {text}");
+        }
+    }
+
+    #[test]
+    fn an_age_saturates_and_a_far_future_stamp_is_the_oldest() {
+        const S: i64 = 1_000_000_000;
+        assert_eq!(estimate_age_at(10 * S, 7 * S), 3 * S);
+        assert_eq!(estimate_age_at(10 * S, 10 * S + S / 2), 0);
+        assert_eq!(estimate_age_at(10 * S, 10 * S + FUTURE_MARGIN_NS), 0);
+        assert_eq!(
+            estimate_age_at(10 * S, 10 * S + FUTURE_MARGIN_NS + 1),
+            i64::MAX
+        );
+        assert_eq!(estimate_age_at(10 * S, i64::MAX), i64::MAX);
+        assert_eq!(estimate_age_at(10 * S, i64::MIN), i64::MAX);
+        assert_eq!(estimate_age_at(i64::MAX, i64::MIN), i64::MAX);
+        assert_eq!(estimate_age_at(i64::MIN, i64::MAX), i64::MAX);
+        assert_eq!(estimate_age_ns(i64::MIN), i64::MAX);
+    }
+
+    #[test]
+    fn the_latest_is_the_one_published_last() {
+        let now = || 50;
+        assert!(replaces_latest(None, i64::MIN, now));
+        assert!(replaces_latest(Some(10), 20, now));
+        assert!(replaces_latest(Some(10), 10, now));
+        assert!(!replaces_latest(Some(20), 10, now));
+        // a latest far in the future is replaced by the next (it would hold for good)
+        assert!(replaces_latest(Some(i64::MAX), 10, now));
+        assert!(!replaces_latest(Some(50 + FUTURE_MARGIN_NS), 10, now));
+        assert!(replaces_latest(Some(51 + FUTURE_MARGIN_NS), 10, now));
+        assert!(!replaces_latest(Some(i64::MAX), 10, || i64::MAX));
+    }
+
+    /// Two publishers on the offset service (a dead daemon's port beside the new
+    /// one's): `latest` is the estimate published last, whichever arrives last (iceoryx2
+    /// hands out the ports' samples in the order of the ports, here the dead one's
+    /// last); `wait_one` still hands out every estimate; a hostile publish time is aged
+    /// safely.
+    #[test]
+    fn latest_keeps_the_newest_of_two_publishers() {
+        let names = ServiceNames::new(&unique_prefix("two-pub")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let new = publisher(&svc, "offset").unwrap();
+        let old = publisher(&svc, "offset").unwrap();
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        assert_eq!(c.latest_age_ns(), None);
+        assert!(c.qos_warnings().is_empty());
+        assert_eq!(c.buffer().granted, 16);
+        let now = monotonic_ns();
+        let send = |p: &Publisher<Svc, OffsetEstimate, ()>, seq, publish_ns| {
+            p.send_copy(OffsetEstimate::from_estimate(&estimate(seq), publish_ns).unwrap())
+                .unwrap();
+        };
+        // sent in either order: the newer publish time wins
+        send(&new, 1, now);
+        send(&old, 2, now - 1_000_000_000);
+        assert_eq!(c.latest().unwrap().seq, 1);
+        assert_eq!(c.latest_publish_ns(), now);
+        send(&old, 3, now - 1_000_000_000);
+        send(&new, 4, now + 1);
+        assert_eq!(c.latest().unwrap().seq, 4);
+        assert_eq!(c.latest_publish_ns(), now + 1);
+        assert!(c.latest_age_ns().is_some_and(|a| a >= 0));
+        // wait_one still hands out both
+        send(&new, 5, now + 2);
+        send(&old, 6, now - 5);
+        let mut got = vec![];
+        while let Some((e, _)) = c.wait_one(Duration::ZERO).unwrap() {
+            got.push(e.seq);
+        }
+        got.sort_unstable();
+        assert_eq!(got, vec![5, 6]);
+        assert_eq!(c.latest().unwrap().seq, 5);
+        // a hostile publish time far ahead is replaced by the next, and at the
+        // other end of the range it is aged without overflow
+        send(&old, 7, i64::MAX);
+        assert_eq!(c.latest().unwrap().seq, 7);
+        assert_eq!(c.latest_age_ns(), Some(i64::MAX));
+        send(&old, 8, i64::MIN);
+        assert_eq!(c.latest().unwrap().seq, 8);
+        assert_eq!(c.latest_publish_ns(), i64::MIN);
+        assert_eq!(c.latest_age_ns(), Some(i64::MAX));
+    }
+
+    #[test]
+    fn a_call_receives_at_most_what_the_subscriber_can_hold() {
+        assert_eq!(receive_cap(16, 2), 32);
+        assert_eq!(receive_cap(0, 0), 1);
+        assert_eq!(receive_cap(usize::MAX, usize::MAX), MAX_RECEIVES_PER_CALL);
+    }
+
+    /// A publisher flooding faster than the client reads: every call returns, with at
+    /// most what the subscriber can hold.
+    #[test]
+    fn a_flooding_publisher_cannot_keep_a_call_looping() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::Arc;
+        let names = ServiceNames::new(&unique_prefix("flood")).unwrap();
+        let mut status = StatusClient::open(&names.prefix).unwrap();
+        let mut offsets = OffsetClient::open(&names.prefix).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let flood = {
+            let (stop, prefix) = (stop.clone(), names.prefix.clone());
+            std::thread::spawn(move || {
+                let names = ServiceNames::new(&prefix).unwrap();
+                let node = create_node("test-flood", false).unwrap();
+                let st =
+                    open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
+                let off =
+                    open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest())
+                        .unwrap();
+                let ev = open_or_create_event(&node, &names.offset()).unwrap();
+                let (sp, op, n) = (
+                    publisher(&st, "status").unwrap(),
+                    publisher(&off, "offset").unwrap(),
+                    notifier(&ev, "offset").unwrap(),
+                );
+                let mut k = 0;
+                while !stop.load(Ordering::Relaxed) {
+                    k += 1;
+                    let _ = sp.send_copy(Status {
+                        estimates_published: k,
+                        ..Status::default()
+                    });
+                    let _ = op.send_copy(OffsetEstimate::from_estimate(&estimate(k), 1).unwrap());
+                    let _ = n.notify();
+                }
+            })
+        };
+        let (cap_status, cap_offsets) = (status.max_receives, offsets.max_receives);
+        assert_eq!((cap_status, cap_offsets), (32, 32));
+        let mut seen = 0;
+        for _ in 0..200 {
+            let got = status.receive_all().unwrap();
+            assert!(got.len() <= cap_status, "{}", got.len());
+            let got = offsets.wait_all(Duration::from_millis(10)).unwrap();
+            assert!(got.len() <= cap_offsets, "{}", got.len());
+            seen += got.len();
+            let _ = offsets.latest();
+        }
+        stop.store(true, Ordering::Relaxed);
+        flood.join().unwrap();
+        assert!(seen > 0);
+    }
+
+    /// A process notifying the offset event in a loop without publishing: a wait
+    /// sleeps out its slices after 64 empty wake-ups instead of spinning through
+    /// them (its thread's CPU time stays a small part of the wait).
+    #[test]
+    fn a_notification_flood_does_not_keep_a_wait_busy() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::Arc;
+        let names = ServiceNames::new(&unique_prefix("notify-flood")).unwrap();
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let flood = {
+            let (stop, prefix) = (stop.clone(), names.prefix.clone());
+            std::thread::spawn(move || {
+                let names = ServiceNames::new(&prefix).unwrap();
+                let node = create_node("test-flood", false).unwrap();
+                let ev = open_or_create_event(&node, &names.offset()).unwrap();
+                let n = notifier(&ev, "offset").unwrap();
+                while !stop.load(Ordering::Relaxed) {
+                    let _ = n.notify();
+                }
+            })
+        };
+        let cpu0 = rt::thread_cpu_ns().unwrap();
+        assert!(c.wait_one(Duration::from_millis(600)).unwrap().is_none());
+        assert!(c.wait_next(Duration::from_millis(600)).unwrap().is_none());
+        let cpu = rt::thread_cpu_ns().unwrap() - cpu0;
+        stop.store(true, Ordering::Relaxed);
+        flood.join().unwrap();
+        // spinning, the two waits took ~1.2 s of CPU; sleeping out the slices, a few ms
+        assert!(cpu < 300_000_000, "{cpu} ns of CPU in 1.2 s of waits");
     }
 
     #[test]

@@ -214,6 +214,11 @@ pub(super) fn log_event(
                 tracing::error!("real-time loop: {what}{}", more(n))
             }
         }
+        RtEvent::NotifyFlood => {
+            if let Some(n) = throttle.admit(journal::NOTIFY_FLOOD_KEY, 1, now) {
+                tracing::warn!("real-time loop: {}{}", super::rt::EMPTY_WAKES_SAID, more(n))
+            }
+        }
     }
 }
 

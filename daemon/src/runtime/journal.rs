@@ -30,8 +30,9 @@ pub const THROTTLE_NS: Nanos = 10_000_000_000;
 /// samples and back per stream; then the service thread's own: the publishers of each
 /// stream that could not be connected, the offset and status clients not served, the
 /// streams silent for [`SILENT_STREAM_NS`], the CPU-pressure load steps, the load hints
-/// declared, undated and dropped, and the failed notifications of systemd.
-pub const KINDS: usize = 2 * REJECT_REASONS + 35;
+/// declared, undated and dropped, the failed notifications of systemd, and the real-time
+/// loop's sleeps after a flood of empty notifications.
+pub const KINDS: usize = 2 * REJECT_REASONS + 36;
 
 /// A search that keeps moving (an offset outside the configured lag range moves
 /// it every 30 s, for as long as the daemon runs) is logged at most once per this
@@ -125,6 +126,11 @@ pub const HINT_DROPPED_KEY: usize = DEGRADED_KEY + 31;
 /// Throttle key of a failure to notify systemd after a notification that went out
 /// (`notify::Supervisor`: a lasting failure is one, a flapping socket one per flap).
 pub const NOTIFY_FAILED_KEY: usize = DEGRADED_KEY + 32;
+
+/// Throttle key of the real-time loop's sleeps after a flood of notifications that
+/// brought no sample (`rt::EmptyWakes`: a process notifying the signature event in a
+/// loop).
+pub const NOTIFY_FLOOD_KEY: usize = DEGRADED_KEY + 33;
 
 /// How long a stream's received count may stand still while the daemon runs before
 /// [`SilentStreams`] says so, ns (30 s: a driver stopped, hung, waiting for its device,
@@ -457,6 +463,8 @@ pub fn kind_text(key: usize) -> String {
         "estimates the offset service did not take".to_string()
     } else if key == NOTIFY_FAILED_KEY {
         "failures to notify systemd (NOTIFY_SOCKET)".to_string()
+    } else if key == NOTIFY_FLOOD_KEY {
+        "floods of notifications without a sample".to_string()
     } else if key == HINT_DROPPED_KEY {
         "load hints dropped (the real-time thread lags)".to_string()
     } else if key == HINT_UNDATED_KEY {
@@ -934,7 +942,8 @@ mod tests {
         assert_eq!(unconnected_key(1), OFFSET_CLIENTS_KEY - 1);
         assert_eq!(STATUS_CLIENTS_KEY, silent_stream_key(0) - 1);
         assert_eq!(silent_stream_key(1), LOAD_STEP_KEY - 1);
-        assert_eq!(NOTIFY_FAILED_KEY, KINDS - 1);
+        assert_eq!(NOTIFY_FAILED_KEY, KINDS - 2);
+        assert_eq!(NOTIFY_FLOOD_KEY, KINDS - 1);
         for key in [LOAD_STEP_KEY, HINT_DECLARED_KEY, HINT_UNDATED_KEY] {
             assert!(is_info(key), "{}", kind_text(key));
         }
@@ -947,6 +956,7 @@ mod tests {
             silent_stream_key(1),
             HINT_DROPPED_KEY,
             NOTIFY_FAILED_KEY,
+            NOTIFY_FLOOD_KEY,
         ] {
             assert!(!is_info(key), "{}", kind_text(key));
         }

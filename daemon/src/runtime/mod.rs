@@ -289,6 +289,11 @@ pub enum RtEvent {
     /// `MAX_WAIT_FAILURES` (50) in a row stop the daemon with an error).
     /// Logged as an error through the journal's throttle, with the count.
     Fatal(&'static str),
+    /// The real-time loop slept to the end of its wake period after
+    /// `rt::MAX_EMPTY_WAKES` notifications in a row that brought no sample (a
+    /// process notifying the signature event in a loop). A warning through the
+    /// journal's throttle, with the count.
+    NotifyFlood,
 }
 
 /// The service thread's wait before its next poll of the channels, after a poll
@@ -506,6 +511,11 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         });
     let status_svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest())
         .map_err(|e| e.to_string())?;
+    // a status service another program created with fewer publishers or smaller
+    // buffers than ours still serves; said (a missing history is refused at the open)
+    for w in vlsync_ipc::service_warnings(&names.status(), &status_svc, Qos::latest()) {
+        tracing::warn!("{w}; starting anyway");
+    }
     // a client it cannot connect, or whose connection is corrupt, is counted and said
     // through the throttle (iceoryx2's default: an error line at every status sent)
     let status_degraded = Arc::new(AtomicU64::new(0));

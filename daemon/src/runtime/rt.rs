@@ -115,8 +115,10 @@ pub(super) fn first_published(
     }
 }
 
-/// The largest sequence jump counted as lost samples (see [`SeqTable::gap`]); the
-/// recorder (`vlsyncd record`) judges gaps by the same rule.
+/// The largest sequence jump counted as lost samples (see [`SeqTable::gap_of`]); the
+/// recorder (`vlsyncd record`) judges gaps by the same rule ([`seq_step`] and
+/// [`seq_followed`]), on one sequence per stream where the daemon follows each
+/// publisher's.
 pub(crate) const MAX_COUNTED_GAP: u64 = 1 << 32;
 
 /// What a sample's sequence number says ([`SeqTable::gap`]).
@@ -152,6 +154,21 @@ pub(crate) enum SeqStep {
         /// Samples published before it, unread.
         before: u64,
     },
+}
+
+/// Whether a sample whose number says `step` becomes its publisher's last one read, the
+/// one the next is judged after: every valid sample; a malformed one (its structure
+/// invalid, e.g. `reserved` not zero) only when it is exactly the next number
+/// ([`SeqStep::Next`]: it was published, so its successor is no gap). Its number is
+/// otherwise as unreliable as the rest of it: followed, garbage would count the gap
+/// before the next good sample as lost (good 100, malformed 0, good 101 counted 100
+/// lost), or a jump forward as up to [`MAX_COUNTED_GAP`] lost. Nothing is counted for
+/// a malformed sample (lost samples, a restart, samples before it); the samples lost
+/// before one that was not followed are counted at its publisher's next good sample,
+/// whose gap then covers the malformed one too (rejected and lost: its number could
+/// not be trusted). The daemon and the recorder both judge by this.
+pub(crate) fn seq_followed(step: SeqStep, valid: bool) -> bool {
+    valid || step == SeqStep::Next
 }
 
 /// [`SeqStep`] of `seq` after `last`; `first`: the sample carries `FLAG_FIRST`.
@@ -208,11 +225,41 @@ pub(super) struct SeqTable {
 }
 
 impl SeqTable {
-    /// What a sample numbered `seq` of `publisher` says ([`seq_step`] per
-    /// publisher); `first`: it carries `FLAG_FIRST`. Every sample read goes through
-    /// here, a malformed one too: its number is its publisher's, and the next sample
-    /// is judged after it.
+    /// [`SeqTable::gap_of`] for a valid sample (the tests' shorthand).
+    #[cfg(test)]
     pub(super) fn gap(&mut self, publisher: UniquePublisherId, seq: u64, first: bool) -> SeqGap {
+        self.gap_of(publisher, seq, first, true)
+    }
+
+    /// What a sample numbered `seq` of `publisher` says ([`seq_step`] per
+    /// publisher); `first`: it carries `FLAG_FIRST`; `valid`: it passed validation.
+    /// Every sample read goes through here. A malformed one says nothing
+    /// ([`SeqGap::None`]), and is followed only as [`seq_followed`] says: when it is
+    /// exactly the next number of a publisher already read (its successor is then no
+    /// gap); it takes no slot for a publisher not read yet, and otherwise leaves its
+    /// publisher's sequence as it was.
+    pub(super) fn gap_of(
+        &mut self,
+        publisher: UniquePublisherId,
+        seq: u64,
+        first: bool,
+        valid: bool,
+    ) -> SeqGap {
+        if !valid {
+            if let Some(slot) = self
+                .slots
+                .iter_mut()
+                .flatten()
+                .find(|s| s.publisher == publisher)
+            {
+                if seq_followed(seq_step(Some(slot.seq), seq, first), false) {
+                    self.reads += 1;
+                    slot.seq = seq;
+                    slot.read = self.reads;
+                }
+            }
+            return SeqGap::None;
+        }
         self.reads += 1;
         let read = self.reads;
         if let Some(slot) = self
@@ -259,10 +306,11 @@ impl SeqTable {
 /// rejects (and counts) a malformed sample. Whether the sample goes on to the
 /// estimator.
 ///
-/// A malformed sample's sequence number is followed too: it was published, so the
-/// next sample of its publisher is its successor, not one after a lost sample (it
-/// used to be counted both rejected and lost). The samples lost before it are
-/// counted as before any other's. No allocation.
+/// A malformed sample counts no loss, and its sequence number is followed only when
+/// it is exactly its publisher's next ([`seq_followed`]): then the next sample is its
+/// successor, not one after a lost sample (it used to be counted both rejected and
+/// lost); any other number it carries is ignored (garbage there counted good samples
+/// lost), and a gap before it is counted at the next good sample. No allocation.
 pub(super) fn admit(
     c: &mut RtCounters,
     tx: &Sender<RtEvent>,
@@ -277,7 +325,7 @@ pub(super) fn admit(
     if valid && w.is_first() {
         emit(tx, c, RtEvent::DriverStarted { stream });
     }
-    match c.last_seq[si].gap(publisher, w.seq, w.is_first()) {
+    match c.last_seq[si].gap_of(publisher, w.seq, w.is_first(), valid) {
         SeqGap::None => {}
         SeqGap::Lost(lost) => {
             c.status.lost[si] = c.status.lost[si].saturating_add(lost);
@@ -353,6 +401,66 @@ impl WaitFailures {
     }
 }
 
+/// Wake-ups by a notification in a row that read no sample, within one
+/// [`WAKE_PERIOD`], after which the real-time loop sleeps to that period's end
+/// ([`EmptyWakes`]).
+pub(super) const MAX_EMPTY_WAKES: u32 = 64;
+
+/// What a sleep of the real-time loop after [`MAX_EMPTY_WAKES`] wake-ups without a
+/// sample says (through the journal's throttle, with the count of the others).
+pub(super) const EMPTY_WAKES_SAID: &str = "64 wake-ups on the signature event within 0.1 s \
+     read no sample (a process notifying `<prefix>/signature/ready` in a loop?): slept to \
+     the end of the 0.1 s, the streams read after it";
+
+/// Counts the real-time loop's wake-ups by a notification that read no sample. A
+/// process notifying the signature event in a loop keeps the listener signalled:
+/// each wait returns at once, finds nothing, and the loop would spin at SCHED_FIFO.
+/// After [`MAX_EMPTY_WAKES`] of them within one [`WAKE_PERIOD`] the loop sleeps to
+/// that period's end (then reads both streams and checks its stop and heartbeat, as
+/// after a timeout). A wake-up that read a sample, or a timeout, starts the count
+/// again: a notification with data never sleeps. No allocation.
+#[derive(Debug, Default)]
+pub(super) struct EmptyWakes {
+    in_a_row: u32,
+    /// When the first of them in a row came.
+    since: Nanos,
+}
+
+impl EmptyWakes {
+    /// After a wake-up at `now`: `notified` (an event woke it, not the timeout),
+    /// `served` samples read. How long the loop sleeps before its next wait: none,
+    /// but after the [`MAX_EMPTY_WAKES`]-th wake-up in a row that was notified and
+    /// read nothing within `period_ns` (the first of them starts the period), what is
+    /// left of that period.
+    pub(super) fn after(
+        &mut self,
+        now: Nanos,
+        notified: bool,
+        served: usize,
+        period_ns: Nanos,
+    ) -> Option<Duration> {
+        if !notified || served > 0 {
+            self.in_a_row = 0;
+            return None;
+        }
+        if self.in_a_row == 0 || now.saturating_sub(self.since) >= period_ns {
+            self.in_a_row = 0;
+            self.since = now;
+        }
+        self.in_a_row += 1;
+        if self.in_a_row < MAX_EMPTY_WAKES {
+            return None;
+        }
+        self.in_a_row = 0;
+        let left = self
+            .since
+            .saturating_add(period_ns)
+            .saturating_sub(now)
+            .clamp(0, period_ns.max(0));
+        Some(Duration::from_nanos(left as u64))
+    }
+}
+
 /// Everything the real-time thread needs, built before its loop starts.
 pub(super) struct RtSetup {
     pub(super) cfg: Config,
@@ -383,7 +491,10 @@ pub(super) struct RtSetup {
 /// What the real-time thread reports once, before its loop.
 #[derive(Debug, Clone)]
 pub struct RtReport {
-    /// System refusals of real-time settings (each a readable sentence).
+    /// System refusals of real-time settings, and the settings of services another
+    /// program created below vlsync's where the daemon works with them
+    /// (`vlsync_ipc::QosWarning`: the offset service's, the signature services' fewer
+    /// publishers); each a readable sentence, said as a warning.
     pub refused: Vec<String>,
     /// Real-time settings applied.
     pub applied: Vec<String>,
@@ -433,6 +544,13 @@ pub(super) fn rt_thread(
         for stream in [Stream::Cam, Stream::Lidar] {
             let name = s.names.signature(stream);
             let f = open_or_create_pubsub::<SignatureSample>(&node, &name, Qos::signature(buf))?;
+            // a service another program created with fewer publishers (its smaller
+            // buffer is the granted buffer, said on its own)
+            for w in vlsync_ipc::service_warnings(&name, &f, Qos::signature(buf)) {
+                if matches!(w, vlsync_ipc::QosWarning::FewerPublishers { .. }) {
+                    report.refused.push(w.to_string());
+                }
+            }
             let count = s.unconnected.clone();
             let (sub, b) = subscriber_telling(&f, buf, &name, move || {
                 count[stream_index(stream)].fetch_add(1, Ordering::Relaxed);
@@ -444,6 +562,9 @@ pub(super) fn rt_thread(
         let ready_ev = open_or_create_event(&node, &s.names.signature_ready())?;
         let lis = listener(&ready_ev, &s.names.signature_ready())?;
         let off = open_or_create_pubsub::<OffsetEstimate>(&node, &s.names.offset(), Qos::latest())?;
+        for w in vlsync_ipc::service_warnings(&s.names.offset(), &off, Qos::latest()) {
+            report.refused.push(w.to_string());
+        }
         let degraded = s.offset_degraded.clone();
         let off_pub = publisher_telling(&off, &s.names.offset(), move || {
             degraded.fetch_add(1, Ordering::Relaxed);
@@ -501,6 +622,8 @@ pub(super) fn rt_thread(
     // where it stopped (the order does not break at the boundary)
     let mut pending: [Option<(SignatureSample, UniquePublisherId)>; 2] = [None, None];
     let mut wait_failures = WaitFailures::default();
+    // wake-ups by a notification that read nothing (a process notifying in a loop)
+    let mut empty_wakes = EmptyWakes::default();
     // how the loop ended: a stop, or (Err) a wait that kept failing
     let mut ended = Ok(());
     // ---- real-time loop: no logging, no I/O, no allocation per sample below ----
@@ -528,6 +651,8 @@ pub(super) fn rt_thread(
         } else {
             lis.timed_wait(on_event, WAKE_PERIOD)
         };
+        // a notification woke it (not the timeout, not a failure)
+        let notified = matches!(waited, Ok(n) if n > 0);
         if backlog || ready == [false; 2] {
             // a backlog, or no driver notified (idle, a driver that does not
             // notify, or a failed wait): both streams are read
@@ -744,6 +869,9 @@ pub(super) fn rt_thread(
             }
         }
         let now = monotonic_ns();
+        // a wake-up by a notification that read nothing, the 64th within 0.1 s: the
+        // rest of that 0.1 s is slept below, after the periodic work
+        let flood_sleep = empty_wakes.after(now, notified, served, wake_ns);
         if now >= next_connect {
             // connect the offset subscribers that came since the last estimate,
             // which hands them the last one (history 1) now, not at the next
@@ -782,6 +910,12 @@ pub(super) fn rt_thread(
             next_stretch = now + stretch_ns;
             let l = c.end_stretch(now);
             emit(&s.tx, &mut c, RtEvent::Latency(l));
+        }
+        if let Some(d) = flood_sleep {
+            // said through the throttle (the count of sleeps is the count of lines
+            // held back); the streams are read after the sleep, as after a timeout
+            emit(&s.tx, &mut c, RtEvent::NotifyFlood);
+            std::thread::sleep(d);
         }
     }
     super::iox_log::unmute_this_thread();
@@ -878,6 +1012,101 @@ mod tests {
         );
         // about 5 s of pauses: the watchdog's period
         assert_eq!(WAKE_PERIOD * MAX_WAIT_FAILURES, Duration::from_secs(5));
+    }
+
+    fn pid(n: u8) -> UniquePublisherId {
+        // distinct ids come from real publishers
+        let names =
+            ServiceNames::new(&format!("vlsync-test/rt-mal-{}-{n}", std::process::id())).unwrap();
+        let node = create_node("gap-test", false).unwrap();
+        let f = open_or_create_pubsub::<SignatureSample>(
+            &node,
+            &names.signature(Stream::Cam),
+            Qos::signature(4),
+        )
+        .unwrap();
+        vlsync_ipc::publisher(&f, "x").unwrap().id()
+    }
+
+    /// A malformed sample's number is followed only when it is exactly the next one:
+    /// garbage there neither counts good samples lost nor moves its publisher's
+    /// sequence, and a malformed first sample takes no slot.
+    #[test]
+    fn a_malformed_sample_is_followed_only_as_the_next_number() {
+        let (a, b) = (pid(1), pid(2));
+        let mut t = SeqTable::default();
+        assert_eq!(t.gap(a, 100, false), SeqGap::Joined(100));
+        // a malformed one numbered 0 between 100 and 101: nothing lost
+        assert_eq!(t.gap_of(a, 0, false, false), SeqGap::None);
+        assert_eq!(t.gap(a, 101, false), SeqGap::None);
+        // one jumping forward: neither counted, nor followed
+        assert_eq!(t.gap_of(a, 101 + (1 << 31), false, false), SeqGap::None);
+        assert_eq!(t.gap(a, 102, false), SeqGap::None);
+        // one at the end of the range, and one with FLAG_FIRST: the same
+        assert_eq!(t.gap_of(a, u64::MAX, false, false), SeqGap::None);
+        assert_eq!(t.gap_of(a, 0, true, false), SeqGap::None);
+        assert_eq!(t.gap(a, 103, false), SeqGap::None);
+        // the exact next one is followed: its successor is no gap...
+        assert_eq!(t.gap_of(a, 104, false, false), SeqGap::None);
+        assert_eq!(t.gap(a, 105, false), SeqGap::None);
+        // ...but one further on is not: the next good one's gap counts from 105
+        assert_eq!(t.gap_of(a, 110, false, false), SeqGap::None);
+        assert_eq!(t.gap(a, 108, false), SeqGap::Lost(2));
+        // a publisher first read through a malformed sample: no slot taken, so its
+        // first good sample is judged as its first
+        assert_eq!(t.gap_of(b, 7, false, false), SeqGap::None);
+        assert_eq!(t.gap(b, 50, false), SeqGap::Joined(50));
+        // the rule the recorder shares
+        assert!(seq_followed(SeqStep::Next, false));
+        assert!(!seq_followed(SeqStep::Lost(3), false));
+        assert!(!seq_followed(SeqStep::NewRun { before: 0 }, false));
+        assert!(seq_followed(SeqStep::Lost(3), true));
+        assert!(seq_followed(SeqStep::NewRun { before: 9 }, true));
+    }
+
+    /// A process notifying the signature event in a loop: the 64th notified wake-up
+    /// in a row that read nothing within 0.1 s sleeps the rest of that 0.1 s; a
+    /// wake-up that read a sample, or a timeout, never sleeps and starts the count
+    /// again; empty wake-ups spread over more than 0.1 s never add up to a sleep.
+    #[test]
+    fn empty_wake_ups_in_a_flood_sleep_to_the_end_of_the_period() {
+        const P: Nanos = 100_000_000;
+        let mut w = EmptyWakes::default();
+        let t0 = 5 * S;
+        for k in 0..MAX_EMPTY_WAKES as i64 - 1 {
+            assert_eq!(w.after(t0 + k * 1_000, true, 0, P), None, "wake-up {k}");
+        }
+        let at = t0 + 63_000;
+        assert_eq!(
+            w.after(at, true, 0, P),
+            Some(Duration::from_nanos((P - 63_000) as u64))
+        );
+        // the next flood: counted from its own first wake-up
+        for k in 0..MAX_EMPTY_WAKES as i64 - 1 {
+            assert_eq!(w.after(t0 + P + k, true, 0, P), None);
+        }
+        // a notification with data: no sleep, and the count starts again
+        assert_eq!(w.after(t0 + P + 100, true, 1, P), None);
+        for k in 0..MAX_EMPTY_WAKES as i64 - 1 {
+            assert_eq!(w.after(t0 + P + 200 + k, true, 0, P), None);
+        }
+        // a timeout (no notification) too
+        assert_eq!(w.after(t0 + P + 300, false, 0, P), None);
+        for k in 0..MAX_EMPTY_WAKES as i64 - 1 {
+            assert_eq!(w.after(t0 + 2 * P + k, true, 0, P), None);
+        }
+        assert!(w.after(t0 + 2 * P + 64, true, 0, P).is_some());
+        // a slow trickle (one empty wake-up every 2 ms): never 64 within 0.1 s
+        let mut w = EmptyWakes::default();
+        for k in 0..1_000 {
+            assert_eq!(w.after(k * 2_000_000, true, 0, P), None, "wake-up {k}");
+        }
+        // hostile clock values: no overflow, a sleep of at most the period
+        let mut w = EmptyWakes::default();
+        for _ in 0..MAX_EMPTY_WAKES - 1 {
+            assert_eq!(w.after(i64::MAX, true, 0, P), None);
+        }
+        assert_eq!(w.after(i64::MAX, true, 0, P), Some(Duration::ZERO));
     }
 
     #[test]
