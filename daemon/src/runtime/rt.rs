@@ -121,7 +121,7 @@ pub(super) fn first_published(
 /// publisher's.
 pub(crate) const MAX_COUNTED_GAP: u64 = 1 << 32;
 
-/// What a sample's sequence number says ([`SeqTable::gap`]).
+/// What a sample's sequence number says ([`SeqTable::gap_of`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum SeqGap {
     /// The next one of its publisher, a restart, a jump back, or one beyond
@@ -138,7 +138,7 @@ pub(super) enum SeqGap {
 }
 
 /// What a sample numbered `seq` says after its publisher's previous one read, `last`
-/// (`None`: none read yet): the rule the daemon ([`SeqTable::gap`]) and the recorder
+/// (`None`: none read yet): the rule the daemon ([`SeqTable::gap_of`]) and the recorder
 /// (`vlsyncd record`) both judge by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum SeqStep {
@@ -206,7 +206,7 @@ struct SeqSlot {
     read: u64,
 }
 
-/// The sequence of each publisher of a stream ([`SeqTable::gap`]): what a sample's
+/// The sequence of each publisher of a stream ([`SeqTable::gap_of`]): what a sample's
 /// sequence number says of the samples before it. Fixed size, no allocation.
 ///
 /// A publisher whose slot is needed goes when it is the least recently read of
