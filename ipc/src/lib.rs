@@ -1477,19 +1477,7 @@ mod tests {
         let mut c = OffsetClient::open(&names.prefix).unwrap();
         assert!(c.latest().is_none());
         assert!(c.camera_to_lidar(0).is_none());
-        let e = Estimate {
-            seq: 3,
-            t_ref_ns: 10_000_000_000,
-            offset_s: 0.02,
-            drift: 0.0,
-            offset_std_s: 0.001,
-            drift_std: 0.0,
-            state: vlsync_common::EstimatorState::Tracking,
-            polarity: vlsync_common::Polarity::Positive,
-            peak_score: 0.8,
-            peak_ratio: 2.0,
-            measured_offset_s: 0.02,
-        };
+        let e = estimate(3);
         let mut bad = OffsetEstimate::from_estimate(&e, 1).unwrap();
         bad.state = 77;
         publ.send_copy(bad).unwrap();

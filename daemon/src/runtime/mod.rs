@@ -943,10 +943,11 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    fn pid(n: u8) -> UniquePublisherId {
-        // distinct ids come from real publishers
+    /// A distinct publisher id for the sequence tables' tests (ids come from real
+    /// publishers), on a service of its own per `tag`.
+    pub(super) fn pid(tag: &str, n: u8) -> UniquePublisherId {
         let names =
-            ServiceNames::new(&format!("vlsync-test/rt-gap-{}-{n}", std::process::id())).unwrap();
+            ServiceNames::new(&format!("vlsync-test/rt-{tag}-{}-{n}", std::process::id())).unwrap();
         let node = create_node("gap-test", false).unwrap();
         let f = open_or_create_pubsub::<SignatureSample>(
             &node,
@@ -996,7 +997,7 @@ mod tests {
 
     #[test]
     fn the_held_samples_go_in_the_order_they_were_published() {
-        let at = |publish_ns| Some((SignatureSample::new(0, 0.0, 0, publish_ns), pid(1)));
+        let at = |publish_ns| Some((SignatureSample::new(0, 0.0, 0, publish_ns), pid("gap", 1)));
         assert_eq!(first_published(&[None, None]), None);
         assert_eq!(first_published(&[at(9), None]), Some(0));
         assert_eq!(first_published(&[None, at(9)]), Some(1));
@@ -1055,7 +1056,7 @@ mod tests {
 
     #[test]
     fn sequence_gaps_are_counted_per_publisher() {
-        let (a, b, c) = (pid(1), pid(2), pid(3));
+        let (a, b, c) = (pid("gap", 1), pid("gap", 2), pid("gap", 3));
         let mut slots = SeqTable::default();
         let lost = |slots: &mut SeqTable, p, seq, first| match slots.gap(p, seq, first) {
             SeqGap::Lost(n) => n,
@@ -1087,9 +1088,9 @@ mod tests {
         // corrupt counter, and a first sample at 0 without the flag hid nothing
         assert_eq!(slots.gap(c, 944, false), SeqGap::Joined(944));
         assert_eq!(slots.gap(c, 945, false), SeqGap::None);
-        let d = pid(4);
+        let d = pid("gap", 4);
         assert_eq!(slots.gap(d, 0, false), SeqGap::None);
-        let e = pid(5);
+        let e = pid("gap", 5);
         let mut fresh = SeqTable::default();
         assert_eq!(fresh.gap(e, MAX_COUNTED_GAP + 1, false), SeqGap::None);
     }
@@ -1101,7 +1102,7 @@ mod tests {
     fn every_new_publisher_is_judged_after_any_number_of_restarts() {
         let mut slots = SeqTable::default();
         for n in 0..7u8 {
-            let p = pid(10 + n);
+            let p = pid("gap", 10 + n);
             // a driver that was already running when it was first read (its earlier
             // samples dropped from a full buffer, or published before the daemon
             // listened): said, whichever restart it is
@@ -1124,11 +1125,11 @@ mod tests {
         let mut slots = SeqTable::default();
         // three dead publishers, far along in their numbering
         for n in 0..3u8 {
-            let stale = pid(20 + n);
+            let stale = pid("gap", 20 + n);
             assert_eq!(slots.gap(stale, 0, true), SeqGap::None);
             assert_eq!(slots.gap(stale, 50_000, false), SeqGap::Lost(49_999));
         }
-        let (a, b) = (pid(30), pid(31));
+        let (a, b) = (pid("gap", 30), pid("gap", 31));
         assert_eq!(slots.gap(a, 0, true), SeqGap::None);
         assert_eq!(slots.gap(b, 0, true), SeqGap::None);
         let mut lost = 0;

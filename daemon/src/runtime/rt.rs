@@ -1015,17 +1015,7 @@ mod tests {
     }
 
     fn pid(n: u8) -> UniquePublisherId {
-        // distinct ids come from real publishers
-        let names =
-            ServiceNames::new(&format!("vlsync-test/rt-mal-{}-{n}", std::process::id())).unwrap();
-        let node = create_node("gap-test", false).unwrap();
-        let f = open_or_create_pubsub::<SignatureSample>(
-            &node,
-            &names.signature(Stream::Cam),
-            Qos::signature(4),
-        )
-        .unwrap();
-        vlsync_ipc::publisher(&f, "x").unwrap().id()
+        crate::runtime::tests::pid("mal", n)
     }
 
     /// A malformed sample's number is followed only when it is exactly the next one:
