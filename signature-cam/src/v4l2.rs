@@ -392,8 +392,8 @@ impl StampCheck {
                  are stamped at dequeue instead, later by the driver's delivery latency \
                  (its constant part shows up in the offset), each put back on the line its \
                  buffer sequence numbers and the measured frame period draw through the \
-                 earliest of the last 16 dequeues, so that frames delivered together \
-                 keep their own times{}",
+                 earliest of the last dequeues, so that frames delivered together keep \
+                 their own times{}",
                 clock.name(),
                 self.seen,
                 MAX_STAMP_AGE_NS as f64 * 1e-9,
@@ -940,7 +940,7 @@ mod imp {
                     Some(c) => StampCheck::decided(c),
                     None => StampCheck::new(decide_frames),
                 },
-                sequence: SequenceClock::new(),
+                sequence: SequenceClock::with_buffers(buffers),
                 said_restart: [false; 2],
                 negotiated,
                 notes,
