@@ -288,11 +288,19 @@ impl SequenceClock {
         if self.count <= n {
             return;
         }
+        let first = self.count - n;
         let mut kept = [(0, 0); BASELINE];
-        for (j, k) in kept.iter_mut().zip(self.count - n..self.count) {
+        for (j, k) in kept.iter_mut().zip(first..self.count) {
             *j = self.history[self.slot(k)];
         }
+        // the lateness ring too, so that it stays indexed by the frames' count
+        let w = WINDOW as u64;
+        let mut residuals = [0; WINDOW];
+        for k in self.count.saturating_sub(w).max(first)..self.count {
+            residuals[((k - first) % w) as usize] = self.residuals[(k % w) as usize];
+        }
         self.history = kept;
+        self.residuals = residuals;
         self.count = n;
         self.above_floor_run = 0;
         self.remeasures = self.remeasures.saturating_add(1);
@@ -562,6 +570,29 @@ mod tests {
             }
         }
         assert_eq!(c.restarts(), 0);
+    }
+
+    #[test]
+    fn a_remeasure_keeps_the_newest_frames_and_their_lateness_in_place() {
+        let mut c = SequenceClock::new();
+        let mut lat = latencies();
+        for k in 0..203u32 {
+            c.stamp(k, T0 + i64::from(k) * P + lat(k));
+        }
+        let w = WINDOW as u64;
+        let newest = |c: &SequenceClock| {
+            (1..=w)
+                .map(|b| {
+                    let k = c.count - b;
+                    (c.history[c.slot(k)], c.residuals[(k % w) as usize])
+                })
+                .collect::<Vec<_>>()
+        };
+        let before = newest(&c);
+        c.keep_newest(REMEASURE_FRAMES);
+        assert_eq!(c.count, REMEASURE_FRAMES);
+        assert_eq!(newest(&c), before);
+        assert_eq!(c.remeasures(), 1);
     }
 
     proptest! {
