@@ -1797,44 +1797,79 @@ mod tests {
         assert_eq!(receive_cap(usize::MAX, usize::MAX), MAX_RECEIVES_PER_CALL);
     }
 
+    /// A thread of the test's that opens what it needs on `prefix` through its own
+    /// node (`setup`), then runs the step `setup` returns in a loop until stopped
+    /// (dropped too, so that a failing test leaves no thread flooding the next).
+    struct Flood {
+        stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+        thread: Option<std::thread::JoinHandle<()>>,
+    }
+
+    impl Flood {
+        fn start<S: FnMut()>(
+            prefix: &str,
+            setup: impl FnOnce(&ServiceNames, &IpcNode) -> S + Send + 'static,
+        ) -> Self {
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let (flag, prefix) = (stop.clone(), prefix.to_string());
+            let thread = std::thread::spawn(move || {
+                let names = ServiceNames::new(&prefix).unwrap();
+                let node = create_node("test-flood", false).unwrap();
+                let mut step = setup(&names, &node);
+                while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                    step();
+                }
+            });
+            Self {
+                stop,
+                thread: Some(thread),
+            }
+        }
+
+        /// Stops the thread and fails the test if it failed.
+        fn finish(mut self) {
+            self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            self.thread.take().unwrap().join().unwrap();
+        }
+    }
+
+    impl Drop for Flood {
+        fn drop(&mut self) {
+            self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            if let Some(t) = self.thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
+
     /// A publisher flooding faster than the client reads: every call returns, with at
     /// most what the subscriber can hold.
     #[test]
     fn a_flooding_publisher_cannot_keep_a_call_looping() {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        use std::sync::Arc;
         let names = ServiceNames::new(&unique_prefix("flood")).unwrap();
         let mut status = StatusClient::open(&names.prefix).unwrap();
         let mut offsets = OffsetClient::open(&names.prefix).unwrap();
-        let stop = Arc::new(AtomicBool::new(false));
-        let flood = {
-            let (stop, prefix) = (stop.clone(), names.prefix.clone());
-            std::thread::spawn(move || {
-                let names = ServiceNames::new(&prefix).unwrap();
-                let node = create_node("test-flood", false).unwrap();
-                let st =
-                    open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
-                let off =
-                    open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest())
-                        .unwrap();
-                let ev = open_or_create_event(&node, &names.offset()).unwrap();
-                let (sp, op, n) = (
-                    publisher(&st, "status").unwrap(),
-                    publisher(&off, "offset").unwrap(),
-                    notifier(&ev, "offset").unwrap(),
-                );
-                let mut k = 0;
-                while !stop.load(Ordering::Relaxed) {
-                    k += 1;
-                    let _ = sp.send_copy(Status {
-                        estimates_published: k,
-                        ..Status::default()
-                    });
-                    let _ = op.send_copy(OffsetEstimate::from_estimate(&estimate(k), 1).unwrap());
-                    let _ = n.notify();
-                }
-            })
-        };
+        let flood = Flood::start(&names.prefix, |names, node| {
+            let st = open_or_create_pubsub::<Status>(node, &names.status(), Qos::latest()).unwrap();
+            let off = open_or_create_pubsub::<OffsetEstimate>(node, &names.offset(), Qos::latest())
+                .unwrap();
+            let ev = open_or_create_event(node, &names.offset()).unwrap();
+            let (sp, op, n) = (
+                publisher(&st, "status").unwrap(),
+                publisher(&off, "offset").unwrap(),
+                notifier(&ev, "offset").unwrap(),
+            );
+            let mut k = 0;
+            move || {
+                k += 1;
+                let _ = sp.send_copy(Status {
+                    estimates_published: k,
+                    ..Status::default()
+                });
+                let _ = op.send_copy(OffsetEstimate::from_estimate(&estimate(k), 1).unwrap());
+                let _ = n.notify();
+            }
+        });
         let (cap_status, cap_offsets) = (status.max_receives, offsets.max_receives);
         assert_eq!((cap_status, cap_offsets), (32, 32));
         let mut seen = 0;
@@ -1846,8 +1881,7 @@ mod tests {
             seen += got.len();
             let _ = offsets.latest();
         }
-        stop.store(true, Ordering::Relaxed);
-        flood.join().unwrap();
+        flood.finish();
         assert!(seen > 0);
     }
 
@@ -1856,29 +1890,20 @@ mod tests {
     /// them (its thread's CPU time stays a small part of the wait).
     #[test]
     fn a_notification_flood_does_not_keep_a_wait_busy() {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        use std::sync::Arc;
         let names = ServiceNames::new(&unique_prefix("notify-flood")).unwrap();
         let mut c = OffsetClient::open(&names.prefix).unwrap();
-        let stop = Arc::new(AtomicBool::new(false));
-        let flood = {
-            let (stop, prefix) = (stop.clone(), names.prefix.clone());
-            std::thread::spawn(move || {
-                let names = ServiceNames::new(&prefix).unwrap();
-                let node = create_node("test-flood", false).unwrap();
-                let ev = open_or_create_event(&node, &names.offset()).unwrap();
-                let n = notifier(&ev, "offset").unwrap();
-                while !stop.load(Ordering::Relaxed) {
-                    let _ = n.notify();
-                }
-            })
-        };
+        let flood = Flood::start(&names.prefix, |names, node| {
+            let ev = open_or_create_event(node, &names.offset()).unwrap();
+            let n = notifier(&ev, "offset").unwrap();
+            move || {
+                let _ = n.notify();
+            }
+        });
         let cpu0 = rt::thread_cpu_ns().unwrap();
         assert!(c.wait_one(Duration::from_millis(600)).unwrap().is_none());
         assert!(c.wait_next(Duration::from_millis(600)).unwrap().is_none());
         let cpu = rt::thread_cpu_ns().unwrap() - cpu0;
-        stop.store(true, Ordering::Relaxed);
-        flood.join().unwrap();
+        flood.finish();
         // spinning, the two waits took ~1.2 s of CPU; sleeping out the slices, a few ms
         assert!(cpu < 300_000_000, "{cpu} ns of CPU in 1.2 s of waits");
     }
