@@ -19,8 +19,10 @@
 //!    stamping, mid-exposure times, px/s scaled by whole frame periods, gap
 //!    restart).
 //! 5. [`source`]: a directory of PNG/JPEG frames with `frames.csv`; [`v4l2`]:
-//!    a V4L2 camera behind the `v4l2` cargo feature; [`pipe`]: raw frames a
-//!    camera program writes to a pipe (`rpicam-vid` for a Pi camera module).
+//!    a V4L2 camera behind the `v4l2` cargo feature (frames its driver cannot
+//!    stamp are stamped at dequeue and put back on their buffer sequence numbers'
+//!    line by [`sequence_clock`]); [`pipe`]: raw frames a camera program writes to a
+//!    pipe (`rpicam-vid` for a Pi camera module).
 //!
 //! ```
 //! use vlsync_signature_cam::{FrameTime, GrayFrame, SignatureConfig, SignatureProcessor, Step};
