@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 use vlsync_common::Stream;
-use vlsync_ipc::{create_node, termination_requested, ServiceNames, SignaturePublisher};
+use vlsync_ipc::{create_node, ServiceNames, SignaturePublisher};
 
 /// Arguments of a signature driver.
 #[derive(Parser, Debug, Clone)]
@@ -23,6 +23,12 @@ pub struct DriverArgs {
     /// the frame rate it asks of a V4L2 camera).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// --config as first read: every later use takes this one, so that a file edited
+    /// while `--wait-device` waits (hours, maybe) cannot stop the driver for good
+    /// when the device appears (an options error, not restarted), nor give its prefix
+    /// and its buffer from two versions of the file.
+    #[arg(skip)]
+    pub loaded_config: std::sync::OnceLock<vlsync_config::Config>,
     /// LiDAR front-ends: also fit the wall opposite the window and publish its rate,
     /// negated, in the same stream (`lidar.opposite_window = true`).
     #[arg(long)]
@@ -629,6 +635,18 @@ pub fn select_source(
     }
 }
 
+/// Whether the source is a recording or a simulation, not a device: its reads make
+/// no stop checks (a whole CSV read before the first sample, an MCAP file's chunks
+/// walked to the next message), where every wait of a device source checks.
+fn recorded_source(args: &DriverArgs) -> bool {
+    args.csv.is_some()
+        || args.sim.is_some()
+        || args.render.is_some()
+        || args.mcap.is_some()
+        || args.frames.is_some()
+        || args.scans.is_some()
+}
+
 /// How often `--wait-device` looks for the device node.
 pub const DEVICE_POLL: Duration = Duration::from_millis(500);
 
@@ -743,14 +761,19 @@ fn progress_line(
     )
 }
 
-/// The configuration of --config (defaults without one).
+/// The configuration of --config (defaults without one), read once per `args`
+/// ([`DriverArgs::loaded_config`]).
 fn config(args: &DriverArgs) -> Result<vlsync_config::Config, DriverError> {
-    match &args.config {
-        Some(path) => {
-            vlsync_config::Config::load(path).map_err(|e| DriverError::Options(e.to_string()))
-        }
-        None => Ok(vlsync_config::Config::default()),
+    if let Some(c) = args.loaded_config.get() {
+        return Ok(c.clone());
     }
+    let c = match &args.config {
+        Some(path) => {
+            vlsync_config::Config::load(path).map_err(|e| DriverError::Options(e.to_string()))?
+        }
+        None => vlsync_config::Config::default(),
+    };
+    Ok(args.loaded_config.get_or_init(|| c).clone())
 }
 
 /// The LiDAR front-end's windows: `[lidar]` of --config, `--opposite-window` on top.
@@ -873,6 +896,33 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     // before a source opens (a serial port or a camera may take a while): a stop
     // from then on ends the driver cleanly
     vlsync_ipc::handle_termination_signals();
+    // systemd's watchdog is petted from the stop check every wait and sample of
+    // this thread makes (crate::watchdog): a driver stuck in a call restarts
+    let (problems, watchdog_on) = crate::watchdog::init();
+    for p in problems {
+        vlsync_common::console::print_err_at(
+            vlsync_common::console::Priority::Warning,
+            &format!("vlsync-{stream}: systemd notification: {p}\n"),
+        );
+    }
+    if recorded_source(args) {
+        // a recorded or simulated source's reads make no stop checks (a whole CSV
+        // before the first sample, an MCAP file's chunks walked to the next message):
+        // a helper thread pets for the whole run; the watchdog guards device sources
+        crate::watchdog::petting_while(|| publish_source(stream, args, watchdog_on))
+    } else {
+        publish_source(stream, args, watchdog_on)
+    }
+}
+
+/// [`run_driver`] once signals and systemd are set up: selects the source and
+/// publishes it.
+fn publish_source(
+    stream: Stream,
+    args: &DriverArgs,
+    watchdog_on: bool,
+) -> Result<crate::RunSummary, DriverError> {
+    let stop_check: raw::StopFn = crate::watchdog::stop_check;
     let prefix = prefix(args)?;
     let every = report_every(args)?;
     // an invalid prefix is an options error (exit 78, not restarted), wherever it came from
@@ -882,14 +932,20 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
         anchor_ns,
         start_at,
         stopped,
-    } = select_source(args, stream, termination_requested)?;
-    if let Some(why) = stopped_before_publishing(stopped, termination_requested) {
+    } = select_source(args, stream, stop_check)?;
+    if let Some(why) = stopped_before_publishing(stopped, stop_check) {
         vlsync_common::console::print_err(&format!("vlsync-{stream}: {why}\n"));
         return Ok(RunSummary {
             interrupted: true,
             ..RunSummary::default()
         });
     }
+    // the truth file before the node: its error is an options error, said before
+    // anything is published
+    let mut truth = match &args.truth_out {
+        Some(p) => Some(crate::TruthLog::create(p)?),
+        None => None,
+    };
     let node = create_node(&format!("vlsync-{stream}"), true).map_err(DriverError::Ipc)?;
     // a service this driver creates serves the daemon's configured buffer
     // (validated 1..=65536)
@@ -899,10 +955,6 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     // the simulators' samples say so: the daemon warns that its offset is not the
     // robot's (a unit shipped with --sim and never pointed at the sensors)
     publisher.set_simulated(args.sim.is_some() || args.render.is_some());
-    let mut truth = match &args.truth_out {
-        Some(p) => Some(crate::TruthLog::create(p)?),
-        None => None,
-    };
     let pacing = match anchor_ns {
         _ if args.fast => Pacing::Fast,
         // a live device: publish as the data arrives
@@ -913,22 +965,37 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
             start_mono_ns: start_at,
         },
     };
-    vlsync_common::console::print_err(&publishing_line(
+    let line = publishing_line(
         stream,
         &source.describe(),
         &names.signature(stream),
         start_at.filter(|_| args.start_at.is_none()),
-    ));
+    );
+    vlsync_common::console::print_err(&line);
+    if let Err(e) = crate::watchdog::ready(line.trim_end()) {
+        vlsync_common::console::print_err_at(
+            vlsync_common::console::Priority::Warning,
+            &format!("vlsync-{stream}: systemd notification: {e}\n"),
+        );
+    }
+    if watchdog_on {
+        vlsync_common::console::print_err(&format!(
+            "vlsync-{stream}: systemd watchdog on: petted while this driver's loop runs\n"
+        ));
+    }
     let mut last = RunSummary::default();
     let mut report = |s: &RunSummary, since: Duration, r: Option<String>| {
-        vlsync_common::console::print_err(&progress_line(stream, s, &last, since, r));
+        let line = progress_line(stream, s, &last, since, r);
+        vlsync_common::console::print_err(&line);
+        // `systemctl status` shows the newest (a failure to send is said by the pets)
+        let _ = crate::watchdog::status(line.trim_end());
         last = *s;
     };
     let result = run(
         &mut *source,
         &mut publisher,
         pacing,
-        &termination_requested,
+        &stop_check,
         truth.as_mut(),
         Some(Progress {
             every,
@@ -946,17 +1013,24 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     // the newest ones away with the publisher before the daemon woke to read them
     if matches!(&result, Ok(s) if !s.interrupted && s.published > s.unreached) {
         let until = std::time::Instant::now() + LINGER;
-        while std::time::Instant::now() < until && !termination_requested() {
+        while std::time::Instant::now() < until && !stop_check() {
             std::thread::sleep(Duration::from_millis(20));
         }
     }
     if let (Some(t), Some(p)) = (truth.as_mut(), &args.truth_out) {
-        t.finish().map_err(DriverError::Source)?;
-        vlsync_common::console::print_err(&format!(
-            "vlsync-{stream}: {} truth rows written to {}\n",
-            t.rows(),
-            p.display()
-        ));
+        match (t.finish(), &result) {
+            (Ok(()), _) => vlsync_common::console::print_err(&format!(
+                "vlsync-{stream}: {} truth rows written to {}\n",
+                t.rows(),
+                p.display()
+            )),
+            // the run's own error is the one to return; the truth file's is said
+            (Err(e), Err(_)) => vlsync_common::console::print_err_at(
+                vlsync_common::console::Priority::Warning,
+                &format!("vlsync-{stream}: {e}\n"),
+            ),
+            (Err(e), Ok(_)) => return Err(DriverError::Source(e)),
+        }
     }
     result
 }
@@ -1075,7 +1149,7 @@ pub fn main(stream: Stream) -> ExitCode {
     };
     match run_driver(stream, &args) {
         Ok(s) => {
-            vlsync_common::console::print_err(&format!(
+            let summary = format!(
                 "vlsync-{stream}: {} published, {} skipped (before restart), {} failed{}{}{}{}\n",
                 s.published,
                 s.skipped,
@@ -1095,14 +1169,16 @@ pub fn main(stream: Stream) -> ExitCode {
                 )
                 }),
                 if s.interrupted { ", interrupted" } else { "" }
-            ));
+            );
+            vlsync_common::console::print_err(&summary);
+            // systemd's STOPPING=1 with the summary (a failure to send is moot now)
+            let _ = crate::watchdog::stopping(summary.trim_end());
             ExitCode::SUCCESS
         }
         Err(e) => {
-            vlsync_common::console::print_err_at(
-                vlsync_common::console::Priority::Error,
-                &format!("vlsync-{stream}: error: {e}\n"),
-            );
+            let line = format!("vlsync-{stream}: error: {e}\n");
+            vlsync_common::console::print_err_at(vlsync_common::console::Priority::Error, &line);
+            let _ = crate::watchdog::stopping(line.trim_end());
             ExitCode::from(match e {
                 DriverError::Options(_) => EXIT_CONFIG,
                 _ => 2,
@@ -1508,6 +1584,62 @@ mod tests {
             e.contains("inside frame") && e.contains("the command ended (signal: 9"),
             "{e}"
         );
+    }
+
+    /// A pipe that ends before any frame (standard input of /dev/null under systemd,
+    /// an empty file) is an error naming it, not a clean run of nothing that
+    /// `Restart=always` repeats without a word; one that ends after frames is the
+    /// stream's end.
+    #[test]
+    fn a_pipe_that_ends_before_any_frame_is_an_error() {
+        let dir = std::env::temp_dir().join(format!("vlsync-pipe-end-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let empty = dir.join("empty");
+        std::fs::write(&empty, b"").unwrap();
+        let cfg = gray8_frames(Duration::from_secs(5));
+        let mut src =
+            raw::CamSource::pipe(raw::PipeInput::Path(empty.clone()), cfg, never).unwrap();
+        let e = src.next_sample().unwrap_err().to_string();
+        assert!(
+            e.contains(&empty.display().to_string()) && e.contains("ended before any frame"),
+            "{e}"
+        );
+        // two 8x8 frames, then the end: no error (the frames are too small for the
+        // flow, so no sample either)
+        let two = dir.join("two");
+        std::fs::write(&two, [0u8; 128]).unwrap();
+        let mut src = raw::CamSource::pipe(raw::PipeInput::Path(two), cfg, never).unwrap();
+        let end = src.next_sample();
+        assert!(
+            !matches!(&end, Err(e) if e.to_string().contains("before any frame")),
+            "{end:?}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// --config is read once: a file broken while the driver waits for its device
+    /// (hours, maybe) does not turn the device's arrival into an options error
+    /// (exit 78, never restarted).
+    #[test]
+    fn the_configuration_is_read_once() {
+        let dir = std::env::temp_dir().join(format!("vlsync-cfg-once-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("vlsync.toml");
+        std::fs::write(
+            &path,
+            "[services]\nprefix = \"robot-a\"\n\n[camera]\nv4l2_fps = 30\n",
+        )
+        .unwrap();
+        let a = args(&["--config", path.to_str().unwrap()]);
+        assert_eq!(prefix(&a).unwrap(), "robot-a");
+        std::fs::write(&path, "[services\nprefix = ").unwrap();
+        assert_eq!(camera_fps(&a).unwrap(), Some(30.0));
+        assert_eq!(prefix(&a).unwrap(), "robot-a");
+        // a new start reads the file again, and says what is wrong with it
+        let fresh = args(&["--config", path.to_str().unwrap()]);
+        let e = prefix(&fresh).unwrap_err().to_string();
+        assert!(e.contains("vlsync.toml"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

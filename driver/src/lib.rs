@@ -10,12 +10,17 @@
 //! # Pacing and restarts
 //!
 //! Sample `k` is published at `start + (t_k - anchor) / speed` on
-//! `CLOCK_MONOTONIC`, where `anchor` is a time both drivers of a pair agree on
-//! (for the simulator: the earlier of the two streams' first stamps, computed
-//! identically by both). Two drivers given the same `--start-at` mono time
-//! therefore publish a consistent pair. A driver restarted with the same
-//! `--start-at` skips the samples whose time already passed before it started,
-//! so it resumes where the run is now instead of replaying history.
+//! `CLOCK_MONOTONIC`. For the simulator and rendered runs `anchor` is a time both
+//! drivers of a pair agree on (the earlier of the two streams' first stamps,
+//! computed identically by both), so two drivers given the same `--start-at` mono
+//! time publish a consistent pair. A recording (`--csv`, `--mcap`, `--frames`,
+//! `--scans`) anchors on its own first sample: a pair from one recording whose
+//! streams start at different stamps publishes that difference apart (the daemon
+//! estimates from stamps; the skew only delays one stream's samples). A driver
+//! restarted with the same `--start-at` skips the samples whose time has passed,
+//! also those that fell due while its source caught up (a recording decoded frame
+//! by frame), so it resumes where the run is now instead of replaying history in
+//! a burst.
 //! Sequence numbers restart at 0 with `FLAG_FIRST`; the daemon does not count
 //! that as lost samples. Publishing never blocks on the daemon: a driver keeps
 //! going while the daemon restarts.
@@ -23,6 +28,7 @@
 
 pub mod cli;
 pub mod raw;
+pub mod watchdog;
 
 use std::fmt;
 use std::path::Path;
@@ -139,6 +145,16 @@ impl TruthLog {
     /// Creates (truncates) `path` and writes the header.
     pub fn create(path: &Path) -> Result<Self, DriverError> {
         use std::io::Write;
+        // a FIFO (or a device) would block the open until a reader came, past any
+        // SIGTERM (the handler restarts the call): the truth is a file
+        if let Ok(m) = std::fs::metadata(path) {
+            if !m.is_file() {
+                return Err(DriverError::Options(format!(
+                    "--truth-out {}: not a regular file (a FIFO, a device or a directory); give a file path",
+                    path.display()
+                )));
+            }
+        }
         let f = std::fs::File::create(path)
             .map_err(|e| DriverError::Options(format!("--truth-out {}: {e}", path.display())))?;
         let mut out = std::io::BufWriter::new(f);
@@ -496,6 +512,8 @@ fn run_into(
         Pacing::Fast => (None, started),
     };
     let mut sum = RunSummary::default();
+    // a start before this process's: a restart into a run under way
+    let mut catching_up = pacer.is_some() && start < started;
     let mut consecutive = 0u64;
     // the previous progress report's instant (the start's before the first)
     let mut last_report = started;
@@ -522,10 +540,16 @@ fn run_into(
             let prev = pacer.prev;
             let (due, stepped) = pacer.due(s.t_ns);
             sum.steps_back += u64::from(stepped);
-            if due < started && start < started {
-                // restarted mid-run: this sample belongs to the past
-                sum.skipped += 1;
-                continue;
+            if catching_up {
+                // restarted mid-run: the samples due before now belong to the past,
+                // those the source took its time to reach (a recording decoded frame
+                // by frame) too; they would go out in one burst, minutes behind the
+                // other stream. From the first sample on time, pacing as usual.
+                if due < monotonic_ns() {
+                    sum.skipped += 1;
+                    continue;
+                }
+                catching_up = false;
             }
             if let (Some(p), Some((prev_t, prev_due))) = (progress.as_mut(), prev) {
                 let wait = due.saturating_sub(prev_due.max(monotonic_ns()));
@@ -585,6 +609,35 @@ mod tests {
     use super::*;
     use vlsync_common::wire::SignatureSample;
     use vlsync_ipc::{create_node, open_or_create_pubsub, subscriber, Qos, ServiceNames};
+
+    /// --truth-out refuses what is not a regular file: a FIFO's open would block
+    /// until a reader came, deaf to SIGTERM.
+    #[test]
+    fn truth_out_must_be_a_regular_file() {
+        let dir = std::env::temp_dir().join(format!("vlsync-truth-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("truth");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let e = match TruthLog::create(&fifo) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("a FIFO was opened as the truth file"),
+        };
+        assert!(
+            e.contains("not a regular file") && e.contains(&fifo.display().to_string()),
+            "{e}"
+        );
+        let e = TruthLog::create(&dir).err().unwrap().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        // a new file and an existing one are fine
+        let file = dir.join("truth.csv");
+        TruthLog::create(&file).unwrap();
+        TruthLog::create(&file).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn vec_source_yields_in_order_then_ends() {
@@ -1003,5 +1056,42 @@ mod tests {
         assert_eq!(sum.published + sum.skipped, 20);
         assert_eq!(got.len() as u64, sum.published);
         assert_eq!(got[0].seq, 0);
+    }
+
+    /// A restart whose source takes its time to reach the present (a recording
+    /// decoded frame by frame) skips the samples that fell due meanwhile too, instead
+    /// of publishing them late in one burst; from the first sample on time it paces.
+    #[test]
+    fn a_restart_skips_what_fell_due_while_the_source_caught_up() {
+        let ms = Duration::from_millis;
+        // 40 samples 10 ms apart, the first 20 each taking 10 ms to produce, the
+        // rest at once; the run started 100 ms before this process: samples due
+        // before the source reached them (0..=29 at least) are all in the past
+        let events: Vec<_> = (0..40)
+            .map(|i| {
+                let pause = if i < 20 { ms(10) } else { ms(0) };
+                (pause, Next::Sample(Sample::new(i * 10_000_000, 0.0)))
+            })
+            .collect();
+        let mut src = scripted(events);
+        let (sum, _, sink) = run_counting(
+            &mut src,
+            Pacing::Scaled {
+                speed: 1.0,
+                anchor_ns: 0,
+                start_mono_ns: Some(monotonic_ns() - 100_000_000),
+            },
+            Duration::from_secs(3600),
+            &|| false,
+        );
+        assert_eq!(sum.published + sum.skipped, 40, "{sum:?}");
+        // the old rule (skip only what was due before the process started) skipped
+        // about 10 and published the next 10 or more in a burst
+        assert!(sum.skipped >= 30, "{sum:?}");
+        // from the first sample on time, every one is published: a contiguous tail
+        let first = sink.published.first().map_or(40, |s| s.t_ns / 10_000_000);
+        let tail: Vec<_> = (first..40).map(|i| i * 10_000_000).collect();
+        let got: Vec<_> = sink.published.iter().map(|s| s.t_ns).collect();
+        assert_eq!(got, tail, "{sum:?}");
     }
 }

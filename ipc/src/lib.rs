@@ -39,6 +39,7 @@
 #![deny(unsafe_code)]
 
 pub mod rt;
+pub mod sd_notify;
 pub mod signals;
 
 use iceoryx2::port::listener::{Listener, ListenerWaitError};

@@ -221,7 +221,7 @@ fn no_vlsync_unit_separates_tmp_or_dev_and_all_share_one_user() {
 }
 
 #[test]
-fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
+fn driver_units_always_restart_have_a_watchdog_and_the_target_wants_all() {
     for n in ["vlsync-cam.service", "vlsync-lidar.service"] {
         let u = parse(n);
         assert_eq!(get(&u, n, "Service", "Restart"), "always");
@@ -231,6 +231,12 @@ fn driver_units_always_restart_after_the_daemon_and_the_target_wants_all() {
         // but not after wrong options or configuration (the drivers exit 78 then,
         // `option_and_configuration_errors_exit_78_source_errors_2`)
         assert_eq!(get(&u, n, "Service", "RestartPreventExitStatus"), "78");
+        // a driver stuck in a call is restarted (`vlsync_driver::watchdog`; the pets
+        // themselves: tests/systemd_driver.rs); Type=simple, since a driver waiting
+        // for its device (--wait-device) is not failing to start
+        assert_eq!(get(&u, n, "Service", "Type"), "simple");
+        assert_eq!(get(&u, n, "Service", "WatchdogSec"), "30s");
+        assert_eq!(get(&u, n, "Service", "NotifyAccess"), "main");
         assert!(words(&u, "Unit", "After").contains(&"vlsyncd.service".to_string()));
         // a driver's restart must not start a daemon stopped on purpose (Wants= would):
         // the target wants all three

@@ -119,6 +119,29 @@ impl std::os::fd::AsFd for PipeEnd {
     }
 }
 
+/// A [`PipeEnd`] that counts the bytes read from it, for [`PipeFrames`] to tell an
+/// input that never gave anything from one that ended (the frame source borrows
+/// its reader whole).
+struct CountedEnd {
+    end: PipeEnd,
+    read: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl std::io::Read for CountedEnd {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.end.read(buf)?;
+        self.read
+            .fetch_add(n as u64, std::sync::atomic::Ordering::Relaxed);
+        Ok(n)
+    }
+}
+
+impl std::os::fd::AsFd for CountedEnd {
+    fn as_fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        self.end.as_fd()
+    }
+}
+
 /// How long a pipe may stay without a frame before it is a stall (a command is
 /// then started again): `rpicam-vid` takes a second or two to give its first.
 pub const PIPE_SILENCE: Duration = Duration::from_secs(10);
@@ -127,9 +150,13 @@ pub const PIPE_SILENCE: Duration = Duration::from_secs(10);
 /// ends is an error naming how it ended (a live camera's stream does not end by
 /// itself).
 struct PipeFrames {
-    src: cam::pipe::PipeSource<PipeEnd>,
+    src: cam::pipe::PipeSource<CountedEnd>,
     stop: StopFn,
     child: Option<std::process::Child>,
+    /// The input as named on the command line (`-`, the FIFO's path).
+    name: String,
+    /// Bytes read from the input so far.
+    read: std::sync::Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl PipeFrames {
@@ -188,7 +215,12 @@ impl PipeFrames {
             }
         };
         let name = input.to_string();
-        let mut src = match cam::pipe::PipeSource::new(end, name, cfg, monotonic_ns) {
+        let read = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let end = CountedEnd {
+            end,
+            read: read.clone(),
+        };
+        let mut src = match cam::pipe::PipeSource::new(end, name.clone(), cfg, monotonic_ns) {
             Ok(s) => s,
             Err(e) => {
                 if let Some(c) = child {
@@ -203,7 +235,13 @@ impl PipeFrames {
             // the source's own name for their writer)
             src.set_writer_name("camera program");
         }
-        Ok(Self { src, stop, child })
+        Ok(Self {
+            src,
+            stop,
+            child,
+            name,
+            read,
+        })
     }
 }
 
@@ -356,7 +394,24 @@ impl FrameSource for PipeFrames {
                         reason: format!("the command {how} after {frames} frames"),
                     })
                 }
-                None => Ok(None),
+                // standard input or a FIFO: an end before any frame is no camera
+                // at all (under systemd standard input is /dev/null), and exiting 0
+                // with nothing published would be restarted without a word
+                None if self.read.load(std::sync::atomic::Ordering::Relaxed) == 0 => {
+                    Err(cam::Error::Device {
+                        path: self.name.clone().into(),
+                        reason: "the input ended before any frame: nothing writes to it (standard input is /dev/null under systemd: give --pipe a FIFO or use --pipe-cmd)".into(),
+                    })
+                }
+                // a finite stream's end (a recording piped in), or a writer that quit
+                None => {
+                    vlsync_common::console::print_err(&format!(
+                        "vlsync-cam: {}: the writer closed the pipe after {} bytes\n",
+                        self.name,
+                        self.read.load(std::sync::atomic::Ordering::Relaxed)
+                    ));
+                    Ok(None)
+                }
             },
             // the pipe closed inside a frame: a program that crashed or was killed
             // mid-frame says so with its status, rather than only "a wrong size?"
