@@ -132,6 +132,14 @@ pub struct DriverArgs {
     /// a live device).
     #[arg(long, allow_negative_numbers = true)]
     pub start_at: Option<i64>,
+    /// With --sim, paced in real time: start at the latest multiple of the run's
+    /// duration on CLOCK_MONOTONIC, skipping what has passed of it, instead of now.
+    /// Both drivers of a pair compute the same instant on one machine, so the pair
+    /// stays consistent however often either restarts (the shipped units' simulator
+    /// restarts every run: without it the two drifted apart by up to a sample period
+    /// an hour, and by each restart's start-up time).
+    #[arg(long, conflicts_with = "start_at")]
+    pub aligned: bool,
     /// How a rendered run is stamped: `sensor` (the rendered sensor clocks),
     /// `mono` (the same stamps carried onto CLOCK_MONOTONIC from --start-at),
     /// `software` (camera only: CLOCK_MONOTONIC read after the front-end
@@ -456,6 +464,20 @@ pub fn select_source(
             ));
         }
     }
+    if args.aligned {
+        if flag != "--sim" {
+            return Err(DriverError::Options(format!(
+                "--aligned applies to --sim (its runs repeat); {flag} is not a simulator run"
+            )));
+        }
+        if args.fast {
+            return Err(DriverError::Options(
+                "--aligned sets when real-time pacing starts; --fast publishes at once, \
+                 without pacing"
+                    .into(),
+            ));
+        }
+    }
     if args.seed.is_some() && flag != "--sim" {
         return Err(DriverError::Options(if flag == "--render" {
             "--seed applies to --sim only; --render takes its seed as its value (--render SEED)"
@@ -509,10 +531,18 @@ pub fn select_source(
             let seed = args.seed.unwrap_or(DEFAULT_SEED);
             let run = vlsync_sim::try_generate(family, seed, args.duration)
                 .map_err(|e| DriverError::Options(format!("--duration: {e}")))?;
+            let start_at = if args.aligned {
+                Some(aligned_start_ns(
+                    vlsync_ipc::monotonic_ns(),
+                    vlsync_common::secs_to_nanos(run.duration_s),
+                ))
+            } else {
+                args.start_at
+            };
             Ok(Selected {
                 source: Box::new(VecSource::from_sim(&run, stream)),
                 anchor_ns: Some(sim_anchor_ns(&run)),
-                start_at: args.start_at,
+                start_at,
                 stopped: None,
             })
         }
@@ -645,6 +675,18 @@ fn recorded_source(args: &DriverArgs) -> bool {
         || args.mcap.is_some()
         || args.frames.is_some()
         || args.scans.is_some()
+}
+
+/// `--aligned`'s start: the latest multiple of `period_ns` at or before `now_ns`
+/// (`now_ns` itself for a period that is not positive).
+pub fn aligned_start_ns(
+    now_ns: vlsync_common::Nanos,
+    period_ns: vlsync_common::Nanos,
+) -> vlsync_common::Nanos {
+    if period_ns <= 0 {
+        return now_ns;
+    }
+    now_ns - now_ns.rem_euclid(period_ns)
 }
 
 /// How often `--wait-device` looks for the device node.
@@ -969,9 +1011,15 @@ fn publish_source(
         stream,
         &source.describe(),
         &names.signature(stream),
-        start_at.filter(|_| args.start_at.is_none()),
+        start_at.filter(|_| args.start_at.is_none() && !args.aligned),
     );
     vlsync_common::console::print_err(&line);
+    if let (true, Some(t)) = (args.aligned, start_at) {
+        vlsync_common::console::print_err(&format!(
+            "vlsync-{stream}: --aligned: this run started at {t} (CLOCK_MONOTONIC ns), {:.1} s ago; publishing from there\n",
+            vlsync_common::nanos_to_secs(vlsync_ipc::monotonic_ns().saturating_sub(t))
+        ));
+    }
     if let Err(e) = crate::watchdog::ready(line.trim_end()) {
         vlsync_common::console::print_err_at(
             vlsync_common::console::Priority::Warning,
@@ -1615,6 +1663,61 @@ mod tests {
             "{end:?}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// --aligned starts a simulator run at the latest multiple of its duration, the
+    /// same instant for both drivers of a pair whenever either starts; it applies to
+    /// --sim paced in real time only.
+    #[test]
+    fn aligned_runs_start_at_a_multiple_of_their_duration() {
+        assert_eq!(aligned_start_ns(7_300, 3_600), 7_200);
+        assert_eq!(aligned_start_ns(7_200, 3_600), 7_200);
+        assert_eq!(aligned_start_ns(3_599, 3_600), 0);
+        assert_eq!(aligned_start_ns(5, 0), 5);
+        let minute = 60_000_000_000;
+        let a = args(&["--sim", "robot", "--duration", "60", "--aligned"]);
+        let before = vlsync_ipc::monotonic_ns();
+        let cam = select_source(&a, Stream::Cam, never)
+            .unwrap()
+            .start_at
+            .unwrap();
+        let lidar = select_source(&a, Stream::Lidar, never)
+            .unwrap()
+            .start_at
+            .unwrap();
+        let after = vlsync_ipc::monotonic_ns();
+        assert_eq!(cam % minute, 0);
+        assert!(
+            cam <= after && after - cam < minute + (after - before),
+            "{cam} {after}"
+        );
+        // the pair agrees unless a minute boundary passed between the two calls
+        assert!(cam == lidar || lidar - cam == minute, "{cam} {lidar}");
+        for (bad, why) in [
+            (
+                &["--csv", "x.csv", "--aligned"][..],
+                "--aligned applies to --sim",
+            ),
+            (
+                &["--sim", "robot", "--aligned", "--fast"][..],
+                "--fast publishes at once",
+            ),
+        ] {
+            let e = select_source(&args(bad), Stream::Cam, never)
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(e.contains(why), "{bad:?}: {e}");
+        }
+        assert!(DriverArgs::try_parse_from([
+            "vlsync-cam",
+            "--sim",
+            "robot",
+            "--aligned",
+            "--start-at",
+            "5"
+        ])
+        .is_err());
     }
 
     /// --config is read once: a file broken while the driver waits for its device

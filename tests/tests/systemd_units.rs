@@ -647,3 +647,52 @@ fn the_guides_uninstall_removes_what_the_guide_creates() {
     assert!(pos("udevadm control --reload") > pos("/etc/udev/rules.d/"));
     assert!(pos("systemctl daemon-reload") > pos(".service.d"));
 }
+
+/// The drivers' shipped arguments (the uncommented line of `cam.env` and `lidar.env`,
+/// the simulator by default) start the driver: each publishes, says where its
+/// aligned run started, and stops cleanly on SIGTERM. A key the driver no longer
+/// takes would otherwise only show on a robot, as a unit failed with exit 78.
+#[test]
+fn the_shipped_driver_arguments_run() {
+    for stream in ["cam", "lidar"] {
+        let env = std::fs::read_to_string(deploy().join(format!("{stream}.env"))).unwrap();
+        let key = format!("VLSYNC_{}_ARGS=", stream.to_uppercase());
+        let lines: Vec<&str> = env
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix(key.as_str()))
+            .collect();
+        assert_eq!(lines.len(), 1, "{stream}.env: one uncommented {key} line");
+        // the default line has no quoted parts (systemd splits it on spaces here)
+        assert!(!lines[0].contains('"'), "{stream}.env: {}", lines[0]);
+        let dir =
+            std::env::temp_dir().join(format!("vlsync-it-env-{stream}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let log = dir.join("driver.log");
+        let prefix = format!("vlsync-it/env-{stream}-{}", std::process::id());
+        let mut args: Vec<String> = vec!["--prefix".into(), prefix];
+        args.extend(lines[0].split_whitespace().map(String::from));
+        let mut m = vlsync_tests::Managed::spawn(
+            &format!("vlsync-{stream}"),
+            &bin(&format!("vlsync-{stream}")),
+            &args,
+            Some(&log),
+        )
+        .unwrap();
+        let text = || std::fs::read_to_string(&log).unwrap_or_default();
+        assert_eq!(
+            m.wait_for_log(&log, "publishing", std::time::Duration::from_secs(60)),
+            Ok(true),
+            "{}",
+            text()
+        );
+        if lines[0].contains("--aligned") {
+            assert!(
+                text().contains("--aligned: this run started at"),
+                "{}",
+                text()
+            );
+        }
+        assert!(m.stop(std::time::Duration::from_secs(10)), "{}", text());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
