@@ -36,13 +36,20 @@ pub const CHUNK_S: f64 = 2.4;
 /// Lag half-range of the seed, seconds.
 pub const MAX_OFFSET_S: f64 = 0.5;
 /// Longest grid (samples) the baseline builds; longer overlaps give no estimates
-/// rather than an unbounded allocation (10^8 samples: 38 days at 30 Hz).
-pub const MAX_GRID: usize = 100_000_000;
+/// rather than an unbounded allocation (10^7 samples: 3.8 days at 30 Hz, 240 MB for the
+/// grid and the two resampled streams; the longest simulated run is an hour).
+pub const MAX_GRID: usize = 10_000_000;
+/// Most grid samples per input sample (both streams' finite ones together): the grid
+/// is at the camera rate, so one far longer than the inputs would only repeat a few
+/// samples (streams with long gaps, a wrong `cam_hz`); two samples a day apart would
+/// otherwise take millions of grid points. Keeps the memory in proportion to the input.
+pub const MAX_GRID_PER_SAMPLE: usize = 16;
 
 /// The seed's chunked estimator (bugs fixed, see the [module docs](self)):
 /// `(chunk centre on the LiDAR clock, offset t_L - t_C in seconds)` per chunk.
 /// Returns nothing for empty/non-overlapping inputs, a non-positive `cam_hz`, or an
-/// overlap longer than [`MAX_GRID`] grid samples.
+/// overlap longer than [`MAX_GRID`] grid samples or [`MAX_GRID_PER_SAMPLE`] per input
+/// sample. Any stamps are accepted (the overlap's span is computed without overflow).
 pub fn seed_chunked(cam: &[Sample], lidar: &[Sample], cam_hz: f64) -> Vec<(Nanos, f64)> {
     let cam: Vec<Sample> = cam
         .iter()
@@ -64,14 +71,16 @@ pub fn seed_chunked(cam: &[Sample], lidar: &[Sample], cam_hz: f64) -> Vec<(Nanos
     if t1 <= t0 {
         return Vec::new();
     }
-    // np.arange(t0, t1, dt)
-    let n_f = (((t1 - t0) as f64) / dt_ns).ceil();
-    if n_f > MAX_GRID as f64 {
+    // np.arange(t0, t1, dt); the span of stamps far apart overflows i64
+    let span_ns = i128::from(t1) - i128::from(t0);
+    let n_f = (span_ns as f64 / dt_ns).ceil();
+    let most = MAX_GRID.min(MAX_GRID_PER_SAMPLE.saturating_mul(cam.len() + lidar.len()));
+    if n_f > most as f64 {
         return Vec::new();
     }
     let n = n_f as usize;
     let grid: Vec<Nanos> = (0..n)
-        .map(|i| t0 + (i as f64 * dt_ns).round() as Nanos)
+        .map(|i| t0.saturating_add((i as f64 * dt_ns).round() as Nanos))
         .collect();
     let resample = |s: &[Sample]| -> Vec<f64> {
         grid.iter()
@@ -94,7 +103,7 @@ pub fn seed_chunked(cam: &[Sample], lidar: &[Sample], cam_hz: f64) -> Vec<(Nanos
         let a = demean(&cam_g[start..start + chunk_n]);
         let b = demean(&lid_g[start..start + chunk_n]);
         let lag = argmax_lag(&a, &b, max_lag);
-        let centre = grid[start] + secs_to_nanos(chunk_n as f64 * dt / 2.0);
+        let centre = grid[start].saturating_add(secs_to_nanos(chunk_n as f64 * dt / 2.0));
         out.push((centre, -(lag as f64) * dt));
         start += (chunk_n / 2).max(1);
     }
@@ -141,6 +150,28 @@ mod tests {
         assert!(seed_chunked(&a, &a, f64::NAN).is_empty());
         assert!(seed_chunked(&a, &a, -30.0).is_empty());
         assert!(seed_chunked(&a[..1], &a[..1], 30.0).is_empty());
+    }
+
+    /// Stamps far apart: their span overflowed i64 (a panic with overflow checks), and
+    /// two samples a day apart built a grid of 2.6 million points (10^8 were allowed: 2.4
+    /// GB) to resample them over and over.
+    #[test]
+    fn extreme_or_sparse_stamps_give_no_estimates() {
+        let far = [
+            Sample::new(-5_000_000_000_000_000_000, 1.0),
+            Sample::new(5_000_000_000_000_000_000, 2.0),
+        ];
+        assert!(seed_chunked(&far, &far, 30.0).is_empty());
+        let wide = [Sample::new(i64::MIN, 1.0), Sample::new(i64::MAX, 2.0)];
+        assert!(seed_chunked(&wide, &wide, 1e-9).is_empty());
+        let day = secs_to_nanos(86_400.0);
+        let sparse = [Sample::new(0, 1.0), Sample::new(day, 2.0)];
+        assert!(seed_chunked(&sparse, &sparse, 30.0).is_empty());
+        // a dense stream of the same span is the grid's own length: estimated
+        let cam: Vec<Sample> = (0..300)
+            .map(|k| Sample::new(k * 33_333_333, (k as f64 * 0.3).sin()))
+            .collect();
+        assert!(!seed_chunked(&cam, &cam, 30.0).is_empty());
     }
 
     #[test]

@@ -25,7 +25,8 @@ pub const MIN_WINDOW_S: f64 = 0.1;
 
 /// Bound (standard deviation, seconds) for noise `sigma_cam`/`sigma_lidar` and the
 /// noiseless signature slopes at the samples. Infinite when a stream carries no
-/// information (no samples or all slopes zero); NaN only for NaN inputs.
+/// information (no samples or all slopes zero), even without noise; 0 without noise
+/// on either stream otherwise; NaN only for NaN inputs.
 pub fn crb_std_s(
     sigma_cam: f64,
     cam_slopes: &[f64],
@@ -38,13 +39,17 @@ pub fn crb_std_s(
     .sqrt()
 }
 
-/// One stream's term of the bound: `σ² / Σ s'²` (0 without noise, infinite without
-/// information).
+/// One stream's term of the bound: `σ² / Σ s'²`, infinite without information
+/// (whatever the noise: a stream without samples or motion measures nothing, noisy or
+/// not), 0 without noise where it has some.
 fn stream_variance(sigma: f64, info: f64) -> f64 {
-    if sigma == 0.0 {
-        0.0
-    } else if info > 0.0 {
-        sigma * sigma / info
+    // the information first: without it there is no bound, noisy or not
+    if info > 0.0 {
+        if sigma == 0.0 {
+            0.0
+        } else {
+            sigma * sigma / info
+        }
     } else {
         f64::INFINITY
     }
@@ -144,7 +149,8 @@ pub const CAUSAL_BIN_NS: Nanos = 500_000_000;
 /// them from the stamps' cadence, not exactly). It is a floor, not a prediction:
 /// side-peak errors at low SNR, stamp jitter and the estimator's robustness against
 /// outliers and steps all come on top. A time without information up to its horizon
-/// gives infinity; a run without noise gives zero.
+/// gives infinity, with noise or without; a run without noise gives zero where it has
+/// some (a bin where both streams see motion measures the offset exactly).
 ///
 /// ```
 /// use vlsync_sim::{crb::causal_std_s, families::{generate, Family}};
@@ -169,9 +175,6 @@ pub fn causal_std_s(
     if drift_prior_std.is_nan() || lookahead_s.is_nan() {
         return vec![f64::NAN; times_ns.len()];
     }
-    if run.noise_cam == 0.0 && run.noise_lidar == 0.0 {
-        return vec![0.0; times_ns.len()];
-    }
     let bin_of = |p: &CleanPoint| p.tau_ns.div_euclid(CAUSAL_BIN_NS);
     let (first, last) = match (run.lidar_clean.first(), run.lidar_clean.last()) {
         (Some(a), Some(b)) => (bin_of(a), bin_of(b)),
@@ -195,14 +198,15 @@ pub fn causal_std_s(
             }
         }
     }
-    // (bin centre s, information 1/s²) of the bins that carry any
+    // (bin centre s, information 1/s²) of the bins that carry any; a bin measured
+    // without noise has infinite information
     let bins: Vec<(f64, f64)> = sums
         .iter()
         .enumerate()
         .map(|(i, &(c, l))| {
             let v = stream_variance(run.noise_cam, c) + stream_variance(run.noise_lidar, l);
             let centre = ((first + i as i64) as f64 + 0.5) * nanos_to_secs(CAUSAL_BIN_NS);
-            (centre, if v > 0.0 { 1.0 / v } else { 0.0 })
+            (centre, 1.0 / v)
         })
         .filter(|b| b.1 > 0.0)
         .collect();
@@ -218,6 +222,10 @@ pub fn causal_std_s(
             let j_oo: f64 = within.iter().map(|b| b.1).sum();
             if within.is_empty() || j_oo <= 0.0 {
                 return f64::INFINITY;
+            }
+            // an exact measurement up to the horizon (a run without noise)
+            if j_oo.is_infinite() {
+                return 0.0;
             }
             let var = if known_drift {
                 1.0 / j_oo
@@ -398,6 +406,69 @@ mod tests {
         assert_eq!(
             causal_std_s(&run, &[centre(k + 4)], 1.0, -1.0),
             causal_std_s(&run, &[centre(k + 4)], 1.0, 0.0)
+        );
+    }
+
+    /// Without information the bound is infinite whatever the noise: without noise it
+    /// came out 0 (no samples, or a standstill), as if the offset were known exactly.
+    #[test]
+    fn no_information_is_no_bound_even_without_noise() {
+        assert!(crb_std_s(0.0, &[], 0.0, &[1.0]).is_infinite());
+        assert!(crb_std_s(0.0, &[0.0; 5], 0.0, &[1.0]).is_infinite());
+        assert!(crb_std_s(0.01, &[1.0], 0.0, &[]).is_infinite());
+        // with information: exact without noise, one stream's term with noise on it alone
+        assert_eq!(crb_std_s(0.0, &[1.0], 0.0, &[2.0]), 0.0);
+        assert!((crb_std_s(0.0, &[1.0; 100], 0.01, &[1.0; 100]) - 1e-3).abs() < 1e-15);
+
+        let run = crate::families::try_generate_with(
+            crate::families::Family::Standstill,
+            3,
+            Some(60.0),
+            0.0,
+        )
+        .unwrap();
+        assert_eq!(run.noise_cam, 0.0);
+        let (a, b) = run.standstills[0];
+        // a window inside the standstill has no information; one in motion is exact
+        let w = crb_windows_std_s(&run, 4.0).unwrap();
+        let w_ns = secs_to_nanos(4.0);
+        let inside = w
+            .iter()
+            .find(|x| x.0 - w_ns / 2 >= a && x.0 + w_ns / 2 <= b)
+            .unwrap();
+        assert!(inside.1.is_infinite(), "{inside:?}");
+        assert!(w.iter().any(|x| x.1 == 0.0));
+        // causal: nothing before the data, exact once both streams have seen motion
+        let before = -secs_to_nanos(5.0);
+        let moving = b + secs_to_nanos(5.0);
+        for prior in [0.0, 50e-6] {
+            assert_eq!(
+                causal_std_s(&run, &[before, moving], 1.0, prior),
+                [f64::INFINITY, 0.0],
+                "prior {prior}"
+            );
+        }
+    }
+
+    /// A window's error quotes the numbers as the duration's and the noise scale's do
+    /// (`vlsync_common::text::number`): a tiny or huge window was printed in full.
+    #[test]
+    fn window_errors_quote_numbers_as_the_other_errors_do() {
+        let run = crate::families::generate(crate::families::Family::Robot, 1, Some(60.0));
+        let e = |w: f64| crb_window_std_s(&run, w).unwrap_err().to_string();
+        assert_eq!(
+            e(1e-9),
+            "window 1e-9 s is invalid: expected a finite number in [0.1, 60] s (the run length)"
+        );
+        assert!(
+            e(1e300).starts_with("window 1e300 s is invalid"),
+            "{}",
+            e(1e300)
+        );
+        assert!(
+            e(f64::NAN).starts_with("window NaN s is invalid"),
+            "{}",
+            e(f64::NAN)
         );
     }
 

@@ -28,7 +28,8 @@
 //!   ([`CAM_NOISE`]), i.e. 0.0027 m/s-equivalent: the LiDAR's is the larger one.
 //!
 //! Noise levels do not depend on the sample rates. The robot first moves 1-3 s after
-//! the start ([`SimRun::motion_start_ns`]).
+//! the start ([`SimRun::motion_start_ns`]), or after the standstill when a short
+//! `standstill` run's rest begins before that.
 //!
 //! # Families
 //!
@@ -38,7 +39,7 @@
 //! | `robot` | 30/10 | U[-0.15, 0.30] s | exact | |
 //! | `clocks` | 30/10 | U[-0.3, 0.3] s, ±20-60 ppm | jitter 1 ms cam, 3 ms LiDAR | 5 % drops each, one 1.2-2 s LiDAR gap at 30-70 % of the run |
 //! | `load-steps` | 30/10 | U[0, 0.2] s | exact | ±25 ms steps every U[15, 25] s, cumulative within ±50 ms |
-//! | `standstill` | 30/10 | U[-0.1, 0.2] s | exact | 30 s rest centred in the run (min(30 s, duration/3)) |
+//! | `standstill` | 30/10 | U[-0.1, 0.2] s | exact | 30 s rest centred in the run (min(30 s, duration/3)); under [`MIN_STANDSTILL_S`] (runs under 15 s) not reported as a standstill unless it joins the initial rest |
 //! | `rates-60x5` | 60/5.5 | U[0, 0.3] s | exact | |
 //! | `rates-15x20` | 15/20 | U[0, 0.3] s | exact | |
 //! | `big-offset` | 30/10 | 0.45 s | exact | |
@@ -115,7 +116,8 @@ pub enum Family {
     Clocks,
     /// Robot profile with ±25 ms offset steps every 15-25 s.
     LoadSteps,
-    /// Robot profile with one 30 s standstill in the middle.
+    /// Robot profile with one standstill in the middle: 30 s, a third of a run
+    /// shorter than 90 s (see [`Family::description`]).
     Standstill,
     /// 60 Hz camera, 5.5 Hz LiDAR.
     Rates60x5,
@@ -172,7 +174,7 @@ impl Family {
             Family::Robot => "robot drive (accelerations, cruise 0.2-0.6 m/s, 1-4 s stops, turns), 30/10 Hz, constant offset in [-0.15, 0.30] s, negative polarity",
             Family::Clocks => "robot; offset in [-0.3, 0.3] s + 20-60 ppm drift, jitter 1 ms cam / 3 ms LiDAR, 5 % dropped frames and scans, one 1.2-2 s LiDAR gap",
             Family::LoadSteps => "robot; offset in [0, 0.2] s with ±25 ms steps every 15-25 s",
-            Family::Standstill => "robot with one 30 s standstill in the middle (signatures are pure noise there)",
+            Family::Standstill => "robot with one standstill in the middle (signatures are pure noise there): 30 s, a third of a run under 90 s; in a run under 15 s that rest is under 5 s, a stop like the robot's, not reported as a standstill",
             Family::Rates60x5 => "robot; 60 Hz camera, 5.5 Hz LiDAR, offset in [0, 0.3] s",
             Family::Rates15x20 => "robot; 15 Hz camera, 20 Hz LiDAR, offset in [0, 0.3] s",
             Family::BigOffset => "robot; offset 0.45 s",
@@ -283,8 +285,10 @@ impl fmt::Display for SimError {
             ),
             SimError::InvalidWindow { window_s, duration_s } => write!(
                 f,
-                "window {window_s} s is invalid: expected a finite number in [{}, {duration_s}] s (the run length)",
-                crate::crb::MIN_WINDOW_S
+                "window {} s is invalid: expected a finite number in [{}, {}] s (the run length)",
+                vlsync_common::text::number(*window_s),
+                vlsync_common::text::number(crate::crb::MIN_WINDOW_S),
+                vlsync_common::text::number(*duration_s)
             ),
         }
     }
@@ -373,6 +377,9 @@ pub struct SimRun {
     /// LiDAR times of the offset steps, ns.
     pub step_times_ns: Vec<Nanos>,
     /// Rests of at least [`MIN_STANDSTILL_S`] (v = 0 and no turn), LiDAR clock, ns.
+    /// The same rule for every family: a `standstill` run under 15 s, whose rest is a
+    /// third of it, reports that rest only where it joins the initial rest (the robot
+    /// family's 1-4 s stops are not reported either: a window spans them).
     pub standstills: Vec<(Nanos, Nanos)>,
     /// Intervals (LiDAR clock, ns) in which every LiDAR scan was removed.
     pub lidar_gaps: Vec<(Nanos, Nanos)>,
@@ -609,7 +616,6 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
     let initial_rest = rng.gen_range(1.0..3.0);
     rests.push((0.0, initial_rest));
     t += initial_rest;
-    let motion_start = t;
     let ramp_len = |rng: &mut ChaCha8Rng, v0: f64, v1: f64| {
         let a = rng.gen_range(0.3..0.45);
         crate::families::ramp_len(a, v0, v1)
@@ -696,6 +702,15 @@ fn plan_robot(rng: &mut ChaCha8Rng, end: f64, forced: Option<(f64, f64)>) -> Rob
             _ => merged.push(r),
         }
     }
+    // the robot first moves where the first segment with speed begins: after the
+    // initial rest, or after the forced rest when that comes at once (a short run's
+    // standstill centred before the initial rest ends); the end of the plan if it never
+    // moves
+    let motion_start = drive
+        .segs
+        .iter()
+        .find(|s| s.v0 > 0.0 || s.v1 > 0.0)
+        .map_or(t, |s| s.t0);
     RobotProfile {
         drive,
         motion_start,
@@ -1436,6 +1451,76 @@ mod tests {
             .standstills
             .iter()
             .all(|s| nanos_to_secs(s.1 - s.0) < 29.0));
+    }
+
+    /// A short standstill run whose rest comes before the initial rest ends pushes the
+    /// rest at once: the robot first moves after it, and the motion start says so (it
+    /// said the end of the initial rest, some 4 s early, so time to first lock and the
+    /// CLI's "motion starts" were off by the rest).
+    #[test]
+    fn motion_start_is_where_the_robot_first_moves() {
+        let mut late_starts = 0;
+        for (family, duration) in [
+            (Family::Standstill, Some(12.0)),
+            (Family::Standstill, Some(6.0)),
+            (Family::Standstill, None),
+            (Family::Robot, None),
+        ] {
+            for seed in 0..12 {
+                let run = try_generate_with(family, seed, duration, 0.0).unwrap();
+                let ms = run.motion_start_ns;
+                let first = run
+                    .lidar_clean
+                    .iter()
+                    .find(|c| c.value != 0.0)
+                    .expect("the robot moves")
+                    .tau_ns;
+                // the first scan after the start sees it moving (a LiDAR period later at most)
+                assert!(
+                    first > ms && first - ms <= 100_000_000,
+                    "{family} {duration:?} seed {seed}: moves at {first} ns, start said {ms} ns"
+                );
+                if ms > secs_to_nanos(3.0) {
+                    late_starts += 1;
+                }
+            }
+        }
+        assert!(late_starts > 0, "no run with the rest first");
+    }
+
+    /// The description says how long the standstill is and when it is reported: a
+    /// third of a short run, and not at all under 15 s (it said "one 30 s standstill"
+    /// whatever the duration, while a 12 s run reported none or the initial rest).
+    #[test]
+    fn standstill_description_says_what_a_short_run_does() {
+        let d = Family::Standstill.description();
+        assert!(
+            d.contains("30 s, a third of a run under 90 s") && d.contains("under 15 s"),
+            "{d}"
+        );
+        let lengths = |duration: f64| -> Vec<Vec<(f64, f64)>> {
+            (0..6)
+                .map(|seed| {
+                    generate(Family::Standstill, seed, Some(duration))
+                        .standstills
+                        .iter()
+                        .map(|&(a, b)| (nanos_to_secs(a), nanos_to_secs(b - a)))
+                        .collect()
+                })
+                .collect()
+        };
+        for (duration, len) in [(60.0, 20.0), (15.0, 5.0)] {
+            for s in lengths(duration) {
+                assert!(
+                    s.len() == 1 && (s[0].1 - len).abs() < 1e-6,
+                    "{duration} s: {s:?}"
+                );
+            }
+        }
+        // under 15 s: nothing, or the rest where it joins the initial one
+        for s in lengths(14.9).into_iter().chain(lengths(12.0)) {
+            assert!(s.iter().all(|r| r.0 == 0.0), "{s:?}");
+        }
     }
 
     #[test]

@@ -100,47 +100,47 @@ pub fn write_secs(out: &mut impl std::fmt::Write, ns: Nanos) {
 }
 
 /// Parses a time in seconds (decimal text, optionally with an exponent) to nanoseconds.
-/// Plain decimals are converted exactly (rounded half away from zero at the nanosecond);
-/// exponent forms go through `f64`. Errors on non-finite or out-of-range times.
+/// Both forms are converted exactly (rounded half away from zero at the nanosecond), so
+/// they accept the same range, the whole of `i64` nanoseconds (about ±292 years): `1e9`
+/// and `1000000000` are the same time, and so are `9.2e9` and `9200000000`. Errors on
+/// non-finite or out-of-range times.
 ///
 /// ```
 /// use vlsync_sim::io::parse_secs;
 /// assert_eq!(parse_secs("1700000000.123456789"), Ok(1_700_000_000_123_456_789));
 /// assert_eq!(parse_secs("-0.5"), Ok(-500_000_000));
 /// assert_eq!(parse_secs("2.5e-3"), Ok(2_500_000));
+/// assert_eq!(parse_secs("9.223372036854775807E9"), Ok(i64::MAX));
 /// assert!(parse_secs("abc").is_err());
 /// ```
 pub fn parse_secs(text: &str) -> Result<Nanos, String> {
     let s = text.trim();
-    if let Some(ns) = parse_plain_decimal(s) {
+    if let Some(ns) = parse_exact_decimal(s) {
         return ns;
     }
-    let v: f64 = s
-        .parse()
-        .map_err(|_| format!("time `{}` is not a number", clip(s)))?;
-    if !v.is_finite() {
-        return Err(format!("time `{}` is not finite", clip(s)));
+    // what Rust's float syntax accepts beyond ours is `inf`, `infinity` and `NaN`
+    match s.parse::<f64>() {
+        Ok(v) if !v.is_finite() => Err(format!("time `{}` is not finite", clip(s))),
+        _ => Err(format!("time `{}` is not a number", clip(s))),
     }
-    let ns = (v * 1e9).round();
-    if ns.abs() >= 9.2e18 {
-        return Err(format!(
-            "time `{}` s is out of the nanosecond range",
-            clip(s)
-        ));
-    }
-    Ok(ns as i64)
 }
 
-/// `None` when `s` is not of the form `[+-]digits[.digits]` / `[+-].digits`.
-fn parse_plain_decimal(s: &str) -> Option<Result<Nanos, String>> {
+/// `None` when `s` is not of the form `[+-]digits[.digits][e[+-]digits]` (digits on
+/// at least one side of the point; `E` too); else its value in nanoseconds, computed
+/// on the digits (no `f64` rounding), or the out-of-range error.
+fn parse_exact_decimal(s: &str) -> Option<Result<Nanos, String>> {
     let (neg, body) = match s.as_bytes().first() {
         Some(b'-') => (true, &s[1..]),
         Some(b'+') => (false, &s[1..]),
         _ => (false, s),
     };
-    let (int_part, frac_part) = match body.find('.') {
-        Some(i) => (&body[..i], &body[i + 1..]),
-        None => (body, ""),
+    let (mantissa, exponent) = match body.find(['e', 'E']) {
+        Some(i) => (&body[..i], Some(&body[i + 1..])),
+        None => (body, None),
+    };
+    let (int_part, frac_part) = match mantissa.find('.') {
+        Some(i) => (&mantissa[..i], &mantissa[i + 1..]),
+        None => (mantissa, ""),
     };
     let all_digits = |p: &str| p.bytes().all(|b| b.is_ascii_digit());
     if (int_part.is_empty() && frac_part.is_empty())
@@ -149,29 +149,57 @@ fn parse_plain_decimal(s: &str) -> Option<Result<Nanos, String>> {
     {
         return None;
     }
+    // beyond ±10^6 every mantissa with a non-zero digit is out of range or rounds to 0
+    let exp: i64 = match exponent {
+        None => 0,
+        Some(e) => {
+            let (e_neg, e_digits) = match e.as_bytes().first() {
+                Some(b'-') => (true, &e[1..]),
+                Some(b'+') => (false, &e[1..]),
+                _ => (false, e),
+            };
+            if e_digits.is_empty() || !all_digits(e_digits) {
+                return None;
+            }
+            let mag = e_digits
+                .bytes()
+                .fold(0i64, |m, b| (m * 10 + i64::from(b - b'0')).min(1_000_000));
+            if e_neg {
+                -mag
+            } else {
+                mag
+            }
+        }
+    };
     let out_of_range = || {
         Err(format!(
             "time `{}` s is out of the nanosecond range",
             clip(s)
         ))
     };
-    let mut secs: i128 = 0;
-    for b in int_part.bytes() {
-        secs = secs * 10 + i128::from(b - b'0');
-        if secs > 10_000_000_000 {
+    // the mantissa's digits without the point and the leading zeros: the nanoseconds
+    // are the first `whole` of them (zeros past their end), rounded by the next one
+    let lead = int_part
+        .bytes()
+        .chain(frac_part.bytes())
+        .take_while(|&b| b == b'0')
+        .count();
+    let mut digits = int_part.bytes().chain(frac_part.bytes()).skip(lead);
+    let whole = int_part.len() as i64 - lead as i64 + exp + 9;
+    let mut digit = || digits.next().map_or(0, |b| i128::from(b - b'0'));
+    let mut ns: i128 = 0;
+    if int_part.len() + frac_part.len() > lead {
+        // a non-zero digit leads: past 19 digits the value is out of range
+        if whole > 19 {
             return Some(out_of_range());
         }
+        for _ in 0..whole.max(0) {
+            ns = ns * 10 + digit();
+        }
+        if whole >= 0 && digit() >= 5 {
+            ns += 1;
+        }
     }
-    let mut frac: i128 = 0;
-    let fb = frac_part.as_bytes();
-    for i in 0..9 {
-        let d = fb.get(i).map_or(0, |b| i128::from(b - b'0'));
-        frac = frac * 10 + d;
-    }
-    if fb.get(9).is_some_and(|&b| b >= b'5') {
-        frac += 1;
-    }
-    let mut ns = secs * i128::from(NANOS_PER_SEC) + frac;
     if neg {
         ns = -ns;
     }
@@ -216,7 +244,9 @@ fn parse_rows(
         ));
     }
     let mut stats = CsvStats::default();
-    for (idx, raw) in bytes.split(|&b| b == b'\n').enumerate() {
+    // the newline ending the last line ends it, and starts no blank line after it
+    let lines = bytes.strip_suffix(b"\n").unwrap_or(bytes);
+    for (idx, raw) in lines.split(|&b| b == b'\n').enumerate() {
         let lineno = idx + 1;
         let line = std::str::from_utf8(raw).map_err(|e| {
             err(
@@ -635,6 +665,8 @@ mod tests {
 
     #[test]
     fn lenient_parts_are_counted() {
+        // two blank lines: an empty one (CRLF) and one of spaces; the newline ending
+        // the file starts none (it was counted as a third)
         let text =
             b"\xEF\xBB\xBFt,value,extra\r\n0.1,1.5,foo\r\n\r\n  \n0.2, NaN\n0.3,-inf\n0.4,nan\n";
         let (s, st) = parse_signature_csv(text, "f").unwrap();
@@ -644,12 +676,23 @@ mod tests {
             st,
             CsvStats {
                 rows: 4,
-                blank_lines: 3,
+                blank_lines: 2,
                 non_finite_values: 3,
                 extra_column_rows: 1
             }
         );
         assert!(s[3].value.is_nan());
+        // a normal file has none, with or without its last newline; one more newline is one
+        for (text, blank) in [
+            (&b"t,value\n0.1,1\n"[..], 0),
+            (b"t,value\r\n0.1,1\r\n", 0),
+            (b"t,value\n0.1,1", 0),
+            (b"t,value\n0.1,1\n\n", 1),
+            (b"t,value\n", 0),
+        ] {
+            let (_, st) = parse_signature_csv(text, "f").unwrap();
+            assert_eq!(st.blank_lines, blank, "{:?}", String::from_utf8_lossy(text));
+        }
     }
 
     #[test]
@@ -662,9 +705,79 @@ mod tests {
         assert!(parse_secs("1e30").is_err());
         assert!(parse_secs("-").is_err());
         assert!(parse_secs(".").is_err());
+        for bad in ["1e", "e5", "1e+", "1e5.5", "1.5e-x", "--1", "+-1", "1 e5"] {
+            assert!(
+                parse_secs(bad).unwrap_err().contains("not a number"),
+                "{bad}"
+            );
+        }
+        for bad in ["inf", "-infinity", "NaN"] {
+            assert!(parse_secs(bad).unwrap_err().contains("not finite"), "{bad}");
+        }
         assert_eq!(format_secs(0), "0.000000000");
         assert_eq!(parse_secs(&format_secs(i64::MIN)), Ok(i64::MIN));
         assert_eq!(parse_secs(&format_secs(i64::MAX)), Ok(i64::MAX));
+    }
+
+    /// A time in exponent form is read as exactly as the same time written out, over
+    /// the same range: exponents went through `f64` and refused |t| ≥ 9.2e18 ns, which
+    /// the plain form accepts up to `i64::MAX`.
+    #[test]
+    fn exponent_and_plain_forms_agree() {
+        let pairs = [
+            ("9.2e9", "9200000000"),
+            ("-9.2e9", "-9200000000"),
+            ("9.223372036854775807e9", "9223372036.854775807"),
+            ("-9223372036854775808E-9", "-9223372036.854775808"),
+            ("1.7000000001234567e9", "1700000000.1234567"),
+            ("25e-10", "0.0000000025"),
+            ("-25e-10", "-0.0000000025"),
+            ("2.4999e-9", "0.0000000024999"),
+            ("0.5e1", "5"),
+            ("5.E-1", ".5"),
+            ("+.5e+1", "5."),
+            ("00012.5e-3", "0.0125"),
+            ("0e999999999999", "0"),
+            ("1e-999999999999", "0"),
+        ];
+        for (exp, plain) in pairs {
+            assert_eq!(parse_secs(exp), parse_secs(plain), "{exp} against {plain}");
+            assert!(parse_secs(exp).is_ok(), "{exp}");
+        }
+        assert_eq!(parse_secs("9.2e9"), Ok(9_200_000_000_000_000_000));
+        assert_eq!(parse_secs("25e-10"), Ok(3));
+        assert_eq!(
+            parse_secs("1.7000000001234567e9"),
+            Ok(1_700_000_000_123_456_700)
+        );
+        for out in [
+            "9.223372036854775808e9",
+            "9223372036.854775808",
+            "-9.223372036854775809e9",
+            "1e10",
+            "1e999999999999",
+            "0.00000000000000000001e30",
+        ] {
+            let e = parse_secs(out).unwrap_err();
+            assert!(e.contains("out of the nanosecond range"), "{out}: {e}");
+        }
+        // exactness and the range, for any time written both ways
+        for ns in [
+            i64::MIN,
+            i64::MIN + 1,
+            -1,
+            0,
+            1,
+            123_456_789,
+            i64::MAX - 1,
+            i64::MAX,
+        ] {
+            let plain = format_secs(ns);
+            let digits: String = plain.chars().filter(|c| c.is_ascii_digit()).collect();
+            let sign = if ns < 0 { "-" } else { "" };
+            assert_eq!(parse_secs(&format!("{sign}{digits}e-9")), Ok(ns), "{plain}");
+            assert_eq!(parse_secs(&plain), Ok(ns));
+        }
     }
 
     #[test]

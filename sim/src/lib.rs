@@ -3,7 +3,9 @@
 //!
 //! * [`families`]: deterministic scenarios ([`families::Family`]) producing camera and
 //!   LiDAR signature streams and the true offset ([`families::generate`]);
-//! * [`crb`]: the Cramér-Rao bound of the offset for a run (whole run and per window);
+//! * [`crb`]: the Cramér-Rao bound of the offset for a run (whole run and per window),
+//!   and the causal bound of an ideal online estimator at given reference times
+//!   ([`crb::causal_std_s`]; [`crb::share_beyond`], the share of errors it could not avoid);
 //! * [`io`]: signature and truth CSV files (strict, line-numbered errors);
 //! * [`baseline`]: the seed article's chunked correlator with its sign and lag-range bugs
 //!   fixed — the number to beat;

@@ -208,7 +208,7 @@ fn a_recording_in_the_out_directory_is_not_overwritten() {
     let out = run(false);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("no truth.csv beside it"), "{err}");
+    assert!(err.contains("without truth.csv beside it"), "{err}");
     assert_eq!(
         std::fs::read_to_string(dir.join("lidar.csv")).unwrap(),
         "t,value\n1.0,0.5\n"
@@ -225,5 +225,50 @@ fn a_recording_in_the_out_directory_is_not_overwritten() {
     assert_eq!(cam, generate(Family::Robot, 0, Some(10.0)).cam);
     // and the run it wrote is replaced again without --force
     assert!(run(false).status.success());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A `vlsync-render --out` directory (its truth.csv headed as ours) is refused before
+/// anything is written: its truth was overwritten, and only then its other files named
+/// in a note.
+#[test]
+fn a_rendered_run_in_the_out_directory_is_not_overwritten() {
+    let dir = tmp("rendered");
+    std::fs::create_dir_all(&dir).unwrap();
+    let truth = "t,offset\n0.000000000,0.123\n";
+    let files = [
+        ("frames.csv", "t,file\n"),
+        ("scans.csv", "t,angle,range\n"),
+        ("truth.csv", truth),
+        ("motion.csv", "t,x,y,yaw,speed,yaw_rate\n"),
+    ];
+    for (f, text) in files {
+        std::fs::write(dir.join(f), text).unwrap();
+    }
+    let out = bin()
+        .args(["--family", "robot", "--duration", "10", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{} holds frames.csv, motion.csv, scans.csv, truth.csv: a vlsync-render run",
+            dir.display()
+        )) && err.contains("choose another --out")
+            && err.contains("--force"),
+        "{err}"
+    );
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("truth.csv")).unwrap(),
+        truth
+    );
+    assert!(!dir.join("cam.csv").exists() && !dir.join("lidar.csv").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }

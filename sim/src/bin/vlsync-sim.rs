@@ -28,11 +28,13 @@ struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     noise_scale: f64,
     /// Output directory (created if missing). An earlier vlsync-sim run there is
-    /// replaced; any other cam.csv, lidar.csv or truth.csv (a recording) is refused.
+    /// replaced; another run is refused: a vlsync-render run (frames.csv, scans.csv,
+    /// motion.csv), a recording's cam.csv/lidar.csv, an est.csv without a vlsync-sim
+    /// run beside it, any cam.csv, lidar.csv or truth.csv without the other two.
     #[arg(long, required_unless_present = "list")]
     out: Option<PathBuf>,
-    /// Overwrite cam.csv, lidar.csv and truth.csv in --out even when they are not
-    /// an earlier vlsync-sim run.
+    /// Write cam.csv, lidar.csv and truth.csv in --out (overwriting them) even when
+    /// the directory holds another run than an earlier vlsync-sim one.
     #[arg(long)]
     force: bool,
 }
@@ -55,43 +57,91 @@ const OWN_FILES: [(&str, &str); 3] = [
     ("truth.csv", "t,offset"),
 ];
 
-/// Refuses a directory whose cam.csv, lidar.csv or truth.csv is not an earlier
-/// vlsync-sim run: a `vlsyncd record` recording (its files carry a `publish` column
-/// and no truth), or a user's own streams without the truth beside them. A run of
-/// this tool is replaced: every one of its files present has the header it writes,
-/// and the truth is there.
+/// The files of a `vlsync-render` run beside its own truth.csv (headed as ours is, so
+/// only these tell the two apart; its `RUN_FILES`).
+const RENDER_FILES: [&str; 3] = ["frames.csv", "scans.csv", "motion.csv"];
+/// The estimates `vlsyncd record` writes beside its recording (and a replay's usual
+/// `--out`): without a run of this tool beside it, another run's, whose truth a new
+/// truth.csv would be taken for.
+const ESTIMATES_FILE: &str = "est.csv";
+
+/// What `--force` does, said with every refusal.
+const HOW_TO_PROCEED: &str = "refusing to write the run there: choose another --out, \
+    or add --force to overwrite cam.csv, lidar.csv and truth.csv there";
+
+/// Refuses a directory that holds another run than an earlier vlsync-sim one: an
+/// earlier run of this tool (cam.csv and lidar.csv headed `t,value` beside a truth.csv
+/// headed `t,offset`, all three) is replaced; other files beside it (a replay's est.csv
+/// of it, a plot) are named after the new run is written. Refused, before anything is
+/// written (so the note never follows an overwrite of another run's file):
+/// * a `vlsync-render` run (frames.csv, scans.csv or motion.csv): its truth.csv has
+///   the same header as ours, and would be replaced, or ours taken for its truth;
+/// * a cam.csv, lidar.csv or truth.csv with another header: a `vlsyncd record`
+///   recording (a `publish` column), an estimates file, a user's own streams;
+/// * some of the three files without the others (a user's streams without a truth,
+///   a truth without streams): not a run of this tool;
+/// * an est.csv without a run of this tool beside it: estimates of another run,
+///   which a truth.csv written beside them would pass for the truth of.
 fn refuse_foreign_files(out: &std::path::Path) -> Result<(), String> {
-    let present: Vec<_> = OWN_FILES
-        .iter()
-        .filter(|(name, _)| out.join(name).symlink_metadata().is_ok())
-        .collect();
-    if present.is_empty() {
-        return Ok(());
-    }
-    let refuse = |name: &str, why: String| {
-        Err(format!(
-            "{} exists and {why}: refusing to overwrite it (--force overwrites it)",
-            out.join(name).display()
-        ))
+    let exists = |name: &str| out.join(name).symlink_metadata().is_ok();
+    let present: Vec<&(&str, &str)> = OWN_FILES.iter().filter(|(n, _)| exists(n)).collect();
+    let render: Vec<&str> = RENDER_FILES.iter().copied().filter(|n| exists(n)).collect();
+    let found = || {
+        let mut names: Vec<&str> = present
+            .iter()
+            .map(|(n, _)| *n)
+            .chain(render.iter().copied())
+            .collect();
+        if exists(ESTIMATES_FILE) {
+            names.push(ESTIMATES_FILE);
+        }
+        names.sort_unstable();
+        names.join(", ")
     };
+    if !render.is_empty() {
+        return Err(format!(
+            "{} holds {}: a vlsync-render run, not an earlier vlsync-sim one (its truth.csv \
+             would be replaced, or this run's taken for its truth); {HOW_TO_PROCEED}",
+            out.display(),
+            found()
+        ));
+    }
     for (name, header) in &present {
-        match first_line(&out.join(name)) {
-            Some(line) if line == *header => {}
+        let why = match first_line(&out.join(name)) {
+            Some(line) if line == *header => continue,
             Some(line) => {
                 let shown: String = line.chars().take(60).collect();
-                return refuse(
-                    name,
-                    format!("is not a vlsync-sim file (its header `{shown}`, not `{header}`)"),
-                );
+                format!("its header `{shown}`, not `{header}`")
             }
-            None => return refuse(name, "is not a vlsync-sim file (no header line)".into()),
-        }
+            None => "no header line".into(),
+        };
+        return Err(format!(
+            "{} exists and is not a vlsync-sim file ({why}); {HOW_TO_PROCEED}",
+            out.join(name).display()
+        ));
     }
-    if !present.iter().any(|(name, _)| *name == "truth.csv") {
-        return refuse(
-            present[0].0,
-            "has no truth.csv beside it: not a vlsync-sim run".into(),
-        );
+    if !present.is_empty() && present.len() < OWN_FILES.len() {
+        let missing: Vec<&str> = OWN_FILES
+            .iter()
+            .map(|(n, _)| *n)
+            .filter(|n| !exists(n))
+            .collect();
+        return Err(format!(
+            "{} holds {} without {} beside it: not an earlier vlsync-sim run (which writes \
+             all three); {HOW_TO_PROCEED}",
+            out.display(),
+            found(),
+            missing.join(" or ")
+        ));
+    }
+    if present.is_empty() && exists(ESTIMATES_FILE) {
+        return Err(format!(
+            "{} holds {}: estimates of another run (`vlsyncd record`'s, or a replay's) \
+             without an earlier vlsync-sim run beside them; a truth.csv written there would \
+             pass for theirs; {HOW_TO_PROCEED}",
+            out.display(),
+            found()
+        ));
     }
     Ok(())
 }
@@ -233,4 +283,113 @@ fn run(args: &Args) -> Result<(), String> {
         );
     }
     vlsync_common::console::print_out(&text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::{Path, PathBuf};
+
+    /// A fresh directory holding `files` (name, contents).
+    fn dir_with(name: &str, files: &[(&str, &str)]) -> PathBuf {
+        let d =
+            std::env::temp_dir().join(format!("vlsync-sim-refuse-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        for (f, text) in files {
+            std::fs::write(d.join(f), text).unwrap();
+        }
+        d
+    }
+
+    fn refused(d: &Path) -> String {
+        let e = refuse_foreign_files(d).expect_err("refused");
+        assert!(
+            e.contains("choose another --out") && e.contains("--force"),
+            "how to proceed: {e}"
+        );
+        e
+    }
+
+    const SIM: [(&str, &str); 3] = [
+        ("cam.csv", "t,value\n0.0,1\n"),
+        ("lidar.csv", "t,value\n0.0,1\n"),
+        ("truth.csv", "t,offset\n0.0,0.1\n"),
+    ];
+
+    /// A `vlsync-render --out` directory has a truth.csv headed as ours: it was taken
+    /// for an earlier run of this tool and its truth overwritten.
+    #[test]
+    fn a_render_run_is_not_taken_for_an_earlier_sim_run() {
+        let render = [
+            ("frames.csv", "t_cam,file\n"),
+            ("scans.csv", "t,angle,range\n"),
+            ("truth.csv", "t,offset\n0.0,0.1\n"),
+            ("motion.csv", "t,x,y\n"),
+        ];
+        let d = dir_with("render", &render);
+        let e = refused(&d);
+        assert!(
+            e.contains("holds frames.csv, motion.csv, scans.csv, truth.csv: a vlsync-render run"),
+            "{e}"
+        );
+        // a render run written over an earlier sim run: its cam.csv and lidar.csv stay
+        for (f, text) in &SIM[..2] {
+            std::fs::write(d.join(f), text).unwrap();
+        }
+        assert!(refused(&d).contains("vlsync-render run"));
+        // any one of render's own files tells
+        let d2 = dir_with("render-one", &[SIM[0], SIM[1], SIM[2], ("motion.csv", "")]);
+        assert!(refused(&d2).contains("holds cam.csv, lidar.csv, motion.csv, truth.csv"));
+        for d in [d, d2] {
+            std::fs::remove_dir_all(d).unwrap();
+        }
+    }
+
+    /// An earlier run of this tool is its three files together; one or two of them,
+    /// or another run's estimates alone, are not.
+    #[test]
+    fn an_earlier_sim_run_is_all_three_files() {
+        // (directory, its files, what the refusal says or None: accepted)
+        type Case = (
+            &'static str,
+            Vec<(&'static str, &'static str)>,
+            Option<&'static str>,
+        );
+        let cases: [Case; 5] = [
+            (
+                "truth",
+                vec![SIM[2]],
+                Some("holds truth.csv without cam.csv or lidar.csv"),
+            ),
+            (
+                "cam-truth",
+                vec![SIM[0], SIM[2]],
+                Some("holds cam.csv, truth.csv without lidar.csv"),
+            ),
+            (
+                "est",
+                vec![("est.csv", "t,offset,drift\n")],
+                Some("holds est.csv: estimates of another run"),
+            ),
+            ("nothing", vec![("notes.txt", "x")], None),
+            // a replay's estimates beside an earlier run: replaced, the est.csv named
+            (
+                "sim-est",
+                vec![SIM[0], SIM[1], SIM[2], ("est.csv", "t,offset\n")],
+                None,
+            ),
+        ];
+        for (name, files, want) in cases {
+            let d = dir_with(name, &files);
+            match want {
+                Some(w) => assert!(refused(&d).contains(w), "{name}: {}", refused(&d)),
+                None => assert_eq!(refuse_foreign_files(&d), Ok(()), "{name}"),
+            }
+            std::fs::remove_dir_all(d).unwrap();
+        }
+        let empty = dir_with("empty", &[]);
+        assert_eq!(refuse_foreign_files(&empty), Ok(()));
+        std::fs::remove_dir_all(empty).unwrap();
+    }
 }
