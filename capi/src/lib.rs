@@ -1554,6 +1554,101 @@ mod tests {
         }
     }
 
+    /// A conversion with a drift that matters, for stamps 12 s before and 15 s after
+    /// t_ref and an hour after it: libvlsync_client gives `vlsync_common`'s LiDAR time
+    /// (`Estimate::camera_to_lidar`) and σ (`Estimate::offset_std_with_walk` at the
+    /// walk of the estimate's state: the shipped `estimator.offset_process_noise` while
+    /// tracking, `hold_process_noise` otherwise, or the ones
+    /// `vlsync_client_set_process_noise` set) bit for bit, where the other tests
+    /// convert with drift 0.
+    #[test]
+    fn a_conversion_with_drift_far_from_t_ref_is_the_rust_one() {
+        use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
+        let names =
+            ServiceNames::new(&format!("vlsync/capi-drift-{}", std::process::id())).unwrap();
+        let node = create_node("capi-test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "offset").unwrap();
+        let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+        let mut err = [0u8; 300];
+        // SAFETY: a C string and a buffer with its true length
+        let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+        assert!(!c.is_null(), "{}", text(&err));
+        let shipped = vlsync_config::EstimatorConfig::default();
+        let shipped = (shipped.offset_process_noise, shipped.hold_process_noise);
+        let mut conv = VlsyncConversion {
+            t_lidar_ns: 0,
+            std_s: 0.0,
+            estimate: OffsetEstimate::from_estimate(&zero(), 0).unwrap(),
+        };
+        for (seq, state, drift, walks) in [
+            (1, EstimatorState::Tracking, 4.2e-5, shipped),
+            (2, EstimatorState::Holding, -2.75e-4, shipped),
+            (3, EstimatorState::Tracking, 1e-3, (1e-4, 5e-3)),
+            (4, EstimatorState::Lost, -3.1e-6, (1e-4, 5e-3)),
+        ] {
+            if walks != shipped {
+                // SAFETY: an open handle of this thread, no error buffer
+                let set = unsafe {
+                    vlsync_client_set_process_noise(c, walks.0, walks.1, std::ptr::null_mut(), 0)
+                };
+                assert_eq!(set, 0);
+            }
+            let e = Estimate {
+                seq,
+                t_ref_ns: 1_234_567_890_123,
+                offset_s: 0.1 / 3.0,
+                drift,
+                offset_std_s: 0.0011,
+                drift_std: 3.3e-7,
+                state,
+                polarity: Polarity::Positive,
+                peak_score: 0.8,
+                peak_ratio: 2.0,
+                measured_offset_s: f64::NAN,
+            };
+            publ.send_copy(OffsetEstimate::from_estimate(&e, vlsync_ipc::monotonic_ns()).unwrap())
+                .unwrap();
+            let walk = if state == EstimatorState::Tracking {
+                walks.0
+            } else {
+                walks.1
+            };
+            for from_ref in [-12_345_678_901i64, 15_000_000_001, 3_600_000_000_000] {
+                let t_cam = e.t_ref_ns + from_ref;
+                // SAFETY: an open handle of this thread, a writable output, a buffer
+                // with its length
+                let got = unsafe {
+                    vlsync_client_camera_to_lidar_err(
+                        c,
+                        t_cam,
+                        &mut conv,
+                        err.as_mut_ptr().cast(),
+                        err.len(),
+                    )
+                };
+                assert_eq!(got, 1, "{}", text(&err));
+                assert_eq!(conv.estimate.seq, seq);
+                let want_t = e.camera_to_lidar(t_cam);
+                let want_std = e.offset_std_with_walk(want_t, walk);
+                assert_eq!(
+                    (conv.t_lidar_ns, conv.std_s.to_bits()),
+                    (want_t, want_std.to_bits()),
+                    "{state:?} at {from_ref} ns from t_ref: C {} ± {}, Rust {want_t} ± {want_std}",
+                    conv.t_lidar_ns,
+                    conv.std_s
+                );
+                // the drift and the walk matter here: the offset at t_ref alone, or
+                // the σ at t_ref, would fail the comparison above
+                assert_ne!(want_t, t_cam + vlsync_common::secs_to_nanos(e.offset_s));
+                assert!(want_std > 1.01 * e.offset_std_s, "{want_std}");
+            }
+        }
+        // SAFETY: an open handle of this thread
+        assert_eq!(unsafe { vlsync_client_close(c) }, 0);
+    }
+
     /// A status service that has carried only invalid payloads: -1 with the
     /// validation error, where a silent one is 0.
     #[test]

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use vlsync_common::wire::OffsetEstimate;
-use vlsync_common::Stream;
+use vlsync_common::{Estimate, EstimatorState, Polarity, Stream};
 use vlsync_ipc::iceoryx2::prelude::ServiceName;
 use vlsync_ipc::iceoryx2::service::port_factory::PortFactory as _;
 use vlsync_ipc::{create_node, Qos};
@@ -51,7 +51,9 @@ fn python_subscriber_reads_live_estimates() {
     let Some(script) = subscriber_or_skip("python_subscriber_reads_live_estimates") else {
         return;
     };
-    let rig = Rig::new("python", "robot", 3, 40.0, 5.0);
+    // 60 s of the run (12 s of wall time): the 24 estimates read below take 12 s of
+    // it, the lock within their first 6 s (as the C client's test)
+    let rig = Rig::new("python", "robot", 3, 60.0, 5.0);
     let mut daemon = rig.daemon(0);
     let mut cam = rig.driver(Stream::Cam, 0);
     let mut lidar = rig.driver(Stream::Lidar, 0);
@@ -76,7 +78,7 @@ fn python_subscriber_reads_live_estimates() {
             "--prefix",
             &rig.prefix,
             "--count",
-            "5",
+            "24",
             "--timeout",
             "10",
             "--json",
@@ -114,8 +116,9 @@ fn python_subscriber_reads_live_estimates() {
         String::from_utf8_lossy(&out.stderr)
     );
     let lines: Vec<&str> = stdout.lines().collect();
-    assert_eq!(lines.len(), 5, "{stdout}");
+    assert_eq!(lines.len(), 24, "{stdout}");
     let mut last_seq = None;
+    let mut locked = 0;
     for l in lines {
         let v: serde_json::Value =
             serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}"));
@@ -124,12 +127,34 @@ fn python_subscriber_reads_live_estimates() {
         for key in ["peak_ratio", "measured_offset_s"] {
             assert!(v[key].is_f64() || v[key].is_null(), "{key} in {l}");
         }
+        // the age is measured on the daemon's CLOCK_MONOTONIC: a live estimate is
+        // seconds old at most (on the wall clock's scale it would be 1.7e9 s)
+        let age = v["age_s"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no age_s in {l}"));
+        assert!((0.0..30.0).contains(&age), "age {age} s: {l}");
+        assert!(v["stale"].is_boolean(), "{l}");
         let seq = v["seq"].as_u64().unwrap_or_else(|| panic!("no seq in {l}"));
         if let Some(p) = last_seq {
             assert!(seq > p, "sequence not increasing: {p} then {seq}");
         }
         last_seq = Some(seq);
+        // a locked estimate is the simulator's offset at its reference time, as the
+        // C client's test checks (tests/tests/ipc_capi.rs)
+        if ["tracking", "holding"].contains(&v["state"].as_str().unwrap()) {
+            locked += 1;
+            let t_ref = v["t_ref_ns"]
+                .as_i64()
+                .unwrap_or_else(|| panic!("no t_ref_ns in {l}"));
+            let offset_ms = v["offset_s"].as_f64().unwrap() * 1e3;
+            let truth_ms = rig.sim.truth.offset_at(t_ref) * 1e3;
+            assert!(
+                (offset_ms - truth_ms).abs() < 20.0,
+                "Python client: {offset_ms} ms against the truth {truth_ms} ms at {t_ref} ns:\n{stdout}"
+            );
+        }
     }
+    assert!(locked >= 6, "only {locked} locked estimates:\n{stdout}");
 }
 
 /// A bad argument is exit status 2 with a line naming it, not a traceback: a prefix
@@ -147,6 +172,12 @@ fn python_subscriber_refuses_bad_arguments() {
         (["--prefix", "robot/"], "--prefix 'robot/' is invalid"),
         (["--count", "-1"], "--count -1"),
         (["--timeout", "-1"], "--timeout -1"),
+        (["--max-age", "0"], "--max-age 0.0 must be seconds > 0"),
+        (["--max-age", "nan"], "--max-age nan must be seconds > 0"),
+        (
+            ["--max-age", "1e7"],
+            "--max-age 10000000.0 must be seconds > 0 (at most 1000000)",
+        ),
     ] {
         let out = Command::new("timeout")
             .arg("30")
@@ -229,6 +260,9 @@ fn python_subscriber_started_first_creates_the_services_as_the_daemon_would() {
         return;
     };
     let tag = "python-first";
+    // the binaries first: built after the subscriber started (a first run, or sources
+    // changed since), the build could outlast its --timeout of 60 s
+    vlsync_tests::bin("vlsyncd");
     // the prefix Rig::new will choose, needed before the rig's schedule starts
     let (mut py, prefix, log) = spawn_subscriber(&script, tag, 3, &["--json"]);
     let notice = wait_for_quiet_notice(&mut py, &log);
@@ -382,4 +416,262 @@ fn python_subscriber_skips_invalid_estimates_without_flooding_stderr() {
     assert!((15..=48).contains(&skipped), "{skipped} skipped:\n{out}");
     assert!(out.lines().any(|l| l.starts_with("#7 ")), "{out}");
     let _ = std::fs::remove_file(&log);
+}
+
+/// Publishes `estimates` on `prefix`'s offset service (as a daemon would: its
+/// settings, a notification after them) and waits up to 20 s for the subscriber `py`
+/// to exit, the publisher kept alive meanwhile: its exit code.
+fn publish_then_wait(py: &mut Managed, prefix: &str, estimates: &[OffsetEstimate]) -> Option<i32> {
+    use vlsync_ipc::{notifier, open_or_create_event, open_or_create_pubsub, publisher};
+    let node = create_node("python-fields-publisher", false).unwrap();
+    let name = format!("{prefix}/offset");
+    let svc = open_or_create_pubsub::<OffsetEstimate>(&node, &name, Qos::latest()).unwrap();
+    let ev = open_or_create_event(&node, &name).unwrap();
+    let publ = publisher(&svc, "offset").unwrap();
+    let note = notifier(&ev, "offset").unwrap();
+    for e in estimates {
+        publ.send_copy(*e).unwrap();
+    }
+    note.notify().unwrap();
+    exit_code_within(py, Duration::from_secs(20))
+}
+
+/// An estimate with a distinct value in every field (none zero: a swap of two fields
+/// of the same type in the script's ctypes struct or its dict shows), each exactly
+/// representable in the few decimals JSON carries it in.
+fn distinct_estimate(seq: u64) -> Estimate {
+    Estimate {
+        seq,
+        t_ref_ns: 987_654_321_012,
+        offset_s: 0.0421,
+        drift: 3.7e-5,
+        offset_std_s: 0.00125,
+        drift_std: 2.5e-7,
+        state: EstimatorState::Holding,
+        polarity: Polarity::Negative,
+        peak_score: 0.83,
+        peak_ratio: 2.75,
+        measured_offset_s: 0.0433,
+    }
+}
+
+/// Every JSON key of a known estimate, compared exactly, and an estimate published
+/// 600 s ago (a daemon that stopped long since: the service hands its last estimate
+/// to a late subscriber, still `holding`) marked stale, by its age on
+/// `CLOCK_MONOTONIC`, in JSON and in text.
+#[test]
+fn python_subscriber_reports_every_field_exactly_and_marks_old_estimates_stale() {
+    let Some(script) = subscriber_or_skip(
+        "python_subscriber_reports_every_field_exactly_and_marks_old_estimates_stale",
+    ) else {
+        return;
+    };
+    let (mut json_py, json_prefix, json_log) =
+        spawn_subscriber(&script, "python-fields-json", 2, &["--json"]);
+    let (mut text_py, text_prefix, text_log) =
+        spawn_subscriber(&script, "python-fields-text", 2, &[]);
+    // both in their wait loops, subscribed
+    wait_for_quiet_notice(&mut json_py, &json_log);
+    wait_for_quiet_notice(&mut text_py, &text_log);
+    let fresh_ns = vlsync_ipc::monotonic_ns();
+    let old_ns = fresh_ns - 600_000_000_000;
+    let estimates = [
+        OffsetEstimate::from_estimate(&distinct_estimate(424_242), fresh_ns).unwrap(),
+        OffsetEstimate::from_estimate(&distinct_estimate(424_243), old_ns).unwrap(),
+    ];
+    let json_code = publish_then_wait(&mut json_py, &json_prefix, &estimates);
+    let text_code = publish_then_wait(&mut text_py, &text_prefix, &estimates);
+    let json_out = std::fs::read_to_string(&json_log).unwrap_or_default();
+    let text_out = std::fs::read_to_string(&text_log).unwrap_or_default();
+    assert_eq!(json_code, Some(0), "{json_out}");
+    assert_eq!(text_code, Some(0), "{text_out}");
+
+    let objects: Vec<serde_json::Value> = json_out
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+        .collect();
+    assert_eq!(objects.len(), 2, "{json_out}");
+    for (v, seq, publish_ns, stale, ages) in [
+        (&objects[0], 424_242u64, fresh_ns, false, 0.0..30.0),
+        (&objects[1], 424_243, old_ns, true, 600.0..630.0),
+    ] {
+        let mut got = v.as_object().unwrap_or_else(|| panic!("{v}")).clone();
+        // the age runs on: a range, the rest exactly
+        let age = got.remove("age_s").and_then(|a| a.as_f64());
+        assert!(age.is_some_and(|a| ages.contains(&a)), "age_s {age:?}: {v}");
+        let want = serde_json::json!({
+            "seq": seq,
+            "t_ref_ns": 987_654_321_012i64,
+            "offset_s": 0.0421,
+            "drift": 3.7e-5,
+            "offset_std_s": 0.00125,
+            "drift_std": 2.5e-7,
+            "state": "holding",
+            "polarity": "negative",
+            "peak_score": 0.83,
+            "peak_ratio": 2.75,
+            "measured_offset_s": 0.0433,
+            "publish_ns": publish_ns,
+            "stale": stale,
+        });
+        assert_eq!(serde_json::Value::Object(got), want, "{json_out}");
+    }
+
+    let lines: Vec<&str> = text_out.lines().filter(|l| l.starts_with('#')).collect();
+    assert_eq!(lines.len(), 2, "{text_out}");
+    assert_eq!(
+        lines[0],
+        "#424242 t_ref      987.654 s  offset   +42.100 ms ±   1.250 ms  drift   +37.00 ppm  holding",
+        "{text_out}"
+    );
+    let (head, tail) = lines[1]
+        .split_once("  stale (")
+        .unwrap_or_else(|| panic!("not marked stale: {text_out}"));
+    assert_eq!(
+        head, "#424243 t_ref      987.654 s  offset   +42.100 ms ±   1.250 ms  drift   +37.00 ppm",
+        "{text_out}"
+    );
+    let (age, rest) = tail
+        .split_once(" s old; ")
+        .unwrap_or_else(|| panic!("{text_out}"));
+    let age: f64 = age.parse().unwrap_or_else(|_| panic!("{text_out}"));
+    assert!((600.0..630.0).contains(&age), "{text_out}");
+    assert_eq!(rest, "holding when published)", "{text_out}");
+    let _ = std::fs::remove_file(&json_log);
+    let _ = std::fs::remove_file(&text_log);
+}
+
+/// Runs the Python snippet `code` with the script's directory as its first argument
+/// (so it can `import vlsync_subscriber`) and `extra` after it: optimised (`-O`, which
+/// strips `assert`s: the script must not rely on them), no bytecode written.
+fn python_snippet(script: &Path, code: &str, extra: &[&str]) -> std::process::Output {
+    Command::new("timeout")
+        .arg("30")
+        .arg(python())
+        .args(["-O", "-B", "-c", code])
+        .arg(script.parent().unwrap())
+        .args(extra)
+        .output()
+        .expect("run the Python interpreter")
+}
+
+/// The script's `camera_to_lidar` helper gives the Rust client's LiDAR time and σ bit
+/// for bit (`OffsetClient::camera_to_lidar`: `Estimate::camera_to_lidar`, and
+/// `offset_std_with_walk` at the shipped walk of the estimate's state), for drifts
+/// that matter and stamps 10 s to an hour from t_ref, before and after it.
+#[test]
+fn python_camera_to_lidar_matches_the_rust_conversion() {
+    let Some(script) = subscriber_or_skip("python_camera_to_lidar_matches_the_rust_conversion")
+    else {
+        return;
+    };
+    let walks = vlsync_config::EstimatorConfig::default();
+    let base = Estimate {
+        t_ref_ns: 1_234_567_890_123,
+        offset_s: 0.1 / 3.0,
+        drift: 4.2e-5,
+        offset_std_s: 0.0011,
+        drift_std: 3.3e-7,
+        ..distinct_estimate(1)
+    };
+    let cases: Vec<(Estimate, i64)> = [
+        (EstimatorState::Tracking, 4.2e-5, -0.4),
+        (EstimatorState::Holding, -2.75e-4, 0.0421),
+        (EstimatorState::Lost, 1e-3, 1.0 / 7.0),
+        (EstimatorState::Acquiring, -3.1e-6, -0.0005),
+    ]
+    .into_iter()
+    .flat_map(|(state, drift, offset_s)| {
+        let e = Estimate {
+            state,
+            drift,
+            offset_s,
+            ..base
+        };
+        [12_345_678_901, -15_000_000_001, 3_600_000_000_000]
+            .map(|from_ref| (e, e.t_ref_ns + from_ref))
+    })
+    .collect();
+    let input = serde_json::Value::Array(
+        cases
+            .iter()
+            .map(|(e, t_cam)| {
+                serde_json::json!([{
+                    "seq": e.seq, "t_ref_ns": e.t_ref_ns, "offset_s": e.offset_s,
+                    "drift": e.drift, "offset_std_s": e.offset_std_s, "drift_std": e.drift_std,
+                    "state": e.state.name(), "polarity": e.polarity.name(),
+                    "peak_score": e.peak_score, "peak_ratio": e.peak_ratio,
+                    "measured_offset_s": e.measured_offset_s, "publish_ns": 1,
+                }, t_cam])
+            })
+            .collect(),
+    );
+    let code = "import json, sys\n\
+        sys.path.insert(0, sys.argv[1])\n\
+        import vlsync_subscriber as v\n\
+        for e, t_cam in json.loads(sys.argv[2]):\n    \
+            t_lidar, std = v.camera_to_lidar(e, t_cam)\n    \
+            print(t_lidar, repr(std))\n";
+    let out = python_snippet(&script, code, &[&input.to_string()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<&str> = stdout.lines().collect();
+    assert_eq!(rows.len(), cases.len(), "{stdout}");
+    for ((e, t_cam), row) in cases.iter().zip(rows) {
+        let (t_lidar, std) = row.split_once(' ').unwrap_or_else(|| panic!("{row}"));
+        let (t_lidar, std): (i64, f64) = (t_lidar.parse().unwrap(), std.parse().unwrap());
+        let walk = if e.state == EstimatorState::Tracking {
+            walks.offset_process_noise
+        } else {
+            walks.hold_process_noise
+        };
+        let want_t = e.camera_to_lidar(*t_cam);
+        let want_std = e.offset_std_with_walk(want_t, walk);
+        assert_eq!(
+            (t_lidar, std.to_bits()),
+            (want_t, want_std.to_bits()),
+            "{:?} at {t_cam}: Python {t_lidar} ± {std}, Rust {want_t} ± {want_std}",
+            e.state
+        );
+        // the drift and the grown σ matter here: a conversion with the offset at
+        // t_ref alone, or the σ at t_ref, would fail the comparison above
+        assert_ne!(want_t, t_cam + vlsync_common::secs_to_nanos(e.offset_s));
+        assert!(want_std > 1.01 * e.offset_std_s, "{want_std}");
+    }
+}
+
+/// The layout guard is a check of its own, not an `assert` (`python3 -O` strips
+/// those; and its exit status 1 was a timeout's): an `OffsetEstimate` with two fields
+/// swapped exits 3, each difference named, before any service is opened.
+#[test]
+fn python_layout_guard_names_the_mismatch_and_exits_3() {
+    let Some(script) = subscriber_or_skip("python_layout_guard_names_the_mismatch_and_exits_3")
+    else {
+        return;
+    };
+    let code = "import ctypes, sys\n\
+        sys.path.insert(0, sys.argv[1])\n\
+        import vlsync_subscriber as v\n\
+        fields = list(v.OffsetEstimate._fields_)\n\
+        fields[2], fields[3] = fields[3], fields[2]\n\
+        class Swapped(ctypes.Structure):\n    \
+            _fields_ = fields\n\
+        v.OffsetEstimate = Swapped\n\
+        sys.argv = ['vlsync_subscriber.py', '--prefix', 'vlsync-it/never-opened']\n\
+        sys.exit(v.main())\n";
+    let out = python_snippet(&script, code, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{stderr}");
+    for said in [
+        "OffsetEstimate differs from the Rust layout: field 2: drift (c_double) at 16, expected offset_s (c_double) at 16",
+        "field 3: offset_s (c_double) at 24, expected drift (c_double) at 24",
+    ] {
+        assert!(stderr.contains(said), "{said:?} not in {stderr}");
+    }
+    assert!(!stderr.contains("Traceback"), "{stderr}");
 }
