@@ -28,12 +28,17 @@
 //! timing (the camera's pixel noise, 2 gray levels, stays). `--fps` must stay
 //! below 125: the renderer's 8 ms exposure must fit in a frame period.
 //!
+//! Every seed's run is built before any is rendered: seeds that cannot be (a room
+//! too narrow for the boxes a seed draws) are named with why, and nothing runs
+//! (status 2). A run that fails while rendering is a `failed` row, said under the
+//! table and left out of the means (status 1). `--steps` refuses a step of 0 ms.
+//!
 //! A 60 s seed at 320x240 takes ~20-30 s of CPU (4x that at 640x480).
 
 #[path = "../tests/support/pipeline.rs"]
 mod pipeline;
 
-use pipeline::{run_seeds, table_row, TABLE_HEADER};
+use pipeline::{check_seeds, parse_pair, parse_steps, table_row, try_run_seeds, TABLE_HEADER};
 use std::process::ExitCode;
 use vlsync_render::RenderConfig;
 
@@ -73,32 +78,6 @@ fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
         }
     }
     Ok(out)
-}
-
-/// `T:D,...`: offset steps of `D` ms at `T` s (a camera latency increase of Δ is
-/// a step of -Δ).
-fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
-    s.split(',')
-        .map(|part| {
-            let (t, d) = parse_pair("--steps", part, ':', "TIME_S:DELTA_MS")?;
-            Ok((t, d * 1e-3))
-        })
-        .collect()
-}
-
-/// Two finite numbers `A<sep>B` of `flag`'s value `v` (`shape` names them in the error).
-fn parse_pair(flag: &str, v: &str, sep: char, shape: &str) -> Result<(f64, f64), String> {
-    let (a, b) = v
-        .split_once(sep)
-        .ok_or(format!("{flag}: `{v}` is not {shape}"))?;
-    let num = |x: &str| {
-        x.trim()
-            .parse::<f64>()
-            .ok()
-            .filter(|n| n.is_finite())
-            .ok_or(format!("{flag}: `{x}` in `{v}` is not a number"))
-    };
-    Ok((num(a)?, num(b)?))
 }
 
 const USAGE: &str = "usage: accuracy [--seeds 1-6,100] [--duration 60] [--threads 2] [--width W --height H] [--fps F] [--lidar-hz H] [--room LENGTH,WIDTH] [--hfov DEG] [--pitch DEG] [--cam-height M] [--opposite-window] [--audit] [--ideal-sensors] [--steps T_S:DELTA_MS,...]";
@@ -209,15 +188,30 @@ fn main() -> ExitCode {
         }
         c
     };
-    if let Err(e) = vlsync_render::Renderer::new(make(a.seeds[0])) {
+    // every seed's run is built first: a room too narrow for one seed's boxes
+    // fails that seed, said now, not after the others have rendered
+    if let Err(e) = check_seeds(&a.seeds, make) {
         eprintln!("accuracy: {e}");
         return ExitCode::from(2);
     }
-    let results = run_seeds(&a.seeds, a.threads, a.audit, make);
+    let outcomes = try_run_seeds(&a.seeds, a.threads, a.audit, make);
     println!("{TABLE_HEADER}");
-    for r in &results {
-        println!("{}", table_row(r));
+    for (seed, o) in &outcomes {
+        match o {
+            Ok(r) => println!("{}", table_row(r)),
+            Err(_) => println!("| {seed} | failed | - | - | 0 | - | - | - | - |"),
+        }
     }
+    // a frame that could not be rendered: said under the table, the run left out
+    let failed: Vec<String> = outcomes
+        .iter()
+        .filter_map(|(_, o)| o.as_ref().err().cloned())
+        .collect();
+    for e in &failed {
+        println!("  failed: {e}");
+    }
+    let results: Vec<pipeline::RunResult> =
+        outcomes.into_iter().filter_map(|(_, o)| o.ok()).collect();
     if !a.steps.is_empty() {
         println!("\nsteps followed (as the load harness judges it, publish time; midpoint):");
         for r in &results {
@@ -251,14 +245,22 @@ fn main() -> ExitCode {
         0 => String::new(),
         k => format!(" ({k} never tracking, left out of the means)"),
     };
+    let failed_note = match failed.len() {
+        0 => String::new(),
+        k => format!(" ({k} failed, above, left out)"),
+    };
     println!(
-        "\nmidpoint: mean MAE {} ms, mean bias {} ms, {met}/{} runs <= 3 ms{unlocked}; end: mean MAE {} ms",
+        "\nmidpoint: mean MAE {} ms, mean bias {} ms, {met}/{} runs <= 3 ms{unlocked}{failed_note}; end: mean MAE {} ms",
         mean_ms(&|r| r.scores[0].mae_s, false),
         mean_ms(&|r| r.scores[0].bias_s, true),
         results.len(),
         mean_ms(&|r| r.scores[1].mae_s, false),
     );
-    ExitCode::SUCCESS
+    if failed.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
 }
 
 /// Each front-end against the true speed (turns excluded), midpoint stamping: its

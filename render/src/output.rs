@@ -220,10 +220,12 @@ pub fn own_output(dir: &Path, path: &Path) -> Option<String> {
         .then(|| format!("frames/{name}"))
 }
 
-/// Whether a run into `dir` makes the directory `d` itself: `dir`, its `frames/`
-/// when PNGs are written, or an ancestor of `dir` that does not exist yet (compared
-/// resolved, so `./out` is `out`). An MCAP recording's directory that the run makes
-/// need not exist before it.
+/// Whether a run into `dir` makes the directory `d` itself: `d` does not exist yet
+/// and is `dir`, its `frames/` when PNGs are written, or an ancestor of `dir`
+/// (compared resolved, so `./out` is `out`). An MCAP recording's directory that the
+/// run makes need not exist before it; one that exists already is checked before
+/// the run like any other (an existing ancestor was taken for one the run makes,
+/// and a recording there that could not be written failed after the setup).
 ///
 /// ```
 /// use std::path::Path;
@@ -234,10 +236,14 @@ pub fn own_output(dir: &Path, path: &Path) -> Option<String> {
 /// assert!(run_makes(dir, true, Path::new("/tmp/no-such-base/runs/seed3/frames")));
 /// assert!(!run_makes(dir, false, Path::new("/tmp/no-such-base/runs/seed3/frames")));
 /// assert!(!run_makes(dir, false, Path::new("/tmp/no-such-base/elsewhere")));
+/// // an ancestor that exists is not made by the run
+/// assert!(!run_makes(dir, false, Path::new("/tmp")));
 /// ```
 pub fn run_makes(dir: &Path, png: bool, d: &Path) -> bool {
     let (dir, d) = (resolve(dir), resolve(d));
-    d == dir || (png && d == dir.join("frames")) || dir.starts_with(&d)
+    // `symlink_metadata`: anything at `d`, a file or a dangling link too, is not made
+    let absent = std::fs::symlink_metadata(&d).is_err();
+    absent && (d == dir || (png && d == dir.join("frames")) || dir.starts_with(&d))
 }
 
 /// Renders the whole run into `dir` (created if needed). With `png = false`
@@ -674,6 +680,31 @@ mod tests {
             assert_eq!(own_output(&dir, &dir.join(other)), None, "{other}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Only a directory that does not exist yet is one the run makes: an existing
+    /// ancestor of `--out` (or `--out` itself) is the user's, and a recording there
+    /// is checked before the run.
+    #[test]
+    fn an_existing_directory_is_not_one_the_run_makes() {
+        let base = std::env::temp_dir().join(format!("vlsync-run-makes-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let dir = base.join("runs").join("seed3");
+        for d in [&base, &base.join("runs"), &dir, &dir.join("frames")] {
+            assert!(run_makes(&dir, true, d), "{}", d.display());
+        }
+        std::fs::create_dir_all(base.join("runs")).unwrap();
+        assert!(!run_makes(&dir, true, &base));
+        assert!(!run_makes(&dir, true, &base.join("runs")));
+        assert!(run_makes(&dir, true, &dir));
+        // a file where an ancestor would be: not a directory the run can make
+        std::fs::write(base.join("file"), b"").unwrap();
+        let under_file = base.join("file").join("run");
+        assert!(!run_makes(&under_file, false, &base.join("file")));
+        std::fs::create_dir_all(dir.join("frames")).unwrap();
+        assert!(!run_makes(&dir, true, &dir) && !run_makes(&dir, true, &dir.join("frames")));
+        assert!(!run_makes(&dir, false, Path::new("/")));
+        std::fs::remove_dir_all(&base).unwrap();
     }
 
     #[test]

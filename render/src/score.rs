@@ -1,10 +1,15 @@
 //! Estimator output against the truth.
 //!
-//! Conventions as in `vlsync_sim::score`: the error of an estimate is
-//! `offset_s - truth.offset_at(t_ref_ns)`; the **first lock** is the first
-//! estimate in `Tracking`; `mae_s` is the mean |error| over the `Tracking`
-//! estimates from the first lock on. `measured_mae_s` is the same over the raw
-//! correlation measurements (`measured_offset_s`, when finite) of those estimates.
+//! The error of an estimate and the first lock are `vlsync_sim::score`'s: the
+//! error is `offset_s - truth.offset_at(t_ref_ns)`; the **first lock** is the
+//! first estimate in `Tracking`. The estimates scored are not: `mae_s` is the mean
+//! |error| over the `Tracking` estimates from the first lock on, all of them, where
+//! `vlsync_sim::score` also scores `Holding` ones and leaves out those within 3 s
+//! after an offset step. So a rendered run's figures (the README's, "MAE of the
+//! tracking estimates") are of what the estimator tracked, steps' transients
+//! included; how long a step took to follow is reported apart (the `accuracy`
+//! example's `--steps`). `measured_mae_s` is the same over the raw correlation
+//! measurements (`measured_offset_s`, when finite) of those estimates.
 //!
 //! ```
 //! use vlsync_common::{Estimate, EstimatorState, Polarity};

@@ -37,6 +37,14 @@ impl BoxObstacle {
     pub fn contains(&self, x: f64, y: f64) -> bool {
         x >= self.x0 && x <= self.x1 && y >= self.y0 && y <= self.y1
     }
+
+    /// Where a horizontal ray from `(x, y)`, outside the footprint, along the unit
+    /// direction `(dx, dy)` crosses the footprint: the distances at which it enters
+    /// and leaves it (`None` when it misses). A ray that passes over the box comes
+    /// down onto its top only between the two.
+    pub fn span(&self, x: f64, y: f64, dx: f64, dy: f64) -> Option<(f64, f64)> {
+        slab(self, x, y, dx, dy, 0.0).map(|(near, far, _)| (near, far))
+    }
 }
 
 /// What a horizontal ray hit.
@@ -118,6 +126,15 @@ impl Room {
     /// Casts a horizontal ray from `(x, y)` (inside the room) along the unit
     /// direction `(dx, dy)`. Returns the nearest wall or box face.
     pub fn cast(&self, x: f64, y: f64, dx: f64, dy: f64) -> Hit {
+        self.cast_beyond(x, y, dx, dy, 0.0)
+    }
+
+    /// [`Room::cast`] past the first `beyond` metres: boxes the ray enters at
+    /// `beyond` or nearer are left out. What a ray that passes over a box meets
+    /// next is cast again from the same origin with `beyond` at that box's entry:
+    /// cast from the box's face instead, the ray met the same box again about half
+    /// the time, at a rounding error's distance.
+    pub fn cast_beyond(&self, x: f64, y: f64, dx: f64, dy: f64, beyond: f64) -> Hit {
         // the room: exit through the nearer of the x and y walls
         let tx = if dx > 0.0 {
             (self.length - x) / dx
@@ -150,7 +167,7 @@ impl Room {
             }
         };
         for (i, b) in self.boxes.iter().enumerate() {
-            if let Some((t, along)) = slab(b, x, y, dx, dy) {
+            if let Some((t, _, along)) = slab(b, x, y, dx, dy, beyond) {
                 if t < best.distance {
                     best = Hit {
                         distance: t,
@@ -164,9 +181,9 @@ impl Room {
     }
 }
 
-/// Entry distance of a ray into an axis-aligned box (from outside), and the
-/// coordinate along the face it enters.
-fn slab(b: &BoxObstacle, x: f64, y: f64, dx: f64, dy: f64) -> Option<(f64, f64)> {
+/// Entry and exit distances of a ray into an axis-aligned box (from outside,
+/// entering beyond `beyond`), and the coordinate along the face it enters.
+fn slab(b: &BoxObstacle, x: f64, y: f64, dx: f64, dy: f64, beyond: f64) -> Option<(f64, f64, f64)> {
     let inv_x = 1.0 / dx;
     let inv_y = 1.0 / dy;
     let (ax, bx) = ((b.x0 - x) * inv_x, (b.x1 - x) * inv_x);
@@ -176,7 +193,7 @@ fn slab(b: &BoxObstacle, x: f64, y: f64, dx: f64, dy: f64) -> Option<(f64, f64)>
     // NaN (0 * inf when the ray runs along a face) compares false: no hit
     let near = if nx > ny { nx } else { ny };
     let far = if fx < fy { fx } else { fy };
-    let hit = near <= far && near > 0.0;
+    let hit = near <= far && near > beyond;
     if !hit {
         return None;
     }
@@ -185,7 +202,7 @@ fn slab(b: &BoxObstacle, x: f64, y: f64, dx: f64, dy: f64) -> Option<(f64, f64)>
     } else {
         x + dx * near
     };
-    Some((near, along))
+    Some((near, far, along))
 }
 
 #[cfg(test)]
@@ -224,6 +241,27 @@ mod tests {
             .to_string()
             .contains("room.width"));
         assert!(!r.is_free(3.5, 0.5) && r.is_free(3.5, 2.0) && !r.is_free(-1.0, 2.0));
+    }
+
+    /// Past a box's entry the box is left out and the wall behind it is met at
+    /// its own distance from the same origin; a box's span is where the ray
+    /// crosses its footprint.
+    #[test]
+    fn a_cast_beyond_a_box_meets_what_is_behind_it() {
+        let r = room();
+        let a = 0.3f64;
+        let (dx, dy) = (a.cos(), a.sin());
+        // from (2, 0.2): into the box's x = 3 face, out through its x = 4 face
+        let h = r.cast(2.0, 0.2, dx, dy);
+        assert_eq!(h.surface, Surface::Box(0));
+        let (near, far) = r.boxes[0].span(2.0, 0.2, dx, dy).unwrap();
+        assert_eq!(near, h.distance);
+        assert!((near - 1.0 / dx).abs() < 1e-12 && (far - 2.0 / dx).abs() < 1e-12);
+        let behind = r.cast_beyond(2.0, 0.2, dx, dy, h.distance);
+        let empty = Room::new(8.0, 5.0, 2.5).unwrap().cast(2.0, 0.2, dx, dy);
+        assert_eq!(behind, empty);
+        assert_eq!(behind.surface, Surface::Wall);
+        assert!(r.boxes[0].span(2.0, 2.0, 1.0, 0.0).is_none());
     }
 
     proptest! {

@@ -41,7 +41,7 @@ fn raw_stdout_refuses_the_flags_it_would_ignore() {
         &["--offset", "0.1"],
         &["--drift-ppm", "-3"],
         &["--step", "0.5:0.01"],
-        &["--lidar-hz", "5"],
+        &["--drop", "0"],
         &["--rays", "100"],
     ] {
         let args = [&["--raw-stdout", "gray"][..], &SMALL, extra].concat();
@@ -207,6 +207,29 @@ fn an_mcap_file_that_cannot_be_written_is_refused_before_the_run() {
         assert!(file.is_file(), "{}", file.display());
         let _ = std::fs::remove_dir_all(&dir);
     }
+    // an ancestor of --out that exists is not one the run makes: a FILE there is
+    // checked before the run (here a regular file stands where its directory would
+    // be: it was taken for a directory the run makes, and the run failed after its
+    // setup, with status 1)
+    std::fs::create_dir_all(&dir).unwrap();
+    let file_dir = dir.join("a-file");
+    std::fs::write(&file_dir, b"").unwrap();
+    let out = file_dir.join("runs").join("seed3");
+    let file = file_dir.join("seed3.mcap");
+    refused(
+        &[
+            &[
+                "--out",
+                out.to_str().unwrap(),
+                "--mcap",
+                file.to_str().unwrap(),
+            ][..],
+            &SMALL,
+        ]
+        .concat(),
+        &["--mcap ", "seed3.mcap", "a-file"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
     // a FILE in --out's own directory is made with it
     let inside = dir.join("inside.mcap");
     let out = render_bin(

@@ -13,7 +13,10 @@
 
 mod support;
 
-use support::pipeline::{delay, ideal_sensors, run, run_seeds, table_row, RunResult, TABLE_HEADER};
+use support::pipeline::{
+    check_seeds, delay, ideal_sensors, parse_steps, run, run_seeds, table_row, try_run,
+    try_run_seeds, RunResult, TABLE_HEADER,
+};
 use vlsync_render::RenderConfig;
 
 fn cfg(seed: u64) -> RenderConfig {
@@ -247,4 +250,58 @@ fn follow_times_judge_a_step_as_the_load_harness_does() {
         })
         .collect();
     assert_eq!(follow_times(&late, &[(30.0, -0.012)], 3.0, 60.0)[0].2, None);
+    // a step of 0: nothing to follow (it used to divide by it, and estimates a hair
+    // above the level read as followed at once); the example refuses it
+    let hair: Vec<Estimate> = (0..120)
+        .map(|i| {
+            let p = i as f64 * 0.5;
+            let o = if p >= 30.0 { 0.1001 } else { 0.1 };
+            est(p - 3.0, o, EstimatorState::Tracking)
+        })
+        .collect();
+    assert_eq!(follow_times(&hair, &[(30.0, 0.0)], 3.0, 60.0)[0].2, None);
+    assert_eq!(
+        parse_steps("30:-12,60:12").unwrap(),
+        [(30.0, -0.012), (60.0, 0.012)]
+    );
+    let e = parse_steps("30:-12,60:0").unwrap_err();
+    assert!(e.starts_with("--steps: `60:0` is a step of 0 ms"), "{e}");
+}
+
+/// A room too narrow for some seeds' boxes (8 x 2 m: seeds 8 and 9 draw boxes,
+/// 0.3-0.6 m deep on either side, that leave no 1.2 m lane; 7 and 10 do not) fails
+/// those seeds, named with why, before any run is rendered, and a run that cannot
+/// be rendered is its own row: only the first seed used to be checked, and a later
+/// bad one panicked its worker and with it the whole table.
+#[test]
+fn a_seed_that_cannot_be_rendered_is_named_not_a_panic() {
+    let narrow = |seed| {
+        let mut c = RenderConfig::from_seed(seed, 60.0);
+        c.room.1 = 2.0;
+        c
+    };
+    let seeds = [7, 8, 9, 10];
+    assert_eq!(
+        check_seeds(&seeds, narrow).unwrap_err(),
+        "2 of the 4 seeds cannot be rendered: seeds 8, 9: render config `room.boxes`: no \
+         lane along the room is clear of obstacles (1.2 m wide)"
+    );
+    let bad = [8, 9];
+    assert!(check_seeds(&seeds, cfg).is_ok());
+    // run anyway: the bad seed is an error row, the good one's renders are not
+    // lost (shortened to 1 s: the good seed's run is not the point)
+    let short = |seed| {
+        let mut c = narrow(seed);
+        c.duration_s = 1.0;
+        c
+    };
+    let good = *seeds.iter().find(|s| !bad.contains(s)).unwrap();
+    let rows = try_run_seeds(&[bad[0], good], 2, false, short);
+    assert_eq!(rows.len(), 2);
+    let (seed, first) = &rows[0];
+    assert_eq!(*seed, bad[0]);
+    let e = first.as_ref().unwrap_err();
+    assert!(e.starts_with(&format!("seed {}: ", bad[0])), "{e}");
+    assert!(rows[1].1.is_ok(), "{:?}", rows[1].1.as_ref().err());
+    assert!(try_run(short(bad[0]), false).is_err());
 }

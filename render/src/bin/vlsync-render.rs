@@ -39,14 +39,18 @@ struct Args {
     /// `--render --stamp mono` map it, where anchor is the earlier of the run's
     /// first camera and first LiDAR stamps. Frames whose exposure ends before the
     /// anchor are therefore written before --start-at (by up to about a LiDAR
-    /// period, 0.1 s). The frames are the seed's: --offset, --drift-ppm, --step,
-    /// --lidar-hz, --rays, --mcap, --mcap-png and --no-png are refused with it.
+    /// period). The run must be the drivers': the --seed, --duration, --fps and
+    /// --lidar-hz of their --render SEED, --duration, --render-fps and
+    /// --render-lidar-hz (the run's draws, and so its anchor, depend on all four).
+    /// Its frames are on the seed's clocks and dropped as the drivers' are (2 %):
+    /// --offset, --drift-ppm, --step, --drop, --rays, --mcap, --mcap-png and
+    /// --no-png are refused with it.
     #[arg(
         long,
         value_name = "LAYOUT",
         value_parser = vlsync_render::stream::RawLayout::parse,
         conflicts_with_all = [
-            "mcap", "mcap_png", "no_png", "offset", "drift_ppm", "steps", "lidar_hz", "rays",
+            "mcap", "mcap_png", "no_png", "offset", "drift_ppm", "steps", "drop", "rays",
         ]
     )]
     raw_stdout: Option<vlsync_render::stream::RawLayout>,
@@ -67,7 +71,8 @@ struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 30.0)]
     fps: f64,
     /// LiDAR revolutions per second (0.5 to 100; --duration must hold at least one
-    /// whole revolution). Not with --raw-stdout (it writes no scans).
+    /// whole revolution). With --raw-stdout it writes no scans but sets the anchor
+    /// (the first scan's stamp): give the LiDAR driver's --render-lidar-hz.
     #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
     lidar_hz: f64,
     /// LiDAR rays per revolution (8 to 100000). Not with --raw-stdout (it writes no
@@ -88,7 +93,9 @@ struct Args {
     /// DELTA_S -1 to 1. Not with --raw-stdout (see --offset).
     #[arg(long = "step", value_parser = parse_step, allow_hyphen_values = true)]
     steps: Vec<(f64, f64)>,
-    /// Camera frame drop probability (0 <= p < 0.5).
+    /// Camera frame drop probability (0 <= p < 0.5). Not with --raw-stdout: the
+    /// drivers' --render drop the default 2 %, and a stream that kept (or dropped)
+    /// another first frame would pace from another anchor than theirs.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.02)]
     drop: f64,
     /// Render the frames but write no PNG files and no frames.csv (timing, or
@@ -617,7 +624,8 @@ mod tests {
                     .copied(),
             )
         };
-        // its own flags, and the defaults of the others, are fine
+        // its own flags, and those that set the run's draws as the drivers' --render
+        // options do, are fine
         assert!(raw(&[
             "--seed",
             "3",
@@ -625,8 +633,8 @@ mod tests {
             "5",
             "--fps",
             "15",
-            "--drop",
-            "0"
+            "--lidar-hz",
+            "5.5",
         ])
         .is_ok());
         for flag in [
@@ -637,7 +645,8 @@ mod tests {
             &["--offset", "0.1"],
             &["--drift-ppm", "5"],
             &["--step", "1:0.01"],
-            &["--lidar-hz", "5"],
+            &["--drop", "0"],
+            &["--drop", "0.02"],
             &["--rays", "100"],
             &["--out", "/tmp/x"],
         ] {
@@ -649,6 +658,53 @@ mod tests {
                 "{flag:?}: {text}"
             );
         }
+    }
+
+    /// A raw stream paces its frames from the anchor its run's first camera and
+    /// LiDAR stamps give; the LiDAR driver of the pair (`vlsync-lidar --render SEED
+    /// --render-lidar-hz HZ`, the drivers' `raw::renderer_at`: the seed's defaults
+    /// with the two rates set) must find the same one, or the offset between the
+    /// pair is not the one the truth says. The LiDAR's rate moves the anchor (its
+    /// first scan's phase is drawn over a period), so `--lidar-hz` is taken with
+    /// `--raw-stdout`, and the frame drops are the drivers' (`--drop` is refused).
+    #[test]
+    fn a_raw_stream_paces_from_the_anchor_of_the_drivers_run() {
+        let raw = |extra: &[&str]| {
+            let a = Args::try_parse_from(
+                ["vlsync-render", "--raw-stdout", "gray", "--duration", "22"]
+                    .iter()
+                    .chain(extra)
+                    .copied(),
+            )
+            .unwrap_or_else(|e| panic!("{extra:?}: {e}"));
+            Renderer::new(config(&a)).unwrap()
+        };
+        let driver = |seed: u64, fps: f64, lidar_hz: f64| {
+            let mut c = RenderConfig::from_seed(seed, 22.0);
+            (c.camera.fps, c.lidar.rate_hz) = (fps, lidar_hz);
+            Renderer::new(c).unwrap()
+        };
+        let mut moved = 0;
+        for seed in [1u64, 2, 3] {
+            let s = seed.to_string();
+            let at_10 = driver(seed, 30.0, 10.0).anchor_ns();
+            for (fps, hz) in [(30.0, 5.5), (30.0, 10.0), (15.0, 20.0)] {
+                let r = raw(&[
+                    "--seed",
+                    &s,
+                    "--fps",
+                    &fps.to_string(),
+                    "--lidar-hz",
+                    &hz.to_string(),
+                ]);
+                let d = driver(seed, fps, hz);
+                assert_eq!(r.anchor_ns(), d.anchor_ns(), "seed {seed} {fps} {hz}");
+                assert_eq!(r.frame_schedule(), d.frame_schedule());
+                moved += usize::from(fps == 30.0 && d.anchor_ns() != at_10);
+            }
+        }
+        // what the option is for: at 5.5 Hz the anchor is another than at 10 Hz
+        assert!(moved > 0, "the LiDAR's rate never moved the anchor");
     }
 
     #[test]

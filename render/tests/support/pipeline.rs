@@ -119,13 +119,21 @@ pub struct RunResult {
 
 /// Renders `cfg` once and runs both lanes. With `audit`, also collects each
 /// front-end's samples against the true speed, turns excluded (±1 s: the camera
-/// sees rotation there, the LiDAR other walls).
+/// sees rotation there, the LiDAR other walls). A run that cannot be rendered
+/// panics (a test's run is one it knows can be: [`try_run`] otherwise).
 pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
+    try_run(cfg, audit).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// [`run`], a run that cannot be rendered an error naming its seed and why: its
+/// configuration refused (a room whose boxes, drawn from the seed, leave no clear
+/// lane), or a frame that could not be rendered.
+pub fn try_run(cfg: RenderConfig, audit: bool) -> Result<RunResult, String> {
     let t0 = Instant::now();
     let seed = cfg.seed;
     let steps = cfg.clock.steps.clone();
     let duration_s = cfg.duration_s;
-    let mut r = Renderer::new(cfg).expect("valid config");
+    let mut r = Renderer::new(cfg).map_err(|e| format!("seed {seed}: {e}"))?;
     let truth = r.truth().clone();
     let traj = r.trajectory().clone();
     let mut lanes = [
@@ -141,7 +149,7 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
     let acc = |t: f64| (traj.speed(t + 0.005) - traj.speed(t - 0.005)) / 0.01;
     let mut buf = Vec::new();
     for ev in r.events() {
-        match ev.expect("render") {
+        match ev.map_err(|e| format!("seed {seed}: rendering: {e}"))? {
             Event::Frame(f) => {
                 for (i, lane) in lanes.iter_mut().enumerate() {
                     if let (Some(s), true) = (lane.frame(&f), audit) {
@@ -171,7 +179,7 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
     let [a, b] = &lanes;
     let ref_lag_s = EstimatorConfig::default().reference_lag_s;
     let follow = follow_times(&a.estimates, &steps, ref_lag_s, duration_s);
-    RunResult {
+    Ok(RunResult {
         seed,
         scores: [score(&a.estimates, &truth), score(&b.estimates, &truth)],
         samples: [
@@ -182,7 +190,7 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
         audit: audit.then_some(rows),
         follow,
         elapsed: t0.elapsed(),
-    }
+    })
 }
 
 /// How long the estimates took to follow each offset step `(τ s, delta s)`, as
@@ -192,7 +200,8 @@ pub fn run(cfg: RenderConfig, audit: bool) -> RunResult {
 /// step); the step is followed at the first estimate published after it from
 /// which every estimate for 2 s has moved at least half the step from that level,
 /// those 2 s ending before the next step or the end of the run (`end_s`). Rows
-/// `(τ, delta, seconds after the step)`.
+/// `(τ, delta, seconds after the step)`; a step of 0 is never followed (half of
+/// nothing is no move: every estimate would pass, or none).
 pub fn follow_times(
     estimates: &[vlsync_common::Estimate],
     steps: &[(f64, f64)],
@@ -218,7 +227,7 @@ pub fn follow_times(
             .filter(|(p, _)| *p >= (t - 5.0).max(start) && *p < t)
             .map(|x| x.1)
             .collect();
-        if before.len() < 3 {
+        if before.len() < 3 || delta == 0.0 {
             out.push((t, delta, None));
             continue;
         }
@@ -253,13 +262,29 @@ pub fn ideal_sensors(c: &mut RenderConfig) {
 }
 
 /// Runs `seeds` (each with `make(seed)`) on `threads` threads; results in seed order.
-/// With `audit`, each result holds its timing audit's rows ([`run`]).
+/// With `audit`, each result holds its timing audit's rows ([`run`]). A run that
+/// cannot be rendered panics ([`try_run_seeds`] otherwise).
 pub fn run_seeds(
     seeds: &[u64],
     threads: usize,
     audit: bool,
     make: impl Fn(u64) -> RenderConfig + Sync,
 ) -> Vec<RunResult> {
+    try_run_seeds(seeds, threads, audit, make)
+        .into_iter()
+        .map(|(_, r)| r.unwrap_or_else(|e| panic!("{e}")))
+        .collect()
+}
+
+/// [`run_seeds`], each seed's outcome beside it ([`try_run`]): one run that cannot
+/// be rendered is its own row, not the end of every other (it used to panic its
+/// worker, and with it the whole table).
+pub fn try_run_seeds(
+    seeds: &[u64],
+    threads: usize,
+    audit: bool,
+    make: impl Fn(u64) -> RenderConfig + Sync,
+) -> Vec<(u64, Result<RunResult, String>)> {
     let queue = std::sync::Mutex::new(seeds.iter().rev().copied().collect::<Vec<_>>());
     let results = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -267,14 +292,82 @@ pub fn run_seeds(
             s.spawn(|| loop {
                 let next = queue.lock().unwrap().pop();
                 let Some(seed) = next else { break };
-                let r = run(make(seed), audit);
-                results.lock().unwrap().push(r);
+                let r = try_run(make(seed), audit);
+                results.lock().unwrap().push((seed, r));
             });
         }
     });
     let mut out = results.into_inner().unwrap();
-    out.sort_by_key(|r| seeds.iter().position(|&s| s == r.seed));
+    out.sort_by_key(|(seed, _)| seeds.iter().position(|s| s == seed));
     out
+}
+
+/// Builds every seed's run (`make(seed)`) before any is rendered, so that a bad
+/// seed is said at once rather than after the others' minutes of rendering: the
+/// seeds whose run cannot be built, grouped by why (a room too narrow for one
+/// seed's boxes, drawn from the seed, fails that seed only; a bad option fails
+/// them all), or `Ok`.
+pub fn check_seeds(seeds: &[u64], make: impl Fn(u64) -> RenderConfig) -> Result<(), String> {
+    let mut why: Vec<(String, Vec<u64>)> = Vec::new();
+    for &seed in seeds {
+        if let Err(e) = Renderer::new(make(seed)) {
+            let e = e.to_string();
+            match why.iter_mut().find(|(w, _)| *w == e) {
+                Some((_, s)) => s.push(seed),
+                None => why.push((e, vec![seed])),
+            }
+        }
+    }
+    if why.is_empty() {
+        return Ok(());
+    }
+    let bad: usize = why.iter().map(|(_, s)| s.len()).sum();
+    let groups: Vec<String> = why
+        .iter()
+        .map(|(w, s)| {
+            let list: Vec<String> = s.iter().map(u64::to_string).collect();
+            let noun = if s.len() == 1 { "seed" } else { "seeds" };
+            format!("{noun} {}: {w}", list.join(", "))
+        })
+        .collect();
+    Err(format!(
+        "{bad} of the {} seeds cannot be rendered: {}",
+        seeds.len(),
+        groups.join("; ")
+    ))
+}
+
+/// `T:D,...` (the example's `--steps`): offset steps of `D` ms at `T` s (a camera
+/// latency increase of Δ is a step of -Δ), as `(T, D / 1000)`. A step of 0 ms is
+/// refused: it has nothing to follow.
+pub fn parse_steps(s: &str) -> Result<Vec<(f64, f64)>, String> {
+    s.split(',')
+        .map(|part| {
+            let (t, d) = parse_pair("--steps", part, ':', "TIME_S:DELTA_MS")?;
+            if d == 0.0 {
+                return Err(format!(
+                    "--steps: `{part}` is a step of 0 ms, which has nothing to follow \
+                     (give a non-zero DELTA_MS)"
+                ));
+            }
+            Ok((t, d * 1e-3))
+        })
+        .collect()
+}
+
+/// Two finite numbers `A<sep>B` of `flag`'s value `v` (`shape` names them in the error).
+pub fn parse_pair(flag: &str, v: &str, sep: char, shape: &str) -> Result<(f64, f64), String> {
+    let (a, b) = v
+        .split_once(sep)
+        .ok_or(format!("{flag}: `{v}` is not {shape}"))?;
+    let num = |x: &str| {
+        x.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|n| n.is_finite())
+            .ok_or(format!("{flag}: `{x}` in `{v}` is not a number"))
+    };
+    Ok((num(a)?, num(b)?))
 }
 
 /// Least-squares fit `y = g·x + h·a` (no intercept) of `(y, x, a)` rows; the delay
