@@ -477,6 +477,15 @@ pub fn select_source(
                     .into(),
             ));
         }
+        if args.speed.is_some_and(|v| v != 1.0) {
+            // a run then lasts its duration / speed of real time, and the period both
+            // drivers align on would not be the run's
+            return Err(DriverError::Options(
+                "--aligned paces the run in real time (its period is the run's duration); \
+                 drop --speed"
+                    .into(),
+            ));
+        }
     }
     if args.seed.is_some() && flag != "--sim" {
         return Err(DriverError::Options(if flag == "--render" {
@@ -636,6 +645,9 @@ pub fn select_source(
             };
             let cfg = raw_layout
                 .ok_or_else(|| DriverError::Options(format!("{flag} needs --size WIDTHxHEIGHT")))?;
+            if matches!(input, raw::PipeInput::Stdin) {
+                stdin_can_carry_frames(&std::io::stdin())?;
+            }
             Ok(Selected {
                 source: Box::new(raw::CamSource::pipe(input, cfg, stop).map_err(src)?),
                 anchor_ns: None,
@@ -675,6 +687,26 @@ fn recorded_source(args: &DriverArgs) -> bool {
         || args.mcap.is_some()
         || args.frames.is_some()
         || args.scans.is_some()
+}
+
+/// `--pipe -`: standard input must be something a camera program writes into (a pipe,
+/// a FIFO, a file), not a character device: `/dev/null` (systemd's default standard
+/// input: the unit would restart an empty run every 2 s for ever) or a terminal. An
+/// options error, so the unit stays failed with the reason.
+fn stdin_can_carry_frames(stdin: &impl std::os::fd::AsFd) -> Result<(), DriverError> {
+    let Ok(st) = rustix::fs::fstat(stdin) else {
+        // no standard input at all: the pipe source's own open says so
+        return Ok(());
+    };
+    if rustix::fs::FileType::from_raw_mode(st.st_mode) == rustix::fs::FileType::CharacterDevice {
+        return Err(DriverError::Options(
+            "--pipe -: standard input is a character device (/dev/null, as under systemd, or a \
+             terminal), not a camera program's output: pipe the program into it \
+             (`rpicam-vid ... -o - | vlsync-cam --pipe - ...`) or give --pipe-cmd"
+                .into(),
+        ));
+    }
+    Ok(())
 }
 
 /// `--aligned`'s start: the latest multiple of `period_ns` at or before `now_ns`
@@ -1702,6 +1734,10 @@ mod tests {
                 &["--sim", "robot", "--aligned", "--fast"][..],
                 "--fast publishes at once",
             ),
+            (
+                &["--sim", "robot", "--aligned", "--speed", "2"][..],
+                "drop --speed",
+            ),
         ] {
             let e = select_source(&args(bad), Stream::Cam, never)
                 .err()
@@ -1718,6 +1754,22 @@ mod tests {
             "5"
         ])
         .is_err());
+    }
+
+    /// `--pipe -` refuses a character device as its standard input (/dev/null under
+    /// systemd, a terminal), an options error; a pipe or a file is fine.
+    #[test]
+    fn a_character_device_is_no_camera_pipe() {
+        let null = std::fs::File::open("/dev/null").unwrap();
+        let e = stdin_can_carry_frames(&null).unwrap_err();
+        assert!(
+            matches!(&e, DriverError::Options(m) if m.contains("character device")),
+            "{e}"
+        );
+        let (r, _w) = std::io::pipe().unwrap();
+        stdin_can_carry_frames(&r).unwrap();
+        let f = std::fs::File::open(std::env::current_exe().unwrap()).unwrap();
+        stdin_can_carry_frames(&f).unwrap();
     }
 
     /// --config is read once: a file broken while the driver waits for its device

@@ -83,6 +83,13 @@ impl WatchdogGate {
         }
     }
 
+    /// A pet that could not be sent: tried again within a second, not a period (one
+    /// failed send, ENOBUFS under memory pressure, then a period's wait would miss
+    /// systemd's deadline).
+    pub fn retry_soon(&mut self, now: Instant) {
+        self.next = now + self.period.min(Duration::from_secs(1));
+    }
+
     /// Time until the next pet is due.
     pub fn due_in(&self, now: Instant) -> Duration {
         self.next.saturating_duration_since(now)
@@ -214,11 +221,17 @@ impl Supervisor {
             WatchdogAction::Idle | WatchdogAction::StillWithheld => {}
             WatchdogAction::Pet => {
                 let r = self.sd.watchdog();
+                if r.is_err() {
+                    gate.retry_soon(now);
+                }
                 self.check(r);
             }
             WatchdogAction::Resumed => {
                 tracing::warn!("real-time thread progresses again; petting the systemd watchdog");
                 let r = self.sd.watchdog();
+                if r.is_err() {
+                    gate.retry_soon(now);
+                }
                 self.check(r);
             }
             WatchdogAction::Withheld(quiet) => tracing::error!(
@@ -335,6 +348,24 @@ mod tests {
         assert_eq!(g.poll(t0 + ms(2100), 10), WatchdogAction::Idle);
         assert_eq!(g.poll(t0 + ms(2501), 10), WatchdogAction::Resumed);
         assert_eq!(g.poll(t0 + ms(3001), 11), WatchdogAction::Pet);
+    }
+
+    /// A pet that could not be sent is due again within a second, not a period.
+    #[test]
+    fn a_failed_pet_is_retried_within_a_second() {
+        let t0 = Instant::now();
+        let s = Duration::from_secs;
+        let mut g = WatchdogGate::new(s(10), s(1), t0, 0);
+        assert_eq!(g.poll(t0, 1), WatchdogAction::Pet);
+        assert_eq!(g.due_in(t0), s(10));
+        g.retry_soon(t0);
+        assert_eq!(g.due_in(t0), s(1));
+        assert_eq!(g.poll(t0 + s(1), 2), WatchdogAction::Pet);
+        assert_eq!(g.due_in(t0 + s(1)), s(10));
+        // a period under a second is kept
+        let mut g = WatchdogGate::new(Duration::from_millis(200), s(1), t0, 0);
+        g.retry_soon(t0);
+        assert_eq!(g.due_in(t0), Duration::from_millis(200));
     }
 
     /// Every datagram waiting on `rx` (non-blocking): a send to a Unix datagram
