@@ -645,8 +645,10 @@ pub fn select_source(
             };
             let cfg = raw_layout
                 .ok_or_else(|| DriverError::Options(format!("{flag} needs --size WIDTHxHEIGHT")))?;
-            if matches!(input, raw::PipeInput::Stdin) {
-                stdin_can_carry_frames(&std::io::stdin())?;
+            match &input {
+                raw::PipeInput::Stdin => stdin_can_carry_frames(&std::io::stdin())?,
+                raw::PipeInput::Path(p) => path_can_carry_frames(p)?,
+                raw::PipeInput::Command(_) => {}
             }
             Ok(Selected {
                 source: Box::new(raw::CamSource::pipe(input, cfg, stop).map_err(src)?),
@@ -694,8 +696,8 @@ fn recorded_source(args: &DriverArgs) -> bool {
 /// input: the unit would restart an empty run every 2 s for ever) or a terminal. An
 /// options error, so the unit stays failed with the reason.
 fn stdin_can_carry_frames(stdin: &impl std::os::fd::AsFd) -> Result<(), DriverError> {
+    // (a closed standard input is /dev/null already: Rust's start-up reopens it so)
     let Ok(st) = rustix::fs::fstat(stdin) else {
-        // no standard input at all: the pipe source's own open says so
         return Ok(());
     };
     if rustix::fs::FileType::from_raw_mode(st.st_mode) == rustix::fs::FileType::CharacterDevice {
@@ -707,6 +709,21 @@ fn stdin_can_carry_frames(stdin: &impl std::os::fd::AsFd) -> Result<(), DriverEr
         ));
     }
     Ok(())
+}
+
+/// `--pipe PATH`: the same rule for a path (`/dev/stdin`, `/dev/null`, a terminal's
+/// node): a character device is refused; a FIFO or a file is fine, and a missing path
+/// is left to the pipe source's open, which names it.
+fn path_can_carry_frames(path: &Path) -> Result<(), DriverError> {
+    use std::os::unix::fs::FileTypeExt;
+    match std::fs::metadata(path) {
+        Ok(m) if m.file_type().is_char_device() => Err(DriverError::Options(format!(
+            "--pipe {}: a character device (/dev/null or a terminal, also behind /dev/stdin), \
+             not a camera program's output: give a FIFO the program writes into, or --pipe-cmd",
+            path.display()
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// `--aligned`'s start: the latest multiple of `period_ns` at or before `now_ns`
@@ -1770,6 +1787,14 @@ mod tests {
         stdin_can_carry_frames(&r).unwrap();
         let f = std::fs::File::open(std::env::current_exe().unwrap()).unwrap();
         stdin_can_carry_frames(&f).unwrap();
+        // by path too: /dev/null itself, and behind /dev/stdin when that is /dev/null
+        let e = path_can_carry_frames(Path::new("/dev/null")).unwrap_err();
+        assert!(
+            matches!(&e, DriverError::Options(m) if m.contains("--pipe /dev/null: a character device")),
+            "{e}"
+        );
+        path_can_carry_frames(&std::env::current_exe().unwrap()).unwrap();
+        path_can_carry_frames(Path::new("/nonexistent/vlsync/fifo")).unwrap();
     }
 
     /// --config is read once: a file broken while the driver waits for its device

@@ -231,6 +231,17 @@ impl CameraModel {
         acc.iter_mut().for_each(|a| *a = 0.0);
         let room = &scene.room;
         let ceil_h = (room.height - self.cfg.height_m) as f32;
+        if !(ceil_h > 0.0) {
+            // a scene built by hand (RenderConfig checks its own): every ray looking
+            // up would meet the ceiling behind the camera
+            return Err(RenderError::config(
+                "camera.height_m",
+                format!(
+                    "{} m is not below the room's height ({} m): the camera must be inside the room",
+                    self.cfg.height_m, room.height
+                ),
+            ));
+        }
         for pose in poses {
             let (s, c) = pose.yaw.sin_cos();
             let cxw = pose.x + c * self.cfg.forward_m;
@@ -491,6 +502,30 @@ mod tests {
         })
         .unwrap();
         assert!(up.rays[0].floor.is_infinite() && up.rays[0].slope > 0.0);
+    }
+
+    /// A scene built by hand with the camera at or above its ceiling is an error
+    /// naming the height, not an image of the ceiling seen from behind.
+    #[test]
+    fn a_camera_above_a_hand_built_room_s_ceiling_is_refused() {
+        let cfg = CameraConfig {
+            height_m: 0.6,
+            ..CameraConfig::default()
+        };
+        let mut cam = CameraModel::new(&cfg).unwrap();
+        let low = Scene::new(Room::new(8.0, 5.0, 0.5).unwrap(), 3);
+        let mut out = vec![0u8; cfg.width * cfg.height];
+        let pose = Pose {
+            x: 2.0,
+            y: 2.5,
+            yaw: 0.0,
+        };
+        let e = cam
+            .render(&low, &[pose], 0, &mut out)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("camera.height_m") && e.contains("0.6"), "{e}");
+        cam.render(&scene(), &[pose], 0, &mut out).unwrap();
     }
 
     #[test]

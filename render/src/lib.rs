@@ -210,7 +210,8 @@ impl RenderConfig {
         // a camera at or above the ceiling would see the ceiling from behind: every
         // ray looking up would hit it at a negative distance (the room's own range
         // is checked when the room is built)
-        if self.room.2.is_finite() && self.camera.height_m >= self.room.2 {
+        // (a room height out of its own range is left to the room's check, which names it)
+        if (0.5..=100.0).contains(&self.room.2) && self.camera.height_m >= self.room.2 {
             return Err(RenderError::config(
                 "camera.height_m",
                 format!(
