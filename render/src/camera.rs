@@ -231,7 +231,7 @@ impl CameraModel {
         acc.iter_mut().for_each(|a| *a = 0.0);
         let room = &scene.room;
         let ceil_h = (room.height - self.cfg.height_m) as f32;
-        if !(ceil_h > 0.0) {
+        if ceil_h.is_nan() || ceil_h <= 0.0 {
             // a scene built by hand (RenderConfig checks its own): every ray looking
             // up would meet the ceiling behind the camera
             return Err(RenderError::config(
