@@ -883,6 +883,43 @@ mod tests {
             .to_string()
     }
 
+    /// An offset service of a prefix of its own (`vlsync/capi-TAG-PID`), a publisher
+    /// standing in for the daemon, and a C client open on it.
+    struct OffsetRig {
+        _node: vlsync_ipc::IpcNode,
+        _svc: vlsync_ipc::iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+            vlsync_ipc::Svc,
+            OffsetEstimate,
+            (),
+        >,
+        publ: vlsync_ipc::iceoryx2::port::publisher::Publisher<vlsync_ipc::Svc, OffsetEstimate, ()>,
+        c: *mut VlsyncClient,
+    }
+
+    impl OffsetRig {
+        fn open(tag: &str) -> Self {
+            use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
+            let names =
+                ServiceNames::new(&format!("vlsync/capi-{tag}-{}", std::process::id())).unwrap();
+            let node = create_node("capi-test-daemon", false).unwrap();
+            let svc =
+                open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest())
+                    .unwrap();
+            let publ = publisher(&svc, "offset").unwrap();
+            let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+            let mut err = [0u8; 300];
+            // SAFETY: a C string and a buffer with its true length
+            let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
+            assert!(!c.is_null(), "{}", text(&err));
+            Self {
+                _node: node,
+                _svc: svc,
+                publ,
+                c,
+            }
+        }
+    }
+
     /// The layout `include/vlsync_client.h` states: every size, alignment and offset
     /// its static asserts pin (read from the header's text here) is Rust's, and it
     /// pins every field (`tests/tests/ipc_capi.rs` also compiles it against these).
@@ -1475,17 +1512,9 @@ mod tests {
     /// with the publish time, and the age is measured against `CLOCK_MONOTONIC`.
     #[test]
     fn the_err_variants_and_the_age_of_an_estimate() {
-        use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
-        let names = ServiceNames::new(&format!("vlsync/capi-age-{}", std::process::id())).unwrap();
-        let node = create_node("capi-test-daemon", false).unwrap();
-        let svc =
-            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
-        let publ = publisher(&svc, "offset").unwrap();
-        let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+        let rig = OffsetRig::open("age");
+        let (publ, c) = (&rig.publ, rig.c);
         let mut err = [0u8; 300];
-        // SAFETY: a C string and a buffer with its true length
-        let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
-        assert!(!c.is_null(), "{}", text(&err));
         let e = Estimate {
             seq: 9,
             t_ref_ns: 10_000_000_000,
@@ -1563,18 +1592,9 @@ mod tests {
     /// convert with drift 0.
     #[test]
     fn a_conversion_with_drift_far_from_t_ref_is_the_rust_one() {
-        use vlsync_ipc::{create_node, open_or_create_pubsub, publisher, Qos, ServiceNames};
-        let names =
-            ServiceNames::new(&format!("vlsync/capi-drift-{}", std::process::id())).unwrap();
-        let node = create_node("capi-test-daemon", false).unwrap();
-        let svc =
-            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
-        let publ = publisher(&svc, "offset").unwrap();
-        let cp = std::ffi::CString::new(names.prefix.clone()).unwrap();
+        let rig = OffsetRig::open("drift");
+        let (publ, c) = (&rig.publ, rig.c);
         let mut err = [0u8; 300];
-        // SAFETY: a C string and a buffer with its true length
-        let c = unsafe { vlsync_client_open(cp.as_ptr(), err.as_mut_ptr().cast(), err.len()) };
-        assert!(!c.is_null(), "{}", text(&err));
         let shipped = vlsync_config::EstimatorConfig::default();
         let shipped = (shipped.offset_process_noise, shipped.hold_process_noise);
         let mut conv = VlsyncConversion {
