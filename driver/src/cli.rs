@@ -250,22 +250,7 @@ pub fn select_source(
     stream: Stream,
     stop: raw::StopFn,
 ) -> Result<Selected, DriverError> {
-    let given: Vec<&str> = [
-        ("--csv", args.csv.is_some()),
-        ("--sim", args.sim.is_some()),
-        ("--render", args.render.is_some()),
-        ("--mcap", args.mcap.is_some()),
-        ("--frames", args.frames.is_some()),
-        ("--v4l2", args.v4l2.is_some()),
-        ("--pipe", args.pipe.is_some()),
-        ("--pipe-cmd", args.pipe_cmd.is_some()),
-        ("--ld06", args.ld06.is_some()),
-        ("--rplidar", args.rplidar.is_some()),
-        ("--scans", args.scans.is_some()),
-    ]
-    .into_iter()
-    .filter_map(|(f, on)| on.then_some(f))
-    .collect();
+    let given = given_sources(args);
     let choices = match stream {
         Stream::Cam => "--csv FILE, --sim FAMILY, --frames DIR, --mcap FILE, --v4l2 DEVICE, --pipe PATH, --pipe-cmd COMMAND or --render SEED",
         Stream::Lidar => {
@@ -435,7 +420,7 @@ pub fn select_source(
             args.v4l2.as_deref().unwrap_or(Path::new("")).display()
         )));
     }
-    let live = ["--v4l2", "--ld06", "--rplidar", "--pipe", "--pipe-cmd"];
+    let live = LIVE_SOURCES;
     // `--speed 1` is what a live device does anyway: accepted, as `--stamp` accepts it
     if live.contains(&flag) && (args.fast || args.speed.is_some_and(|s| s != 1.0)) {
         return Err(DriverError::Options(format!(
@@ -645,11 +630,7 @@ pub fn select_source(
             };
             let cfg = raw_layout
                 .ok_or_else(|| DriverError::Options(format!("{flag} needs --size WIDTHxHEIGHT")))?;
-            match &input {
-                raw::PipeInput::Stdin => stdin_can_carry_frames(&std::io::stdin())?,
-                raw::PipeInput::Path(p) => path_can_carry_frames(p)?,
-                raw::PipeInput::Command(_) => {}
-            }
+            pipe_input_can_carry_frames(&input)?;
             Ok(Selected {
                 source: Box::new(raw::CamSource::pipe(input, cfg, stop).map_err(src)?),
                 anchor_ns: None,
@@ -679,51 +660,77 @@ pub fn select_source(
     }
 }
 
+/// The sources a driver can be given, with the flags `args` set.
+fn given_sources(args: &DriverArgs) -> Vec<&'static str> {
+    [
+        ("--csv", args.csv.is_some()),
+        ("--sim", args.sim.is_some()),
+        ("--render", args.render.is_some()),
+        ("--mcap", args.mcap.is_some()),
+        ("--frames", args.frames.is_some()),
+        ("--v4l2", args.v4l2.is_some()),
+        ("--pipe", args.pipe.is_some()),
+        ("--pipe-cmd", args.pipe_cmd.is_some()),
+        ("--ld06", args.ld06.is_some()),
+        ("--rplidar", args.rplidar.is_some()),
+        ("--scans", args.scans.is_some()),
+    ]
+    .into_iter()
+    .filter_map(|(f, on)| on.then_some(f))
+    .collect()
+}
+
+/// The live devices among the sources: published as their data arrives; every wait of
+/// theirs checks the stop. The others are recordings and simulations.
+const LIVE_SOURCES: [&str; 5] = ["--v4l2", "--ld06", "--rplidar", "--pipe", "--pipe-cmd"];
+
 /// Whether the source is a recording or a simulation, not a device: its reads make
 /// no stop checks (a whole CSV read before the first sample, an MCAP file's chunks
 /// walked to the next message), where every wait of a device source checks.
 fn recorded_source(args: &DriverArgs) -> bool {
-    args.csv.is_some()
-        || args.sim.is_some()
-        || args.render.is_some()
-        || args.mcap.is_some()
-        || args.frames.is_some()
-        || args.scans.is_some()
+    let given = given_sources(args);
+    !given.is_empty() && !given.iter().any(|f| LIVE_SOURCES.contains(f))
 }
 
-/// `--pipe -`: standard input must be something a camera program writes into (a pipe,
-/// a FIFO, a file), not a character device: `/dev/null` (systemd's default standard
-/// input: the unit would restart an empty run every 2 s for ever) or a terminal. An
-/// options error, so the unit stays failed with the reason.
-fn stdin_can_carry_frames(stdin: &impl std::os::fd::AsFd) -> Result<(), DriverError> {
-    // (a closed standard input is /dev/null already: Rust's start-up reopens it so)
-    let Ok(st) = rustix::fs::fstat(stdin) else {
-        return Ok(());
+/// `--pipe -` or `--pipe PATH`: the input must be something a camera program writes
+/// into (a pipe, a FIFO, a file), not a character device: `/dev/null` (systemd's
+/// standard input: the unit would restart an empty run every 2 s for ever), a
+/// terminal, or either behind `/dev/stdin`. An options error, so the unit stays
+/// failed with the reason; a path that cannot be read is left to the pipe source's
+/// open, which names it.
+fn pipe_input_can_carry_frames(input: &raw::PipeInput) -> Result<(), DriverError> {
+    use std::os::fd::AsFd;
+    let (meta, shown) = match input {
+        // (a closed standard input is /dev/null already: Rust's start-up reopens it so)
+        raw::PipeInput::Stdin => (
+            std::io::stdin()
+                .as_fd()
+                .try_clone_to_owned()
+                .ok()
+                .and_then(|fd| std::fs::File::from(fd).metadata().ok()),
+            "--pipe -: standard input".to_string(),
+        ),
+        raw::PipeInput::Path(p) => (std::fs::metadata(p).ok(), format!("--pipe {}", p.display())),
+        raw::PipeInput::Command(_) => return Ok(()),
     };
-    if rustix::fs::FileType::from_raw_mode(st.st_mode) == rustix::fs::FileType::CharacterDevice {
-        return Err(DriverError::Options(
-            "--pipe -: standard input is a character device (/dev/null, as under systemd, or a \
+    refuse_character_device(meta.as_ref(), &shown)
+}
+
+/// [`pipe_input_can_carry_frames`]'s rule on what the input is (`shown` names it).
+fn refuse_character_device(
+    meta: Option<&std::fs::Metadata>,
+    shown: &str,
+) -> Result<(), DriverError> {
+    use std::os::unix::fs::FileTypeExt;
+    if meta.is_some_and(|m| m.file_type().is_char_device()) {
+        return Err(DriverError::Options(format!(
+            "{shown} is a character device (/dev/null, as systemd's standard input, or a \
              terminal), not a camera program's output: pipe the program into it \
-             (`rpicam-vid ... -o - | vlsync-cam --pipe - ...`) or give --pipe-cmd"
-                .into(),
-        ));
+             (`rpicam-vid ... -o - | vlsync-cam --pipe - ...`), give a FIFO it writes into, \
+             or use --pipe-cmd"
+        )));
     }
     Ok(())
-}
-
-/// `--pipe PATH`: the same rule for a path (`/dev/stdin`, `/dev/null`, a terminal's
-/// node): a character device is refused; a FIFO or a file is fine, and a missing path
-/// is left to the pipe source's open, which names it.
-fn path_can_carry_frames(path: &Path) -> Result<(), DriverError> {
-    use std::os::unix::fs::FileTypeExt;
-    match std::fs::metadata(path) {
-        Ok(m) if m.file_type().is_char_device() => Err(DriverError::Options(format!(
-            "--pipe {}: a character device (/dev/null or a terminal, also behind /dev/stdin), \
-             not a camera program's output: give a FIFO the program writes into, or --pipe-cmd",
-            path.display()
-        ))),
-        _ => Ok(()),
-    }
 }
 
 /// `--aligned`'s start: the latest multiple of `period_ns` at or before `now_ns`
@@ -989,7 +996,7 @@ pub fn run_driver(stream: Stream, args: &DriverArgs) -> Result<crate::RunSummary
     vlsync_ipc::handle_termination_signals();
     // systemd's watchdog is petted from the stop check every wait and sample of
     // this thread makes (crate::watchdog): a driver stuck in a call restarts
-    let (problems, watchdog_on) = crate::watchdog::init();
+    let (problems, watchdog_on) = crate::watchdog::init(&format!("vlsync-{stream}"));
     for p in problems {
         vlsync_common::console::print_err_at(
             vlsync_common::console::Priority::Warning,
@@ -1777,24 +1784,36 @@ mod tests {
     /// systemd, a terminal), an options error; a pipe or a file is fine.
     #[test]
     fn a_character_device_is_no_camera_pipe() {
+        // what standard input may be: /dev/null is refused, a pipe or a file is not
+        let meta = |f: &std::fs::File| f.metadata().unwrap();
         let null = std::fs::File::open("/dev/null").unwrap();
-        let e = stdin_can_carry_frames(&null).unwrap_err();
+        let e =
+            refuse_character_device(Some(&meta(&null)), "--pipe -: standard input").unwrap_err();
         assert!(
-            matches!(&e, DriverError::Options(m) if m.contains("character device")),
+            matches!(&e, DriverError::Options(m) if m.contains("--pipe -: standard input is a character device")),
             "{e}"
         );
         let (r, _w) = std::io::pipe().unwrap();
-        stdin_can_carry_frames(&r).unwrap();
-        let f = std::fs::File::open(std::env::current_exe().unwrap()).unwrap();
-        stdin_can_carry_frames(&f).unwrap();
-        // by path too: /dev/null itself, and behind /dev/stdin when that is /dev/null
-        let e = path_can_carry_frames(Path::new("/dev/null")).unwrap_err();
+        refuse_character_device(
+            Some(
+                &std::fs::File::from(std::os::fd::OwnedFd::from(r))
+                    .metadata()
+                    .unwrap(),
+            ),
+            "x",
+        )
+        .unwrap();
+        let exe = std::env::current_exe().unwrap();
+        refuse_character_device(Some(&meta(&std::fs::File::open(&exe).unwrap())), "x").unwrap();
+        // by path: /dev/null itself (and behind /dev/stdin when that is /dev/null)
+        let e = pipe_input_can_carry_frames(&raw::PipeInput::Path("/dev/null".into())).unwrap_err();
         assert!(
-            matches!(&e, DriverError::Options(m) if m.contains("--pipe /dev/null: a character device")),
+            matches!(&e, DriverError::Options(m) if m.contains("--pipe /dev/null is a character device")),
             "{e}"
         );
-        path_can_carry_frames(&std::env::current_exe().unwrap()).unwrap();
-        path_can_carry_frames(Path::new("/nonexistent/vlsync/fifo")).unwrap();
+        pipe_input_can_carry_frames(&raw::PipeInput::Path(exe)).unwrap();
+        pipe_input_can_carry_frames(&raw::PipeInput::Path("/nonexistent/vlsync/fifo".into()))
+            .unwrap();
     }
 
     /// --config is read once: a file broken while the driver waits for its device

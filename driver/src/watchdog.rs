@@ -44,6 +44,8 @@ pub struct Notifier {
     thread: ThreadId,
     /// The last send failed (its error was said; the next is said after a success).
     failing: AtomicBool,
+    /// The process, as its lines name it (`vlsync-cam`).
+    who: String,
 }
 
 /// What [`Notifier::pet_if_due`] did.
@@ -59,8 +61,8 @@ pub enum Pet {
 }
 
 impl Notifier {
-    /// A notifier petting on the calling thread.
-    pub fn new(sd: SdNotify) -> Self {
+    /// A notifier petting on the calling thread; `who` names the process in its lines.
+    pub fn new(sd: SdNotify, who: &str) -> Self {
         let period_ns = sd.watchdog_period().map_or(0, |p| {
             Nanos::try_from(p.as_nanos()).unwrap_or(Nanos::MAX).max(1)
         });
@@ -70,6 +72,7 @@ impl Notifier {
             next_ns: AtomicI64::new(i64::MIN),
             thread: std::thread::current().id(),
             failing: AtomicBool::new(false),
+            who: who.to_string(),
         }
     }
 
@@ -124,11 +127,12 @@ impl Notifier {
 
 /// Sets up the process's notifier from the environment, petting on the calling
 /// thread (call it from the driver's main thread, once; later calls keep the
-/// first). Returns the problems with the variables, each a sentence naming the
-/// variable and its value, and whether the watchdog is on.
-pub fn init() -> (Vec<String>, bool) {
+/// first); `who` names the process in its lines. Returns the problems with the
+/// variables, each a sentence naming the variable and its value, and whether the
+/// watchdog is on.
+pub fn init(who: &str) -> (Vec<String>, bool) {
     let (sd, problems) = SdNotify::from_env();
-    let n = NOTIFIER.get_or_init(|| Notifier::new(sd));
+    let n = NOTIFIER.get_or_init(|| Notifier::new(sd, who));
     (problems, n.watchdog_on())
 }
 
@@ -139,7 +143,10 @@ pub fn stop_check() -> bool {
         if let Pet::Failed(Some(e)) = n.pet_if_due(vlsync_ipc::monotonic_ns()) {
             vlsync_common::console::print_err_at(
                 vlsync_common::console::Priority::Warning,
-                &format!("vlsync: systemd watchdog: {e} (said again only after a pet goes out)\n"),
+                &format!(
+                    "{}: systemd watchdog: {e} (said again only after a pet goes out)\n",
+                    n.who
+                ),
             );
         }
     }
@@ -240,7 +247,7 @@ mod tests {
             1,
         );
         assert!(problems.is_empty(), "{problems:?}");
-        Notifier::new(sd)
+        Notifier::new(sd, "vlsync-test")
     }
 
     /// Pets go out at once, then once per half of WATCHDOG_USEC however often the
@@ -289,7 +296,7 @@ mod tests {
     fn no_watchdog_no_pets() {
         let (rx, path) = listening("off");
         let (sd, _) = SdNotify::from_values(Some(path.as_os_str()), None, None, 1);
-        let n = Notifier::new(sd);
+        let n = Notifier::new(sd, "vlsync-test");
         assert!(!n.watchdog_on());
         for k in 0..10 {
             assert_eq!(n.pet_if_due(k * 10_000_000_000), Pet::Idle);
