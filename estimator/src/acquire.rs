@@ -207,6 +207,7 @@ impl Estimator {
             t,
             o: m.z + self.d.0 * (t - t_c),
             var: m.var,
+            measured: t,
         };
         self.mode = Mode::Locked;
         self.ever_locked = true;

@@ -174,14 +174,15 @@ struct Params {
 
 impl Params {
     fn new(c: &EstimatorConfig) -> Self {
-        // clamp to the validated ranges so an unvalidated config cannot panic or exhaust memory
+        // each value clamped to its validated range, so an unvalidated config cannot
+        // panic; its memory is bounded below (the segment), not to `validate`'s bound
         let cl = |v: f64, lo: f64, hi: f64| if v.is_finite() { v.clamp(lo, hi) } else { lo };
         let fs = cl(c.grid_hz, 10.0, 2000.0);
         let dt_ns = ((1e9 / fs).round() as Nanos).max(1);
         let fs = 1e9 / dt_ns as f64;
         let dt_s = 1.0 / fs;
         let window_s = cl(c.window_s, 1.0, 120.0);
-        let hop_s = cl(c.hop_s, dt_s, window_s);
+        let hop_s = cl(c.hop_s, 0.05, window_s);
         let hop_len = ((hop_s * fs).round() as i64).max(1);
         let hop_s = hop_len as f64 * dt_s;
         let segment_s = cl(c.segment_s, window_s, 600.0);
@@ -189,22 +190,35 @@ impl Params {
         let lowpass_hz = cl(c.lowpass_hz, 0.05, 0.45 * fs);
         let blocks = |s: f64| ((s / hop_s).round() as usize).max(1);
         let acq_blocks = blocks(window_s);
+        let half_lags = ((max_lag_s * fs).round() as i64).max(2);
+        // the segment's lag sums within `validate`'s bound (a segment of 600 s in hops
+        // of 0.5 ms at ±2 s would be 230 GB), never shorter than the acquisition window
+        let lags = (2 * half_lags + 1) as f64;
+        let seg_cap = ((vlsync_config::MAX_LAG_SUMS / lags) as usize).saturating_sub(1);
+        let seg_blocks = blocks(segment_s).min(seg_cap).max(acq_blocks);
+        let highpass_hz = cl(c.highpass_hz, 0.0, 0.9 * lowpass_hz);
         Self {
             dt_ns,
             dt_s,
             fs,
             hop_len,
-            half_lags: ((max_lag_s * fs).round() as i64).max(2),
+            half_lags,
             center_lag: (cl(c.lag_center_s, -1e6, 1e6) * fs).round() as i64,
             track_slots: (cl(c.track_range_s, 0.005, max_lag_s) * fs).max(2.0),
             short_blocks: blocks(cl(c.step_window_s, 0.5, window_s)).min(acq_blocks),
             acq_blocks,
-            seg_blocks: blocks(segment_s).max(acq_blocks),
+            seg_blocks,
             ref_lag_ns: (cl(c.reference_lag_s, 0.0, segment_s) * 1e9) as Nanos,
             window_s,
             hop_s,
             lowpass_hz,
-            highpass_hz: cl(c.highpass_hz, 0.0, 0.9 * lowpass_hz),
+            // 0 (off) or at least the validated floor: a tiny cut-off's filter has a
+            // DC gain of 0/0, and every filtered value would be NaN
+            highpass_hz: if highpass_hz < vlsync_config::MIN_HIGHPASS_HZ {
+                0.0
+            } else {
+                highpass_hz
+            },
             min_score: cl(c.min_peak_score, 0.0, 1.0),
             // never below the measurements' own gate (a configuration that raised
             // min_peak_score from before this key raised the acquisition's with it)
@@ -291,6 +305,11 @@ struct Current {
     t: f64,
     o: f64,
     var: f64,
+    /// Tracker time of the measurement `o` was last taken from: the drift's error
+    /// moves the offset by `drift error × time since then`, so its share of `var`
+    /// grows with the square of the whole time blind ([`Estimator::drift_growth`]),
+    /// not hop by hop.
+    measured: f64,
 }
 
 /// Why the acquisition's lag range moved ([`SearchMove`]).
@@ -526,7 +545,9 @@ pub struct Estimator {
 
 impl Estimator {
     /// Builds an estimator. `cfg` should be validated ([`EstimatorConfig::validate`]);
-    /// out-of-range values are clamped to the validated ranges.
+    /// out-of-range values are clamped to the validated ranges, and a segment whose
+    /// lag sums `validate` would refuse is shortened to fit (never below the
+    /// acquisition window, whose sums an unvalidated extreme can still make large).
     pub fn new(cfg: &EstimatorConfig) -> Self {
         let p = Params::new(cfg);
         let n_lags = (2 * p.half_lags + 1) as usize;
@@ -587,6 +608,7 @@ impl Estimator {
                 t: 0.0,
                 o: cfg.lag_center_s,
                 var: p.max_lag_s.powi(2),
+                measured: 0.0,
             },
             drift: DriftFit::new(p.drift0, p.drift_memory_s),
             d: (0.0, p.drift0.powi(2)),
@@ -718,8 +740,24 @@ impl Estimator {
                     }
                     _ => 0,
                 };
+                // The time the step really spanned: one sample interval of this
+                // stream, unless the other stream moved clearly further (both fell
+                // silent, e.g. drivers paused). The other stream's progress measures
+                // that time only to within its own interval (no sample of the faster
+                // stream between two of the slower; three of the faster between two
+                // of the slower give its whole interval), so it is taken only beyond
+                // this stream's interval and two of the other's; subtracting it and the
+                // interval both misjudged a step of the slower stream's clock by one
+                // of its intervals (100 ms for a 10 Hz LiDAR).
                 let interval = (self.rs[si].mean_interval_s() * 1e9) as Nanos;
-                let jump = step.saturating_sub(elapsed).saturating_sub(interval);
+                let other_interval = (self.rs[1 - si].mean_interval_s() * 1e9) as Nanos;
+                let spanned = if elapsed > interval.saturating_add(other_interval.saturating_mul(2))
+                {
+                    elapsed
+                } else {
+                    interval
+                };
+                let jump = step.saturating_sub(spanned);
                 self.break_stream(stream);
                 if jump.saturating_abs() as f64 > self.p.max_gap_ns as f64 {
                     self.stats.resets[si] += 1;
@@ -803,7 +841,9 @@ impl Estimator {
         &self.stats
     }
 
-    /// Current state (the state of the last estimate).
+    /// The state an estimate without a new measurement would have now: `holding`
+    /// once locked (never `tracking`, which only a measurement gives), else
+    /// `acquiring` or `lost`. The last estimate's own state is in that estimate.
     pub fn state(&self) -> EstimatorState {
         self.current_state(false)
     }
@@ -856,6 +896,9 @@ impl Estimator {
             t: 0.0,
             o: est.offset_s + drift * age - levels,
             var,
+            // the saved estimate was measured `age` ago: its drift share goes on
+            // growing from there
+            measured: -age,
         };
         self.d = (drift, drift_std * drift_std);
         // the drift fit keeps the saved slope too: the first tracking hop takes its
@@ -1102,11 +1145,22 @@ impl Estimator {
     /// Offset and variance predicted at tracker time `t` from the current estimate.
     fn predict(&self, t: f64) -> (f64, f64) {
         let dt = t - self.cur.t;
-        let (d, vd) = self.d;
         (
-            self.cur.o + d * dt,
-            self.cur.var + vd * dt * dt + self.p.qo * self.p.qo * dt.abs(),
+            self.cur.o + self.d.0 * dt,
+            self.cur.var + self.drift_growth(t) + self.p.qo * self.p.qo * dt.abs(),
         )
+    }
+
+    /// What the drift's uncertainty adds to the current variance between the
+    /// current estimate's time and `t`: `vd·((t - m)² - (t_cur - m)²)` with `m` the
+    /// last measurement's time, so that any number of hops blind add up to
+    /// `vd·(t - m)²` (hop by hop, `vd·dt²` summed to `vd·(t - m)²/hops`: a σ that
+    /// after an hour blind still told of milliseconds); at least `vd·dt²`.
+    fn drift_growth(&self, t: f64) -> f64 {
+        let vd = self.d.1;
+        let dt = t - self.cur.t;
+        let (a, b) = (t - self.cur.measured, self.cur.t - self.cur.measured);
+        (vd * (a * a - b * b)).max(vd * dt * dt)
     }
 
     /// Moves the estimate to time `t` without a measurement: the offset follows the
@@ -1125,11 +1179,11 @@ impl Estimator {
         } else {
             self.p.qo
         };
-        let (d, vd) = self.d;
         self.cur = Current {
             t,
-            o: self.cur.o + d * dt,
-            var: self.cur.var + vd * dt * dt + q * q * dt,
+            o: self.cur.o + self.d.0 * dt,
+            var: self.cur.var + self.drift_growth(t) + q * q * dt,
+            measured: self.cur.measured,
         };
         if self.mode == Mode::Locked && self.cur.var > self.p.lost_var {
             self.lose();
@@ -1841,6 +1895,45 @@ mod tests {
         }
     }
 
+    /// An unvalidated configuration `validate` refuses builds within bounds: a
+    /// segment of 600 s in hops of 0.5 ms at ±2 s on a 2 kHz grid asked for 1.2
+    /// million blocks of 8001 lags (230 GB, an abort), and a high-pass cut-off of
+    /// 1e-10 Hz made every filtered value NaN (never a lock).
+    #[test]
+    fn an_unvalidated_extreme_config_is_bounded_and_still_filters() {
+        let huge = EstimatorConfig {
+            grid_hz: 2000.0,
+            hop_s: 0.0005,
+            segment_s: 600.0,
+            max_lag_s: 2.0,
+            ..EstimatorConfig::default()
+        };
+        let p = Params::new(&huge);
+        let lags = (2 * p.half_lags + 1) as f64;
+        assert!(
+            lags * (p.seg_blocks as f64 + 1.0) <= vlsync_config::MAX_LAG_SUMS,
+            "{} blocks of {lags} lags",
+            p.seg_blocks
+        );
+        assert!(p.seg_blocks >= p.acq_blocks);
+        assert!(p.hop_s >= 0.05, "hop {} s", p.hop_s);
+        let tiny_highpass = EstimatorConfig {
+            highpass_hz: 1e-10,
+            ..EstimatorConfig::default()
+        };
+        assert_eq!(Params::new(&tiny_highpass).highpass_hz, 0.0);
+        let mut e = Estimator::new(&tiny_highpass);
+        let mut locked = 0;
+        for (stream, s) in generate(Family::Robot, 1, Some(40.0)).pushes() {
+            let _ = e.push(stream, s);
+            while let Some(x) = e.poll() {
+                assert!(x.offset_s.is_finite(), "{x:?}");
+                locked += usize::from(x.state == EstimatorState::Tracking);
+            }
+        }
+        assert!(locked > 20, "{locked} tracking estimates");
+    }
+
     /// The acquisition's score gate is `min_acquire_score`, never below
     /// `min_peak_score` (a configuration from before the key that raised
     /// `min_peak_score` keeps its stricter acquisition).
@@ -2026,5 +2119,94 @@ mod tests {
                 assert_eq!(format!("{x:?}"), format!("{y:?}"), "{what:?}");
             }
         }
+    }
+
+    /// A clock step of either stream, forward or back, is taken at its size: the
+    /// other stream's progress over the step tells only a silence of both. The
+    /// LiDAR's steps (10 Hz, the slower stream) were taken 100 ms short, one of its
+    /// intervals: the jump less the other's progress (its whole interval) less the
+    /// interval again; the camera's 33 ms off when a LiDAR scan fell in between.
+    #[test]
+    fn a_clock_step_of_either_stream_is_taken_at_its_size() {
+        let run = generate(Family::Robot, 3, Some(90.0)).pushes();
+        for stream in [Stream::Cam, Stream::Lidar] {
+            for jump_s in [7.0, -7.0, 12.345] {
+                let jump = (jump_s * 1e9) as Nanos;
+                // the step at several phases of the other stream's samples
+                for at_ms in [40_000, 40_011, 40_023, 40_050, 40_077] {
+                    let mut e = Estimator::new(&EstimatorConfig::default());
+                    for &(s_stream, mut s) in &run {
+                        if s_stream == stream && s.t_ns > at_ms * 1_000_000 {
+                            s.t_ns += jump;
+                        }
+                        let _ = e.push(s_stream, s);
+                        while e.poll().is_some() {}
+                    }
+                    let si = idx(stream);
+                    assert_eq!(e.stats().resets[si], 1, "{stream:?} {jump_s} at {at_ms}");
+                    let err_ms = (e.jumps[si] - jump) as f64 * 1e-6;
+                    assert!(
+                        err_ms.abs() < 10.0,
+                        "{stream:?} stepped {jump_s} s at {at_ms} ms: taken {err_ms:+.1} ms off"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Held blind, the offset's σ grows with the drift's σ times the whole time
+    /// since the last measurement (the drift's error moves the offset linearly):
+    /// added hop by hop as `vd·hop²`, an hour blind added `vd·hop·3600 s` instead of
+    /// `vd·(3600 s)²` (σ 1.0 ms instead of 18 ms at 5 ppm). Without the holding
+    /// random walk (`hold_process_noise = 0`) the drift's share is all there is.
+    #[test]
+    fn a_held_sigma_grows_with_the_drifts_sigma_times_the_time_blind() {
+        let cfg = EstimatorConfig {
+            hold_process_noise: 0.0,
+            ..EstimatorConfig::default()
+        };
+        let mut e = Estimator::new(&cfg);
+        // locked at t = 0 on a measurement of σ 1 ms, the drift known to 5 ppm
+        e.ever_locked = true;
+        e.mode = Mode::Locked;
+        e.info_t = 0.0;
+        e.cur = Current {
+            t: 0.0,
+            o: 0.1,
+            var: 1e-6,
+            measured: 0.0,
+        };
+        let vd = 5e-6f64.powi(2);
+        e.d = (2e-6, vd);
+        // the offset's own walk during the first window (`qo` until then)
+        let walk = e.p.qo.powi(2) * e.p.window_s;
+        let hop = e.p.hop_s;
+        let hops = (3600.0 / hop).round() as i64;
+        let (_, predicted) = e.predict(3600.0);
+        for i in 1..=hops {
+            e.hold_to(i as f64 * hop);
+        }
+        let want = 1e-6 + vd * 3600f64.powi(2) + walk;
+        assert_eq!(e.mode, Mode::Locked);
+        assert!(
+            (e.cur.var / want - 1.0).abs() < 0.01,
+            "σ after an hour blind {:.2} ms, want {:.2} ms",
+            e.cur.var.sqrt() * 1e3,
+            want.sqrt() * 1e3
+        );
+        assert!((e.cur.o - (0.1 + 2e-6 * 3600.0)).abs() < 1e-9);
+        // the prediction over the hour at once (the gate's width: the offset's walk
+        // at the tracking rate `qo` throughout) has the same drift share
+        let want_predicted = 1e-6 + vd * 3600f64.powi(2) + e.p.qo.powi(2) * 3600.0;
+        assert!(
+            (predicted / want_predicted - 1.0).abs() < 0.01,
+            "predicted σ {:.2} ms, want {:.2} ms",
+            predicted.sqrt() * 1e3,
+            want_predicted.sqrt() * 1e3
+        );
+        // and a prediction from the held estimate one hop on adds that hop's share
+        let (_, next) = e.predict(3600.0 + hop);
+        let want_next = 1e-6 + vd * (3600.0 + hop).powi(2) + walk + e.p.qo.powi(2) * hop;
+        assert!((next / want_next - 1.0).abs() < 0.01, "{next} {want_next}");
     }
 }

@@ -164,6 +164,7 @@ impl Estimator {
                     t,
                     o: m.z,
                     var: m.var,
+                    measured: t,
                 };
                 if motion {
                     self.info_t = t;
@@ -187,6 +188,7 @@ impl Estimator {
                     t,
                     o: m.z,
                     var: m.var + grow.max(0.0),
+                    measured: t,
                 };
                 if self.cur.var > self.p.lost_var {
                     self.lose();
