@@ -833,10 +833,15 @@ pub fn save(path: &Path, s: &SavedState) -> Result<(), String> {
     let tmp = temp_path(path);
     let text = encode(s);
     let write = || -> std::io::Result<()> {
+        // a symlink planted at the predictable name is refused (ELOOP), not followed:
+        // `truncate` would have emptied its target (as root, with a state file in a
+        // directory others may write), as the instance lock's open refuses one too
+        use std::os::unix::fs::OpenOptionsExt;
         let mut f = std::fs::OpenOptions::new()
             .write(true)
             .create(true)
             .truncate(true)
+            .custom_flags(vlsync_ipc::O_NOFOLLOW)
             .open(&tmp)?;
         f.write_all(text.as_bytes())?;
         f.sync_all()
@@ -1046,26 +1051,40 @@ impl SaveThread {
     }
 
     /// Hands `s` over (waiting up to `wait` for the previous save), then waits up to
-    /// what is left of `wait` for the thread to end. `None` when it did not in time
-    /// (the storage stalls); else whether `s` was written (false with no `s`, or a
-    /// save that failed, which the thread has logged with its reason).
-    fn finish(&mut self, s: Option<SavedState>, wait: Duration) -> Option<bool> {
+    /// what is left of `wait` for the thread to end. `Ok(None)` when it did not in
+    /// time (the storage stalls); else whether `s` was written (false with no `s`, or
+    /// a save that failed, which the thread has logged with its reason). `Err(s)`:
+    /// the thread had ended (a panic) and `s` is the caller's to write.
+    fn finish(
+        &mut self,
+        s: Option<SavedState>,
+        wait: Duration,
+    ) -> Result<Option<bool>, Box<SavedState>> {
+        use crossbeam::channel::SendTimeoutError;
         let deadline = Instant::now() + wait;
         let handed = match (s, self.jobs.take()) {
-            (Some(s), Some(jobs)) => jobs.send_timeout(s, wait).is_ok(),
+            (Some(s), Some(jobs)) => match jobs.send_timeout(s, wait) {
+                Ok(()) => true,
+                Err(SendTimeoutError::Disconnected(s)) => return Err(Box::new(s)),
+                Err(SendTimeoutError::Timeout(_)) => false,
+            },
             _ => false,
         };
-        let h = self.handle.take()?;
+        let Some(h) = self.handle.take() else {
+            return Ok(None);
+        };
         while !h.is_finished() {
             if Instant::now() >= deadline {
                 // left behind: the process ends without it
-                return None;
+                return Ok(None);
             }
             std::thread::sleep(Duration::from_millis(5));
         }
         // the last outcome is the handed estimate's (it was the last job)
         let last = self.done.try_iter().last();
-        Some(h.join().is_ok() && handed && last.is_some_and(|o| o.is_some()))
+        Ok(Some(
+            h.join().is_ok() && handed && last.is_some_and(|o| o.is_some()),
+        ))
     }
 }
 
@@ -1260,7 +1279,18 @@ impl Saver {
             }
             Writer::Thread(t) => {
                 let had = s.is_some();
-                let done = t.finish(s, wait);
+                let done = match t.finish(s, wait) {
+                    Ok(done) => done,
+                    // the thread is gone (a panic after the last tick's hand-over):
+                    // the last save is written here, as `flush` does
+                    Err(s) => {
+                        tracing::error!(
+                            "state file {}: the saving thread has ended; the last save is written on the service thread",
+                            self.path.display()
+                        );
+                        return report(&self.path, save(&self.path, &s), &mut None);
+                    }
+                };
                 if done.is_none() && had {
                     tracing::warn!(
                         "state file {}: the last save was not written within {:.0} s (the storage stalls); stopping without it",
@@ -2161,6 +2191,56 @@ mod tests {
         sv.offer(&est());
         assert!(sv.flush(), "saved on the service thread");
         assert!(matches!(sv.writer, Writer::Inline { .. }));
+        let back = load(&path, "vlsync/robot", unix_now_ns(), 10.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.0.estimate.offset_s, est().offset_s);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// A symlink planted at the temporary file's name (a state file in a directory
+    /// others may write) is refused, never followed: its target keeps its content,
+    /// the error names the file, and the state file is not replaced.
+    #[test]
+    fn a_symlink_at_the_temporary_name_is_not_followed() {
+        let d = dir("tmp-symlink");
+        let path = d.join("state");
+        let victim = d.join("victim");
+        std::fs::write(&victim, "precious\n").unwrap();
+        std::os::unix::fs::symlink(&victim, temp_path(&path)).unwrap();
+        let s = SavedState {
+            prefix: Some("vlsync/robot".into()),
+            saved_unix_ns: unix_now_ns(),
+            boot: None,
+            estimate: est(),
+        };
+        let err = save(&path, &s).unwrap_err();
+        assert!(
+            err.contains("cannot write state file") && err.contains(".tmp-"),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious\n");
+        assert!(!path.exists());
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// A saving thread that ended after the last tick's hand-over (a panic): the
+    /// stop's final save is written on the service thread, not dropped unsaid.
+    #[test]
+    fn the_final_save_is_written_when_the_saving_thread_has_ended() {
+        let d = dir("thread-gone-at-stop");
+        let path = d.join("state");
+        let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
+        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        drop(rx);
+        let (_done_tx, done) = crossbeam::channel::bounded(4);
+        sv.writer = Writer::Thread(SaveThread {
+            jobs: Some(jobs),
+            done,
+            handle: Some(std::thread::spawn(|| {})),
+        });
+        sv.offer(&est());
+        assert!(sv.finish(Duration::from_secs(1)), "saved at the stop");
         let back = load(&path, "vlsync/robot", unix_now_ns(), 10.0)
             .unwrap()
             .unwrap();

@@ -141,6 +141,11 @@ pub const DEGRADED_QUIET: Duration = Duration::from_secs(5);
 /// Longest sleep of the real-time thread (to notice a stop request and publish status).
 pub const WAKE_PERIOD: Duration = Duration::from_millis(100);
 
+/// How long a stop waits for the real-time thread to end (it looks at the stop at
+/// least every [`WAKE_PERIOD`]) before the service thread finishes without it: well
+/// inside the unit's `TimeoutStopSec`, with the final save's own wait after it.
+pub const RT_STOP_WAIT: Duration = Duration::from_secs(3);
+
 /// Samples the real-time loop reads per wake-up at most before it checks for a stop,
 /// beats its heartbeat and hands a status over (then it goes on without sleeping):
 /// two default subscriber buffers, a few milliseconds of work.
@@ -260,7 +265,8 @@ pub enum RtEvent {
         /// The processing time that switched it on, ns (0 when off).
         processing_ns: u64,
     },
-    /// A published estimate (persisted and shown by the service thread).
+    /// A valid estimate, published (unless its send failed: its own event); persisted
+    /// and shown by the service thread.
     Estimate(Estimate),
     /// A load hint became a declared change point of the estimator.
     ChangeDeclared {
@@ -709,6 +715,10 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     let mut busy = false;
     // the "at stop" summary was written, with the real-time thread's last stretch
     let mut summary_at_stop = false;
+    // when the service thread first saw the stop, and whether the real-time thread
+    // failed to end within `RT_STOP_WAIT` of it
+    let mut stop_seen: Option<std::time::Instant> = None;
+    let mut rt_stuck = false;
     loop {
         // statuses before each event: a flood of events cannot hold one back
         let mut got = 0usize;
@@ -829,6 +839,14 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
         }
         if stop.load(Ordering::Relaxed) {
             systemd.stopping();
+            // a real-time thread wedged in a call (what the watchdog is for) never
+            // closes its channel: the stop goes on without it after a bounded wait,
+            // so the last estimate is still saved and the exit says why
+            let since = *stop_seen.get_or_insert(now);
+            if now.saturating_duration_since(since) > RT_STOP_WAIT {
+                rt_stuck = true;
+                break;
+            }
         }
     }
     systemd.stopping();
@@ -845,7 +863,16 @@ pub fn run(cfg: Config, stop: Arc<AtomicBool>) -> Result<(), String> {
     }
     // a real-time thread that panicked must not look like a clean stop: its exit code
     // says the failure (`systemctl status`, `NRestarts`; the unit restarts any exit)
-    let rt_end = rt_outcome(rt.join());
+    let rt_end = if rt_stuck {
+        // not joined (it would never return): the process's exit ends it; its
+        // iceoryx2 resources are cleaned at the next start, as a crash's are
+        drop(rt);
+        Err(format!(
+            "the real-time thread did not end within {RT_STOP_WAIT:?} of the stop request (stuck in a call); stopping without it"
+        ))
+    } else {
+        rt_outcome(rt.join())
+    };
     // the failures counted since the last poll, every warning still held back (the
     // channel was drained: the loop ends on disconnect) and iceoryx2's held messages
     tell_failures(&mut throttle, &mut told, &mut systemd, monotonic_ns());

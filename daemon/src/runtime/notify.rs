@@ -27,6 +27,9 @@ pub struct WatchdogGate {
     stalled: bool,
 }
 
+/// How soon a withheld pet is looked at again ([`WatchdogGate::poll`]).
+const STALL_RECHECK: Duration = Duration::from_millis(100);
+
 /// What [`WatchdogGate::poll`] asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WatchdogAction {
@@ -68,18 +71,26 @@ impl WatchdogGate {
         if now < self.next {
             return WatchdogAction::Idle;
         }
-        self.next = now + self.period;
         let quiet = now.saturating_duration_since(self.last_change);
         if quiet <= self.stall_after {
+            self.next = now + self.period;
             if std::mem::replace(&mut self.stalled, false) {
                 WatchdogAction::Resumed
             } else {
                 WatchdogAction::Pet
             }
-        } else if std::mem::replace(&mut self.stalled, true) {
-            WatchdogAction::StillWithheld
         } else {
-            WatchdogAction::Withheld(quiet)
+            // withheld: looked at again soon, not a period on. systemd's deadline is
+            // two periods after the last pet, at most one period after this poll; a
+            // thread that recovers before it is petted then (a period on, the next
+            // look fell on the deadline itself and every stall past `stall_after`
+            // ended in a restart)
+            self.next = now + self.period.min(STALL_RECHECK);
+            if std::mem::replace(&mut self.stalled, true) {
+                WatchdogAction::StillWithheld
+            } else {
+                WatchdogAction::Withheld(quiet)
+            }
         }
     }
 
@@ -348,6 +359,28 @@ mod tests {
         assert_eq!(g.poll(t0 + ms(2100), 10), WatchdogAction::Idle);
         assert_eq!(g.poll(t0 + ms(2501), 10), WatchdogAction::Resumed);
         assert_eq!(g.poll(t0 + ms(3001), 11), WatchdogAction::Pet);
+    }
+
+    /// A real-time thread that stalls past `stall_after` just after a pet and
+    /// recovers before systemd's deadline (two periods after that pet) is petted
+    /// before the deadline: the withheld pet is looked at again within 100 ms, not a
+    /// period on (which fell on the deadline itself: a 2.7 s stall under
+    /// `WatchdogSec=5s` restarted the daemon).
+    #[test]
+    fn a_thread_that_recovers_before_the_deadline_is_petted_in_time() {
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        // WATCHDOG_USEC 5 s: pets every 2.5 s, stuck after 2.5 s without a beat
+        let mut g = WatchdogGate::new(ms(2500), ms(1000), t0, 1);
+        assert_eq!(g.poll(t0, 1), WatchdogAction::Pet);
+        // the heartbeat last moved at t0
+        assert_eq!(g.poll(t0 + ms(2600), 1), WatchdogAction::Withheld(ms(2600)));
+        assert!(g.due_in(t0 + ms(2600)) <= ms(100));
+        assert_eq!(g.poll(t0 + ms(2700), 1), WatchdogAction::StillWithheld);
+        // progress at 2.75 s: petted at the next look, well before the 5 s deadline
+        assert_eq!(g.poll(t0 + ms(2800), 2), WatchdogAction::Resumed);
+        assert_eq!(g.due_in(t0 + ms(2800)), ms(2500));
+        assert_eq!(g.poll(t0 + ms(5300), 3), WatchdogAction::Pet);
     }
 
     /// A pet that could not be sent is due again within a second, not a period.

@@ -804,7 +804,12 @@ pub(super) fn rt_thread(
                 emit(&s.tx, &mut c, RtEvent::LatencyStep(st));
             }
             while let Some(e) = est.poll() {
-                publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c);
+                // an estimate the wire refuses (a σ that is not finite and positive,
+                // say) is counted and goes nowhere: not published, so neither saved
+                // for the next start nor shown as the daemon's state
+                if !publish_estimate(&e, &off_pub, &off_not, &s.tx, &mut c) {
+                    continue;
+                }
                 emit(&s.tx, &mut c, RtEvent::Estimate(e));
                 if last_state != Some(e.state) {
                     emit(
@@ -952,18 +957,21 @@ pub(super) fn snapshot(c: &mut RtCounters, degraded: bool, start_ns: Nanos, now:
     c.status
 }
 
+/// Publishes `e`; `false` when the wire refuses it (counted as an
+/// `InvalidEstimate` event), `true` when it is valid, sent or not (a failed send
+/// is its own event).
 pub(super) fn publish_estimate(
     e: &Estimate,
     off_pub: &vlsync_ipc::iceoryx2::port::publisher::Publisher<vlsync_ipc::Svc, OffsetEstimate, ()>,
     off_not: &vlsync_ipc::iceoryx2::port::notifier::Notifier<vlsync_ipc::Svc>,
     tx: &Sender<RtEvent>,
     c: &mut RtCounters,
-) {
+) -> bool {
     let w = match OffsetEstimate::from_estimate(e, monotonic_ns()) {
         Ok(w) => w,
         Err(_) => {
             emit(tx, c, RtEvent::InvalidEstimate { seq: e.seq });
-            return;
+            return false;
         }
     };
     let sent = match off_pub.loan_uninit() {
@@ -976,6 +984,7 @@ pub(super) fn publish_estimate(
     } else {
         emit(tx, c, RtEvent::PublishFailed { seq: e.seq });
     }
+    true
 }
 
 #[cfg(test)]
