@@ -6,7 +6,7 @@
 //!
 //! * `zstd`: Zstandard frames (skippable frames skipped), decoded by `ruzstd`;
 //! * `lz4`: LZ4 frames (skippable frames skipped), decoded by `lz4_flex`; frames
-//!   whose declared block buffers add up to far more than the chunk may hold
+//!   whose declared block buffers add up to far more than the chunk's size
 //!   (`lz4_buffer_budget`) are refused, as each costs a clear of its buffer;
 //! * `""`: uncompressed.
 //!
@@ -32,16 +32,20 @@ use std::io::{Read, Write};
 /// Magic numbers of LZ4 skippable frames (LZ4 frame format, "Skippable frames").
 const LZ4_SKIPPABLE_MAGIC: std::ops::RangeInclusive<u32> = 0x184D_2A50..=0x184D_2A5F;
 
-/// The most the LZ4 frames of a chunk that may hold `limit` bytes may declare in
-/// block buffers (see [`lz4_block_buffer`]). The decoder clears and zeroes a
-/// frame's block buffer (up to 4 MiB) as the frame starts, so a chunk of tiny
-/// frames declaring big blocks costs 4 MiB of work per 27 bytes (a 1 MiB chunk of
-/// them took 10 s). 1 GiB (about 70 ms of clearing) covers thousands of small
-/// frames, and 8 bytes a byte of the chunk's size any frames that fill an
-/// eighth of their blocks: the work stays of the order of decoding what the chunk
-/// declares.
-fn lz4_buffer_budget(limit: u64) -> u64 {
-    (1u64 << 30).saturating_add(limit.saturating_mul(8))
+/// The most the LZ4 frames of a chunk of `src_len` bytes that may hold `limit`
+/// bytes may declare in block buffers (see [`lz4_block_buffer`]). The decoder
+/// zeroes a frame's block buffer (up to 4 MiB, 8 MiB for a legacy frame) as the
+/// frame's first block starts, so a chunk of tiny frames declaring big blocks
+/// costs 4 MiB of work per 17 bytes. The budget is one frame of any block size
+/// (8 MiB: a chunk is one frame as the MCAP writers write it, and its cost is
+/// that of reading the chunk at all) plus 8 bytes a byte of the chunk's size,
+/// compressed or declared, whichever is larger: any frames that fill an eighth of
+/// their blocks. It was 1 GiB plus that, granted afresh to every chunk, so a file
+/// of small chunks of tiny frames cost 1 GiB of clearing per 4 KB chunk. A chunk
+/// that declares more than it holds is refused after its frames, and the read
+/// ends there: only one chunk's declared size can be a lie.
+fn lz4_buffer_budget(src_len: u64, limit: u64) -> u64 {
+    (8u64 << 20).saturating_add(src_len.max(limit).saturating_mul(8))
 }
 
 /// The block buffer the LZ4 decoder clears for the frame at the start of `rest`:
@@ -123,7 +127,7 @@ fn decode_all<W: Write>(
             // new one per frame would allocate and fault in up to 12 MiB each)
             let mut s = src;
             let mut d = lz4_flex::frame::FrameDecoder::new(&mut s);
-            let budget = lz4_buffer_budget(limit);
+            let budget = lz4_buffer_budget(src.len() as u64, limit);
             let mut buffers = 0u64;
             loop {
                 // between frames: the decoder holds nothing of the next one yet
@@ -150,8 +154,10 @@ fn decode_all<W: Write>(
                 if buffers > budget {
                     return Err(format!(
                         "its frames declare {buffers} bytes of block buffers, over the {budget} \
-                         a chunk of at most {limit} bytes may (1 GiB plus 8 times that size: \
-                         the decoder clears each frame's, up to 4 MiB, as the frame starts)"
+                         a chunk of {} bytes holding at most {limit} may (8 MiB, one frame's \
+                         largest, plus 8 times the larger size: the decoder clears each \
+                         frame's buffer as the frame starts)",
+                        src.len()
                     )
                     .into());
                 }
@@ -612,21 +618,25 @@ pub(crate) mod tests {
         let ChunkError::Corrupt(e) = e else {
             panic!("{e:?}")
         };
-        assert!(
-            e == "lz4: its frames declare 1082130432 bytes of block buffers, over the \
-                  1081741824 a chunk of at most 1000000 bytes may (1 GiB plus 8 times that \
-                  size: the decoder clears each frame's, up to 4 MiB, as the frame starts)",
-            "{e}"
+        assert_eq!(
+            e,
+            format!(
+                "lz4: its frames declare 16777216 bytes of block buffers, over the 16388608 a \
+                 chunk of {} bytes holding at most 1000000 may (8 MiB, one frame's largest, \
+                 plus 8 times the larger size: the decoder clears each frame's buffer as the \
+                 frame starts)",
+                src.len()
+            )
         );
-        // (refused at the 258th frame, after 1 GiB of clearing: some 70 ms)
-        // the same frames with 64 KiB blocks, the common default, are read
-        let src = tiny_lz4_frames(BlockSize::Max64KB, n);
+        // (refused at the 4th frame, after 12 MiB of clearing)
+        // frames with 64 KiB blocks, the common default, that fill an eighth of them
+        let frames: Vec<u8> = (0..100).flat_map(|_| lz4(&[5u8; 8 << 10])).collect();
         let mut out = Vec::new();
         assert_eq!(
-            decode_chunk("lz4", &src, declared, 256 << 20, &mut out),
+            decode_chunk("lz4", &frames, 100 * (8 << 10), 256 << 20, &mut out),
             Ok(())
         );
-        assert_eq!(out, vec![0u8; 100 * n]);
+        assert_eq!(out, vec![5u8; 100 * (8 << 10)]);
         // and big blocks that frames fill an eighth of
         let chunk: Vec<u8> = (0..4).flat_map(|_| lz4(&vec![1u8; 512 << 10])).collect();
         assert_eq!(lz4_block_buffer(&chunk), 4 << 20);
@@ -634,6 +644,33 @@ pub(crate) mod tests {
             check_size("lz4", &chunk, 2 << 20, 256 << 20),
             Ok(crc32fast::hash(&vec![1u8; 2 << 20]))
         );
+    }
+
+    /// The budget scales with the chunk: 1 GiB was granted afresh to every chunk, so
+    /// a file of small chunks of tiny frames cost 1 GiB of clearing per chunk of a
+    /// few KB (these 200 frames, 800 MiB of buffers, were read).
+    #[test]
+    fn a_small_chunk_gets_the_clearing_of_its_size_not_a_gib() {
+        use lz4_flex::frame::BlockSize;
+        let src = tiny_lz4_frames(BlockSize::Max4MB, 200);
+        assert!(src.len() < 8 << 10, "{}", src.len());
+        let e = check_size("lz4", &src, 200 * 100, 256 << 20).unwrap_err();
+        assert!(
+            matches!(&e, ChunkError::Corrupt(r) if r.contains("declare 12582912 bytes of block buffers")),
+            "{e:?}"
+        );
+        let mut out = Vec::new();
+        assert!(decode_chunk("lz4", &src, 200 * 100, 256 << 20, &mut out).is_err());
+        // however small the chunk, one or two frames of the largest blocks read (the
+        // MCAP writers write a chunk as one frame; Go's lz4 writes 4 MiB blocks)
+        for n in [1, 2] {
+            let src = tiny_lz4_frames(BlockSize::Max4MB, n);
+            assert_eq!(
+                check_size("lz4", &src, 100 * n as u64, 256 << 20),
+                Ok(crc32fast::hash(&vec![0u8; 100 * n])),
+                "{n}"
+            );
+        }
     }
 
     #[test]

@@ -39,6 +39,7 @@ pub mod cdr;
 pub mod decompress;
 mod error;
 pub mod image;
+mod lengths;
 mod linear;
 pub mod read;
 pub mod scan;

@@ -36,7 +36,7 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 
 /// opcode and length of a record
-const HEAD: usize = 9;
+pub(crate) const HEAD: usize = 9;
 /// a footer's body: summary start, summary offset start, summary CRC
 const FOOTER_BODY: usize = 8 + 8 + 4;
 /// a chunk record's fixed fields before its compression string: start and end
@@ -82,6 +82,8 @@ impl From<std::io::Error> for Fault {
 struct Chunk {
     content: Vec<u8>,
     pos: usize,
+    /// where the record last yielded starts in `content`
+    last: usize,
 }
 
 impl Chunk {
@@ -95,6 +97,7 @@ impl Chunk {
         let rest = self.content.get(at..).unwrap_or_default();
         match split_record(rest) {
             Ok((opcode, body)) => {
+                self.last = at;
                 self.pos = at + HEAD + body.len();
                 Ok((opcode, body))
             }
@@ -109,7 +112,7 @@ impl Chunk {
 }
 
 /// Splits the record at the start of `rest`: opcode and body, or what is wrong.
-fn split_record(rest: &[u8]) -> Result<(u8, &[u8]), String> {
+pub(crate) fn split_record(rest: &[u8]) -> Result<(u8, &[u8]), String> {
     let Some((head, tail)) = rest.split_first_chunk::<HEAD>() else {
         return Err(format!(
             "is cut off in its header ({} of {HEAD} bytes)",
@@ -147,6 +150,9 @@ pub(crate) struct LinearWalk {
     limit: usize,
     /// offset of the next top-level record; 0 before the magic is checked
     pos: u64,
+    /// offset of the last top-level record read (a chunk's, while its records
+    /// are yielded)
+    top_at: u64,
     ended: bool,
     body: Vec<u8>,
     chunk: Chunk,
@@ -220,6 +226,7 @@ impl LinearWalk {
         Self {
             limit,
             pos: 0,
+            top_at: 0,
             ended: false,
             body: Vec::new(),
             chunk: Chunk::default(),
@@ -239,6 +246,19 @@ impl LinearWalk {
             Place::InChunk(self.chunks)
         } else {
             Place::AfterChunk(self.chunks)
+        }
+    }
+
+    /// Where the record last yielded starts, for an error about its content: "at
+    /// byte N" of the file, or "at byte K of the records of the chunk at byte N".
+    pub(crate) fn record_at(&self) -> String {
+        if self.inside {
+            format!(
+                "at byte {} of the records of the chunk at byte {}",
+                self.chunk.last, self.top_at
+            )
+        } else {
+            format!("at byte {}", self.top_at)
         }
     }
 
@@ -342,6 +362,7 @@ impl LinearWalk {
                         .unwrap_or(usize::MAX)
                         .min(self.limit);
                     self.read_body(file, file_len, head, n)?;
+                    self.top_at = self.pos;
                     self.load_cut_chunk();
                     self.cut = true;
                     self.pos = file_len;
@@ -370,6 +391,7 @@ impl LinearWalk {
             // len <= body_left and <= limit: fits in usize
             let n = len as usize;
             self.read_body(file, file_len, head, n)?;
+            self.top_at = self.pos;
             self.pos += HEAD as u64 + len;
             if opcode == op::CHUNK {
                 self.load_chunk()?;
@@ -411,9 +433,17 @@ impl LinearWalk {
     fn load_chunk(&mut self) -> Result<(), Fault> {
         self.chunk.pos = 0;
         self.chunk.content.clear();
-        let (header, data) = match mcap::parse_record(op::CHUNK, &self.body[HEAD..])? {
-            mcap::records::Record::Chunk { header, data } => (header, data),
-            _ => return Err(Fault::Mcap(McapError::BadIndex)),
+        // checked before the `mcap` crate parses it: a compression string claiming
+        // 4 GiB made its parser reserve 4 GiB
+        let (header, data) = match crate::lengths::parse_record(op::CHUNK, &self.body[HEAD..]) {
+            Ok(mcap::records::Record::Chunk { header, data }) => (header, data),
+            Ok(_) => return Err(Fault::Mcap(McapError::BadIndex)),
+            Err(reason) => {
+                return Err(Fault::Corrupt(format!(
+                    "the chunk record at byte {} {reason}",
+                    self.top_at
+                )))
+            }
         };
         decompress::decode_chunk(
             &header.compression,

@@ -23,16 +23,18 @@
 //! A recording is hostile input: record lengths are bounded by the file size and
 //! [`ReaderOptions::max_record_bytes`], a chunk must hold exactly the size it
 //! declares before any buffer is sized by it, the records inside a chunk are
-//! bounded by the chunk (the linear walk is this crate's own, `linear.rs`), and
-//! every error names the file and, past the start, the topic, message index and
-//! log time, and the chunk.
+//! bounded by the chunk (the linear walk is this crate's own, `linear.rs`), the
+//! lengths inside a record by the record before the `mcap` crate parses it
+//! (`lengths.rs`; the summary section's records are checked so before its summary
+//! reader sees them), and every error names the file and, past the start, the
+//! topic, message index and log time, and the chunk.
 //!
 //! Chunk compression: see [`crate::decompress`]; an unsupported compression is
 //! an error naming it.
 
 use crate::decompress;
 use crate::error::Error;
-use crate::linear::{Fault, LinearWalk, Place};
+use crate::linear::{split_record, Fault, LinearWalk, Place, HEAD};
 use mcap::records::op;
 use mcap::sans_io::indexed_reader::{
     IndexedReadEvent, IndexedReader, IndexedReaderOptions, ReadOrder,
@@ -106,10 +108,31 @@ enum Mode {
         /// compressed-data offset -> (chunk start, compression, declared uncompressed size)
         chunks: BTreeMap<u64, (u64, String, u64)>,
         limit: usize,
+        /// a chunk the reader refused, whose messages before the fault are yielded
+        salvage: Option<Box<Salvage>>,
     },
     Linear {
         walk: Box<LinearWalk>,
     },
+}
+
+/// A chunk the indexed reader refused after this crate's checks of it passed: a
+/// record in it overruns it, or a message is too short for its header. The reader
+/// indexes a whole chunk before it yields any of its messages, so it would lose
+/// those before the fault; they are yielded from here as the linear walk yields
+/// them, then the fault.
+struct Salvage {
+    /// the chunk's records
+    records: Vec<u8>,
+    /// the next record in `records`
+    pos: usize,
+    /// the chunk record's start in the file
+    start: u64,
+    /// the reader's refusal, said when the walk here finds no fault of its own
+    refused: Option<McapError>,
+    /// a message too short for its header on another channel, which the walk here
+    /// steps over and the reader refuses: what is wrong, and where
+    short: Option<String>,
 }
 
 /// Messages of one topic of an MCAP file (see the module docs).
@@ -193,8 +216,105 @@ fn with_truncation(e: Error, file: &mut File, file_len: u64) -> Error {
     }
 }
 
-/// Reads the summary section; `Ok(None)` when the file has none.
+/// A footer record and the magic after it: opcode, length, summary start, summary
+/// offset start, summary CRC, magic.
+const FOOTER_AND_MAGIC: u64 = 1 + 8 + 8 + 8 + 4 + 8;
+
+/// Checks the records of the summary section before the `mcap` crate's summary
+/// reader parses them, which it does with no checks of its own: a string length of
+/// 4 GiB in a Channel or Schema record makes its parser reserve 4 GiB (which aborts
+/// the process on a computer without that memory), an attachment cut after its
+/// data length makes it slice backwards, and a chunk in the summary whose records
+/// overrun it underflows a counter of its linear reader (a panic wherever overflow
+/// is checked). So the section must be whole records ending at the footer, none of
+/// them a chunk or a footer (a summary holds neither), each within `limit`, and
+/// the length prefixes inside them within their record ([`crate::lengths`]).
+/// `Ok` when there is no summary or no footer: the summary reader finds that.
+fn check_summary(file: &mut File, file_len: u64, limit: usize) -> Result<(), String> {
+    let Some(footer_at) = file_len.checked_sub(FOOTER_AND_MAGIC).filter(|&at| at >= 8) else {
+        return Ok(());
+    };
+    let mut footer = [0u8; FOOTER_AND_MAGIC as usize];
+    file.seek(SeekFrom::Start(footer_at))
+        .and_then(|_| file.read_exact(&mut footer))
+        .map_err(|e| format!("reading the footer: {e}"))?;
+    let mut start = [0u8; 8];
+    start.copy_from_slice(&footer[9..17]);
+    let summary_start = u64::from_le_bytes(start);
+    if footer[0] != op::FOOTER || summary_start == 0 {
+        return Ok(());
+    }
+    if summary_start < 8 || summary_start > footer_at {
+        return Err(format!(
+            "the footer's summary start, byte {summary_start}, is not between the magic and \
+             the footer at byte {footer_at}"
+        ));
+    }
+    let mut r = std::io::BufReader::new(&mut *file);
+    r.seek(SeekFrom::Start(summary_start))
+        .map_err(|e| format!("reading the summary: {e}"))?;
+    let mut pos = summary_start;
+    let mut body = Vec::new();
+    while pos < footer_at {
+        let left = footer_at - pos;
+        let mut head = [0u8; 9];
+        if left < head.len() as u64 {
+            return Err(format!(
+                "the record at byte {pos} of the summary is cut by the footer at byte {footer_at}"
+            ));
+        }
+        r.read_exact(&mut head)
+            .map_err(|e| format!("reading the summary: {e}"))?;
+        let opcode = head[0];
+        let mut n = [0u8; 8];
+        n.copy_from_slice(&head[1..]);
+        let len = u64::from_le_bytes(n);
+        let room = left - head.len() as u64;
+        let what = format!("the record at byte {pos} of the summary (opcode {opcode:#04x})");
+        if len > room {
+            return Err(format!(
+                "{what} claims {len} bytes, {room} are left before the footer at byte {footer_at}"
+            ));
+        }
+        if opcode == op::CHUNK || opcode == op::FOOTER {
+            return Err(format!(
+                "{what} is a chunk or a footer, which a summary does not hold"
+            ));
+        }
+        if len > limit as u64 {
+            return Err(format!(
+                "{what} claims {len} bytes, over the limit of {limit}"
+            ));
+        }
+        if crate::lengths::has_prefixes(opcode) {
+            // len <= limit: fits in usize
+            body.resize(len as usize, 0);
+            r.read_exact(&mut body)
+                .map_err(|e| format!("reading the summary: {e}"))?;
+            crate::lengths::check(opcode, &body).map_err(|reason| format!("{what} {reason}"))?;
+        } else {
+            r.seek_relative(len as i64)
+                .map_err(|e| format!("reading the summary: {e}"))?;
+        }
+        pos += head.len() as u64 + len;
+    }
+    Ok(())
+}
+
+/// Reads the summary section; `Ok(None)` when the file has none. An error (a
+/// summary [`check_summary`] refuses, or one the `mcap` crate does) makes the
+/// callers read the file from its start instead.
 fn read_summary(
+    file: &mut File,
+    file_len: u64,
+    opts: ReaderOptions,
+) -> Result<Option<Summary>, String> {
+    check_summary(file, file_len, opts.max_record_bytes)?;
+    read_checked_summary(file, file_len, opts).map_err(|e| e.to_string())
+}
+
+/// The summary through the `mcap` crate's reader, once [`check_summary`] passed.
+fn read_checked_summary(
     file: &mut File,
     file_len: u64,
     opts: ReaderOptions,
@@ -246,20 +366,33 @@ fn chunk_err(path: &Path, at: String, fault: Fault) -> Error {
 }
 
 /// Channels found by reading the file from the start (for files without a
-/// summary). Stops quietly at the first error: the main pass reports it.
-fn scan_channels(file: &mut File, file_len: u64, opts: ReaderOptions) -> Vec<(u16, TopicInfo)> {
+/// summary), and the first Schema or Channel record that does not parse, said with
+/// its place. A fault of the walk (a cut, a bad chunk) ends the scan quietly: the
+/// main pass reports it after the messages before it. A record that does not parse
+/// is stepped over, so that the channels after it are seen; the caller reports it
+/// when the topic is not found (it may have been the topic's channel), since
+/// refusing the file for it would lose the messages of a topic that is there.
+fn scan_channels(
+    file: &mut File,
+    file_len: u64,
+    opts: ReaderOptions,
+) -> (Vec<(u16, TopicInfo)>, Option<String>) {
+    use mcap::records::Record;
     let mut out: Vec<(u16, TopicInfo)> = Vec::new();
     let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
+    let mut unreadable = None;
     let mut walk = LinearWalk::new(opts.max_record_bytes);
     while let Ok(Some((opcode, data))) = walk.next(file, file_len) {
         if opcode != op::SCHEMA && opcode != op::CHANNEL {
             continue;
         }
-        match mcap::parse_record(opcode, data) {
-            Ok(mcap::records::Record::Schema { header, .. }) => {
+        // the lengths inside are checked first: the `mcap` crate's parser reserves
+        // what a string's length says, 4 GiB for a 12-byte record
+        match crate::lengths::parse_record(opcode, data) {
+            Ok(Record::Schema { header, .. }) => {
                 schemas.insert(header.id, header.name);
             }
-            Ok(mcap::records::Record::Channel(c)) => {
+            Ok(Record::Channel(c)) => {
                 if !out.iter().any(|(id, _)| *id == c.id) {
                     out.push((
                         c.id,
@@ -272,10 +405,31 @@ fn scan_channels(file: &mut File, file_len: u64, opts: ReaderOptions) -> Vec<(u1
                     ));
                 }
             }
-            _ => break,
+            Ok(_) => {}
+            Err(reason) => {
+                if unreadable.is_none() {
+                    let kind = if opcode == op::SCHEMA {
+                        "schema"
+                    } else {
+                        "channel"
+                    };
+                    unreadable = Some(format!("the {kind} record {} {reason}", walk.record_at()));
+                }
+            }
         }
     }
-    out
+    (out, unreadable)
+}
+
+/// The error for a file read from its start whose topic was not found (`e`) when a
+/// Schema or Channel record of it does not parse (`unreadable`, from
+/// [`scan_channels`]): that record, which may be the topic's.
+fn unreadable_err(path: &Path, unreadable: String, e: &Error) -> Error {
+    Error::Corrupt {
+        path: path.to_path_buf(),
+        at: "reading the channels from the start of the file".into(),
+        reason: format!("{unreadable}; without it: {}", e.detail()),
+    }
 }
 
 fn summary_channels(s: &Summary) -> Vec<(u16, TopicInfo)> {
@@ -431,7 +585,16 @@ impl McapReader {
         let ch = match read_summary(&mut file, len, opts) {
             Ok(Some(s)) => summary_channels(&s),
             _ => {
-                let ch = scan_channels(&mut file, len, opts);
+                let (ch, unreadable) = scan_channels(&mut file, len, opts);
+                if let Some(reason) = unreadable {
+                    // a listing without that record's channel would pass it over
+                    // in silence
+                    return Err(Error::Corrupt {
+                        path: path.to_path_buf(),
+                        at: "reading the channels from the start of the file".into(),
+                        reason,
+                    });
+                }
                 if ch.is_empty() {
                     // no channel at all: a fault of the file (a bad CRC, a cut) is
                     // said, as `open` says it, rather than an empty list
@@ -468,12 +631,17 @@ impl McapReader {
             .len();
         // a file without a valid summary is read linearly; a broken start shows up there
         let summary = read_summary(&mut file, file_len, opts).ok().flatten();
-        let channels = match &summary {
-            Some(s) => summary_channels(s),
+        let (channels, unreadable) = match &summary {
+            Some(s) => (summary_channels(s), None),
             None => scan_channels(&mut file, file_len, opts),
         };
         let (topic, channel_ids) = match resolve(&path, &channels, select, schemas) {
             Ok(t) => t,
+            // the topic may be that of a channel record that does not parse
+            Err(e) if unreadable.is_some() => {
+                let unreadable = unreadable.unwrap_or_default();
+                return Err(unreadable_err(&path, unreadable, &e));
+            }
             Err(e) if channels.is_empty() && summary.is_none() => {
                 // nothing readable at all: report why, from the start of the file
                 let mut walk = LinearWalk::new(opts.max_record_bytes);
@@ -494,7 +662,7 @@ impl McapReader {
             Err(e) => return Err(e),
         };
         let mode = match summary {
-            Some(s) if !s.chunk_indexes.is_empty() => {
+            Some(mut s) if !s.chunk_indexes.is_empty() => {
                 let options = IndexedReaderOptions::new()
                     .include_topics([topic.topic.clone()])
                     // one chunk held at a time (the module's doc)
@@ -504,7 +672,9 @@ impl McapReader {
                 // indexes of one chunk that disagree would let one pass the check and the
                 // other size the reader's buffer
                 let mut chunks: BTreeMap<u64, (u64, String, u64)> = BTreeMap::new();
-                for c in &s.chunk_indexes {
+                // the indexes the reader gets: one per chunk (see below)
+                let mut kept = Vec::with_capacity(s.chunk_indexes.len());
+                for c in std::mem::take(&mut s.chunk_indexes) {
                     // before the reader is built: its own refusal names neither the
                     // chunk nor the size declared. Only the chunks it would read: those
                     // holding the topic (or not saying which they hold), as it filters
@@ -528,6 +698,8 @@ impl McapReader {
                         });
                     }
                     let Ok(off) = c.compressed_data_offset() else {
+                        // the reader refuses it if it holds the topic
+                        kept.push(c);
                         continue;
                     };
                     let entry = (
@@ -551,12 +723,16 @@ impl McapReader {
                                 ),
                             })
                         }
+                        // the same chunk indexed twice alike: the reader would read it,
+                        // and yield its messages, once per index
                         Some(_) => {}
                         None => {
                             chunks.insert(off, entry);
+                            kept.push(c);
                         }
                     }
                 }
+                s.chunk_indexes = kept;
                 let mut reader = IndexedReader::new_with_options(&s, options)
                     .map_err(|e| mcap_err(&path, "indexing the chunks", e))?;
                 decompress::register_indexed(&mut reader, opts.max_record_bytes)
@@ -565,6 +741,7 @@ impl McapReader {
                     reader: Box::new(reader),
                     chunks,
                     limit: opts.max_record_bytes,
+                    salvage: None,
                 }
             }
             _ => Mode::Linear {
@@ -664,7 +841,12 @@ impl McapReader {
                 reader,
                 chunks,
                 limit,
+                salvage,
             } => loop {
+                if let Some(sv) = salvage {
+                    let at = self_position(&self.topic, self.next_index, self.last_log_time);
+                    return salvage_next(sv, path, at, channel_ids, msg_buf);
+                }
                 let event = match reader.next_event() {
                     None => return Ok(None),
                     Some(Ok(e)) => e,
@@ -679,23 +861,47 @@ impl McapReader {
                 match event {
                     IndexedReadEvent::ReadChunkRequest { offset, length } => {
                         let at = self_position(&self.topic, self.next_index, self.last_log_time);
+                        // every index the reader has is in `chunks` by this offset
+                        // (`open`): errors name the chunk record's start, not its data's
+                        let Some((start, compression, size)) = chunks.get(&offset) else {
+                            return Err(Error::Corrupt {
+                                path: path.clone(),
+                                at,
+                                reason: format!(
+                                    "the index asked for chunk data at byte {offset}, which no \
+                                     chunk index names"
+                                ),
+                            });
+                        };
+                        let start = *start;
                         read_chunk(file, *file_len, offset, length, chunk_buf).map_err(|e| {
-                            mcap_err(path, format!("{at}, reading the chunk at byte {offset}"), e)
+                            mcap_err(path, format!("{at}, reading the chunk at byte {start}"), e)
                         })?;
-                        if let Some((start, compression, size)) = chunks.get(&offset) {
-                            // the reader sizes its buffer by the declared size and checks no
-                            // CRC: both are checked here first
-                            let at = format!("{at}, chunk at byte {start}");
-                            let crc = decompress::check_size(compression, chunk_buf, *size, *limit)
-                                .map_err(|f| chunk_err(path, at.clone(), f.into()))?;
-                            check_chunk_crc(file, *start, crc)
-                                .map_err(|e| mcap_err(path, at.clone(), e))?;
+                        // the reader sizes its buffer by the declared size and checks no
+                        // CRC: both are checked here first
+                        let at = format!("{at}, chunk at byte {start}");
+                        let crc = decompress::check_size(compression, chunk_buf, *size, *limit)
+                            .map_err(|f| chunk_err(path, at.clone(), f.into()))?;
+                        check_chunk_crc(file, start, crc)
+                            .map_err(|e| mcap_err(path, at.clone(), e))?;
+                        if let Err(refused) = reader.insert_chunk_record_data(offset, chunk_buf) {
+                            let mut records = Vec::new();
+                            decompress::decode_chunk(
+                                compression,
+                                chunk_buf,
+                                *size,
+                                *limit,
+                                &mut records,
+                            )
+                            .map_err(|f| chunk_err(path, at.clone(), f.into()))?;
+                            *salvage = Some(Box::new(Salvage {
+                                records,
+                                pos: 0,
+                                start,
+                                refused: Some(refused),
+                                short: None,
+                            }));
                         }
-                        reader
-                            .insert_chunk_record_data(offset, chunk_buf)
-                            .map_err(|e| {
-                                mcap_err(path, format!("{at}, chunk at byte {offset}"), e)
-                            })?;
                     }
                     IndexedReadEvent::Message { header, data } => {
                         if channel_ids.contains(&header.channel_id) {
@@ -720,7 +926,13 @@ impl McapReader {
                 match linear_record(opcode, data, &self.topic, channel_ids, msg_buf) {
                     Ok(Some(found)) => return Ok(Some(found)),
                     Ok(None) => {}
-                    Err(e) => return Err(fault_err(path, at(), walk, Fault::Mcap(e))),
+                    Err(reason) => {
+                        let f = Fault::Corrupt(format!(
+                            "the message record {} {reason}",
+                            walk.record_at()
+                        ));
+                        return Err(fault_err(path, at(), walk, f));
+                    }
                 }
             },
         }
@@ -729,40 +941,111 @@ impl McapReader {
 
 /// One record read linearly (outside a chunk or inside one): a channel of the
 /// topic is added to `channel_ids`; a message on one of them is copied to
-/// `msg_buf` and its times returned.
+/// `msg_buf` and its times returned. The error is what is wrong with a message.
 fn linear_record(
     opcode: u8,
     data: &[u8],
     topic: &TopicInfo,
     channel_ids: &mut Vec<u16>,
     msg_buf: &mut Vec<u8>,
-) -> Result<Option<(u64, u64, u32)>, McapError> {
+) -> Result<Option<(u64, u64, u32)>, String> {
     match opcode {
         op::CHANNEL => {
-            if let Ok(mcap::records::Record::Channel(c)) = mcap::parse_record(opcode, data) {
+            // one that does not parse is passed over: `scan_channels` reported it at
+            // `open` if the topic was not found without it (its lengths are checked
+            // first: the `mcap` crate's parser reserves what a string's length says)
+            if let Ok(mcap::records::Record::Channel(c)) =
+                crate::lengths::parse_record(opcode, data)
+            {
                 if c.topic == topic.topic && !channel_ids.contains(&c.id) {
                     channel_ids.push(c.id);
                 }
             }
         }
-        op::MESSAGE => {
-            if let mcap::records::Record::Message { header, data } =
-                mcap::parse_record(opcode, data)?
-            {
-                if channel_ids.contains(&header.channel_id) {
-                    msg_buf.clear();
-                    msg_buf.extend_from_slice(&data);
-                    return Ok(Some((
-                        header.log_time,
-                        header.publish_time,
-                        header.sequence,
-                    )));
-                }
-            }
-        }
+        op::MESSAGE => return message_of(data, channel_ids, msg_buf),
         _ => {}
     }
     Ok(None)
+}
+
+/// A message record (`body`): copied to `msg_buf`, its times returned, when it is
+/// on one of `channel_ids`. Its channel is read first: a malformed message of
+/// another topic is not this reader's to refuse (it ended the read of the topic).
+fn message_of(
+    body: &[u8],
+    channel_ids: &[u16],
+    msg_buf: &mut Vec<u8>,
+) -> Result<Option<(u64, u64, u32)>, String> {
+    let Some(channel) = crate::lengths::message_channel(body) else {
+        return Err(format!(
+            "is {} bytes, too short to say its channel",
+            body.len()
+        ));
+    };
+    if !channel_ids.contains(&channel) {
+        return Ok(None);
+    }
+    let (header, data) = crate::lengths::parse_message(body)?;
+    msg_buf.clear();
+    msg_buf.extend_from_slice(data);
+    Ok(Some((
+        header.log_time,
+        header.publish_time,
+        header.sequence,
+    )))
+}
+
+/// The next message of the topic from a chunk the indexed reader refused (see
+/// [`Salvage`]), or the fault that ends it: the walk's own, the short message of
+/// another channel it stepped over, or else the reader's refusal.
+fn salvage_next(
+    sv: &mut Salvage,
+    path: &Path,
+    at: String,
+    channel_ids: &[u16],
+    msg_buf: &mut Vec<u8>,
+) -> Result<Option<(u64, u64, u32)>, Error> {
+    let at = format!("{at}, chunk at byte {}", sv.start);
+    let corrupt = |reason: String| Error::Corrupt {
+        path: path.to_path_buf(),
+        at: at.clone(),
+        reason,
+    };
+    while let Some(rest) = sv.records.get(sv.pos..).filter(|r| !r.is_empty()) {
+        let here = sv.pos;
+        let (opcode, body) = split_record(rest).map_err(|reason| {
+            corrupt(format!(
+                "the record at byte {here} of the chunk's records {reason}"
+            ))
+        })?;
+        sv.pos += HEAD + body.len();
+        if opcode != op::MESSAGE {
+            continue;
+        }
+        let described =
+            |reason| format!("the message record at byte {here} of the chunk's records {reason}");
+        match message_of(body, channel_ids, msg_buf) {
+            Ok(Some(found)) => return Ok(Some(found)),
+            Err(reason) => return Err(corrupt(described(reason))),
+            Ok(None) => {
+                if sv.short.is_none() {
+                    if let Err(reason) = crate::lengths::parse_message(body) {
+                        sv.short = Some(described(reason));
+                    }
+                }
+            }
+        }
+    }
+    if let Some(reason) = sv.short.take() {
+        return Err(corrupt(format!(
+            "{reason} (read through the index, such a chunk is refused after its \
+             messages of the topic)"
+        )));
+    }
+    match sv.refused.take() {
+        Some(e) => Err(mcap_err(path, at, e)),
+        None => Ok(None),
+    }
 }
 
 fn self_position(topic: &TopicInfo, next_index: u64, last: Option<u64>) -> String {
