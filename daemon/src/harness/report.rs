@@ -234,7 +234,12 @@ pub fn analyse(d: &RunData<'_>) -> Vec<PhaseReport> {
             published,
             received: counter(|s| s.received),
             lost: counter(|s| s.lost),
-            daemon_cpu_pct: 100.0 * (p.daemon_cpu_s.1 - p.daemon_cpu_s.0) / ((b - a) as f64 * 1e-9),
+            // a phase cut short by Ctrl-C may span microseconds: no share of that
+            daemon_cpu_pct: if b - a >= 1_000_000_000 {
+                100.0 * (p.daemon_cpu_s.1 - p.daemon_cpu_s.0) / ((b - a) as f64 * 1e-9)
+            } else {
+                f64::NAN
+            },
             stalls: (
                 stall_ms.len(),
                 if stall_ms.is_empty() {
@@ -284,17 +289,29 @@ fn follow(d: &RunData<'_>, k: usize) -> Follow {
         return Follow::NotFollowed { delta_s };
     }
     let level = before.iter().map(|r| r.est.offset_s).sum::<f64>() / before.len() as f64;
-    let after = locked_between(cur.start_ns, cur.end_ns);
-    let moved = |r: &Received| (r.est.offset_s - level) / delta_s >= 0.5;
+    // every estimate of the phase, locked or not: one that lost the lock within the
+    // hold breaks it (counting the locked ones only, a moved estimate followed by 2 s
+    // of `acquiring` counted as followed)
+    let after: Vec<&Received> = d
+        .estimates
+        .iter()
+        .filter(|r| (cur.start_ns..cur.end_ns).contains(&r.publish_ns))
+        .collect();
+    let moved = |r: &Received| locked(r.est.state) && (r.est.offset_s - level) / delta_s >= 0.5;
     let hold = (FOLLOW_HOLD_S * 1e9) as Nanos;
     for (i, r) in after.iter().enumerate() {
         if r.publish_ns + hold > cur.end_ns {
             break;
         }
-        let ok = after[i..]
+        let within: Vec<&&Received> = after[i..]
             .iter()
             .take_while(|x| x.publish_ns <= r.publish_ns + hold)
-            .all(|x| moved(x));
+            .collect();
+        // estimates through the hold, not one moved estimate before a silence
+        let through = within
+            .last()
+            .is_some_and(|x| x.publish_ns >= r.publish_ns + hold / 2);
+        let ok = through && within.iter().all(|x| moved(x));
         if ok {
             return Follow::Followed {
                 delta_s,
@@ -863,6 +880,26 @@ mod tests {
         );
         let svg = svg("t", &d);
         assert!(svg.contains(">full<") && svg.contains(">stalls<") && !svg.contains(">warm-up<"));
+
+        // the lock lost right after the first moved estimate (23 s): `acquiring` for
+        // 1.5 s breaks the hold, and the step counts as followed once the estimates
+        // stay moved and locked for 2 s (from 25 s)
+        let mut lapsed = ests.clone();
+        for r in &mut lapsed {
+            if (base + 23_500 * MS..base + 25 * S).contains(&r.publish_ns) {
+                r.est.state = EstimatorState::Acquiring;
+            }
+        }
+        let r_lapsed = analyse(&RunData {
+            estimates: &lapsed,
+            ..d
+        });
+        match r_lapsed[1].follow {
+            Follow::Followed { after_s, .. } => {
+                assert!((4.9..5.6).contains(&after_s), "{after_s}")
+            }
+            f => panic!("{f:?}"),
+        }
 
         // a slow estimator follows too late (with a busy daemon); a stuck, biased
         // one never follows and misses the error target

@@ -670,14 +670,20 @@ impl Session {
             self.procs[2].stop(Duration::from_secs(3)),
         ];
         // the daemon publishes a final status when it stops; also wait for a
-        // periodic one so the counters of a still-running daemon are current
-        // (not from a daemon that has ended: a crash's report would wait 3 s for nothing)
-        let last = self.statuses.last().map_or(0, |s| s.publish_ns);
+        // periodic one published after the drivers ended, so the counters of a
+        // still-running daemon include their last samples (a status still unread in
+        // the buffer may be from while they stopped; not from a daemon that has
+        // ended: a crash's report would wait 3 s for nothing)
+        let drivers_ended = monotonic_ns();
         let t0 = Instant::now();
         self.drain_status()?;
         while t0.elapsed() < Duration::from_secs(3) && self.procs[0].running() {
             self.drain_status()?;
-            if self.statuses.last().is_some_and(|s| s.publish_ns > last) {
+            if self
+                .statuses
+                .last()
+                .is_some_and(|s| s.publish_ns > drivers_ended)
+            {
                 break;
             }
             std::thread::sleep(Duration::from_millis(50));
@@ -690,10 +696,7 @@ impl Session {
             .recorder
             .as_mut()
             .is_none_or(|r| r.stop(Duration::from_secs(6)));
-        // its clean stop may take the final state save's wait and two bounded
-        // sends of its last counters: SIGKILL only after all of them
-        let clean_daemon =
-            self.procs[0].stop(crate::state::FINAL_SAVE_WAIT + Duration::from_secs(4));
+        let clean_daemon = self.procs[0].stop(DAEMON_STOP_GRACE);
         self.note_failures(true);
         Ok(clean_drivers.iter().all(|c| *c)
             && clean_daemon
@@ -727,8 +730,15 @@ impl Session {
     }
 }
 
+/// How long the daemon is given to stop cleanly before SIGKILL: its clean stop may
+/// take the final state save's wait and two bounded sends of its last counters.
+const DAEMON_STOP_GRACE: Duration =
+    Duration::from_secs(crate::state::FINAL_SAVE_WAIT.as_secs() + 4);
+
 /// On an error path (a `?` before [`Session::stop`]) the processes stop in the order
-/// `stop` uses: the drivers, then the recorder, then the daemon (`procs`' own drop).
+/// and with the grace `stop` uses: the drivers, then the recorder, then the daemon
+/// (left to `procs`' own drop, it had 3 s, and a daemon killed mid-save leaves its
+/// shared memory behind).
 impl Drop for Session {
     fn drop(&mut self) {
         for m in &mut self.procs[1..] {
@@ -737,6 +747,7 @@ impl Drop for Session {
         if let Some(r) = self.recorder.as_mut() {
             r.stop(Duration::from_secs(6));
         }
+        self.procs[0].stop(DAEMON_STOP_GRACE);
     }
 }
 
