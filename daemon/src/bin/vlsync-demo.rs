@@ -418,8 +418,15 @@ fn run(a: Args) -> Result<(), String> {
     match s.last_status() {
         Some(st) => {
             out.line(format_args!("{}", counters_line(st)));
+            // with `daemon.latency_per_period` (a --config's) the daemon's status
+            // holds the last status period's percentiles, not the run's
+            let over = if daemon_cfg.daemon.latency_per_period {
+                "the last status period's"
+            } else {
+                "the whole run's"
+            };
             out.line(format_args!(
-                "latency: processing p50 {:.1} µs p99 {:.1} µs max {:.1} µs; driver->daemon done p50 {:.1} µs p99 {:.1} µs max {:.1} µs ({} samples)",
+                "latency ({over}): processing p50 {:.1} µs p99 {:.1} µs max {:.1} µs; driver->daemon done p50 {:.1} µs p99 {:.1} µs max {:.1} µs ({} samples)",
                 st.processing_ns[0] as f64 / 1e3, st.processing_ns[1] as f64 / 1e3, st.processing_ns[2] as f64 / 1e3,
                 st.end_to_end_ns[0] as f64 / 1e3, st.end_to_end_ns[1] as f64 / 1e3, st.end_to_end_ns[2] as f64 / 1e3,
                 st.latency_count
