@@ -248,7 +248,9 @@ class StatusClient {
         case 1: return s;
         case 0: return std::nullopt;
         default:
-            // only invalid payloads so far: skipped, no error of this reader
+            // only invalid payloads so far: skipped, no error of this reader (the
+            // library reports a failed receive after them as the next call's -1, with
+            // the count unchanged, so a real error still throws)
             if (invalid_count() > invalid) return std::nullopt;
             throw Error(err);
         }

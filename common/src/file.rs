@@ -4,8 +4,10 @@
 //! when none does, and a directory or a device is no data file either. The readers
 //! of signature, truth, frame and scan files and of recordings check the path first
 //! (following symlinks) and refuse anything but a regular file with an error of
-//! kind [`std::io::ErrorKind::InvalidInput`] saying "not a regular file". (Serial
-//! LiDARs are character devices on purpose: they are opened elsewhere.)
+//! kind [`std::io::ErrorKind::InvalidInput`] saying "not a regular file", and check
+//! the file they opened again, since a named pipe may take the path's place in
+//! between: that open does not wait for a writer. (Serial LiDARs are character
+//! devices on purpose: they are opened elsewhere.)
 //!
 //! ```
 //! let dir = std::env::temp_dir();
@@ -46,7 +48,11 @@ fn kind_of(t: std::fs::FileType) -> &'static str {
 /// the lookup (e.g. [`io::ErrorKind::NotFound`]) or an `InvalidInput` error
 /// "not a regular file (a named pipe)".
 pub fn check_regular(path: &Path) -> io::Result<()> {
-    let m = std::fs::metadata(path)?;
+    regular(&std::fs::metadata(path)?)
+}
+
+/// `Ok` for a regular file's metadata, else the `InvalidInput` error saying what it is.
+fn regular(m: &std::fs::Metadata) -> io::Result<()> {
     if m.is_file() {
         Ok(())
     } else {
@@ -57,10 +63,20 @@ pub fn check_regular(path: &Path) -> io::Result<()> {
     }
 }
 
-/// Opens `path` for reading after [`check_regular`].
+/// Opens `path` for reading after [`check_regular`], then checks the file it opened:
+/// a named pipe renamed over the path between the check and the open is opened
+/// without waiting for a writer (`O_NONBLOCK`, where a plain open would wait forever
+/// for one) and refused with the same error.
 pub fn open_regular(path: &Path) -> io::Result<File> {
+    use std::os::unix::fs::OpenOptionsExt;
     check_regular(path)?;
-    File::open(path)
+    // O_NONBLOCK stays set on the file handed out: a regular file's reads ignore it
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(path)?;
+    regular(&file.metadata()?)?;
+    Ok(file)
 }
 
 /// Reads all of `path` after [`check_regular`].
@@ -531,6 +547,69 @@ mod tests {
             assert!(e.to_string().contains("character device"), "{e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A named pipe renamed over the path between the type check and the open is
+    /// refused, not waited on: a reader opening in a loop while the path flips
+    /// between a regular file and a FIFO without a writer always returns (the open
+    /// used to block for good once the FIFO came in between).
+    #[test]
+    fn a_named_pipe_swapped_in_after_the_check_does_not_block_the_open() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::Arc;
+        let dir = std::env::temp_dir().join(format!("vlsync-swap-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (file, fifo, path) = (dir.join("file"), dir.join("fifo"), dir.join("input"));
+        std::fs::write(&file, "x\n").unwrap();
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        std::fs::copy(&file, &path).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let swapper = {
+            let (stop, dir, path) = (stop.clone(), dir.clone(), path.clone());
+            let (file, fifo) = (file.clone(), fifo.clone());
+            std::thread::spawn(move || {
+                let tmp = dir.join("tmp");
+                while !stop.load(Ordering::Relaxed) {
+                    for src in [&fifo, &file] {
+                        let _ = std::fs::remove_file(&tmp);
+                        std::fs::hard_link(src, &tmp).unwrap();
+                        std::fs::rename(&tmp, &path).unwrap();
+                    }
+                }
+            })
+        };
+        let (tx, rx) = std::sync::mpsc::channel();
+        let reader = {
+            let path = path.clone();
+            std::thread::spawn(move || {
+                let t0 = std::time::Instant::now();
+                let (mut files, mut pipes) = (0, 0);
+                while t0.elapsed() < std::time::Duration::from_secs(2) {
+                    match open_regular(&path) {
+                        Ok(_) => files += 1,
+                        Err(e) => {
+                            assert_eq!(e.to_string(), "not a regular file (a named pipe)");
+                            pipes += 1;
+                        }
+                    }
+                }
+                let _ = tx.send((files, pipes));
+            })
+        };
+        let done = rx.recv_timeout(std::time::Duration::from_secs(20));
+        if done.is_err() {
+            // the reader is stuck in open(): a writer's open lets it go
+            let _ = std::fs::OpenOptions::new().write(true).open(&fifo);
+        }
+        stop.store(true, Ordering::Relaxed);
+        swapper.join().unwrap();
+        let read = reader.join();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let (files, pipes) = done.expect("an open waited for a writer on the named pipe");
+        assert!(read.is_ok());
+        assert!(files > 0 && pipes > 0, "{files} files, {pipes} pipes");
     }
 
     #[test]

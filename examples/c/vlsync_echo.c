@@ -114,7 +114,8 @@ static int echo_status(const char *prefix, long count, double timeout) {
         int r = vlsync_status_latest(c, &st, err, sizeof err);
         uint64_t now_invalid = vlsync_status_invalid_count(c);
         if (now_invalid > invalid) {
-            /* skipped; -1 with only invalid payloads so far is no error of the reader */
+            /* skipped; -1 with only invalid payloads so far is no error of the reader (a
+             * failed receive after them is the next call's -1, the count unchanged) */
             fprintf(stderr, "vlsync_echo_c: skipped %llu invalid status payload(s) on %s/status\n",
                     (unsigned long long)(now_invalid - invalid), prefix);
             invalid = now_invalid;

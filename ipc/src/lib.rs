@@ -46,6 +46,7 @@ use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::ReceiveError;
 use iceoryx2::prelude::*;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
@@ -319,30 +320,78 @@ pub fn open_or_create_pubsub<T: std::fmt::Debug + ZeroCopySend>(
                     Err(e) => last = format!("create failed: {e:?}"),
                 }
             }
-            Err(
-                e @ (PublishSubscribeOpenError::IsMarkedForDestruction
-                | PublishSubscribeOpenError::HangsInCreation
-                | PublishSubscribeOpenError::InternalFailure
-                | PublishSubscribeOpenError::ServiceInCorruptedState),
-            ) => last = format!("open failed: {e:?}"),
             Err(PublishSubscribeOpenError::IncompatibleTypes) => {
                 return Err(IpcError::new(
                     format!("open service {name:?}"),
                     incompatible_types::<T>(node, &sn),
                 ))
             }
+            Err(e) if open_is_transient(&e) => last = format!("open failed: {e:?}"),
             Err(e) => {
                 return Err(IpcError::new(
                     format!("open service {name:?}"),
-                    format!(
-                    "{e:?} (another process uses it with a different payload type or settings?)"
-                ),
+                    open_refusal(&e),
                 ))
             }
         }
         std::thread::sleep(OPEN_RETRY);
     }
     Err(IpcError::new(format!("open service {name:?}"), last))
+}
+
+/// Whether an open of a publish-subscribe service that failed with `e` is tried
+/// again: a state another process passes through (creating or removing the
+/// service), a failure inside iceoryx2, or a signal that interrupted the call (a C
+/// application's handler usually lacks `SA_RESTART`, and a Ctrl-C it handles must not
+/// fail the open as if the service were wrong; the event services retry every error).
+fn open_is_transient(e: &PublishSubscribeOpenError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenError::IsMarkedForDestruction
+            | PublishSubscribeOpenError::HangsInCreation
+            | PublishSubscribeOpenError::InternalFailure
+            | PublishSubscribeOpenError::ServiceInCorruptedState
+            | PublishSubscribeOpenError::Interrupt
+    )
+}
+
+/// Why an open of a publish-subscribe service that failed with `e` is given up (not
+/// a transient failure, nor another payload type, which names both types): iceoryx2's
+/// error with its likely cause, blaming the payload type or settings only where the
+/// error is about them.
+fn open_refusal(e: &PublishSubscribeOpenError) -> String {
+    use PublishSubscribeOpenError as E;
+    let cause = match e {
+        E::IncompatibleAttributes
+        | E::DoesNotSupportRequestedMinBufferSize
+        | E::DoesNotSupportRequestedMinHistorySize
+        | E::DoesNotSupportRequestedMinSubscriberBorrowedSamples
+        | E::DoesNotSupportRequestedAmountOfPublishers
+        | E::DoesNotSupportRequestedAmountOfSubscribers
+        | E::DoesNotSupportRequestedAmountOfNodes
+        | E::IncompatibleOverflowBehavior
+        | E::UnableToAcquireTypeDefinition
+        | E::InvalidTypeDefinition => {
+            "another process uses it with a different payload type or settings"
+        }
+        E::IncompatibleMessagingPattern => "the name is taken by a service of another kind",
+        E::VersionMismatch => "another process created it with another iceoryx2 version",
+        E::InsufficientPermissions => {
+            "no permission to open it (created by another user, or iceoryx2's files are not \
+             readable and writable by this one)"
+        }
+        E::ExceedsMaxNumberOfNodes => "as many processes use it as it allows",
+        E::UnableToCreateServiceTag => {
+            "this process's node could not record its use of the service (iceoryx2's \
+             directory full or not writable?)"
+        }
+        _ => "",
+    };
+    if cause.is_empty() {
+        format!("{e:?}")
+    } else {
+        format!("{e:?} ({cause})")
+    }
 }
 
 /// The settings of a publish-subscribe service that vlsync depends on, as its creator
@@ -859,6 +908,25 @@ const MAX_WAIT_SLICE: Duration = Duration::from_millis(250);
 /// keep the waiting thread busy until its deadline.
 const MAX_EMPTY_WAKES: u32 = 64;
 
+/// The shortest wait a client hands to its listener. iceoryx2 passes the timeout on
+/// to the socket (`SO_RCVTIMEO`) in whole microseconds, and a zero there means "no
+/// timeout" on Linux: a wait of less than a microsecond would last until the next
+/// notification, forever while the daemon is down. A shorter remainder is slept out
+/// instead (the kernel rounds a socket timeout up to a clock tick anyway).
+const MIN_EVENT_WAIT: Duration = Duration::from_millis(1);
+
+/// How a client takes the next payload off its subscriber: [`receive_copy`]. A field
+/// of the client's, so that a test can make a receive fail.
+type ReceiveFn<T> = fn(&Subscriber<Svc, T, ()>) -> Result<Option<T>, ReceiveError>;
+
+/// The next pending payload of `subscriber`, copied out (the sample is released at
+/// once, so a client never holds one between calls).
+fn receive_copy<T: std::fmt::Debug + ZeroCopySend + Copy>(
+    subscriber: &Subscriber<Svc, T, ()>,
+) -> Result<Option<T>, ReceiveError> {
+    Ok(subscriber.receive()?.map(|s| *s.payload()))
+}
+
 /// The most receives one call makes whatever the service's creator set (the daemon's
 /// own services give 16 × 2).
 const MAX_RECEIVES_PER_CALL: usize = 1024;
@@ -940,6 +1008,15 @@ pub struct Conversion {
     pub estimate: Estimate,
 }
 
+/// A valid estimate a client took off its subscriber.
+struct Taken {
+    estimate: Estimate,
+    /// When the daemon published it (`CLOCK_MONOTONIC`, as published).
+    publish_ns: Nanos,
+    /// Whether it became the client's latest ([`replaces_latest`]).
+    newest: bool,
+}
+
 /// Subscribes to the daemon's estimates: the client API.
 ///
 /// ```no_run
@@ -966,6 +1043,11 @@ pub struct OffsetClient {
     latest: Option<Estimate>,
     latest_publish_ns: Nanos,
     invalid: u64,
+    /// A receive failure met after [`OffsetClient::wait_all`] had taken estimates: those
+    /// were handed out, and the next call that receives reports it.
+    deferred: Option<IpcError>,
+    /// Takes a payload off `subscriber` ([`receive_copy`]).
+    receive: ReceiveFn<OffsetEstimate>,
     /// `<prefix>/offset`, for error messages.
     service: String,
     /// Offset random walk (s/√s) while tracking and otherwise, for conversions.
@@ -1001,6 +1083,8 @@ impl OffsetClient {
             latest: None,
             latest_publish_ns: 0,
             invalid: 0,
+            deferred: None,
+            receive: receive_copy,
             max_receives: receive_cap(buffer.granted, svc.static_config().max_publishers()),
             buffer,
             warnings,
@@ -1034,26 +1118,31 @@ impl OffsetClient {
     /// The next valid pending estimate with its publish time, skipping (and
     /// counting, [`OffsetClient::invalid_count`]) payloads validation refuses; at most
     /// `budget` receives (each taken from it). The latest estimate becomes this one
-    /// when it was published last ([`replaces_latest`]).
-    fn next_valid_within(
-        &mut self,
-        budget: &mut usize,
-    ) -> Result<Option<(Estimate, Nanos)>, IpcError> {
+    /// when it was published last ([`replaces_latest`]). A receive failure kept by an
+    /// earlier [`OffsetClient::wait_all`] is returned first.
+    fn next_valid_within(&mut self, budget: &mut usize) -> Result<Option<Taken>, IpcError> {
+        if let Some(e) = self.deferred.take() {
+            return Err(e);
+        }
         while *budget > 0 {
             *budget -= 1;
-            let s = self.subscriber.receive().map_err(|e| {
+            let w = (self.receive)(&self.subscriber).map_err(|e| {
                 IpcError::new(format!("receive on `{}`", self.service), format!("{e:?}"))
             })?;
-            let Some(s) = s else { return Ok(None) };
-            let w: OffsetEstimate = *s.payload();
+            let Some(w) = w else { return Ok(None) };
             match Estimate::try_from(&w) {
                 Ok(e) => {
                     let current = self.latest.map(|_| self.latest_publish_ns);
-                    if replaces_latest(current, w.publish_ns, monotonic_ns) {
+                    let newest = replaces_latest(current, w.publish_ns, monotonic_ns);
+                    if newest {
                         self.latest = Some(e);
                         self.latest_publish_ns = w.publish_ns;
                     }
-                    return Ok(Some((e, w.publish_ns)));
+                    return Ok(Some(Taken {
+                        estimate: e,
+                        publish_ns: w.publish_ns,
+                        newest,
+                    }));
                 }
                 Err(_) => self.invalid += 1,
             }
@@ -1062,14 +1151,17 @@ impl OffsetClient {
     }
 
     /// Takes every pending estimate (at most [`receive_cap`] receives); returns whether
-    /// a new valid one arrived.
+    /// one of them became the latest. A valid one published before the latest (a
+    /// second publisher on the service, such as a dead daemon's port with samples still
+    /// queued) is taken but is no new estimate: [`OffsetClient::wait_next`] would
+    /// otherwise hand out the unchanged latest again.
     fn drain(&mut self) -> Result<bool, IpcError> {
         let mut budget = self.max_receives;
-        let mut got = false;
-        while self.next_valid_within(&mut budget)?.is_some() {
-            got = true;
+        let mut replaced = false;
+        while let Some(t) = self.next_valid_within(&mut budget)? {
+            replaced |= t.newest;
         }
-        Ok(got)
+        Ok(replaced)
     }
 
     /// Sleeps on the offset event until `deadline` (`None`: no deadline), at most
@@ -1091,18 +1183,30 @@ impl OffsetClient {
             d.saturating_duration_since(Instant::now())
                 .min(MAX_WAIT_SLICE)
         });
+        if left < MIN_EVENT_WAIT {
+            // too short to hand to the listener (see MIN_EVENT_WAIT): sleeping it out
+            // keeps the deadline, and the caller then takes what arrived meanwhile
+            std::thread::sleep(left);
+            return Ok(true);
+        }
         if *empty_wakes >= MAX_EMPTY_WAKES {
             *empty_wakes = 0;
             std::thread::sleep(left);
             return Ok(true);
         }
+        let started = Instant::now();
         match self.listener.timed_wait(|_| {}, left) {
             Ok(notifications) => {
-                // a timeout starts the count again: only notifications flood
-                *empty_wakes = if notifications > 0 {
-                    empty_wakes.saturating_add(1)
-                } else {
+                // a timeout starts the count again: only wake-ups before it flood,
+                // with notifications or without (any datagram on the listener's
+                // socket, which a local process can write, ends the wait with none).
+                // Half the slice counts as the timeout, since the kernel may end one
+                // up to a clock tick early.
+                let timed_out = notifications == 0 && started.elapsed() >= left / 2;
+                *empty_wakes = if timed_out {
                     0
+                } else {
+                    empty_wakes.saturating_add(1)
                 };
                 Ok(true)
             }
@@ -1119,8 +1223,9 @@ impl OffsetClient {
     /// came from (a dead daemon's port, not yet reclaimed beside the new daemon's, may
     /// hand over its last estimate after the new one's). A failed receive is not
     /// reported: the last good estimate is returned ([`OffsetClient::try_latest`]
-    /// reports it). After the daemon stops, its last estimate stays, in the state it
-    /// had: judge its age by [`OffsetClient::latest_age_ns`].
+    /// reports it), nor is one an earlier [`OffsetClient::wait_all`] kept. After the
+    /// daemon stops, its last estimate stays, in the state it had: judge its age by
+    /// [`OffsetClient::latest_age_ns`].
     pub fn latest(&mut self) -> Option<Estimate> {
         // a receive error keeps the last good estimate
         let _ = self.drain();
@@ -1211,7 +1316,9 @@ impl OffsetClient {
     /// wait. The subscriber buffers 16 estimates (8 s at the default hop): a caller
     /// that sleeps longer loses the oldest. One call returns at most what the
     /// subscriber can hold (16 for each publisher the service allows): the rest of a
-    /// faster publisher's estimates wait for the next call.
+    /// faster publisher's estimates wait for the next call. A receive that fails after
+    /// estimates were taken does not lose them: they are returned, and the failure is
+    /// the error of the next call that receives.
     pub fn wait_all(&mut self, timeout: Duration) -> Result<Vec<(Estimate, Nanos)>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut out = vec![];
@@ -1219,8 +1326,17 @@ impl OffsetClient {
         let mut empty_wakes = 0;
         loop {
             let mut budget = self.max_receives;
-            while let Some(x) = self.next_valid_within(&mut budget)? {
-                out.push(x);
+            loop {
+                match self.next_valid_within(&mut budget) {
+                    Ok(Some(t)) => out.push((t.estimate, t.publish_ns)),
+                    Ok(None) => break,
+                    // estimates taken off the subscriber exist nowhere else
+                    Err(e) if !out.is_empty() => {
+                        self.deferred = Some(e);
+                        return Ok(out);
+                    }
+                    Err(e) => return Err(e),
+                }
             }
             if !out.is_empty() || interrupted || passed(deadline) {
                 return Ok(out);
@@ -1242,8 +1358,8 @@ impl OffsetClient {
         let mut empty_wakes = 0;
         loop {
             let mut budget = self.max_receives;
-            if let Some(x) = self.next_valid_within(&mut budget)? {
-                return Ok(Some(x));
+            if let Some(t) = self.next_valid_within(&mut budget)? {
+                return Ok(Some((t.estimate, t.publish_ns)));
             }
             if interrupted || passed(deadline) {
                 return Ok(None);
@@ -1256,7 +1372,9 @@ impl OffsetClient {
     /// `Ok(None)` on timeout, and early when a signal interrupts the wait (the
     /// caller checks its own stop flag and calls again). A `timeout` too long for
     /// the clock (`Duration::MAX`) waits with no deadline. What it returns is
-    /// [`OffsetClient::latest`] once a new valid estimate arrived.
+    /// [`OffsetClient::latest`] once a valid estimate arrived that became it: one
+    /// published before the latest (a second publisher on the service) is taken
+    /// without ending the wait.
     pub fn wait_next(&mut self, timeout: Duration) -> Result<Option<Estimate>, IpcError> {
         let deadline = Instant::now().checked_add(timeout);
         let mut interrupted = false;
@@ -1279,6 +1397,11 @@ pub struct StatusClient {
     latest: Option<Status>,
     /// Payloads validation refused so far.
     invalid: u64,
+    /// A receive failure met after [`StatusClient::receive_all`] had taken payloads:
+    /// the next call reports it.
+    deferred: Option<IpcError>,
+    /// Takes a payload off `subscriber` ([`receive_copy`]).
+    receive: ReceiveFn<Status>,
     /// `<prefix>/status`, for error messages.
     service: String,
     /// Receives one call makes at most ([`receive_cap`]).
@@ -1304,6 +1427,8 @@ impl StatusClient {
             subscriber,
             latest: None,
             invalid: 0,
+            deferred: None,
+            receive: receive_copy,
             max_receives: receive_cap(buffer.granted, svc.static_config().max_publishers()),
             warnings,
             service: name,
@@ -1322,19 +1447,33 @@ impl StatusClient {
     /// invalid payloads are skipped and the last validation error returned when
     /// nothing valid arrived. One call takes at most what the subscriber can hold (16
     /// for each publisher the service allows): the rest of a faster publisher's
-    /// statuses wait for the next call.
+    /// statuses wait for the next call. A receive that fails after payloads were
+    /// taken is the next call's error: this one returns what it took (or the
+    /// validation error), so a call that counted invalid payloads never fails for
+    /// another reason (the C API's `vlsync_status_latest` relies on it).
     pub fn receive_all(&mut self) -> Result<Vec<Status>, WireErrorOrIpc> {
+        if let Some(e) = self.deferred.take() {
+            return Err(WireErrorOrIpc::Ipc(e));
+        }
         let mut out = vec![];
         let mut last_err = None;
         for _ in 0..self.max_receives {
-            let s = self.subscriber.receive().map_err(|e| {
-                WireErrorOrIpc::Ipc(IpcError::new(
-                    format!("receive on `{}`", self.service),
-                    format!("{e:?}"),
-                ))
-            })?;
-            let Some(s) = s else { break };
-            let st: Status = *s.payload();
+            let st = match (self.receive)(&self.subscriber) {
+                Ok(Some(st)) => st,
+                Ok(None) => break,
+                Err(e) => {
+                    let e =
+                        IpcError::new(format!("receive on `{}`", self.service), format!("{e:?}"));
+                    if out.is_empty() && last_err.is_none() {
+                        return Err(WireErrorOrIpc::Ipc(e));
+                    }
+                    // what this call took is its result (statuses taken off the
+                    // subscriber exist nowhere else; invalid ones counted give their
+                    // validation error): the failure is the next call's
+                    self.deferred = Some(e);
+                    break;
+                }
+            };
             match st.validate() {
                 Ok(()) => {
                     self.latest = Some(st);
@@ -1946,5 +2085,215 @@ mod tests {
         .unwrap();
         assert_eq!(c.latest().unwrap().unwrap().estimates_published, 3);
         assert_eq!(c.invalid_count(), 2);
+    }
+
+    /// A wait whose deadline has passed, or lies less than a microsecond ahead,
+    /// returns: handed to the listener, its remainder became a socket timeout of zero,
+    /// which Linux takes as none, and the wait lasted until the next notification
+    /// (forever here, where nobody notifies).
+    #[test]
+    fn a_wait_at_its_deadline_returns() {
+        let prefix = unique_prefix("deadline");
+        let (tx, rx) = std::sync::mpsc::channel();
+        // on its own thread, so that a wait that never returns fails the test
+        std::thread::spawn(move || {
+            let mut c = OffsetClient::open(&prefix).unwrap();
+            for ahead in [Duration::ZERO, Duration::from_nanos(500)] {
+                let r = c.wait_event(Some(Instant::now() + ahead), &mut 0);
+                assert!(matches!(r, Ok(true)), "{r:?}");
+            }
+            assert!(c.wait_next(Duration::from_nanos(900)).unwrap().is_none());
+            assert!(c.wait_one(Duration::from_nanos(1)).unwrap().is_none());
+            assert!(c.wait_all(Duration::from_nanos(1)).unwrap().is_empty());
+            let _ = tx.send(());
+        });
+        rx.recv_timeout(Duration::from_secs(5))
+            .expect("a wait at its deadline did not return");
+    }
+
+    /// Datagrams without a notification written to the listener's socket by another
+    /// local process end each wait at once with nothing: the waits sleep out their
+    /// slices after 64 of them, as for a notification flood, instead of spinning
+    /// (such a wake-up used to count as a timeout, which starts the count again).
+    #[test]
+    fn raw_datagrams_on_the_listener_do_not_keep_a_wait_busy() {
+        let names = ServiceNames::new(&unique_prefix("raw-datagrams")).unwrap();
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        // the listener's socket: `<root><prefix><listener id><suffix>` in iceoryx2 0.10
+        let cfg = iceoryx2::config::Config::global_config();
+        let socket = std::path::PathBuf::from(format!(
+            "{}{}{}{}",
+            cfg.global.root_path(),
+            cfg.global.prefix,
+            c.listener.id().value(),
+            cfg.global.service.event_connection_suffix
+        ));
+        assert!(socket.exists(), "no socket at {}", socket.display());
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flood = {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let s = std::os::unix::net::UnixDatagram::unbound().unwrap();
+                s.set_nonblocking(true).unwrap();
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    // a full socket buffer refuses some: the flood goes on
+                    let _ = s.send_to(&[7], &socket);
+                }
+            })
+        };
+        let cpu0 = rt::thread_cpu_ns().unwrap();
+        assert!(c.wait_next(Duration::from_millis(600)).unwrap().is_none());
+        let cpu = rt::thread_cpu_ns().unwrap() - cpu0;
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        flood.join().unwrap();
+        assert!(cpu < 300_000_000, "{cpu} ns of CPU in a 0.6 s wait");
+    }
+
+    /// An estimate published before the latest (a second publisher on the service: a
+    /// dead daemon's port with samples still queued) is taken without ending
+    /// `wait_next`, which used to hand out the unchanged latest again for it.
+    #[test]
+    fn an_older_estimate_is_no_next_estimate() {
+        let names = ServiceNames::new(&unique_prefix("older")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let (new, old) = (
+            publisher(&svc, "offset").unwrap(),
+            publisher(&svc, "offset").unwrap(),
+        );
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        let send = |p: &Publisher<Svc, OffsetEstimate, ()>, seq, publish_ns| {
+            p.send_copy(OffsetEstimate::from_estimate(&estimate(seq), publish_ns).unwrap())
+                .unwrap();
+        };
+        send(&new, 1, 2_000);
+        assert_eq!(c.wait_next(Duration::from_secs(1)).unwrap().unwrap().seq, 1);
+        send(&old, 9, 1_000);
+        assert!(c.wait_next(Duration::from_millis(50)).unwrap().is_none());
+        assert_eq!(c.latest().unwrap().seq, 1);
+        send(&new, 2, 3_000);
+        assert_eq!(c.wait_next(Duration::from_secs(1)).unwrap().unwrap().seq, 2);
+    }
+
+    thread_local! {
+        /// Receives [`failing_receive`] passes on before it fails.
+        static RECEIVES_LEFT: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    }
+
+    /// [`receive_copy`] for [`RECEIVES_LEFT`] receives, then a failure.
+    fn failing_receive<T: std::fmt::Debug + ZeroCopySend + Copy>(
+        s: &Subscriber<Svc, T, ()>,
+    ) -> Result<Option<T>, ReceiveError> {
+        match RECEIVES_LEFT.get() {
+            0 => Err(ReceiveError::ExceedsMaxBorrows),
+            n => {
+                RECEIVES_LEFT.set(n - 1);
+                receive_copy(s)
+            }
+        }
+    }
+
+    /// A receive that fails after `wait_all` took estimates: they are returned, and
+    /// the failure is the next call's error (it used to be returned at once, the
+    /// estimates, taken off the subscriber, lost).
+    #[test]
+    fn wait_all_keeps_what_it_took_before_a_failed_receive() {
+        let names = ServiceNames::new(&unique_prefix("keep-taken")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc =
+            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "offset").unwrap();
+        let mut c = OffsetClient::open(&names.prefix).unwrap();
+        for (seq, publish) in [(1, 10), (2, 20), (3, 30)] {
+            publ.send_copy(OffsetEstimate::from_estimate(&estimate(seq), publish).unwrap())
+                .unwrap();
+        }
+        c.receive = failing_receive;
+        RECEIVES_LEFT.set(2);
+        let got: Vec<u64> = c
+            .wait_all(Duration::from_secs(1))
+            .unwrap()
+            .iter()
+            .map(|(e, _)| e.seq)
+            .collect();
+        assert_eq!(got, vec![1, 2]);
+        let e = c.wait_all(Duration::from_secs(1)).unwrap_err();
+        assert!(e.to_string().contains("ExceedsMaxBorrows"), "{e}");
+        // reported once; the receives work again
+        c.receive = receive_copy;
+        let got = c.wait_all(Duration::from_secs(1)).unwrap();
+        assert_eq!(got.iter().map(|(e, _)| e.seq).collect::<Vec<_>>(), vec![3]);
+    }
+
+    /// The same for the status: what a call took is its result and a failed receive
+    /// after it the next call's error, so that a call which counted invalid payloads
+    /// returns their validation error, never a transport failure (which the C API's
+    /// callers, seeing the invalid count rise, used to take for invalid payloads).
+    #[test]
+    fn receive_all_reports_a_failure_after_what_it_took() {
+        let names = ServiceNames::new(&unique_prefix("status-fail")).unwrap();
+        let node = create_node("test-daemon", false).unwrap();
+        let svc = open_or_create_pubsub::<Status>(&node, &names.status(), Qos::latest()).unwrap();
+        let publ = publisher(&svc, "status").unwrap();
+        let mut c = StatusClient::open(&names.prefix).unwrap();
+        c.receive = failing_receive;
+        let bad = Status {
+            degraded: 9,
+            ..Status::default()
+        };
+        publ.send_copy(bad).unwrap();
+        RECEIVES_LEFT.set(1);
+        assert!(matches!(c.latest(), Err(WireErrorOrIpc::Wire(_))));
+        assert_eq!(c.invalid_count(), 1);
+        assert!(matches!(c.latest(), Err(WireErrorOrIpc::Ipc(_))));
+        assert_eq!(c.invalid_count(), 1);
+        // valid statuses taken before a failure are returned, the failure next
+        for n in [1, 2] {
+            publ.send_copy(Status {
+                estimates_published: n,
+                ..Status::default()
+            })
+            .unwrap();
+        }
+        RECEIVES_LEFT.set(2);
+        assert_eq!(c.receive_all().unwrap().len(), 2);
+        assert!(matches!(c.receive_all(), Err(WireErrorOrIpc::Ipc(_))));
+        // nothing taken: the failure at once
+        assert!(matches!(c.receive_all(), Err(WireErrorOrIpc::Ipc(_))));
+        c.receive = receive_copy;
+        assert!(c.receive_all().unwrap().is_empty());
+        assert_eq!(c.latest().unwrap().unwrap().estimates_published, 2);
+    }
+
+    /// A signal during an open is tried again, as a service being created is; the
+    /// errors given up on blame the payload type only where they are about it.
+    #[test]
+    fn an_interrupted_open_is_retried_and_refusals_say_why() {
+        use PublishSubscribeOpenError as E;
+        for e in [
+            E::Interrupt,
+            E::IsMarkedForDestruction,
+            E::HangsInCreation,
+            E::InternalFailure,
+            E::ServiceInCorruptedState,
+        ] {
+            assert!(open_is_transient(&e), "{e:?}");
+        }
+        for e in [
+            E::VersionMismatch,
+            E::InsufficientPermissions,
+            E::ExceedsMaxNumberOfNodes,
+            E::IncompatibleMessagingPattern,
+            E::UnableToCreateServiceTag,
+        ] {
+            assert!(!open_is_transient(&e), "{e:?}");
+            let why = open_refusal(&e);
+            assert!(why.starts_with(&format!("{e:?} (")), "{why}");
+            assert!(!why.contains("payload type"), "{why}");
+        }
+        assert!(open_refusal(&E::VersionMismatch).contains("iceoryx2 version"));
+        let why = open_refusal(&E::DoesNotSupportRequestedMinHistorySize);
+        assert!(why.contains("payload type or settings"), "{why}");
     }
 }

@@ -10,15 +10,15 @@
 //! an application using the client library had its own handlers replaced.
 //!
 //! [`tame_iceoryx2_signals`] (called by every `create_node`) lets iceoryx2 set its
-//! handlers up once, then puts back the action every signal had before (all of
-//! them are compared, not only iceoryx2's list), so a process keeps its signal
-//! dispositions; the calling thread holds every signal back meanwhile, so one
-//! that arrives then reaches the restored action (one another thread took in
-//! iceoryx2's slot is raised again for it). [`handle_termination_signals`] installs
-//! vlsync's own SIGINT/SIGTERM (and SIGHUP, unless ignored) handler, which sets a flag
-//! that stays set: [`termination_requested`] reads it; and, for a process a vlsync
-//! launcher started ([`STOP_WITH_PARENT_ENV`]), asks the kernel for SIGTERM when
-//! that launcher dies.
+//! handlers up once, then puts back the action its thirteen signals had before,
+//! where iceoryx2's handler is the one in place (an action another thread set
+//! meanwhile stays), so a process keeps its signal dispositions; the calling thread
+//! holds every signal back meanwhile, so one that arrives then reaches the restored
+//! action (one another thread took in iceoryx2's slot is raised again for it).
+//! [`handle_termination_signals`] installs vlsync's own SIGINT/SIGTERM (and SIGHUP,
+//! unless ignored) handler, which sets a flag that stays set: [`termination_requested`]
+//! reads it; and, for a process a vlsync launcher started ([`STOP_WITH_PARENT_ENV`]),
+//! asks the kernel for SIGTERM when that launcher dies.
 #![allow(unsafe_code)]
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,8 +37,59 @@ pub const STOP_WITH_PARENT_ENV: &str = "VLSYNC_STOP_WITH_PARENT";
 
 /// Every signal whose action can be set: 1..=SIGRTMAX but SIGKILL and SIGSTOP (the
 /// C library's reserved ones refuse `sigaction` and are skipped).
+#[cfg(test)]
 fn settable() -> impl Iterator<Item = libc::c_int> {
     (1..=libc::SIGRTMAX()).filter(|&s| s != libc::SIGKILL && s != libc::SIGSTOP)
+}
+
+/// The signals iceoryx2 0.10 installs its handler on (its `NonFatalFetchableSignal`,
+/// in `iceoryx2-bb-posix`'s `signal.rs`; the crate is pinned to that release).
+const ICEORYX2_SIGNALS: [libc::c_int; 13] = [
+    libc::SIGCONT,
+    libc::SIGABRT,
+    libc::SIGINT,
+    libc::SIGQUIT,
+    libc::SIGTERM,
+    libc::SIGTSTP,
+    libc::SIGTTIN,
+    libc::SIGTTOU,
+    libc::SIGUSR1,
+    libc::SIGUSR2,
+    libc::SIGPROF,
+    libc::SIGURG,
+    libc::SIGVTALRM,
+];
+
+/// The signals of [`ICEORYX2_SIGNALS`] whose action from before iceoryx2's set-up is
+/// put back, given each one's handler `(signal, before, now)`: those where the
+/// handler now is the one iceoryx2 installed. iceoryx2 does not say where its handler
+/// is (a private function), but it installs that one handler on all thirteen at once:
+/// it is the handler now found, in place of the one before, on most of them (at
+/// least 7). Another thread that sets a few of these signals meanwhile (an application's
+/// SIGINT and SIGTERM handlers) keeps its own, and where iceoryx2's handlers were in
+/// place already (installed before, nothing changed) nothing is restored.
+fn installed_by_iceoryx2(
+    handlers: &[(libc::c_int, libc::sighandler_t, libc::sighandler_t)],
+) -> Vec<libc::c_int> {
+    let changed = |h: libc::sighandler_t| {
+        handlers
+            .iter()
+            .filter(|&&(_, before, now)| now == h && before != h)
+            .count()
+    };
+    let theirs = handlers
+        .iter()
+        .map(|&(_, _, now)| now)
+        .filter(|&h| h != libc::SIG_DFL && h != libc::SIG_IGN)
+        .find(|&h| changed(h) > ICEORYX2_SIGNALS.len() / 2);
+    match theirs {
+        Some(h) => handlers
+            .iter()
+            .filter(|&&(_, before, now)| now == h && before != h)
+            .map(|&(s, _, _)| s)
+            .collect(),
+        None => vec![],
+    }
 }
 
 extern "C" fn on_termination(_signal: libc::c_int) {
@@ -65,40 +116,54 @@ fn set_action(signal: libc::c_int, action: &libc::sigaction) -> bool {
 }
 
 /// Lets iceoryx2 install its signal handlers now (once per process), then restores
-/// the action of every signal whose action it changed: the process keeps its own
-/// signal handling (default actions, an application's handlers, vlsync's own). A
-/// signal iceoryx2's handler caught meanwhile is raised again, for the restored
-/// action. Called by [`crate::create_node`] before any iceoryx2 resource exists;
-/// later calls do nothing.
+/// the action of each of its signals where its handler is the one in place: the
+/// process keeps its own signal handling (default actions, an application's handlers,
+/// vlsync's own, and one another thread installs meanwhile). A signal iceoryx2's
+/// handler caught meanwhile is raised again, for the restored action. Called by
+/// [`crate::create_node`] before any iceoryx2 resource exists; later calls do
+/// nothing.
 pub fn tame_iceoryx2_signals() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         use iceoryx2_bb_posix::signal::{Signal, SignalHandler};
         // every signal held back on this thread from the snapshot to the restore: a
-        // stop arriving while iceoryx2 installs its handlers (which then clears its
-        // slot) or before the restore (where the SIGCONT that follows would take the
-        // slot) waits, and reaches the restored action when unblocked. (Another
-        // thread of the process may still take one meanwhile; its slot is the
-        // fallback below.)
+        // stop arriving while iceoryx2 installs its handlers or before the restore
+        // waits, and reaches the restored action when unblocked. Another thread of
+        // the process may still take one meanwhile in iceoryx2's handler, which
+        // keeps only the last signal in its slot: that one is raised again below,
+        // but of two caught between two reads of the slot (systemd's SIGTERM and
+        // the SIGCONT right after it) only the second is.
         // restored when dropped, on every path (iceoryx2's set-up may panic)
         let held = block_all_signals();
-        let before: Vec<(libc::c_int, libc::sigaction)> = settable()
-            .filter_map(|s| current_action(s).map(|a| (s, a)))
+        let before: Vec<(libc::c_int, libc::sigaction)> = ICEORYX2_SIGNALS
+            .iter()
+            .filter_map(|&s| current_action(s).map(|a| (s, a)))
             .collect();
         // the first use of iceoryx2's SignalHandler creates it, which installs its
-        // handlers; it never installs them again
-        let _ = SignalHandler::call_and_fetch(|| ());
-        for (signal, action) in &before {
-            if current_action(*signal).is_some_and(|now| now.sa_sigaction != action.sa_sigaction) {
-                set_action(*signal, action);
-            }
+        // handlers; it never installs them again. `last_signal` takes what its slot
+        // caught since (`call_and_fetch` would clear the slot after the install, and
+        // erase a signal another thread caught in between)
+        let first = SignalHandler::last_signal();
+        let handlers: Vec<_> = before
+            .iter()
+            .filter_map(|(s, a)| {
+                current_action(*s).map(|now| (*s, a.sa_sigaction, now.sa_sigaction))
+            })
+            .collect();
+        let ours = installed_by_iceoryx2(&handlers);
+        for (signal, action) in before.iter().filter(|(s, _)| ours.contains(s)) {
+            set_action(*signal, action);
         }
         drop(held);
-        if let Some(caught) = SignalHandler::last_signal() {
-            let signal = Signal::from(caught) as libc::c_int;
+        // where iceoryx2's handlers were in place before (the application used
+        // iceoryx2 itself first), the signal its slot held may be an old one: only
+        // one caught since that first read is raised again
+        let first = first.filter(|_| !ours.is_empty());
+        for signal in [first, SignalHandler::last_signal()].into_iter().flatten() {
+            let signal = Signal::from(signal) as libc::c_int;
             // SAFETY: raise(3) of a signal number iceoryx2 took from the system; its
             // action is the restored one (vlsync's flag for SIGINT/SIGTERM once
-            // `handle_termination_signals` ran)
+            // `handle_termination_signals` ran), or one another thread installed
             unsafe {
                 libc::raise(signal);
             }
@@ -265,5 +330,45 @@ mod tests {
         }
         assert!(termination_requested());
         assert!(termination_requested(), "the flag stays set");
+    }
+
+    /// Only the signals where iceoryx2's handler is in place get their action back:
+    /// the SIGINT and SIGTERM handlers another thread of an application installed
+    /// while iceoryx2 set up stay (the restore used to put back every signal whose
+    /// action had changed); where iceoryx2's handlers were in place already, nothing
+    /// is undone.
+    #[test]
+    fn only_iceoryx2s_own_handlers_are_undone() {
+        let (dfl, iceoryx2, app) = (libc::SIG_DFL, 0x1000, 0x2000);
+        let app_thread = |s| s == libc::SIGINT || s == libc::SIGTERM;
+        let h: Vec<_> = ICEORYX2_SIGNALS
+            .iter()
+            .map(|&s| (s, dfl, if app_thread(s) { app } else { iceoryx2 }))
+            .collect();
+        let want: Vec<_> = ICEORYX2_SIGNALS
+            .iter()
+            .copied()
+            .filter(|&s| !app_thread(s))
+            .collect();
+        assert_eq!(installed_by_iceoryx2(&h), want);
+        // an application's handlers before, on every signal: all undone
+        let h: Vec<_> = ICEORYX2_SIGNALS
+            .iter()
+            .map(|&s| (s, app, iceoryx2))
+            .collect();
+        assert_eq!(installed_by_iceoryx2(&h), ICEORYX2_SIGNALS.to_vec());
+        // iceoryx2's handlers in place already, one signal changed by another thread
+        let h: Vec<_> = ICEORYX2_SIGNALS
+            .iter()
+            .map(|&s| (s, iceoryx2, if s == libc::SIGINT { app } else { iceoryx2 }))
+            .collect();
+        assert!(installed_by_iceoryx2(&h).is_empty());
+        // a few signals changed to one handler, the rest untouched: no set-up of
+        // iceoryx2's (which changes all thirteen at once)
+        let h: Vec<_> = ICEORYX2_SIGNALS
+            .iter()
+            .map(|&s| (s, dfl, if app_thread(s) { app } else { dfl }))
+            .collect();
+        assert!(installed_by_iceoryx2(&h).is_empty());
     }
 }
