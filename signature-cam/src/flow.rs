@@ -1059,7 +1059,6 @@ fn median_small(v: &mut [f32]) -> f32 {
     }
 }
 
-/// Smallest eigenvalue of the template's structure tensor.
 /// The Shi-Tomasi texture test of the level-0 window around `(px, py)`: its
 /// smaller gradient eigenvalue, per pixel (`n`), reaches `c.min_eigen`. NaN
 /// (non-finite pixels in an f32 frame) counts as no texture. Leaves the
@@ -1078,6 +1077,7 @@ fn has_texture(
     !eig.is_nan() && eig >= c.min_eigen
 }
 
+/// Smallest eigenvalue of the template's structure tensor.
 fn min_eigen(t: &Template) -> f32 {
     let tr = t.gxx + t.gyy;
     let d = ((t.gxx - t.gyy) * (t.gxx - t.gyy) + 4.0 * t.gxy * t.gxy).sqrt();
@@ -1230,7 +1230,12 @@ fn solve_level(
 ) -> Option<(f32, f32, f32)> {
     let det = t.gxx * t.gyy - t.gxy * t.gxy;
     let n = t.val.len() as f32;
-    // singular or nearly so (relative to the gradient energy per pixel)
+    // singular or nearly so: the determinant of the structure tensor averaged over
+    // the window (det / n²) at most 1e-6 (gray levels per pixel, to the fourth). The
+    // floor is absolute, not relative to the window's gradients, and low: level 0's
+    // texture test (`min_eigen`, 2 by default) asks at least 2² = 4 of it; the
+    // coarser levels have no texture test of their own, and this floor is all they
+    // must pass
     if det.is_nan() || det <= 1e-6 * n * n {
         return None;
     }
@@ -1381,7 +1386,7 @@ pub(crate) mod tests {
     }
 
     /// A frame whose content at pixel p is `grain(map(p))`.
-    fn grain_frame(
+    pub(crate) fn grain_frame(
         w: usize,
         h: usize,
         map: impl Fn(f32, f32) -> (f32, f32),

@@ -301,10 +301,14 @@ impl<'a> RawFrame<'a> {
         self
     }
 
-    /// Checks geometry against the buffer; returns the number of gray pixels.
-    fn check(&self) -> Result<usize, Error> {
+    /// The bytes the conversion reads, `(height - 1) * stride + width * bytes per
+    /// pixel` (a buffer at least this long converts), or the error of a geometry no
+    /// buffer converts with. Checks nothing of the buffer itself, and allocates only
+    /// for that error: a live source checks each buffer's length against it first
+    /// and skips a short one without making an error.
+    pub fn bytes_needed(&self) -> Result<usize, Error> {
         let (w, h) = (self.width, self.height);
-        let n = pixel_count(w, h)?;
+        pixel_count(w, h)?;
         if self.format.packed_pairs() && !w.is_multiple_of(2) {
             return Err(Error::BadDimensions {
                 width: w,
@@ -322,32 +326,42 @@ impl<'a> RawFrame<'a> {
                 height: h,
                 reason: "row size overflows",
             })?;
-        let what = || format!("{} {w}x{h} (stride {})", self.format.name(), self.stride);
         if self.stride < row {
             return Err(Error::BufferSize {
-                what: what(),
+                what: self.described(),
                 expected: row,
                 actual: self.stride,
             });
         }
         // the last row needs only `row` bytes, not a full stride (and a planar
         // format's chroma planes after the luma are not read)
-        let need = (h - 1)
+        (h - 1)
             .checked_mul(self.stride)
             .and_then(|v| v.checked_add(row))
             .ok_or(Error::BadDimensions {
                 width: w,
                 height: h,
                 reason: "buffer size overflows",
-            })?;
+            })
+    }
+
+    /// The buffer as an error names it, e.g. `YUYV 640x480 (stride 1280)`.
+    fn described(&self) -> String {
+        let (w, h) = (self.width, self.height);
+        format!("{} {w}x{h} (stride {})", self.format.name(), self.stride)
+    }
+
+    /// Checks geometry against the buffer; returns the number of gray pixels.
+    fn check(&self) -> Result<usize, Error> {
+        let need = self.bytes_needed()?;
         if self.data.len() < need {
             return Err(Error::BufferSize {
-                what: what(),
+                what: self.described(),
                 expected: need,
                 actual: self.data.len(),
             });
         }
-        Ok(n)
+        pixel_count(self.width, self.height)
     }
 
     /// Converts to gray into `out` (resized to `width * height`; reuses its capacity,
@@ -594,6 +608,17 @@ mod tests {
                     if expected == 3 * row && actual == 3 * row - 1),
                 "{fmt:?}: {e}"
             );
+            // the length a live source checks a buffer against before converting it,
+            // whatever the buffer holds
+            let frame = |data| RawFrame::new(data, 4, 2, fmt).with_stride(2 * row);
+            assert_eq!(frame(&[]).bytes_needed().unwrap(), 3 * row, "{fmt:?}");
+            assert_eq!(frame(&buf).bytes_needed().unwrap(), 3 * row, "{fmt:?}");
+            assert!(matches!(
+                RawFrame::new(&buf, 4, 2, fmt)
+                    .with_stride(row - 1)
+                    .bytes_needed(),
+                Err(Error::BufferSize { .. })
+            ));
         }
         // UYVY, as YUYV, needs pixel pairs
         let e = RawFrame::new(&[0u8; 12], 3, 2, PixelFormat::Uyvy)

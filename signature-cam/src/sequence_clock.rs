@@ -37,6 +37,38 @@
 //! (the camera slowed down, or its latency grew for good: the line is behind them
 //! all; a driver held up hands over at most the buffers it holds late).
 //!
+//! Two quicker restarts read the dequeue intervals, each against its frames' step
+//! (the sequence numbers' difference) at the period. A frame's interval alone
+//! cannot say whether the camera paused or slowed down (the frame is on time, the
+//! line behind it) or the frame waited in a buffer (a driver held up, an
+//! application kept from its dequeues by a busy CPU: the line is right), so the
+//! frames after it decide: a frame that waited is followed by frames that waited
+//! behind it (dequeued back to back, early for their step) or by the first fresh
+//! one after the frames the driver dropped (early by many steps, back near the
+//! line), while after a pause or at a slower rate the frames come their period
+//! apart again, or slower still. One frame of either kind can be a hold-up anew
+//! (jitter, then a busy moment), so each rule asks for a run:
+//!
+//! * [`Restart::Slower`]: [`SLOW_RUN`] intervals in a row each more than half a
+//!   period longer than their step (30 to 15 Hz with the sequence counting on: the
+//!   frames come two periods apart, and the line, carried one period a frame, put
+//!   8 of them up to 8 periods early before [`BEHIND_RUN`] saw it; now 2, up to 2
+//!   periods early).
+//! * [`Restart::Pause`]: an interval longer than its step by more than the
+//!   driver's buffers last ([`SequenceClock::with_buffers`]; more than a busy
+//!   moment delays a dequeue while the application keeps up), then [`PAUSE_RUN`]
+//!   frames in a row still more than half that behind the line and not early for
+//!   their step (less than half a period short of it): a camera that paused with
+//!   its sequence counting only the frames it sent (uvcvideo). The line put 8
+//!   frames after a 5 s pause 5 s early; now the first 2 (3 when the first was
+//!   itself delivered late, which makes the next look early for its step).
+//!
+//! The frame that completes the run is stamped at its own dequeue time, and the
+//! line starts again from it. The rules assume an application that, when it finds
+//! frames waiting, dequeues the next within half a period (its work per frame under
+//! that): a slower one reads its backlog after a long hold-up as frames a period
+//! apart, a pause.
+//!
 //! Allocation-free: the windows are fixed arrays.
 //!
 //! ```
@@ -75,6 +107,18 @@ pub const MIN_BASELINE: usize = 16;
 /// that long may come back at another rate.
 pub const MAX_JUMP_NS: Nanos = 2_000_000_000;
 
+/// Dequeue intervals in a row, each more than half a period longer than its
+/// frames' step, that restart the line ([`Restart::Slower`]). Three: two come of a
+/// frame late in the latency's tail followed by a dequeue a busy moment held up
+/// (not rare); a camera that slowed keeps coming late, a hold-up does not.
+pub const SLOW_RUN: usize = 3;
+
+/// Frames in a row after an interval longer than the driver's buffers last, each
+/// still more than half that behind the line and not early for its step, that
+/// restart it ([`Restart::Pause`]). Two: one such frame comes of a frame held up
+/// anew right after a hold-up's backlog.
+pub const PAUSE_RUN: usize = 2;
+
 /// Frames in a row dequeued more than half a period after the line that restart
 /// it (a quarter of a second at 30 Hz; twice the 4 buffers a driver holds by
 /// default).
@@ -109,8 +153,15 @@ pub enum Restart {
     /// A step of the sequence numbers longer than [`MAX_JUMP_NS`].
     Jump,
     /// [`BEHIND_RUN`] frames in a row (or twice the driver's buffers, if more:
-    /// [`SequenceClock::with_buffers`]) dequeued more than half a period after the line.
+    /// [`SequenceClock::behind_limit`]) dequeued more than half a period after the line.
     Behind,
+    /// [`SLOW_RUN`] dequeue intervals in a row each more than half a period longer
+    /// than their frames' step: the camera slowed down (module docs).
+    Slower,
+    /// A dequeue interval longer than its frames' step by more than the driver's
+    /// buffers last, then [`PAUSE_RUN`] frames still far behind the line and not
+    /// early for their step: the camera paused (module docs).
+    Pause,
 }
 
 /// Frame times from dequeue times and buffer sequence numbers (module docs).
@@ -138,6 +189,20 @@ pub struct SequenceClock {
     /// How many frames back a dequeue time is carried ([`REACH`], or the driver's
     /// buffers if more, at most `WINDOW - 1`).
     reach: u64,
+    /// The driver's buffers (at least 1): a dequeue interval longer than its step by
+    /// more than these last is a pause of the camera or of the application (a busy
+    /// CPU), which the next frames tell apart.
+    buffers: u64,
+    /// Dequeue intervals in a row each more than half a period longer than their
+    /// frames' step.
+    slow_run: usize,
+    /// After an interval longer than its step by more than the buffers last: the
+    /// frame before it (index, dequeue time), the last known on the line, until a
+    /// frame decides between a pause and a hold-up ([`Restart::Pause`]).
+    pause_from: Option<(u64, Nanos)>,
+    /// Frames in a row since `pause_from` neither back near the line nor early for
+    /// their step.
+    pause_run: usize,
     last_restart: Option<Restart>,
     restarts: u64,
     remeasures: u64,
@@ -174,6 +239,10 @@ impl SequenceClock {
             behind_limit: twice.max(BEHIND_RUN),
             residuals: [0; WINDOW],
             reach: u64::from(buffers).clamp(REACH, WINDOW as u64 - 1),
+            buffers: u64::from(buffers.max(1)),
+            slow_run: 0,
+            pause_from: None,
+            pause_run: 0,
             last_restart: None,
             restarts: 0,
             remeasures: 0,
@@ -200,6 +269,13 @@ impl SequenceClock {
         self.restarts
     }
 
+    /// Frames in a row dequeued more than half a period after the line that
+    /// restart it ([`Restart::Behind`]): [`BEHIND_RUN`], or twice the driver's
+    /// buffers if more.
+    pub fn behind_limit(&self) -> usize {
+        self.behind_limit
+    }
+
     /// Why the line last restarted, taken once.
     pub fn take_restart(&mut self) -> Option<Restart> {
         self.last_restart.take()
@@ -215,8 +291,8 @@ impl SequenceClock {
             let why = if step == 0 || step > u32::MAX / 2 {
                 Some(Restart::Repeated)
             } else {
-                let span = self.period_ns.map_or(0.0, |p| f64::from(step) * p);
-                (span > MAX_JUMP_NS as f64).then_some(Restart::Jump)
+                self.period_ns
+                    .and_then(|p| self.interval_restart(step, dequeue_ns, p))
             };
             match why {
                 Some(why) => self.restart(why),
@@ -282,6 +358,59 @@ impl SequenceClock {
         t
     }
 
+    /// The restart a frame `step` frames after the last one, dequeued at
+    /// `dequeue_ns`, calls for at the period `p`, before it is stamped: a jump in
+    /// the sequence, or its interval with the one before (module docs).
+    fn interval_restart(&mut self, step: u32, dequeue_ns: Nanos, p: f64) -> Option<Restart> {
+        let span = f64::from(step) * p;
+        if span > MAX_JUMP_NS as f64 {
+            return Some(Restart::Jump);
+        }
+        let last = self.history[self.slot(self.count.checked_sub(1)?)];
+        let excess = dequeue_ns.saturating_sub(last.1) as f64 - span;
+        self.slow_run = if excess > p / 2.0 {
+            self.slow_run + 1
+        } else {
+            0
+        };
+        if self.slow_run >= SLOW_RUN {
+            // frames late one after the other: not a hold-up, whose late frame is
+            // followed by early ones, and not jitter, which does not climb half a
+            // period three times running
+            return Some(Restart::Slower);
+        }
+        let buffers = self.buffers as f64 * p;
+        if let Some((i, d)) = self.pause_from {
+            // how far behind the line this frame is, carried from the dequeue of the
+            // last frame known on it (that frame's own latency included)
+            let index = self.index + u64::from(step);
+            let behind = dequeue_ns.saturating_sub(d) as f64 - (index - i) as f64 * p;
+            if behind <= buffers / 2.0 {
+                // back near the line: the long interval was a wait in a buffer, the
+                // frames after it drained the backlog
+                self.pause_from = None;
+            } else if excess >= -p / 2.0 {
+                // still far behind, and not dequeued back to back with the last
+                // frame (nor early after dropped ones), as the frames a hold-up kept
+                // waiting are: the frames come their period apart again, behind the
+                // line by the pause. Twice in a row: one frame held up anew looks so
+                self.pause_run += 1;
+                if self.pause_run >= PAUSE_RUN {
+                    return Some(Restart::Pause);
+                }
+            } else {
+                self.pause_run = 0;
+            }
+        } else if excess > buffers {
+            // longer than the driver's buffers could hold a frame back while the
+            // application keeps up: a pause, or the application was kept from its
+            // dequeues; the next frames tell
+            self.pause_from = Some(last);
+            self.pause_run = 0;
+        }
+        None
+    }
+
     /// Forgets all but the newest `n` frames (the period is then measured over them
     /// alone, and the reach shrinks with them).
     fn keep_newest(&mut self, n: u64) {
@@ -312,6 +441,9 @@ impl SequenceClock {
         self.period_ns = None;
         self.behind_run = 0;
         self.above_floor_run = 0;
+        self.slow_run = 0;
+        self.pause_from = None;
+        self.pause_run = 0;
         self.last_seq = None;
         self.last_restart = Some(why);
         self.restarts = self.restarts.saturating_add(1);
@@ -413,16 +545,122 @@ mod tests {
         }
         // auto-exposure halves the rate; the sequence counts on
         let base = truth(200);
-        let mut last = 0;
+        let (mut last, mut early) = (0, vec![]);
         for j in 0..300u32 {
-            let t = c.stamp(200 + j, base + i64::from(j) * 2 * P + 2 * MS);
-            last = t - (base + i64::from(j) * 2 * P + 2 * MS);
+            let d = base + i64::from(j) * 2 * P + 2 * MS;
+            let t = c.stamp(200 + j, d);
+            last = t - d;
+            if d - t > P / 2 {
+                early.push((j, d - t));
+            }
         }
+        // the first two frames two periods apart are stamped a period apart, on the
+        // old line; the third restarts the line (where the old line carried 8 of
+        // them a period a frame, 264 ms early at the last)
+        assert_eq!(early, [(1, P), (2, 2 * P)]);
         assert_eq!(c.restarts(), 1);
-        assert_eq!(c.take_restart(), Some(Restart::Behind));
+        assert_eq!(c.take_restart(), Some(Restart::Slower));
         assert_eq!(c.take_restart(), None);
         assert!(last.abs() < MS / 10, "{last}");
         assert!((c.period_ns().unwrap() - 2.0 * P as f64).abs() < 100.0);
+    }
+
+    #[test]
+    fn a_camera_slowing_by_a_fifth_restarts_behind_the_line() {
+        // 30 to 25 Hz: each interval 7 ms longer than its period, short of the half
+        // period the interval rules see; the line falls behind until BEHIND_RUN
+        // frames in a row are more than half a period after it
+        let mut c = SequenceClock::new();
+        for k in 0..200u32 {
+            c.stamp(k, truth(k) + 2 * MS);
+        }
+        let slow = P * 6 / 5;
+        let base = truth(200);
+        let mut last = 0;
+        for j in 0..300u32 {
+            let d = base + i64::from(j) * slow + 2 * MS;
+            last = c.stamp(200 + j, d) - d;
+        }
+        assert_eq!(c.take_restart(), Some(Restart::Behind));
+        assert_eq!(c.restarts(), 1);
+        assert!(last.abs() < MS / 10, "{last}");
+        assert_eq!(c.behind_limit(), BEHIND_RUN);
+        assert_eq!(SequenceClock::with_buffers(12).behind_limit(), 24);
+    }
+
+    #[test]
+    fn a_camera_that_paused_is_stamped_on_its_own_from_the_third_frame_after() {
+        // uvcvideo counts only the frames the camera sent: a 5 s pause is a step of
+        // one. The line carried 8 frames after it 5 s early
+        for buffers in [2, 4, 12] {
+            // the first frame after the pause on time, then held up 30 ms itself
+            // (its successor then comes early for its step, as after a hold-up, and
+            // the two after that decide)
+            for (held, expect) in [(0, &[0u32, 1][..]), (30 * MS, &[0, 1, 2])] {
+                let mut c = SequenceClock::with_buffers(buffers);
+                let mut lat = latencies();
+                for k in 0..300u32 {
+                    c.stamp(k, truth(k) + lat(k));
+                }
+                let resumed = truth(300) + 5_000_000_000;
+                let mut early = vec![];
+                for j in 0..100u32 {
+                    let due = resumed + i64::from(j) * P;
+                    let t = c.stamp(300 + j, due + 2 * MS + if j == 0 { held } else { 0 });
+                    if due - t > P / 2 {
+                        early.push(j);
+                    }
+                }
+                assert_eq!(early, expect, "{buffers} buffers, held {held}");
+                assert_eq!(c.take_restart(), Some(Restart::Pause));
+                assert_eq!(c.restarts(), 1);
+            }
+        }
+    }
+
+    #[test]
+    fn an_application_held_up_past_its_buffers_keeps_the_line() {
+        // a busy CPU keeps the application from its dequeues for 300 ms: the frames
+        // in the driver's buffers (all but the one the application holds) wait and
+        // are dequeued back to back, its work per frame apart (8 or 15 ms), the
+        // frames after them dropped until a buffer comes back; the fresh ones after
+        // are dequeued once the backlog is done. The long interval is no pause
+        for (buffers, work) in [(2u32, 8 * MS), (4, 8 * MS), (4, 15 * MS)] {
+            let mut c = SequenceClock::with_buffers(buffers);
+            let mut lat = latencies();
+            let mut k = 0u32;
+            while k < 300 {
+                c.stamp(k, truth(k) + lat(k));
+                k += 1;
+            }
+            let stalled_to = truth(k - 1) + 300 * MS;
+            let mut d = stalled_to;
+            for _ in 0..buffers - 1 {
+                let t = c.stamp(k, d);
+                assert!((t - truth(k) - 2 * MS).abs() < MS, "{buffers}: frame {k}");
+                k += 1;
+                d += work;
+            }
+            // the interval was long enough to be a pause: the next frames decided
+            assert!(c.pause_from.is_some(), "{buffers}");
+            // the first frame captured after a buffer came back
+            k = (k..).find(|&f| truth(f) > stalled_to).unwrap();
+            for _ in 0..100 {
+                d = (truth(k) + lat(k)).max(d + work);
+                let t = c.stamp(k, d);
+                // on the line, not restarted from the late dequeues (a line restarted
+                // from them is stamped late by the backlog, and after it the
+                // jitter's few milliseconds off)
+                assert!(
+                    (t - truth(k) - 2 * MS).abs() < 3 * MS,
+                    "{buffers}: frame {k} {}",
+                    t - truth(k)
+                );
+                k += 1;
+            }
+            assert_eq!(c.restarts(), 0, "{buffers}: {:?}", c.take_restart());
+            assert_eq!(c.pause_from, None);
+        }
     }
 
     #[test]
@@ -447,6 +685,38 @@ mod tests {
         let d = truth(199 + 90) + MS;
         assert_eq!(c.stamp(start.wrapping_add(199 + 90), d), d);
         assert_eq!(c.take_restart(), Some(Restart::Jump));
+    }
+
+    #[test]
+    fn hold_ups_right_after_a_late_frame_keep_the_line() {
+        // what one frame of each interval rule would take for a slowdown or a pause:
+        // a frame late in the latency's tail (20 ms) and the next held up 60 ms
+        // more; a 200 ms hold-up of 2 buffers (past what they last), its backlog, and
+        // right after it a frame held up anew
+        let mut c = SequenceClock::with_buffers(2);
+        let lat = |k: u32| match k {
+            100 => 22 * MS,
+            101 => 82 * MS,
+            200 => 200 * MS,
+            // the frame waiting behind it, dequeued 5 ms after it
+            201 => 200 * MS + 5 * MS - P,
+            202 => 180 * MS,
+            _ => 2 * MS,
+        };
+        let mut prev = 0;
+        for k in 0..400u32 {
+            let d = (truth(k) + lat(k)).max(prev);
+            let t = c.stamp(k, d);
+            prev = d;
+            if k > 60 {
+                assert!(
+                    (t - truth(k) - 2 * MS).abs() < MS,
+                    "frame {k}: {}",
+                    t - truth(k)
+                );
+            }
+        }
+        assert_eq!(c.restarts(), 0, "{:?}", c.take_restart());
     }
 
     #[test]

@@ -270,8 +270,9 @@ pub struct SignatureProcessor {
     reducer: Reducer,
     prev_t: Option<Nanos>,
     period: FramePeriod,
-    /// Periods spanned by the previous sample's interval (for the flow prediction).
-    prev_periods: f64,
+    /// The previous sample's interval as scaled, ns (for the flow prediction; 0:
+    /// none since the last start).
+    prev_scale_dt: f64,
     /// Whole periods spanned by the last [`RECENT_SPANS`] intervals (a ring; 0:
     /// not yet filled): a camera that slowed to a whole fraction of its rate (30
     /// to 15 or 7.5 Hz) keeps its old period, each interval agreeing as 2 or 4 of
@@ -433,7 +434,7 @@ impl SignatureProcessor {
             reducer,
             prev_t: None,
             period: FramePeriod::default(),
-            prev_periods: 0.0,
+            prev_scale_dt: 0.0,
             recent_spans: [0; RECENT_SPANS],
             recent_pos: 0,
             pattern_size: None,
@@ -455,7 +456,7 @@ impl SignatureProcessor {
     pub fn reset(&mut self) {
         self.lk.reset();
         self.prev_t = None;
-        self.prev_periods = 0.0;
+        self.prev_scale_dt = 0.0;
     }
 
     /// The longest interval a sample may span, ns: [`SignatureConfig::max_gap_ns`]
@@ -559,16 +560,20 @@ impl SignatureProcessor {
             // (a raw interval's share of a period rounds to a whole number too)
             self.recent_spans[self.recent_pos] = periods.round().clamp(1.0, 255.0) as u8;
             self.recent_pos = (self.recent_pos + 1) % RECENT_SPANS;
-            if self.prev_periods > 0.0 {
+            // the ratio of the intervals themselves, not of their periods: the
+            // interval that makes a new rate the period counts 1 period where the
+            // same interval counted 1.5 of the old one just before (and thousands of
+            // a backlog's sliver-sized period), though the frames came no closer
+            if self.prev_scale_dt > 0.0 {
                 self.lk
-                    .set_prediction_scale((periods / self.prev_periods) as f32);
+                    .set_prediction_scale((scale_dt / self.prev_scale_dt) as f32);
             }
-            self.prev_periods = periods;
+            self.prev_scale_dt = scale_dt;
             scaled = Some(scale_dt);
         }
         if reason.is_some() {
             self.lk.reset();
-            self.prev_periods = 0.0;
+            self.prev_scale_dt = 0.0;
         }
         // a pattern learnt on another frame size (also across a reset or an
         // error, after which the size change reads as a first frame) is void
@@ -1137,6 +1142,38 @@ mod tests {
         }
         assert!(values.iter().all(|&(_, v)| v < 200.0), "{values:?}");
         assert!(values.iter().any(|&(k, _)| k > 45), "{values:?}");
+    }
+
+    #[test]
+    fn fast_motion_stays_tracked_when_the_period_is_adopted_after_a_backlog() {
+        // 36 px a frame, beyond the 28 px the pyramid reaches from zero: every pair
+        // is tracked from its prediction. After a backlog the tracker adopts a
+        // sliver as the period, and the interval that adopts the camera's own rate
+        // again counted 1 period after 3 that counted some 240: a prediction scale
+        // of 1/240, every point started from nothing. The intervals themselves are
+        // equal, and so is the scale
+        let mut p = SignatureProcessor::new(SignatureConfig::default()).unwrap();
+        let p_ns = 33_333_333i64;
+        let mut t = 0;
+        let mut tracked = vec![];
+        for k in 0..50 {
+            if k > 0 {
+                t += match k {
+                    30 => 250_000_000,
+                    31..=37 => 140_000,
+                    _ => p_ns,
+                };
+            }
+            let dx = 36.0 * k as f32;
+            let f = crate::flow::tests::grain_frame(360, 240, move |x, y| (x + dx, y));
+            if let Step::Sample(s) = p.process(&f, FrameTime::Instant(t)).unwrap() {
+                tracked.push((k, s.stats.tracked, s.stats.points));
+            }
+        }
+        assert!(tracked.iter().any(|&(k, _, _)| k == 41), "{tracked:?}");
+        for &(k, n, of) in tracked.iter().filter(|&&(k, _, _)| k > 39) {
+            assert!(n * 2 > of, "frame {k}: {n} of {of} points tracked");
+        }
     }
 
     #[test]

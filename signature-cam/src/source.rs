@@ -64,6 +64,11 @@ pub trait FrameSource {
 /// 30 Hz).
 pub const MAX_UNUSABLE_IN_ROW: u32 = 30;
 
+/// Bytes kept for the last unusable frame's reason from the start, so that
+/// [`UnusableFrames::skip_fmt`] on a live stream's per-frame path writes it without
+/// allocating (a longer reason grows the room once).
+pub const REASON_ROOM: usize = 256;
+
 /// Counts the frames of a stream that could not be used (a live camera's corrupt
 /// buffer, a recording's undecodable image, a recording's malformed scan) and ends
 /// the stream after [`MAX_UNUSABLE_IN_ROW`] of them in a row: sporadic bad frames
@@ -75,6 +80,9 @@ pub const MAX_UNUSABLE_IN_ROW: u32 = 30;
 /// u.skip("buffer 3 flagged corrupt".into()).unwrap();
 /// u.used();
 /// assert_eq!(u.counts(), Some((1, "buffer 3 flagged corrupt")));
+/// // on a live stream's per-frame path: the reason written into the room kept
+/// u.skip_fmt(format_args!("buffer {} flagged corrupt", 9)).unwrap();
+/// assert_eq!(u.counts(), Some((2, "buffer 9 flagged corrupt")));
 /// ```
 #[derive(Debug, Clone)]
 pub struct UnusableFrames {
@@ -98,7 +106,7 @@ impl UnusableFrames {
             unit,
             total: 0,
             in_row: 0,
-            last: String::new(),
+            last: String::with_capacity(REASON_ROOM),
         }
     }
 
@@ -106,9 +114,26 @@ impl UnusableFrames {
     /// once [`MAX_UNUSABLE_IN_ROW`] came in a row, `Err` with the message that ends
     /// the stream (how many, and the last reason).
     pub fn skip(&mut self, reason: String) -> Result<(), String> {
+        self.last = reason;
+        self.count_skip()
+    }
+
+    /// As [`UnusableFrames::skip`], the reason written over the last one in place:
+    /// no allocation while it fits the room kept ([`REASON_ROOM`]), for a stream
+    /// that skips frames on its per-frame path (a USB camera's cut transfers). The
+    /// message that ends the stream is the one string made.
+    pub fn skip_fmt(&mut self, reason: std::fmt::Arguments<'_>) -> Result<(), String> {
+        use std::fmt::Write;
+        self.last.clear();
+        // writing into a String fails only if a Display impl does; the reason is
+        // then what was written of it
+        let _ = self.last.write_fmt(reason);
+        self.count_skip()
+    }
+
+    fn count_skip(&mut self) -> Result<(), String> {
         self.total = self.total.saturating_add(1);
         self.in_row = self.in_row.saturating_add(1);
-        self.last = reason;
         if self.in_row >= MAX_UNUSABLE_IN_ROW {
             return Err(format!(
                 "{} {} in a row unusable, the last: {}",

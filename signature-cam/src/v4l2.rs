@@ -61,10 +61,11 @@
 //!
 //! A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`, as USB cameras do
 //! when a transfer is cut) or one too short for its frame is skipped and counted
-//! ([`FrameSource::unusable`]); the signature then treats it as a dropped frame: the
-//! next frame pairs with the last good one over their true interval, or, past the
-//! signature's gap limit (`SignatureProcessor::gap_limit_ns`: `max_gap_ns`, or
-//! more periods of a slow camera), restarts the pair (a counted gap). Only
+//! ([`FrameSource::unusable`]; without an allocation: [`BufferFault`]); the
+//! signature then treats it as a dropped frame: the next frame pairs with the last
+//! good one over their true interval, or, past the signature's gap limit
+//! (`SignatureProcessor::gap_limit_ns`: `max_gap_ns`, or more periods of a slow
+//! camera), restarts the pair (a counted gap). Only
 //! [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) such buffers in a
 //! row (a second at 30 Hz: a device that delivers nothing usable) end the stream
 //! with an error saying why; a geometry the converter cannot read at all (a stride
@@ -92,7 +93,7 @@ use crate::image::GrayFrame;
 #[cfg(feature = "v4l2")]
 use crate::image::{PixelFormat, RawFrame};
 use crate::signature::FrameTime;
-use crate::source::FrameSource;
+use crate::source::{FrameSource, UnusableFrames};
 use crate::Error;
 use std::path::PathBuf;
 use vlsync_common::Nanos;
@@ -143,6 +144,39 @@ impl Default for V4l2Config {
 /// rather than the stream's format, which every frame would repeat.
 pub fn skippable(e: &Error) -> bool {
     matches!(e, Error::BufferSize { .. })
+}
+
+/// Why a dequeued buffer is skipped, found before conversion: a USB camera flags
+/// cut transfers routinely, so a skipped buffer is a per-frame event and makes no
+/// error value (its reason is written into [`UnusableFrames`]' room in place).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BufferFault {
+    /// Flagged `V4L2_BUF_FLAG_ERROR` by the driver.
+    Corrupt,
+    /// Fewer bytes used than the frame's geometry reads
+    /// ([`RawFrame::bytes_needed`](crate::image::RawFrame::bytes_needed)).
+    Short {
+        /// Bytes the driver filled.
+        used: usize,
+        /// Bytes the conversion reads.
+        need: usize,
+    },
+}
+
+impl BufferFault {
+    /// Counts buffer `sequence` as skipped for this fault, without allocating;
+    /// `Err` with the message that ends the stream once
+    /// [`MAX_UNUSABLE_IN_ROW`](crate::source::MAX_UNUSABLE_IN_ROW) came in a row.
+    pub fn skip(self, sequence: u32, unusable: &mut UnusableFrames) -> Result<(), String> {
+        match self {
+            Self::Corrupt => unusable.skip_fmt(format_args!(
+                "buffer {sequence} flagged corrupt by the driver"
+            )),
+            Self::Short { used, need } => unusable.skip_fmt(format_args!(
+                "buffer {sequence} too short: {used} bytes of the {need} its frame reads"
+            )),
+        }
+    }
 }
 
 /// A conversion error of the stream's format (every frame would repeat it), as an
@@ -580,8 +614,7 @@ mod imp {
         SizeOffered, StampPlan,
     };
     use super::*;
-    use crate::sequence_clock::{Restart, SequenceClock, BEHIND_RUN};
-    use crate::source::UnusableFrames;
+    use crate::sequence_clock::{Restart, SequenceClock};
     use std::collections::VecDeque;
     use std::path::Path;
     use v4l::buffer::Type;
@@ -662,7 +695,7 @@ mod imp {
         /// Frames stamped at dequeue: their times from the buffers' sequence numbers.
         sequence: SequenceClock,
         /// A restart of `sequence` for this reason was said already.
-        said_restart: [bool; 2],
+        said_restart: [bool; 3],
         /// What the opening negotiated.
         pub(super) negotiated: Negotiated,
         /// The opening's notes not yet taken.
@@ -941,7 +974,7 @@ mod imp {
                     None => StampCheck::new(decide_frames),
                 },
                 sequence: SequenceClock::with_buffers(buffers),
-                said_restart: [false; 2],
+                said_restart: [false; 3],
                 negotiated,
                 notes,
                 // all queued above: the first frame is dequeued unread
@@ -1023,9 +1056,8 @@ mod imp {
                 // the clock read at once: a dequeue stamp carries no conversion time
                 let now_ns = monotonic_ns();
                 if meta.flags.contains(v4l::buffer::Flags::ERROR) {
-                    let why = format!("buffer {} flagged corrupt by the driver", meta.sequence);
-                    self.unusable
-                        .skip(why)
+                    BufferFault::Corrupt
+                        .skip(meta.sequence, &mut self.unusable)
                         .map_err(|reason| device_error(path, reason))?;
                     continue;
                 }
@@ -1044,27 +1076,35 @@ mod imp {
                 };
                 if self.stamps.chosen() == Some(FrameStamps::Dequeue) {
                     t_ns = self.sequence.stamp(meta.sequence, now_ns);
-                    let said = &mut self.said_restart;
-                    let restart = self.sequence.take_restart();
-                    if let Some((slot, text)) = restart.and_then(|why| {
-                        restart_note(path, why, meta.sequence).filter(|(i, _)| !said[*i])
+                    if let Some(text) = self.sequence.take_restart().and_then(|why| {
+                        let limit = self.sequence.behind_limit();
+                        restart_note(path, why, meta.sequence, limit, &mut self.said_restart)
                     }) {
-                        said[slot] = true;
                         self.notes.push_back(text);
                     }
                 }
                 let used = (meta.bytesused as usize).min(buf.len());
                 let raw = RawFrame::new(&buf[..used], self.width, self.height, self.format)
                     .with_stride(self.stride);
+                // a short buffer (a cut transfer) is skipped on its length, before the
+                // conversion makes an error value of it; a geometry no buffer converts
+                // with is the conversion's error below
+                if let Ok(need) = raw.bytes_needed() {
+                    if used < need {
+                        BufferFault::Short { used, need }
+                            .skip(meta.sequence, &mut self.unusable)
+                            .map_err(|reason| device_error(path, reason))?;
+                        continue;
+                    }
+                }
                 match raw.to_gray_into(&mut self.gray) {
                     Ok(()) => {
                         self.unusable.used();
                         break t_ns;
                     }
                     Err(e) if skippable(&e) => {
-                        let why = format!("buffer {}: {e}", meta.sequence);
                         self.unusable
-                            .skip(why)
+                            .skip_fmt(format_args!("buffer {}: {e}", meta.sequence))
                             .map_err(|reason| device_error(path, reason))?;
                     }
                     // the frame's geometry, not one buffer: every frame would fail
@@ -1077,30 +1117,47 @@ mod imp {
         }
     }
 
-    /// The line on a restart of the dequeue stamps' line, with its slot in
-    /// `Inner::said_restart` (each kind is said once); none for a long pause (the
-    /// camera stopped delivering: said by the stall, if it lasts).
-    fn restart_note(path: &Path, why: Restart, sequence: u32) -> Option<(usize, String)> {
-        let path = path.display();
-        match why {
-            Restart::Repeated => Some((
-                0,
-                format!(
-                    "{path}: the buffers' sequence numbers do not count up (buffer {sequence} \
-                     came after one numbered the same or higher): frames are stamped at \
-                     their dequeue times as they are until they do (said once)"
-                ),
-            )),
-            Restart::Behind => Some((
-                1,
-                format!(
-                    "{path}: {BEHIND_RUN} frames in a row came more than half a frame period \
-                     after their line (the camera slowed down, or delivers later for good): \
-                     the frame period is measured again from buffer {sequence} (said once)"
-                ),
-            )),
-            Restart::Jump => None,
+    /// The line on a restart of the dequeue stamps' line, the first of its kind
+    /// (`said`, `Inner::said_restart`: each kind is said once, and made only then:
+    /// a driver that does not count restarts at every frame); none for a pause or a
+    /// long jump (the camera stopped delivering: said by the stall, if it lasts).
+    /// `behind_limit`: the run of late frames that restarts the line
+    /// ([`SequenceClock::behind_limit`]).
+    pub(in crate::v4l2) fn restart_note(
+        path: &Path,
+        why: Restart,
+        sequence: u32,
+        behind_limit: usize,
+        said: &mut [bool; 3],
+    ) -> Option<String> {
+        let slot = match why {
+            Restart::Repeated => 0,
+            Restart::Behind => 1,
+            Restart::Slower => 2,
+            Restart::Jump | Restart::Pause => return None,
+        };
+        if std::mem::replace(&mut said[slot], true) {
+            return None;
         }
+        let path = path.display();
+        Some(match why {
+            Restart::Repeated => format!(
+                "{path}: the buffers' sequence numbers do not count up (buffer {sequence} \
+                 came after one numbered the same or higher): frames are stamped at \
+                 their dequeue times as they are until they do (said once)"
+            ),
+            Restart::Behind => format!(
+                "{path}: {behind_limit} frames in a row came more than half a frame period \
+                 after their line (the camera slowed down, or delivers later for good): \
+                 the frame period is measured again from buffer {sequence} (said once)"
+            ),
+            // Restart::Slower (the others returned above)
+            _ => format!(
+                "{path}: two frames in a row came more than half a frame period later than \
+                 their sequence numbers say (the camera slowed down): the frame period is \
+                 measured again from buffer {sequence} (said once)"
+            ),
+        })
     }
 
     /// A size the `v4l` crate lists, as the pure choice takes it.
@@ -1232,6 +1289,37 @@ mod tests {
 
     const S: Nanos = 1_000_000_000;
     const MS: Nanos = 1_000_000;
+
+    #[cfg(feature = "v4l2")]
+    #[test]
+    fn a_restart_is_said_once_a_kind_with_the_run_that_made_it() {
+        use crate::sequence_clock::{Restart, SequenceClock};
+        let path = std::path::Path::new("/dev/video2");
+        let mut said = [false; 3];
+        // 12 buffers: the line restarts after 24 late frames, not BEHIND_RUN's 8
+        let limit = SequenceClock::with_buffers(12).behind_limit();
+        let note = imp::restart_note(path, Restart::Behind, 77, limit, &mut said).unwrap();
+        assert!(
+            note.starts_with("/dev/video2: 24 frames in a row came more than half"),
+            "{note}"
+        );
+        assert!(note.contains("from buffer 77"), "{note}");
+        assert_eq!(
+            imp::restart_note(path, Restart::Behind, 78, limit, &mut said),
+            None
+        );
+        let note = imp::restart_note(path, Restart::Slower, 90, limit, &mut said).unwrap();
+        assert!(note.contains("(the camera slowed down)"), "{note}");
+        assert!(imp::restart_note(path, Restart::Repeated, 3, limit, &mut said).is_some());
+        for why in [
+            Restart::Repeated,
+            Restart::Slower,
+            Restart::Jump,
+            Restart::Pause,
+        ] {
+            assert_eq!(imp::restart_note(path, why, 5, limit, &mut said), None);
+        }
+    }
 
     #[test]
     fn the_flags_name_the_clock() {

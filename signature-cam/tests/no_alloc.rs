@@ -79,3 +79,43 @@ fn steady_state_processing_allocates_nothing() {
         );
     }
 }
+
+#[test]
+fn skipped_camera_buffers_allocate_nothing() {
+    use vlsync_signature_cam::v4l2::BufferFault;
+    use vlsync_signature_cam::UnusableFrames;
+    // a USB camera flags cut transfers routinely: each skipped buffer is a
+    // per-frame event (the longest reasons: every number at its widest)
+    let mut u = UnusableFrames::named("buffers");
+    let before = allocs();
+    for k in 0..1000u32 {
+        let fault = if k % 2 == 0 {
+            BufferFault::Corrupt
+        } else {
+            BufferFault::Short {
+                used: usize::MAX - 1,
+                need: usize::MAX,
+            }
+        };
+        fault.skip(u32::MAX - k, &mut u).unwrap();
+        if k % 10 == 9 {
+            u.used();
+        }
+    }
+    assert_eq!(allocs() - before, 0, "allocations for 1000 skipped buffers");
+    let (n, last) = u.counts().unwrap();
+    assert_eq!(n, 1000);
+    assert!(
+        last.starts_with(&format!("buffer {} too short: ", u32::MAX - 999)),
+        "{last}"
+    );
+    // the error that ends the stream names the last reason
+    let e = (0..30)
+        .map(|k| BufferFault::Corrupt.skip(k, &mut u))
+        .find_map(Result::err)
+        .unwrap();
+    assert_eq!(
+        e,
+        "30 buffers in a row unusable, the last: buffer 29 flagged corrupt by the driver"
+    );
+}

@@ -411,6 +411,13 @@ pub struct Ld06Decoder {
     offset: u64,
     skip_run: u64,
     skip_run_start: u64,
+    /// Stream offset just past the last packet that failed its CRC: a 0x54 not
+    /// followed by 0x2C, or a skipped run, that starts before it lies in that
+    /// packet's bytes, whose CRC error is reported already, and is not counted or
+    /// reported again. (A whole header `54 2C` there is followed as a packet, and
+    /// its own CRC error counted: it may be a real packet that cut the failed one
+    /// short, as a lost run of bytes does.)
+    failed_until: u64,
     stats: Ld06Stats,
     last_error: Option<Ld06Error>,
 }
@@ -431,6 +438,7 @@ impl Ld06Decoder {
             offset: 0,
             skip_run: 0,
             skip_run_start: 0,
+            failed_until: 0,
             stats: Ld06Stats::default(),
             last_error: None,
         }
@@ -472,7 +480,10 @@ impl Ld06Decoder {
     fn end_skip_run(&mut self) {
         if self.skip_run > 0 {
             let (start, n) = (self.skip_run_start, self.skip_run);
-            self.error(start, Ld06ErrorKind::Garbage { skipped: n });
+            // a run inside a failed packet is part of its CRC error, already said
+            if start >= self.failed_until {
+                self.error(start, Ld06ErrorKind::Garbage { skipped: n });
+            }
             self.skip_run = 0;
         }
     }
@@ -504,8 +515,12 @@ impl Ld06Decoder {
                     self.buf[1] = b;
                     self.len = 2;
                 } else {
-                    self.stats.bad_ver_len += 1;
-                    self.error(self.buf_offset, Ld06ErrorKind::BadVerLen { found: b });
+                    // a 0x54 among a failed packet's bytes is data, not a header: the
+                    // packet's CRC error stands for it
+                    if self.buf_offset >= self.failed_until {
+                        self.stats.bad_ver_len += 1;
+                        self.error(self.buf_offset, Ld06ErrorKind::BadVerLen { found: b });
+                    }
                     self.len = 0;
                     // the false header byte is skipped; `b` may start a packet
                     self.stats.skipped_bytes += 1;
@@ -528,6 +543,7 @@ impl Ld06Decoder {
                     Err(kind) => {
                         self.stats.crc_errors += 1;
                         self.error(self.buf_offset, kind);
+                        self.failed_until = self.buf_offset + PACKET_LEN as u64;
                         self.stats.skipped_bytes += 1;
                         // rescan the 46 bytes after the false header; they
                         // cannot complete a packet, so no recursion beyond this
@@ -978,6 +994,43 @@ mod tests {
         let e = d.last_error().unwrap();
         assert_eq!(e.offset, 47 * 5);
         assert!(e.to_string().contains("byte offset 235"), "{e}");
+    }
+
+    #[test]
+    fn a_corrupted_packet_holding_a_header_byte_is_one_crc_error() {
+        // point 8's distance 0x1254 puts `54 12` at bytes 30-31: a 0x54 that the
+        // rescan of the failed packet meets, followed by no 0x2C
+        let mut s = stream(20);
+        let at = 47 * 5;
+        let mut p = Ld06Packet::decode(s[at..at + 47].try_into().unwrap()).unwrap();
+        p.points[8].distance_mm = 0x1254;
+        s[at..at + 47].copy_from_slice(&p.encode());
+        assert_eq!(s[at + 30..at + 32], [0x54, 0x12]);
+        // a corrupted byte anywhere after the header, before the 0x54 or after it
+        for byte in 2..47 {
+            let mut bad = s.clone();
+            bad[at + byte] ^= 0x10;
+            let mut d = Ld06Decoder::new();
+            let mut n = 0;
+            d.push(&bad, |_, _, _| n += 1);
+            assert_eq!(n, 19, "byte {byte}");
+            let st = d.stats();
+            assert_eq!(
+                (st.crc_errors, st.bad_ver_len),
+                (1, 0),
+                "byte {byte}: {st:?}"
+            );
+            let e = d.last_error().unwrap();
+            assert_eq!(e.offset, at as u64, "byte {byte}: {e}");
+            assert!(
+                matches!(e.kind, Ld06ErrorKind::Crc { .. }),
+                "byte {byte}: {e}"
+            );
+        }
+        // outside a failed packet, the same bytes are an error of their own
+        let mut d = Ld06Decoder::new();
+        d.push(&[0x54, 0x12], |_, _, _| {});
+        assert_eq!(d.stats().bad_ver_len, 1);
     }
 
     #[test]
