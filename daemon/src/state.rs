@@ -1088,6 +1088,39 @@ impl SaveThread {
     }
 }
 
+/// Writes `s` to `path` on a thread of its own, waiting up to `wait` for it (the
+/// stop's bound on its last save, which stalled storage must not stretch: systemd
+/// kills a stop past `TimeoutStopSec`); whether it was written (not when no thread
+/// could be made, said).
+fn last_save_within(path: &Path, s: SavedState, wait: Duration) -> bool {
+    let (tx, rx) = crossbeam::channel::bounded(1);
+    let owned = path.to_path_buf();
+    let spawned = std::thread::Builder::new()
+        .name("vlsync-state".into())
+        .spawn(move || {
+            let ok = report(&owned, save(&owned, &s), &mut None);
+            let _ = tx.send(ok);
+        });
+    if let Err(e) = spawned {
+        tracing::warn!(
+            "state file {}: no thread for the last save ({e})",
+            path.display()
+        );
+        return false;
+    }
+    match rx.recv_timeout(wait) {
+        Ok(ok) => ok,
+        Err(_) => {
+            tracing::warn!(
+                "state file {}: the last save was not written within {:.0} s (the storage stalls); stopping without it",
+                path.display(),
+                wait.as_secs_f64()
+            );
+            false
+        }
+    }
+}
+
 /// Logs the outcome of a save: an error once until a save succeeds again.
 fn report(path: &Path, r: Result<(), String>, last_error: &mut Option<String>) -> bool {
     match r {
@@ -1285,10 +1318,10 @@ impl Saver {
                     // the last save is written here, as `flush` does
                     Err(s) => {
                         tracing::error!(
-                            "state file {}: the saving thread has ended; the last save is written on the service thread",
+                            "state file {}: the saving thread has ended; the last save is written on a thread of its own",
                             self.path.display()
                         );
-                        return report(&self.path, save(&self.path, &s), &mut None);
+                        return last_save_within(&self.path, *s, wait);
                     }
                 };
                 if done.is_none() && had {
@@ -2246,6 +2279,45 @@ mod tests {
             .unwrap();
         assert_eq!(back.0.estimate.offset_s, est().offset_s);
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// ...and on stalled storage that last save is bounded by the stop's wait too
+    /// (the temporary file a FIFO nobody reads, as in `saver_over_a_fifo`): written on
+    /// the service thread, it held the stop until systemd's SIGKILL.
+    #[test]
+    fn the_last_save_after_the_saving_thread_ended_is_bounded() {
+        let d = dir("thread-gone-stalled");
+        let path = d.join("state");
+        let fifo = temp_path(&path);
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
+        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        drop(rx);
+        let (_done_tx, done) = crossbeam::channel::bounded(4);
+        sv.writer = Writer::Thread(SaveThread {
+            jobs: Some(jobs),
+            done,
+            handle: Some(std::thread::spawn(|| {})),
+        });
+        sv.offer(&est());
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let t0 = Instant::now();
+            let saved = sv.finish(Duration::from_millis(300));
+            let _ = tx.send((saved, t0.elapsed()));
+        });
+        let (saved, waited) = rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("the stop blocked on the last save");
+        assert!(!saved);
+        assert!(waited >= Duration::from_millis(300), "{waited:?}");
+        // release the writer (its bytes go nowhere)
+        let _ = std::fs::File::open(&fifo).map(|mut f| {
+            let mut sink = Vec::new();
+            let _ = f.read_to_end(&mut sink);
+        });
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

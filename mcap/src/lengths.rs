@@ -24,6 +24,10 @@ struct Fields<'a> {
     at: usize,
 }
 
+/// A field's name in parts ("length of ", "a key of ", "metadata"), joined only
+/// for an error: a walk that passes allocates nothing.
+type Name<'a> = [&'a str; 3];
+
 impl Fields<'_> {
     fn left(&self) -> usize {
         self.body.len() - self.at
@@ -31,10 +35,15 @@ impl Fields<'_> {
 
     /// Steps over `n` bytes of fixed fields ending with `what`.
     fn fixed(&mut self, n: usize, what: &str) -> Result<(), String> {
+        self.fixed_named(n, ["", "", what])
+    }
+
+    fn fixed_named(&mut self, n: usize, name: Name<'_>) -> Result<(), String> {
         if n > self.left() {
             return Err(format!(
-                "is {} bytes, cut in its {what} (at byte {} of the record)",
+                "is {} bytes, cut in its {} (at byte {} of the record)",
                 self.body.len(),
+                name.concat(),
                 self.at
             ));
         }
@@ -44,6 +53,10 @@ impl Fields<'_> {
 
     /// Steps over `n` bytes that a length prefix of `what` claims.
     fn claimed(&mut self, n: u64, what: &str, prefix_at: usize) -> Result<(), String> {
+        self.claimed_named(n, ["", "", what], prefix_at)
+    }
+
+    fn claimed_named(&mut self, n: u64, name: Name<'_>, prefix_at: usize) -> Result<(), String> {
         let left = self.left();
         match usize::try_from(n).ok().filter(|&n| n <= left) {
             Some(n) => {
@@ -51,22 +64,28 @@ impl Fields<'_> {
                 Ok(())
             }
             None => Err(format!(
-                "has {what} claiming {n} bytes (its length at byte {prefix_at} of the \
-                 record), the record has {left} more"
+                "has {} claiming {n} bytes (its length at byte {prefix_at} of the record), \
+                 the record has {left} more",
+                name.concat()
             )),
         }
     }
 
     fn u32(&mut self, what: &str) -> Result<u32, String> {
+        self.u32_named(["", "", what])
+    }
+
+    /// The u32 length of the field `name` (its "length of " put in front).
+    fn u32_named(&mut self, name: Name<'_>) -> Result<u32, String> {
         let at = self.at;
-        self.fixed(4, &format!("length of {what}"))?;
+        self.fixed_named(4, ["length of ", name[1], name[2]])?;
         let b = &self.body[at..at + 4];
         Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
 
     fn u64(&mut self, what: &str) -> Result<u64, String> {
         let at = self.at;
-        self.fixed(8, &format!("length of {what}"))?;
+        self.fixed_named(8, ["length of ", "", what])?;
         let mut b = [0u8; 8];
         b.copy_from_slice(&self.body[at..at + 8]);
         Ok(u64::from_le_bytes(b))
@@ -74,9 +93,13 @@ impl Fields<'_> {
 
     /// A string or byte array: u32 length, then that many bytes.
     fn bytes(&mut self, what: &str) -> Result<(), String> {
+        self.bytes_named(["", "", what])
+    }
+
+    fn bytes_named(&mut self, name: Name<'_>) -> Result<(), String> {
         let prefix_at = self.at;
-        let n = self.u32(what)?;
-        self.claimed(u64::from(n), what, prefix_at)
+        let n = self.u32_named(name)?;
+        self.claimed_named(u64::from(n), name, prefix_at)
     }
 
     /// A map of strings to strings: u32 length in bytes, then key and value
@@ -89,8 +112,8 @@ impl Fields<'_> {
         self.claimed(u64::from(n), what, prefix_at)?;
         self.at = start;
         while self.at - start < n as usize {
-            self.bytes(&format!("a key of {what}"))?;
-            self.bytes(&format!("a value of {what}"))?;
+            self.bytes_named(["", "a key of ", what])?;
+            self.bytes_named(["", "a value of ", what])?;
         }
         Ok(())
     }

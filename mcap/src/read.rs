@@ -120,7 +120,10 @@ enum Mode {
 /// record in it overruns it, or a message is too short for its header. The reader
 /// indexes a whole chunk before it yields any of its messages, so it would lose
 /// those before the fault; they are yielded from here as the linear walk yields
-/// them, then the fault.
+/// them, then the fault. The fault ends the read even when it is a short message of
+/// another topic, which a read from the start steps over: the indexed reader cannot
+/// be moved past a chunk it refused, so this topic's messages in later chunks are
+/// not reached (the error names the chunk and the record).
 struct Salvage {
     /// the chunk's records
     records: Vec<u8>,

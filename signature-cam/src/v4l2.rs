@@ -1153,9 +1153,10 @@ mod imp {
             ),
             // Restart::Slower (the others returned above)
             _ => format!(
-                "{path}: two frames in a row came more than half a frame period later than \
-                 their sequence numbers say (the camera slowed down): the frame period is \
-                 measured again from buffer {sequence} (said once)"
+                "{path}: {} frame intervals in a row were more than half a frame period \
+                 longer than their sequence numbers say (the camera slowed down): the frame \
+                 period is measured again from buffer {sequence} (said once)",
+                crate::sequence_clock::SLOW_RUN
             ),
         })
     }

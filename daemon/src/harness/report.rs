@@ -88,7 +88,8 @@ pub struct PhaseReport {
     pub received: [u64; 2],
     /// Samples lost (sequence gaps) `[cam, lidar]`.
     pub lost: [u64; 2],
-    /// Daemon CPU, % of one core.
+    /// Daemon CPU, % of one core (NaN for a phase under a second, cut short by a
+    /// stop: "-" in the table, null in JSON).
     pub daemon_cpu_pct: f64,
     /// Stalls injected and their mean measured length, ms.
     pub stalls: (usize, f64),
@@ -502,7 +503,7 @@ pub fn tables(reports: &[PhaseReport]) -> String {
     s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for r in reports {
         s.push_str(&format!(
-            "| {} | {} | {} | {} / {} | {}/{} | {}/{} | {}/{} | {:.2} | {} |\n",
+            "| {} | {} | {} | {} / {} | {}/{} | {}/{} | {}/{} | {} | {} |\n",
             r.name,
             us3(r.processing_ns),
             us3(r.end_to_end_ns),
@@ -514,7 +515,11 @@ pub fn tables(reports: &[PhaseReport]) -> String {
             r.received[1],
             r.lost[0],
             r.lost[1],
-            r.daemon_cpu_pct,
+            if r.daemon_cpu_pct.is_finite() {
+                format!("{:.2}", r.daemon_cpu_pct)
+            } else {
+                "-".into()
+            },
             if r.stalls.0 == 0 {
                 "-".into()
             } else {
