@@ -2207,20 +2207,27 @@ mod tests {
         assert!(!unchanged(&saved, &far));
     }
 
+    /// A saving thread that has ended (as after a panic): its job channel closed,
+    /// with `handle` as its join handle.
+    fn ended_save_thread(handle: Option<std::thread::JoinHandle<()>>) -> Writer {
+        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
+        drop(rx);
+        let (done_tx, done) = crossbeam::channel::bounded(4);
+        drop(done_tx);
+        Writer::Thread(SaveThread {
+            jobs: Some(jobs),
+            done,
+            handle,
+        })
+    }
+
     #[test]
     fn a_saving_thread_that_ended_hands_over_to_the_service_thread() {
         let d = dir("thread-gone");
         let path = d.join("state");
         let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
         // a thread that has ended (as after a panic): its job channel is closed
-        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
-        drop(rx);
-        let (_done_tx, done) = crossbeam::channel::bounded(4);
-        sv.writer = Writer::Thread(SaveThread {
-            jobs: Some(jobs),
-            done,
-            handle: None,
-        });
+        sv.writer = ended_save_thread(None);
         sv.offer(&est());
         assert!(sv.flush(), "saved on the service thread");
         assert!(matches!(sv.writer, Writer::Inline { .. }));
@@ -2264,14 +2271,7 @@ mod tests {
         let d = dir("thread-gone-at-stop");
         let path = d.join("state");
         let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
-        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
-        drop(rx);
-        let (_done_tx, done) = crossbeam::channel::bounded(4);
-        sv.writer = Writer::Thread(SaveThread {
-            jobs: Some(jobs),
-            done,
-            handle: Some(std::thread::spawn(|| {})),
-        });
+        sv.writer = ended_save_thread(Some(std::thread::spawn(|| {})));
         sv.offer(&est());
         assert!(sv.finish(Duration::from_secs(1)), "saved at the stop");
         let back = load(&path, "vlsync/robot", unix_now_ns(), 10.0)
@@ -2292,14 +2292,7 @@ mod tests {
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         assert!(made.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
         let mut sv = Saver::new(path.clone(), "vlsync/robot", Duration::ZERO);
-        let (jobs, rx) = crossbeam::channel::bounded::<SavedState>(1);
-        drop(rx);
-        let (_done_tx, done) = crossbeam::channel::bounded(4);
-        sv.writer = Writer::Thread(SaveThread {
-            jobs: Some(jobs),
-            done,
-            handle: Some(std::thread::spawn(|| {})),
-        });
+        sv.writer = ended_save_thread(Some(std::thread::spawn(|| {})));
         sv.offer(&est());
         let (tx, rx) = std::sync::mpsc::channel();
         std::thread::spawn(move || {

@@ -2197,12 +2197,10 @@ mod tests {
         }
     }
 
-    /// A receive that fails after `wait_all` took estimates: they are returned, and
-    /// the failure is the next call's error (it used to be returned at once, the
-    /// estimates, taken off the subscriber, lost).
-    #[test]
-    fn wait_all_keeps_what_it_took_before_a_failed_receive() {
-        let names = ServiceNames::new(&unique_prefix("keep-taken")).unwrap();
+    /// Three estimates pending on a fresh offset service; a `wait_all` whose third
+    /// receive fails returns the first two (the failure kept); then `after`.
+    fn two_taken_then_a_failure(tag: &str, after: impl FnOnce(&mut OffsetClient)) {
+        let names = ServiceNames::new(&unique_prefix(tag)).unwrap();
         let node = create_node("test-daemon", false).unwrap();
         let svc =
             open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
@@ -2221,12 +2219,22 @@ mod tests {
             .map(|(e, _)| e.seq)
             .collect();
         assert_eq!(got, vec![1, 2]);
-        let e = c.wait_all(Duration::from_secs(1)).unwrap_err();
-        assert!(e.to_string().contains("ExceedsMaxBorrows"), "{e}");
-        // reported once; the receives work again
-        c.receive = receive_copy;
-        let got = c.wait_all(Duration::from_secs(1)).unwrap();
-        assert_eq!(got.iter().map(|(e, _)| e.seq).collect::<Vec<_>>(), vec![3]);
+        after(&mut c);
+    }
+
+    /// A receive that fails after `wait_all` took estimates: they are returned, and
+    /// the failure is the next call's error (it used to be returned at once, the
+    /// estimates, taken off the subscriber, lost).
+    #[test]
+    fn wait_all_keeps_what_it_took_before_a_failed_receive() {
+        two_taken_then_a_failure("keep-taken", |c| {
+            let e = c.wait_all(Duration::from_secs(1)).unwrap_err();
+            assert!(e.to_string().contains("ExceedsMaxBorrows"), "{e}");
+            // reported once; the receives work again
+            c.receive = receive_copy;
+            let got = c.wait_all(Duration::from_secs(1)).unwrap();
+            assert_eq!(got.iter().map(|(e, _)| e.seq).collect::<Vec<_>>(), vec![3]);
+        });
     }
 
     /// `latest` after a `wait_all` that kept a receive failure drains what is
@@ -2234,21 +2242,10 @@ mod tests {
     /// drain: a conversion used the older estimate with a newer one waiting).
     #[test]
     fn latest_after_a_kept_failure_still_drains() {
-        let names = ServiceNames::new(&unique_prefix("keep-latest")).unwrap();
-        let node = create_node("test-daemon", false).unwrap();
-        let svc =
-            open_or_create_pubsub::<OffsetEstimate>(&node, &names.offset(), Qos::latest()).unwrap();
-        let publ = publisher(&svc, "offset").unwrap();
-        let mut c = OffsetClient::open(&names.prefix).unwrap();
-        for (seq, publish) in [(1, 10), (2, 20), (3, 30)] {
-            publ.send_copy(OffsetEstimate::from_estimate(&estimate(seq), publish).unwrap())
-                .unwrap();
-        }
-        c.receive = failing_receive;
-        RECEIVES_LEFT.set(2);
-        assert_eq!(c.wait_all(Duration::from_secs(1)).unwrap().len(), 2);
-        c.receive = receive_copy;
-        assert_eq!(c.latest().map(|e| e.seq), Some(3));
+        two_taken_then_a_failure("keep-latest", |c| {
+            c.receive = receive_copy;
+            assert_eq!(c.latest().map(|e| e.seq), Some(3));
+        });
     }
 
     /// The same for the status: what a call took is its result and a failed receive
