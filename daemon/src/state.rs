@@ -1090,9 +1090,10 @@ impl SaveThread {
 
 /// Writes `s` to `path` on a thread of its own, waiting up to `wait` for it (the
 /// stop's bound on its last save, which stalled storage must not stretch: systemd
-/// kills a stop past `TimeoutStopSec`); whether it was written (not when no thread
-/// could be made, said).
-fn last_save_within(path: &Path, s: SavedState, wait: Duration) -> bool {
+/// kills a stop past `TimeoutStopSec`): `None` when it was not written in time (the
+/// caller says so, as for the saving thread's own last save), else whether it was
+/// written (not when no thread could be made, said).
+fn last_save_within(path: &Path, s: SavedState, wait: Duration) -> Option<bool> {
     let (tx, rx) = crossbeam::channel::bounded(1);
     let owned = path.to_path_buf();
     let spawned = std::thread::Builder::new()
@@ -1106,19 +1107,9 @@ fn last_save_within(path: &Path, s: SavedState, wait: Duration) -> bool {
             "state file {}: no thread for the last save ({e})",
             path.display()
         );
-        return false;
+        return Some(false);
     }
-    match rx.recv_timeout(wait) {
-        Ok(ok) => ok,
-        Err(_) => {
-            tracing::warn!(
-                "state file {}: the last save was not written within {:.0} s (the storage stalls); stopping without it",
-                path.display(),
-                wait.as_secs_f64()
-            );
-            false
-        }
-    }
+    rx.recv_timeout(wait).ok()
 }
 
 /// Logs the outcome of a save: an error once until a save succeeds again.
@@ -1321,7 +1312,7 @@ impl Saver {
                             "state file {}: the saving thread has ended; the last save is written on a thread of its own",
                             self.path.display()
                         );
-                        return last_save_within(&self.path, *s, wait);
+                        last_save_within(&self.path, *s, wait)
                     }
                 };
                 if done.is_none() && had {
